@@ -1,0 +1,125 @@
+r'''The renderer adapter interface shared by every renderer, and its registry
+
+SYNOPSIS
+
+    from renderers.base import get_renderer, RenderSettings
+
+    r = get_renderer("raycast")
+    result = r.render(model, target.pattern(), Rt_cam_board, RenderSettings(spp=16))
+    # result.image has shape (height,width), float32 in [0,1]
+    # result.metadata: renderer, version, settings, seconds, samples
+
+A renderer is anything with this shape (typing.Protocol: subclassing is
+optional). `model` is a reference_models camera model; the scene is a plain
+value (targets.pattern.Pattern for boards; terrain scenes later);
+Rt_cam_board (4,3) places the board in the model's camera frame
+(model.Rt_ref_cam()), so board points map to the model's world frame by
+Rt_ref_board = compose(model.Rt_ref_cam(), Rt_cam_board).
+
+The registry is a dict of lazy specs "module:Class": a backend (POV-Ray,
+OSMesa) is imported only when chosen. Python packages add renderers under the
+entry-point group "camval.renderers". A backend that cannot work on this
+machine raises RendererUnavailableError at construction, with the fix.
+'''
+
+import dataclasses
+import importlib
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+from reference_models.errors import CamvalError
+
+ENTRY_POINT_GROUP = "camval.renderers"
+
+# name -> "module:Class"
+BUILTIN_RENDERERS = {
+    "raycast": "renderers.raycast:RaycastRenderer",
+    "povray": "renderers.povray:PovrayRenderer",
+    "osmesa": "renderers.osmesa:OSMesaRenderer",
+    "command": "renderers.command:CommandRenderer",
+}
+
+
+class RendererError(CamvalError):
+    '''A renderer that failed on a job (recorded as a failed result by campaigns).'''
+
+
+class UnknownRendererError(CamvalError):
+    pass
+
+
+class RendererUnavailableError(RendererError):
+    '''A renderer whose backend is missing on this machine; the message says the fix.'''
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    r'''How to render
+
+spp:      K, the renderer samples K x K points per pixel (area-coverage anti-aliasing)
+adaptive: supersample only the pixels where the scene changes (same result as full)
+options:  renderer-specific settings (e.g. a camera path, legacy defects)
+'''
+
+    spp: int = 16
+    adaptive: bool = True
+    options: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if isinstance(self.spp, bool) or not isinstance(self.spp, int) or self.spp < 1:
+            raise CamvalError(f"supersampling K must be a positive integer; got {self.spp!r}")
+
+    def as_dict(self):
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True, eq=False)
+class RenderResult:
+    image: Any  # np.ndarray float32 (height, width) in [0,1]
+    metadata: dict
+
+
+@runtime_checkable
+class Renderer(Protocol):
+    name: str
+
+    def version(self) -> str: ...
+
+    def render(self, model, scene, Rt_cam_board, settings: RenderSettings) -> RenderResult: ...
+
+
+def _entry_point_renderers():
+    from importlib.metadata import entry_points
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def known_renderers():
+    r'''{name: source} of every renderer: built-in ones and entry-point plugins'''
+    out = {name: f"built-in ({spec})" for name, spec in BUILTIN_RENDERERS.items()}
+    for name, ep in _entry_point_renderers().items():
+        out.setdefault(name, f"plugin ({ep.value}, package {ep.dist.name if ep.dist else '?'})")
+    return out
+
+
+def renderer_class(name):
+    if name in BUILTIN_RENDERERS:
+        modname, clsname = BUILTIN_RENDERERS[name].split(":")
+        try:
+            mod = importlib.import_module(modname)
+        except ModuleNotFoundError as e:
+            if e.name == modname:
+                raise RendererUnavailableError(
+                    f"renderer {name!r} is not implemented in this version of camval") from None
+            raise
+        return getattr(mod, clsname)
+    plugins = _entry_point_renderers()
+    if name in plugins:
+        return plugins[name].load()
+    raise UnknownRendererError(
+        f"unknown renderer {name!r}; known renderers: {', '.join(sorted(known_renderers()))}")
+
+
+def get_renderer(name, **options):
+    r'''Construct the renderer called `name` (raises RendererUnavailableError with the fix
+when its backend is missing here)'''
+    return renderer_class(name)(**options)

@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Installs everything camval needs on a fresh Debian 12 machine of this kind:
+# uv (with pip, if missing), the Debian packages of the renderers and the
+# report check, and the locked Python environment.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if ! command -v uv >/dev/null 2>&1; then
+    python3 -m pip install --quiet uv || pip install --quiet uv
+fi
+need=()
+command -v povray >/dev/null 2>&1 || need+=(povray)
+[ -e /usr/lib/x86_64-linux-gnu/libOSMesa.so.8 ] || ls /usr/lib/*/libOSMesa.so* >/dev/null 2>&1 || need+=(libosmesa6)
+command -v chromium >/dev/null 2>&1 || need+=(chromium)
+if [ ${#need[@]} -gt 0 ]; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        echo "camval setup: installing Debian packages: ${need[*]}" >&2
+        (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null) \
+            || echo "camval setup: could not install ${need[*]}; the tests of those renderers will skip with the reason" >&2
+    else
+        echo "camval setup: missing Debian packages ${need[*]} (run as root: apt-get install ${need[*]})" >&2
+    fi
+fi
+uv sync --frozen --quiet
