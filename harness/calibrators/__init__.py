@@ -1,0 +1,118 @@
+r'''Reference calibrators: a registry and the calibrate() dispatcher
+
+SYNOPSIS
+
+    from harness.calibrators import calibrate, known_calibrators
+
+    result = calibrate("jpl", observations, target, "CAHVOR", truth=truth_model)
+    # result: harness.calibrators.base.CalibrationResult
+
+Calibrators are modules named in CALIBRATORS (a plain dict of lazy specs: the
+library behind one is imported only when it is chosen). Each module has NAME,
+MODELS (the model names it can fit), library_version() and
+fit(observations, target, model_name, truth=None, **options) returning a
+CalibrationResult; fit() may raise base.CalibrationFailed to end with a
+failed result.
+
+calibrate() never raises for a failure of the method: a model the calibrator
+cannot fit gives status "not-applicable", a failure or an exception inside
+the library gives status "failed" with the reason. Bad input (an unknown
+calibrator, inconsistent observations) raises a CalibratorError.
+'''
+
+import importlib
+import time
+
+from .base import (
+    CalibrationFailed,
+    CalibrationResult,
+    CalibratorError,
+    Observations,
+    UnknownCalibratorError,
+)
+
+__all__ = ["calibrate", "known_calibrators", "calibrator_module", "models_of",
+           "CalibrationResult", "Observations", "CalibratorError"]
+
+CALIBRATORS = {
+    "jpl": "harness.calibrators.jpl_fit",
+    "mrcal": "harness.calibrators.mrcal_fit",
+    "opencv": "harness.calibrators.opencv_fit",
+    "colmap": "harness.calibrators.colmap_fit",
+}
+
+
+def known_calibrators():
+    return tuple(CALIBRATORS)
+
+
+def calibrator_module(name):
+    if name not in CALIBRATORS:
+        raise UnknownCalibratorError(
+            f"unknown calibrator {name!r}; known calibrators: {', '.join(CALIBRATORS)}")
+    return importlib.import_module(CALIBRATORS[name])
+
+
+def models_of(name):
+    r'''The model names calibrator `name` can fit'''
+    return tuple(calibrator_module(name).MODELS)
+
+
+def calibrate(name, observations, target, model_family, truth=None, **options):
+    r'''Calibrate with calibrator `name`; failures are returned, not raised
+
+SYNOPSIS
+
+    result = calibrate("mrcal", obs, target, "CAHVORE", truth=truth, known_poses=False)
+
+ARGUMENTS
+
+- name: "jpl" | "mrcal" | "opencv" | "colmap"
+- observations: base.Observations
+- target: targets.boards.Target (or anything with points() and pattern()), or
+  None (no dot-centroid bias correction then)
+- model_family: a name from models_of(name), e.g. "CAHVOR", "OPENCV5"
+- truth: the true model; only its CAHVORE type and linearity are used
+- options: calibrator-specific (see each module's fit())
+
+RETURNED VALUE
+
+A CalibrationResult; status "ok", "failed" or "not-applicable".
+'''
+    mod = calibrator_module(name)
+    if not isinstance(observations, Observations):
+        raise CalibratorError(f"observations must be a harness.calibrators.base.Observations; "
+                              f"got {type(observations).__name__}")
+    version = _version(mod)
+    common = dict(calibrator=name, model_name=str(model_family), library=mod.LIBRARY,
+                  library_version=version)
+    canonical = mod.canonical_model(model_family) if hasattr(mod, "canonical_model") \
+        else model_family
+    if canonical not in mod.MODELS:
+        return CalibrationResult(
+            status="not-applicable",
+            reason=f"{name} cannot fit a {model_family!r} model; it fits {', '.join(mod.MODELS)}",
+            **common)
+    t0 = time.perf_counter()
+    try:
+        result = mod.fit(observations, target, canonical, truth=truth, **options)
+    except CalibrationFailed as e:
+        return CalibrationResult(status="failed", reason=str(e),
+                                 seconds=time.perf_counter() - t0, **common)
+    except CalibratorError:
+        raise
+    except Exception as e:  # a library that throws is a failed method, not a crash
+        return CalibrationResult(
+            status="failed",
+            reason=f"exception inside {mod.LIBRARY}: {type(e).__name__}: {e}".splitlines()[0],
+            seconds=time.perf_counter() - t0, **common)
+    if not result.seconds:
+        result = result.replace(seconds=time.perf_counter() - t0)
+    return result
+
+
+def _version(mod):
+    try:
+        return mod.library_version()
+    except Exception as e:
+        return f"unknown ({type(e).__name__})"

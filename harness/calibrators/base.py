@@ -1,0 +1,267 @@
+r'''What every calibrator is given and what it returns
+
+SYNOPSIS
+
+    from harness.calibrators.base import Observations, CalibrationResult
+
+    obs = Observations(q=q, p_board=p_board, imagersize=(1024, 1024),
+                       Rt_ref_board=Rt_ref_board)
+    # q has shape (Nposes,Npoints,2): detected pixels, NaN where not found
+    # p_board has shape (Npoints,3): the surveyed target points, board frame
+    # Rt_ref_board has shape (Nposes,4,3) or is None: surveyed board poses
+
+    result = calibrate("jpl", obs, target, "CAHVOR")
+    result.status            # "ok" | "failed" | "not-applicable"
+    result.model             # fitted model (its own family), or None
+    result.residuals         # (Nposes,Npoints,2) px, NaN where not observed
+
+What each calibrator may use:
+
+- q, p_board, imagersize: always. They are what a real calibration has: the
+  detections and the target's surveyed geometry.
+- Rt_ref_board, the board poses in the world ("ref") frame: the paper's JPL
+  procedure surveyed the target, so the 3D position of every dot in the
+  world frame is known. The jpl calibrator requires them and fits C, A, H, V,
+  O, R, E directly from 3D-2D pairs (the fitted camera lives in the world
+  frame). mrcal, OpenCV and COLMAP ignore them by default and estimate the
+  board poses themselves (the usual calibration); with the option
+  known_poses=True they hold the boards at Rt_ref_board and fit the camera's
+  pose instead.
+- target: the target definition (targets.boards.Target), used only for the
+  dot-centroid bias correction (the dots' radius) and for the calibrators'
+  grid layout (mrcal wants a regular grid).
+- truth: used ONLY for what the paper also fixed from outside the data: the
+  CAHVORE type and linearity. No calibrator reads the truth's C, A, H, V, O,
+  R or E.
+
+A method that fails (too few points, degenerate poses, divergence, an
+exception inside the library) returns a CalibrationResult with status
+"failed" and a one-line reason; a model the calibrator cannot fit returns
+"not-applicable". Neither raises.
+'''
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from reference_models.errors import CamvalError
+
+STATUSES = ("ok", "failed", "not-applicable")
+
+
+class CalibratorError(CamvalError):
+    '''Bad input to a calibrator (inconsistent shapes, unknown calibrator or model).'''
+
+
+class UnknownCalibratorError(CalibratorError):
+    pass
+
+
+class CalibrationFailed(Exception):
+    r'''Raised inside a calibrator to end it with status "failed" and this reason
+
+Never escapes calibrate(): the dispatcher turns it into a failed result.
+'''
+
+
+@dataclass(frozen=True, eq=False)
+class Observations:
+    r'''Detections of a planar target in several poses, with the target's geometry
+
+q:            (Nposes,Npoints,2) float64 detected pixels; NaN where not found
+p_board:      (Npoints,3) or (Nposes,Npoints,3) float64 target points, board frame
+imagersize:   (width, height)
+Rt_ref_board: (Nposes,4,3) surveyed board poses in the world frame, or None
+point_ids:    (Npoints,) ids of the points (for the record), or None
+'''
+
+    q: np.ndarray
+    p_board: np.ndarray
+    imagersize: tuple
+    Rt_ref_board: np.ndarray = None
+    point_ids: np.ndarray = None
+
+    def __post_init__(self):
+        q = np.array(self.q, dtype=np.float64)
+        if q.ndim != 3 or q.shape[-1] != 2:
+            raise CalibratorError(f"observations q must have shape (Nposes,Npoints,2); "
+                                  f"got {q.shape}")
+        p = np.array(self.p_board, dtype=np.float64)
+        if p.ndim == 2:
+            p = np.broadcast_to(p, (q.shape[0],) + p.shape).copy()
+        if p.shape != q.shape[:2] + (3,):
+            raise CalibratorError(f"p_board must have shape (Npoints,3) or (Nposes,Npoints,3) "
+                                  f"matching q {q.shape}; got {np.shape(self.p_board)}")
+        if not np.all(np.isfinite(p)):
+            raise CalibratorError("p_board has non-finite values; expected the surveyed "
+                                  "3D points of every target point")
+        object.__setattr__(self, "q", q)
+        object.__setattr__(self, "p_board", p)
+        w, h = (int(x) for x in self.imagersize)
+        if w <= 0 or h <= 0:
+            raise CalibratorError(f"imagersize must be positive; got {self.imagersize!r}")
+        object.__setattr__(self, "imagersize", (w, h))
+        if self.Rt_ref_board is not None:
+            Rt = np.array(self.Rt_ref_board, dtype=np.float64)
+            if Rt.shape != (q.shape[0], 4, 3):
+                raise CalibratorError(f"Rt_ref_board must have shape (Nposes,4,3) = "
+                                      f"({q.shape[0]},4,3); got {Rt.shape}")
+            object.__setattr__(self, "Rt_ref_board", Rt)
+
+    @property
+    def Nposes(self):
+        return self.q.shape[0]
+
+    @property
+    def Npoints(self):
+        return self.q.shape[1]
+
+    @property
+    def found(self):
+        r'''(Nposes,Npoints) bool: the point was detected'''
+        return np.all(np.isfinite(self.q), axis=-1)
+
+    @property
+    def has_world_points(self):
+        return self.Rt_ref_board is not None
+
+    def p_ref(self):
+        r'''The surveyed target points in the world frame
+
+SYNOPSIS
+
+    p = obs.p_ref()   # (Nposes,Npoints,3); needs Rt_ref_board
+'''
+        if self.Rt_ref_board is None:
+            raise CalibratorError("the board poses Rt_ref_board are not known; the world "
+                                  "points of the target need them")
+        R = self.Rt_ref_board[:, :3, :]
+        t = self.Rt_ref_board[:, 3, :]
+        return np.einsum("fij,fnj->fni", R, self.p_board) + t[:, None, :]
+
+    def replace(self, **changes):
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationResult:
+    r'''What a calibrator returns
+
+calibrator:     "jpl" | "mrcal" | "opencv" | "colmap"
+model_name:     the model asked for ("CAHVOR", "OPENCV5", ...)
+status:         "ok" | "failed" | "not-applicable"
+reason:         why not ok ("" when ok)
+model:          the fitted model in the calibrator's own family (a reference_models
+                CAHV/CAHVOR/CAHVORE, or an object with project(p), Rt_ref_cam(),
+                width, height, family), None when not ok
+residuals:      (Nposes,Npoints,2) px (observed - projected), NaN where not observed
+Rt_cam_board:   (Nposes,4,3) board poses in the fitted camera's frame, or None
+iterations:     solver iterations (or function evaluations when that is all we get)
+seconds:        wall time of the fit
+library:        name of the library that did the fit; library_version its version
+info:           calibrator-specific figures (first pass, coefficients, options)
+'''
+
+    calibrator: str
+    model_name: str
+    status: str
+    reason: str = ""
+    model: Any = None
+    residuals: np.ndarray = None
+    Rt_cam_board: np.ndarray = None
+    iterations: int = 0
+    seconds: float = 0.0
+    library: str = ""
+    library_version: str = ""
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.status not in STATUSES:
+            raise CalibratorError(f"status {self.status!r} is not one of {STATUSES}")
+
+    @property
+    def ok(self):
+        return self.status == "ok"
+
+    @property
+    def residual_norms(self):
+        r'''(Nposes,Npoints) |residual| per point, px; NaN where not observed'''
+        if self.residuals is None:
+            return None
+        return np.linalg.norm(self.residuals, axis=-1)
+
+    def residual_stats(self):
+        r'''min, max and RMS of the per-point residual norms (the paper's Fig. 3), px'''
+        return residual_stats(self.residuals)
+
+    def replace(self, **changes):
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self):
+        r'''A JSON-serialisable summary (no model object; NaN become None)'''
+        out = {
+            "calibrator": self.calibrator,
+            "model_name": self.model_name,
+            "status": self.status,
+            "reason": self.reason,
+            "family": getattr(self.model, "family", None),
+            "iterations": int(self.iterations),
+            "seconds": float(self.seconds),
+            "library": self.library,
+            "library_version": self.library_version,
+            "residuals": self.residual_stats(),
+            "info": jsonable(self.info),
+        }
+        return out
+
+
+def residual_stats(residuals):
+    r'''min, max and RMS over points of the residual norms
+
+SYNOPSIS
+
+    s = residual_stats(residuals)   # residuals (...,2), NaN rows ignored
+    # {"n": int, "min": px, "max": px, "rms": px, "mean": px}
+'''
+    if residuals is None:
+        return None
+    r = np.linalg.norm(np.asarray(residuals, dtype=np.float64).reshape(-1, 2), axis=-1)
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        return {"n": 0, "min": None, "max": None, "rms": None, "mean": None}
+    return {"n": int(r.size), "min": float(r.min()), "max": float(r.max()),
+            "rms": float(math.sqrt(np.mean(r * r))), "mean": float(r.mean())}
+
+
+def jsonable(x):
+    r'''Convert numpy values (recursively) to plain JSON values; NaN/inf -> None'''
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        x = float(x)
+        return x if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+@runtime_checkable
+class Calibrator(Protocol):
+    r'''A calibrator adapter: a module (or object) with these attributes'''
+
+    NAME: str
+    MODELS: tuple
+
+    def library_version(self) -> str: ...
+
+    def calibrate(self, observations, target, model_name, truth=None,
+                  **options) -> CalibrationResult: ...

@@ -1,0 +1,104 @@
+r'''The dot-centroid bias: where a projected dot's centroid lies vs its centre
+
+SYNOPSIS
+
+    from harness.calibrators.bias import centroid_bias
+
+    b = centroid_bias(model, target, Rt_cam_board)
+    # b has shape (Npoints,2): expected centroid - projection of the centre, px
+    q_corrected = q_detected - b
+
+The centroid of a projected dot is not the projection of its centre
+(perspective and distortion: 0.1 px mean, 0.3 px max on a navcam). The
+paper's second pass subtracts this offset, computed with the CURRENT estimate
+of model and pose, from each detection and solves again.
+
+targets.centroids.expected_centroids is used when that module exists and the
+model is a JPL model; otherwise the outline of each dot (a circle of the
+target's dot radius about the point, in the board plane) is projected at
+NOUTLINE points and the area centroid of the projected polygon is taken. Any
+model with project(p) and Rt_ref_cam() works (OpenCV, COLMAP fits included).
+'''
+
+import numpy as np
+
+NOUTLINE = 1440
+
+
+def dot_radii(target, p_board):
+    r'''The radius (m) of the dot centred at each point, or None if the target has no dots
+
+SYNOPSIS
+
+    r = dot_radii(target, p_board)   # p_board (Npoints,3); r (Npoints,)
+'''
+    if target is None or getattr(target, "kind", "dots") != "dots":
+        return None
+    circles = getattr(target.pattern(), "circles", None)
+    if circles is None or len(circles) == 0:
+        return None
+    circles = np.asarray(circles, dtype=np.float64)
+    d2 = ((p_board[:, None, :2] - circles[None, :, :2]) ** 2).sum(axis=-1)
+    i = np.argmin(d2, axis=-1)
+    if np.any(d2[np.arange(len(i)), i] > 1e-12):
+        return None
+    return circles[i, 2]
+
+
+def _transform(Rt, p):
+    return p @ Rt[:3].T + Rt[3]
+
+
+def project_from_cam(model, p_cam):
+    r'''Project points given in the model's camera frame (model.Rt_ref_cam())'''
+    return model.project(_transform(model.Rt_ref_cam(), p_cam))
+
+
+def outline_centroids(model, p_board, radii, Rt_cam_board, noutline=NOUTLINE):
+    r'''Area centroids of the projected outlines of circular dots
+
+SYNOPSIS
+
+    q = outline_centroids(model, p_board, radii, Rt_cam_board)
+    # p_board (Npoints,3) dot centres in the board plane, radii (Npoints,);
+    # q (Npoints,2); NaN for a dot not wholly projectable
+'''
+    phi = np.linspace(0.0, 2.0 * np.pi, noutline, endpoint=False)
+    ring = np.stack((np.cos(phi), np.sin(phi), np.zeros_like(phi)), axis=-1)
+    outline = p_board[:, None, :] + radii[:, None, None] * ring[None]
+    q = project_from_cam(model, _transform(Rt_cam_board, outline))
+    x, y = q[..., 0], q[..., 1]
+    x1, y1 = np.roll(x, -1, axis=-1), np.roll(y, -1, axis=-1)
+    cross = x * y1 - x1 * y
+    area = cross.sum(axis=-1) / 2.0
+    cx = ((x + x1) * cross).sum(axis=-1) / (6.0 * area)
+    cy = ((y + y1) * cross).sum(axis=-1) / (6.0 * area)
+    return np.stack((cx, cy), axis=-1)
+
+
+def centroid_bias(model, target, Rt_cam_board, p_board=None):
+    r'''expected centroid - projected centre of each dot, px; None if the target has no dots
+
+SYNOPSIS
+
+    b = centroid_bias(model, target, Rt_cam_board)   # (Npoints,2)
+'''
+    if p_board is None:
+        p_board = np.asarray(target.points(), dtype=np.float64)
+    radii = dot_radii(target, p_board)
+    if radii is None:
+        return None
+    centres = project_from_cam(model, _transform(Rt_cam_board, p_board))
+    expected = None
+    if getattr(model, "family", None) in ("CAHV", "CAHVOR", "CAHVORE") \
+            and len(p_board) == len(target.points()):
+        try:
+            from targets.centroids import expected_centroids
+        except ImportError:
+            expected_centroids = None
+        if expected_centroids is not None:
+            expected = np.asarray(expected_centroids(model, target, Rt_cam_board),
+                                  dtype=np.float64)
+    if expected is None:
+        expected = outline_centroids(model, p_board, radii, Rt_cam_board)
+    return expected - centres

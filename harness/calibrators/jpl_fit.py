@@ -1,0 +1,337 @@
+r'''The paper's JPL calibration: CAHV / CAHVOR / CAHVORE from surveyed 3D points
+
+SYNOPSIS
+
+    from harness.calibrators import calibrate
+
+    result = calibrate("jpl", obs, target, "CAHVORE", truth=truth)
+    # obs.Rt_ref_board is required: the target was surveyed, so each dot's 3D
+    # position in the world frame is known; result.model is a CAHVORE in that frame
+
+    from harness.calibrators.jpl_fit import dlt_cahv, fit_model
+    cahv = dlt_cahv(p, q, width, height)     # p (N,3) world points, q (N,2) pixels
+    model, info = fit_model(p, q, "CAHVOR", width, height)
+
+What this calibrator is given: the detections q and the world coordinates of
+every target point (Observations.p_ref(), from the surveyed board poses
+Rt_ref_board). It estimates no board pose: C, A, H, V, O, R, E are fitted
+directly to the 3D-2D pairs. From the truth it takes only the CAHVORE type
+and linearity (which the paper also fixed).
+
+The procedure:
+
+1. CAHV by linear initialisation: the direct linear transform (Hartley
+   normalisation, SVD) gives the 3x4 projection matrix, whose rows scaled so
+   that the third has unit norm are [H, -H.C], [V, -V.C], [A, -A.C]; C is its
+   null vector.
+2. Nonlinear least squares (scipy.optimize.least_squares, Levenberg-Marquardt,
+   finite-difference Jacobian) over C, A, H, V: 12 numbers (11 degrees of
+   freedom: A is a unit vector, moved in its tangent plane and renormalised).
+   H and V are independent 3-vectors, so theta is free: this is the only
+   calibrator that can recover theta.
+3. CAHVOR from the CAHV fit with O = A, R = 0 (O a unit vector like A), then
+   CAHVORE from the CAHVOR fit with E = 0, type and linearity fixed.
+4. Second pass (bias_correction=True): each detection is corrected by the
+   dot-centroid bias (expected centroid of the projected dot outline minus the
+   projection of its centre) computed with the current model and the surveyed
+   board poses, and the fit is repeated from the first-pass model.
+
+R0_GAUGE: in CAHVOR and CAHVORE, R0 is exactly redundant. With
+S = I + R0 O O^T, the model (A, H, V, O, R0, R1, R2) projects every point
+exactly as (S^-1 A, S^-1 H, S^-1 V)/|S^-1 A| with (O, 0, R1, R2)/(1+R0) [E
+unchanged] (compare.with_R0 computes it). Fitting all of them leaves a
+one-parameter family of exact solutions along which theta, A, Hs and Vs move
+(by 8e-4 deg in theta for the MER navcam). So R0 is held (at 0 unless the
+option R0 says otherwise) and compare.py compares the truth moved to the same
+R0. Projections do not depend on this choice.
+
+Options: bias_correction (True), bias_passes (1), max_rms (1.0 px: a larger
+final RMS residual is reported as divergence), model_type and linearity (for
+CAHVORE when no CAHVORE truth is given; default type 1).
+'''
+
+import math
+import time
+
+import numpy as np
+import scipy
+import scipy.optimize
+
+from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
+from reference_models.errors import ModelError
+
+from .base import CalibrationFailed, CalibrationResult
+from .bias import centroid_bias
+
+NAME = "jpl"
+LIBRARY = "scipy"
+MODELS = ("CAHV", "CAHVOR", "CAHVORE")
+STAGES = {"CAHV": ("CAHV",), "CAHVOR": ("CAHV", "CAHVOR"),
+          "CAHVORE": ("CAHV", "CAHVOR", "CAHVORE")}
+# residual given to the solver for a point the trial model cannot project
+UNPROJECTABLE_RESIDUAL = 1e4
+# smallest/largest singular value of the centred world points below which they are coplanar
+COPLANAR_TOLERANCE = 1e-6
+
+
+def library_version():
+    return f"scipy {scipy.__version__}"
+
+
+def canonical_model(name):
+    return str(name).upper()
+
+
+# --- linear initialisation ---------------------------------------------------------------
+
+def _normaliser(x):
+    r'''Similarity T (dim+1 square) moving points x (N,dim) to zero mean, mean norm sqrt(dim)'''
+    dim = x.shape[1]
+    mean = x.mean(axis=0)
+    s = math.sqrt(dim) / np.mean(np.linalg.norm(x - mean, axis=1))
+    T = np.eye(dim + 1)
+    T[:dim, :dim] *= s
+    T[:dim, dim] = -s * mean
+    return T
+
+
+def check_not_coplanar(p):
+    r'''Raise CalibrationFailed if world points p (N,3) are (nearly) coplanar'''
+    s = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
+    if s[2] < COPLANAR_TOLERANCE * s[0]:
+        raise CalibrationFailed(
+            f"degenerate poses: the {len(p)} world points are coplanar (singular values "
+            f"{s[0]:.3g}, {s[1]:.3g}, {s[2]:.3g}); CAHV from 3D points needs the target in at "
+            "least two non-coplanar poses")
+
+
+def dlt_cahv(p, q, width, height):
+    r'''CAHV from 3D-2D pairs by the direct linear transform
+
+SYNOPSIS
+
+    m = dlt_cahv(p, q, width, height)   # p (N,3) world points, q (N,2) pixels, N >= 6
+
+Raises CalibrationFailed if the points are coplanar or the solution is degenerate.
+'''
+    check_not_coplanar(p)
+    T3 = _normaliser(p)
+    T2 = _normaliser(q)
+    pn = p @ T3[:3, :3].T + T3[:3, 3]
+    qn = q @ T2[:2, :2].T + T2[:2, 2]
+    N = len(p)
+    P = np.column_stack((pn, np.ones(N)))
+    Z = np.zeros_like(P)
+    rows_x = np.hstack((P, Z, -qn[:, 0:1] * P))
+    rows_y = np.hstack((Z, P, -qn[:, 1:2] * P))
+    _, s, vt = np.linalg.svd(np.vstack((rows_x, rows_y)))
+    if s[-2] < 1e-12 * s[0]:
+        raise CalibrationFailed("degenerate poses: the linear (DLT) solution is not unique")
+    Mn = vt[-1].reshape(3, 4)
+    M = np.linalg.solve(T2, Mn @ T3)
+    M /= np.linalg.norm(M[2, :3])
+    # points in front: A.(p - C) > 0
+    if np.median(np.column_stack((p, np.ones(N))) @ M[2]) < 0:
+        M = -M
+    C = np.linalg.solve(M[:, :3], -M[:, 3])
+    try:
+        return CAHV(C=C, A=M[2, :3], H=M[0, :3], V=M[1, :3], width=width, height=height)
+    except ModelError as e:
+        raise CalibrationFailed(f"degenerate linear solution: {e}") from None
+
+
+# --- nonlinear least squares ------------------------------------------------------------
+
+def _tangent_basis(u):
+    r'''Two unit vectors perpendicular to unit u'''
+    a = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(u, a)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(u, e1)
+
+
+class _Chart:
+    r'''Parameters of a model of one family as a flat vector about a reference model
+
+C (3), A (2, tangent plane), H (3), V (3) [, O (2), R1, R2 [, E (3)]]; R0 is held
+(see R0_GAUGE in the module docstring)
+'''
+
+    def __init__(self, family, m0, model_type=None, linearity=None, R0=0.0):
+        self.family = family
+        self.m0 = m0
+        self.R0 = R0
+        self.model_type = model_type
+        self.linearity = linearity
+        self.eA = _tangent_basis(m0.A)
+        if family != "CAHV":
+            self.eO = _tangent_basis(m0.O)
+
+    def x0(self):
+        m = self.m0
+        x = [m.C, np.zeros(2), m.H, m.V]
+        if self.family != "CAHV":
+            x += [np.zeros(2), m.R[1:]]
+        if self.family == "CAHVORE":
+            x += [m.E]
+        return np.concatenate(x)
+
+    def model(self, x):
+        m = self.m0
+        A = m.A + x[3] * self.eA[0] + x[4] * self.eA[1]
+        kw = dict(C=x[0:3], A=A / np.linalg.norm(A), H=x[5:8], V=x[8:11],
+                  width=m.width, height=m.height)
+        if self.family == "CAHV":
+            return CAHV(**kw)
+        O = m.O + x[11] * self.eO[0] + x[12] * self.eO[1]
+        kw.update(O=O / np.linalg.norm(O), R=np.array([self.R0, x[13], x[14]]))
+        if self.family == "CAHVOR":
+            return CAHVOR(**kw)
+        return CAHVORE(E=x[15:18], model_type=self.model_type, linearity=self.linearity, **kw)
+
+
+def _promote(m, family, model_type, linearity, R0):
+    if family == "CAHV":
+        return m.to_cahv()
+    R = np.array(getattr(m, "R", np.zeros(3)), dtype=np.float64)
+    R[0] = R0
+    kw = dict(C=m.C, A=m.A, H=m.H, V=m.V, width=m.width, height=m.height,
+              O=getattr(m, "O", m.A), R=R)
+    if family == "CAHVOR":
+        return CAHVOR(**kw)
+    return CAHVORE(E=getattr(m, "E", np.zeros(3)), model_type=model_type,
+                   linearity=linearity, **kw)
+
+
+def _lm(family, m0, p, q, model_type, linearity, R0, max_nfev=None):
+    r'''Levenberg-Marquardt of model family `family` from m0 on world points p (N,3), pixels q'''
+    chart = _Chart(family, m0, model_type, linearity, R0)
+    bad = np.full(2 * len(p), UNPROJECTABLE_RESIDUAL)
+
+    def residuals(x):
+        try:
+            m = chart.model(x)
+        except ModelError:
+            return bad
+        r = (m.project(p) - q).ravel()
+        return np.where(np.isfinite(r), r, UNPROJECTABLE_RESIDUAL)
+
+    with np.errstate(all="ignore"):
+        sol = scipy.optimize.least_squares(residuals, chart.x0(), method="lm", x_scale="jac",
+                                           ftol=1e-15, xtol=1e-15, gtol=1e-15,
+                                           max_nfev=max_nfev)
+    return chart.model(sol.x), sol
+
+
+def fit_model(p, q, family, width, height, model_type=None, linearity=None, m0=None, R0=0.0):
+    r'''Fit a JPL model to world points and pixels (one pass, no bias correction)
+
+SYNOPSIS
+
+    model, info = fit_model(p, q, "CAHVOR", W, H)
+    # p (N,3) world points, q (N,2) pixels (all finite)
+    # info: {"nfev": int, "stages": [...]}
+
+m0 (optional) starts the last stage from that model instead of the staged
+initialisation (the second pass starts from the first pass's result).
+'''
+    nfev = 0
+    stages = []
+    if m0 is None:
+        m = dlt_cahv(p, q, width, height)
+        todo = STAGES[family]
+    else:
+        m = m0
+        todo = (family,)
+    for stage in todo:
+        m0_stage = _promote(m, stage, model_type, linearity, R0)
+        m, sol = _lm(stage, m0_stage, p, q, model_type, linearity, R0)
+        nfev += int(sol.nfev)
+        r = np.linalg.norm((m.project(p) - q), axis=-1)
+        stages.append({"family": stage, "nfev": int(sol.nfev), "status": int(sol.status),
+                       "rms": float(np.sqrt(np.mean(r * r)))})
+    return m, {"nfev": nfev, "stages": stages}
+
+
+def _inverse_Rt(Rt):
+    R = Rt[:3]
+    return np.vstack((R.T, -R.T @ Rt[3]))
+
+
+def _compose(Rt_a_b, Rt_b_c):
+    return np.vstack((Rt_a_b[:3] @ Rt_b_c[:3], Rt_a_b[:3] @ Rt_b_c[3] + Rt_a_b[3]))
+
+
+def Rt_cam_board_of(model, Rt_ref_board):
+    r'''Board poses in the camera frame of `model` (model.Rt_ref_cam())'''
+    Rt_cam_ref = _inverse_Rt(model.Rt_ref_cam())
+    return np.array([_compose(Rt_cam_ref, Rt) for Rt in Rt_ref_board])
+
+
+def _cahvore_type(truth, options):
+    if truth is not None and getattr(truth, "family", None) == "CAHVORE":
+        return truth.model_type, truth.linearity
+    t = int(options.get("model_type", 1))
+    return t, options.get("linearity", {1: 1.0, 2: 0.0}.get(t))
+
+
+def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=1,
+        max_rms=1.0, model_type=None, linearity=None, R0=0.0):
+    r'''The jpl calibrator (see the module docstring); returns a CalibrationResult'''
+    t0 = time.perf_counter()
+    common = dict(calibrator=NAME, model_name=model_name, library=LIBRARY,
+                  library_version=library_version())
+    if not obs.has_world_points:
+        raise CalibrationFailed("the jpl calibrator needs the surveyed board poses "
+                                "(Observations.Rt_ref_board): it fits from known 3D points")
+    opts = {k: v for k, v in (("model_type", model_type), ("linearity", linearity))
+            if v is not None}
+    mtype, lin = _cahvore_type(truth, opts) if model_name == "CAHVORE" else (None, None)
+    W, H = obs.imagersize
+    found = obs.found
+    nparams = {"CAHV": 11, "CAHVOR": 15, "CAHVORE": 18}[model_name]
+    nfound = int(found.sum())
+    if nfound < max(6, (nparams + 1) // 2 + 1):
+        raise CalibrationFailed(f"too few points: {nfound} found, a {model_name} fit needs at "
+                                f"least {max(6, (nparams + 1) // 2 + 1)}")
+    p_ref = obs.p_ref()
+    p = p_ref[found]
+    q_obs = obs.q
+    model, info = fit_model(p, q_obs[found], model_name, W, H, mtype, lin, R0=R0)
+    r_first = np.linalg.norm(model.project(p) - q_obs[found], axis=-1)
+    passes = [{"pass": 1, "rms": float(np.sqrt(np.mean(r_first ** 2))),
+               "max": float(r_first.max()), **info}]
+    q_used = q_obs
+    bias_applied = False
+    if bias_correction and bias_passes > 0:
+        for ipass in range(bias_passes):
+            Rts = Rt_cam_board_of(model, obs.Rt_ref_board)
+            b = [centroid_bias(model, target, Rt, obs.p_board[i]) if target is not None
+                 else None for i, Rt in enumerate(Rts)]
+            if any(x is None for x in b):
+                passes.append({"pass": ipass + 2, "skipped": "the target has no dots: "
+                               "no centroid bias to correct"})
+                break
+            q_used = q_obs - np.array(b)
+            bias_applied = True
+            ok = found & np.all(np.isfinite(q_used), axis=-1)
+            model, info = fit_model(p_ref[ok], q_used[ok], model_name, W, H, mtype, lin,
+                                    m0=model, R0=R0)
+            r = np.linalg.norm(model.project(p_ref[ok]) - q_used[ok], axis=-1)
+            passes.append({"pass": ipass + 2, "rms": float(np.sqrt(np.mean(r * r))),
+                           "max": float(r.max()), **info})
+    residuals = q_used - model.project(p_ref)
+    residuals[~found] = np.nan
+    rn = np.linalg.norm(residuals, axis=-1)
+    rms = float(np.sqrt(np.nanmean(rn ** 2)))
+    if not math.isfinite(rms) or rms > max_rms:
+        raise CalibrationFailed(f"diverged: RMS residual {rms:.4g} px > {max_rms:g} px")
+    return CalibrationResult(
+        status="ok", model=model, residuals=residuals,
+        Rt_cam_board=Rt_cam_board_of(model, obs.Rt_ref_board),
+        iterations=sum(x.get("nfev", 0) for x in passes),
+        seconds=time.perf_counter() - t0,
+        info={"passes": passes, "bias_corrected": bias_applied,
+              "world_points_known": True,
+              "model_type": mtype, "linearity": lin,
+              "R0_held": R0 if model_name != "CAHV" else None}, **common)

@@ -1,0 +1,131 @@
+r'''Exact synthetic correspondences for testing calibrators (no rendering)
+
+SYNOPSIS
+
+    from harness.calibrators.synthetic import default_target, test_poses, exact_observations
+
+    target = default_target()                     # the 10x10 dot grid
+    Rts = test_poses(model, target, n=6)          # list of Rt_cam_board (4,3)
+    obs = exact_observations(model, target, Rts)  # q = projected dot centres
+
+The poses: the board (10x10, 0.1 m spacing) centred on the rays of the image
+centre and of points towards the four corners, at ranges chosen so that it
+spans 90% (near) to 45% (far) of the image's smaller side (1.2-2.3 m for a
+1024x1024 navcam), tilted by up to 45 deg. targets.poses.plan_poses is the
+project's planner; these poses only need to make the exact-correspondence
+tests independent of it.
+'''
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .base import Observations
+
+
+@dataclass(frozen=True)
+class DotGrid:
+    r'''A minimal 10x10 dot grid (used only if targets.boards is not available)'''
+
+    n: int = 10
+    spacing: float = 0.1
+    radius: float = 0.025
+    name: str = "dots"
+    kind: str = "dots"
+
+    def points(self):
+        i, j = np.meshgrid(np.arange(self.n), np.arange(self.n))
+        return np.stack((i.ravel() * self.spacing, j.ravel() * self.spacing,
+                         np.zeros(self.n * self.n)), axis=-1)
+
+    def point_ids(self):
+        return np.arange(self.n * self.n)
+
+    def pattern(self):
+        from targets.pattern import Pattern
+        p = self.points()
+        m = self.spacing
+        return Pattern(extent=(-m, (self.n - 1) * m + m, -m, (self.n - 1) * m + m),
+                       circles=np.column_stack((p[:, 0], p[:, 1],
+                                                np.full(len(p), self.radius))))
+
+
+def default_target():
+    try:
+        from targets.boards import load_target
+    except ImportError:
+        return DotGrid()
+    return load_target("dots")
+
+
+def _rotation(axis, angle):
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def test_poses(model, target, n=6, seed=0):
+    r'''n board poses Rt_cam_board (4,3) filling the image of `model`'''
+    rng = np.random.default_rng(seed)
+    W, H = model.width, model.height
+    p = np.asarray(target.points(), dtype=np.float64)
+    centre_b = 0.5 * (p.min(axis=0) + p.max(axis=0))
+    size = float(np.max(p.max(axis=0) - p.min(axis=0)))
+    ph = model.photogrammetric()
+    f = 0.5 * (ph.Hs + ph.Vs)
+    Rt_ref_cam = model.Rt_ref_cam()
+    offsets = [(0, 0), (-0.23, -0.23), (0.23, -0.23), (-0.23, 0.23), (0.23, 0.23), (0.0, 0.1)]
+    fracs = [0.85, 0.48, 0.5, 0.46, 0.5, 0.62]
+    out = []
+    for i in range(n):
+        ox, oy = offsets[i % len(offsets)]
+        q = np.array([(0.5 + ox) * (W - 1), (0.5 + oy) * (H - 1)])
+        frac = fracs[i % len(fracs)]
+        rng_m = f * size / (frac * min(W, H))
+        o, v = model.unproject(q)
+        # ray into the camera frame
+        v_cam = Rt_ref_cam[:3].T @ v
+        o_cam = Rt_ref_cam[:3].T @ (o - Rt_ref_cam[3])
+        centre_cam = o_cam + rng_m * v_cam / v_cam[2]
+        tilt = np.radians(45.0 if i else 10.0) * (0.6 + 0.4 * rng.random())
+        axis_angle = rng.uniform(0, 2 * np.pi)
+        axis = np.array([np.cos(axis_angle), np.sin(axis_angle), 0.0])
+        R = _rotation(axis, tilt) @ _rotation([0, 0, 1], rng.uniform(-0.2, 0.2))
+        t = centre_cam - R @ centre_b
+        out.append(np.vstack((R, t)))
+    return out
+
+
+def compose(Rt_a_b, Rt_b_c):
+    R = Rt_a_b[:3] @ Rt_b_c[:3]
+    t = Rt_a_b[:3] @ Rt_b_c[3] + Rt_a_b[3]
+    return np.vstack((R, t))
+
+
+def exact_observations(model, target, Rt_cam_board, centroids=False):
+    r'''Observations whose q are the exact projections of the target points
+
+SYNOPSIS
+
+    obs = exact_observations(model, target, Rts)
+    # obs.q (Nposes,Npoints,2), obs.Rt_ref_board = Rt_ref_cam(truth) o Rt_cam_board
+
+With centroids=True q are the expected centroids of the dots' outlines (what
+a perfect detector sees), i.e. the data carry the centroid bias. Points that
+project outside the image are NaN.
+'''
+    from .bias import centroid_bias
+    p = np.asarray(target.points(), dtype=np.float64)
+    Rt_ref_cam = model.Rt_ref_cam()
+    Rt_ref_board = np.array([compose(Rt_ref_cam, Rt) for Rt in Rt_cam_board])
+    p_ref = np.einsum("fij,nj->fni", Rt_ref_board[:, :3], p) + Rt_ref_board[:, None, 3]
+    q = model.project(p_ref)
+    if centroids:
+        q = q + np.array([centroid_bias(model, target, Rt, p) for Rt in Rt_cam_board])
+    W, H = model.width, model.height
+    outside = ~((q[..., 0] >= -0.5) & (q[..., 0] <= W - 0.5) &
+                (q[..., 1] >= -0.5) & (q[..., 1] <= H - 0.5))
+    q[outside] = np.nan
+    return Observations(q=q, p_board=p, imagersize=(W, H), Rt_ref_board=Rt_ref_board,
+                        point_ids=np.asarray(target.point_ids()))
