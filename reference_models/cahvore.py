@@ -71,6 +71,9 @@ def _unit(name, value):
     n = np.linalg.norm(v)
     if abs(n - 1.0) > UNIT_TOLERANCE:
         raise ModelError(f"{name} = {v.tolist()} must be a unit vector; its norm is {n:.9g}")
+    # a vector normalised already stays bit-identical, so write -> read is exact
+    if abs(n - 1.0) <= 4 * np.finfo(np.float64).eps:
+        return v
     return v / n
 
 
@@ -162,11 +165,17 @@ class _Linear:
                             V=ph.Vs * np.asarray(ph.Vp) + ph.Vc * self.A)
 
     def with_theta_90(self):
-        r'''The model with V' replaced by A x H' (theta = 90 deg), as mrcal and
-OpenGL represent it; Hc, Vc, Hs, Vs, H' are kept'''
+        r'''The model with V' made perpendicular to H' (theta = 90 deg), as mrcal and
+OpenGL represent it; Hc, Vc, Hs, Vs, H' and the handedness are kept
+
+V' becomes A x H', or -(A x H') for a mirrored model: the nearest theta = 90
+model, not an upside-down one.
+'''
         ph = self.photogrammetric()
-        return self.with_photogrammetric(
-            dataclasses.replace(ph, Vp=np.cross(self.A, ph.Hp)))
+        Vp = np.cross(self.A, ph.Hp)
+        if self.mirrored:
+            Vp = -Vp
+        return self.with_photogrammetric(dataclasses.replace(ph, Vp=Vp))
 
     def to_cahv(self):
         return CAHV(C=self.C, A=self.A, H=self.H, V=self.V,
