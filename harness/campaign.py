@@ -1,0 +1,375 @@
+r'''Campaign files: which cameras, models, targets, renderers and calibrators to run
+
+SYNOPSIS
+
+    from harness.campaign import load_campaign
+
+    c = load_campaign("campaigns/quick.toml")
+    c.cameras        # ("15", "17", "5"): slot ids, extras' names, model-file paths
+    c.models         # ("CAHV", "CAHVOR", "CAHVORE")
+    c.renderers[0].settings()   # [{"spp": 16, "adaptive": True, "options": {}}]
+    c.validate()     # names checked against the catalogue and the registries
+
+A campaign is a TOML file (tomllib):
+
+    name = "quick"
+    description = "a few cameras, for tests and CI"
+    cameras = [15, 17, 5, "supercam", "my/own.cahvor"]  # relative paths: from this file
+    models = ["CAHV", "CAHVOR", "CAHVORE"]   # each derived from the camera by truncation
+    targets = ["dots"]
+    keep_images = false      # keep the rendered images (images/ in the run dir)
+    keep_maps = true         # keep downsampled projection-difference maps (maps/)
+    catalogue = "overlay.toml"   # optional catalogue overlay (user models in slots)
+
+    [poses]
+    n = 6
+    seed = 0
+
+    [[renderer]]
+    name = "raycast"
+    spp = [4, 16]            # an int or a list: one job per value
+    adaptive = true          # a bool or a list
+    options = {}             # renderer-specific settings
+
+    [[calibrator]]
+    name = "jpl"
+    models = ["family"]      # "family" = the job's model family; or named models
+    options = {}
+
+A job is camera x model family x target x renderer setting; every calibrator
+runs on each job's detections. A family richer than the camera (CAHVORE from
+a CAHVOR camera) is recorded as not-applicable, not an error. Every mistake in
+the file (unknown key, missing camera, unknown renderer) is a CamvalError of
+one line naming the key and the choices.
+'''
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from reference_models.errors import CamvalError
+
+FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
+JOB_FAMILY = "family"
+
+TOP_KEYS = ("name", "description", "cameras", "models", "targets", "keep_images", "keep_maps",
+            "catalogue", "poses", "renderer", "calibrator")
+POSE_KEYS = ("n", "seed")
+RENDERER_KEYS = ("name", "spp", "adaptive", "options")
+CALIBRATOR_KEYS = ("name", "models", "options")
+KNOWN_TARGETS = ("dots", "apriltag", "chessboard")
+
+
+class CampaignError(CamvalError):
+    '''A campaign file that is malformed or names things that do not exist.'''
+
+
+def _where(source, key):
+    return f"{source}: {key}" if source else key
+
+
+def _unknown(source, section, d, known):
+    for k in d:
+        if k not in known:
+            raise CampaignError(f"{_where(source, section + k)}: unknown key; known keys: "
+                                f"{', '.join(known)}")
+
+
+def _list_of(source, key, value, types, what):
+    if isinstance(value, types) and not isinstance(value, list):
+        value = [value]
+    if not isinstance(value, list) or not value:
+        raise CampaignError(f"{_where(source, key)}: expected a non-empty list of {what}; "
+                            f"got {value!r}")
+    for v in value:
+        if isinstance(v, bool) and bool not in types or not isinstance(v, types):
+            raise CampaignError(f"{_where(source, key)}: expected {what}; got {v!r}")
+    if len(set(map(repr, value))) != len(value):
+        raise CampaignError(f"{_where(source, key)}: repeated entries in {value!r}")
+    return value
+
+
+def _bool(source, key, value):
+    if not isinstance(value, bool):
+        raise CampaignError(f"{_where(source, key)}: expected true or false; got {value!r}")
+    return value
+
+
+def _int(source, key, value, minimum):
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise CampaignError(f"{_where(source, key)}: expected an integer >= {minimum}; "
+                            f"got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class RendererSpec:
+    name: str
+    spp: tuple = (16,)
+    adaptive: tuple = (True,)
+    options: dict = field(default_factory=dict)
+
+    def settings(self):
+        r'''[{"spp", "adaptive", "options"}, ...]: one per job, in file order'''
+        return [{"spp": k, "adaptive": a, "options": dict(self.options)}
+                for k in self.spp for a in self.adaptive]
+
+    def as_dict(self):
+        return {"name": self.name, "spp": list(self.spp), "adaptive": list(self.adaptive),
+                "options": dict(self.options)}
+
+
+@dataclass(frozen=True)
+class CalibratorSpec:
+    name: str
+    models: tuple = (JOB_FAMILY,)
+    options: dict = field(default_factory=dict)
+
+    def models_for(self, family):
+        r'''The calibrator's models for a job of this family ("family" -> the family)'''
+        return [family if m == JOB_FAMILY else m for m in self.models]
+
+    def as_dict(self):
+        return {"name": self.name, "models": list(self.models), "options": dict(self.options)}
+
+
+@dataclass(frozen=True)
+class Campaign:
+    name: str
+    cameras: tuple
+    models: tuple = FAMILIES
+    targets: tuple = ("dots",)
+    renderers: tuple = (RendererSpec("raycast"),)
+    calibrators: tuple = (CalibratorSpec("jpl"),)
+    poses_n: int = 6
+    poses_seed: int = 0
+    keep_images: bool = False
+    keep_maps: bool = True
+    catalogue: str = None
+    description: str = ""
+    source: str = ""
+
+    def as_dict(self):
+        r'''The campaign as plain JSON (what a run stores, and what resume re-reads)'''
+        return {"name": self.name, "description": self.description, "source": self.source,
+                "cameras": list(self.cameras), "models": list(self.models),
+                "targets": list(self.targets),
+                "renderers": [r.as_dict() for r in self.renderers],
+                "calibrators": [c.as_dict() for c in self.calibrators],
+                "poses": {"n": self.poses_n, "seed": self.poses_seed},
+                "keep_images": self.keep_images, "keep_maps": self.keep_maps,
+                "catalogue": self.catalogue}
+
+    @classmethod
+    def from_dict(cls, d):
+        return cls(name=d["name"], description=d.get("description", ""),
+                   source=d.get("source", ""),
+                   cameras=tuple(d["cameras"]), models=tuple(d["models"]),
+                   targets=tuple(d["targets"]),
+                   renderers=tuple(RendererSpec(r["name"], tuple(r["spp"]),
+                                                tuple(r["adaptive"]), dict(r["options"]))
+                                   for r in d["renderers"]),
+                   calibrators=tuple(CalibratorSpec(c["name"], tuple(c["models"]),
+                                                    dict(c["options"]))
+                                     for c in d["calibrators"]),
+                   poses_n=d["poses"]["n"], poses_seed=d["poses"]["seed"],
+                   keep_images=d["keep_images"], keep_maps=d["keep_maps"],
+                   catalogue=d.get("catalogue"))
+
+    def replace(self, **kw):
+        import dataclasses
+        return dataclasses.replace(self, **kw)
+
+    def load_catalogue(self):
+        from reference_models.catalogue import load_catalogue
+        return load_catalogue(overlay=self.catalogue) if self.catalogue else load_catalogue()
+
+    def validate(self, catalogue=None):
+        r'''Check every name against the catalogue and the registries (CampaignError if not)
+
+Returns {camera spec: CatalogueEntry}.
+'''
+        src = self.source
+        if catalogue is None:
+            catalogue = self.load_catalogue()
+        entries = {}
+        for i, spec in enumerate(self.cameras):
+            try:
+                entries[spec] = catalogue.get(spec)
+            except CamvalError as e:
+                raise CampaignError(f"{_where(src, f'cameras[{i}]')}: {e}") from None
+        from renderers.base import known_renderers
+        known = known_renderers()
+        for i, r in enumerate(self.renderers):
+            if r.name not in known:
+                raise CampaignError(f"{_where(src, f'renderer[{i}].name')}: unknown renderer "
+                                    f"{r.name!r}; known renderers: {', '.join(sorted(known))}")
+        cal_known = known_calibrators()
+        for i, c in enumerate(self.calibrators):
+            if cal_known is not None and c.name not in cal_known:
+                raise CampaignError(f"{_where(src, f'calibrator[{i}].name')}: unknown "
+                                    f"calibrator {c.name!r}; known calibrators: "
+                                    f"{', '.join(sorted(cal_known))}")
+            mod = (cal_known or {}).get(c.name)
+            for m in c.models:
+                if m != JOB_FAMILY and mod is not None and not _calibrator_has_model(mod, m):
+                    raise CampaignError(f"{_where(src, f'calibrator[{i}].models')}: calibrator "
+                                        f"{c.name!r} has no model {m!r}; its models: "
+                                        f"{', '.join((JOB_FAMILY,) + tuple(mod.MODELS))}")
+        return entries
+
+
+def known_calibrators():
+    r'''{name: (model names...) or None} of the calibrators, or None when there is no registry
+
+A calibrator whose module cannot be imported here maps to None (its models are
+not checked; running it gives failed records with the reason).
+'''
+    try:
+        import harness.calibrators as hc
+    except ModuleNotFoundError as e:
+        if e.name and e.name.startswith("harness.calibrators"):
+            return None
+        raise
+    out = {}
+    for name in hc.known_calibrators():
+        try:
+            mod = hc.calibrator_module(name)
+        except ImportError:
+            out[name] = None
+            continue
+        out[name] = mod
+    return out
+
+
+def _calibrator_has_model(mod, model):
+    canonical = mod.canonical_model(model) if hasattr(mod, "canonical_model") else model
+    return canonical in tuple(getattr(mod, "MODELS", ()))
+
+
+def parse_campaign(doc, source="", base_dir=None):
+    r'''Validate the structure of a parsed campaign TOML (dict) -> Campaign
+
+Names are checked by Campaign.validate(); this checks keys and types.
+Relative model-file paths among the cameras are taken from base_dir.
+'''
+    if not isinstance(doc, dict):
+        raise CampaignError(f"{source or 'campaign'}: expected a TOML table")
+    _unknown(source, "", doc, TOP_KEYS)
+    if "cameras" not in doc:
+        raise CampaignError(f"{_where(source, 'cameras')}: missing; expected a list of slot "
+                            f"ids, extras' names or model files")
+    cams = _list_of(source, "cameras", doc["cameras"], (int, str), "slot ids (int) or names")
+    cameras = []
+    for c in cams:
+        if isinstance(c, bool):
+            raise CampaignError(f"{_where(source, 'cameras')}: expected a slot id or a name; "
+                                f"got {c!r}")
+        c = str(c)
+        if base_dir is not None and ("/" in c or "." in c) and not Path(c).is_absolute():
+            p = Path(base_dir) / c
+            if p.exists():
+                c = str(p)
+        cameras.append(c)
+    models = tuple(_list_of(source, "models", doc.get("models", list(FAMILIES)), (str,),
+                            "model families"))
+    for m in models:
+        if m not in FAMILIES:
+            raise CampaignError(f"{_where(source, 'models')}: unknown model family {m!r}; "
+                                f"known: {', '.join(FAMILIES)}")
+    targets = tuple(_list_of(source, "targets", doc.get("targets", ["dots"]), (str,),
+                             "target names"))
+    for t in targets:
+        if t not in KNOWN_TARGETS and not Path(t).suffix == ".toml":
+            raise CampaignError(f"{_where(source, 'targets')}: unknown target {t!r}; known: "
+                                f"{', '.join(KNOWN_TARGETS)} or a target .toml file")
+    poses = doc.get("poses", {})
+    if not isinstance(poses, dict):
+        raise CampaignError(f"{_where(source, 'poses')}: expected a table with n and seed")
+    _unknown(source, "poses.", poses, POSE_KEYS)
+    n = _int(source, "poses.n", poses.get("n", 6), 1)
+    seed = _int(source, "poses.seed", poses.get("seed", 0), 0)
+
+    rend = doc.get("renderer", [{"name": "raycast"}])
+    if not isinstance(rend, list) or not rend:
+        raise CampaignError(f"{_where(source, 'renderer')}: expected one or more [[renderer]] "
+                            f"tables")
+    renderers = []
+    for i, r in enumerate(rend):
+        key = f"renderer[{i}]"
+        if not isinstance(r, dict):
+            raise CampaignError(f"{_where(source, key)}: expected a table")
+        _unknown(source, key + ".", r, RENDERER_KEYS)
+        if not isinstance(r.get("name"), str):
+            raise CampaignError(f"{_where(source, key + '.name')}: missing; expected a "
+                                f"renderer name")
+        spp = _list_of(source, key + ".spp", r.get("spp", 16), (int,), "integers K >= 1")
+        for k in spp:
+            _int(source, key + ".spp", k, 1)
+        ad = _list_of(source, key + ".adaptive", r.get("adaptive", True), (bool,),
+                      "true or false")
+        opts = r.get("options", {})
+        if not isinstance(opts, dict):
+            raise CampaignError(f"{_where(source, key + '.options')}: expected a table")
+        renderers.append(RendererSpec(r["name"], tuple(spp), tuple(ad), dict(opts)))
+    names = [(r.name, r.spp, r.adaptive, tuple(sorted(r.options.items(), key=str)))
+             for r in renderers]
+    if len(set(map(repr, names))) != len(names):
+        raise CampaignError(f"{_where(source, 'renderer')}: two [[renderer]] tables are the same")
+
+    cal = doc.get("calibrator", [{"name": "jpl"}])
+    if not isinstance(cal, list) or not cal:
+        raise CampaignError(f"{_where(source, 'calibrator')}: expected one or more "
+                            f"[[calibrator]] tables")
+    calibrators = []
+    for i, c in enumerate(cal):
+        key = f"calibrator[{i}]"
+        if not isinstance(c, dict):
+            raise CampaignError(f"{_where(source, key)}: expected a table")
+        _unknown(source, key + ".", c, CALIBRATOR_KEYS)
+        if not isinstance(c.get("name"), str):
+            raise CampaignError(f"{_where(source, key + '.name')}: missing; expected a "
+                                f"calibrator name")
+        ms = _list_of(source, key + ".models", c.get("models", [JOB_FAMILY]), (str,),
+                      "model names")
+        opts = c.get("options", {})
+        if not isinstance(opts, dict):
+            raise CampaignError(f"{_where(source, key + '.options')}: expected a table")
+        calibrators.append(CalibratorSpec(c["name"], tuple(ms), dict(opts)))
+    if len({c.name for c in calibrators}) != len(calibrators):
+        raise CampaignError(f"{_where(source, 'calibrator')}: a calibrator appears twice; "
+                            f"list all its models in one table")
+
+    cat = doc.get("catalogue")
+    if cat is not None:
+        if not isinstance(cat, str):
+            raise CampaignError(f"{_where(source, 'catalogue')}: expected a file name")
+        if base_dir is not None and not Path(cat).is_absolute():
+            cat = str(Path(base_dir) / cat)
+    name = doc.get("name", Path(source).stem if source else "campaign")
+    if not isinstance(name, str) or not name:
+        raise CampaignError(f"{_where(source, 'name')}: expected a non-empty string")
+    desc = doc.get("description", "")
+    if not isinstance(desc, str):
+        raise CampaignError(f"{_where(source, 'description')}: expected a string")
+    return Campaign(name=name, description=desc, source=str(source), cameras=tuple(cameras),
+                    models=models, targets=targets, renderers=tuple(renderers),
+                    calibrators=tuple(calibrators), poses_n=n, poses_seed=seed,
+                    keep_images=_bool(source, "keep_images", doc.get("keep_images", False)),
+                    keep_maps=_bool(source, "keep_maps", doc.get("keep_maps", True)),
+                    catalogue=cat)
+
+
+def load_campaign(path):
+    r'''Read and check the structure of a campaign TOML file -> Campaign'''
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            doc = tomllib.load(f)
+    except FileNotFoundError:
+        raise CampaignError(f"campaign file '{path}' does not exist") from None
+    except tomllib.TOMLDecodeError as e:
+        raise CampaignError(f"'{path}': not valid TOML: {e}") from None
+    except OSError as e:
+        raise CampaignError(f"'{path}': cannot read: {e.strerror}") from None
+    return parse_campaign(doc, source=str(path), base_dir=path.parent)

@@ -1,0 +1,349 @@
+r'''The gate: absolute tolerances against the truth and regressions against a baseline
+
+SYNOPSIS
+
+    from harness.gate import load_gate_spec, check
+
+    spec = load_gate_spec("campaigns/gate.toml")
+    failures = check(run_doc, spec, baseline_doc)   # [Failure, ...]; empty = pass
+    print(format_failures(failures))
+
+A gate spec is TOML:
+
+    # every matched record must have one of these statuses
+    statuses = ["ok", "not-applicable"]
+    status_match = "*"
+
+    # absolute tolerances against the truth: |value| <= limit, records with status ok
+    limits = ["projection.rms:0.002", "residuals.max:0.01"]     # field:abs
+    [[limit]]
+    field = "params.theta.error"
+    max = 0.001
+    match = ["*/jpl[*]"]           # glob(s) on fullname; default "*"
+
+    # regressions against a stored baseline (joined on fullname): the value may
+    # grow by at most `abs` or `N%` of the baseline's value
+    regressions = ["projection.rms:0.0005", "residuals.rms:10%"]
+    [[regression]]
+    field = "params.Hc.error"
+    tolerance = "25%"
+    match = "*"
+
+Fields are dotted paths into a record ("projection.rms", "params.Hc.error",
+"seconds.render_per_image"). Errors are compared by magnitude. A field that
+is present and null is "not estimated" (theta by mrcal) and skipped; a field
+that is absent from an ok record fails. A spec with regressions and no
+baseline is a usage error (GateUsageError), never a silent pass. A record the
+baseline has and the run lacks fails; a baseline record that was ok and is
+not ok now fails.
+'''
+
+import fnmatch
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from reference_models.errors import CamvalError
+
+from .records import STATUSES
+
+SPEC_KEYS = ("statuses", "status_match", "limits", "limit", "regressions", "regression",
+             "description")
+LIMIT_KEYS = ("field", "max", "match")
+REGRESSION_KEYS = ("field", "tolerance", "match")
+
+
+class GateUsageError(CamvalError):
+    '''A gate spec or gate invocation that cannot be checked (exit status 2).'''
+
+
+@dataclass(frozen=True)
+class Limit:
+    field: str
+    max: float
+    match: tuple = ("*",)
+
+
+@dataclass(frozen=True)
+class Regression:
+    field: str
+    tolerance: float
+    relative: bool          # tolerance in percent of the baseline's value
+    match: tuple = ("*",)
+
+    @property
+    def label(self):
+        return f"{self.tolerance:g}%" if self.relative else f"{self.tolerance:g}"
+
+
+@dataclass(frozen=True)
+class GateSpec:
+    statuses: tuple = ("ok", "not-applicable")
+    status_match: tuple = ("*",)
+    limits: tuple = ()
+    regressions: tuple = ()
+    source: str = ""
+
+    @property
+    def needs_baseline(self):
+        return bool(self.regressions)
+
+
+@dataclass(frozen=True)
+class Failure:
+    fullname: str
+    field: str
+    value: str
+    limit: str
+    kind: str      # "status" | "limit" | "regression" | "missing"
+
+    def as_dict(self):
+        return dict(fullname=self.fullname, field=self.field, value=self.value,
+                    limit=self.limit, kind=self.kind)
+
+
+def _fmt(v):
+    if v is None:
+        return "null"
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v)
+
+
+def _number(source, key, v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
+        raise GateUsageError(f"{source}: {key}: expected a non-negative number; got {v!r}")
+    return float(v)
+
+
+def _match(source, key, v):
+    if v is None:
+        return ("*",)
+    if isinstance(v, str):
+        return (v,)
+    if isinstance(v, list) and v and all(isinstance(x, str) for x in v):
+        return tuple(v)
+    raise GateUsageError(f"{source}: {key}: expected a glob or a list of globs on fullname; "
+                         f"got {v!r}")
+
+
+def parse_check(text, source="gate spec", key="regressions"):
+    r'''"field:abs" or "field:N%" -> (field, tolerance, relative)'''
+    if not isinstance(text, str) or ":" not in text:
+        raise GateUsageError(f"{source}: {key}: {text!r} is not 'field:abs' or 'field:N%' "
+                             f"(e.g. 'projection.rms:0.001', 'residuals.rms:10%')")
+    fieldname, _, tol = text.rpartition(":")
+    relative = tol.strip().endswith("%")
+    try:
+        value = float(tol.strip().rstrip("%"))
+    except ValueError:
+        raise GateUsageError(f"{source}: {key}: tolerance {tol!r} in {text!r} is not a "
+                             f"number or N%") from None
+    if not fieldname.strip() or value < 0:
+        raise GateUsageError(f"{source}: {key}: {text!r} needs a field name and a "
+                             f"non-negative tolerance")
+    return fieldname.strip(), value, relative
+
+
+def parse_gate_spec(doc, source="gate spec"):
+    if not isinstance(doc, dict):
+        raise GateUsageError(f"{source}: expected a TOML table")
+    for k in doc:
+        if k not in SPEC_KEYS:
+            raise GateUsageError(f"{source}: {k}: unknown key; known keys: "
+                                 f"{', '.join(SPEC_KEYS)}")
+    statuses = doc.get("statuses", ["ok", "not-applicable"])
+    if not isinstance(statuses, list) or any(s not in STATUSES for s in statuses):
+        raise GateUsageError(f"{source}: statuses: expected a list from "
+                             f"{', '.join(STATUSES)}; got {statuses!r}")
+    limits = []
+    lim = doc.get("limits", [])
+    if not isinstance(lim, list):
+        raise GateUsageError(f"{source}: limits: expected a list of 'field:abs'")
+    for text in lim:
+        f, tol, rel = parse_check(text, source, "limits")
+        if rel:
+            raise GateUsageError(f"{source}: limits: {text!r}: a limit against the truth is "
+                                 f"absolute ('field:abs'); percentages are for regressions")
+        limits.append(Limit(f, tol))
+    tables = doc.get("limit", [])
+    if not isinstance(tables, list):
+        raise GateUsageError(f"{source}: limit: expected [[limit]] tables")
+    for i, t in enumerate(tables):
+        key = f"limit[{i}]"
+        if not isinstance(t, dict):
+            raise GateUsageError(f"{source}: {key}: expected a table")
+        for k in t:
+            if k not in LIMIT_KEYS:
+                raise GateUsageError(f"{source}: {key}.{k}: unknown key; known keys: "
+                                     f"{', '.join(LIMIT_KEYS)}")
+        if not isinstance(t.get("field"), str) or "max" not in t:
+            raise GateUsageError(f"{source}: {key}: needs field = \"...\" and max = number")
+        limits.append(Limit(t["field"], _number(source, key + ".max", t["max"]),
+                            _match(source, key + ".match", t.get("match"))))
+    regressions = []
+    reg = doc.get("regressions", [])
+    if not isinstance(reg, list):
+        raise GateUsageError(f"{source}: regressions: expected a list of 'field:abs' or "
+                             f"'field:N%'")
+    for text in reg:
+        regressions.append(Regression(*parse_check(text, source, "regressions")))
+    tables = doc.get("regression", [])
+    if not isinstance(tables, list):
+        raise GateUsageError(f"{source}: regression: expected [[regression]] tables")
+    for i, t in enumerate(tables):
+        key = f"regression[{i}]"
+        if not isinstance(t, dict):
+            raise GateUsageError(f"{source}: {key}: expected a table")
+        for k in t:
+            if k not in REGRESSION_KEYS:
+                raise GateUsageError(f"{source}: {key}.{k}: unknown key; known keys: "
+                                     f"{', '.join(REGRESSION_KEYS)}")
+        if not isinstance(t.get("field"), str) or "tolerance" not in t:
+            raise GateUsageError(f"{source}: {key}: needs field = \"...\" and tolerance = "
+                                 f"\"abs\" or \"N%\"")
+        tol = t["tolerance"]
+        if isinstance(tol, (int, float)) and not isinstance(tol, bool):
+            tol = str(tol)
+        f, v, rel = parse_check(f"{t['field']}:{tol}", source, key)
+        regressions.append(Regression(f, v, rel, _match(source, key + ".match",
+                                                        t.get("match"))))
+    return GateSpec(statuses=tuple(statuses),
+                    status_match=_match(source, "status_match", doc.get("status_match")),
+                    limits=tuple(limits), regressions=tuple(regressions), source=source)
+
+
+def load_gate_spec(path):
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            doc = tomllib.load(f)
+    except FileNotFoundError:
+        raise GateUsageError(f"gate spec '{path}' does not exist") from None
+    except tomllib.TOMLDecodeError as e:
+        raise GateUsageError(f"gate spec '{path}': not valid TOML: {e}") from None
+    return parse_gate_spec(doc, source=str(path))
+
+
+def _matches(fullname, globs):
+    return any(fnmatch.fnmatchcase(fullname, g) for g in globs)
+
+
+_ABSENT = object()
+
+
+def _lookup(record, path):
+    v = record
+    for part in path.split("."):
+        if not isinstance(v, dict) or part not in v:
+            return _ABSENT
+        v = v[part]
+    return v
+
+
+def _magnitude(v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return None
+    return abs(float(v))
+
+
+def check(run, spec, baseline=None):
+    r'''Every failure of the run against the spec (and the baseline) -> [Failure]
+
+SYNOPSIS
+
+    failures = check(run_doc, spec, baseline_doc)
+
+run and baseline are run documents (harness.records.load_run). Raises
+GateUsageError when the spec has regressions and baseline is None.
+'''
+    if spec.needs_baseline and baseline is None:
+        raise GateUsageError(f"{spec.source or 'the gate spec'} asks for regressions "
+                             f"({', '.join(r.field + ':' + r.label for r in spec.regressions)})"
+                             f" but no baseline was given; pass --baseline FILE")
+    records = run["records"]
+    failures = []
+    for name, r in records.items():
+        if _matches(name, spec.status_match) and r.get("status") not in spec.statuses:
+            failures.append(Failure(name, "status", f"{r.get('status')}: {r.get('reason')}",
+                                    " or ".join(spec.statuses), "status"))
+        if r.get("status") != "ok":
+            continue
+        for lim in spec.limits:
+            if not _matches(name, lim.match):
+                continue
+            v = _lookup(r, lim.field)
+            if v is _ABSENT:
+                failures.append(Failure(name, lim.field, "missing", f"<= {lim.max:g}",
+                                        "missing"))
+                continue
+            if v is None:       # not estimated by this calibrator
+                continue
+            m = _magnitude(v)
+            if m is None or not m <= lim.max:
+                failures.append(Failure(name, lim.field, _fmt(v), f"<= {lim.max:g}", "limit"))
+    if baseline is not None and spec.regressions:
+        failures += _regressions(records, baseline["records"], spec)
+    return failures
+
+
+def _regressions(records, base, spec):
+    failures = []
+    for name, b in base.items():
+        relevant = [g for g in spec.regressions if _matches(name, g.match)]
+        if not relevant:
+            continue
+        r = records.get(name)
+        if r is None:
+            failures.append(Failure(name, "record", "missing", "present (in baseline)",
+                                    "missing"))
+            continue
+        if b.get("status") == "ok" and r.get("status") != "ok":
+            failures.append(Failure(name, "status", f"{r.get('status')}: {r.get('reason')}",
+                                    "ok (as in baseline)", "regression"))
+            continue
+        if r.get("status") != "ok":
+            continue
+        for g in relevant:
+            bv = _lookup(b, g.field)
+            if bv is _ABSENT or bv is None:
+                continue
+            v = _lookup(r, g.field)
+            bm = _magnitude(bv)
+            if bm is None:
+                continue
+            allowed = bm + (bm * g.tolerance / 100.0 if g.relative else g.tolerance)
+            limit = f"<= {allowed:.6g} (baseline {bm:.6g} + {g.label})"
+            if v is _ABSENT or v is None:
+                failures.append(Failure(name, g.field, "missing", limit, "regression"))
+                continue
+            m = _magnitude(v)
+            if m is None or not m <= allowed:
+                failures.append(Failure(name, g.field, _fmt(v), limit, "regression"))
+    return failures
+
+
+def format_failures(failures):
+    r'''One plain-text table of every failure (fullname, field, value, limit)'''
+    head = ("fullname", "field", "value", "limit")
+    rows = [(f.fullname, f.field, f.value, f.limit) for f in failures]
+    widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h)
+              for i, h in enumerate(head)]
+    widths[2] = min(widths[2], 60)
+
+    def line(cells):
+        cells = [c if len(c) <= w else c[:w - 1] + "…" for c, w in zip(cells, widths,
+                                                                        strict=True)]
+        return "  ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True)).rstrip()
+    out = [line(head), line(tuple("-" * w for w in widths))]
+    out += [line(r) for r in rows]
+    return "\n".join(out)
+
+
+def make_baseline(run_doc):
+    r'''A baseline document from a run document (same records, marked as a baseline)'''
+    from .records import BASELINE_KIND
+    doc = dict(run_doc)
+    doc["kind"] = BASELINE_KIND
+    doc["baseline_of"] = {"created": run_doc.get("created"), "source": run_doc.get("source")}
+    return doc

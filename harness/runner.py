@@ -1,0 +1,656 @@
+r'''Run a campaign: jobs as plain values, stages as plain functions, local or Dask executors
+
+SYNOPSIS
+
+    from harness.campaign import load_campaign
+    from harness.runner import expand_jobs, run_campaign
+
+    campaign = load_campaign("campaigns/quick.toml")
+    run_dir = run_campaign(campaign, "runs/x", executor="local", workers=2)
+    # runs/x/run.json holds one record per camera x model x target x renderer
+    # setting x calibrator model
+
+    jobs = expand_jobs(campaign)                # [Job, ...]
+    out = run_job(jobs[0])                      # {"job": key, "records": [dict, ...]}
+
+A Job is camera x model family x target x renderer setting. run_job() runs the
+stages, each a plain function on plain values:
+
+    camera_stage     catalogue entry -> truth model (truncated to the family)
+    poses_stage      truth, target -> [Rt_cam_board] (targets.poses.plan_poses)
+    render_stage     truth, pattern, poses -> [RenderResult]
+    detect_stage     images, target -> [Detection]
+    calibrate_stage  detections -> CalibrationResult, once per calibrator model
+    compare_stage    truth, CalibrationResult -> parameter errors, projection difference
+
+and returns one record per calibrator model. A stage that fails (the camera
+cannot see the target, the renderer raises, nothing is detected, the
+calibrator diverges) ends the job's records with status "failed", the stage
+and the reason; it never raises. Jobs are independent; the executor runs them
+in local processes (concurrent.futures, forkserver) or on a Dask cluster
+(--executor dask --scheduler ADDRESS). Each job's records are stored in the
+run directory as soon as the job ends, so an interrupted run resumes with only
+the missing jobs.
+'''
+
+import math
+import os
+import sys
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from reference_models.errors import CamvalError
+
+from .records import RunStore, jsonable, make_fullname, settings_label
+
+FAMILY_ORDER = ("CAHV", "CAHVOR", "CAHVORE")
+MAP_SIZE = 96            # longest side of a stored projection-difference map
+EXECUTORS = ("local", "dask")
+
+
+class RunnerError(CamvalError):
+    '''Bad runner options (unknown executor, missing scheduler address).'''
+
+
+@dataclass(frozen=True)
+class Job:
+    r'''One camera x model family x target x renderer setting, and the calibrators to run
+
+key:          camera/model/target/renderer[settings] (the records' fullname prefix)
+camera:       the campaign's camera spec (slot id, extra name, model file)
+camera_key:   the catalogue key used in fullnames
+calibrators:  ((name, model, options), ...)
+run_dir:      where images and maps are kept (None: keep nothing)
+'''
+
+    key: str
+    camera: str
+    camera_key: str
+    family: str
+    target: str
+    renderer: str
+    settings: dict
+    calibrators: tuple
+    poses_n: int = 6
+    poses_seed: int = 0
+    keep_images: bool = False
+    keep_maps: bool = False
+    catalogue: str = None
+    run_dir: str = None
+    cost: float = 1.0
+
+    def fullname(self, calibrator, model):
+        return make_fullname(self.camera_key, self.family, self.target, self.renderer,
+                             self.settings, calibrator, model)
+
+
+def expand_jobs(campaign, entries=None, run_dir=None):
+    r'''The campaign's jobs, in a stable order (camera, model, target, renderer, setting)
+
+entries: {camera spec: CatalogueEntry} from campaign.validate() (validated here if None).
+'''
+    if entries is None:
+        entries = campaign.validate()
+    jobs = []
+    for spec in campaign.cameras:
+        entry = entries[spec]
+        key = camera_key(entry, spec)
+        w, h = entry.model.width, entry.model.height
+        for family in campaign.models:
+            for target in campaign.targets:
+                for r in campaign.renderers:
+                    for s in r.settings():
+                        cals = tuple((c.name, m, dict(c.options)) for c in campaign.calibrators
+                                     for m in c.models_for(family))
+                        jobs.append(Job(
+                            key=f"{key}/{family}/{target}/{r.name}[{settings_label(s)}]",
+                            camera=spec, camera_key=key, family=family, target=target,
+                            renderer=r.name, settings=s, calibrators=cals,
+                            poses_n=campaign.poses_n, poses_seed=campaign.poses_seed,
+                            keep_images=campaign.keep_images, keep_maps=campaign.keep_maps,
+                            catalogue=campaign.catalogue,
+                            run_dir=str(run_dir) if run_dir is not None else None,
+                            cost=float(w * h) * (1.0 + 0.02 * s["spp"])))
+    keys = [j.key for j in jobs]
+    if len(set(keys)) != len(keys):
+        dup = sorted({k for k in keys if keys.count(k) > 1})
+        raise RunnerError(f"the campaign lists the same job twice: {dup[0]} (a camera named "
+                          f"twice under different specs?)")
+    return jobs
+
+
+def camera_key(entry, spec):
+    r'''The camera's part of a fullname: "15", "SuperCam", "file-<name>" (never a path)'''
+    key = str(getattr(entry, "key", None) or spec)
+    if getattr(entry, "kind", "") == "file" or "/" in key:
+        key = "file-" + _slug(Path(key).name)
+    return key
+
+
+# --- per-process caches (a worker runs many jobs) -----------------------------
+_CACHE = {}
+
+
+def _cached(kind, key, make):
+    k = (kind, key)
+    if k not in _CACHE:
+        _CACHE[k] = make()
+    return _CACHE[k]
+
+
+def _catalogue(overlay):
+    def make():
+        from reference_models.catalogue import load_catalogue
+        return load_catalogue(overlay=overlay) if overlay else load_catalogue()
+    return _cached("catalogue", overlay, make)
+
+
+def _target(name):
+    def make():
+        from targets.boards import load_target
+        return load_target(name)
+    return _cached("target", name, make)
+
+
+def _renderer(name):
+    def make():
+        from renderers.base import get_renderer
+        return get_renderer(name)
+    return _cached("renderer", name, make)
+
+
+# --- stages ---------------------------------------------------------------------
+class StageFailed(Exception):
+    r'''A stage that cannot go on: becomes records with status (failed / not-applicable)'''
+
+    def __init__(self, stage, reason, status="failed"):
+        super().__init__(reason)
+        self.stage = stage
+        self.reason = reason
+        self.status = status
+
+
+def _reason(e):
+    msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    if isinstance(e, CamvalError):
+        return msg or type(e).__name__
+    return f"{type(e).__name__}: {msg}" if msg else type(e).__name__
+
+
+def camera_stage(job):
+    r'''-> (CatalogueEntry, truth model of the job's family)'''
+    from reference_models.cahvore import truncate
+    try:
+        entry = _catalogue(job.catalogue).get(job.camera)
+    except CamvalError as e:
+        raise StageFailed("camera", _reason(e)) from None
+    have = entry.model.family
+    if FAMILY_ORDER.index(job.family) > FAMILY_ORDER.index(have):
+        raise StageFailed("camera", f"camera {job.camera_key} is a {have}; a {job.family} "
+                                    f"cannot be derived from it", status="not-applicable")
+    return entry, truncate(entry.model, job.family)
+
+
+def poses_stage(truth, target, n, seed):
+    r'''-> [Rt_cam_board (4,3)] * n'''
+    from targets.poses import plan_poses
+    try:
+        return plan_poses(truth, target, n=n, seed=seed)
+    except Exception as e:  # NotVisibleError and any planner bug alike end this job only
+        raise StageFailed("poses", _reason(e)) from None
+
+
+def render_stage(renderer_name, truth, target, poses, settings):
+    r'''-> ([RenderResult], seconds per image (list), renderer version)'''
+    from renderers.base import RenderSettings
+    try:
+        renderer = _renderer(renderer_name)
+        rs = RenderSettings(spp=int(settings["spp"]), adaptive=bool(settings["adaptive"]),
+                            options=dict(settings.get("options") or {}))
+        pattern = target.pattern()
+        results, secs = [], []
+        for Rt in poses:
+            t0 = time.perf_counter()
+            results.append(renderer.render(truth, pattern, Rt, rs))
+            secs.append(time.perf_counter() - t0)
+        version = renderer.version() if hasattr(renderer, "version") else ""
+    except Exception as e:
+        raise StageFailed("render", _reason(e)) from None
+    return results, secs, version
+
+
+def detect_stage(images, target):
+    r'''-> ([Detection], seconds)'''
+    from targets.detect import detect
+    t0 = time.perf_counter()
+    try:
+        dets = [detect(im, target) for im in images]
+    except Exception as e:
+        raise StageFailed("detect", _reason(e)) from None
+    secs = time.perf_counter() - t0
+    if not any(d.n_found for d in dets):
+        reasons = sorted({d.reason for d in dets if d.reason})
+        raise StageFailed("detect", "the target was found in none of the "
+                                    f"{len(dets)} images" + (f": {reasons[0]}" if reasons else ""))
+    return dets, secs
+
+
+def observations_from(truth, target, poses, detections):
+    r'''Detections -> harness.calibrators Observations (board poses surveyed, as the paper)'''
+    import mrcal
+    import numpy as np
+
+    from harness.calibrators.base import Observations
+    q = np.stack([np.asarray(d.q, dtype=np.float64) for d in detections])
+    Rt_ref_cam = truth.Rt_ref_cam()
+    Rt_ref_board = np.stack([mrcal.compose_Rt(Rt_ref_cam, np.asarray(Rt, dtype=np.float64))
+                             for Rt in poses])
+    ids = target.point_ids() if hasattr(target, "point_ids") else None
+    return Observations(q=q, p_board=np.asarray(target.points(), dtype=np.float64),
+                        imagersize=(truth.width, truth.height), Rt_ref_board=Rt_ref_board,
+                        point_ids=ids)
+
+
+def calibrate_stage(name, obs, target, model, truth, options):
+    r'''-> CalibrationResult (never raises: a crash is a failed result)'''
+    from harness.calibrators import calibrate
+    from harness.calibrators.base import CalibrationResult
+    t0 = time.perf_counter()
+    try:
+        return calibrate(name, obs, target, model, truth=truth, **options)
+    except Exception as e:
+        return CalibrationResult(calibrator=name, model_name=model, status="failed",
+                                 reason=_reason(e), seconds=time.perf_counter() - t0)
+
+
+def _downsample(m, size=MAP_SIZE):
+    import numpy as np
+    m = np.asarray(m, dtype=np.float64)
+    if m.ndim == 3:  # (H,W,2) difference vectors -> magnitudes
+        m = np.linalg.norm(m, axis=-1)
+    step = max(1, math.ceil(max(m.shape) / size))
+    if step == 1:
+        return m
+    H, W = (m.shape[0] // step) * step, (m.shape[1] // step) * step
+    if H == 0 or W == 0:
+        return m[::step, ::step]
+    with np.errstate(invalid="ignore"):
+        blocks = m[:H, :W].reshape(H // step, step, W // step, step)
+        return np.nanmax(blocks, axis=(1, 3)) if np.isfinite(blocks).any() else blocks[:, 0, :, 0]
+
+
+def compare_stage(truth, result):
+    r'''-> (params {name: error or None}, projection {"rms", "max", mode: {...}}, map)
+
+The same figures as harness.compare.compare(result, truth) (a test holds them
+equal), computed here from its parts so that the rotation-mode difference map
+(ny,nx) px is kept without computing it twice. projection["rms"] and ["max"]
+are the rotation-mode values: the headline projection difference.
+'''
+    from harness import compare as cmp
+    world = bool(result.info.get("world_frame", result.calibrator == "jpl"))
+    theta = result.calibrator == "jpl"
+    params = cmp.parameter_errors(truth, result.model, theta_estimated=theta,
+                                  world_frame=world)
+    proj = {}
+    themap = None
+    for mode in ("rotation", "intrinsics") + (("world",) if world else ()):
+        d = cmp.projection_difference(truth, result.model, mode=mode)
+        if mode == "rotation":
+            themap = d["map"]
+        proj[mode] = {k: v for k, v in d.items() if k not in ("q", "map")}
+    proj["rms"] = proj["rotation"]["rms"]
+    proj["max"] = proj["rotation"]["max"]
+    return jsonable(params), jsonable(proj), themap
+
+
+def _record(job, cal, model, entry, **kw):
+    from .records import Record
+    model_obj = getattr(entry, "model", None) if entry is not None else None
+    label = ""
+    if entry is not None:
+        label = " ".join(str(x) for x in (getattr(entry, "rover", ""),
+                                          getattr(entry, "role", ""),
+                                          getattr(entry, "side", "")) if x)
+    base = dict(fullname=job.fullname(cal, model), camera=job.camera_key, camera_label=label,
+                model=job.family, target=job.target, renderer=job.renderer,
+                settings=job.settings, calibrator=cal, calibrator_model=model,
+                image_size=[model_obj.width, model_obj.height] if model_obj is not None
+                else None)
+    base.update(kw)
+    return Record(**base).as_dict()
+
+
+def failure_records(job, stage, reason, status="failed", entry=None, **kw):
+    r'''One record per calibrator model of the job, all with this status and reason'''
+    return [_record(job, cal, model, entry, status=status, stage=stage, reason=reason, **kw)
+            for cal, model, _ in job.calibrators]
+
+
+def _slug(s):
+    import re
+    return re.sub(r"[^A-Za-z0-9=.,_-]+", "_", s)
+
+
+def run_job(job):
+    r'''Run one job's stages -> {"job": key, "records": [record dict, ...]}
+
+Never raises for a failing stage: the records say which stage failed and why.
+'''
+    import numpy as np
+    entry = None
+    seconds = {}
+    try:
+        entry, truth = camera_stage(job)
+        target = _target(job.target)
+        t0 = time.perf_counter()
+        poses = poses_stage(truth, target, job.poses_n, job.poses_seed)
+        seconds["poses"] = time.perf_counter() - t0
+        renders, rsecs, rversion = render_stage(job.renderer, truth, target, poses,
+                                                job.settings)
+        seconds["render"] = float(sum(rsecs))
+        seconds["render_per_image"] = float(sum(rsecs) / len(rsecs))
+        images = [r.image for r in renders]
+        artifacts = {}
+        if job.keep_images and job.run_dir:
+            artifacts["images"] = _keep_images(job, images)
+        dets, seconds["detect"] = detect_stage(images, target)
+        detections = {"n_expected": int(sum(d.n_expected for d in dets)),
+                      "n_found": int(sum(d.n_found for d in dets)),
+                      "per_pose": [int(d.n_found) for d in dets],
+                      "failed_poses": [i for i, d in enumerate(dets) if d.status != "ok"]}
+        if job.keep_images and job.run_dir:
+            artifacts["detections"] = _keep_detections(job, dets, poses)
+        obs = observations_from(truth, target, poses, dets)
+    except StageFailed as e:
+        return {"job": job.key, "records": failure_records(
+            job, e.stage, e.reason, status=e.status, entry=entry, seconds=seconds)}
+    except Exception as e:  # a bug in a stage: still a record, with where it happened
+        tb = traceback.extract_tb(e.__traceback__)[-1]
+        return {"job": job.key, "records": failure_records(
+            job, "internal", f"{_reason(e)} ({Path(tb.filename).name}:{tb.lineno})",
+            entry=entry, seconds=seconds)}
+
+    settings_meta = renders[0].metadata if renders and isinstance(renders[0].metadata, dict) \
+        else {}
+    records = []
+    for cal, model, options in job.calibrators:
+        res = calibrate_stage(cal, obs, target, model, truth, options)
+        sec = dict(seconds, calibrate=float(res.seconds))
+        versions = {"renderer": f"{job.renderer} {rversion}".strip(),
+                    "calibrator": f"{res.library} {res.library_version}".strip()}
+        info = {"iterations": int(res.iterations), "render_metadata": _small(settings_meta)}
+        if res.status != "ok":
+            records.append(_record(job, cal, model, entry, status=res.status,
+                                   stage="calibrate", reason=res.reason or "(no reason given)",
+                                   residuals=res.residual_stats(), seconds=sec,
+                                   detections=detections, artifacts=artifacts,
+                                   versions=versions, info=info))
+            continue
+        t0 = time.perf_counter()
+        try:
+            params, projection, themap = compare_stage(truth, res)
+        except Exception as e:
+            sec["compare"] = time.perf_counter() - t0
+            records.append(_record(job, cal, model, entry, status="failed", stage="compare",
+                                   reason=_reason(e), residuals=res.residual_stats(),
+                                   seconds=sec, detections=detections, artifacts=artifacts,
+                                   versions=versions, info=info))
+            continue
+        sec["compare"] = time.perf_counter() - t0
+        arts = dict(artifacts)
+        if job.keep_maps and job.run_dir and themap is not None:
+            rel = Path("maps") / (_slug(job.fullname(cal, model)) + ".npy")
+            path = Path(job.run_dir) / rel
+            path.parent.mkdir(parents=True, exist_ok=True)
+            np.save(path, _downsample(themap).astype(np.float32))
+            arts["map"] = str(rel)
+        records.append(_record(job, cal, model, entry, status="ok",
+                               residuals=res.residual_stats(), params=params,
+                               projection=projection, seconds=sec, detections=detections,
+                               artifacts=arts, versions=versions, info=info))
+    return {"job": job.key, "records": records}
+
+
+def _small(meta):
+    r'''The JSON-friendly, small part of renderer metadata'''
+    out = {}
+    for k, v in meta.items():
+        v = jsonable(v)
+        if isinstance(v, (int, float, str, bool)) or v is None:
+            out[k] = v
+        elif isinstance(v, dict) and len(str(v)) < 400:
+            out[k] = v
+    out.pop("seconds", None)   # timings live in record.seconds
+    return out
+
+
+def _keep_images(job, images):
+    from renderers.png import save_png16
+    rels = []
+    for i, im in enumerate(images):
+        rel = Path("images") / _slug(job.key) / f"pose{i}.png"
+        (Path(job.run_dir) / rel).parent.mkdir(parents=True, exist_ok=True)
+        save_png16(Path(job.run_dir) / rel, im)
+        rels.append(str(rel))
+    return rels
+
+
+def _keep_detections(job, dets, poses):
+    import numpy as np
+    rel = Path("images") / _slug(job.key) / "detections.npz"
+    np.savez_compressed(Path(job.run_dir) / rel,
+                        q=np.stack([np.asarray(d.q, dtype=np.float64) for d in dets]),
+                        Rt_cam_board=np.stack([np.asarray(p) for p in poses]))
+    return str(rel)
+
+
+# --- executors --------------------------------------------------------------------
+def _local_results(fn, jobs, workers):
+    r'''Yield (job, result or exception) as jobs finish, in local processes'''
+    if workers <= 1:
+        for job in jobs:
+            try:
+                yield job, fn(job)
+            except Exception as e:
+                yield job, e
+        return
+    import concurrent.futures as cf
+    import multiprocessing
+    # forkserver, not fork: the parent may hold threads (the progress bar, BLAS)
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["harness.runner"])
+    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
+        futs = {ex.submit(fn, job): job for job in jobs}
+        try:
+            for fut in cf.as_completed(futs):
+                try:
+                    yield futs[fut], fut.result()
+                except Exception as e:
+                    yield futs[fut], e
+        except BaseException:
+            for f in futs:
+                f.cancel()
+            raise
+
+
+def _dask_results(fn, jobs, scheduler):
+    r'''Yield (job, result or exception) as jobs finish on a Dask cluster'''
+    try:
+        from dask.distributed import Client, as_completed
+    except ImportError:
+        raise RunnerError("--executor dask needs dask.distributed; install camval's "
+                          "dependencies (uv sync)") from None
+    try:
+        client = Client(scheduler, timeout="20s", set_as_default=False)
+    except (OSError, TimeoutError) as e:
+        raise RunnerError(f"cannot reach the Dask scheduler at {scheduler!r}: {e}") from None
+    try:
+        futs = {}
+        for job in jobs:
+            f = client.submit(fn, job, pure=False, key=f"camval-{_slug(job.key)}-{id(job)}")
+            futs[f] = job
+        for fut in as_completed(list(futs)):
+            try:
+                yield futs[fut], fut.result()
+            except Exception as e:
+                yield futs[fut], e
+    finally:
+        client.close()
+
+
+class _Progress:
+    r'''A rich progress bar with ETA on a terminal; one plain line per job otherwise'''
+
+    def __init__(self, total, enabled=True, stream=None):
+        self.total = total
+        self.done = 0
+        self.stream = stream or sys.stderr
+        self.t0 = time.monotonic()
+        self.enabled = enabled
+        self.bar = None
+        if enabled and total and getattr(self.stream, "isatty", lambda: False)():
+            from rich.console import Console
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+            self.bar = Progress(TextColumn("[bold]verify"), BarColumn(), MofNCompleteColumn(),
+                                TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+                                TextColumn("{task.description}"),
+                                console=Console(file=self.stream), transient=False)
+            self.task = self.bar.add_task("", total=total)
+            self.bar.start()
+
+    def advance(self, job_key, statuses):
+        self.done += 1
+        summary = ", ".join(f"{n} {s}" for s, n in sorted(statuses.items()))
+        if self.bar is not None:
+            self.bar.update(self.task, advance=1, description=f"{job_key} ({summary})")
+        elif self.enabled:
+            el = time.monotonic() - self.t0
+            eta = el / self.done * (self.total - self.done)
+            print(f"[{self.done}/{self.total}] {job_key}: {summary}  "
+                  f"(elapsed {el:.0f} s, ETA {eta:.0f} s)", file=self.stream, flush=True)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def run_jobs(jobs, store, fn=run_job, executor="local", workers=None, scheduler=None,
+             progress=True):
+    r'''Run jobs, storing each job's records in `store` as it finishes
+
+SYNOPSIS
+
+    n_done = run_jobs(jobs, RunStore.open(run_dir), executor="local", workers=2)
+
+Jobs already stored are skipped (resume). A job whose worker crashed is
+stored as failed records (stage "worker"). Largest jobs are started first,
+so the slowest ones do not finish last. Returns the number of jobs run.
+'''
+    if executor not in EXECUTORS:
+        raise RunnerError(f"unknown executor {executor!r}; known: {', '.join(EXECUTORS)}")
+    if executor == "dask" and not scheduler:
+        raise RunnerError("--executor dask needs --scheduler ADDRESS (e.g. tcp://host:8786)")
+    done = store.done_jobs()
+    todo = sorted((j for j in jobs if j.key not in done), key=lambda j: (-j.cost, j.key))
+    if workers is None:
+        workers = min(len(todo), os.cpu_count() or 1)
+    bar = _Progress(len(todo), enabled=progress)
+    try:
+        results = (_dask_results(fn, todo, scheduler) if executor == "dask"
+                   else _local_results(fn, todo, workers))
+        for job, out in results:
+            if isinstance(out, BaseException):
+                recs = failure_records(job, "worker", _reason(out))
+            else:
+                recs = out["records"]
+            store.save_job(job.key, recs)
+            statuses = {}
+            for r in recs:
+                statuses[r["status"]] = statuses.get(r["status"], 0) + 1
+            bar.advance(job.key, statuses)
+    finally:
+        bar.close()
+    return len(todo)
+
+
+def adapters_from_records(records):
+    r'''{"renderers": {...}, "calibrators": {...}, "libraries": {...}} seen in a run'''
+    out = {"renderers": {}, "calibrators": {}, "libraries": library_versions()}
+    for r in records.values():
+        v = r.get("versions") or {}
+        if v.get("renderer"):
+            out["renderers"][r["renderer"]] = v["renderer"]
+        if v.get("calibrator"):
+            out["calibrators"][r["calibrator"]] = v["calibrator"]
+    return out
+
+
+def library_versions():
+    from importlib import metadata
+    out = {"python": sys.version.split()[0]}
+    for dist in ("numpy", "scipy", "numba", "mrcal", "opencv-python-headless", "pycolmap",
+                 "pupil-apriltags", "matplotlib", "dask", "distributed", "camval"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def run_campaign(campaign, run_dir, executor="local", workers=None, scheduler=None,
+                 resume=False, progress=True, entries=None):
+    r'''Run (or resume) a campaign into run_dir; write run.json; return the run document'''
+    if resume:
+        store = RunStore.open(run_dir)
+    else:
+        store = RunStore.create(run_dir, campaign.as_dict())
+    jobs = expand_jobs(campaign, entries=entries, run_dir=store.dir)
+    t0 = time.perf_counter()
+    n = run_jobs(jobs, store, executor=executor, workers=workers, scheduler=scheduler,
+                 progress=progress)
+    wall = time.perf_counter() - t0
+    records = store.records()
+    expected = {j.key for j in jobs}
+    stray = {k for k in store.done_jobs() if k not in expected}
+    return store.assemble(adapters=adapters_from_records(records),
+                          extra={"execution": {"executor": executor, "workers": workers,
+                                               "scheduler": scheduler,
+                                               "jobs": len(jobs), "jobs_run": n,
+                                               "stray_jobs": sorted(stray),
+                                               "wall_seconds": wall}})
+
+
+@dataclass
+class StageTimes:
+    r'''Per-stage seconds summed over a run's records (for benchmarks)'''
+    totals: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, records):
+        seen_jobs = {}
+        cal = 0.0
+        for r in records.values():
+            s = r.get("seconds") or {}
+            job = r["fullname"].rsplit("/", 1)[0]
+            seen_jobs.setdefault(job, s)
+            cal += s.get("calibrate", 0.0) or 0.0
+        t = {"poses": 0.0, "render": 0.0, "detect": 0.0}
+        n_images = 0
+        for s in seen_jobs.values():
+            for k in t:
+                t[k] += s.get(k, 0.0) or 0.0
+            if s.get("render_per_image"):
+                n_images += round(s["render"] / s["render_per_image"])
+        t["calibrate"] = cal
+        t["images"] = n_images
+        return cls(t)
