@@ -34,7 +34,9 @@ The procedure:
 4. Second pass (bias_correction=True): each detection is corrected by the
    dot-centroid bias (expected centroid of the projected dot outline minus the
    projection of its centre) computed with the current model and the surveyed
-   board poses, and the fit is repeated from the first-pass model.
+   board poses, and the fit is repeated from the first-pass model. This is
+   repeated (at most bias_passes times) until the bias changes by less than
+   bias_tolerance px: one pass suffices for a navcam, wide hazcams need two.
 
 R0_GAUGE: in CAHVOR and CAHVORE, R0 is exactly redundant. With
 S = I + R0 O O^T, the model (A, H, V, O, R0, R1, R2) projects every point
@@ -45,7 +47,7 @@ one-parameter family of exact solutions along which theta, A, Hs and Vs move
 option R0 says otherwise) and compare.py compares the truth moved to the same
 R0. Projections do not depend on this choice.
 
-Options: bias_correction (True), bias_passes (1), max_rms (1.0 px: a larger
+Options: bias_correction (True), bias_passes (4), bias_tolerance (1e-5 px), max_rms (1.0 px: a larger
 final RMS residual is reported as divergence), model_type and linearity (for
 CAHVORE when no CAHVORE truth is given; default type 1).
 '''
@@ -275,7 +277,8 @@ def _cahvore_type(truth, options):
     return t, options.get("linearity", {1: 1.0, 2: 0.0}.get(t))
 
 
-def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=1,
+def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4,
+        bias_tolerance=1e-5,
         max_rms=1.0, model_type=None, linearity=None, R0=0.0):
     r'''The jpl calibrator (see the module docstring); returns a CalibrationResult'''
     t0 = time.perf_counter()
@@ -304,6 +307,7 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=1
     q_used = q_obs
     bias_applied = False
     if bias_correction and bias_passes > 0:
+        b_prev = None
         for ipass in range(bias_passes):
             Rts = Rt_cam_board_of(model, obs.Rt_ref_board)
             b = [centroid_bias(model, target, Rt, obs.p_board[i]) if target is not None
@@ -312,13 +316,20 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=1
                 passes.append({"pass": ipass + 2, "skipped": "the target has no dots: "
                                "no centroid bias to correct"})
                 break
-            q_used = q_obs - np.array(b)
+            b = np.array(b)
+            change = (float(np.nanmax(np.abs(b - b_prev))) if b_prev is not None
+                      else float(np.nanmax(np.abs(b))))
+            if b_prev is not None and change < bias_tolerance:
+                break
+            b_prev = b
+            q_used = q_obs - b
             bias_applied = True
             ok = found & np.all(np.isfinite(q_used), axis=-1)
             model, info = fit_model(p_ref[ok], q_used[ok], model_name, W, H, mtype, lin,
                                     m0=model, R0=R0)
             r = np.linalg.norm(model.project(p_ref[ok]) - q_used[ok], axis=-1)
-            passes.append({"pass": ipass + 2, "rms": float(np.sqrt(np.mean(r * r))),
+            passes.append({"pass": ipass + 2, "bias_change_max": change,
+                           "rms": float(np.sqrt(np.mean(r * r))),
                            "max": float(r.max()), **info})
     residuals = q_used - model.project(p_ref)
     residuals[~found] = np.nan
@@ -332,6 +343,6 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=1
         iterations=sum(x.get("nfev", 0) for x in passes),
         seconds=time.perf_counter() - t0,
         info={"passes": passes, "bias_corrected": bias_applied,
-              "world_points_known": True,
+              "world_points_known": True, "world_frame": True,
               "model_type": mtype, "linearity": lin,
               "R0_held": R0 if model_name != "CAHV" else None}, **common)

@@ -2,10 +2,10 @@ r'''Exact synthetic correspondences for testing calibrators (no rendering)
 
 SYNOPSIS
 
-    from harness.calibrators.synthetic import default_target, test_poses, exact_observations
+    from harness.calibrators.synthetic import default_target, synthetic_poses, exact_observations
 
     target = default_target()                     # the 10x10 dot grid
-    Rts = test_poses(model, target, n=6)          # list of Rt_cam_board (4,3)
+    Rts = synthetic_poses(model, target, n=6)          # list of Rt_cam_board (4,3)
     obs = exact_observations(model, target, Rts)  # q = projected dot centres
 
 The poses: the board (10x10, 0.1 m spacing) centred on the rays of the image
@@ -65,7 +65,7 @@ def _rotation(axis, angle):
     return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
-def test_poses(model, target, n=6, seed=0):
+def synthetic_poses(model, target, n=6, seed=0):
     r'''n board poses Rt_cam_board (4,3) filling the image of `model`'''
     rng = np.random.default_rng(seed)
     W, H = model.width, model.height
@@ -129,3 +129,36 @@ project outside the image are NaN.
     q[outside] = np.nan
     return Observations(q=q, p_board=p, imagersize=(W, H), Rt_ref_board=Rt_ref_board,
                         point_ids=np.asarray(target.point_ids()))
+
+
+def catalogue_models():
+    r'''[(key, model)] of every catalogue camera: the 22 slots, then the extras
+
+Uses reference_models.catalogue when it exists, else reads the shared TOML.
+'''
+    try:
+        from reference_models.catalogue import load_catalogue
+    except ImportError:
+        return _toml_models()
+    cat = load_catalogue()
+    return [(str(e.key), e.model) for e in list(cat.slots()) + list(cat.extras())]
+
+
+def _toml_models(path="/work/shared/catalogue/cameras.toml"):
+    import tomllib
+
+    from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
+    with open(path, "rb") as f:
+        data = tomllib.load(f)
+    out = []
+    for e in data["camera"] + data["extra"]:
+        kw = dict(C=e["C"], A=e["A"], H=e["H"], V=e["V"], width=e["width"], height=e["height"])
+        if "E" in e:
+            m = CAHVORE(O=e["O"], R=e["R"], E=e["E"], model_type=e["model_type"],
+                        linearity=e["linearity"], **kw)
+        elif "O" in e:
+            m = CAHVOR(O=e["O"], R=e["R"], **kw)
+        else:
+            m = CAHV(**kw)
+        out.append((str(e.get("id", e.get("name"))), m))
+    return out

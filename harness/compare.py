@@ -1,0 +1,265 @@
+r'''Compare a calibrator's result with the truth: parameters, projections, residuals
+
+SYNOPSIS
+
+    from harness.compare import compare, parameter_errors, projection_difference
+
+    summary = compare(result, truth)           # a JSON-able dict
+    errors = parameter_errors(truth, fit, theta_estimated=True, world_frame=True)
+    errors["Hc"], errors["theta_deg"]          # float, or None: "not estimated"
+    d = projection_difference(truth, fit, mode="rotation")
+    d["rms"], d["max"]                         # px over the whole image grid
+    d["map"]                                   # (ny,nx) |q_fit - q_truth|, px
+
+Parameter errors (fit - truth):
+
+- Hc, Vc (px); Hs, Vs (fractional); Hs*(1+R0), Vs*(1+R0) (fractional, raw
+  models); theta_deg (deg); C_mm (|C_fit - C_truth|, mm); A_deg, O_deg (angle,
+  deg); R0, R1, R2 (absolute and fractional); E0, E1, E2 (absolute).
+- None means "not estimated": the fit's family lacks the parameter (O, R, E
+  for CAHV, OpenCV and COLMAP fits; theta for every calibrator but jpl, whose
+  fits are the only ones with independent H and V), or the fit's world frame
+  is not the truth's (C, A when the board poses were estimated).
+- R0 gauge: in CAHVOR and CAHVORE R0 is exactly redundant with A, H and V
+  (harness.calibrators.jpl_fit, R0_GAUGE). Before comparing, the truth is
+  moved to the fit's R0 by with_R0(), an exact re-parametrisation; the raw
+  truth's Hs*(1+R0) is compared as well, since it is nearly gauge-free.
+- O is compared in each model's own camera frame (x = H', y = A x H', z = A),
+  so it is meaningful also when the world frames differ.
+
+Projection difference: pixels q over a grid covering the whole image are
+unprojected with the truth; points at range_m (2 m) along those rays
+(noncentral CAHVORE needs a range) are expressed in the truth's camera frame
+and projected by the fit placed in its own camera frame:
+
+- "intrinsics": nothing aligned: the camera frames are identified.
+- "rotation": the rotation between the two camera frames that minimises the
+  projection difference is fitted first (as mrcal.projection_diff aligns the
+  two cameras; a pure rotation here).
+- "world": no frames at all: the fit projects the world points (only when
+  the fit lives in the truth's world frame, e.g. jpl).
+'''
+
+import math
+
+import numpy as np
+
+JPL_FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
+DEFAULT_RANGE_M = 2.0
+DEFAULT_GRID_STEP = 16
+
+
+def with_R0(model, R0=0.0):
+    r'''The exactly equivalent CAHVOR/CAHVORE model with radial term R0 set to `R0`
+
+SYNOPSIS
+
+    m0 = with_R0(m)            # projects every point as m does; m0.R[0] == 0
+
+With k = (1 + R0_old)/(1 + R0) and T = k I - (k - 1) O O^T:
+A' = T A / |T A|, H' = T H / |T A|, V' = T V / |T A|,
+R' = (R0, R1 (1+R0)/(1+R0_old), R2 (1+R0)/(1+R0_old)); C, O, E unchanged.
+'''
+    if model.family not in ("CAHVOR", "CAHVORE"):
+        return model
+    k = (1.0 + model.R[0]) / (1.0 + R0)
+    T = k * np.eye(3) - (k - 1.0) * np.outer(model.O, model.O)
+    TA = T @ model.A
+    n = np.linalg.norm(TA)
+    s = (1.0 + R0) / (1.0 + model.R[0])
+    return model.replace(A=TA / n, H=T @ model.H / n, V=T @ model.V / n,
+                         R=np.array([R0, model.R[1] * s, model.R[2] * s]))
+
+
+def _angle_deg(u, v):
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    c = np.cross(u, v)
+    return math.degrees(math.atan2(np.linalg.norm(c), float(u @ v)))
+
+
+def _intrinsics(model):
+    r'''(Hc, Vc, Hs, Vs) of any fitted model'''
+    if getattr(model, "family", None) in JPL_FAMILIES:
+        ph = model.photogrammetric()
+        return ph.Hc, ph.Vc, ph.Hs, ph.Vs
+    return model.cx, model.cy, model.fx, model.fy
+
+
+def _in_cam(model, v):
+    return model.Rt_ref_cam()[:3].T @ v
+
+
+def _frac(a, b):
+    return None if b == 0 else (a - b) / abs(b)
+
+
+def parameter_errors(truth, fit, theta_estimated=None, world_frame=None):
+    r'''Errors of the fitted parameters against the truth (fit - truth)
+
+SYNOPSIS
+
+    e = parameter_errors(truth, fit, theta_estimated=True, world_frame=True)
+    # dict of floats; None where the fit does not estimate the parameter
+
+theta_estimated defaults to True for JPL-family fits; world_frame (the fit's
+C and A are in the truth's world frame) defaults to False.
+'''
+    fam = getattr(fit, "family", None)
+    jpl = fam in JPL_FAMILIES
+    if theta_estimated is None:
+        theta_estimated = jpl
+    world_frame = bool(world_frame)
+    t = truth
+    if jpl and fam != "CAHV" and t.family != "CAHV":
+        t = with_R0(truth, float(fit.R[0]))
+    if jpl and fam == "CAHV":
+        t = truth.to_cahv()
+    Hc, Vc, Hs, Vs = _intrinsics(fit)
+    tHc, tVc, tHs, tVs = _intrinsics(t)
+    out = {"Hc": Hc - tHc, "Vc": Vc - tVc, "Hs": _frac(Hs, tHs), "Vs": _frac(Vs, tVs)}
+    fit_R0 = float(fit.R[0]) if jpl and fam != "CAHV" else 0.0
+    truth_R0 = float(truth.R[0]) if truth.family != "CAHV" else 0.0
+    traw = truth.photogrammetric()
+    out["Hs*(1+R0)"] = _frac(_intrinsics(fit)[2] * (1 + fit_R0), traw.Hs * (1 + truth_R0))
+    out["Vs*(1+R0)"] = _frac(_intrinsics(fit)[3] * (1 + fit_R0), traw.Vs * (1 + truth_R0))
+    out["theta_deg"] = (fit.photogrammetric().theta_deg - t.photogrammetric().theta_deg
+                        if theta_estimated and jpl else None)
+    out["C_mm"] = (1e3 * float(np.linalg.norm(fit.C - t.C))
+                   if world_frame and jpl else None)
+    out["A_deg"] = _angle_deg(fit.A, t.A) if world_frame and jpl else None
+    has_O = jpl and fam != "CAHV" and t.family != "CAHV"
+    out["O_deg"] = _angle_deg(_in_cam(fit, fit.O), _in_cam(t, t.O)) if has_O else None
+    for i in range(3):
+        name = f"R{i}"
+        if has_O:
+            out[name] = float(fit.R[i] - t.R[i])
+            out[name + "_frac"] = _frac(float(fit.R[i]), float(t.R[i]))
+        else:
+            out[name] = out[name + "_frac"] = None
+    has_E = jpl and fam == "CAHVORE" and t.family == "CAHVORE"
+    for i in range(3):
+        out[f"E{i}"] = float(fit.E[i] - t.E[i]) if has_E else None
+    return {k: (None if v is None else float(v)) for k, v in out.items()}
+
+
+def image_grid(width, height, step=DEFAULT_GRID_STEP):
+    r'''Pixel centres on a regular grid covering the whole image, edges included
+
+SYNOPSIS
+
+    q = image_grid(W, H, step=16)   # q has shape (ny,nx,2)
+'''
+    nx = max(2, int(math.ceil((width - 1) / step)) + 1)
+    ny = max(2, int(math.ceil((height - 1) / step)) + 1)
+    x = np.linspace(0.0, width - 1.0, nx)
+    y = np.linspace(0.0, height - 1.0, ny)
+    return np.stack(np.meshgrid(x, y), axis=-1)
+
+
+def _transform(Rt, p):
+    return p @ Rt[:3].T + Rt[3]
+
+
+def _R_from_r(r):
+    th = np.linalg.norm(r)
+    if th < 1e-300:
+        return np.eye(3)
+    k = r / th
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * K @ K
+
+
+def _fit_rotation(fit, p_cam, q, nmax=2000):
+    r'''The rotation R minimising |fit(R p_cam) - q| (p_cam in the truth's camera frame)'''
+    import scipy.optimize
+    ok = np.all(np.isfinite(q), axis=-1) & np.all(np.isfinite(p_cam), axis=-1)
+    idx = np.flatnonzero(ok)
+    if len(idx) > nmax:
+        idx = idx[np.linspace(0, len(idx) - 1, nmax).astype(int)]
+    P, Q = p_cam[idx], q[idx]
+    Rt_ref_cam = fit.Rt_ref_cam()
+
+    def res(r):
+        d = fit.project(_transform(Rt_ref_cam, P @ _R_from_r(r).T)) - Q
+        return np.where(np.isfinite(d), d, 1e3).ravel()
+
+    with np.errstate(all="ignore"):
+        sol = scipy.optimize.least_squares(res, np.zeros(3), method="lm",
+                                           ftol=1e-15, xtol=1e-15, gtol=1e-15)
+    return _R_from_r(sol.x)
+
+
+def projection_difference(truth, fit, mode="rotation", range_m=DEFAULT_RANGE_M,
+                          step=DEFAULT_GRID_STEP):
+    r'''|fit - truth| in projection over the whole image
+
+SYNOPSIS
+
+    d = projection_difference(truth, fit, mode="rotation")
+    # d["map"] (ny,nx) px, NaN where the fit cannot project; d["q"] (ny,nx,2)
+    # d["rms"], d["max"] px over the finite entries; d["n_invalid"]
+
+mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
+(camera frames identified) or "world" (the world frames identified).
+'''
+    if mode not in ("rotation", "intrinsics", "world"):
+        from reference_models.errors import CamvalError
+        raise CamvalError(f"projection-difference mode {mode!r}; expected rotation, "
+                          "intrinsics or world")
+    if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
+            truth.family in ("CAHVOR", "CAHVORE"):
+        # the same projection, in the camera frame matching the fit's R0 gauge
+        truth = with_R0(truth, float(fit.R[0]))
+    q = image_grid(truth.width, truth.height, step)
+    o, v = truth.unproject(q)
+    p_ref = o + range_m * v
+    if mode == "world":
+        qf = fit.project(p_ref)
+        R = None
+    else:
+        Rt = truth.Rt_ref_cam()
+        p_cam = (p_ref - Rt[3]) @ Rt[:3]
+        R = np.eye(3)
+        if mode == "rotation":
+            R = _fit_rotation(fit, p_cam.reshape(-1, 3), q.reshape(-1, 2))
+        qf = fit.project(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
+    d = np.linalg.norm(qf - q, axis=-1)
+    finite = np.isfinite(d)
+    out = {"mode": mode, "range_m": range_m, "step": step, "q": q, "map": d,
+           "n": int(finite.sum()), "n_invalid": int((~finite).sum()),
+           "rms": float(np.sqrt(np.mean(d[finite] ** 2))) if finite.any() else None,
+           "max": float(d[finite].max()) if finite.any() else None}
+    if R is not None:
+        out["rotation_deg"] = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
+    return out
+
+
+def compare(result, truth, range_m=DEFAULT_RANGE_M, step=DEFAULT_GRID_STEP):
+    r'''Everything the report needs about one CalibrationResult, as a JSON-able dict
+
+SYNOPSIS
+
+    s = compare(result, truth)
+    # s["residuals"]: {"n","min","max","rms","mean"} per point, px
+    # s["parameters"]: parameter_errors(); s["projection"][mode]: {"rms","max",...}
+'''
+    from harness.calibrators.base import jsonable
+    out = {"calibrator": result.calibrator, "model_name": result.model_name,
+           "status": result.status, "reason": result.reason,
+           "residuals": result.residual_stats()}
+    if not result.ok or result.model is None:
+        out["parameters"] = None
+        out["projection"] = None
+        return out
+    world = bool(result.info.get("world_frame", result.calibrator == "jpl"))
+    theta = result.calibrator == "jpl"
+    out["parameters"] = parameter_errors(truth, result.model, theta_estimated=theta,
+                                         world_frame=world)
+    modes = ("rotation", "intrinsics") + (("world",) if world else ())
+    proj = {}
+    for mode in modes:
+        d = projection_difference(truth, result.model, mode=mode, range_m=range_m, step=step)
+        proj[mode] = {k: v for k, v in d.items() if k not in ("q", "map")}
+    out["projection"] = proj
+    return jsonable(out)

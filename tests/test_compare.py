@@ -1,0 +1,89 @@
+'''Comparison with the truth: R0 gauge, parameter errors, projection difference, residuals'''
+
+import math
+
+import numpy as np
+import pytest
+
+from harness.calibrators.base import CalibrationResult, residual_stats
+from harness.calibrators.synthetic import catalogue_models
+from harness.compare import (
+    compare,
+    image_grid,
+    parameter_errors,
+    projection_difference,
+    with_R0,
+)
+
+MODELS = dict(catalogue_models())
+NAVCAM = MODELS["15"]
+HAZCAM = MODELS["8"]
+
+
+@pytest.mark.parametrize("key", ["15", "8"])
+def test_with_R0_is_an_exact_reparametrisation(key):
+    m = MODELS[key]
+    q = image_grid(m.width, m.height, step=32).reshape(-1, 2)
+    o, v = m.unproject(q)
+    p = o + 2.0 * v
+    for R0 in (0.0, 0.05, -0.02):
+        m2 = with_R0(m, R0)
+        assert m2.R[0] == R0
+        np.testing.assert_allclose(m2.project(p), q, rtol=0, atol=1e-9)
+    # and it moves theta and A: R0 is not identifiable
+    assert abs(with_R0(NAVCAM, 0.0).photogrammetric().theta_deg
+               - NAVCAM.photogrammetric().theta_deg) > 1e-5
+
+
+def test_truth_against_itself_is_zero():
+    e = parameter_errors(HAZCAM, HAZCAM, world_frame=True)
+    for k, v in e.items():
+        if k.endswith("_frac") and HAZCAM.R[int(k[1])] == 0:
+            assert v is None
+        else:
+            assert v == pytest.approx(0.0, abs=1e-9), k
+    for mode in ("world", "rotation", "intrinsics"):
+        d = projection_difference(HAZCAM, HAZCAM, mode=mode, step=64)
+        assert d["max"] < 1e-9
+        assert d["n_invalid"] == 0
+
+
+def test_not_estimated_is_none_never_a_number():
+    cahv = NAVCAM.to_cahv()
+    e = parameter_errors(NAVCAM, cahv)
+    assert e["O_deg"] is None and e["R0"] is None and e["E0"] is None
+    assert e["C_mm"] is None and e["A_deg"] is None  # world frame not declared shared
+    assert e["theta_deg"] == pytest.approx(0.0, abs=1e-12)
+    e = parameter_errors(NAVCAM, NAVCAM, theta_estimated=False)
+    assert e["theta_deg"] is None
+    assert e["E1"] is None  # a CAHVOR has no E
+
+
+def test_shifted_centre_shows_in_intrinsics_mode_exactly():
+    ph = NAVCAM.photogrammetric()
+    shifted = NAVCAM.with_photogrammetric(type(ph)(ph.Hc + 0.5, ph.Vc, ph.Hs, ph.Vs,
+                                                   ph.Hp, ph.Vp))
+    e = parameter_errors(NAVCAM, shifted)
+    assert e["Hc"] == pytest.approx(0.5, abs=1e-9)
+    assert e["Vc"] == pytest.approx(0.0, abs=1e-9)
+    d = projection_difference(NAVCAM, shifted, mode="intrinsics", step=64)
+    # a pinhole with the centre moved: every pixel moves by 0.5 px (distortion about O
+    # is unchanged since O stays put in the world frame; small change only)
+    assert d["rms"] == pytest.approx(0.5, abs=0.02)
+    r = projection_difference(NAVCAM, shifted, mode="rotation", step=64)
+    assert r["rms"] < 0.1 * d["rms"]  # a rotation absorbs most of a centre shift
+    assert r["rotation_deg"] == pytest.approx(math.degrees(0.5 / ph.Hs), rel=0.15)
+
+
+def test_residual_statistics_per_point():
+    res = np.array([[[3.0, 4.0], [0.0, 1.0], [np.nan, np.nan]]])
+    s = residual_stats(res)
+    assert s == {"n": 2, "min": 1.0, "max": 5.0, "rms": math.sqrt(13.0), "mean": 3.0}
+
+
+def test_compare_of_a_failed_result_has_no_numbers():
+    r = CalibrationResult(calibrator="jpl", model_name="CAHV", status="failed",
+                          reason="too few points")
+    s = compare(r, NAVCAM)
+    assert s["parameters"] is None and s["projection"] is None
+    assert s["status"] == "failed"

@@ -1,0 +1,160 @@
+'''The jpl calibrator: exact recovery of every catalogue model, bias correction, failures'''
+
+import numpy as np
+import pytest
+
+from harness.calibrators import calibrate, jpl_fit
+from harness.calibrators.base import Observations
+from harness.calibrators.synthetic import (
+    catalogue_models,
+    default_target,
+    exact_observations,
+    synthetic_poses,
+)
+from harness.compare import compare, projection_difference, with_R0
+
+TARGET = default_target()
+MODELS = catalogue_models()
+
+
+def _theta(m):
+    return m.photogrammetric().theta_deg
+
+
+FAST_KEYS = ("15", "17", "SuperCam")  # one CAHVOR, one CAHVORE, one CAHV
+
+
+@pytest.mark.parametrize("key,truth", [(k, m) for k, m in MODELS if k in FAST_KEYS],
+                         ids=FAST_KEYS)
+def test_exact_recovery_one_model_per_family(key, truth):
+    _check_exact_recovery(truth)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key,truth", MODELS, ids=[k for k, _ in MODELS])
+def test_exact_recovery_every_catalogue_model(key, truth):
+    _check_exact_recovery(truth)
+
+
+def _check_exact_recovery(truth):
+    obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET))
+    r = calibrate("jpl", obs, TARGET, truth.family, truth=truth, bias_correction=False)
+    assert r.status == "ok", r.reason
+    assert r.model.family == truth.family
+    assert r.residual_stats()["max"] < 1e-9
+    for mode in ("world", "rotation", "intrinsics"):
+        d = projection_difference(truth, r.model, mode=mode, step=64)
+        assert d["n_invalid"] == 0
+        assert d["max"] <= 1e-6, (mode, d["max"])
+    # theta is compared in the fit's R0 gauge (R0 is redundant; the fit holds R0 = 0)
+    t = with_R0(truth, 0.0) if truth.family != "CAHV" else truth
+    assert abs(_theta(r.model) - _theta(t)) <= 1e-7
+    np.testing.assert_allclose(r.model.C, truth.C, atol=1e-9)
+
+
+def test_dlt_is_exact_for_a_cahv():
+    key, truth = next((k, m) for k, m in MODELS if m.family == "CAHVOR")
+    cahv = truth.to_cahv()
+    obs = exact_observations(cahv, TARGET, synthetic_poses(cahv, TARGET))
+    f = obs.found
+    m = jpl_fit.dlt_cahv(obs.p_ref()[f], obs.q[f], cahv.width, cahv.height)
+    for name in "CAHV":
+        np.testing.assert_allclose(getattr(m, name), getattr(cahv, name), rtol=0, atol=1e-6)
+
+
+def test_theta_off_90_is_recovered():
+    # an exaggerated skew: theta = 89 deg
+    _, truth = next((k, m) for k, m in MODELS if k == "15")
+    ph = truth.photogrammetric()
+    Vp = np.cos(np.radians(89.0)) * ph.Hp + np.sin(np.radians(89.0)) * np.cross(truth.A, ph.Hp)
+    skewed = truth.with_photogrammetric(type(ph)(ph.Hc, ph.Vc, ph.Hs, ph.Vs, ph.Hp, Vp))
+    assert abs(_theta(skewed) - 89.0) < 1e-9
+    obs = exact_observations(skewed, TARGET, synthetic_poses(skewed, TARGET))
+    r = calibrate("jpl", obs, TARGET, "CAHVOR", bias_correction=False)
+    assert r.ok
+    assert abs(_theta(r.model) - _theta(with_R0(skewed, 0.0))) < 1e-7
+
+
+def test_bias_correction_recovers_the_model_from_dot_centroids():
+    _, truth = next((k, m) for k, m in MODELS if k == "15")
+    obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET), centroids=True)
+    raw = compare(calibrate("jpl", obs, TARGET, "CAHVOR", bias_correction=False), truth)
+    fixed_result = calibrate("jpl", obs, TARGET, "CAHVOR")
+    fixed = compare(fixed_result, truth)
+    # the bias shows in the model, not in the residuals
+    assert raw["projection"]["world"]["rms"] > 0.03
+    assert fixed["projection"]["world"]["rms"] < 1e-4
+    assert fixed["projection"]["rotation"]["rms"] < 1e-4
+    assert abs(fixed["parameters"]["Hc"]) < 1e-4
+    assert abs(fixed["parameters"]["theta_deg"]) < 1e-6
+    assert fixed_result.info["bias_corrected"] is True
+    assert len(fixed_result.info["passes"]) >= 2
+
+
+def test_cahvore_type_and_linearity_come_from_the_truth():
+    _, truth = next((k, m) for k, m in MODELS if m.family == "CAHVORE" and m.width == 640)
+    obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET))
+    r = calibrate("jpl", obs, TARGET, "CAHVORE", truth=truth, bias_correction=False)
+    assert r.ok
+    assert r.model.model_type == truth.model_type
+    assert r.model.linearity == truth.linearity
+
+
+# --- failures are results -------------------------------------------------------------
+
+def _navcam_obs():
+    _, truth = next((k, m) for k, m in MODELS if k == "15")
+    return truth, exact_observations(truth, TARGET, synthetic_poses(truth, TARGET))
+
+
+def test_too_few_points_is_a_failed_result():
+    truth, obs = _navcam_obs()
+    q = np.full_like(obs.q, np.nan)
+    q[0, :5] = obs.q[0, :5]
+    r = calibrate("jpl", obs.replace(q=q), TARGET, "CAHVOR")
+    assert r.status == "failed"
+    assert "too few points: 5 found" in r.reason
+
+
+def test_coplanar_points_are_degenerate():
+    truth, obs = _navcam_obs()
+    one = Observations(q=obs.q[:1], p_board=obs.p_board[:1], imagersize=obs.imagersize,
+                       Rt_ref_board=obs.Rt_ref_board[:1])
+    r = calibrate("jpl", one, TARGET, "CAHV")
+    assert r.status == "failed"
+    assert r.reason.startswith("degenerate poses")
+
+
+def test_garbage_detections_diverge():
+    truth, obs = _navcam_obs()
+    rng = np.random.default_rng(1)
+    q = rng.uniform(0, 1023, size=obs.q.shape)
+    r = calibrate("jpl", obs.replace(q=q), TARGET, "CAHV", bias_correction=False)
+    assert r.status == "failed"
+    assert r.reason.startswith("diverged: RMS residual")
+
+
+def test_unknown_board_poses_fail():
+    truth, obs = _navcam_obs()
+    r = calibrate("jpl", obs.replace(Rt_ref_board=None), TARGET, "CAHV")
+    assert r.status == "failed"
+    assert "Rt_ref_board" in r.reason
+
+
+def test_other_families_are_not_applicable():
+    truth, obs = _navcam_obs()
+    r = calibrate("jpl", obs, TARGET, "OPENCV5")
+    assert r.status == "not-applicable"
+    assert "CAHV, CAHVOR, CAHVORE" in r.reason
+
+
+def test_an_exception_inside_the_solver_is_a_failed_result(monkeypatch):
+    truth, obs = _navcam_obs()
+
+    def boom(*args, **kwargs):
+        raise FloatingPointError("synthetic solver crash")
+
+    monkeypatch.setattr(jpl_fit, "fit_model", boom)
+    r = calibrate("jpl", obs, TARGET, "CAHV")
+    assert r.status == "failed"
+    assert r.reason == "exception inside scipy: FloatingPointError: synthetic solver crash"
