@@ -1,0 +1,281 @@
+r'''Board poses for calibrating a camera: the six target positions of the JPL procedure
+
+SYNOPSIS
+
+    from targets.poses import plan_poses, pose_summary, NotVisibleError
+
+    Rt_cam_board_all = plan_poses(model, target, n=6, seed=0)   # list of (4,3) arrays
+    pose_summary(model, target, Rt_cam_board_all[0])            # range, tilt, image bounds, ...
+
+The JPL calibration procedure images the dot board in six positions. The
+planner places the board so that together the six images constrain focal
+length, image centre and distortion:
+
+- pose 0: in the middle of the image, nearly facing the camera, as close as
+  the board fits (it fills most of the image);
+- poses 1-4: pushed into each corner of the image (top-left, top-right,
+  bottom-right, bottom-left) until the board touches both image edges, at a
+  larger range and tilted 30-45 deg about varying axes;
+- pose 5: in the middle again, tilted about 40 deg, at a middle range.
+
+More poses cycle through these with other tilts. A seed jitters tilt angle,
+tilt axis, roll and range (deterministically). Every pose keeps the whole
+board (its outline, sampled densely) inside the image with a margin
+(2 % of the smaller image side, at least 4 px), in front of the camera
+(camera-frame z > 0 for every board point) and facing it; the board's
+tilt (angle between its normal and the line of sight to its centre) is at
+most MAX_TILT_DEG. Viewing directions come from model.unproject() and every
+check uses model.project(), so this works for any CAHV/CAHVOR/CAHVORE model,
+central or not, mirrored or not.
+
+Poses are Rt_cam_board (4,3) in the camera frame of model.Rt_ref_cam().
+
+When the planner refuses (NotVisibleError): a camera whose optical centre
+(Hc, Vc) lies more than one image size outside its image (the SuperCam
+remote micro-imager: its 2048x2048 image looks about 40 deg off its axis A
+through a 1.7 deg window). Such a camera can see a board (at ~35 m for the 1 m
+board), but the JPL procedure - a board facing the camera across its field,
+observing focal length and centre - does not apply: a pinhole fit cannot
+separate the far-off centre from the focal length. Pass
+allow_offaxis=True to plan anyway. It also refuses when the board does not fit
+at any range up to max_range (default 100 m), or when the image centre does
+not unproject.
+'''
+
+import math
+
+import numpy as np
+
+from reference_models.errors import CamvalError
+
+MAX_TILT_DEG = 45.0
+MAX_VIEW_ANGLE_DEG = 78.0      # largest angle between the board normal and a ray to the board
+DEFAULT_MAX_RANGE = 100.0      # metres
+NOUTLINE_PER_EDGE = 32
+
+# (anchor, tilt deg, tilt axis azimuth deg in the board plane, roll deg, range factor)
+# anchor: None = image centre, else (sx, sy) signs of the image corner to push towards.
+# range factor: times the range at which the board just fits in the middle of the image.
+_TEMPLATES = (
+    (None, 8.0, 30.0, 0.0, 1.0),
+    ((-1, -1), 40.0, 135.0, 3.0, 1.45),
+    ((1, -1), 35.0, 0.0, -3.0, 1.3),
+    ((1, 1), 45.0, 45.0, 2.0, 1.55),
+    ((-1, 1), 30.0, 90.0, -2.0, 1.35),
+    (None, 40.0, 110.0, 0.0, 1.15),
+)
+
+
+class NotVisibleError(CamvalError):
+    '''A camera that cannot see the target in a usable calibration pose (the message says why).'''
+
+
+def _rotation(axis, angle):
+    r'''Rodrigues: rotation matrix about a unit axis by angle (rad)'''
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
+
+
+class _Planner:
+    def __init__(self, model, target, margin_px, max_range):
+        self.model = model
+        self.target = target
+        self.W, self.H = model.width, model.height
+        self.margin = float(margin_px)
+        self.max_range = float(max_range)
+        Rt = model.Rt_ref_cam()
+        self.R_ref_cam = Rt[:3]
+        self.t_ref_cam = Rt[3]
+        self.outline = target.outline(NOUTLINE_PER_EDGE)
+        self.centre_board = target.centre()
+        self.size = math.hypot(*target.size())
+        self.cos_view_max = math.cos(math.radians(MAX_VIEW_ANGLE_DEG))
+
+    def ray_cam(self, q):
+        o, v = self.model.unproject(np.asarray(q, dtype=np.float64))
+        o_cam = (o - self.t_ref_cam) @ self.R_ref_cam
+        v_cam = v @ self.R_ref_cam
+        return o_cam, v_cam
+
+    def pose(self, q_anchor, d, tilt, azimuth, roll):
+        r'''Rt_cam_board placing the board centre at range d along the ray of q_anchor'''
+        o, v = self.ray_cam(q_anchor)
+        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(v))):
+            return None
+        # board axes facing the ray: z along the ray, x as close to the camera's x as possible
+        ex = np.array([1.0, 0.0, 0.0])
+        x = ex - (ex @ v) * v
+        if np.linalg.norm(x) < 1e-6:
+            x = np.array([0.0, 1.0, 0.0]) - v[1] * v
+        x /= np.linalg.norm(x)
+        y = np.cross(v, x)
+        R = np.stack((x, y, v), axis=1)
+        a = math.radians(azimuth)
+        axis = math.cos(a) * x + math.sin(a) * y
+        R = _rotation(v, math.radians(roll)) @ _rotation(axis, math.radians(tilt)) @ R
+        t = o + d * v - R @ self.centre_board
+        return np.vstack((R, t))
+
+    def fits(self, Rt):
+        if Rt is None:
+            return False
+        p_cam = self.outline @ Rt[:3].T + Rt[3]
+        if not np.all(p_cam[:, 2] > 0):
+            return False
+        n = Rt[:3, 2]
+        # rays from the camera centre: the board must face the camera, not too obliquely
+        u = p_cam / np.linalg.norm(p_cam, axis=-1, keepdims=True)
+        if not np.all(u @ n >= self.cos_view_max):
+            return False
+        q = self.model.project(p_cam @ self.R_ref_cam.T + self.t_ref_cam)
+        m = self.margin
+        return bool(np.all(np.isfinite(q))
+                    and np.all(q[:, 0] >= m - 0.5) and np.all(q[:, 0] <= self.W - 0.5 - m)
+                    and np.all(q[:, 1] >= m - 0.5) and np.all(q[:, 1] <= self.H - 0.5 - m))
+
+    def closest_fit_range(self, q_anchor, tilt, azimuth, roll):
+        r'''Smallest range at which the board fits with its centre on the ray of q_anchor'''
+        def ok(d):
+            return self.fits(self.pose(q_anchor, d, tilt, azimuth, roll))
+        hi = self.size
+        while not ok(hi):
+            hi *= 2.0
+            if hi > self.max_range:
+                return None
+        lo = hi / 2.0
+        while ok(lo) and lo > 1e-3 * self.size:
+            hi, lo = lo, lo / 2.0
+        for _ in range(24):
+            mid = math.sqrt(lo * hi)
+            if ok(mid):
+                hi = mid
+            else:
+                lo = mid
+        return hi
+
+    def push(self, q_centre, corner, d, tilt, azimuth, roll):
+        r'''Move the board's anchor from the image centre towards an image corner, along x
+then y (twice), as far as it still fits: the board ends touching both edges'''
+        s = np.zeros(2)
+        span = np.asarray(corner, dtype=np.float64) - q_centre
+
+        def ok(s):
+            return self.fits(self.pose(q_centre + s * span, d, tilt, azimuth, roll))
+
+        for _ in range(2):
+            for k in (0, 1):
+                lo, hi = s[k], 1.0
+                trial = s.copy()
+                for _ in range(20):
+                    trial[k] = 0.5 * (lo + hi)
+                    if ok(trial):
+                        lo = trial[k]
+                    else:
+                        hi = trial[k]
+                s[k] = lo
+        return q_centre + s * span
+
+
+def _margin_px(model):
+    return max(4.0, 0.02 * min(model.width, model.height))
+
+
+def plan_poses(model, target, n=6, seed=0, *, allow_offaxis=False, max_range=DEFAULT_MAX_RANGE):
+    r'''Plan n board poses that calibrate `model`
+
+SYNOPSIS
+
+    Rt_cam_board_all = plan_poses(model, target, n=6, seed=0)
+    # list of n arrays of shape (4,3), in the camera frame of model.Rt_ref_cam()
+
+See the module docstring for what the poses are. Deterministic for a seed.
+Raises NotVisibleError (with the reason) when the camera cannot see the
+target in a usable calibration pose, CamvalError for a bad n.
+'''
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise CamvalError(f"number of poses must be a positive integer; got {n!r}")
+    W, H = model.width, model.height
+    ph = model.photogrammetric()
+    if not allow_offaxis and (abs(ph.Hc - (W - 1) / 2) > W or abs(ph.Vc - (H - 1) / 2) > H):
+        off = float(np.degrees(np.arccos(np.clip(
+            model.unproject(np.array([(W - 1) / 2, (H - 1) / 2]))[1] @ model.A, -1, 1))))
+        raise NotVisibleError(
+            f"the optical centre ({ph.Hc:.0f}, {ph.Vc:.0f}) px lies far outside the {W}x{H} "
+            f"image: the camera looks {off:.1f} deg off its axis A, so a board facing it cannot "
+            "constrain focal length and centre (pass allow_offaxis=True to plan anyway)")
+    planner = _Planner(model, target, _margin_px(model), max_range)
+    q_centre = np.array([(W - 1) / 2, (H - 1) / 2])
+    o, v = planner.ray_cam(q_centre)
+    if not (np.all(np.isfinite(o)) and np.all(np.isfinite(v))):
+        raise NotVisibleError(f"the image centre {q_centre.tolist()} does not unproject "
+                              "through this camera model")
+    rng = np.random.default_rng(seed)
+    corners = {(-1, -1): (-0.5, -0.5), (1, -1): (W - 0.5, -0.5),
+               (1, 1): (W - 0.5, H - 0.5), (-1, 1): (-0.5, H - 0.5)}
+    poses = []
+    for i in range(n):
+        anchor, tilt, azimuth, roll, factor = _TEMPLATES[i % len(_TEMPLATES)]
+        if i >= len(_TEMPLATES):
+            # later rounds: other tilt axes and ranges
+            azimuth += 60.0 * (i // len(_TEMPLATES))
+            factor *= 1.0 + 0.15 * (i // len(_TEMPLATES))
+        tilt = min(MAX_TILT_DEG, max(0.0, tilt + rng.uniform(-5.0, 5.0)))
+        azimuth += rng.uniform(-15.0, 15.0)
+        roll += rng.uniform(-3.0, 3.0)
+        factor *= rng.uniform(0.95, 1.05)
+        d_fit = planner.closest_fit_range(q_centre, tilt, azimuth, roll)
+        if d_fit is None:
+            raise NotVisibleError(
+                f"the {target.name!r} board ({target.size()[0]:.3g} x {target.size()[1]:.3g} m) "
+                f"does not fit the {W}x{H} image at any range up to {max_range:g} m "
+                f"(margin {planner.margin:.0f} px, tilt {tilt:.0f} deg)")
+        d = max(1.0, factor) * d_fit
+        if d > max_range:
+            raise NotVisibleError(
+                f"pose {i}: the {target.name!r} board needs a range of {d:.3g} m (it fits the "
+                f"{W}x{H} image from {d_fit:.3g} m); more than max_range = {max_range:g} m")
+        q_anchor = q_centre if anchor is None else planner.push(
+            q_centre, corners[anchor], d, tilt, azimuth, roll)
+        Rt = planner.pose(q_anchor, d, tilt, azimuth, roll)
+        if not planner.fits(Rt):
+            raise NotVisibleError(f"pose {i}: no placement of the board fits the {W}x{H} image "
+                                  f"at {d:.3g} m with tilt {tilt:.0f} deg")
+        poses.append(Rt)
+    return poses
+
+
+def pose_summary(model, target, Rt_cam_board, margin_px=None):
+    r'''What a board pose looks like through a camera
+
+SYNOPSIS
+
+    s = pose_summary(model, target, Rt_cam_board)
+    s["range_m"], s["tilt_deg"], s["in_view"], s["in_front"], s["q_min"], s["q_max"]
+
+range_m: distance from the camera centre to the board centre; tilt_deg: angle
+between the board normal and that line of sight; in_front: every outline point
+has camera-frame z > 0 and the board faces the camera; in_view: the outline
+projects inside the image with margin_px (default: the planner's margin);
+q_min, q_max: the bounding box of the projected outline.
+'''
+    Rt = np.asarray(Rt_cam_board, dtype=np.float64)
+    margin = _margin_px(model) if margin_px is None else float(margin_px)
+    outline = target.outline(NOUTLINE_PER_EDGE)
+    p_cam = outline @ Rt[:3].T + Rt[3]
+    c = target.centre() @ Rt[:3].T + Rt[3]
+    n = Rt[:3, 2]
+    rng = float(np.linalg.norm(c))
+    tilt = float(np.degrees(np.arccos(np.clip(c @ n / rng, -1, 1))))
+    Rt_ref_cam = model.Rt_ref_cam()
+    q = model.project(p_cam @ Rt_ref_cam[:3].T + Rt_ref_cam[3])
+    W, H = model.width, model.height
+    finite = bool(np.all(np.isfinite(q)))
+    in_view = finite and bool(
+        np.all(q[:, 0] >= margin - 0.5) and np.all(q[:, 0] <= W - 0.5 - margin)
+        and np.all(q[:, 1] >= margin - 0.5) and np.all(q[:, 1] <= H - 0.5 - margin))
+    in_front = bool(np.all(p_cam[:, 2] > 0) and c @ n > 0)
+    return {"range_m": rng, "tilt_deg": tilt, "in_view": in_view, "in_front": in_front,
+            "q_min": np.nanmin(q, axis=0) if finite else None,
+            "q_max": np.nanmax(q, axis=0) if finite else None}
