@@ -47,9 +47,10 @@ one-parameter family of exact solutions along which theta, A, Hs and Vs move
 option R0 says otherwise) and compare.py compares the truth moved to the same
 R0. Projections do not depend on this choice.
 
-Options: bias_correction (True), bias_passes (4), bias_tolerance (1e-5 px), max_rms (1.0 px: a larger
-final RMS residual is reported as divergence), model_type and linearity (for
-CAHVORE when no CAHVORE truth is given; default type 1).
+Options: bias_correction (True), bias_passes (4), bias_tolerance (1e-5 px),
+max_rms (1.0 px: a larger final RMS residual is reported as divergence),
+model_type and linearity (for CAHVORE when no CAHVORE truth is given; default
+type 1), R0 (the value R0 is held at, 0).
 '''
 
 import math
