@@ -1,0 +1,359 @@
+r'''The report's figures (matplotlib, Agg): the paper's Figs. 3-11, maps, speed vs accuracy
+
+SYNOPSIS
+
+    from reports.figures import make_figures
+
+    figs = make_figures(records, run_dir, out_dir)
+    # [Figure(key, title, caption, path), ...]; path is a PNG in out_dir
+
+Every figure plots per-camera values, one panel per calibrator (model),
+coloured by the model family the images were rendered with, like the paper's
+plots (camera number on the x axis). Records that are not ok are left out of
+the plots (the report lists them). A figure with nothing to plot is not made.
+'''
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+FAMILY_COLOURS = {"CAHV": "tab:blue", "CAHVOR": "tab:orange", "CAHVORE": "tab:green"}
+FAMILY_OFFSET = {"CAHV": -0.22, "CAHVOR": 0.0, "CAHVORE": 0.22}
+
+
+@dataclass(frozen=True)
+class Figure:
+    key: str
+    title: str
+    caption: str
+    path: str
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def camera_order(records):
+    r'''Camera keys in paper order: slot numbers ascending, then the others by name'''
+    keys = {r["camera"] for r in records.values()}
+
+    def k(c):
+        return (0, int(c), "") if c.isdigit() else (1, 0, c)
+    return sorted(keys, key=k)
+
+
+def calibrator_panels(records):
+    r'''[(calibrator, calibrator_model label), ...] that have ok records, in a stable order'''
+    out = sorted({(r["calibrator"], _calmodel(r)) for r in records.values()
+                  if r["status"] == "ok"})
+    return out
+
+
+def _calmodel(r):
+    m = r["calibrator_model"]
+    return "family" if m == r["model"] else m
+
+
+def _panel_records(records, cal, calmodel):
+    return [r for r in records.values()
+            if r["status"] == "ok" and r["calibrator"] == cal and _calmodel(r) == calmodel]
+
+
+def _param(r, name):
+    v = (r.get("params") or {}).get(name)
+    return None if v is None else float(v)
+
+
+def _per_camera_figure(records, out, key, title, ylabel, series, caption, logy=False,
+                       absolute=False):
+    r'''series: [(label, marker, getter(record) -> float or None), ...]'''
+    panels = calibrator_panels(records)
+    cams = camera_order(records)
+    xpos = {c: i for i, c in enumerate(cams)}
+    rows = []
+    for cal, cm in panels:
+        recs = _panel_records(records, cal, cm)
+        pts = []
+        for r in recs:
+            for label, marker, get in series:
+                v = get(r)
+                if v is None or not math.isfinite(v):
+                    continue
+                if absolute or logy:
+                    v = abs(v)
+                if logy and v <= 0:
+                    v = 1e-12
+                pts.append((xpos[r["camera"]] + FAMILY_OFFSET.get(r["model"], 0), v,
+                            r["model"], label, marker))
+        if pts:
+            rows.append((cal, cm, pts))
+    if not rows:
+        return None
+    plt = _plt()
+    fig, axes = plt.subplots(len(rows), 1, figsize=(max(7.0, 0.38 * len(cams) + 3), 2.6 *
+                                                    len(rows) + 0.6), squeeze=False)
+    for ax, (cal, cm, pts) in zip(axes[:, 0], rows, strict=True):
+        seen = set()
+        for x, v, fam, label, marker in pts:
+            lab = f"{fam} {label}".strip()
+            ax.plot(x, v, marker, color=FAMILY_COLOURS.get(fam, "k"), ms=5, ls="none",
+                    mfc="none" if marker in ("^", "v") else None,
+                    label=lab if lab not in seen else None)
+            seen.add(lab)
+        ax.set_title(f"{cal}" + ("" if cm == "family" else f" [{cm}]"), fontsize=9)
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.set_xticks(range(len(cams)))
+        ax.set_xticklabels(cams, fontsize=7, rotation=90 if len(cams) > 30 else 0)
+        ax.set_xlim(-0.6, len(cams) - 0.4)
+        if logy:
+            ax.set_yscale("log")
+        else:
+            ax.axhline(0, color="0.6", lw=0.6)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=6, ncol=3, loc="best")
+    axes[-1, 0].set_xlabel("camera (catalogue slot)", fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(out) / f"{key}.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Figure(key, title, caption, str(path))
+
+
+def _res(name):
+    def get(r):
+        v = (r.get("residuals") or {}).get(name)
+        return None if v is None else float(v)
+    return get
+
+
+def _p(name, scale=1.0):
+    def get(r):
+        v = _param(r, name)
+        return None if v is None else v * scale
+    return get
+
+
+def fig_residuals(records, out):
+    return _per_camera_figure(
+        records, out, "fig03_residuals", "Calibration residuals per camera (paper Fig. 3)",
+        "residual (px)",
+        [("min", "v", _res("min")), ("RMS", "o", _res("rms")), ("max", "^", _res("max"))],
+        "Minimum, RMS and maximum per-point residual of each calibration. The paper: RMS "
+        "about 1/30 px, worst 0.14 px.", logy=True)
+
+
+def fig_center(records, out):
+    return _per_camera_figure(
+        records, out, "fig04_center", "Error in (Hc, Vc) (paper Figs. 4-5)", "error (px)",
+        [("Hc", "o", _p("Hc")), ("Vc", "x", _p("Vc"))],
+        "Recovered minus true image centre. The paper: within +-0.5 px (ROAMS rounded the "
+        "centre to half pixels).")
+
+
+def fig_focal(records, out):
+    return _per_camera_figure(
+        records, out, "fig06_focal", "Fractional error in (Hs, Vs) (paper Fig. 6)",
+        "fractional error",
+        [("Hs", "o", _p("Hs")), ("Vs", "x", _p("Vs")),
+         ("Hs(1+R0)", "s", _p("Hs*(1+R0)")), ("Vs(1+R0)", "+", _p("Vs*(1+R0)"))],
+        "Focal lengths as fractions of the truth; Hs(1+R0) is nearly free of the R0 gauge. "
+        "The paper: Vs underestimated by 0.04% or less under CAHVOR.")
+
+
+def fig_theta(records, out):
+    return _per_camera_figure(
+        records, out, "fig_theta", "Error in theta", "error (deg)",
+        [("theta", "o", _p("theta_deg"))],
+        "Recovered minus true angle between H' and V' (only the jpl calibrator estimates it). "
+        "The paper: up to 0.17 deg under CAHV, 0.002 deg under CAHVOR.")
+
+
+def fig_C(records, out):
+    return _per_camera_figure(
+        records, out, "fig07_C", "Error in C (paper Fig. 7)", "|C error| (mm)",
+        [("C", "o", _p("C_mm"))],
+        "Distance between the recovered and true camera centres. The paper: below 0.06 mm "
+        "under CAHV.", logy=True)
+
+
+def fig_A(records, out):
+    return _per_camera_figure(
+        records, out, "fig08_A", "Angular error in A (paper Fig. 8)", "angle (deg)",
+        [("A", "o", _p("A_deg"))],
+        "Angle between the recovered and true axis A. The paper: at most 0.005 deg under "
+        "CAHV.", logy=True)
+
+
+def fig_O(records, out):
+    return _per_camera_figure(
+        records, out, "fig09_O", "Angular error in O (paper Fig. 9)", "angle (deg)",
+        [("O", "o", _p("O_deg"))],
+        "Angle between the recovered and true optical axis O (each in its camera frame). "
+        "The paper: within 0.1 deg except the MER mast cameras (13-16).", logy=True)
+
+
+def fig_R_abs(records, out):
+    return _per_camera_figure(
+        records, out, "fig10_R_abs", "Absolute error in R (paper Fig. 10)", "|error|",
+        [("R0", "o", _p("R0")), ("R1", "x", _p("R1")), ("R2", "s", _p("R2"))],
+        "Absolute error of the radial terms (R0 in the fit's gauge).", logy=True)
+
+
+def fig_R_frac(records, out):
+    return _per_camera_figure(
+        records, out, "fig11_R_frac", "Fractional error in R (paper Fig. 11)",
+        "|fractional error|",
+        [("R0", "o", _p("R0_frac")), ("R1", "x", _p("R1_frac")), ("R2", "s", _p("R2_frac"))],
+        "Fractional error of the radial terms. The paper: R1, R2 well below 1% except the "
+        "mast cameras.", logy=True)
+
+
+def fig_projection(records, out):
+    return _per_camera_figure(
+        records, out, "fig_projection", "Projection difference, truth vs recovered model",
+        "px",
+        [("RMS", "o", lambda r: (r.get("projection") or {}).get("rms")),
+         ("max", "^", lambda r: (r.get("projection") or {}).get("max"))],
+        "RMS and maximum over the whole image of |fit - truth| in projection (rotation "
+        "between the camera frames fitted).", logy=True)
+
+
+def fig_maps(records, run_dir, out, limit=24):
+    r'''Small multiples of the stored projection-difference maps (keep_maps), per calibrator'''
+    figs = []
+    panels = calibrator_panels(records)
+    order = {c: i for i, c in enumerate(camera_order(records))}
+    for cal, cm in panels:
+        recs = [r for r in _panel_records(records, cal, cm)
+                if (r.get("artifacts") or {}).get("map")
+                and (Path(run_dir) / r["artifacts"]["map"]).is_file()]
+        recs.sort(key=lambda r: (order[r["camera"]], r["model"], r["fullname"]))
+        if not recs:
+            continue
+        shown = recs[:limit]
+        plt = _plt()
+        ncol = min(6, len(shown))
+        nrow = math.ceil(len(shown) / ncol)
+        fig, axes = plt.subplots(nrow, ncol, figsize=(2.1 * ncol, 2.0 * nrow + 0.5),
+                                 squeeze=False)
+        for ax in axes.ravel():
+            ax.axis("off")
+        for ax, r in zip(axes.ravel(), shown, strict=False):
+            m = np.load(Path(run_dir) / r["artifacts"]["map"])
+            vmax = float(np.nanmax(m)) if np.isfinite(m).any() else 1.0
+            im = ax.imshow(m, cmap="viridis", vmin=0, vmax=vmax if vmax > 0 else 1.0)
+            ax.set_title(f"{r['camera']} {r['model']}\nmax {vmax:.2g} px", fontsize=7)
+            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=5)
+        label = cal + ("" if cm == "family" else f" [{cm}]")
+        more = f" (first {limit} of {len(recs)})" if len(recs) > limit else ""
+        fig.suptitle(f"Projection difference |fit - truth| (px), {label}{more}", fontsize=9)
+        fig.tight_layout()
+        key = f"maps_{cal}" + ("" if cm == "family" else f"_{cm}")
+        path = Path(out) / f"{key}.png"
+        fig.savefig(path, dpi=80)
+        plt.close(fig)
+        figs.append(Figure(key, f"Projection-difference maps, {label}",
+                           "Per-pixel |fit - truth| in projection over the whole image "
+                           "(downsampled, maximum per block; own colour scale per camera).",
+                           str(path)))
+    return figs
+
+
+def speed_accuracy_points(records):
+    r'''[(renderer label, calibrator label, time per image s, median projection RMS px, n)]
+
+One point per renderer setting and calibrator: the median over its ok
+records of the projection-difference RMS, against the mean render time per
+image of its jobs.
+'''
+    groups = {}
+    for r in records.values():
+        if r["status"] != "ok":
+            continue
+        s = r.get("seconds") or {}
+        t = s.get("render_per_image")
+        rms = (r.get("projection") or {}).get("rms")
+        if t is None or rms is None:
+            continue
+        rlab = f"{r['renderer']}[{_settings_text(r['settings'])}]"
+        clab = r["calibrator"] + ("" if _calmodel(r) == "family" else f"[{_calmodel(r)}]")
+        g = groups.setdefault((rlab, clab), {"t": {}, "rms": []})
+        g["t"][r["fullname"].rsplit("/", 1)[0]] = t
+        g["rms"].append(rms)
+    return [(rl, cl, float(np.mean(list(g["t"].values()))), float(np.median(g["rms"])),
+             len(g["rms"])) for (rl, cl), g in sorted(groups.items())]
+
+
+def _settings_text(s):
+    from harness.records import settings_label
+    return settings_label(s)
+
+
+def pareto_front(points):
+    r'''Indices of the points (t, e) not dominated (no other point is faster and as accurate)'''
+    idx = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+    front, best = [], math.inf
+    for i in idx:
+        if points[i][1] < best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def fig_speed(records, out):
+    pts = speed_accuracy_points(records)
+    if not pts:
+        return None
+    plt = _plt()
+    cals = sorted({p[1] for p in pts})
+    fig, axes = plt.subplots(1, len(cals), figsize=(5.2 * len(cals), 4.2), squeeze=False)
+    for ax, cal in zip(axes[0], cals, strict=True):
+        mine = [p for p in pts if p[1] == cal]
+        xy = [(p[2], p[3]) for p in mine]
+        front = pareto_front(xy)
+        for i, (rl, _, t, e, _n) in enumerate(mine):
+            on = i in front
+            ax.plot(t, e, "o", color="tab:red" if on else "tab:blue", ms=7 if on else 5)
+            ax.annotate(rl, (t, e), fontsize=6, xytext=(3, 3), textcoords="offset points")
+        f = sorted(front, key=lambda i: xy[i][0])
+        ax.plot([xy[i][0] for i in f], [xy[i][1] for i in f], "-", color="tab:red", lw=1,
+                label="Pareto front")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("render time per image (s)", fontsize=8)
+        ax.set_ylabel("median projection-difference RMS (px)", fontsize=8)
+        ax.set_title(f"calibrated with {cal}", fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle("Speed versus accuracy of every renderer setting", fontsize=10)
+    fig.tight_layout()
+    path = Path(out) / "speed_accuracy.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Figure("speed_accuracy", "Speed versus accuracy",
+                  "Mean render time per image against the median projection-difference RMS "
+                  "of the recovered models, one point per renderer setting; red: the Pareto "
+                  "front (no other setting is both faster and more accurate).", str(path))
+
+
+def make_figures(records, run_dir, out):
+    r'''Every figure that has data -> [Figure]'''
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    figs = []
+    for f in (fig_residuals, fig_center, fig_focal, fig_theta, fig_C, fig_A, fig_O,
+              fig_R_abs, fig_R_frac, fig_projection):
+        fig = f(records, out)
+        if fig is not None:
+            figs.append(fig)
+    figs += fig_maps(records, run_dir, out)
+    sp = fig_speed(records, out)
+    if sp is not None:
+        figs.append(sp)
+    return figs
