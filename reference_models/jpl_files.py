@@ -199,6 +199,12 @@ path only names the source in error messages. See read_model().
 '''
     entries, blocks = _parse(path, text)
 
+    for name, (lineno, _) in entries.items():
+        if name.upper().startswith(("LENSMODEL_", "DISTORTION")):
+            raise ModelFileError(path, lineno,
+                                 f"{name}: a mrcal lens-model extension has no JPL equivalent; "
+                                 "expected a CAHV, CAHVOR or CAHVORE file")
+
     family = mtype = linearity = None
     model_line = None
     if "Model" in entries:

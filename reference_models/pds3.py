@@ -17,7 +17,8 @@ The label's group
       MODEL_COMPONENT_9   = 0.37         (P: linearity)
     END_GROUP             = GEOMETRIC_CAMERA_MODEL
 
-gives the vectors (by MODEL_COMPONENT_ID when present, else in the order
+(GEOMETRIC_CAMERA_MODEL_PARMS in later missions' labels) gives the vectors
+(by MODEL_COMPONENT_ID when present, else in the order
 C, A, H, V, O, R, E, T, P), and the IMAGE object's LINE_SAMPLES and LINES give
 the image width and height. PDS camera models are in the product's own 0-based
 pixel coordinates (subframing and downsampling already applied).
@@ -38,6 +39,8 @@ FAMILY_COMPONENTS = {
     "CAHVOR": ("C", "A", "H", "V", "O", "R"),
     "CAHVORE": ("C", "A", "H", "V", "O", "R", "E", "T", "P"),
 }
+# MSL and later labels name the group GEOMETRIC_CAMERA_MODEL_PARMS
+GROUP_NAMES = ("GEOMETRIC_CAMERA_MODEL", "GEOMETRIC_CAMERA_MODEL_PARMS")
 # a PDS3 label ends at END; attached labels are followed by binary data
 MAX_LABEL_BYTES = 1 << 20
 
@@ -133,15 +136,15 @@ CAHVORE type, or a missing image size.
         v = _strip_units(value)
         if name in ("OBJECT", "GROUP"):
             depth.append((name, v))
-            if (name, v) == ("GROUP", "GEOMETRIC_CAMERA_MODEL") and group is None:
+            if name == "GROUP" and v in GROUP_NAMES and group is None:
                 group = {"__line__": lineno}
             continue
         if name in ("END_OBJECT", "END_GROUP"):
-            if depth and depth.pop() == ("GROUP", "GEOMETRIC_CAMERA_MODEL"):
+            if depth and depth.pop()[1] in GROUP_NAMES and group is not None:
                 group_done = True
             continue
         top = depth[-1] if depth else None
-        if top == ("GROUP", "GEOMETRIC_CAMERA_MODEL") and not group_done:
+        if top and top[0] == "GROUP" and top[1] in GROUP_NAMES and not group_done:
             group[name] = (lineno, value)
         elif top == ("OBJECT", "IMAGE") and name in ("LINES", "LINE_SAMPLES"):
             image[name] = (lineno, value)

@@ -214,6 +214,8 @@ BAD = {
                            "C = 0 0 0", "given twice"),
     "covariance of the wrong size": (GOOD + "S =\n" + " 0.0 0.0\n" * 2, "S =",
                                      "expected 18 rows of 18 numbers"),
+    "mrcal OpenCV extension": (GOOD + "LENSMODEL_OPENCV4 = 0.1 0 0 0\n", "LENSMODEL",
+                               "has no JPL equivalent"),
     "unparseable line": (_swap(GOOD, "C = 0.1 0.2 0.3", "C 0.1 0.2 0.3"), "C 0.1",
                          "expected 'NAME = values'"),
 }
@@ -252,6 +254,20 @@ def test_good_files_read():
                                "O = 0 0.00999950003749688 0.99995000374968752\n"
                                "R = 0.001 -0.01 0.02\n", ""))
     assert c.family == "CAHV"
+
+
+@pytest.mark.parametrize("mtype, linearity", [(1, None), (2, None), (3, 0.5)])
+def test_cahvore_types_round_trip(mtype, linearity, tmp_path):
+    m = parse_model_text(GOOD_CAHVORE)
+    m = type(m)(C=m.C, A=m.A, H=m.H, V=m.V, O=m.O, R=m.R, E=m.E, model_type=mtype,
+                linearity=linearity, width=m.width, height=m.height)
+    path = tmp_path / "t.cahvore"
+    write_model(m, path)
+    assert_same_model(read_model(path), m)
+    cm = mrcal.cahvor.read(str(path))
+    assert cm.intrinsics()[0] == f"LENSMODEL_CAHVORE_linearity={m.linearity:g}"
+    p = grid_points(m, 5)
+    np.testing.assert_allclose(mrcal_project(cm, p), m.project(p), rtol=0, atol=1e-9)
 
 
 def test_missing_file(tmp_path):
@@ -321,6 +337,10 @@ def test_pds3_bad_label(tmp_path):
                                 "MODEL_COMPONENT_3               = (351.362,452.204)"))
     with pytest.raises(ModelFileError, match=r"MODEL_COMPONENT_3 \(H\) has 2 number"):
         read_pds3_model(bad)
+    parms = tmp_path / "parms.LBL"
+    parms.write_text(text.replace("= GEOMETRIC_CAMERA_MODEL\n", "= GEOMETRIC_CAMERA_MODEL_PARMS\n"))
+    assert "GEOMETRIC_CAMERA_MODEL_PARMS" in parms.read_text()
+    assert_same_model(read_pds3_model(parms), read_pds3_model(PDS_LABELS[0]))
     bad.write_text("PDS_VERSION_ID = PDS3\nOBJECT = IMAGE\n LINES = 4\nEND_OBJECT = IMAGE\nEND\n")
     with pytest.raises(ModelFileError, match="no 'GROUP = GEOMETRIC_CAMERA_MODEL'"):
         read_pds3_model(bad)
