@@ -1,0 +1,135 @@
+r'''Find a target's points in an image: the dispatcher and the Detection result
+
+SYNOPSIS
+
+    from targets.detect import detect
+
+    det = detect(image, target)     # image (H,W) float in [0,1] (or uint8/uint16)
+    det.status                      # "ok" | "failed"
+    det.q[det.found]                # (Nfound,2) pixel positions, camval's pixel convention
+    det.n_found, det.n_expected, det.reason
+
+One detector per target kind: targets.detect_dots (intensity-weighted dot
+centroids, ordered with the orientation mark), targets.detect_apriltag
+(pupil_apriltags), targets.detect_chessboard (OpenCV). q[i] belongs to
+target.point_ids()[i]; NaN where a point was not found.
+
+A detector never raises because the target was not found: it returns status
+"failed" with the reason. Only input that is not an image at all (wrong
+dimensions, unknown target kind) raises a CamvalError.
+'''
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from reference_models.errors import CamvalError
+
+
+class DetectionInputError(CamvalError):
+    '''An image or option a detector cannot work on (not a "target not found").'''
+
+
+@dataclass(frozen=True, eq=False)
+class Detection:
+    r'''What a detector found
+
+q:          (N,2) float64 pixel positions, NaN for points not found
+found:      (N,) bool
+status:     "ok" (at least the detector's min_found points found; n_found says how many)
+            | "failed" (target not found or too few points; reason says why)
+reason:     "" when ok, else why not
+n_expected: N, the number of points of the target
+n_found:    number of points found
+point_ids:  (N,) ids of the points (target.point_ids())
+detector:   name of the detector
+info:       detector-specific figures (JSON-able)
+'''
+
+    q: np.ndarray
+    found: np.ndarray
+    status: str
+    reason: str
+    n_expected: int
+    n_found: int
+    point_ids: np.ndarray = None
+    detector: str = ""
+    info: dict = dataclasses.field(default_factory=dict)
+
+    def as_dict(self):
+        return {"status": self.status, "reason": self.reason, "n_expected": self.n_expected,
+                "n_found": self.n_found, "detector": self.detector,
+                "q": [[float(v) if np.isfinite(v) else None for v in row] for row in self.q],
+                "found": self.found.tolist(),
+                "point_ids": None if self.point_ids is None else self.point_ids.tolist(),
+                "info": self.info}
+
+
+def failed(target, reason, detector, info=None):
+    r'''A Detection of nothing, with the reason'''
+    n = target.Npoints
+    return Detection(q=np.full((n, 2), np.nan), found=np.zeros(n, bool), status="failed",
+                     reason=reason, n_expected=n, n_found=0, point_ids=target.point_ids(),
+                     detector=detector, info=info or {})
+
+
+def result(target, q, detector, min_found=None, info=None):
+    r'''A Detection from (N,2) positions with NaN for missing points'''
+    q = np.asarray(q, dtype=np.float64)
+    found = np.all(np.isfinite(q), axis=-1)
+    n = int(found.sum())
+    need = target.Npoints if min_found is None else min_found
+    if n < need:
+        return Detection(q=q, found=found, status="failed",
+                         reason=f"found {n} of {target.Npoints} points; need {need}",
+                         n_expected=target.Npoints, n_found=n, point_ids=target.point_ids(),
+                         detector=detector, info=info or {})
+    return Detection(q=q, found=found, status="ok", reason="", n_expected=target.Npoints,
+                     n_found=n, point_ids=target.point_ids(), detector=detector,
+                     info=info or {})
+
+
+def as_float_image(image):
+    r'''An image as float64 (H,W) in [0,1]: uint8/uint16 scaled, colour averaged'''
+    a = np.asarray(image)
+    if a.ndim == 3 and a.shape[2] in (3, 4):
+        a = a[..., :3].astype(np.float64).mean(axis=-1) if a.dtype.kind == "f" else \
+            np.round(a[..., :3].astype(np.float64).mean(axis=-1)).astype(a.dtype)
+    if a.ndim != 2 or min(a.shape) < 2:
+        raise DetectionInputError(f"expected a 2-D grey image (H,W); got an array of shape "
+                                  f"{a.shape}")
+    if a.dtype == np.uint8:
+        return a.astype(np.float64) / 255.0
+    if a.dtype == np.uint16:
+        return a.astype(np.float64) / 65535.0
+    if a.dtype.kind == "b":
+        return a.astype(np.float64)
+    if a.dtype.kind in "iu":
+        raise DetectionInputError(f"integer images must be uint8 or uint16; got {a.dtype}")
+    return a.astype(np.float64)
+
+
+def detect(image, target, **options):
+    r'''Find the target's points in an image
+
+SYNOPSIS
+
+    det = detect(image, target)          # Detection
+    det = detect(image, target, window_dilation_px=3)   # options of the kind's detector
+
+Dispatches on target.kind to detect_dots.detect_dots,
+detect_apriltag.detect_apriltags or detect_chessboard.detect_chessboard.
+'''
+    kind = getattr(target, "kind", None)
+    if kind == "dots":
+        from .detect_dots import detect_dots
+        return detect_dots(image, target, **options)
+    if kind == "apriltag":
+        from .detect_apriltag import detect_apriltags
+        return detect_apriltags(image, target, **options)
+    if kind == "chessboard":
+        from .detect_chessboard import detect_chessboard
+        return detect_chessboard(image, target, **options)
+    raise DetectionInputError(f"no detector for target kind {kind!r}; "
+                              "known kinds: dots, apriltag, chessboard")

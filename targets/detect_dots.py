@@ -1,0 +1,299 @@
+r'''Find the dots of a dot-grid target: subpixel centroids, numbered with the orientation mark
+
+SYNOPSIS
+
+    from targets.detect_dots import detect_dots
+
+    det = detect_dots(image, target)    # targets.detect.Detection
+    det.q                               # (nx*ny,2): centroid of dot iy*nx + ix, NaN if not found
+
+Steps:
+
+1. Dark blobs: pixels darker than an Otsu threshold, grouped into 8-connected
+   components; components touching the image border, smaller than min_area_px
+   or larger than a quarter of the image are dropped.
+2. Lattice: from a seed blob (the largest few first) the grid is grown
+   breadth-first: each neighbour is predicted from the dots found so far
+   (parallelogram or linear extrapolation, so perspective and lens distortion
+   do not lead it astray) and accepted if a blob of similar size lies within
+   0.3 spacings of the prediction.
+3. Numbering: blobs larger than the local median by the mark's size ratio are
+   the orientation mark; of the 8 rotations/flips of the lattice (and its
+   offsets, if part of the grid is missing) exactly one must put the mark
+   where the target has it. This also numbers the grid correctly through a
+   mirrored camera. A target without a mark is numbered with board x along
+   image +x (ambiguous by design; the info says so).
+4. Subpixel centre: the darkness-weighted centroid over the blob mask
+   dilated by window_dilation_px (default 2) - not a bounding box, which
+   picks up grey board-edge pixels - with weights (board level - intensity)
+   clipped at 0. The board level is the median intensity of a ring around
+   the window (ring_px wide), so it follows shading across the board.
+
+For a uniformly dark dot on a uniform board imaged as an area average, this
+centroid is the area centroid of the dot's projected outline:
+targets.centroids.expected_centroids() gives it exactly.
+'''
+
+from collections import deque
+
+import numpy as np
+
+from .boards import apply_grid_transform, grid_transforms
+from .detect import as_float_image, failed, result
+
+DETECTOR = "dots"
+NEIGHBOUR_TOLERANCE = 0.3      # of the local spacing
+AREA_RATIO_MAX = 4.0           # between neighbouring blobs
+NSEEDS = 6
+ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, True)
+                  for fb in (False, True)]
+
+
+def _otsu(img):
+    h, edges = np.histogram(img, bins=1024, range=(float(img.min()), float(img.max())))
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    w0 = np.cumsum(h)
+    w1 = w0[-1] - w0
+    m0 = np.cumsum(h * centres)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mu0 = m0 / w0
+        mu1 = (m0[-1] - m0) / w1
+        between = w0 * w1 * (mu0 - mu1) ** 2
+    between[~np.isfinite(between)] = -1
+    return float(edges[int(np.argmax(between)) + 1])
+
+
+def _disk(r):
+    import cv2
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+
+
+def _grow(c, area, seed, tree, max_extent):
+    r'''Grow a lattice from blob `seed`; returns {(a, b): blob index} or None'''
+    k = min(9, len(c))
+    if k < 2:
+        return {(0, 0): seed}
+    _, nb = tree.query(c[seed], k=k)
+    nb = [j for j in np.atleast_1d(nb)[1:] if j < len(c)
+          and 1 / AREA_RATIO_MAX < area[j] / area[seed] < AREA_RATIO_MAX]
+    if not nb:
+        return {(0, 0): seed}
+    u = c[nb[0]] - c[seed]
+    v = None
+    for j in nb[1:]:
+        w = c[j] - c[seed]
+        if abs(w @ u) / (np.linalg.norm(w) * np.linalg.norm(u)) < 0.6:
+            v = w
+            break
+    if v is None:
+        # a single row of dots: any perpendicular will do for the second axis
+        v = np.array([-u[1], u[0]])
+    nodes = {(0, 0): seed}
+    where = {seed: (0, 0)}
+    local = {(0, 0): (u, v)}
+    queue = deque([(0, 0)])
+    while queue:
+        a, b = queue.popleft()
+        p = c[nodes[(a, b)]]
+        u, v = local[(a, b)]
+
+        def at(ab):
+            j = nodes.get(ab)
+            return None if j is None else c[j]
+
+        for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            target = (a + da, b + db)
+            if target in nodes:
+                continue
+            # parallelogram prediction from a neighbouring row/column if we have one
+            pred = None
+            for sa, sb in (((0, 1), (0, -1)) if da else ((1, 0), (-1, 0))):
+                q1, q2 = at((a + sa, b + sb)), at((a + da + sa, b + db + sb))
+                if q1 is not None and q2 is not None:
+                    pred = p + (q2 - q1)
+                    break
+            if pred is None:
+                back = at((a - da, b - db))
+                step = (p - back) if back is not None else (da * u + db * v)
+                pred = p + step
+            step_len = np.linalg.norm(pred - p)
+            d, j = tree.query(pred)
+            if not (d < NEIGHBOUR_TOLERANCE * step_len) or j in where:
+                continue
+            if not 1 / AREA_RATIO_MAX < area[j] / area[nodes[(a, b)]] < AREA_RATIO_MAX:
+                continue
+            nodes[target] = j
+            where[j] = target
+            delta = c[j] - p
+            local[target] = (delta * da, v) if da else (u, delta * db)
+            queue.append(target)
+            if len(nodes) > max_extent ** 2 + 4 * max_extent:
+                return None
+    return nodes
+
+
+def _number(nodes, is_mark, target):
+    r'''Number lattice (a, b) as grid (ix, iy) by the mark: -> (ix, iy, info) or a reason'''
+    nx, ny = target.grid_shape
+    ab = np.array(list(nodes.keys()))
+    a = ab[:, 0] - ab[:, 0].min()
+    b = ab[:, 1] - ab[:, 1].min()
+    na, nb = a.max() + 1, b.max() + 1
+    mark_spec = target.spec.get("orientation_mark")
+    marks = set() if mark_spec is None else {tuple(p) for p in mark_spec["dots"]}
+    observed = np.array([is_mark[nodes[tuple(k)]] for k in ab])
+    matches = []
+    for t in ALL_TRANSFORMS:
+        i, j = apply_grid_transform(t, a, b, na, nb)
+        ex, ey = (nb, na) if t[0] else (na, nb)
+        for ox in range(0, nx - ex + 1):
+            for oy in range(0, ny - ey + 1):
+                mapped = {(int(x) + ox, int(y) + oy) for x, y in zip(i, j, strict=True)}
+                got = {(int(x) + ox, int(y) + oy)
+                       for x, y, m in zip(i, j, observed, strict=True) if m}
+                expected = marks & mapped
+                if marks and got == expected and expected:
+                    matches.append((t, ox, oy))
+                elif not marks:
+                    matches.append((t, ox, oy))
+    matches = list(dict.fromkeys(matches))
+    if not matches:
+        return f"the orientation mark was not found where the target has it " \
+               f"({int(observed.sum())} large dots seen in a {na}x{nb} lattice)"
+    if marks and len(matches) > 1:
+        return f"the orientation mark leaves {len(matches)} ways to number the " \
+               f"{na}x{nb} lattice of dots found"
+    t, ox, oy = matches[0]
+    i, j = apply_grid_transform(t, a, b, na, nb)
+    return np.asarray(i) + ox, np.asarray(j) + oy, {"transform": list(t)}
+
+
+def _unmarked_choice(nodes, c, target):
+    r'''Without a mark: the numbering with board x along image +x and y along image +y'''
+    nx, ny = target.grid_shape
+    ab = np.array(list(nodes.keys()))
+    a = ab[:, 0] - ab[:, 0].min()
+    b = ab[:, 1] - ab[:, 1].min()
+    na, nb = a.max() + 1, b.max() + 1
+    q = np.array([c[nodes[tuple(k)]] for k in ab])
+    best = None
+    for t in grid_transforms(na, nb, nx, ny):
+        i, j = apply_grid_transform(t, a, b, na, nb)
+        score = 0.0
+        if np.ptp(i) > 0:
+            score += np.corrcoef(i, q[:, 0])[0, 1]
+        if np.ptp(j) > 0:
+            score += np.corrcoef(j, q[:, 1])[0, 1]
+        if best is None or score > best[0]:
+            best = (score, np.asarray(i), np.asarray(j), t)
+    if best is None:
+        return f"found a {na}x{nb} lattice of dots; expected {nx}x{ny}"
+    return best[1], best[2], {"transform": list(best[3]),
+                              "note": "target has no orientation mark: numbering assumed"}
+
+
+def detect_dots(image, target, *, window_dilation_px=2, ring_px=3, min_area_px=6,
+                min_found=None, threshold=None):
+    r'''Detect a dot grid; see the module docstring
+
+SYNOPSIS
+
+    det = detect_dots(image, target)   # Detection; det.q (nx*ny,2)
+
+ARGUMENTS
+
+- image: (H,W) float in [0,1], or uint8/uint16
+- target: a "dots" targets.boards.Target
+- window_dilation_px: centroid window = blob mask dilated by this many px
+- ring_px: width of the ring outside the window where the board level is measured
+- min_area_px: smaller dark blobs are ignored
+- min_found: fewest dots for status "ok" (default: all of them)
+- threshold: dark/light threshold (default: Otsu)
+'''
+    import cv2
+    from scipy.spatial import cKDTree
+
+    img = as_float_image(image)
+    nx, ny = target.grid_shape
+    if target.kind != "dots":
+        return failed(target, f"detect_dots() needs a dots target; got {target.kind!r}",
+                      DETECTOR)
+    if not np.all(np.isfinite(img)):
+        return failed(target, "the image has non-finite pixels", DETECTOR)
+    if not img.max() - img.min() > 0.02:
+        return failed(target, f"no contrast in the image (range {img.min():.3g}.."
+                      f"{img.max():.3g})", DETECTOR)
+    H, W = img.shape
+    thr = _otsu(img) if threshold is None else float(threshold)
+    dark = (img < thr).astype(np.uint8)
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(dark, connectivity=8)
+    x0, y0, w, h, area = (stats[:, k] for k in range(5))
+    keep = ((np.arange(n) > 0) & (x0 > 0) & (y0 > 0) & (x0 + w < W) & (y0 + h < H)
+            & (area >= min_area_px) & (area <= 0.25 * W * H))
+    blobs = np.flatnonzero(keep)
+    info = {"threshold": thr, "Nblobs": int(len(blobs))}
+    if len(blobs) == 0:
+        return failed(target, "no dark blobs in the image", DETECTOR, info)
+    c = centroids[blobs]
+    a = area[blobs].astype(np.float64)
+    tree = cKDTree(c)
+
+    best = None
+    seeds = list(np.argsort(-a)[:NSEEDS]) + list(np.argsort(np.abs(a - np.median(a)))[:NSEEDS])
+    for seed in dict.fromkeys(seeds):
+        nodes = _grow(c, a, seed, tree, max(nx, ny))
+        if nodes is None:
+            continue
+        ab = np.array(list(nodes.keys()))
+        ext = tuple(np.ptp(ab, axis=0) + 1)
+        fits = ext in ((nx, ny), (ny, nx)) or (max(ext) <= max(nx, ny)
+                                                and min(ext) <= min(nx, ny))
+        if fits and (best is None or len(nodes) > len(best)):
+            best = nodes
+        if best is not None and len(best) == nx * ny:
+            break
+    if best is None or len(best) < 2 and nx * ny > 1:
+        return failed(target, f"no grid of dots among {len(blobs)} dark blobs", DETECTOR, info)
+    info["Nlattice"] = len(best)
+
+    # the orientation mark: blobs larger than their lattice neighbours
+    mark_spec = target.spec.get("orientation_mark")
+    radii = target.dot_radii()
+    is_mark = np.zeros(len(c), bool)
+    if mark_spec is not None:
+        ratio_threshold = float(mark_spec["dot_diameter"]) / (2 * float(radii.min()))
+        for (ka, kb), j in best.items():
+            neigh = [best[(ka + da, kb + db)] for da in (-1, 0, 1) for db in (-1, 0, 1)
+                     if (da or db) and (ka + da, kb + db) in best]
+            if neigh:
+                is_mark[j] = a[j] / np.median(a[neigh]) > ratio_threshold
+        numbered = _number(best, is_mark, target)
+    else:
+        numbered = _unmarked_choice(best, c, target)
+    if isinstance(numbered, str):
+        return failed(target, numbered, DETECTOR, info)
+    ix, iy, tinfo = numbered
+    info.update(tinfo)
+
+    # subpixel centroids
+    q = np.full((nx * ny, 2), np.nan)
+    win_kernel = _disk(window_dilation_px)
+    ring_kernel = _disk(window_dilation_px + ring_px)
+    pad = window_dilation_px + ring_px + 1
+    for i_blob, gx, gy in zip(best.values(), ix, iy, strict=True):
+        label = blobs[i_blob]
+        xa, ya = max(0, x0[label] - pad), max(0, y0[label] - pad)
+        xb, yb = min(W, x0[label] + w[label] + pad), min(H, y0[label] + h[label] + pad)
+        lab = labels[ya:yb, xa:xb]
+        crop = img[ya:yb, xa:xb]
+        mask = (lab == label).astype(np.uint8)
+        window = cv2.dilate(mask, win_kernel).astype(bool)
+        ring = cv2.dilate(mask, ring_kernel).astype(bool) & ~window & (lab == 0)
+        board = float(np.median(crop[ring])) if ring.any() else float(crop[window].max())
+        wgt = np.clip(board - crop, 0.0, None) * window
+        s = wgt.sum()
+        if not s > 0:
+            continue
+        yy, xx = np.mgrid[ya:yb, xa:xb]
+        q[gy * nx + gx] = ((wgt * xx).sum() / s, (wgt * yy).sum() / s)
+    return result(target, q, DETECTOR, min_found=min_found, info=info)
