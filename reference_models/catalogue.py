@@ -42,6 +42,7 @@ file may be a JPL .cahv/.cahvor/.cahvore, a PDS3 label (.LBL/.IMG) or a mrcal
 (entry.replaces). `camval catalogue list --overlay my-overlay.toml` shows it.
 '''
 
+import functools
 import math
 import os
 import tomllib
@@ -261,6 +262,19 @@ def _read_toml(path, what):
         raise CatalogueError(f"{what} '{path}': not valid TOML: {e}") from None
 
 
+@functools.cache
+def _packaged_entries():
+    # entries and models are immutable, so every Catalogue can share them
+    with resources.as_file(catalogue_path()) as p:
+        data = _read_toml(p, "catalogue")
+    entries = []
+    for i, t in enumerate(data.get("camera", [])):
+        entries.append(_entry_from_toml(t, "slot", f"catalogue [[camera]] {t.get('id', i)}"))
+    for i, t in enumerate(data.get("extra", [])):
+        entries.append(_entry_from_toml(t, "extra", f"catalogue [[extra]] {t.get('name', i)}"))
+    return tuple(entries)
+
+
 def load_catalogue(overlay=None):
     r'''The catalogue, with an optional overlay
 
@@ -271,14 +285,7 @@ SYNOPSIS
 
 See the module docstring for the overlay format.
 '''
-    with resources.as_file(catalogue_path()) as p:
-        data = _read_toml(p, "catalogue")
-    entries = []
-    for i, t in enumerate(data.get("camera", [])):
-        entries.append(_entry_from_toml(t, "slot", f"catalogue [[camera]] {t.get('id', i)}"))
-    for i, t in enumerate(data.get("extra", [])):
-        entries.append(_entry_from_toml(t, "extra", f"catalogue [[extra]] {t.get('name', i)}"))
-    cat = Catalogue(entries)
+    cat = Catalogue(_packaged_entries())
     if overlay is None:
         return cat
     overlays = [overlay] if isinstance(overlay, str | os.PathLike) else list(overlay)
