@@ -7,12 +7,13 @@ SYNOPSIS
     m = read_model("navcam_left.cahvor")     # CAHV, CAHVOR or CAHVORE
     write_model(m, "copy.cahvor")            # refuses to overwrite unless overwrite=True
 
-The format is JPL's (cmod) and mrcal's: one "NAME = values" entry a line,
+The format is JPL's (cmod_cahv*_write) and mrcal's: one "NAME = values" entry a line,
 '#' comments, blank lines ignored:
 
     Model = CAHVORE3,0.37 = general        (or CAHV = perspective, linear;
                                              CAHVOR = perspective, distortion;
-                                             CAHVORE1 = perspective; CAHVORE2 = fisheye)
+                                             CAHVORE1 = perspective, distortion, pupil;
+                                             CAHVORE2 = fish-eye)
     Dimensions = 1024 1024                 width height, pixels
     C = x y z                              metres
     A = x y z                              unit vector
@@ -388,9 +389,9 @@ def model_text(model, note=None):
         out += [f"# {line}\n" for line in str(note).splitlines()]
     if model.family == "CAHVORE":
         if model.model_type == 1:
-            out.append("Model = CAHVORE1 = perspective\n")
+            out.append("Model = CAHVORE1 = perspective, distortion, pupil\n")
         elif model.model_type == 2:
-            out.append("Model = CAHVORE2 = fisheye\n")
+            out.append("Model = CAHVORE2 = fish-eye\n")
         else:
             out.append(f"Model = CAHVORE3,{_f(model.linearity)} = general\n")
     else:

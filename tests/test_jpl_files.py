@@ -270,6 +270,33 @@ def test_cahvore_types_round_trip(mtype, linearity, tmp_path):
     np.testing.assert_allclose(mrcal_project(cm, p), m.project(p), rtol=0, atol=1e-9)
 
 
+def _cmod_text(m):
+    r'''The text JPL's cmod_cahvore_write prints (its printf formats, blank lines)'''
+    ph = m.photogrammetric()
+    out = ["# written like cmod_cahvore_write\n", "\n",
+           f"Model = CAHVORE3,{m.linearity:g} = general\n", "\n",
+           f"Dimensions = {m.width} {m.height}\n", "\n"]
+    for name in "CAHVORE":
+        out.append(f"{name} = " + " ".join(f"{x:16.9f}" for x in getattr(m, name)) + "\n")
+    out += ["\n", "S =\n"] + [" ".join(f"{0.0:16.9e}" for _ in range(21)) + "\n"] * 21
+    theta = jpl_theta(m)
+    out += ["\n", f"Hs    = {ph.Hs:16.9f}\n", f"Hc    = {ph.Hc:16.9f}\n",
+            f"Vs    = {ph.Vs:16.9f}\n", f"Vc    = {ph.Vc:16.9f}\n",
+            f"Theta = {theta:16.9f} ({np.degrees(theta):f} deg)\n", "\n", "S internal =\n"]
+    out += [" ".join(f"{0.0:16.9e}" for _ in range(5)) + "\n"] * 5 + ["\n"]
+    return "".join(out)
+
+
+def test_reads_jpl_cmod_output(catalogue, tmp_path):
+    m = catalogue.get(12).model
+    path = tmp_path / "cmod.cahvore"
+    path.write_text(_cmod_text(m))
+    r = read_model(path)
+    assert (r.family, r.model_type, r.linearity) == ("CAHVORE", 3, 0.37)
+    for name in "CAHVORE":
+        np.testing.assert_allclose(getattr(r, name), getattr(m, name), rtol=0, atol=1e-9)
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(ModelFileError, match="no such file"):
         read_model(tmp_path / "nothere.cahvor")
