@@ -55,12 +55,12 @@ never overlap and are further apart than twice their radius)'''
         xmin, xmax, ymin, ymax = self.pattern.extent
         inside = (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
         xy = np.stack((x, y), axis=-1)
-        d, i = self.tree.query(np.where(np.isfinite(xy), xy, 1e30))
-        r = self.pattern.circles[np.minimum(i, len(self.pattern.circles) - 1), 2]
+        _, i = self.tree.query(xy)
+        r = self.pattern.circles[i, 2]
         # compare squared distances, as Pattern.albedo does
-        c = self.pattern.circles[np.minimum(i, len(self.pattern.circles) - 1), :2]
+        c = self.pattern.circles[i, :2]
         d2 = (x - c[..., 0]) ** 2 + (y - c[..., 1]) ** 2
-        hit = inside & np.isfinite(d) & (d2 <= r * r)
+        hit = inside & (d2 <= r * r)
         return np.where(hit, self.pattern.circle_value, a)
 
 
@@ -72,9 +72,10 @@ def _albedo_at(model, albedo, Rt_ref_board, q):
     with np.errstate(divide="ignore", invalid="ignore"):
         s = -o_b[..., 2] / v_b[..., 2]
     p = o_b + s[..., None] * v_b
-    ok = (s > 0) & np.isfinite(s)
-    a = albedo(np.where(ok, p[..., 0], np.nan), np.where(ok, p[..., 1], np.nan))
-    return np.where(ok, a, albedo.pattern.background_value)
+    ok = (s > 0) & np.isfinite(s) & np.all(np.isfinite(p), axis=-1)
+    a = np.full(ok.shape, float(albedo.pattern.background_value))
+    a[ok] = albedo(p[ok][:, 0], p[ok][:, 1])
+    return a
 
 
 def render(model, pattern, Rt_cam_board, K=8, adaptive=True):
