@@ -15,7 +15,8 @@ Parameter errors (fit - truth):
 
 - Hc, Vc (px); Hs, Vs (fractional); Hs*(1+R0), Vs*(1+R0) (fractional, raw
   models); theta_deg (deg); C_mm (|C_fit - C_truth|, mm); A_deg, O_deg (angle,
-  deg); R0, R1, R2 (absolute and fractional); E0, E1, E2 (absolute).
+  deg); R0, R1, R2 (absolute and fractional; R0 against the raw truth, R1
+  and R2 against the truth moved to the fit's R0); E0, E1, E2 (absolute).
 - None means "not estimated": the fit's family lacks the parameter (O, R, E
   for CAHV, OpenCV and COLMAP fits; theta for every calibrator but jpl, whose
   fits are the only ones with independent H and V), or the fit's world frame
@@ -132,9 +133,12 @@ C and A are in the truth's world frame) defaults to False.
     out["O_deg"] = _angle_deg(_in_cam(fit, fit.O), _in_cam(t, t.O)) if has_O else None
     for i in range(3):
         name = f"R{i}"
+        # R0 against the raw truth (how far the fit slid along the R0 gauge); R1, R2
+        # against the truth moved to the fit's R0
+        ref = truth if i == 0 else t
         if has_O:
-            out[name] = float(fit.R[i] - t.R[i])
-            out[name + "_frac"] = _frac(float(fit.R[i]), float(t.R[i]))
+            out[name] = float(fit.R[i] - ref.R[i])
+            out[name + "_frac"] = _frac(float(fit.R[i]), float(ref.R[i]))
         else:
             out[name] = out[name + "_frac"] = None
     has_E = jpl and fam == "CAHVORE" and t.family == "CAHVORE"

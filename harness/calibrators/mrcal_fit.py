@@ -1,0 +1,386 @@
+r'''mrcal as a reference calibrator: CAHVOR, CAHVORE, OPENCV8, splined
+
+SYNOPSIS
+
+    from harness.calibrators import calibrate
+
+    r = calibrate("mrcal", obs, target, "CAHVOR")                    # board poses estimated
+    r = calibrate("mrcal", obs, target, "CAHVORE", truth=truth)      # linearity from truth
+    r = calibrate("mrcal", obs, target, "CAHVOR", known_poses=True)  # boards held at the survey
+    r.model              # CAHVOR/CAHVORE (reference_models), or MrcalModel (OPENCV8, SPLINED)
+    r.info["cameramodel"]  # the mrcal.cameramodel itself (not JSON-serialised)
+
+Models: "CAHV" (LENSMODEL_PINHOLE), "CAHVOR" (LENSMODEL_CAHVOR), "CAHVORE"
+(LENSMODEL_CAHVORE_linearity=L; L from a CAHVORE truth, else the option
+linearity), "OPENCV8" (LENSMODEL_OPENCV8), "SPLINED"
+(LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg=F, F from the
+seed's field of view); any "LENSMODEL_..." string is accepted as well.
+
+What mrcal is given: the detections and the target's geometry (it must be a
+regular grid: mrcal's calibration object). By default the board poses are
+unknown and estimated (the usual calibration; the camera is the reference
+frame, so the fitted model's C and A are not comparable with the truth's). With
+known_poses=True the boards are held at the surveyed poses Rt_ref_board and
+mrcal fits the camera's pose in the world frame instead.
+
+The recipe (../shared/FINDINGS.md): seed fx, fy, cx, cy from the board
+homographies (cv2.initCameraMatrix2D), board poses from
+mrcal.estimate_monocular_calobject_poses_Rt_tocam, a pinhole solve, then the
+lens model with distortions frozen, then everything. No outlier rejection.
+Regularisation is off (it biases fx/R0 by up to 100 px on exact data) except
+for the splined model, which needs it. mrcal's rms_reproj_error__pixels is per
+coordinate and includes regularisation: residuals are computed here, per
+point. Bias correction as for jpl: each detection is corrected by the dot
+centroid bias computed with the current model and estimated board poses, and
+the solve repeated until the bias changes by less than bias_tolerance px.
+
+mrcal has no theta: its camera frame is orthonormal, so the fitted CAHVOR has
+theta = 90 deg exactly; compare.py reports theta as not estimated.
+'''
+
+import math
+import time
+
+import numpy as np
+
+from .base import CalibrationFailed, CalibrationResult
+from .bias import centroid_bias
+
+NAME = "mrcal"
+LIBRARY = "mrcal"
+MODELS = ("CAHV", "CAHVOR", "CAHVORE", "OPENCV8", "SPLINED")
+SPLINED_NX, SPLINED_NY = 16, 12
+
+
+def library_version():
+    import importlib.metadata
+    return f"mrcal {importlib.metadata.version('mrcal')}"
+
+
+def canonical_model(name):
+    name = str(name)
+    if name.startswith("LENSMODEL_"):
+        short = {"LENSMODEL_PINHOLE": "CAHV", "LENSMODEL_CAHVOR": "CAHVOR",
+                 "LENSMODEL_OPENCV8": "OPENCV8"}.get(name)
+        if short:
+            return short
+        if name.startswith("LENSMODEL_CAHVORE"):
+            return "CAHVORE"
+        if name.startswith("LENSMODEL_SPLINED_STEREOGRAPHIC"):
+            return "SPLINED"
+        return name
+    return name.upper()
+
+
+class MrcalModel:
+    r'''A mrcal.cameramodel that compare.py can evaluate (any lens model)
+
+SYNOPSIS
+
+    m = MrcalModel(cameramodel, family="OPENCV8")
+    q = m.project(p)          # p (...,3) in the world frame; q (...,2)
+    m.Rt_ref_cam(), m.fx, m.fy, m.cx, m.cy, m.width, m.height
+'''
+
+    def __init__(self, cameramodel, family):
+        self.cameramodel = cameramodel
+        self.family = family
+        self.lensmodel, intrinsics = cameramodel.intrinsics()
+        self.intrinsics = np.asarray(intrinsics, dtype=np.float64)
+        self.fx, self.fy, self.cx, self.cy = (float(x) for x in self.intrinsics[:4])
+        self.width, self.height = (int(x) for x in cameramodel.imagersize())
+
+    def Rt_ref_cam(self):
+        return np.asarray(self.cameramodel.Rt_ref_cam(), dtype=np.float64)
+
+    def project(self, p):
+        import mrcal
+        Rt = self.Rt_ref_cam()
+        p_cam = (np.asarray(p, dtype=np.float64) - Rt[3]) @ Rt[:3]
+        return mrcal.project(np.ascontiguousarray(p_cam), self.lensmodel, self.intrinsics)
+
+    def __repr__(self):
+        return f"MrcalModel({self.lensmodel}, intrinsics={self.intrinsics.tolist()})"
+
+
+def _grid(p_board):
+    r'''(spacing, nx, ny, ix, iy, origin) of a regular planar grid of points'''
+    p = np.asarray(p_board, dtype=np.float64)
+    if np.any(np.abs(p[:, 2]) > 1e-9):
+        raise CalibrationFailed("mrcal needs a planar grid target (z = 0); this target is not")
+    origin = p.min(axis=0)
+    d = p[:, :2] - origin[:2]
+    nz = np.abs(d[d > 1e-9])
+    if nz.size == 0:
+        raise CalibrationFailed("too few points: the target has no extent")
+    spacing = float(nz.min())
+    idx = np.round(d / spacing)
+    if np.max(np.abs(idx * spacing - d)) > 1e-9 * max(1.0, spacing):
+        raise CalibrationFailed(f"mrcal's calibration object is a regular grid; the points of "
+                                f"this target are not on one (spacing {spacing:g} m)")
+    ix, iy = idx[:, 0].astype(int), idx[:, 1].astype(int)
+    nx, ny = ix.max() + 1, iy.max() + 1
+    if nx * ny != len(p) or len(set(zip(ix, iy, strict=True))) != len(p):
+        raise CalibrationFailed(f"mrcal needs a full {nx}x{ny} grid; the target has "
+                                f"{len(p)} points")
+    return spacing, nx, ny, ix, iy, origin
+
+
+def _lensmodel(model_name, truth, linearity, fov_x_deg):
+    if model_name == "CAHV":
+        return "LENSMODEL_PINHOLE"
+    if model_name == "CAHVOR":
+        return "LENSMODEL_CAHVOR"
+    if model_name == "OPENCV8":
+        return "LENSMODEL_OPENCV8"
+    if model_name == "CAHVORE":
+        if truth is not None and getattr(truth, "family", None) == "CAHVORE":
+            linearity = truth.linearity
+        if linearity is None:
+            linearity = 1.0
+        return f"LENSMODEL_CAHVORE_linearity={float(linearity)!r}"
+    if model_name == "SPLINED":
+        return (f"LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx={SPLINED_NX}_Ny={SPLINED_NY}_"
+                f"fov_x_deg={int(math.ceil(fov_x_deg))}")
+    raise CalibrationFailed(f"no mrcal lens model for {model_name!r}")
+
+
+def _seed_pinhole(obs, found):
+    r'''fx, fy, cx, cy from the board homographies (Zhang), via OpenCV'''
+    import cv2
+    objs, imgs = [], []
+    for i in range(obs.Nposes):
+        f = found[i]
+        if f.sum() >= 6:
+            objs.append(obs.p_board[i][f].astype(np.float32))
+            imgs.append(obs.q[i][f].astype(np.float32))
+    if len(objs) < 2:
+        raise CalibrationFailed(f"too few points: only {len(objs)} poses with >= 6 detections; "
+                                "mrcal's seed needs at least 2")
+    K = cv2.initCameraMatrix2D(objs, imgs, tuple(obs.imagersize), aspectRatio=0)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if not (np.all(np.isfinite([fx, fy, cx, cy])) and fx > 0 and fy > 0):
+        raise CalibrationFailed("degenerate poses: the homographies give no focal length")
+    return np.array([fx, fy, cx, cy])
+
+
+def _Rt_board_grid(origin):
+    return np.vstack((np.eye(3), origin))
+
+
+def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
+        bias_passes=4, bias_tolerance=1e-5, regularization=None, max_rms=1.0,
+        linearity=None, max_restarts=40):
+    r'''The mrcal calibrator (see the module docstring); returns a CalibrationResult'''
+    import mrcal
+
+    t0 = time.perf_counter()
+    if known_poses and not obs.has_world_points:
+        raise CalibrationFailed("known_poses=True needs the surveyed board poses "
+                                "(Observations.Rt_ref_board)")
+    spacing, nx, ny, ix, iy, origin = _grid(obs.p_board[0])
+    if not np.allclose(obs.p_board, obs.p_board[0], rtol=0, atol=1e-12):
+        raise CalibrationFailed("mrcal needs the same target in every pose")
+    found = obs.found
+    nfound = int(found.sum())
+    if nfound < 30:
+        raise CalibrationFailed(f"too few points: {nfound} found, mrcal needs at least 30")
+    seed = _seed_pinhole(obs, found)
+    W, H = obs.imagersize
+    fov = 2.0 * math.degrees(math.atan(0.5 * W / seed[0])) * 1.2
+    lensmodel = _lensmodel(model_name, truth, linearity, min(fov, 179.0))
+    if regularization is None:
+        regularization = model_name == "SPLINED"
+
+    Nposes = obs.Nposes
+
+    def board_obs(q):
+        ob = np.zeros((Nposes, ny, nx, 3))
+        ok = np.all(np.isfinite(q), axis=-1)
+        ob[:, iy, ix, 0] = np.where(ok, q[..., 0], 0.0)
+        ob[:, iy, ix, 1] = np.where(ok, q[..., 1], 0.0)
+        ob[:, iy, ix, 2] = np.where(ok, 1.0, -1.0)
+        return ob
+
+    observations = board_obs(obs.q)
+    indices = np.column_stack((np.arange(Nposes), np.zeros(Nposes), -np.ones(Nposes)))
+    indices = indices.astype(np.int32)
+    Rt_cam_grid = mrcal.estimate_monocular_calobject_poses_Rt_tocam(
+        indices, observations, spacing, [("LENSMODEL_PINHOLE", seed)])
+    Rt_cam_grid = np.asarray(Rt_cam_grid, dtype=np.float64).reshape(Nposes, 4, 3)
+    if not np.all(np.isfinite(Rt_cam_grid)):
+        raise CalibrationFailed("degenerate poses: mrcal could not estimate the board poses")
+
+    nint = mrcal.lensmodel_num_params(lensmodel)
+    problem = dict(
+        intrinsics=np.zeros((1, nint)),
+        rt_cam_ref=None,
+        rt_ref_frame=mrcal.rt_from_Rt(Rt_cam_grid),
+        points=None,
+        observations_board=observations,
+        indices_frame_camintrinsics_camextrinsics=indices,
+        observations_point=None,
+        indices_point_camintrinsics_camextrinsics=None,
+        lensmodel=lensmodel,
+        imagersizes=np.array([[W, H]], dtype=np.int32),
+        calibration_object_spacing=spacing,
+        do_apply_outlier_rejection=False,
+        do_apply_regularization=bool(regularization),
+        do_optimize_calobject_warp=False,
+        do_optimize_extrinsics=False,
+        do_optimize_frames=True,
+    )
+    problem["intrinsics"][0, :4] = seed
+    iterations = 0
+    stages = []
+
+    def problem_rms():
+        Rt_f = mrcal.Rt_from_rt(problem["rt_ref_frame"])
+        if problem["rt_cam_ref"] is not None:
+            Rt_cr = mrcal.Rt_from_rt(problem["rt_cam_ref"][0])
+            Rt_f = np.array([mrcal.compose_Rt(Rt_cr, Rt) for Rt in Rt_f])
+        p_grid = np.zeros((ny, nx, 3))
+        p_grid[iy, ix, :2] = obs.p_board[0][:, :2] - origin[:2]
+        p = mrcal.transform_point_Rt(Rt_f[:, None, None], p_grid[None])
+        q = mrcal.project(p, problem["lensmodel"], problem["intrinsics"][0])
+        ob = problem["observations_board"]
+        w = ob[..., 2] > 0
+        d = (q - ob[..., :2])[w]
+        return float(np.sqrt(np.mean((d * d).sum(axis=-1))))
+
+    def solve(**flags):
+        nonlocal iterations
+        kw = dict(problem)
+        kw.update(flags)
+        mrcal.optimize(**kw)
+        iterations += 1  # mrcal does not report its solver's iteration count
+        if not np.all(np.isfinite(problem["intrinsics"])):
+            raise CalibrationFailed("diverged: mrcal returned non-finite intrinsics")
+        stages.append({"lensmodel": problem["lensmodel"], **flags})
+
+    # an intermediate lens model first: wide lenses fall into local minima otherwise
+    staged = {"OPENCV8": ("LENSMODEL_OPENCV4", 8)}
+    if model_name in staged:
+        lm_stage, n_stage = staged[model_name]
+        problem.update(lensmodel=lm_stage, intrinsics=np.zeros((1, n_stage)))
+        problem["intrinsics"][0, :4] = seed
+        solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=False)
+        solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
+        stage_intrinsics = problem["intrinsics"][0].copy()
+        problem.update(lensmodel=lensmodel, intrinsics=np.zeros((1, nint)))
+        problem["intrinsics"][0, :n_stage] = stage_intrinsics
+    else:
+        solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=False)
+
+    def polish():
+        # mrcal's solver stops early in flat valleys (narrow lenses: focal length vs range;
+        # R0 vs focal length); restarting it keeps making progress. Stop when a restart gains
+        # less than 10% in RMS or after max_restarts.
+        rms_prev = math.inf
+        for _ in range(max_restarts):
+            solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
+            r = problem_rms()
+            if r < 1e-10 or r > 0.99 * rms_prev:
+                break
+            rms_prev = r
+
+    if nint > 4:
+        # regularised first: the R0 / focal-length valley is flat, and unregularised
+        # from the seed the solver slides along it (fx 96 -> 56 px for a hazcam) and stops
+        # anywhere; then, if asked, unregularised from there
+        solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True,
+              do_apply_regularization=True)
+        if not regularization:
+            polish()
+
+    if known_poses:
+        Rt_ref_grid = np.array([mrcal.compose_Rt(Rt, _Rt_board_grid(origin))
+                                for Rt in obs.Rt_ref_board])
+        Rt_cam_grid_now = mrcal.Rt_from_rt(problem["rt_ref_frame"])
+        Rt_cam_ref = mrcal.compose_Rt(Rt_cam_grid_now[0], mrcal.invert_Rt(Rt_ref_grid[0]))
+        problem.update(rt_ref_frame=mrcal.rt_from_Rt(Rt_ref_grid),
+                       rt_cam_ref=mrcal.rt_from_Rt(Rt_cam_ref)[None, :].copy(),
+                       indices_frame_camintrinsics_camextrinsics=np.column_stack(
+                           (np.arange(Nposes), np.zeros(Nposes), np.zeros(Nposes))
+                       ).astype(np.int32),
+                       do_optimize_frames=False, do_optimize_extrinsics=True)
+        polish()
+
+    def current():
+        intr = problem["intrinsics"][0].copy()
+        if known_poses:
+            Rt_cam_ref = mrcal.Rt_from_rt(problem["rt_cam_ref"][0])
+            Rt_cam_g = np.array([mrcal.compose_Rt(Rt_cam_ref, Rt)
+                                 for Rt in mrcal.Rt_from_rt(problem["rt_ref_frame"])])
+            Rt_ref_cam = mrcal.invert_Rt(Rt_cam_ref)
+        else:
+            Rt_cam_g = mrcal.Rt_from_rt(problem["rt_ref_frame"])
+            Rt_ref_cam = np.vstack((np.eye(3), np.zeros(3)))
+        cm = mrcal.cameramodel(intrinsics=(lensmodel, intr), imagersize=np.array((W, H)),
+                               Rt_ref_cam=np.ascontiguousarray(Rt_ref_cam))
+        model = _to_model(cm, model_name)
+        Rt_grid_board = _Rt_board_grid(-origin)
+        Rt_cam_board = np.array([mrcal.compose_Rt(Rt, Rt_grid_board) for Rt in Rt_cam_g])
+        return cm, model, Rt_cam_board
+
+    cm, model, Rt_cam_board = current()
+    q_used = obs.q
+    passes = [{"pass": 1, **_rms(model, obs, Rt_cam_board, q_used, found)}]
+    bias_applied = False
+    if bias_correction and bias_passes > 0 and target is not None:
+        b_prev = None
+        for ipass in range(bias_passes):
+            b = [centroid_bias(model, target, Rt, obs.p_board[i])
+                 for i, Rt in enumerate(Rt_cam_board)]
+            if any(x is None for x in b):
+                passes.append({"pass": ipass + 2, "skipped": "no dots: no centroid bias"})
+                break
+            b = np.array(b)
+            change = float(np.nanmax(np.abs(b if b_prev is None else b - b_prev)))
+            if b_prev is not None and change < bias_tolerance:
+                break
+            b_prev = b
+            q_used = obs.q - b
+            bias_applied = True
+            problem["observations_board"] = board_obs(q_used)
+            polish()
+            cm, model, Rt_cam_board = current()
+            passes.append({"pass": ipass + 2, "bias_change_max": change,
+                           **_rms(model, obs, Rt_cam_board, q_used, found)})
+
+    residuals = _residuals(model, obs, Rt_cam_board, q_used)
+    residuals[~found] = np.nan
+    rn = np.linalg.norm(residuals, axis=-1)
+    rms = float(np.sqrt(np.nanmean(rn ** 2)))
+    if not math.isfinite(rms) or rms > max_rms:
+        raise CalibrationFailed(f"diverged: RMS residual {rms:.4g} px > {max_rms:g} px")
+    return CalibrationResult(
+        calibrator=NAME, model_name=model_name, status="ok", model=model,
+        residuals=residuals, Rt_cam_board=Rt_cam_board, iterations=iterations,
+        seconds=time.perf_counter() - t0, library=LIBRARY, library_version=library_version(),
+        info={"lensmodel": lensmodel, "known_poses": bool(known_poses),
+              "world_frame": bool(known_poses), "regularization": bool(regularization),
+              "bias_corrected": bias_applied, "passes": passes, "seed_pinhole": seed,
+              "intrinsics": cm.intrinsics()[1], "cameramodel": cm})
+
+
+def _to_model(cm, model_name):
+    if model_name in ("CAHV", "CAHVOR", "CAHVORE"):
+        from reference_models.mrcal_convert import from_mrcal
+        return from_mrcal(cm)
+    return MrcalModel(cm, model_name)
+
+
+def _residuals(model, obs, Rt_cam_board, q):
+    Rt_ref_cam = model.Rt_ref_cam()
+    R = np.einsum("ij,fjk->fik", Rt_ref_cam[:3], Rt_cam_board[:, :3])
+    t = Rt_cam_board[:, 3] @ Rt_ref_cam[:3].T + Rt_ref_cam[3]
+    p = np.einsum("fij,fnj->fni", R, obs.p_board) + t[:, None]
+    return q - model.project(p)
+
+
+def _rms(model, obs, Rt_cam_board, q, found):
+    r = np.linalg.norm(_residuals(model, obs, Rt_cam_board, q)[found], axis=-1)
+    return {"rms": float(np.sqrt(np.mean(r * r))), "max": float(r.max())}
+
+
