@@ -98,13 +98,14 @@ def _per_camera_figure(records, out, key, title, ylabel, series, caption, logy=F
     fig, axes = plt.subplots(len(rows), 1, figsize=(max(7.0, 0.38 * len(cams) + 3), 2.6 *
                                                     len(rows) + 0.6), squeeze=False)
     for ax, (cal, cm, pts) in zip(axes[:, 0], rows, strict=True):
-        seen = set()
+        groups = {}
         for x, v, fam, label, marker in pts:
-            lab = f"{fam} {label}".strip()
-            ax.plot(x, v, marker, color=FAMILY_COLOURS.get(fam, "k"), ms=5, ls="none",
-                    mfc="none" if marker in ("^", "v") else None,
-                    label=lab if lab not in seen else None)
-            seen.add(lab)
+            groups.setdefault((fam, label, marker), []).append((x, v))
+        for (fam, label, marker), xv in groups.items():
+            xv = np.array(xv)
+            ax.plot(xv[:, 0], xv[:, 1], marker, color=FAMILY_COLOURS.get(fam, "k"), ms=5,
+                    ls="none", mfc="none" if marker in ("^", "v") else None,
+                    label=f"{fam} {label}".strip())
         ax.set_title(f"{cal}" + ("" if cm == "family" else f" [{cm}]"), fontsize=9)
         ax.set_ylabel(ylabel, fontsize=8)
         ax.set_xticks(range(len(cams)))
@@ -237,6 +238,7 @@ def fig_maps(records, run_dir, out, limit=24):
         if not recs:
             continue
         shown = recs[:limit]
+        several = len({(r["renderer"], str(r["settings"])) for r in recs}) > 1
         plt = _plt()
         ncol = min(6, len(shown))
         nrow = math.ceil(len(shown) / ncol)
@@ -248,7 +250,8 @@ def fig_maps(records, run_dir, out, limit=24):
             m = np.load(Path(run_dir) / r["artifacts"]["map"])
             vmax = float(np.nanmax(m)) if np.isfinite(m).any() else 1.0
             im = ax.imshow(m, cmap="viridis", vmin=0, vmax=vmax if vmax > 0 else 1.0)
-            ax.set_title(f"{r['camera']} {r['model']}\nmax {vmax:.2g} px", fontsize=7)
+            setting = f" {r['renderer']} K{r['settings'].get('spp')}" if several else ""
+            ax.set_title(f"{r['camera']} {r['model']}{setting}\nmax {vmax:.2g} px", fontsize=7)
             fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=5)
         label = cal + ("" if cm == "family" else f" [{cm}]")
         more = f" (first {limit} of {len(recs)})" if len(recs) > limit else ""
