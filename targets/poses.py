@@ -33,13 +33,14 @@ Poses are Rt_cam_board (4,3) in the camera frame of model.Rt_ref_cam().
 When the planner refuses (NotVisibleError): a camera whose optical centre
 (Hc, Vc) lies more than one image size outside its image (the SuperCam
 remote micro-imager: its 2048x2048 image looks about 40 deg off its axis A
-through a 1.7 deg window). Such a camera can see a board (at ~35 m for the 1 m
-board), but the JPL procedure - a board facing the camera across its field,
+through a 1.7 deg window). Such a camera can see a board (the 1.1 m dot board
+at 70-110 m), but the JPL procedure - a board facing the camera across its field,
 observing focal length and centre - does not apply: a pinhole fit cannot
 separate the far-off centre from the focal length. Pass
 allow_offaxis=True to plan anyway. It also refuses when the board does not fit
 at any range up to max_range (default 100 m), or when the image centre does
-not unproject.
+not unproject. With allow_offaxis=True and max_range=1000 the planner gives
+SuperCam six poses at 74-107 m.
 '''
 
 import math
@@ -92,12 +93,16 @@ class _Planner:
         self.centre_board = target.centre()
         self.size = math.hypot(*target.size())
         self.cos_view_max = math.cos(math.radians(MAX_VIEW_ANGLE_DEG))
+        self._rays = {}
 
     def ray_cam(self, q):
-        o, v = self.model.unproject(np.asarray(q, dtype=np.float64))
-        o_cam = (o - self.t_ref_cam) @ self.R_ref_cam
-        v_cam = v @ self.R_ref_cam
-        return o_cam, v_cam
+        key = (float(q[0]), float(q[1]))
+        ray = self._rays.get(key)
+        if ray is None:
+            o, v = self.model.unproject(np.asarray(key, dtype=np.float64))
+            ray = ((o - self.t_ref_cam) @ self.R_ref_cam, v @ self.R_ref_cam)
+            self._rays[key] = ray
+        return ray
 
     def pose(self, q_anchor, d, tilt, azimuth, roll):
         r'''Rt_cam_board placing the board centre at range d along the ray of q_anchor'''
@@ -147,13 +152,13 @@ class _Planner:
         lo = hi / 2.0
         while ok(lo) and lo > 1e-3 * self.size:
             hi, lo = lo, lo / 2.0
-        for _ in range(24):
+        for _ in range(18):
             mid = math.sqrt(lo * hi)
             if ok(mid):
                 hi = mid
             else:
                 lo = mid
-        return hi
+        return hi if hi <= self.max_range else None
 
     def push(self, q_centre, corner, d, tilt, azimuth, roll):
         r'''Move the board's anchor from the image centre towards an image corner, along x
@@ -168,7 +173,7 @@ then y (twice), as far as it still fits: the board ends touching both edges'''
             for k in (0, 1):
                 lo, hi = s[k], 1.0
                 trial = s.copy()
-                for _ in range(20):
+                for _ in range(14):
                     trial[k] = 0.5 * (lo + hi)
                     if ok(trial):
                         lo = trial[k]
