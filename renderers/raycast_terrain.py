@@ -1,0 +1,492 @@
+r'''Exact ray casting of terrain height fields, with exact shadow rays (numba)
+
+SYNOPSIS
+
+    from renderers.raycast_terrain import render_terrain, trace_rays
+    from targets.terrain import make_terrain, ground_pose
+
+    terrain = make_terrain(seed=0)
+    r = render_terrain(model, terrain, Rt_ref_terrain=ground_pose(0.5), spp=1)
+    r.image       # (H,W) float32 in [0,1]: Lambertian shading with the sun
+    r.range       # (H,W) float64: distance along each pixel-centre ray to the surface (m); NaN: sky
+    r.shadow      # (H,W) uint8: 0 lit, 1 facing away from the sun, 2 in a cast shadow, 255 sky
+    r.metadata    # timings, rays, settings
+
+    hit = trace_rays(terrain, origins, directions)   # any rays (...,3) in the terrain frame
+
+The surface is the triangle pair of each grid cell described in
+targets/terrain.py, and a ray's intersection with it is exact (the nearest
+hit, up to float64 rounding): the ray walks a maximum-height pyramid (each
+cell of level k holds the highest node of its 2^k x 2^k cells) from the top
+level down, skipping every cell the ray passes above, and at level 0 solves
+the ray against the two triangle planes of the cell, keeping a hit inside the
+triangle.
+
+Shading is Lambertian: radiance = exposure * albedo * (ambient + cos i * lit),
+i the angle between the triangle's normal and the sun, lit = 0 when the shadow
+ray from the hit point towards the sun meets the terrain (a cast shadow,
+computed by the same exact intersection) or when cos i <= 0. Rays that miss
+the terrain are sky (value `sky`, range NaN).
+
+Pixel rays come from the camera model's own unproject (any CAHV, CAHVOR,
+CAHVORE, including CAHVORE's moving entrance pupil), at K x K subpixel points
+per pixel (spp = K); they are computed once per (model, K) and cached. The
+image is the mean over the subpixels; range and shadow are those of the
+pixel-centre ray.
+'''
+
+import math
+import time
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from reference_models.errors import CamvalError
+
+NAME = "raycast_terrain"
+SKY = 255
+_RAY_CACHE = {}
+_RAY_CACHE_SIZE = 4
+
+
+class TerrainRenderError(CamvalError):
+    pass
+
+
+@dataclass(frozen=True, eq=False)
+class TerrainRender:
+    image: np.ndarray     # (H,W) float32 in [0,1]
+    range: np.ndarray     # (H,W) float64, NaN for sky
+    shadow: np.ndarray    # (H,W) uint8: 0 lit, 1 self-shadowed, 2 cast shadow, 255 sky
+    metadata: dict
+
+
+# ---------------------------------------------------------------------------
+# the maximum pyramid
+def build_pyramid(heights):
+    r'''Max-height pyramid of a (Ny,Nx) node grid, packed flat
+
+RETURNED VALUE: (flat, offsets, nx, ny): level k is
+flat[offsets[k]:offsets[k] + nx[k]*ny[k]].reshape(ny[k], nx[k]); level 0 holds
+the highest of each cell's 4 nodes.
+'''
+    h = heights
+    lvl = np.maximum(np.maximum(h[:-1, :-1], h[1:, :-1]), np.maximum(h[:-1, 1:], h[1:, 1:]))
+    levels = [lvl]
+    while lvl.shape[0] > 1 or lvl.shape[1] > 1:
+        ny, nx = lvl.shape
+        pad = np.full((ny + (ny & 1), nx + (nx & 1)), -np.inf)
+        pad[:ny, :nx] = lvl
+        lvl = np.maximum(np.maximum(pad[0::2, 0::2], pad[1::2, 0::2]),
+                         np.maximum(pad[0::2, 1::2], pad[1::2, 1::2]))
+        levels.append(lvl)
+    sizes = [lv.size for lv in levels]
+    offsets = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
+    flat = np.concatenate([lv.ravel() for lv in levels])
+    nx = np.array([lv.shape[1] for lv in levels], np.int64)
+    ny = np.array([lv.shape[0] for lv in levels], np.int64)
+    return flat, offsets, nx, ny
+
+
+@njit(cache=True, fastmath=False)
+def _cell_hit(ox, oy, oz, dx, dy, dz, h, i, j, x0, y0, cell, tmin):
+    r'''Nearest t >= tmin where the ray meets the two triangles of cell (i, j); inf if none.
+Also returns the triangle (0: u >= v, 1: u < v).'''
+    h00 = h[j, i]
+    h10 = h[j, i + 1]
+    h01 = h[j + 1, i]
+    h11 = h[j + 1, i + 1]
+    # local coordinates along the ray: u = u0 + t du, v = v0 + t dv
+    u0 = (ox - (x0 + i * cell)) / cell
+    v0 = (oy - (y0 + j * cell)) / cell
+    du = dx / cell
+    dv = dy / cell
+    eps = 1e-9
+    best = np.inf
+    tri = -1
+    for k in range(2):
+        if k == 0:
+            a = h00
+            b = h10 - h00
+            c = h11 - h10
+        else:
+            a = h00
+            b = h11 - h01
+            c = h01 - h00
+        # oz + t dz = a + b (u0 + t du) + c (v0 + t dv)
+        den = dz - b * du - c * dv
+        num = a + b * u0 + c * v0 - oz
+        if den == 0.0:
+            continue
+        t = num / den
+        if not (t >= tmin) or t >= best:
+            continue
+        u = u0 + t * du
+        v = v0 + t * dv
+        if u < -eps or u > 1 + eps or v < -eps or v > 1 + eps:
+            continue
+        if k == 0 and u - v < -eps:
+            continue
+        if k == 1 and v - u < -eps:
+            continue
+        best = t
+        tri = k
+    return best, tri
+
+
+@njit(cache=True)
+def _trace(ox, oy, oz, dx, dy, dz, tmin, tmax, h, x0, y0, cell,
+           pyr, offs, pnx, pny, zlo, zhi, start_level):
+    r'''Nearest hit of one ray with the height field: (t, i, j, triangle) or (inf, -1, -1, -1)
+
+The walk starts at pyramid level start_level (clipped to the top): the top for
+rays from afar, 0 for rays leaving the surface (shadow rays), which climb as
+they rise.'''
+    ny_nodes, nx_nodes = h.shape
+    # every bound is widened by tol so rounding never lets a ray slip past a surface
+    # that it grazes (a flat floor at the lowest height meets the z bound exactly)
+    tol = 1e-9 * max(1.0, zhi - zlo, cell)
+    xmax = x0 + (nx_nodes - 1) * cell + tol
+    ymax = y0 + (ny_nodes - 1) * cell + tol
+    xmn = x0 - tol
+    ymn = y0 - tol
+    zlo = zlo - tol
+    zhi = zhi + tol
+    t0 = tmin
+    t1 = tmax
+    # clip to the grid's box (x, y) and to the height range (z)
+    if dx != 0.0:
+        ta = (xmn - ox) / dx
+        tb = (xmax - ox) / dx
+        if ta > tb:
+            ta, tb = tb, ta
+        t0 = max(t0, ta)
+        t1 = min(t1, tb)
+    elif ox < xmn or ox > xmax:
+        return np.inf, -1, -1, -1
+    if dy != 0.0:
+        ta = (ymn - oy) / dy
+        tb = (ymax - oy) / dy
+        if ta > tb:
+            ta, tb = tb, ta
+        t0 = max(t0, ta)
+        t1 = min(t1, tb)
+    elif oy < ymn or oy > ymax:
+        return np.inf, -1, -1, -1
+    if dz != 0.0:
+        ta = (zlo - oz) / dz
+        tb = (zhi - oz) / dz
+        if ta > tb:
+            ta, tb = tb, ta
+        t0 = max(t0, ta)
+        t1 = min(t1, tb)
+    elif oz < zlo or oz > zhi:
+        return np.inf, -1, -1, -1
+    if not (t0 <= t1):
+        return np.inf, -1, -1, -1
+
+    dxy = math.sqrt(dx * dx + dy * dy)
+    if dxy < 1e-300:
+        # a vertical ray: one cell
+        i = min(max(int(math.floor((ox - x0) / cell)), 0), nx_nodes - 2)
+        j = min(max(int(math.floor((oy - y0) / cell)), 0), ny_nodes - 2)
+        t, tri = _cell_hit(ox, oy, oz, dx, dy, dz, h, i, j, x0, y0, cell, tmin)
+        if t <= t1 + 1e-12:
+            return t, i, j, tri
+        return np.inf, -1, -1, -1
+    # a step that moves the ray 1e-9 cells sideways: to leave a cell boundary
+    nudge = 1e-9 * cell / dxy
+    idx = 1.0 / dx if dx != 0.0 else np.inf
+    idy = 1.0 / dy if dy != 0.0 else np.inf
+    stepx = 1 if dx > 0.0 else -1
+    stepy = 1 if dy > 0.0 else -1
+    top = offs.size - 1
+    level = min(max(start_level, 0), top)
+    t = t0
+    recompute = True
+    s = cell
+    ix = iy = 0
+    nxl = nyl = 1
+    tx = ty = dtx = dty = np.inf
+    while True:
+        if recompute:
+            # the cell of this level that holds the ray just after t, and the ray
+            # parameters where it crosses that cell's next x and y boundaries
+            s = cell * (1 << level)
+            nxl = pnx[level]
+            nyl = pny[level]
+            tm = t + nudge
+            ix = min(max(int(math.floor((ox + tm * dx - x0) / s)), 0), nxl - 1)
+            iy = min(max(int(math.floor((oy + tm * dy - y0) / s)), 0), nyl - 1)
+            if dx != 0.0:
+                tx = (x0 + (ix + (1 if dx > 0.0 else 0)) * s - ox) * idx
+                dtx = abs(s * idx)
+            if dy != 0.0:
+                ty = (y0 + (iy + (1 if dy > 0.0 else 0)) * s - oy) * idy
+                dty = abs(s * idy)
+            recompute = False
+        te = min(tx, ty, t1)
+        if te < t:
+            te = t
+        # lowest point of the ray over [t - nudge, te] (z is linear in t)
+        zray = min(oz + (t - nudge) * dz, oz + te * dz)
+        if zray <= pyr[offs[level] + iy * nxl + ix] + tol:
+            if level > 0:
+                level -= 1
+                recompute = True
+                continue
+            th, tri = _cell_hit(ox, oy, oz, dx, dy, dz, h, ix, iy, x0, y0, cell, tmin)
+            if th <= t1 + 1e-12:
+                return th, ix, iy, tri
+        # the ray passes this cell: on to the next one of the same level
+        t = te
+        if t >= t1:
+            break
+        if tx <= ty:
+            old = ix
+            ix += stepx
+            tx += dtx
+            if ix < 0 or ix >= nxl:
+                break
+            changed = (ix >> 1) != (old >> 1)
+        else:
+            old = iy
+            iy += stepy
+            ty += dty
+            if iy < 0 or iy >= nyl:
+                break
+            changed = (iy >> 1) != (old >> 1)
+        if changed and level < top:
+            level += 1
+            recompute = True
+    return np.inf, -1, -1, -1
+
+
+@njit(cache=True)
+def _normal(h, i, j, tri, cell):
+    if tri == 0:
+        b = (h[j, i + 1] - h[j, i]) / cell
+        c = (h[j + 1, i + 1] - h[j, i + 1]) / cell
+    else:
+        b = (h[j + 1, i + 1] - h[j + 1, i]) / cell
+        c = (h[j + 1, i] - h[j, i]) / cell
+    n = math.sqrt(b * b + c * c + 1.0)
+    return -b / n, -c / n, 1.0 / n
+
+
+@njit(cache=True)
+def _albedo(a, x, y, xmin, ymin, w, hgt):
+    ty, tx = a.shape
+    fx = min(max((x - xmin) / w * tx - 0.5, 0.0), tx - 1.0)
+    fy = min(max((y - ymin) / hgt * ty - 0.5, 0.0), ty - 1.0)
+    i = min(int(fx), max(tx - 2, 0))
+    j = min(int(fy), max(ty - 2, 0))
+    i1 = min(i + 1, tx - 1)
+    j1 = min(j + 1, ty - 1)
+    u = fx - i
+    v = fy - j
+    return ((1 - v) * ((1 - u) * a[j, i] + u * a[j, i1])
+            + v * ((1 - u) * a[j1, i] + u * a[j1, i1]))
+
+
+@njit(parallel=True, cache=True)
+def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pnx, pny, zlo, zhi,
+                albedo, sun, ambient, exposure, sky, shadows,
+                out_value, out_t, out_code):
+    N = O.shape[0]
+    ny_nodes, nx_nodes = h.shape
+    w = (nx_nodes - 1) * cell
+    hgt = (ny_nodes - 1) * cell
+    # interleaved blocks: neighbouring rays cost alike (sky, far or near ground),
+    # so a contiguous split would leave one thread idle
+    NB = 512
+    for blk in prange(NB):
+        for n in range(blk, N, NB):
+            # into the terrain frame: p_t = R^T (p_ref - T)
+            ax = O[n, 0] - T[0]
+            ay = O[n, 1] - T[1]
+            az = O[n, 2] - T[2]
+            ox = R[0, 0] * ax + R[1, 0] * ay + R[2, 0] * az
+            oy = R[0, 1] * ax + R[1, 1] * ay + R[2, 1] * az
+            oz = R[0, 2] * ax + R[1, 2] * ay + R[2, 2] * az
+            bx, by, bz = D[n, 0], D[n, 1], D[n, 2]
+            dx = R[0, 0] * bx + R[1, 0] * by + R[2, 0] * bz
+            dy = R[0, 1] * bx + R[1, 1] * by + R[2, 1] * bz
+            dz = R[0, 2] * bx + R[1, 2] * by + R[2, 2] * bz
+            if not (math.isfinite(ox) and math.isfinite(oy) and math.isfinite(oz)
+                    and math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz)):
+                out_value[n] = sky
+                out_t[n] = np.nan
+                out_code[n] = 255
+                continue
+            t, i, j, tri = _trace(ox, oy, oz, dx, dy, dz, 0.0, np.inf, h, x0, y0, cell,
+                                  pyr, offs, pnx, pny, zlo, zhi, 1000)
+            if i < 0:
+                out_value[n] = sky
+                out_t[n] = np.nan
+                out_code[n] = 255
+                continue
+            px = ox + t * dx
+            py = oy + t * dy
+            pz = oz + t * dz
+            nx_, ny_, nz_ = _normal(h, i, j, tri, cell)
+            cosi = nx_ * sun[0] + ny_ * sun[1] + nz_ * sun[2]
+            code = 0
+            if cosi <= 0.0:
+                code = 1
+                cosi = 0.0
+            elif shadows:
+                # leave the surface along its normal by a hair: the hit triangle itself
+                # cannot be met again, as the sun is above its plane
+                off = 1e-7 * cell
+                ts, si, sj, stri = _trace(px + off * nx_, py + off * ny_, pz + off * nz_,
+                                          sun[0], sun[1], sun[2], 0.0, np.inf, h, x0, y0, cell,
+                                          pyr, offs, pnx, pny, zlo, zhi, 0)
+                if si >= 0:
+                    code = 2
+                    cosi = 0.0
+            a = _albedo(albedo, px, py, x0, y0, w, hgt)
+            out_value[n] = exposure * a * (ambient + cosi)
+            out_t[n] = t
+            out_code[n] = code
+
+
+def _prepared(terrain):
+    key = id(terrain)
+    cached = getattr(terrain, "_raycast_cache", None)
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    flat, offs, pnx, pny = build_pyramid(terrain.heights)
+    prep = (flat, offs, pnx, pny, float(terrain.heights.min()), float(terrain.heights.max()))
+    object.__setattr__(terrain, "_raycast_cache", (key, prep))
+    return prep
+
+
+def trace_rays(terrain, origins, directions, shadows=True, exposure=1.0, sky=0.0,
+               Rt_ref_terrain=None):
+    r'''Trace rays and shade their hits
+
+SYNOPSIS
+
+    value, t, code = trace_rays(terrain, origins, directions)
+    # origins, directions (...,3) (directions need not be unit; t is in units of |d|)
+    # value (...) float64 shading; t (...) ray parameter of the hit (NaN: miss)
+    # code (...) uint8 0 lit, 1 facing away from the sun, 2 cast shadow, 255 miss
+
+The rays are in the terrain frame, or in a frame "ref" if Rt_ref_terrain (4,3)
+is given. Rays with non-finite numbers miss.
+'''
+    O = np.asarray(origins, np.float64)
+    D = np.asarray(directions, np.float64)
+    O, D = np.broadcast_arrays(O, D)
+    shape = O.shape[:-1]
+    O = np.ascontiguousarray(O.reshape(-1, 3))
+    D = np.ascontiguousarray(D.reshape(-1, 3))
+    Rt = _identity_Rt() if Rt_ref_terrain is None else _check_Rt(Rt_ref_terrain)
+    flat, offs, pnx, pny, zlo, zhi = _prepared(terrain)
+    N = O.shape[0]
+    value = np.empty(N)
+    t = np.empty(N)
+    code = np.empty(N, np.uint8)
+    x0, y0 = terrain.origin
+    _shade_rays(O, D, np.ascontiguousarray(Rt[:3]), np.ascontiguousarray(Rt[3]),
+                terrain.heights, x0, y0, terrain.cell, flat, offs, pnx, pny, zlo, zhi,
+                terrain.albedo, terrain.sun.direction(), float(terrain.ambient),
+                float(exposure), float(sky), bool(shadows), value, t, code)
+    return value.reshape(shape), t.reshape(shape), code.reshape(shape)
+
+
+def _identity_Rt():
+    return np.vstack((np.eye(3), np.zeros(3)))
+
+
+def _check_Rt(Rt):
+    Rt = np.asarray(Rt, np.float64)
+    if Rt.shape != (4, 3) or not np.all(np.isfinite(Rt)):
+        raise TerrainRenderError(
+            f"Rt_ref_terrain must be a finite (4,3) array; got shape {Rt.shape}")
+    if not np.allclose(Rt[:3].T @ Rt[:3], np.eye(3), atol=1e-9):
+        raise TerrainRenderError("Rt_ref_terrain's rotation (its first 3 rows) is not orthonormal")
+    return Rt
+
+
+# ---------------------------------------------------------------------------
+# camera rays
+def pixel_rays(model, spp=1):
+    r'''Rays of a camera model through K x K subpixel points of every pixel
+
+SYNOPSIS
+
+    origins, v = pixel_rays(model, spp=K)
+    # origins, v have shape (H*W, K*K, 3) in the model's frame; |v| = 1
+
+Subpixel points are at offsets (k + 1/2)/K - 1/2 (k = 0..K-1) from the pixel
+centre (reference_models.conventions). Cached per (model, K).
+'''
+    key = (repr(model), int(spp))
+    hit = _RAY_CACHE.get(key)
+    if hit is not None:
+        return hit
+    W, Hh = model.width, model.height
+    off = (np.arange(spp) + 0.5) / spp - 0.5
+    ox, oy = np.meshgrid(off, off)
+    sub = np.stack((ox.ravel(), oy.ravel()), axis=-1)                  # (K*K,2)
+    from reference_models.conventions import pixel_centres
+    q = pixel_centres(W, Hh).reshape(-1, 1, 2) + sub[None]              # (H*W,K*K,2)
+    origins, v = model.unproject(q)
+    origins = np.ascontiguousarray(origins)
+    v = np.ascontiguousarray(v)
+    if len(_RAY_CACHE) >= _RAY_CACHE_SIZE:
+        _RAY_CACHE.pop(next(iter(_RAY_CACHE)))
+    _RAY_CACHE[key] = (origins, v)
+    return origins, v
+
+
+def render_terrain(model, terrain, Rt_ref_terrain=None, spp=1, shadows=True,
+                   exposure=1.0, sky=0.0):
+    r'''Render a terrain through a camera model
+
+SYNOPSIS
+
+    r = render_terrain(model, terrain, Rt_ref_terrain, spp=1, shadows=True)
+    # r.image (H,W) float32 in [0,1]; r.range (H,W) metres along the pixel-centre
+    # ray from its origin (NaN: sky); r.shadow (H,W) uint8 (0 lit, 1 self, 2 cast, 255 sky)
+
+Rt_ref_terrain (4,3) places the terrain (z up) in the model's frame
+(targets.terrain.ground_pose for a z-down rover frame); identity if None.
+spp is K: K x K rays per pixel for the image. exposure scales the radiance;
+sky is the value of rays that miss the terrain. Values are clipped to [0,1].
+'''
+    if isinstance(spp, bool) or not isinstance(spp, int) or spp < 1:
+        raise TerrainRenderError(f"supersampling K must be a positive integer; got {spp!r}")
+    Rt = _identity_Rt() if Rt_ref_terrain is None else _check_Rt(Rt_ref_terrain)
+    W, Hh = model.width, model.height
+    t_start = time.perf_counter()
+    o, v = pixel_rays(model, spp)
+    t_rays = time.perf_counter()
+    value, t, code = trace_rays(terrain, o, v, shadows=shadows, exposure=exposure, sky=sky,
+                                Rt_ref_terrain=Rt)
+    K2 = spp * spp
+    image = value.reshape(Hh, W, K2).mean(axis=-1)
+    if spp == 1:
+        rng, shadow = t.reshape(Hh, W), code.reshape(Hh, W)
+    elif spp % 2 == 1:
+        c = K2 // 2
+        rng, shadow = t.reshape(Hh, W, K2)[..., c], code.reshape(Hh, W, K2)[..., c]
+    else:
+        oc, vc = pixel_rays(model, 1)
+        _, tc, cc = trace_rays(terrain, oc, vc, shadows=shadows, Rt_ref_terrain=Rt)
+        rng, shadow = tc.reshape(Hh, W), cc.reshape(Hh, W)
+    t_end = time.perf_counter()
+    return TerrainRender(
+        image=np.clip(image, 0.0, 1.0).astype(np.float32),
+        range=np.ascontiguousarray(rng, dtype=np.float64),
+        shadow=np.ascontiguousarray(shadow),
+        metadata={"renderer": NAME, "version": f"numba {numba.__version__}",
+                  "spp": spp, "shadows": bool(shadows), "exposure": exposure,
+                  "rays": int(value.size), "threads": numba.get_num_threads(),
+                  "seconds": t_end - t_start, "seconds_rays": t_rays - t_start,
+                  "seconds_trace": t_end - t_rays, "surface": "triangle pair per cell",
+                  "terrain": terrain.as_dict()})

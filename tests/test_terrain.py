@@ -1,0 +1,207 @@
+'''Terrain height fields and the exact terrain ray caster (intersections and shadows)'''
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from reference_models.cahvore import CAHV, CAHVOR
+from renderers.raycast_terrain import build_pyramid, render_terrain, trace_rays
+from targets.terrain import Sun, Terrain, TerrainError, ground_pose, make_terrain
+
+
+def small_terrain(seed=0, **kw):
+    return make_terrain(extent=(0, 3, -1.5, 1.5), cell=0.1, texel=0.02, seed=seed,
+                        relief_m=0.1, relief_wavelength_m=1.0, rocks_per_m2=2.0,
+                        rock_radius_m=(0.05, 0.25), **kw)
+
+
+def test_generation_is_deterministic_for_a_seed():
+    a, b, c = small_terrain(3), small_terrain(3), small_terrain(4)
+    assert np.array_equal(a.heights, b.heights) and np.array_equal(a.albedo, b.albedo)
+    assert not np.array_equal(a.heights, c.heights)
+    assert a.heights.shape == (31, 31) and a.albedo.shape == (150, 150)
+    assert 0 < a.albedo.min() and a.albedo.max() < 1
+    # rocks are bumps with darker albedo: the texture is granular at the texel scale
+    assert np.std(np.diff(a.albedo, axis=1)) > 0.01
+
+
+def test_height_files_and_functions(tmp_path):
+    z = (np.arange(12, dtype=np.uint16).reshape(3, 4) * 1000)
+    cv2.imwrite(str(tmp_path / "h.png"), z)
+    np.save(tmp_path / "h.npy", z.astype(np.float32))
+    a = Terrain.from_file(tmp_path / "h.png", cell=0.5, height_scale=0.001, origin=(1, 2))
+    b = Terrain.from_file(tmp_path / "h.npy", cell=0.5, height_scale=0.001, origin=(1, 2))
+    assert np.array_equal(a.heights, z * 0.001) and np.array_equal(a.heights, b.heights)
+    assert a.extent() == (1.0, 2.5, 2.0, 3.0)
+    # node (i, j) at (x0 + i cell, y0 + j cell) has heights[j, i]
+    assert a.height_at(1.5, 2.5) == pytest.approx(z[1, 1] * 0.001)
+    f = Terrain.from_function(lambda x, y: 0.1 * x + 0.2 * y, (0, 2, 0, 1), 0.25)
+    assert f.heights.shape == (5, 9)
+    x, y = np.random.default_rng(0).uniform(0, 1, (2, 50))
+    assert np.allclose(f.height_at(x, y), 0.1 * x + 0.2 * y)   # planes are exact
+    assert np.isnan(f.height_at(3.0, 0.5))
+    with pytest.raises(TerrainError, match="known: .npy, .png"):
+        Terrain.from_file(_touch(tmp_path / "h.tif"), cell=1)
+    with pytest.raises(TerrainError, match="Ny, Nx >= 2"):
+        Terrain(heights=np.zeros((1, 5)), cell=1.0)
+
+
+def _touch(p):
+    p.write_bytes(b"x")
+    return p
+
+
+def test_pyramid_is_a_max_pyramid():
+    h = np.random.default_rng(1).normal(size=(11, 14))
+    flat, offs, nx, ny = build_pyramid(h)
+    assert (nx[0], ny[0]) == (13, 10) and (nx[-1], ny[-1]) == (1, 1)
+    assert flat[offs[-1]] == h.max()
+    lvl1 = flat[offs[1]:offs[1] + nx[1] * ny[1]].reshape(ny[1], nx[1])
+    assert lvl1[0, 0] == h[:3, :3].max()
+
+
+def _march(terrain, o, d, step=2e-4, tmax=20.0):
+    r'''First crossing of the ray below the surface, by small steps and bisection'''
+    t = np.arange(0, tmax, step)
+    p = o + t[:, None] * d
+    gap = p[:, 2] - terrain.height_at(p[:, 0], p[:, 1])
+    below = np.nonzero(gap <= 0)[0]
+    if below.size == 0:
+        return np.inf
+    k = below[0]
+    if k == 0:
+        return 0.0
+    a, b = t[k - 1], t[k]
+    for _ in range(60):
+        m = 0.5 * (a + b)
+        q = o + m * d
+        if q[2] - terrain.height_at(q[0], q[1]) > 0:
+            a = m
+        else:
+            b = m
+    return 0.5 * (a + b)
+
+
+def test_intersection_agrees_with_brute_force_march():
+    ter = small_terrain(7)
+    rng = np.random.default_rng(2)
+    n = 60
+    o = np.column_stack((rng.uniform(-0.5, 0.5, n), rng.uniform(-1, 1, n),
+                         rng.uniform(0.3, 1.0, n)))
+    az = rng.uniform(-0.6, 0.6, n)
+    el = rng.uniform(-0.6, -0.05, n)     # down, some of them grazing
+    d = np.column_stack((np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)))
+    _, t, code = trace_rays(ter, o, d, shadows=False)
+    want = np.array([_march(ter, o[i], d[i]) for i in range(n)])
+    hit = np.isfinite(want)
+    assert hit.sum() > 30 and (~hit).sum() > 0        # hits and misses (off the grid)
+    assert np.array_equal(np.isfinite(t), hit)
+    assert np.max(np.abs(t[hit] - want[hit])) < 1e-6
+    # the hit point is on the surface
+    p = o[hit] + t[hit, None] * d[hit]
+    assert np.max(np.abs(p[:, 2] - ter.height_at(p[:, 0], p[:, 1]))) < 1e-9
+    assert np.all(code[~hit] == 255)
+
+
+SUN_30 = Sun(azimuth_deg=0.0, elevation_deg=30.0)
+
+
+def box_terrain(h=0.3, cell=0.05, sun=SUN_30):
+    x = np.arange(0, 4 + 1e-9, cell)
+    y = np.arange(-1, 1 + 1e-9, cell)
+    z = np.zeros((y.size, x.size))
+    box_x = (x >= 2.0 - 1e-9) & (x <= 2.5 + 1e-9)
+    box_y = np.abs(y) <= 0.5 + 1e-9
+    z[np.ix_(box_y, box_x)] = h
+    return Terrain(heights=z, cell=cell, origin=(0.0, -1.0), sun=sun, ambient=0.0)
+
+
+@pytest.mark.parametrize("elevation", [20.0, 30.0, 45.0])
+def test_box_shadow_length(elevation):
+    h, cell = 0.3, 0.05
+    ter = box_terrain(h, cell, Sun(azimuth_deg=0.0, elevation_deg=elevation))
+    # look straight down at a line across the box, along the sun's azimuth
+    xs = np.arange(0.005, 4.0, 0.002)
+    o = np.column_stack((xs, np.zeros_like(xs), np.full_like(xs, 5.0)))
+    d = np.array([0.0, 0.0, -1.0])
+    value, t, code = trace_rays(ter, o, d)
+    # the sun is towards +x: the box's top edge at x = 2 casts the shadow towards -x
+    dark = (code != 0) & (xs < 2.0)
+    x_start = xs[dark].min()
+    assert 2.0 - x_start == pytest.approx(h / math.tan(math.radians(elevation)), abs=cell)
+    # everything between the shadow's start and the box is dark, all else lit
+    assert np.all(dark[(xs > x_start) & (xs < 2.0)])
+    assert np.all(code[(xs > 2.0) & (xs < 2.5)] == 0) and np.all(code[xs > 2.55] == 0)
+    # on the flat ground, lit points are albedo * sin(elevation)
+    lit = (code == 0) & (xs < 1.0)
+    assert np.allclose(value[lit], 0.5 * math.sin(math.radians(elevation)))
+    # a point of the plane in the open is lit, its range is exact
+    assert np.allclose(t[xs < 1.0], 5.0)
+
+
+def test_shadow_from_oblique_camera_rays_matches_geometry():
+    ter = box_terrain()
+    # ground points seen obliquely: shadow status must equal the analytic one
+    rng = np.random.default_rng(5)
+    n = 400
+    target = np.column_stack((rng.uniform(1.0, 1.94, n), rng.uniform(-0.4, 0.4, n), np.zeros(n)))
+    o = np.array([0.5, 0.3, 1.5])
+    d = target - o
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    _, t, code = trace_rays(ter, o, d)
+    assert np.allclose(o + t[:, None] * d, target, atol=1e-9)
+    # the edge at x=2 (height 0.3) shades x in (2 - 0.3/tan 30deg, 2); the ramp from the
+    # node at x = 1.95 (0) to x = 2.0 (0.3) is what actually casts, so allow one cell
+    x_edge = 2.0 - 0.3 / math.tan(math.radians(30))
+    sure_dark = target[:, 0] > x_edge + 0.05
+    sure_lit = target[:, 0] < x_edge - 0.05
+    assert np.all(code[sure_dark] == 2) and np.all(code[sure_lit] == 0)
+
+
+def forward_camera(pitch_deg, f, width, height, C=(0, 0, -1.0), R=None):
+    r'''A camera in a z-down rover frame looking forward (+x), pitched down'''
+    p = math.radians(pitch_deg)
+    A = np.array([math.cos(p), 0, math.sin(p)])
+    Hp = np.array([0.0, 1.0, 0.0])
+    Vp = np.cross(A, Hp)
+    H = f * Hp + (width - 1) / 2 * A
+    V = f * Vp + (height - 1) / 2 * A
+    if R is None:
+        return CAHV(C=C, A=A, H=H, V=V, width=width, height=height)
+    return CAHVOR(C=C, A=A, H=H, V=V, O=A, R=R, width=width, height=height)
+
+
+def test_render_flat_plane_range_is_exact():
+    m = forward_camera(17.0, 60.0, 100, 80, R=[0, -0.1, 0.01])
+    ter = Terrain(heights=np.zeros((3, 3)), cell=20.0, origin=(-10, -20),
+                  sun=Sun(0, 50), ambient=0.2)
+    r = render_terrain(m, ter, ground_pose(0.0), spp=1)
+    from reference_models.conventions import pixel_centres
+    o, v = m.unproject(pixel_centres(100, 80))
+    # rover frame z down: the ground is z = 0, the camera 1 m above it
+    with np.errstate(divide="ignore"):
+        want = np.where(v[..., 2] > 0, -o[..., 2] / v[..., 2], np.nan)
+    p = o + want[..., None] * v
+    off = (p[..., 0] < -10) | (p[..., 0] > 30) | (np.abs(p[..., 1]) > 20)
+    want[off | (v[..., 2] <= 0)] = np.nan
+    assert np.array_equal(np.isnan(r.range), np.isnan(want))
+    assert np.nanmax(np.abs(r.range - want)) < 1e-9
+    assert np.all(r.shadow[np.isfinite(want)] == 0)
+    lit = 0.5 * (0.2 + math.sin(math.radians(50)))
+    assert np.allclose(r.image[np.isfinite(want)], lit, atol=1e-6)
+    assert np.all(r.image[np.isnan(want)] == 0)
+
+
+def test_supersampling_averages_and_keeps_centre_range():
+    m = forward_camera(25.0, 40.0, 60, 50)
+    ter = small_terrain(1)
+    r1 = render_terrain(m, ter, ground_pose(0.0), spp=1)
+    r2 = render_terrain(m, ter, ground_pose(0.0), spp=2)
+    r3 = render_terrain(m, ter, ground_pose(0.0), spp=3)
+    assert np.array_equal(r1.range, r2.range, equal_nan=True)
+    assert np.array_equal(r1.range, r3.range, equal_nan=True)
+    assert np.array_equal(r1.shadow, r3.shadow)
+    assert np.mean(np.abs(r2.image - r1.image)) < 0.05
+    assert r2.metadata["rays"] == 4 * 60 * 50
