@@ -1,0 +1,221 @@
+r'''Detectors on rendered targets: exact dot centroids, numbering, tags, chessboards, bad input
+
+The fast tests render with tests/targets_render.py (plain numpy supersampling,
+independent of renderers/); the slow one renders every planned pose of the
+1024x1024 catalogue cameras with the ray-cast renderer.
+'''
+
+import math
+
+import numpy as np
+import pytest
+from targets_render import pinhole, render
+
+from reference_models.cahvore import CAHV
+from targets.boards import load_target, target_from_dict
+from targets.centroids import expected_centroids, projected_points
+from targets.detect import DetectionInputError, detect
+from targets.poses import plan_poses
+
+# a distorted wide-ish camera small enough to render in numpy
+WIDE = dict(width=320, height=240, f=220.0, R=[0.0, -0.08, 0.01])
+
+
+def _Rt(rx_deg, ry_deg, t):
+    ax, ay = math.radians(rx_deg), math.radians(ry_deg)
+    Rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    Ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    return np.vstack((Ry @ Rx, t))
+
+
+@pytest.fixture(scope="module")
+def dots():
+    return load_target("dots")
+
+
+def _single_dot(d=0.04):
+    # the board covers the whole image, so the dot sits on a uniform board
+    return target_from_dict({"kind": "dots", "nx": 1, "ny": 1, "spacing": 0.1,
+                             "dot_diameter": d, "margin": 2.0})
+
+
+@pytest.mark.parametrize("R", [None, [0.0, -0.1, 0.02]], ids=["CAHV", "CAHVOR"])
+def test_single_dot_centroid_is_exact(R):
+    r'''Proves the pixel convention: a tilted dot, off-centre, 20 px in radius, 32x32
+supersampled: the detected centroid is the exact expected centroid to 1e-3 px, and that
+differs from the projected centre by far more'''
+    m = pinhole(96, 96, 200.0, R=R)
+    t = _single_dot()
+    Rt = _Rt(30, 0, [0.013, -0.007, 0.2])
+    det = detect(render(m, t.pattern(), Rt, K=32), t)
+    assert det.status == "ok" and det.n_found == 1 and det.n_expected == 1
+    q = expected_centroids(m, t, Rt)
+    assert np.abs(det.q - q).max() < 1e-3
+    assert np.linalg.norm(q - projected_points(m, t, Rt)) > 0.3
+    # a half-pixel convention slip is 500 times the tolerance
+    assert np.all(np.abs(det.q - (q + 0.5)) > 0.4)
+
+
+def _check_dots(m, t, Rt, K=8, tol=0.03):
+    img = render(m, t.pattern(), Rt, K=K)
+    det = detect(img, t)
+    assert det.status == "ok", det.reason
+    assert det.n_found == det.n_expected == 100
+    err = np.linalg.norm(det.q - expected_centroids(m, t, Rt), axis=-1)
+    # a wrong numbering would put dots 0.1 m (many pixels) off
+    assert err.max() < tol, err.max()
+    return det
+
+
+def test_dots_on_planned_poses(dots):
+    m = pinhole(WIDE["width"], WIDE["height"], WIDE["f"], R=WIDE["R"])
+    for Rt in plan_poses(m, dots, seed=0):
+        _check_dots(m, dots, Rt)
+
+
+def test_dots_through_a_mirrored_camera(dots):
+    r'''H -> -H mirrors the image: only the orientation mark can number the grid right'''
+    W, H, f = 320, 240, 220.0
+    A = np.array([0.0, 0.0, 1.0])
+    m = CAHV(C=np.zeros(3), A=A, H=np.array([-f, 0, 0]) + (W - 1) / 2 * A,
+             V=np.array([0, f, 0]) + (H - 1) / 2 * A, width=W, height=H)
+    assert m.mirrored
+    poses = plan_poses(m, dots, seed=2)
+    for Rt in poses[:3]:
+        det = _check_dots(m, dots, Rt)
+        assert det.info["transform"] is not None
+
+
+def test_dots_rotated_in_plane(dots):
+    m = pinhole(320, 320, 250.0)
+    c = dots.centre()
+    for angle in (90.0, 180.0, 270.0):
+        a = math.radians(angle + 3.0)
+        R = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+        Rt = np.vstack((R, [0, 0, 2.0] - R @ c))
+        _check_dots(m, dots, Rt)
+
+
+def test_dots_partly_out_of_view(dots):
+    r'''Part of the grid outside the image: the dots seen are numbered right (the mark is
+in view), the result says how many'''
+    m = pinhole(320, 240, 220.0)
+    Rt = np.vstack((np.eye(3), [-0.4, -0.26, 0.8]))
+    det = detect(render(m, dots.pattern(), Rt, K=4), dots)
+    assert det.status == "failed" and "found" in det.reason
+    assert 40 < det.n_found < 100
+    exp = expected_centroids(m, dots, Rt)
+    assert np.nanmax(np.linalg.norm(det.q - exp, axis=-1)) < 0.05
+    ok = detect(render(m, dots.pattern(), Rt, K=4), dots, min_found=40)
+    assert ok.status == "ok" and ok.n_found == det.n_found
+
+
+def test_apriltags_decoded_with_the_right_ids():
+    t = load_target("apriltag")
+    m = pinhole(480, 360, 300.0, R=WIDE["R"])
+    for Rt in plan_poses(m, t, seed=0):
+        det = detect(render(m, t.pattern(), Rt, K=4), t)
+        assert det.status == "ok", det.reason
+        assert det.n_found == det.n_expected == 144
+        assert det.info["Ntags_decoded"] == 36
+        err = np.linalg.norm(det.q - projected_points(m, t, Rt), axis=-1)
+        # right ids and corner order (a wrong one is a tag or more away), convention shifted
+        assert err.max() < 0.6 and np.sqrt(np.mean(err ** 2)) < 0.25
+
+
+def test_chessboard_on_planned_poses():
+    t = load_target("chessboard")
+    m = pinhole(480, 360, 300.0, R=WIDE["R"])
+    for Rt in plan_poses(m, t, seed=0):
+        det = detect(render(m, t.pattern(), Rt, K=4), t)
+        assert det.status == "ok", det.reason
+        assert det.n_found == det.n_expected == 100
+        err = np.linalg.norm(det.q - projected_points(m, t, Rt), axis=-1)
+        assert err.max() < 0.35 and np.sqrt(np.mean(err ** 2)) < 0.15
+
+
+def test_chessboard_mirrored_is_numbered_by_the_mark():
+    t = load_target("chessboard")
+    W, H, f = 480, 360, 300.0
+    A = np.array([0.0, 0.0, 1.0])
+    m = CAHV(C=np.zeros(3), A=A, H=np.array([-f, 0, 0]) + (W - 1) / 2 * A,
+             V=np.array([0, f, 0]) + (H - 1) / 2 * A, width=W, height=H)
+    Rt = plan_poses(m, t, seed=0)[5]
+    det = detect(render(m, t.pattern(), Rt, K=4), t)
+    assert det.status == "ok"
+    err = np.linalg.norm(det.q - projected_points(m, t, Rt), axis=-1)
+    assert err.max() < 0.35
+
+
+def test_uint8_input(dots):
+    m = pinhole(WIDE["width"], WIDE["height"], WIDE["f"], R=WIDE["R"])
+    Rt = plan_poses(m, dots)[0]
+    img = render(m, dots.pattern(), Rt, K=8)
+    det = detect(np.round(img * 255).astype(np.uint8), dots)
+    assert det.status == "ok" and det.n_found == 100
+    assert np.abs(det.q - expected_centroids(m, dots, Rt)).max() < 0.05
+
+
+@pytest.mark.parametrize("name", ["dots", "apriltag", "chessboard"])
+def test_not_found_is_a_result(name):
+    t = load_target(name)
+    m = pinhole(160, 120, 120.0)
+    blank = np.full((120, 160), 0.5)
+    behind = render(m, t.pattern(), _Rt(0, 0, [-0.5, -0.5, -1.0]), K=1)
+    noise = np.random.default_rng(0).uniform(size=(120, 160))
+    nan = blank.copy()
+    nan[3, 4] = np.nan
+    for img in (blank, behind, noise, nan):
+        det = detect(img, t)
+        assert det.status == "failed" and det.reason and det.n_found == 0
+        assert det.q.shape == (t.Npoints, 2) and np.all(np.isnan(det.q))
+        assert det.n_expected == t.Npoints
+        det.as_dict()
+
+
+def test_wrong_target_in_the_image():
+    m = pinhole(320, 240, 220.0)
+    chess = load_target("chessboard")
+    img = render(m, chess.pattern(), plan_poses(m, chess)[0], K=2)
+    det = detect(img, load_target("dots"))
+    assert det.status == "failed" and det.reason
+
+
+def test_target_too_large_for_the_image(dots):
+    # the board overflows the image on every side: no dot grid with its mark
+    m = pinhole(160, 120, 400.0)
+    det = detect(render(m, dots.pattern(), _Rt(0, 0, [-0.45, -0.45, 1.0]), K=2), dots)
+    assert det.status == "failed" and det.n_found < 100
+
+
+def test_not_an_image():
+    t = load_target("dots")
+    for bad in (np.zeros(10), np.zeros((2, 3, 5)), np.zeros((10, 10), np.int32)):
+        with pytest.raises(DetectionInputError):
+            detect(bad, t)
+    with pytest.raises(DetectionInputError, match="no detector"):
+        detect(np.zeros((10, 10)), object())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["dots", "apriltag", "chessboard"])
+def test_every_planned_pose_of_the_1024_cameras(catalogue, name):
+    r'''Ray-cast renders (K=4, adaptive) of every planned pose of every 1024x1024 catalogue
+camera: every target found with all its points, dots at their exact centroids'''
+    from renderers.base import RenderSettings, get_renderer
+
+    renderer = get_renderer("raycast")
+    t = load_target(name)
+    for entry in catalogue.entries():
+        m = entry.model
+        if (m.width, m.height) != (1024, 1024):
+            continue
+        for i, Rt in enumerate(plan_poses(m, t)):
+            img = renderer.render(m, t.pattern(), Rt, RenderSettings(spp=4)).image
+            det = detect(img, t)
+            where = f"{entry.key} pose {i}: {det.reason}"
+            assert det.status == "ok" and det.n_found == det.n_expected, where
+            truth = (expected_centroids(m, t, Rt) if name == "dots"
+                     else projected_points(m, t, Rt))
+            err = np.linalg.norm(det.q - truth, axis=-1)
+            assert err.max() < {"dots": 0.05, "apriltag": 1.0, "chessboard": 0.5}[name], where
