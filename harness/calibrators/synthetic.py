@@ -162,3 +162,45 @@ def _toml_models(path="/work/shared/catalogue/cameras.toml"):
             m = CAHV(**kw)
         out.append((str(e.get("id", e.get("name"))), m))
     return out
+
+
+def rendered_observations(truth, target, Rt_cam_board=None, renderer="raycast", spp=16,
+                          n=6, seed=0):
+    r'''Observations detected in images rendered through `truth`
+
+SYNOPSIS
+
+    obs, info = rendered_observations(truth, target)    # planned poses, ray-cast K=16
+    # info: {"render_seconds", "detect_seconds", "n_found": [...], "detections": [...]}
+
+Poses from targets.poses.plan_poses unless given; each image is rendered by
+the named renderer (noise-free) and detected with targets.detect.detect. The
+sidecar-equivalent survey: Rt_ref_board = truth.Rt_ref_cam() o Rt_cam_board.
+'''
+    import time
+
+    from renderers.base import RenderSettings, get_renderer
+    from targets.detect import detect
+    if Rt_cam_board is None:
+        from targets.poses import plan_poses
+        Rt_cam_board = plan_poses(truth, target, n=n, seed=seed)
+    r = get_renderer(renderer)
+    qs, dets, t_render, t_detect = [], [], 0.0, 0.0
+    for Rt in Rt_cam_board:
+        t0 = time.perf_counter()
+        image = r.render(truth, target.pattern(), Rt, RenderSettings(spp=spp)).image
+        t1 = time.perf_counter()
+        det = detect(image, target)
+        t_detect += time.perf_counter() - t1
+        t_render += t1 - t0
+        qs.append(det.q)
+        dets.append(det)
+    Rt_ref_cam = truth.Rt_ref_cam()
+    obs = Observations(q=np.array(qs), p_board=np.asarray(target.points(), dtype=np.float64),
+                       imagersize=(truth.width, truth.height),
+                       Rt_ref_board=np.array([compose(Rt_ref_cam, Rt) for Rt in Rt_cam_board]),
+                       point_ids=np.asarray(target.point_ids()))
+    return obs, {"render_seconds": t_render, "detect_seconds": t_detect,
+                 "n_found": [int(d.n_found) for d in dets],
+                 "detection_status": [d.status for d in dets],
+                 "Rt_cam_board": np.array(Rt_cam_board)}
