@@ -30,7 +30,8 @@ the terrain are sky (value `sky`, range NaN).
 
 Pixel rays come from the camera model's own unproject (any CAHV, CAHVOR,
 CAHVORE, including CAHVORE's moving entrance pupil), at K x K subpixel points
-per pixel (spp = K); they are computed once per (model, K) and cached. The
+per pixel (spp = K); they are computed once per (model, K) and cached (with
+the compiled unprojection of renderers._raycast_kernels when available). The
 image is the mean over the subpixels; range and shadow are those of the
 pixel-centre ray.
 '''
@@ -414,6 +415,16 @@ def _check_Rt(Rt):
 
 # ---------------------------------------------------------------------------
 # camera rays
+def _unproject(model, q):
+    r'''model.unproject, by the board ray caster's compiled port when it is there
+(renderers._raycast_kernels: the same Newton solves, agreeing to ~1e-15)'''
+    try:
+        from renderers._raycast_kernels import pack_model, unproject_grid
+    except ImportError:
+        return model.unproject(q)
+    return unproject_grid(pack_model(model), q)
+
+
 def pixel_rays(model, spp=1):
     r'''Rays of a camera model through K x K subpixel points of every pixel
 
@@ -435,7 +446,7 @@ centre (reference_models.conventions). Cached per (model, K).
     sub = np.stack((ox.ravel(), oy.ravel()), axis=-1)                  # (K*K,2)
     from reference_models.conventions import pixel_centres
     q = pixel_centres(W, Hh).reshape(-1, 1, 2) + sub[None]              # (H*W,K*K,2)
-    origins, v = model.unproject(q)
+    origins, v = _unproject(model, q)
     origins = np.ascontiguousarray(origins)
     v = np.ascontiguousarray(v)
     if len(_RAY_CACHE) >= _RAY_CACHE_SIZE:

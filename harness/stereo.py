@@ -1,0 +1,402 @@
+r'''The stereo range check: render terrain through a stereo pair, rectify, match, triangulate
+
+SYNOPSIS
+
+    from harness.stereo import StereoSetup, run_stereo_check
+
+    setup = StereoSetup.from_catalogue(21, 22, scale=0.25)   # Mars 2020 navcam pair
+    result = run_stereo_check(setup, variants={"clean": {},
+                                               "noise": {"shot_noise": {}, "read_noise": {"sigma_e": 15}}})
+    result.variants["clean"].stats["band"]["median_abs_rel_error"]   # near 5 m
+    result.variants["clean"].range     # (Hr,Wr) stereo range (m), NaN: no match
+    result.true_range                  # (Hr,Wr) exact range along the same rectified rays
+
+A stereo pair of catalogue models that share a frame (left and right slots)
+looks at a generated terrain placed in that frame (targets.terrain.ground_pose:
+the frames are JPL's, z DOWN; the ground lies `camera_height_m` below the left
+camera and, when the left camera's axis points above the ground at
+`look_range_m`, the frame is pitched down, as a mast would, until it meets it
+there). The two images are rendered by the exact terrain ray caster through
+the TRUE models (renderers/raycast_terrain.py, K x K supersampled), optionally
+passed through camera-response stages (renderers/response.py), then:
+
+1. rectified with mrcal (mrcal.rectified_system, LENSMODEL_LATLON, and
+   mrcal.rectification_maps) from the models converted by
+   reference_models.mrcal_convert.to_mrcal(model, orthogonalise=True);
+2. matched with OpenCV StereoSGBM (8-bit images);
+3. triangulated with mrcal.stereo_range (range from the left camera along its
+   rectified ray);
+4. compared with the exact range along the same rectified rays, computed by
+   tracing those rays against the terrain (no interpolation).
+
+The rectification uses the models mrcal can represent (rectifiable()): theta
+= 90 deg (mrcal's camera frame is orthonormal) and, for CAHVORE, E = 0
+(mrcal.rectified_system accepts central projections only). The images come
+from the true models, so the rectification is wrong by the skew: a pixel at
+row offset dy from the centre is displaced along the row by about
+dy * cot(theta) (for the slot-12 hazcam, theta = 90.022 deg: 0.19 px at 500 px
+from the centre), and by the entrance-pupil shift (sub-millimetre for these
+cameras: ~0.01 px at 5 m). Both cameras of a pair have nearly the same skew,
+so most of it cancels in the disparity; render_model = "rectifiable" renders
+with the rectification's own models instead, which isolates the error of
+matching from that of the models.
+
+A camera model can be scaled down (scale_model) for speed: H, V and the image
+size scale, in the pixel convention of reference_models.conventions.
+'''
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from reference_models.errors import CamvalError
+
+
+class StereoError(CamvalError):
+    '''A stereo pair or stereo setting that cannot be used.'''
+
+
+# ---------------------------------------------------------------------------
+def scale_model(model, s, width=None, height=None):
+    r'''The model of the same camera with its image scaled by s
+
+SYNOPSIS
+
+    small = scale_model(model, 0.25)   # 5120x3840 -> 1280x960
+
+A pixel q of the original maps to s (q + 1/2) - 1/2 (pixel centres at
+integers, reference_models.conventions): H' = s H + (s/2 - 1/2) A, likewise V.
+The image size is round(s * size) unless given.
+'''
+    if not (s > 0 and math.isfinite(s)):
+        raise StereoError(f"model scale must be > 0; got {s!r}")
+    off = 0.5 * s - 0.5
+    w = int(round(model.width * s)) if width is None else int(width)
+    h = int(round(model.height * s)) if height is None else int(height)
+    return model.replace(H=s * model.H + off * model.A, V=s * model.V + off * model.A,
+                         width=w, height=h)
+
+
+def rectifiable(model):
+    r'''The version of a model that mrcal can rectify: theta = 90 deg and, for
+CAHVORE, E = 0 (mrcal rectifies central projections only)'''
+    m = model.with_theta_90()
+    if m.family == "CAHVORE" and np.any(m.E != 0):
+        m = m.replace(E=np.zeros(3))
+    return m
+
+
+def default_geometry(role):
+    r'''(camera height above the ground in m, range where the axis should meet it) for a role'''
+    r = (role or "").lower()
+    if "haz" in r:
+        return 0.52, 5.0      # MER/M2020 hazcams are ~0.5 m above the ground
+    return 1.9, 5.0           # mast cameras (navcam, pancam) ~1.9-2 m
+
+
+def terrain_pose_for(model, camera_height_m, look_range_m):
+    r'''Rt_ref_terrain placing the ground under a z-down frame for this camera
+
+The ground's z = 0 plane is camera_height_m below the camera centre C. If the
+camera's axis A dips less than atan(height / look_range) below the horizontal,
+the frame is pitched down by the difference (as a mast is), so the axis meets
+the ground at look_range_m; a camera already looking further down is left as
+it is. Returns (Rt_ref_terrain, pitch_deg).
+'''
+    from targets.terrain import ground_pose
+    dip = math.degrees(math.asin(max(-1.0, min(1.0, model.A[2]))))   # z is down
+    want = math.degrees(math.atan2(camera_height_m, look_range_m))
+    pitch = max(0.0, want - dip)
+    # the ground is camera_height_m below C measured in the pitched frame's level
+    # frame: solve for the height under the frame origin so that C is that high
+    Rt0 = ground_pose(0.0, pitch_deg=pitch)
+    # height of C above the terrain plane z = 0 for a ground 0 m below the origin
+    c_t = (model.C - Rt0[3]) @ Rt0[:3]
+    h_origin = camera_height_m - c_t[2]
+    return ground_pose(h_origin, pitch_deg=pitch), pitch
+
+
+@dataclass
+class StereoSetup:
+    r'''Everything that defines one stereo check
+
+left, right:  the true camera models (same frame)
+names:        labels of the two cameras
+terrain:      targets.terrain.Terrain
+Rt_ref_terrain: (4,3) the terrain in the models' frame
+scale:        the factor the models were scaled by (1: native)
+'''
+    left: object
+    right: object
+    names: tuple
+    terrain: object
+    Rt_ref_terrain: np.ndarray
+    scale: float = 1.0
+    camera_height_m: float = 0.0
+    pitch_deg: float = 0.0
+    look_range_m: float = 5.0
+    notes: list = field(default_factory=list)
+
+    @classmethod
+    def from_catalogue(cls, left, right, scale=1.0, camera_height_m=None, look_range_m=None,
+                       seed=0, catalogue=None, sun=None, max_range_m=20.0):
+        from reference_models.catalogue import load_catalogue
+        from targets.terrain import Sun, make_terrain
+        cat = catalogue if catalogue is not None else load_catalogue()
+        eL, eR = cat.get(left), cat.get(right)
+        if eL.key == eR.key:
+            raise StereoError(f"a stereo pair needs two cameras; got {eL.key} twice")
+        frames = (getattr(eL, "frame", None), getattr(eR, "frame", None))
+        if eL.rover != eR.rover or frames[0] != frames[1]:
+            raise StereoError(
+                f"cameras {eL.key} ({eL.rover}, frame {frames[0]}) and {eR.key} "
+                f"({eR.rover}, frame {frames[1]}) do not share a frame; a stereo pair "
+                "needs two models in one frame (e.g. 21 and 22, or 12 and 11)")
+        h0, r0 = default_geometry(eL.role)
+        h = camera_height_m if camera_height_m is not None else h0
+        look = look_range_m if look_range_m is not None else r0
+        mL, mR = eL.model, eR.model
+        if scale != 1.0:
+            mL, mR = scale_model(mL, scale), scale_model(mR, scale)
+        pose, pitch = terrain_pose_for(mL, h, look)
+        # the terrain reaches max_range_m ahead; its sides cover the widest view
+        half_width = max_range_m * 1.25
+        terrain = make_terrain(extent=(-1.0, max_range_m, -half_width, half_width),
+                               cell=0.05, texel=0.01, seed=seed,
+                               sun=sun if sun is not None else Sun(azimuth_deg=140,
+                                                                   elevation_deg=40))
+        notes = [f"scene: generated terrain seed {seed}, camera {h:.2f} m above the ground, "
+                 f"frame pitched {pitch:.2f} deg down so the axis meets the ground at "
+                 f"{look:g} m" if pitch > 0 else
+                 f"scene: generated terrain seed {seed}, camera {h:.2f} m above the ground "
+                 f"(the camera already looks down {math.degrees(math.asin(mL.A[2])):.1f} deg)"]
+        if scale != 1.0:
+            notes.append(f"models scaled by {scale:g} for speed: "
+                         f"{eL.model.width}x{eL.model.height} -> {mL.width}x{mL.height}")
+        return cls(left=mL, right=mR, names=(f"{eL.key} {eL.name}", f"{eR.key} {eR.name}"),
+                   terrain=terrain, Rt_ref_terrain=pose, scale=scale, camera_height_m=h,
+                   pitch_deg=pitch, look_range_m=look, notes=notes)
+
+
+@dataclass
+class VariantResult:
+    name: str
+    response: dict
+    range: np.ndarray          # (Hr,Wr) stereo range, NaN where no match
+    disparity: np.ndarray      # (Hr,Wr) px, NaN where no match
+    stats: dict
+    seconds: dict
+
+
+@dataclass
+class StereoResult:
+    setup: StereoSetup
+    images: tuple              # rendered (H,W) float32 left, right (clean)
+    rectified: tuple           # rectified clean images (Hr,Wr) float32
+    true_range: np.ndarray     # (Hr,Wr) exact range along the rectified left rays
+    elevation_true: np.ndarray  # (Hr,Wr) terrain height of the true points
+    models_rectified: list
+    variants: dict
+    meta: dict
+
+    def as_dict(self):
+        return {"cameras": list(self.setup.names), "meta": self.meta,
+                "notes": self.setup.notes,
+                "variants": {k: {"response": v.response, "stats": v.stats,
+                                 "seconds": v.seconds} for k, v in self.variants.items()}}
+
+
+# ---------------------------------------------------------------------------
+def _error_stats(rng, truth, look_range_m, band_rel=0.1):
+    r'''Range-error statistics over the pixels with a true range'''
+    has_truth = np.isfinite(truth)
+    matched = has_truth & np.isfinite(rng)
+    out = {"pixels_with_truth": int(has_truth.sum()),
+           "valid_fraction": float(matched.sum() / max(has_truth.sum(), 1))}
+
+    def block(mask):
+        n = int(mask.sum())
+        if n == 0:
+            return {"n": 0}
+        e = rng[mask] - truth[mask]
+        rel = e / truth[mask]
+        return {"n": n, "median_error_m": float(np.median(e)),
+                "median_abs_error_m": float(np.median(np.abs(e))),
+                "p95_abs_error_m": float(np.percentile(np.abs(e), 95)),
+                "median_rel_error": float(np.median(rel)),
+                "median_abs_rel_error": float(np.median(np.abs(rel))),
+                "p95_abs_rel_error": float(np.percentile(np.abs(rel), 95))}
+
+    out["all"] = block(matched)
+    lo, hi = look_range_m * (1 - band_rel), look_range_m * (1 + band_rel)
+    in_band = has_truth & (truth >= lo) & (truth <= hi)
+    out["band"] = {"range_m": [lo, hi],
+                   "valid_fraction": float((in_band & matched).sum() / max(in_band.sum(), 1)),
+                   **block(in_band & matched)}
+    return out
+
+
+def _to_u8(img):
+    return np.clip(np.round(np.asarray(img, np.float64) * 255.0), 0, 255).astype(np.uint8)
+
+
+def rectify_setup(setup, az_fov_deg=None, el_fov_deg=None, pixels_per_deg=None):
+    r'''mrcal rectified system and maps for the pair (theta = 90 versions of the models)
+
+RETURNED VALUE: (models_mrcal, models_rectified, maps)
+'''
+    import mrcal
+
+    from reference_models.mrcal_convert import to_mrcal
+    models = [to_mrcal(rectifiable(setup.left), orthogonalise=True),
+              to_mrcal(rectifiable(setup.right), orthogonalise=True)]
+    from reference_models.catalogue import field_of_view_deg
+    try:
+        fov = field_of_view_deg(setup.left)
+        hfov, vfov = float(fov[0]), float(fov[1])
+    except Exception:   # noqa: BLE001 - any failure: fall back to the focal length
+        ph = setup.left.photogrammetric()
+        hfov = 2 * math.degrees(math.atan(setup.left.width / 2 / ph.Hs))
+        vfov = 2 * math.degrees(math.atan(setup.left.height / 2 / ph.Vs))
+    az = az_fov_deg if az_fov_deg is not None else min(hfov * 0.95, 150.0)
+    el = el_fov_deg if el_fov_deg is not None else min(vfov * 0.95, 150.0)
+    ph = setup.left.photogrammetric()
+    ppd = pixels_per_deg if pixels_per_deg is not None else ph.Hs * math.pi / 180.0
+    models_rect = mrcal.rectified_system(models, az_fov_deg=az, el_fov_deg=el,
+                                         pixels_per_deg_az=ppd, pixels_per_deg_el=ppd)
+    if isinstance(models_rect, tuple) and not isinstance(models_rect[0], mrcal.cameramodel):
+        models_rect = models_rect[0]
+    maps = mrcal.rectification_maps(models, models_rect)
+    return models, list(models_rect), maps
+
+
+def true_rectified_range(setup, model_rect):
+    r'''Exact range along every rectified left ray (traced against the terrain)
+
+RETURNED VALUE: (range (Hr,Wr) NaN for sky, elevation (Hr,Wr) terrain-frame z of the point)
+'''
+    import mrcal
+
+    from renderers.raycast_terrain import trace_rays
+    W, Hh = model_rect.imagersize()
+    q = np.ascontiguousarray(np.stack(np.meshgrid(np.arange(W, dtype=float),
+                                                  np.arange(Hh, dtype=float)), axis=-1))
+    v_cam = mrcal.unproject(q, *model_rect.intrinsics(), normalize=True)
+    Rt_ref_cam = model_rect.Rt_ref_cam()
+    v_ref = v_cam @ Rt_ref_cam[:3].T
+    o_ref = np.broadcast_to(Rt_ref_cam[3], v_ref.shape)
+    _, t, _ = trace_rays(setup.terrain, o_ref, v_ref, shadows=False,
+                         Rt_ref_terrain=setup.Rt_ref_terrain)
+    p_ref = o_ref + t[..., None] * v_ref
+    R, T = setup.Rt_ref_terrain[:3], setup.Rt_ref_terrain[3]
+    z_t = ((p_ref - T) @ R)[..., 2]
+    return t, z_t, v_ref, o_ref
+
+
+def sgbm(left_u8, right_u8, num_disparities, block_size=5):
+    import cv2
+    nd = int(16 * math.ceil(num_disparities / 16))
+    m = cv2.StereoSGBM_create(minDisparity=0, numDisparities=nd, blockSize=block_size,
+                              P1=8 * block_size * block_size, P2=32 * block_size * block_size,
+                              disp12MaxDiff=1, uniquenessRatio=5, speckleWindowSize=100,
+                              speckleRange=2, mode=cv2.STEREO_SGBM_MODE_HH)
+    d16 = m.compute(left_u8, right_u8)
+    d = d16.astype(np.float64) / 16.0
+    d[d16 <= 0] = np.nan
+    return d
+
+
+def run_stereo_check(setup, variants=None, spp=2, render_model="true", block_size=5,
+                     seed=0, progress=None):
+    r'''Render, rectify, match, triangulate and compare, for each response variant
+
+SYNOPSIS
+
+    result = run_stereo_check(setup, variants={"clean": {}}, spp=2)
+
+variants: {name: response config (renderers.response.ResponseChain.from_config)};
+          default {"clean": {}}
+spp:      K, K x K rays per pixel for the rendered images
+render_model: "true" (the catalogue models; the rectification is then off by
+          their skew and CAHVORE pupil shift) or "rectifiable" (render with the
+          theta = 90, E = 0 models that the rectification uses)
+'''
+    import cv2
+    import mrcal
+
+    from renderers.raycast_terrain import render_terrain
+    from renderers.response import ResponseChain
+
+    say = progress or (lambda s: None)
+    if render_model not in ("true", "rectifiable"):
+        raise StereoError(f"render_model {render_model!r}; known: true, rectifiable")
+    variants = variants or {"clean": {}}
+    chains = {k: ResponseChain.from_config(v) for k, v in variants.items()}
+    tm = {}
+    t0 = time.perf_counter()
+    mL, mR = setup.left, setup.right
+    if render_model == "rectifiable":
+        mL, mR = rectifiable(mL), rectifiable(mR)
+    say(f"rendering {mL.width}x{mL.height} x2, K={spp}")
+    rL = render_terrain(mL, setup.terrain, setup.Rt_ref_terrain, spp=spp)
+    rR = render_terrain(mR, setup.terrain, setup.Rt_ref_terrain, spp=spp)
+    tm["render"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    say("rectifying (mrcal)")
+    models, models_rect, maps = rectify_setup(setup)
+    tm["rectification_maps"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    true_range, elev_true, v_ref, o_ref = true_rectified_range(setup, models_rect[0])
+    tm["true_range"] = time.perf_counter() - t0
+
+    baseline = float(np.linalg.norm(models_rect[1].Rt_ref_cam()[3]
+                                    - models_rect[0].Rt_ref_cam()[3]))
+    # LATLON: fx is pixels per radian of azimuth
+    px_per_rad = float(models_rect[0].intrinsics()[1][0])
+    near = np.nanpercentile(true_range, 0.5) if np.isfinite(true_range).any() else 1.0
+    # disparity (px) of the nearest points: the angle the baseline subtends there
+    max_disp = px_per_rad * math.atan2(baseline, near) * 1.15 + 8
+
+    rect_clean = tuple(cv2.remap(np.asarray(im, np.float32), mp[..., 0], mp[..., 1],
+                                 cv2.INTER_LINEAR) for im, mp in zip((rL.image, rR.image), maps,
+                                                                     strict=True))
+    out = {}
+    for k, (name, chain) in enumerate(chains.items()):
+        t0 = time.perf_counter()
+        say(f"variant {name}: response {chain.names() or 'none'}")
+        iL = chain.apply(rL.image, model=mL, seed=seed + 2 * k).image
+        iR = chain.apply(rR.image, model=mR, seed=seed + 2 * k + 1).image
+        t_resp = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        rect = [cv2.remap(im, mp[..., 0], mp[..., 1], cv2.INTER_LINEAR)
+                for im, mp in zip((iL, iR), maps, strict=True)]
+        d = sgbm(_to_u8(rect[0]), _to_u8(rect[1]), max_disp, block_size=block_size)
+        t_match = time.perf_counter() - t0
+        # stereo_range's dense path casts disparities to uint16: give it SGBM's own
+        # fixed-point disparities (1/16 px), never float pixels (they would be floored)
+        d16 = np.where(np.isfinite(d), np.round(d * 16.0), 0.0).astype(np.uint16)
+        rng = mrcal.stereo_range(d16, models_rect, disparity_scale=16)
+        rng = np.where(np.isfinite(d) & (rng > 0), rng, np.nan)
+        stats = _error_stats(rng, true_range, setup.look_range_m)
+        out[name] = VariantResult(name=name, response=variants[name], range=rng, disparity=d,
+                                  stats=stats, seconds={"response": t_resp, "rectify_match":
+                                                        t_match})
+    meta = {"render_model": render_model, "spp": spp, "scale": setup.scale,
+            "image_size": [mL.width, mL.height],
+            "rectified_size": list(models_rect[0].imagersize()),
+            "rectification": "mrcal LENSMODEL_LATLON from theta=90 models (to_mrcal "
+                             "orthogonalise=True)",
+            "theta_deg": [setup.left.photogrammetric().theta_deg,
+                          setup.right.photogrammetric().theta_deg],
+            "baseline_m": baseline, "pixels_per_deg": px_per_rad * math.pi / 180.0,
+            "num_disparities": int(16 * math.ceil(max_disp / 16)), "block_size": block_size,
+            "camera_height_m": setup.camera_height_m, "pitch_deg": setup.pitch_deg,
+            "look_range_m": setup.look_range_m, "seconds": tm,
+            "terrain": setup.terrain.as_dict(),
+            "mrcal": getattr(mrcal, "__version__", "?"), "opencv": cv2.__version__}
+    return StereoResult(setup=setup, images=(rL.image, rR.image), rectified=rect_clean,
+                        true_range=true_range, elevation_true=elev_true,
+                        models_rectified=models_rect, variants=out, meta=meta)
