@@ -373,15 +373,14 @@ Never raises for a failing stage: the records say which stage failed and why.
             job, "internal", f"{_reason(e)} ({Path(tb.filename).name}:{tb.lineno})",
             entry=entry, seconds=seconds)}
 
-    settings_meta = renders[0].metadata if renders and isinstance(renders[0].metadata, dict) \
-        else {}
+    render_info = render_summary([r.metadata for r in renders])
     records = []
     for cal, model, options in job.calibrators:
         res = calibrate_stage(cal, obs, target, model, truth, options)
         sec = dict(seconds, calibrate=float(res.seconds))
         versions = {"renderer": f"{job.renderer} {rversion}".strip(),
                     "calibrator": f"{res.library} {res.library_version}".strip()}
-        info = {"iterations": int(res.iterations), "render_metadata": _small(settings_meta)}
+        info = {"iterations": int(res.iterations), "render": render_info}
         if res.status != "ok":
             records.append(_record(job, cal, model, entry, status=res.status,
                                    stage="calibrate", reason=res.reason or "(no reason given)",
@@ -414,16 +413,18 @@ Never raises for a failing stage: the records say which stage failed and why.
     return {"job": job.key, "records": records}
 
 
-def _small(meta):
-    r'''The JSON-friendly, small part of renderer metadata'''
+# renderer metadata that depends only on the job (not on caches, threads or timing)
+DETERMINISTIC_METADATA = ("samples", "adaptive_fraction", "board_fraction")
+
+
+def render_summary(metadatas):
+    r'''{"samples": total over the poses, "adaptive_fraction": mean, ...} of the renders'''
     out = {}
-    for k, v in meta.items():
-        v = jsonable(v)
-        if isinstance(v, (int, float, str, bool)) or v is None:
-            out[k] = v
-        elif isinstance(v, dict) and len(str(v)) < 400:
-            out[k] = v
-    out.pop("seconds", None)   # timings live in record.seconds
+    for k in DETERMINISTIC_METADATA:
+        vals = [m[k] for m in metadatas if isinstance(m, dict)
+                and isinstance(m.get(k), (int, float)) and not isinstance(m.get(k), bool)]
+        if len(vals) == len(metadatas) and vals:
+            out[k] = int(sum(vals)) if k == "samples" else float(sum(vals) / len(vals))
     return out
 
 
@@ -484,7 +485,7 @@ def _dask_results(fn, jobs, scheduler):
         raise RunnerError("--executor dask needs dask.distributed; install camval's "
                           "dependencies (uv sync)") from None
     try:
-        client = Client(scheduler, timeout="20s", set_as_default=False)
+        client = Client(scheduler, timeout="20s")
     except (OSError, TimeoutError) as e:
         raise RunnerError(f"cannot reach the Dask scheduler at {scheduler!r}: {e}") from None
     try:
