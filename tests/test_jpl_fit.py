@@ -158,3 +158,24 @@ def test_an_exception_inside_the_solver_is_a_failed_result(monkeypatch):
     r = calibrate("jpl", obs, TARGET, "CAHV")
     assert r.status == "failed"
     assert r.reason == "exception inside scipy: FloatingPointError: synthetic solver crash"
+
+
+# --- from rendered images (ray-cast K=16, noise-free, 6 planned poses, bias-corrected) ----
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key,family", [("15", "CAHV"), ("15", "CAHVOR"), ("8", "CAHVOR")])
+def test_rendered_images_meet_the_bars(key, family):
+    from harness.calibrators.synthetic import rendered_observations
+    from reference_models.cahvore import truncate
+    truth = truncate(dict(MODELS)[key], family)
+    obs, info = rendered_observations(truth, TARGET, spp=16)
+    assert info["n_found"] == [100] * 6
+    r = calibrate("jpl", obs, TARGET, family, truth=truth)
+    assert r.ok, r.reason
+    s = compare(r, truth)
+    assert s["residuals"]["rms"] <= 0.002
+    assert s["residuals"]["max"] <= 0.01
+    assert abs(s["parameters"]["Hc"]) <= 0.01 and abs(s["parameters"]["Vc"]) <= 0.01
+    assert abs(s["parameters"]["theta_deg"]) <= 0.001
+    assert s["projection"]["rotation"]["rms"] <= 0.002
+    assert s["projection"]["world"]["rms"] <= 0.002
