@@ -5,8 +5,8 @@ SYNOPSIS
     from harness.stereo import StereoSetup, run_stereo_check
 
     setup = StereoSetup.from_catalogue(21, 22, scale=0.25)   # Mars 2020 navcam pair
-    result = run_stereo_check(setup, variants={"clean": {},
-                                               "noise": {"shot_noise": {}, "read_noise": {"sigma_e": 15}}})
+    noise = {"shot_noise": {}, "read_noise": {"sigma_e": 15}}
+    result = run_stereo_check(setup, variants={"clean": {}, "noise": noise})
     result.variants["clean"].stats["band"]["median_abs_rel_error"]   # near 5 m
     result.variants["clean"].range     # (Hr,Wr) stereo range (m), NaN: no match
     result.true_range                  # (Hr,Wr) exact range along the same rectified rays
@@ -56,6 +56,11 @@ from reference_models.errors import CamvalError
 
 class StereoError(CamvalError):
     '''A stereo pair or stereo setting that cannot be used.'''
+
+
+# two models of one stereo head: near-parallel axes, a short baseline
+MAX_AXIS_ANGLE_DEG = 15.0
+MAX_BASELINE_M = 1.5
 
 
 # ---------------------------------------------------------------------------
@@ -154,6 +159,15 @@ scale:        the factor the models were scaled by (1: native)
                 f"cameras {eL.key} ({eL.rover}, frame {frames[0]}) and {eR.key} "
                 f"({eR.rover}, frame {frames[1]}) do not share a frame; a stereo pair "
                 "needs two models in one frame (e.g. 21 and 22, or 12 and 11)")
+        mL0, mR0 = eL.model, eR.model
+        axes = math.degrees(math.acos(max(-1.0, min(1.0, float(mL0.A @ mR0.A)))))
+        base = float(np.linalg.norm(mL0.C - mR0.C))
+        if axes > MAX_AXIS_ANGLE_DEG or base > MAX_BASELINE_M:
+            raise StereoError(
+                f"cameras {eL.key} and {eR.key} do not share a frame as a stereo pair: their "
+                f"axes are {axes:.1f} deg apart and their centres {base:.2f} m (expected < "
+                f"{MAX_AXIS_ANGLE_DEG:g} deg, < {MAX_BASELINE_M:g} m); their models come from "
+                "different rovers or frames")
         h0, r0 = default_geometry(eL.role)
         h = camera_height_m if camera_height_m is not None else h0
         look = look_range_m if look_range_m is not None else r0
@@ -242,7 +256,7 @@ def _to_u8(img):
     return np.clip(np.round(np.asarray(img, np.float64) * 255.0), 0, 255).astype(np.uint8)
 
 
-def rectify_setup(setup, az_fov_deg=None, el_fov_deg=None, pixels_per_deg=None):
+def rectify_setup(setup, az_fov_deg=None, el_fov_deg=None, pixels_per_deg=None, oversample=1.0):
     r'''mrcal rectified system and maps for the pair (theta = 90 versions of the models)
 
 RETURNED VALUE: (models_mrcal, models_rectified, maps)
@@ -263,7 +277,8 @@ RETURNED VALUE: (models_mrcal, models_rectified, maps)
     az = az_fov_deg if az_fov_deg is not None else min(hfov * 0.95, 150.0)
     el = el_fov_deg if el_fov_deg is not None else min(vfov * 0.95, 150.0)
     ph = setup.left.photogrammetric()
-    ppd = pixels_per_deg if pixels_per_deg is not None else ph.Hs * math.pi / 180.0
+    ppd = pixels_per_deg if pixels_per_deg is not None else \
+        oversample * ph.Hs * math.pi / 180.0
     models_rect = mrcal.rectified_system(models, az_fov_deg=az, el_fov_deg=el,
                                          pixels_per_deg_az=ppd, pixels_per_deg_el=ppd)
     if isinstance(models_rect, tuple) and not isinstance(models_rect[0], mrcal.cameramodel):
@@ -309,7 +324,7 @@ def sgbm(left_u8, right_u8, num_disparities, block_size=5):
 
 
 def run_stereo_check(setup, variants=None, spp=2, render_model="true", block_size=5,
-                     seed=0, progress=None):
+                     oversample=1.0, seed=0, progress=None):
     r'''Render, rectify, match, triangulate and compare, for each response variant
 
 SYNOPSIS
@@ -319,6 +334,8 @@ SYNOPSIS
 variants: {name: response config (renderers.response.ResponseChain.from_config)};
           default {"clean": {}}
 spp:      K, K x K rays per pixel for the rendered images
+oversample: rectified pixels per degree, relative to the left camera's focal length
+block_size: StereoSGBM's block size (px)
 render_model: "true" (the catalogue models; the rectification is then off by
           their skew and CAHVORE pupil shift) or "rectifiable" (render with the
           theta = 90, E = 0 models that the rectification uses)
@@ -346,7 +363,7 @@ render_model: "true" (the catalogue models; the rectification is then off by
 
     t0 = time.perf_counter()
     say("rectifying (mrcal)")
-    models, models_rect, maps = rectify_setup(setup)
+    models, models_rect, maps = rectify_setup(setup, oversample=oversample)
     tm["rectification_maps"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     true_range, elev_true, v_ref, o_ref = true_rectified_range(setup, models_rect[0])

@@ -270,7 +270,7 @@ def fractal_noise(shape, base_wavelength_px, octaves, persistence, rng):
 
 def make_terrain(extent=(-1.0, 15.0, -8.0, 8.0), cell=0.05, texel=0.01, seed=0,
                  relief_m=0.25, relief_wavelength_m=6.0, rocks_per_m2=0.25,
-                 rock_radius_m=(0.04, 0.3), sun=None, ambient=0.15, texture=None):
+                 rock_radius_m=(0.04, 0.3), sun=None, ambient=0.15, texture=None, grain=0.8):
     r'''A generated terrain: fractal relief, scattered rocks, a granular albedo
 
 SYNOPSIS
@@ -281,7 +281,9 @@ relief_m:    std of the smooth relief (m), largest wavelength relief_wavelength_
 rocks_per_m2, rock_radius_m: rock density and radius range; a rock is the cap
              z = 0.6 R sqrt(1 - r^2/R^2) on the relief, with albedo 0.6x that of soil
 texel:       size of one albedo texel (m); the soil albedo is multi-scale value
-             noise from relief scales down to single texels (grains)
+             noise from 1 m down to single texels (grains)
+grain:       amplitude ratio of successive octaves of the soil albedo (halving
+             wavelengths): larger keeps more contrast at the finest scales
 texture:     an albedo image (e.g. load_texture(path)) to use instead of the generated one
 Everything is drawn from numpy's default_rng(seed).
 '''
@@ -312,7 +314,7 @@ Everything is drawn from numpy's default_rng(seed).
     if texture is None:
         tx = int(round((xmax - xmin) / texel))
         ty = int(round((ymax - ymin) / texel))
-        soil = 0.42 + 0.11 * fractal_noise((ty, tx), 1.0 / texel, 12, 0.72, rng)
+        soil = 0.42 + 0.11 * fractal_noise((ty, tx), 1.0 / texel, 12, grain, rng)
         # rock albedo: darker, with its own speckle, drawn at texel resolution
         txc = xmin + (np.arange(tx) + 0.5) * (xmax - xmin) / tx
         tyc = ymin + (np.arange(ty) + 0.5) * (ymax - ymin) / ty
