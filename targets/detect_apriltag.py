@@ -21,7 +21,10 @@ APRILTAG_PIXEL_OFFSET.
 The AprilTag corners come from straight-line fits to each tag edge
 (refine_edges): under strong lens distortion the edges are curved and the
 corners are biased by a fraction of a pixel; they are not subpixel-exact like
-the dot centroids.
+the dot centroids. cornerSubPix in a window inside the black border and its
+light margin (refine, default; tags with bits of 8 px or more) removes most
+of that: on a 1024x1024 fisheye hazcam (slot 5, pose 5, numpy reference
+render) the corner errors went from 1.47 px max / 0.54 px RMS to 0.44 / 0.20.
 '''
 
 import functools
@@ -33,9 +36,13 @@ from .detect import as_float_image, failed, result
 DETECTOR = "apriltag"
 # AprilTag pixel coordinates minus camval's for the same point
 APRILTAG_PIXEL_OFFSET = 0.5
+# cornerSubPix helps big tags only: with tag bits under 8 px it made corners worse
+# (0.09 -> 0.29 px RMS on 20-40 px tags), above it better (0.54 -> 0.2 px on 60-90 px tags)
+MIN_REFINE_WINDOW = 4
 
 
-@functools.lru_cache(maxsize=4)
+# detectors live as long as the process: the option sets are few
+@functools.cache
 def _detector(quad_decimate, quad_sigma, refine_edges, decode_sharpening):
     from pupil_apriltags import Detector
     return Detector(families="tag36h11", nthreads=1, quad_decimate=quad_decimate,
@@ -43,8 +50,30 @@ def _detector(quad_decimate, quad_sigma, refine_edges, decode_sharpening):
                     decode_sharpening=decode_sharpening)
 
 
+def _refine(img32, corners):
+    r'''cornerSubPix on the 4 outer corners of one tag, each in a window of half a tag bit
+(inside the black border, which is 1 bit wide, and the light margin outside it); a
+corner whose half bit is under MIN_REFINE_WINDOW px, or that would move by more than
+its window, keeps pupil_apriltags' position'''
+    import cv2
+    edge = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=-1)
+    # corner k joins the edges (k-1, k) and (k, k+1)
+    side = np.minimum(edge, np.roll(edge, -1))
+    out = corners.copy()
+    for k in range(4):
+        win = int(min(0.5 * side[k] / 8.0, 12))
+        if win < MIN_REFINE_WINDOW:
+            continue
+        c = cv2.cornerSubPix(
+            img32, corners[k].reshape(1, 1, 2).astype(np.float32), (win, win), (-1, -1),
+            (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-5)).reshape(2)
+        if np.linalg.norm(c - corners[k]) < win:
+            out[k] = c
+    return out
+
+
 def detect_apriltags(image, target, *, max_hamming=1, min_found=4, quad_decimate=1.0,
-                     quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25):
+                     quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25, refine=True):
     r'''Detect an AprilTag grid; see the module docstring
 
 SYNOPSIS
@@ -58,6 +87,7 @@ ARGUMENTS
 - max_hamming: largest number of corrected bit errors accepted
 - min_found: fewest corners for status "ok" (default 4: one tag)
 - quad_decimate, quad_sigma, refine_edges, decode_sharpening: pupil_apriltags' options
+- refine: polish each corner with cv2.cornerSubPix in a window of half a tag bit
 '''
     img = as_float_image(image)
     if target.kind != "apriltag":
@@ -72,6 +102,7 @@ ARGUMENTS
     index = {int(pid): k for k, pid in enumerate(ids)}
     q = np.full((len(ids), 2), np.nan)
     seen = {}
+    img32 = img.astype(np.float32)
     rejected = {"hamming": 0, "not_on_board": 0, "duplicate": 0}
     for tag in tags:
         if tag.hamming > max_hamming:
@@ -86,8 +117,11 @@ ARGUMENTS
         if len(corners) > 1:
             rejected["duplicate"] += len(corners)
             continue
+        c = corners[0]
+        if refine:
+            c = _refine(img32, c)
         for k in range(4):
-            q[index[4 * tag_id + k]] = corners[0][k]
+            q[index[4 * tag_id + k]] = c[k]
     info = {"Ntags_decoded": len(tags), "Ntags_used": int(np.isfinite(q[:, 0]).sum() // 4),
             "rejected": rejected}
     if not np.isfinite(q).any():
