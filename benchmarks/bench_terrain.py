@@ -13,7 +13,8 @@ The pixel rays are computed once per camera and cached (their cost is
 reported apart); the figure against the bar is the trace time: primary rays,
 Lambertian shading and one shadow ray per lit hit. Reports the minimum and
 median over the repeats, the numba thread count and the load average, since
-the machine is shared.
+the machine is shared; and the CPU time per thread (process CPU seconds /
+numba threads), which is what the wall time would be with the cores free.
 '''
 
 import argparse
@@ -64,20 +65,29 @@ def main():
         t_rays = time.perf_counter() - t0
         render_terrain(model, terrain, pose, spp=1)   # compile / warm
         for shadows in (True, False):
-            ts = []
+            ts, cpu = [], []
             for _ in range(args.repeats):
+                c0 = time.process_time()
                 r = render_terrain(model, terrain, pose, spp=1, shadows=shadows)
+                cpu.append(time.process_time() - c0)
                 ts.append(r.metadata["seconds_trace"])
+            # CPU seconds / threads: the wall time the render would take with the
+            # cores to itself (the machine is shared; the wall time includes waiting)
+            cpu_per_thread = min(cpu) / numba.get_num_threads()
             rec = {"camera": name, "width": model.width, "height": model.height,
                    "shadows": shadows, "spp": 1, "seconds_min": min(ts),
                    "seconds_median": float(np.median(ts)), "seconds_all": ts,
+                   "cpu_seconds_per_thread_min": cpu_per_thread,
                    "seconds_pixel_rays_once": t_rays,
                    "terrain_hit_fraction": float(np.mean(np.isfinite(r.range))),
                    "shadowed_fraction": float(np.mean((r.shadow == 1) | (r.shadow == 2))),
-                   "meets_bar": bool(min(ts) <= BAR_SECONDS) if shadows else None}
+                   "meets_bar_wall": bool(min(ts) <= BAR_SECONDS) if shadows else None,
+                   "meets_bar_cpu_per_thread": bool(cpu_per_thread <= BAR_SECONDS)
+                   if shadows else None}
             records.append(rec)
-            print(f"{name:70s} shadows={shadows!s:5s} min {min(ts):.3f} s  "
-                  f"median {np.median(ts):.3f} s  (rays once {t_rays:.2f} s)")
+            print(f"{name:70s} shadows={shadows!s:5s} wall min {min(ts):.3f} s  "
+                  f"median {np.median(ts):.3f} s  cpu/thread {cpu_per_thread:.3f} s  "
+                  f"(rays once {t_rays:.2f} s)")
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
                                 text=True).stdout.strip()

@@ -300,58 +300,62 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pnx, pny, zlo, zhi,
     ny_nodes, nx_nodes = h.shape
     w = (nx_nodes - 1) * cell
     hgt = (ny_nodes - 1) * cell
-    # interleaved blocks: neighbouring rays cost alike (sky, far or near ground),
-    # so a contiguous split would leave one thread idle
-    NB = 512
-    for blk in prange(NB):
-        for n in range(blk, N, NB):
-            # into the terrain frame: p_t = R^T (p_ref - T)
-            ax = O[n, 0] - T[0]
-            ay = O[n, 1] - T[1]
-            az = O[n, 2] - T[2]
-            ox = R[0, 0] * ax + R[1, 0] * ay + R[2, 0] * az
-            oy = R[0, 1] * ax + R[1, 1] * ay + R[2, 1] * az
-            oz = R[0, 2] * ax + R[1, 2] * ay + R[2, 2] * az
-            bx, by, bz = D[n, 0], D[n, 1], D[n, 2]
-            dx = R[0, 0] * bx + R[1, 0] * by + R[2, 0] * bz
-            dy = R[0, 1] * bx + R[1, 1] * by + R[2, 1] * bz
-            dz = R[0, 2] * bx + R[1, 2] * by + R[2, 2] * bz
-            if not (math.isfinite(ox) and math.isfinite(oy) and math.isfinite(oz)
-                    and math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz)):
-                out_value[n] = sky
-                out_t[n] = np.nan
-                out_code[n] = 255
-                continue
-            t, i, j, tri = _trace(ox, oy, oz, dx, dy, dz, 0.0, np.inf, h, x0, y0, cell,
-                                  pyr, offs, pnx, pny, zlo, zhi, 1000)
-            if i < 0:
-                out_value[n] = sky
-                out_t[n] = np.nan
-                out_code[n] = 255
-                continue
-            px = ox + t * dx
-            py = oy + t * dy
-            pz = oz + t * dz
-            nx_, ny_, nz_ = _normal(h, i, j, tri, cell)
-            cosi = nx_ * sun[0] + ny_ * sun[1] + nz_ * sun[2]
-            code = 0
-            if cosi <= 0.0:
-                code = 1
-                cosi = 0.0
-            elif shadows:
-                # leave the surface along its normal by a hair: the hit triangle itself
-                # cannot be met again, as the sun is above its plane
-                off = 1e-7 * cell
-                ts, si, sj, stri = _trace(px + off * nx_, py + off * ny_, pz + off * nz_,
-                                          sun[0], sun[1], sun[2], 0.0, np.inf, h, x0, y0, cell,
-                                          pyr, offs, pnx, pny, zlo, zhi, 0)
-                if si >= 0:
-                    code = 2
+    # runs of RUN neighbouring rays (they share cache lines of the grid and texture),
+    # dealt round-robin to NW workers: neighbouring rays cost alike (sky, far or near
+    # ground), so a contiguous split of the image would leave one thread idle
+    RUN = 64
+    NW = 64
+    nruns = (N + RUN - 1) // RUN
+    for w in prange(NW):
+        for run in range(w, nruns, NW):
+            for n in range(run * RUN, min(N, (run + 1) * RUN)):
+                # into the terrain frame: p_t = R^T (p_ref - T)
+                ax = O[n, 0] - T[0]
+                ay = O[n, 1] - T[1]
+                az = O[n, 2] - T[2]
+                ox = R[0, 0] * ax + R[1, 0] * ay + R[2, 0] * az
+                oy = R[0, 1] * ax + R[1, 1] * ay + R[2, 1] * az
+                oz = R[0, 2] * ax + R[1, 2] * ay + R[2, 2] * az
+                bx, by, bz = D[n, 0], D[n, 1], D[n, 2]
+                dx = R[0, 0] * bx + R[1, 0] * by + R[2, 0] * bz
+                dy = R[0, 1] * bx + R[1, 1] * by + R[2, 1] * bz
+                dz = R[0, 2] * bx + R[1, 2] * by + R[2, 2] * bz
+                if not (math.isfinite(ox) and math.isfinite(oy) and math.isfinite(oz)
+                        and math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz)):
+                    out_value[n] = sky
+                    out_t[n] = np.nan
+                    out_code[n] = 255
+                    continue
+                t, i, j, tri = _trace(ox, oy, oz, dx, dy, dz, 0.0, np.inf, h, x0, y0, cell,
+                                      pyr, offs, pnx, pny, zlo, zhi, 1000)
+                if i < 0:
+                    out_value[n] = sky
+                    out_t[n] = np.nan
+                    out_code[n] = 255
+                    continue
+                px = ox + t * dx
+                py = oy + t * dy
+                pz = oz + t * dz
+                nx_, ny_, nz_ = _normal(h, i, j, tri, cell)
+                cosi = nx_ * sun[0] + ny_ * sun[1] + nz_ * sun[2]
+                code = 0
+                if cosi <= 0.0:
+                    code = 1
                     cosi = 0.0
-            a = _albedo(albedo, px, py, x0, y0, w, hgt)
-            out_value[n] = exposure * a * (ambient + cosi)
-            out_t[n] = t
-            out_code[n] = code
+                elif shadows:
+                    # leave the surface along its normal by a hair: the hit triangle itself
+                    # cannot be met again, as the sun is above its plane
+                    off = 1e-7 * cell
+                    ts, si, sj, stri = _trace(px + off * nx_, py + off * ny_, pz + off * nz_,
+                                              sun[0], sun[1], sun[2], 0.0, np.inf, h, x0, y0, cell,
+                                              pyr, offs, pnx, pny, zlo, zhi, 0)
+                    if si >= 0:
+                        code = 2
+                        cosi = 0.0
+                a = _albedo(albedo, px, py, x0, y0, w, hgt)
+                out_value[n] = exposure * a * (ambient + cosi)
+                out_t[n] = t
+                out_code[n] = code
 
 
 def _prepared(terrain):
