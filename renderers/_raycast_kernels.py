@@ -1,0 +1,750 @@
+r'''numba kernels of the exact ray-cast renderer (float64, fastmath off)
+
+SYNOPSIS
+
+    cam = pack_model(model)                       # (NCAM,) float64
+    s, vx, vy, vz = ray(cam, x, y)                # one exact ray of pixel q = (x, y)
+    origin, v = unproject_grid(cam, q)            # q (N,2) -> (N,3), (N,3), = model.unproject(q)
+    dirs, shift = build_ray_cache(cam, W, H)      # centre rays of pixels -1..W, -1..H
+    render_kernel(...)                            # fills an image; see renderers.raycast
+
+The ray of a pixel is the model's unprojection (reference_models.cahvore),
+ported line by line: the CAHV ray through the pinhole, then for CAHVOR the
+1-D Newton solve for chi, and for CAHVORE the angle theta = theta(chi) and the
+entrance-pupil shift along O. A ray's origin is C + s O (s = 0 for central
+models), so a ray is stored as (s, v) and the noncentral part costs one float.
+
+Everything here is float64 and compiled without fastmath: the rays agree with
+model.unproject to ~1e-15.
+'''
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+KIND_CAHV = 0
+KIND_CAHVOR = 1
+KIND_CAHVORE = 2
+
+# layout of the packed camera
+_C, _A, _H, _V, _O, _R, _E = 0, 3, 6, 9, 12, 15, 18
+_L, _KIND = 21, 22
+_W0, _WX, _WY = 23, 26, 29
+NCAM = 32
+
+NEWTON_MAX_ITERATIONS = 100
+NEWTON_TOLERANCE = 1e-15
+# subsample rays: Newton from a close start stops after a step below this (relative)
+WARM_TOLERANCE = 1e-8
+
+# a block of at most this many subsamples is sampled outright, not tested
+LEAF_SAMPLES = 4
+# adaptive tests use footprint radius * (1 + this) + the quadratic bound
+FOOTPRINT_SAFETY = 0.01
+# a pixel whose footprint is this far from affine is supersampled outright
+MAX_NONLINEARITY = 0.25
+# blocks of pixels are split down to this size before pixels are tested one by one
+MIN_BLOCK = 4
+# footprints wider than this many buckets are not looked up (they are split)
+MAX_BUCKET_SPAN = 4.0
+
+
+def pack_model(model):
+    r'''The numbers of a CAHV/CAHVOR/CAHVORE model as one float64 array for the kernels'''
+    cam = np.zeros(NCAM, dtype=np.float64)
+    cam[_C:_C + 3] = model.C
+    cam[_A:_A + 3] = model.A
+    cam[_H:_H + 3] = model.H
+    cam[_V:_V + 3] = model.V
+    family = model.family
+    cam[_KIND] = {"CAHV": KIND_CAHV, "CAHVOR": KIND_CAHVOR, "CAHVORE": KIND_CAHVORE}[family]
+    if family != "CAHV":
+        cam[_O:_O + 3] = model.O
+        cam[_R:_R + 3] = model.R
+    if family == "CAHVORE":
+        cam[_E:_E + 3] = model.E
+        cam[_L] = model.linearity
+    A, H, V = model.A, model.H, model.V
+    cam[_W0:_W0 + 3] = np.cross(V, H)
+    cam[_WX:_WX + 3] = np.cross(V, A)
+    cam[_WY:_WY + 3] = np.cross(A, H)
+    return cam
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _newton_chi(u, chi, r0, r1, r2, tolerance):
+    r'''Newton for chi (1 + R0 + R1 chi^2 + R2 chi^4) = u from the start chi; NaN when
+it fails (u beyond the maximum of a non-monotonic polynomial)
+
+It stops after a step below tolerance * max(1, chi) where the convergence is
+quadratic with a constant <= 1 (|g''| <= 2|g'|): the error left is below
+tolerance^2 * max(1, chi)^2. With tolerance 1e-15 it stops at the floating-point
+floor, as reference_models.cahvore does.'''
+    for _ in range(NEWTON_MAX_ITERATIONS):
+        chi2 = chi * chi
+        g = chi * (1.0 + r0 + chi2 * (r1 + r2 * chi2)) - u
+        dg = 1.0 + r0 + chi2 * (3.0 * r1 + 5.0 * r2 * chi2)
+        step = g / dg
+        chi = chi - step
+        if not (abs(step) > tolerance * max(1.0, abs(chi))):
+            if (tolerance <= NEWTON_TOLERANCE
+                    or abs(chi * (6.0 * r1 + 20.0 * r2 * chi2)) <= 2.0 * abs(dg)):
+                return chi
+    return math.nan
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _pinhole_ray(cam, x, y):
+    r'''Unit CAHV ray w = (V - y A) x (H - x A), turned to face A'''
+    ax, ay, az = cam[_A], cam[_A + 1], cam[_A + 2]
+    px = cam[_V] - y * ax
+    py = cam[_V + 1] - y * ay
+    pz = cam[_V + 2] - y * az
+    qx = cam[_H] - x * ax
+    qy = cam[_H + 1] - x * ay
+    qz = cam[_H + 2] - x * az
+    wx = py * qz - pz * qy
+    wy = pz * qx - px * qz
+    wz = px * qy - py * qx
+    if wx * ax + wy * ay + wz * az < 0.0:
+        wx, wy, wz = -wx, -wy, -wz
+    n = 1.0 / math.sqrt(wx * wx + wy * wy + wz * wz)
+    return wx * n, wy * n, wz * n
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _split(cam, wx, wy, wz):
+    r'''u = |w - zeta O| / zeta (zeta = <w,O>) and the unit vector along w - zeta O;
+u is NaN for zeta <= 0 (outside the model's domain)'''
+    ox, oy, oz = cam[_O], cam[_O + 1], cam[_O + 2]
+    zeta = wx * ox + wy * oy + wz * oz
+    ux = wx - zeta * ox
+    uy = wy - zeta * oy
+    uz = wz - zeta * oz
+    lp = math.sqrt(ux * ux + uy * uy + uz * uz)
+    if lp > 0.0:
+        n = 1.0 / lp
+        ux, uy, uz = ux * n, uy * n, uz * n
+    else:
+        ux, uy, uz = 0.0, 0.0, 0.0
+    if not (zeta > 0.0):
+        return math.nan, ux, uy, uz
+    return lp / zeta, ux, uy, uz
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _ray_from_chi(cam, chi, ux, uy, uz):
+    r'''(s, v) of a CAHVOR or CAHVORE ray from its solved chi'''
+    ox, oy, oz = cam[_O], cam[_O + 1], cam[_O + 2]
+    if cam[_KIND] == KIND_CAHVOR:
+        vx = ox + chi * ux
+        vy = oy + chi * uy
+        vz = oz + chi * uz
+        n = 1.0 / math.sqrt(vx * vx + vy * vy + vz * vz)
+        return 0.0, vx * n, vy * n, vz * n
+    L = cam[_L]
+    if L > 1e-15:
+        theta = math.atan(L * chi) / L
+    elif L < -1e-15:
+        t = L * chi
+        theta = math.asin(t) / L if -1.0 <= t <= 1.0 else math.nan
+    else:
+        theta = chi
+    s = math.sin(theta)
+    c = math.cos(theta)
+    vx = c * ox + s * ux
+    vy = c * oy + s * uy
+    vz = c * oz + s * uz
+    # pupil shift (theta/sin(theta) - 1) E(theta), by its series near the axis
+    t2 = theta * theta
+    if theta < 1e-4:
+        k = t2 / 6.0 + 7.0 * t2 * t2 / 360.0
+    else:
+        k = theta / s - 1.0
+    shift = k * (cam[_E] + t2 * (cam[_E + 1] + t2 * cam[_E + 2]))
+    return shift, vx, vy, vz
+
+
+@njit(cache=True, error_model="numpy")
+def ray(cam, x, y):
+    r'''The exact ray of the image point (x, y): (s, vx, vy, vz), origin C + s O, |v| = 1
+
+A point outside the model's domain gives NaN.'''
+    wx, wy, wz = _pinhole_ray(cam, x, y)
+    if cam[_KIND] == KIND_CAHV:
+        return 0.0, wx, wy, wz
+    u, ux, uy, uz = _split(cam, wx, wy, wz)
+    r0 = cam[_R]
+    chi = _newton_chi(u, u / (1.0 + r0), r0, cam[_R + 1], cam[_R + 2], NEWTON_TOLERANCE)
+    return _ray_from_chi(cam, chi, ux, uy, uz)
+
+
+@njit(cache=True, error_model="numpy")
+def warm_start(cam, x, y):
+    r'''(u0, chi0, a, b) at the image point (x, y): chi(u0 + du) = chi0 + a du + b du^2
++ O(du^3), the start of the Newton solves of nearby points (their rays are the
+same as from a cold start, only found in fewer steps)'''
+    if cam[_KIND] == KIND_CAHV:
+        return 0.0, 0.0, 0.0, 0.0
+    wx, wy, wz = _pinhole_ray(cam, x, y)
+    u, ux, uy, uz = _split(cam, wx, wy, wz)
+    r0, r1, r2 = cam[_R], cam[_R + 1], cam[_R + 2]
+    chi = _newton_chi(u, u / (1.0 + r0), r0, r1, r2, NEWTON_TOLERANCE)
+    chi2 = chi * chi
+    a = 1.0 / (1.0 + r0 + chi2 * (3.0 * r1 + 5.0 * r2 * chi2))
+    b = -0.5 * chi * (6.0 * r1 + 20.0 * r2 * chi2) * a * a * a
+    if not (math.isfinite(chi) and math.isfinite(a) and math.isfinite(b)):
+        return math.nan, 0.0, 0.0, 0.0
+    return u, chi, a, b
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def ray_warm(cam, x, y, warm):
+    r'''ray(cam, x, y) with an unnormalised direction, its Newton solve started from
+the quadratic prediction of warm_start() (one Newton step, usually)
+
+The CAHV ray (V - y A) x (H - x A) = V x H - x V x A - y A x H is linear in
+(x, y); nothing downstream needs |v| = 1 (the board intersection does not), so
+the normalisations of ray() are skipped.'''
+    # cam[_PINHOLE:] holds V x H, V x A, A x H
+    wx = cam[_W0] - x * cam[_WX] - y * cam[_WY]
+    wy = cam[_W0 + 1] - x * cam[_WX + 1] - y * cam[_WY + 1]
+    wz = cam[_W0 + 2] - x * cam[_WX + 2] - y * cam[_WY + 2]
+    if wx * cam[_A] + wy * cam[_A + 1] + wz * cam[_A + 2] < 0.0:
+        wx, wy, wz = -wx, -wy, -wz
+    if cam[_KIND] == KIND_CAHV:
+        return 0.0, wx, wy, wz
+    ox, oy, oz = cam[_O], cam[_O + 1], cam[_O + 2]
+    zeta = wx * ox + wy * oy + wz * oz
+    px = wx - zeta * ox
+    py = wy - zeta * oy
+    pz = wz - zeta * oz
+    lp = math.sqrt(px * px + py * py + pz * pz)
+    u = lp / zeta
+    if not (zeta > 0.0):
+        u = math.nan
+    r0 = cam[_R]
+    u0, chi0, a, b = warm
+    if math.isfinite(u0):
+        du = u - u0
+        start = chi0 + du * (a + du * b)
+    else:
+        start = u / (1.0 + r0)
+    chi = _newton_chi(u, start, r0, cam[_R + 1], cam[_R + 2], WARM_TOLERANCE)
+    if lp > 0.0:
+        n = 1.0 / lp
+    else:
+        n = 0.0
+    if cam[_KIND] == KIND_CAHVOR:
+        k = chi * n
+        return 0.0, ox + k * px, oy + k * py, oz + k * pz
+    return _ray_from_chi(cam, chi, px * n, py * n, pz * n)
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def unproject_points(cam, q, origin, v):
+    r'''model.unproject for q (N,2): fills origin (N,3) and v (N,3)'''
+    for i in prange(q.shape[0]):
+        s, vx, vy, vz = ray(cam, q[i, 0], q[i, 1])
+        origin[i, 0] = cam[_C] + s * cam[_O]
+        origin[i, 1] = cam[_C + 1] + s * cam[_O + 1]
+        origin[i, 2] = cam[_C + 2] + s * cam[_O + 2]
+        v[i, 0] = vx
+        v[i, 1] = vy
+        v[i, 2] = vz
+
+
+def unproject_grid(cam, q):
+    r'''Unproject pixels with the compiled kernel
+
+SYNOPSIS
+
+    origin, v = unproject_grid(pack_model(model), q)
+    # q has shape (...,2); origin and v have shape (...,3)
+'''
+    q = np.asarray(q, dtype=np.float64)
+    flat = np.ascontiguousarray(q.reshape(-1, 2))
+    origin = np.empty((flat.shape[0], 3))
+    v = np.empty((flat.shape[0], 3))
+    unproject_points(cam, flat, origin, v)
+    return origin.reshape(q.shape[:-1] + (3,)), v.reshape(q.shape[:-1] + (3,))
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def _fill_ray_cache(cam, dirs, shift, noncentral):
+    for gy in prange(dirs.shape[0]):
+        y = gy - 1.0
+        for gx in range(dirs.shape[1]):
+            s, vx, vy, vz = ray(cam, gx - 1.0, y)
+            dirs[gy, gx, 0] = vx
+            dirs[gy, gx, 1] = vy
+            dirs[gy, gx, 2] = vz
+            if noncentral:
+                shift[gy, gx] = s
+
+
+def build_ray_cache(cam, width, height, noncentral):
+    r'''The centre rays of every pixel and of a one-pixel ring around the image
+
+SYNOPSIS
+
+    dirs, shift = build_ray_cache(cam, W, H, noncentral)
+    # dirs has shape (H+2,W+2,3): dirs[iy+1,ix+1] is the ray of pixel (ix,iy), ix in -1..W
+    # shift has shape (H+2,W+2) (noncentral) or (1,1) (central): origin = C + shift O
+
+24 bytes per pixel (32 noncentral): 0.5 GB (0.6 GB) for 5120x3840.
+'''
+    dirs = np.empty((height + 2, width + 2, 3), dtype=np.float64)
+    shift = np.zeros((height + 2, width + 2) if noncentral else (1, 1), dtype=np.float64)
+    _fill_ray_cache(cam, dirs, shift, noncentral)
+    return dirs, shift
+
+
+# ---------------------------------------------------------------------------
+# The board: hits, materials, and the distance to the nearest edge
+#
+# A pattern is pat = (f, ii), two flat arrays (renderers.raycast.CompiledPattern):
+# f  float64: rect (4) | cells x0, y0, size (0: none), nx, ny (5) |
+#             buckets x0, y0, size, 1/size, nbx, nby (6) | circles cx, cy, r (3 each)
+# ii int64:   ids background, board, circle (3) | offsets of cmat, cmask, bstart, bitems (4) |
+#             cmat, cmask ((ny+2)*(nx+2) each: cells with a ring of board cells) |
+#             bstart (nbx*nby+1) | bitems
+F_RECT, F_CELLS, F_BUCKETS, F_CIRCLES = 0, 4, 9, 15
+I_IDS, I_OFFSETS, I_DATA = 0, 3, 7
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _hit(xf, s, vx, vy, vz):
+    r"""Intersect a ray (origin C + s O, direction v; reference frame) with the board plane
+
+xf: R_board_ref (9, row-major), R C + t (3), R O (3). Returns (ok, x, y) in the board frame."""
+    bvx = xf[0] * vx + xf[1] * vy + xf[2] * vz
+    bvy = xf[3] * vx + xf[4] * vy + xf[5] * vz
+    bvz = xf[6] * vx + xf[7] * vy + xf[8] * vz
+    boz = xf[11] + s * xf[14]
+    t = -boz / bvz
+    if not (t > 0.0 and t < math.inf):
+        return False, 0.0, 0.0
+    x = xf[9] + s * xf[12] + t * bvx
+    y = xf[10] + s * xf[13] + t * bvy
+    if not (abs(x) < math.inf and abs(y) < math.inf):
+        return False, 0.0, 0.0
+    return True, x, y
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _material(x, y, pat):
+    r"""Material index at a board point, in the painting order of targets.pattern.Pattern"""
+    f, ii = pat
+    if not (x >= f[0] and x < f[1] and y >= f[2] and y < f[3]):
+        return ii[0]
+    m = ii[1]
+    cs = f[F_CELLS + 2]
+    if cs > 0.0:
+        fx = math.floor((x - f[F_CELLS]) / cs)
+        fy = math.floor((y - f[F_CELLS + 1]) / cs)
+        nx = f[F_CELLS + 3]
+        if fx >= 0.0 and fy >= 0.0 and fx < nx and fy < f[F_CELLS + 4]:
+            m = ii[ii[I_OFFSETS] + (int(fy) + 1) * (int(nx) + 2) + int(fx) + 1]
+    nbx = f[F_BUCKETS + 4]
+    if nbx > 0.0:
+        bx = math.floor((x - f[F_BUCKETS]) * f[F_BUCKETS + 3])
+        by = math.floor((y - f[F_BUCKETS + 1]) * f[F_BUCKETS + 3])
+        if bx >= 0.0 and by >= 0.0 and bx < nbx and by < f[F_BUCKETS + 5]:
+            b = ii[I_OFFSETS + 2] + int(by) * int(nbx) + int(bx)
+            items = ii[I_OFFSETS + 3]
+            for k in range(ii[b], ii[b + 1]):
+                c = F_CIRCLES + 3 * ii[items + k]
+                dx = x - f[c]
+                dy = y - f[c + 1]
+                if dx * dx + dy * dy <= f[c + 2] * f[c + 2]:
+                    return ii[2]
+    return m
+
+
+@njit(cache=True, error_model="numpy")
+def _classify(x, y, r, pat):
+    r"""(clear, material): clear when no edge of the pattern lies within r of the board
+point (x, y); then material is the material of the whole disc
+
+Conservative: it may say "not clear" where the albedo is uniform after all (the
+pixel is then only supersampled needlessly), never "clear" where it is not."""
+    f, ii = pat
+    if not (x >= f[0] and x < f[1] and y >= f[2] and y < f[3]):
+        dx = max(max(f[0] - x, 0.0), x - f[1])
+        dy = max(max(f[2] - y, 0.0), y - f[3])
+        # clear when the disc lies wholly outside the board: background only
+        return dx * dx + dy * dy > r * r, ii[0]
+    if min(min(x - f[0], f[1] - x), min(y - f[2], f[3] - y)) <= r:
+        return False, 0
+    m = ii[1]
+    cs = f[F_CELLS + 2]
+    if cs > 0.0:
+        fx = (x - f[F_CELLS]) / cs
+        fy = (y - f[F_CELLS + 1]) / cs
+        ix = math.floor(fx)
+        iy = math.floor(fy)
+        nx = f[F_CELLS + 3]
+        ny = f[F_CELLS + 4]
+        # cmat and cmask have a ring of board cells around the cells
+        if ix >= -1.0 and iy >= -1.0 and ix <= nx and iy <= ny:
+            if r >= cs:
+                return False, 0
+            cell = (int(iy) + 1) * (int(nx) + 2) + int(ix) + 1
+            m = ii[ii[I_OFFSETS] + cell]
+            mask = ii[ii[I_OFFSETS + 1] + cell]
+            if mask != 0:
+                u = fx - ix
+                v = fy - iy
+                rc = r / cs
+                if (mask & 1) and u <= rc:
+                    return False, 0
+                if (mask & 2) and 1.0 - u <= rc:
+                    return False, 0
+                if (mask & 4) and v <= rc:
+                    return False, 0
+                if (mask & 8) and 1.0 - v <= rc:
+                    return False, 0
+                rc2 = rc * rc
+                if (mask & 16) and u * u + v * v <= rc2:
+                    return False, 0
+                if (mask & 32) and (1.0 - u) * (1.0 - u) + v * v <= rc2:
+                    return False, 0
+                if (mask & 64) and u * u + (1.0 - v) * (1.0 - v) <= rc2:
+                    return False, 0
+                if (mask & 128) and (1.0 - u) * (1.0 - u) + (1.0 - v) * (1.0 - v) <= rc2:
+                    return False, 0
+    nbx = f[F_BUCKETS + 4]
+    if nbx > 0.0:
+        # every circle within r of (x, y) has its bounding box in a bucket that
+        # meets the square (x, y) +- r
+        inv = f[F_BUCKETS + 3]
+        if 2.0 * r * inv > MAX_BUCKET_SPAN:
+            return False, 0
+        bx0 = int(max(math.floor((x - r - f[F_BUCKETS]) * inv), 0.0))
+        bx1 = int(min(math.floor((x + r - f[F_BUCKETS]) * inv), nbx - 1.0))
+        by0 = int(max(math.floor((y - r - f[F_BUCKETS + 1]) * inv), 0.0))
+        by1 = int(min(math.floor((y + r - f[F_BUCKETS + 1]) * inv), f[F_BUCKETS + 5] - 1.0))
+        start = ii[I_OFFSETS + 2]
+        items = ii[I_OFFSETS + 3]
+        for jy in range(by0, by1 + 1):
+            for jx in range(bx0, bx1 + 1):
+                b = start + jy * int(nbx) + jx
+                for k in range(ii[b], ii[b + 1]):
+                    c = F_CIRCLES + 3 * ii[items + k]
+                    dx = x - f[c]
+                    dy = y - f[c + 1]
+                    d2 = dx * dx + dy * dy
+                    rc = f[c + 2]
+                    # |d - rc| <= r without a square root
+                    hi = rc + r
+                    lo = rc - r
+                    if d2 <= hi * hi and (lo <= 0.0 or d2 >= lo * lo):
+                        return False, 0
+                    if d2 <= rc * rc:
+                        m = ii[2]
+    return True, m
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _sample(cam, xf, x, y, warm, pat):
+    s, vx, vy, vz = ray_warm(cam, x, y, warm)
+    ok, bx, by = _hit(xf, s, vx, vy, vz)
+    if not ok:
+        return pat[1][0]
+    return _material(bx, by, pat)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _sample_block(cam, xf, ix, iy, i0, i1, j0, j1, offs, counts, warm, pat):
+    r"""Trace every subsample of a block; returns the number of rays"""
+    for j in range(j0, j1):
+        y = iy + offs[j]
+        for i in range(i0, i1):
+            counts[_sample(cam, xf, ix + offs[i], y, warm, pat)] += 1
+    return (i1 - i0) * (j1 - j0)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _pixel_value(counts, values, K2):
+    r"""The area average from the counts of materials; a uniform pixel is its value
+exactly. Resets counts."""
+    total = 0.0
+    nonzero = 0
+    last = 0
+    for m in range(counts.shape[0]):
+        if counts[m] != 0:
+            nonzero += 1
+            last = m
+            total += counts[m] * values[m]
+            counts[m] = 0
+    if nonzero == 1:
+        return values[last]
+    return total / K2
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _push(stack, n, a0, a1, b0, b1):
+    if a1 > a0 and b1 > b0:
+        stack[n, 0] = a0
+        stack[n, 1] = a1
+        stack[n, 2] = b0
+        stack[n, 3] = b1
+        return n + 1
+    return n
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _push_quadrants(stack, n, i0, i1, j0, j1):
+    im = (i0 + i1) // 2
+    jm = (j0 + j1) // 2
+    n = _push(stack, n, im, i1, jm, j1)
+    n = _push(stack, n, i0, im, jm, j1)
+    n = _push(stack, n, im, i1, j0, jm)
+    return _push(stack, n, i0, im, j0, jm)
+
+
+@njit(cache=True, error_model="numpy")
+def _supersample(cam, xf, ix, iy, K, offs, counts, stack, adaptive, jac, values, pat):
+    r"""The value of pixel (ix, iy) from its K x K subsamples; returns (value, rays)
+
+adaptive: subdivide the subsamples into quadrants; a block whose footprint
+(the affine map jac[0:4] = (dx/dqx, dy/dqx, dx/dqy, dy/dqy) plus the quadratic
+bound jac[4]) has no edge is counted towards the material at its centre
+without tracing its subsamples."""
+    warm = warm_start(cam, ix, iy)
+    nrays = 1
+    if not adaptive or K * K <= LEAF_SAMPLES:
+        nrays += _sample_block(cam, xf, ix, iy, 0, K, 0, K, offs, counts, warm, pat)
+        return _pixel_value(counts, values, float(K * K)), nrays
+    # the pixel is known to hold an edge: start from its quadrants
+    nst = _push_quadrants(stack, 0, 0, K, 0, K)
+    while nst > 0:
+        nst -= 1
+        i0 = stack[nst, 0]
+        i1 = stack[nst, 1]
+        j0 = stack[nst, 2]
+        j1 = stack[nst, 3]
+        n = (i1 - i0) * (j1 - j0)
+        if n <= LEAF_SAMPLES:
+            nrays += _sample_block(cam, xf, ix, iy, i0, i1, j0, j1, offs, counts, warm, pat)
+            continue
+        cx = 0.5 * (offs[i0] + offs[i1 - 1])
+        cy = 0.5 * (offs[j0] + offs[j1 - 1])
+        wx = 0.5 * (offs[i1 - 1] - offs[i0])
+        wy = 0.5 * (offs[j1 - 1] - offs[j0])
+        s, vx, vy, vz = ray_warm(cam, ix + cx, iy + cy, warm)
+        nrays += 1
+        ok, bx, by = _hit(xf, s, vx, vy, vz)
+        if ok:
+            ex = wx * jac[0] + wy * jac[2]
+            ey = wx * jac[1] + wy * jac[3]
+            fx = wx * jac[0] - wy * jac[2]
+            fy = wx * jac[1] - wy * jac[3]
+            rb = ((max(math.sqrt(ex * ex + ey * ey), math.sqrt(fx * fx + fy * fy))
+                   + 2.0 * jac[4]) * (1.0 + FOOTPRINT_SAFETY)
+                  + 1e-12 * (1.0 + abs(bx) + abs(by)))
+            clear, m = _classify(bx, by, rb, pat)
+            if clear:
+                counts[m] += n
+                continue
+        nst = _push_quadrants(stack, nst, i0, i1, j0, j1)
+    return _pixel_value(counts, values, float(K * K)), nrays
+
+
+@njit(cache=True, error_model="numpy")
+def _block_uniform(hx, hy, hok, k0, k1, c0, c1, pat):
+    r"""(uniform, material) of the block of pixels whose ring of neighbouring pixel
+centres is band rows k0, k1 and band columns c0, c1
+
+The board points of the block's pixel areas lie inside the curve through the
+board points of the ring (the map from image to board is continuous and one
+to one), hence within max |P_ring - P_centre| of the centre point, plus half
+the longest step between neighbouring ring points for the curve between them."""
+    kc = (k0 + k1) // 2
+    cc = (c0 + c1) // 2
+    okc = hok[kc, cc]
+    nok = 0
+    for c in range(c0, c1 + 1):
+        nok += hok[k0, c] + hok[k1, c]
+    for k in range(k0 + 1, k1):
+        nok += hok[k, c0] + hok[k, c1]
+    nring = 2 * (c1 - c0 + 1) + 2 * (k1 - k0 - 1)
+    if nok == 0 and not okc:
+        return True, pat[1][0]
+    if nok != nring or not okc:
+        return False, 0
+    px = hx[kc, cc]
+    py = hy[kc, cc]
+    d2max = 0.0
+    s2max = 0.0
+    for side in range(4):
+        n = c1 - c0 + 1 if side < 2 else k1 - k0 + 1
+        lx = 0.0
+        ly = 0.0
+        for i in range(n):
+            if side == 0:
+                k, c = k0, c0 + i
+            elif side == 1:
+                k, c = k1, c0 + i
+            elif side == 2:
+                k, c = k0 + i, c0
+            else:
+                k, c = k0 + i, c1
+            x = hx[k, c]
+            y = hy[k, c]
+            d2 = (x - px) * (x - px) + (y - py) * (y - py)
+            if d2 > d2max:
+                d2max = d2
+            if i > 0:
+                s2 = (x - lx) * (x - lx) + (y - ly) * (y - ly)
+                if s2 > s2max:
+                    s2max = s2
+            lx = x
+            ly = y
+    r = ((math.sqrt(d2max) + 0.5 * math.sqrt(s2max)) * (1.0 + FOOTPRINT_SAFETY)
+         + 1e-12 * (1.0 + abs(px) + abs(py)))
+    return _classify(px, py, r, pat)
+
+
+@njit(cache=True, error_model="numpy")
+def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, jac, values,
+                  pat):
+    r"""Adaptive value of pixel (ix, iy) (band row k, column c); returns (value, rays, 0|1)"""
+    nok = 0
+    for dk in range(-1, 2):
+        for dc in range(-1, 2):
+            nok += hok[k + dk, c + dc]
+    if nok == 0:
+        # the pixel and its neighbours miss the board plane
+        return values[pat[1][0]], 0, 0
+    if nok < 9:
+        v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, False, jac, values, pat)
+        return v, n, 1
+    # the footprint of the pixel from its neighbours' board points: the
+    # Jacobian, and a bound on the quadratic part over the pixel
+    px = hx[k, c]
+    py = hy[k, c]
+    jac[0] = 0.5 * (hx[k, c + 1] - hx[k, c - 1])
+    jac[1] = 0.5 * (hy[k, c + 1] - hy[k, c - 1])
+    jac[2] = 0.5 * (hx[k + 1, c] - hx[k - 1, c])
+    jac[3] = 0.5 * (hy[k + 1, c] - hy[k - 1, c])
+    d2xx = hx[k, c + 1] - 2.0 * px + hx[k, c - 1]
+    d2xy = hy[k, c + 1] - 2.0 * py + hy[k, c - 1]
+    d2yx = hx[k + 1, c] - 2.0 * px + hx[k - 1, c]
+    d2yy = hy[k + 1, c] - 2.0 * py + hy[k - 1, c]
+    dcx = 0.25 * (hx[k + 1, c + 1] - hx[k - 1, c + 1] - hx[k + 1, c - 1] + hx[k - 1, c - 1])
+    dcy = 0.25 * (hy[k + 1, c + 1] - hy[k - 1, c + 1] - hy[k + 1, c - 1] + hy[k - 1, c - 1])
+    quad = (0.125 * (math.sqrt(d2xx * d2xx + d2xy * d2xy) + math.sqrt(d2yx * d2yx + d2yy * d2yy))
+            + 0.25 * math.sqrt(dcx * dcx + dcy * dcy))
+    jac[4] = quad
+    ax = 0.5 * (jac[0] + jac[2])
+    ay = 0.5 * (jac[1] + jac[3])
+    bx = 0.5 * (jac[0] - jac[2])
+    by = 0.5 * (jac[1] - jac[3])
+    lin = max(math.sqrt(ax * ax + ay * ay), math.sqrt(bx * bx + by * by))
+    affine = quad <= MAX_NONLINEARITY * lin
+    if affine:
+        r = (lin + quad) * (1.0 + FOOTPRINT_SAFETY) + 1e-12 * (1.0 + abs(px) + abs(py))
+        clear, m = _classify(px, py, r, pat)
+        if clear:
+            return values[m], 0, 0
+    v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, affine, jac, values, pat)
+    return v, n, 1
+
+
+@njit(cache=True, error_model="numpy")
+def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values, out,
+                 stats, pat):
+    H, W = out.shape
+    nk = r1 - r0 + 2
+    # board points of the centre rays of image rows r0-1 .. r1 (band row k = iy - r0 + 1)
+    # and columns -1 .. W (band column c = ix + 1)
+    hx = np.empty((nk, W + 2))
+    hy = np.empty((nk, W + 2))
+    hok = np.zeros((nk, W + 2), dtype=np.int64)
+    rect = pat[0]
+    nboard = 0
+    for k in range(nk):
+        gy = r0 + k
+        for gx in range(W + 2):
+            s = shift[gy, gx] if noncentral else 0.0
+            ok, x, y = _hit(xf, s, dirs[gy, gx, 0], dirs[gy, gx, 1], dirs[gy, gx, 2])
+            hok[k, gx] = ok
+            hx[k, gx] = x
+            hy[k, gx] = y
+            if (ok and k > 0 and k < nk - 1 and gx > 0 and gx <= W
+                    and x >= rect[0] and x < rect[1] and y >= rect[2] and y < rect[3]):
+                nboard += 1
+
+    counts = np.zeros(values.shape[0], dtype=np.int64)
+    offs = np.empty(K)
+    for i in range(K):
+        offs[i] = (i + 0.5) / K - 0.5
+    stack = np.empty((4 * (int(math.log2(K)) + 3), 4), dtype=np.int64)
+    blocks = np.empty((4 * (int(math.log2(T)) + 3), 4), dtype=np.int64)
+    jac = np.zeros(5)
+    nrays = 0
+    nsuper = 0
+    nblocks = 0
+    ntested = 0
+    for x0 in range(0, W, T):
+        x1 = min(W, x0 + T)
+        if not adaptive:
+            for iy in range(r0, r1):
+                for ix in range(x0, x1):
+                    v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, False, jac,
+                                        values, pat)
+                    out[iy, ix] = v
+                    nrays += n
+                    nsuper += 1
+            continue
+        # blocks of pixels (rows ya..yb, columns xa..xb), split into quadrants
+        # until they are uniform or at most MIN_BLOCK pixels wide
+        nb = _push(blocks, 0, r0, r1, x0, x1)
+        while nb > 0:
+            nb -= 1
+            ya = blocks[nb, 0]
+            yb = blocks[nb, 1]
+            xa = blocks[nb, 2]
+            xb = blocks[nb, 3]
+            uniform, m = _block_uniform(hx, hy, hok, ya - r0, yb - r0 + 1, xa, xb + 1, pat)
+            nblocks += 1
+            if uniform:
+                v = values[m]
+                for iy in range(ya, yb):
+                    for ix in range(xa, xb):
+                        out[iy, ix] = v
+                continue
+            if yb - ya > MIN_BLOCK or xb - xa > MIN_BLOCK:
+                nb = _push_quadrants(blocks, nb, ya, yb, xa, xb)
+                continue
+            for iy in range(ya, yb):
+                for ix in range(xa, xb):
+                    ntested += 1
+                    v, n, sup = _render_pixel(cam, xf, ix, iy, iy - r0 + 1, ix + 1, hx, hy,
+                                              hok, K, offs, counts, stack, jac, values, pat)
+                    out[iy, ix] = v
+                    nrays += n
+                    nsuper += sup
+    stats[0] = nrays
+    stats[1] = nsuper
+    stats[2] = nboard
+    stats[3] = nblocks
+    stats[4] = ntested
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive, T, values, out, stats, pat):
+    r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
+
+stats (Nbands,5) receives per band: rays traced, supersampled pixels, pixels
+whose centre ray sees the board, blocks of pixels tested, pixels tested."""
+    H = out.shape[0]
+    for b in prange(stats.shape[0]):
+        r0 = b * T
+        r1 = min(H, r0 + T)
+        if r1 > r0:
+            _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values,
+                         out, stats[b], pat)
