@@ -1,0 +1,107 @@
+r'''Campaign wall time: the quick and the full paper campaign, with per-stage time
+
+SYNOPSIS
+
+    uv run python benchmarks/bench_campaign.py [--only quick|paper] [-j 2]
+        [--out benchmarks/results/campaign.json] [--keep DIR]
+
+Runs campaigns/quick.toml (target <= 20 s) and campaigns/paper.toml (22
+cameras x CAHV/CAHVOR/CAHVORE x 6 poses, jpl/mrcal/opencv; target <= 90 s)
+with the local process executor, each into a fresh run directory (a temporary
+one unless --keep), without the report. Prints the wall time against the
+target, the time summed per stage (poses, render, detect, calibrate per
+calibrator, compare; these are CPU-side seconds summed over the workers, so
+they can exceed the wall time), the number of images, and the record counts.
+Writes one JSON document. Not a test: the machine is shared, so the figures
+depend on its load (the load average is recorded).
+'''
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+TARGETS = {"quick": 20.0, "paper": 90.0}
+
+
+def stage_seconds(records):
+    r'''{stage: seconds} summed over jobs (render, detect, poses) and records (calibrate)'''
+    jobs = {}
+    out = {"poses": 0.0, "render": 0.0, "detect": 0.0, "compare": 0.0}
+    per_cal = {}
+    images = 0
+    for r in records.values():
+        s = r.get("seconds") or {}
+        jobs.setdefault(r["fullname"].rsplit("/", 1)[0], s)
+        if "calibrate" in s:
+            per_cal[r["calibrator"]] = per_cal.get(r["calibrator"], 0.0) + s["calibrate"]
+        out["compare"] += s.get("compare", 0.0) or 0.0
+    for s in jobs.values():
+        for k in ("poses", "render", "detect"):
+            out[k] += s.get(k, 0.0) or 0.0
+        if s.get("render_per_image"):
+            images += round(s["render"] / s["render_per_image"])
+    for cal, t in sorted(per_cal.items()):
+        out[f"calibrate:{cal}"] = t
+    return out, images
+
+
+def bench(name, workers, keep=None):
+    from harness.campaign import load_campaign
+    from harness.runner import run_campaign
+    campaign = load_campaign(ROOT / "campaigns" / f"{name}.toml")
+    entries = campaign.validate()
+    with tempfile.TemporaryDirectory() as tmp:
+        run_dir = Path(keep) / name if keep else Path(tmp) / name
+        t0 = time.perf_counter()
+        doc = run_campaign(campaign, run_dir, workers=workers, progress=True, entries=entries)
+        wall = time.perf_counter() - t0
+    stages, images = stage_seconds(doc["records"])
+    counts = {}
+    for r in doc["records"].values():
+        counts[r["status"]] = counts.get(r["status"], 0) + 1
+    return {"campaign": name, "wall_seconds": wall, "target_seconds": TARGETS[name],
+            "meets_target": wall <= TARGETS[name], "workers": workers,
+            "jobs": doc["execution"]["jobs"], "images": images,
+            "records": len(doc["records"]), "statuses": counts, "stage_seconds": stages,
+            "load_average": os.getloadavg()}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=("quick", "paper"))
+    ap.add_argument("-j", "--jobs", type=int, default=os.cpu_count())
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "campaign.json"))
+    ap.add_argument("--keep", metavar="DIR", help="keep the run directories under DIR")
+    args = ap.parse_args(argv)
+    names = [args.only] if args.only else ["quick", "paper"]
+    results = []
+    for name in names:
+        r = bench(name, args.jobs, args.keep)
+        results.append(r)
+        print(f"\n{name}: {r['wall_seconds']:.1f} s wall (target <= {r['target_seconds']:.0f} s: "
+              f"{'met' if r['meets_target'] else 'NOT met'}), {r['jobs']} jobs, "
+              f"{r['images']} images, {r['records']} records {r['statuses']}, "
+              f"{r['workers']} workers, load average {r['load_average'][0]:.1f}")
+        for stage, t in r["stage_seconds"].items():
+            print(f"  {stage:20s} {t:8.1f} s")
+    doc = {"benchmark": "bench_campaign", "utc": datetime.now(UTC).isoformat(),
+           "machine": {"node": platform.node(), "cpus": os.cpu_count(),
+                       "python": platform.python_version()},
+           "results": results}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(doc, indent=1) + "\n")
+    print(f"\nwrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
