@@ -13,6 +13,10 @@ bottom-right, top-right, top-left of the upright tag), which is the order of
 the target's points. Tags with a Hamming distance above max_hamming, ids not
 on the board, and ids seen twice are ignored (a duplicate id drops both).
 
+A mirror-imaged camera (model.mirrored, e.g. behind a fold mirror) shows every
+tag mirrored, which decodes as no tag at all; when no tag of the board decodes,
+the flipped image is tried and the corners are flipped back (info["mirrored"]).
+
 Pixel convention: the AprilTag library puts the centre of pixel (0,0) at
 (0.5, 0.5) (its corners came out +0.50 px in x and y against exact projections,
 measured in tests/test_detect.py), camval at (0,0): corners are shifted by
@@ -96,10 +100,19 @@ ARGUMENTS
     if not np.all(np.isfinite(img)):
         return failed(target, "the image has non-finite pixels", DETECTOR)
     img8 = np.ascontiguousarray(np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8))
-    tags = _detector(float(quad_decimate), float(quad_sigma), int(refine_edges),
-                     float(decode_sharpening)).detect(img8)
+    detector = _detector(float(quad_decimate), float(quad_sigma), int(refine_edges),
+                         float(decode_sharpening))
     ids = target.point_ids()
     index = {int(pid): k for k, pid in enumerate(ids)}
+    tags = detector.detect(img8)
+    mirrored = False
+    if not any(4 * t.tag_id in index for t in tags):
+        # a mirror-imaged camera shows every tag mirrored, which decodes as nothing: try
+        # the flipped image (pixel x there is W-1-x here)
+        flipped = detector.detect(np.ascontiguousarray(img8[:, ::-1]))
+        if any(4 * t.tag_id in index for t in flipped):
+            tags, mirrored = flipped, True
+    W = img.shape[1]
     q = np.full((len(ids), 2), np.nan)
     seen = {}
     img32 = img.astype(np.float32)
@@ -111,8 +124,10 @@ ARGUMENTS
         if 4 * tag.tag_id not in index:
             rejected["not_on_board"] += 1
             continue
-        seen.setdefault(tag.tag_id, []).append(
-            np.asarray(tag.corners, dtype=np.float64) - APRILTAG_PIXEL_OFFSET)
+        c = np.asarray(tag.corners, dtype=np.float64) - APRILTAG_PIXEL_OFFSET
+        if mirrored:
+            c[:, 0] = W - 1 - c[:, 0]
+        seen.setdefault(tag.tag_id, []).append(c)
     for tag_id, corners in seen.items():
         if len(corners) > 1:
             rejected["duplicate"] += len(corners)
@@ -123,7 +138,7 @@ ARGUMENTS
         for k in range(4):
             q[index[4 * tag_id + k]] = c[k]
     info = {"Ntags_decoded": len(tags), "Ntags_used": int(np.isfinite(q[:, 0]).sum() // 4),
-            "rejected": rejected}
+            "rejected": rejected, "mirrored": mirrored}
     if not np.isfinite(q).any():
         return failed(target, f"no tag of the board decoded ({len(tags)} tags decoded in all)",
                       DETECTOR, info)

@@ -75,10 +75,7 @@ def test_dots_on_planned_poses(dots):
 
 def test_dots_through_a_mirrored_camera(dots):
     r'''H -> -H mirrors the image: only the orientation mark can number the grid right'''
-    W, H, f = 320, 240, 220.0
-    A = np.array([0.0, 0.0, 1.0])
-    m = CAHV(C=np.zeros(3), A=A, H=np.array([-f, 0, 0]) + (W - 1) / 2 * A,
-             V=np.array([0, f, 0]) + (H - 1) / 2 * A, width=W, height=H)
+    m = _mirrored_camera(320, 240, 220.0)
     assert m.mirrored
     poses = plan_poses(m, dots, seed=2)
     for Rt in poses[:3]:
@@ -123,6 +120,22 @@ def test_apriltags_decoded_with_the_right_ids():
         assert err.max() < 0.6 and np.sqrt(np.mean(err ** 2)) < 0.25
 
 
+def _mirrored_camera(W, H, f):
+    A = np.array([0.0, 0.0, 1.0])
+    return CAHV(C=np.zeros(3), A=A, H=np.array([-f, 0, 0]) + (W - 1) / 2 * A,
+                V=np.array([0, f, 0]) + (H - 1) / 2 * A, width=W, height=H)
+
+
+def test_apriltags_through_a_mirrored_camera():
+    t = load_target("apriltag")
+    m = _mirrored_camera(480, 360, 300.0)
+    Rt = plan_poses(m, t, seed=0)[0]
+    det = detect(render(m, t.pattern(), Rt, K=4), t)
+    assert det.status == "ok" and det.info["mirrored"]
+    assert det.n_found == 144
+    assert np.linalg.norm(det.q - projected_points(m, t, Rt), axis=-1).max() < 0.6
+
+
 def test_chessboard_on_planned_poses():
     t = load_target("chessboard")
     m = pinhole(480, 360, 300.0, R=WIDE["R"])
@@ -136,10 +149,7 @@ def test_chessboard_on_planned_poses():
 
 def test_chessboard_mirrored_is_numbered_by_the_mark():
     t = load_target("chessboard")
-    W, H, f = 480, 360, 300.0
-    A = np.array([0.0, 0.0, 1.0])
-    m = CAHV(C=np.zeros(3), A=A, H=np.array([-f, 0, 0]) + (W - 1) / 2 * A,
-             V=np.array([0, f, 0]) + (H - 1) / 2 * A, width=W, height=H)
+    m = _mirrored_camera(480, 360, 300.0)
     Rt = plan_poses(m, t, seed=0)[5]
     det = detect(render(m, t.pattern(), Rt, K=4), t)
     assert det.status == "ok"
