@@ -12,6 +12,7 @@ same. The albedo at a board point (x, y) is, in painting order:
    cell_origin, side cell_size) when that value is finite (NaN: transparent);
 4. circle_value inside any circle (cx, cy, r) of `circles`.
 
+Non-finite points (a ray that misses the board plane) get background_value.
 Albedo lies in [0, 1]; the rendered image of a flat, unlit board is the
 area-average of the albedo over each pixel's footprint.
 '''
@@ -45,8 +46,11 @@ SYNOPSIS
         inside = (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
         a = np.where(inside, self.board_value, self.background_value)
         if self.cells is not None:
-            ix = np.floor((x - self.cell_origin[0]) / self.cell_size).astype(np.int64)
-            iy = np.floor((y - self.cell_origin[1]) / self.cell_size).astype(np.int64)
+            # off-board points (also NaN, inf) never index a cell: cast only finite values
+            fx = np.where(inside, (x - self.cell_origin[0]) / self.cell_size, -1.0)
+            fy = np.where(inside, (y - self.cell_origin[1]) / self.cell_size, -1.0)
+            ix = np.floor(fx).astype(np.int64)
+            iy = np.floor(fy).astype(np.int64)
             ny, nx = self.cells.shape
             ok = inside & (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
             v = self.cells[np.clip(iy, 0, ny - 1), np.clip(ix, 0, nx - 1)]

@@ -177,3 +177,11 @@ def test_target_from_file_round_trip(tmp_path):
     assert t.name == "small" and t.grid_shape == (3, 2)
     assert np.allclose(t.points()[5], [0.4, 0.2, 0.0])
     assert np.allclose(t.extent, (-0.2, 0.6, -0.2, 0.4))
+
+
+def test_pattern_albedo_of_non_finite_points_is_background():
+    # a ray missing the board plane gives NaN or inf; warnings are errors here
+    for name in ("dots", "apriltag", "chessboard"):
+        pat = load_target(name).pattern()
+        a = pat.albedo(np.array([np.nan, np.inf, -np.inf, 1e300]), np.array([0.0, 0.0, 0, 0]))
+        assert np.all(a == pat.background_value)
