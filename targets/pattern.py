@@ -57,7 +57,9 @@ SYNOPSIS
             a = np.where(ok & np.isfinite(v), v, a)
         if self.circles is not None and len(self.circles):
             c = self.circles
-            d2 = (x[..., None] - c[:, 0]) ** 2 + (y[..., None] - c[:, 1]) ** 2
+            xs = np.where(inside, x, 0.0)[..., None]
+            ys = np.where(inside, y, 0.0)[..., None]
+            d2 = (xs - c[:, 0]) ** 2 + (ys - c[:, 1]) ** 2
             hit = inside & np.any(d2 <= c[:, 2] ** 2, axis=-1)
             a = np.where(hit, self.circle_value, a)
         return a
