@@ -42,6 +42,7 @@ of [0,1] or NaN, a timeout) raise RendererError with the tail of the
 program's stderr.
 '''
 
+import dataclasses
 import json
 import math
 import os
@@ -250,7 +251,10 @@ class CommandRenderer:
 ARGUMENTS
 
 - command: the program and its arguments, a list (or a string, split as a shell
-  would); "{request}" is replaced by the request path, else it is appended
+  would); "{request}" is replaced by the request path, else it is appended.
+  May instead be given per render as the option "command" (campaigns construct
+  renderers without arguments); options "output_format" and "timeout" too.
+  Other options are passed to the program in request.json.
 - output_format: "png16" (default) or "npy"
 - timeout: seconds before the program is killed (None: no limit)
 - keep_dir: write requests into this directory and keep them (default: a
@@ -262,18 +266,8 @@ ARGUMENTS
 
     def __init__(self, command=None, output_format="png16", timeout=None, keep_dir=None,
                  env=None, name="command", version_command=None):
-        if command is None or (not isinstance(command, (str, list, tuple))) or not command:
-            raise RendererError("renderer 'command' needs command=[program, args...]: the "
-                                "external renderer to run with the request path")
-        cmd = shlex.split(command) if isinstance(command, str) else [str(c) for c in command]
-        if shutil.which(cmd[0]) is None and not os.path.exists(cmd[0]):
-            raise RendererError(f"renderer 'command': program {cmd[0]!r} not found "
-                                "(not on PATH and not a file)")
-        if output_format not in OUTPUT_FORMATS:
-            raise RendererError(f"command renderer: output format {output_format!r} is "
-                                f"unknown; known: {', '.join(OUTPUT_FORMATS)}")
-        self.command = cmd
-        self.output_format = output_format
+        self.command = None if command is None else self._check_command(command)
+        self.output_format = self._check_format(output_format)
         self.timeout = timeout
         self.keep_dir = keep_dir
         self.env = dict(env or {})
@@ -281,9 +275,28 @@ ARGUMENTS
         self.version_command = version_command
         self._version = None
 
+    @staticmethod
+    def _check_command(command):
+        if not isinstance(command, (str, list, tuple)) or not command:
+            raise RendererError("renderer 'command' needs command=[program, args...]: the "
+                                f"external renderer to run with the request path; got {command!r}")
+        cmd = shlex.split(command) if isinstance(command, str) else [str(c) for c in command]
+        if shutil.which(cmd[0]) is None and not os.path.exists(cmd[0]):
+            raise RendererError(f"renderer 'command': program {cmd[0]!r} not found "
+                                "(not on PATH and not a file)")
+        return cmd
+
+    @staticmethod
+    def _check_format(output_format):
+        if output_format not in OUTPUT_FORMATS:
+            raise RendererError(f"command renderer: output format {output_format!r} is "
+                                f"unknown; known: {', '.join(OUTPUT_FORMATS)}")
+        return output_format
+
     def version(self):
         if self._version is None:
-            v = "external: " + " ".join(shlex.quote(c) for c in self.command)
+            v = "external: " + (" ".join(shlex.quote(c) for c in self.command)
+                                if self.command else "(command given per render)")
             if self.version_command:
                 vc = (shlex.split(self.version_command) if isinstance(self.version_command, str)
                       else list(self.version_command))
@@ -297,6 +310,17 @@ ARGUMENTS
 
     def render(self, model, scene, Rt_cam_board, settings=None):
         settings = RenderSettings() if settings is None else settings
+        opts = dict(settings.options)
+        command = (self._check_command(opts.pop("command")) if "command" in opts
+                   else self.command)
+        if command is None:
+            raise RendererError("renderer 'command' needs a command: construct it with "
+                                "command=[program, args...] or give the render option "
+                                "'command' (campaign: options = { command = [...] })")
+        output_format = self._check_format(opts.pop("output_format", self.output_format))
+        timeout = opts.pop("timeout", self.timeout)
+        # the program sees its own options only
+        settings = dataclasses.replace(settings, options=opts)
         t0 = time.perf_counter()
         if self.keep_dir:
             os.makedirs(self.keep_dir, exist_ok=True)
@@ -304,25 +328,25 @@ ARGUMENTS
         else:
             workdir = tempfile.mkdtemp(prefix="camval-command-")
         try:
-            req = write_request(workdir, model, scene, Rt_cam_board, settings, self.output_format)
-            if any("{request}" in c for c in self.command):
-                cmd = [c.replace("{request}", req) for c in self.command]
+            req = write_request(workdir, model, scene, Rt_cam_board, settings, output_format)
+            if any("{request}" in c for c in command):
+                cmd = [c.replace("{request}", req) for c in command]
             else:
-                cmd = self.command + [req]
+                cmd = command + [req]
             env = dict(os.environ, **self.env)
             try:
-                proc = subprocess.run(cmd, capture_output=True, text=True, timeout=self.timeout,
+                proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
                                       env=env)
             except subprocess.TimeoutExpired as e:
                 raise RendererError(
-                    f"external renderer {cmd[0]!r} timed out after {self.timeout} s; stderr: "
+                    f"external renderer {cmd[0]!r} timed out after {timeout} s; stderr: "
                     f"{_tail(e.stderr if isinstance(e.stderr, str) else '')}") from None
             except OSError as e:
                 raise RendererError(f"cannot run external renderer {cmd[0]!r}: {e}") from None
             if proc.returncode != 0:
                 raise RendererError(f"external renderer {cmd[0]!r} failed (exit "
                                     f"{proc.returncode}); stderr:\n{_tail(proc.stderr)}")
-            out = os.path.join(workdir, OUTPUT_FORMATS[self.output_format])
+            out = os.path.join(workdir, OUTPUT_FORMATS[output_format])
             try:
                 img = read_image(out, model.width, model.height)
             except RendererError as e:
@@ -333,7 +357,7 @@ ARGUMENTS
                 shutil.rmtree(workdir, ignore_errors=True)
         meta = dict(renderer=self.name, version=self.version(), settings=settings.as_dict(),
                     seconds=time.perf_counter() - t0, samples=settings.spp ** 2,
-                    command=self.command, output_format=self.output_format)
+                    command=command, output_format=output_format)
         if self.keep_dir:
             meta["request_dir"] = workdir
         return RenderResult(image=img.astype(np.float32), metadata=meta)

@@ -217,8 +217,10 @@ ARGUMENTS
 - legacy: as for apply_defects
 - inner_options: options for constructing `inner` by name
 
-render() also accepts RenderSettings.options "fault" and "legacy" (they
-override the constructor's); other options go to the inner renderer.
+render() also accepts RenderSettings.options "fault", "legacy" and "inner"
+(a renderer name; they override the constructor's), so a campaign selects a
+fault with the renderer name "faulty" and options {"fault": "half_pixel"};
+other options go to the inner renderer.
 '''
 
     name = "faulty"
@@ -229,6 +231,7 @@ override the constructor's); other options go to the inner renderer.
         self.inner = inner
         self.fault = fault
         self.legacy = legacy
+        self._inners = {}
         # fail early on unknown names
         for name in ([fault] if isinstance(fault, str) else (fault or [])):
             if name not in FAULTS:
@@ -242,12 +245,18 @@ override the constructor's); other options go to the inner renderer.
         opts = dict(settings.options)
         fault = opts.pop("fault", self.fault)
         legacy = opts.pop("legacy", self.legacy)
+        renderer = self.inner
+        inner_name = opts.pop("inner", None)
+        if inner_name is not None and inner_name != self.inner.name:
+            renderer = self._inners.get(inner_name)
+            if renderer is None:
+                renderer = self._inners[inner_name] = get_renderer(inner_name)
         bad, applied = apply_defects(model, legacy, fault)
         t0 = time.perf_counter()
-        inner = self.inner.render(bad, scene, Rt_cam_board,
-                                  dataclasses.replace(settings, options=opts))
+        inner = renderer.render(bad, scene, Rt_cam_board,
+                                dataclasses.replace(settings, options=opts))
         meta = dict(inner.metadata)
-        meta.update(renderer=f"faulty:{self.inner.name}", defects=applied,
+        meta.update(renderer=f"faulty:{renderer.name}", defects=applied,
                     fault_parameters={n: FAULT_PARAMETERS[n] for n in applied},
                     seconds=time.perf_counter() - t0)
         return RenderResult(image=inner.image, metadata=meta)

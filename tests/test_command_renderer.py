@@ -102,9 +102,23 @@ def test_failures_are_renderer_errors_with_the_stderr_tail(tmp_path):
         run("import time; time.sleep(30)\n", timeout=1)
 
 
+def test_command_given_per_render_as_campaigns_do(tmp_path):
+    # campaigns construct renderers by name without arguments and pass options
+    cmd = _script(tmp_path, "assert req['options'] == {'quality': 'high'}, req['options']\n"
+                            "np.save(out, np.full((req['height'], req['width']), 0.5, "
+                            "np.float32))\n")
+    r = get_renderer("command")
+    m = small_model("CAHV", W=32, H=24, f=30.0)
+    res = r.render(m, grid_board()[0], board_pose(), RenderSettings(
+        spp=1, options={"command": cmd, "output_format": "npy", "quality": "high"}))
+    assert np.all(res.image == 0.5) and res.metadata["command"] == cmd
+    with pytest.raises(RendererError, match="needs a command"):
+        r.render(m, grid_board()[0], board_pose(), RenderSettings(spp=1))
+
+
 def test_bad_construction():
     with pytest.raises(RendererError, match="needs command"):
-        CommandRenderer()
+        CommandRenderer(command=[])
     with pytest.raises(RendererError, match="not found"):
         CommandRenderer(command=["no-such-renderer-program"])
     with pytest.raises(RendererError, match="output format"):
