@@ -256,12 +256,18 @@ def jsonable(x):
 
 @runtime_checkable
 class Calibrator(Protocol):
-    r'''A calibrator adapter: a module (or object) with these attributes'''
+    r'''A calibrator adapter: a module (or object) with these attributes
+
+NAME (registry name), LIBRARY (the library doing the fit), MODELS (model names
+it fits), library_version(), fit(...) -> CalibrationResult (may raise
+CalibrationFailed); optionally canonical_model(name) to accept aliases.
+'''
 
     NAME: str
+    LIBRARY: str
     MODELS: tuple
 
     def library_version(self) -> str: ...
 
-    def calibrate(self, observations, target, model_name, truth=None,
-                  **options) -> CalibrationResult: ...
+    def fit(self, observations, target, model_name, truth=None,
+            **options) -> CalibrationResult: ...
