@@ -35,9 +35,11 @@ the missing jobs.
 
 import math
 import os
+import pickle
 import sys
 import time
 import traceback
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -477,6 +479,10 @@ def _local_results(fn, jobs, workers):
             raise
 
 
+def _call_pickled(fn, blob):
+    return fn(pickle.loads(blob))
+
+
 def _dask_results(fn, jobs, scheduler):
     r'''Yield (job, result or exception) as jobs finish on a Dask cluster'''
     try:
@@ -490,8 +496,10 @@ def _dask_results(fn, jobs, scheduler):
         raise RunnerError(f"cannot reach the Dask scheduler at {scheduler!r}: {e}") from None
     try:
         futs = {}
-        for job in jobs:
-            f = client.submit(fn, job, pure=False, key=f"camval-{_slug(job.key)}-{id(job)}")
+        for i, job in enumerate(jobs):
+            # pickled: Dask must not take the Job dataclass apart and rebuild it
+            f = client.submit(_call_pickled, fn, pickle.dumps(job), pure=False,
+                              key=f"camval-{i}-{_slug(job.key)}-{uuid.uuid4().hex[:8]}")
             futs[f] = job
         for fut in as_completed(list(futs)):
             try:
