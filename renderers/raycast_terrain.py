@@ -306,8 +306,8 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pnx, pny, zlo, zhi,
     RUN = 64
     NW = 64
     nruns = (N + RUN - 1) // RUN
-    for w in prange(NW):
-        for run in range(w, nruns, NW):
+    for worker in prange(NW):
+        for run in range(worker, nruns, NW):
             for n in range(run * RUN, min(N, (run + 1) * RUN)):
                 # into the terrain frame: p_t = R^T (p_ref - T)
                 ax = O[n, 0] - T[0]

@@ -175,7 +175,8 @@ def forward_camera(pitch_deg, f, width, height, C=(0, 0, -1.0), R=None):
 
 def test_render_flat_plane_range_is_exact():
     m = forward_camera(17.0, 60.0, 100, 80, R=[0, -0.1, 0.01])
-    ter = Terrain(heights=np.zeros((3, 3)), cell=20.0, origin=(-10, -20),
+    texture = np.random.default_rng(3).uniform(0.1, 0.9, (200, 150)).astype(np.float32)
+    ter = Terrain(heights=np.zeros((3, 3)), cell=20.0, origin=(-10, -20), albedo=texture,
                   sun=Sun(0, 50), ambient=0.2)
     r = render_terrain(m, ter, ground_pose(0.0), spp=1)
     from reference_models.conventions import pixel_centres
@@ -189,8 +190,11 @@ def test_render_flat_plane_range_is_exact():
     assert np.array_equal(np.isnan(r.range), np.isnan(want))
     assert np.nanmax(np.abs(r.range - want)) < 1e-9
     assert np.all(r.shadow[np.isfinite(want)] == 0)
-    lit = 0.5 * (0.2 + math.sin(math.radians(50)))
-    assert np.allclose(r.image[np.isfinite(want)], lit, atol=1e-6)
+    # the texture is sampled where the ray meets the ground (terrain y = -rover y)
+    hit = np.isfinite(want)
+    albedo = ter.albedo_at(p[..., 0][hit], -p[..., 1][hit])
+    lit = albedo * (0.2 + math.sin(math.radians(50)))
+    assert np.allclose(r.image[hit], lit, atol=1e-6)
     assert np.all(r.image[np.isnan(want)] == 0)
 
 
