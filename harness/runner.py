@@ -331,6 +331,14 @@ def failure_records(job, stage, reason, status="failed", entry=None, **kw):
             for cal, model, _ in job.calibrators]
 
 
+def _named_version(name, version):
+    r'''"mrcal 2.5.2" from ("mrcal", "2.5.2") or ("mrcal", "mrcal 2.5.2")'''
+    version = str(version or "").strip()
+    if not name or version.startswith(str(name)):
+        return version
+    return f"{name} {version}".strip()
+
+
 def _slug(s):
     import re
     return re.sub(r"[^A-Za-z0-9=.,_-]+", "_", s)
@@ -380,8 +388,8 @@ Never raises for a failing stage: the records say which stage failed and why.
     for cal, model, options in job.calibrators:
         res = calibrate_stage(cal, obs, target, model, truth, options)
         sec = dict(seconds, calibrate=float(res.seconds))
-        versions = {"renderer": f"{job.renderer} {rversion}".strip(),
-                    "calibrator": f"{res.library} {res.library_version}".strip()}
+        versions = {"renderer": _named_version(job.renderer, rversion),
+                    "calibrator": _named_version(res.library, res.library_version)}
         info = {"iterations": int(res.iterations), "render": render_info}
         if res.status != "ok":
             records.append(_record(job, cal, model, entry, status=res.status,

@@ -61,7 +61,9 @@ def _is_num(s):
 
 
 def _html_table(header, rows):
-    out = ["<table>", "<tr>" + "".join(f"<th>{_e(h)}</th>" for h in header) + "</tr>"]
+    out = ["<table>"]
+    if any(header):
+        out.append("<tr>" + "".join(f"<th>{_e(h)}</th>" for h in header) + "</tr>")
     for row in rows:
         out.append("<tr>" + "".join(
             f"<td class=\"num\">{_e(c)}</td>" if _is_num(c) else f"<td>{_e(c)}</td>"
@@ -129,7 +131,7 @@ def build_report(run, out_dir=None):
     write_atomic(html_path, "\n".join(h) + "\n")
 
     # --- Markdown -----------------------------------------------------------------------
-    m = [f"# {title}", "", _md_table(("", ""), facts), "",
+    m = [f"# {title}", "", _md_table(("run", ""), facts), "",
          "## Summary per calibrator, beside the paper", ""]
     for t in tables:
         m += [f"### {t.title}", "", t.note, "", _md_table(t.header, t.rows), ""]

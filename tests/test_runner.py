@@ -27,7 +27,7 @@ from harness.runner import (
 )
 
 ROOT = Path(__file__).resolve().parent.parent
-SMALL = {"name": "small", "cameras": [17, "SuperCam"], "models": ["CAHV"],
+SMALL = {"name": "small", "cameras": [17, "SuperCam"], "models": ["CAHV"], "keep_images": True,
          "renderer": [{"name": "raycast", "spp": 4}], "calibrator": [{"name": "jpl"}]}
 OK = "17/CAHV/dots/raycast[spp=4,adaptive]/jpl[CAHV]"
 NOT_VISIBLE = "SuperCam/CAHV/dots/raycast[spp=4,adaptive]/jpl[CAHV]"
@@ -69,6 +69,14 @@ def test_records_have_real_numbers(first_run):
     assert r["versions"]["renderer"].startswith("raycast")
     assert r["artifacts"]["map"].startswith("maps/")
     assert (d / r["artifacts"]["map"]).is_file()
+    # keep_images: the six renders (16-bit PNG) and the detections
+    from renderers.png import load_png
+    assert len(r["artifacts"]["images"]) == 6
+    im = load_png(d / r["artifacts"]["images"][0])
+    assert im.shape == (480, 640) and 0 <= im.min() < 0.5 < im.max() <= 1
+    import numpy as np
+    dets = np.load(d / r["artifacts"]["detections"])
+    assert dets["q"].shape == (6, 600, 2) and dets["Rt_cam_board"].shape == (6, 4, 3)
     f = doc["records"][NOT_VISIBLE]
     assert f["status"] == "failed" and f["stage"] == "poses"
     assert "outside the 2048x2048 image" in f["reason"]
