@@ -148,6 +148,7 @@ ARGUMENTS (defaults; RenderSettings.options override them)
         if not self._ctx:
             raise RendererUnavailableError(f"OSMesa could not create a context; {INSTALL_HINT}")
         self._version = None
+        self._buf = None
 
     @staticmethod
     def _check(o):
@@ -165,7 +166,9 @@ ARGUMENTS (defaults; RenderSettings.options override them)
         return self._version
 
     def _make_current(self, width, height):
-        buf = self.arrays.GLfloatArray.zeros((height, width, 4))
+        if self._buf is None or self._buf.shape != (height, width, 4):
+            self._buf = np.zeros((height, width, 4), dtype=np.float32)
+        buf = self._buf
         if not self.osmesa.OSMesaMakeCurrent(self._ctx, buf, self.GL.GL_FLOAT, width, height):
             raise RendererError(f"OSMesaMakeCurrent failed for a {width}x{height} float buffer")
         return buf
@@ -193,8 +196,8 @@ ARGUMENTS (defaults; RenderSettings.options override them)
             GL.glDrawArrays(GL.GL_TRIANGLES, 0, len(v))
         GL.glDisableClientState(GL.GL_VERTEX_ARRAY)
         GL.glFinish()
-        img = np.array(buf, dtype=np.float64).reshape(tile.height, tile.width, 4)[..., 0]
-        return img[::-1]
+        # red channel, top row first (float32; averaged in float64 by the caller)
+        return np.ascontiguousarray(buf[::-1, :, 0])
 
     def render_pinhole(self, pinhole, pattern, Rt_cam_board, K):
         r'''Render the pinhole view (pinhole.height, pinhole.width), K x K supersampled'''
@@ -211,7 +214,8 @@ ARGUMENTS (defaults; RenderSettings.options override them)
                     tw, th = min(step, fine.width - ox), min(step, fine.height - oy)
                     tile = fine.shifted(ox, oy, tw, th)
                     img = self._draw_tile(tile, layers, float(pattern.background_value))
-                    blk = img.reshape(th // K, K, tw // K, K).mean(axis=(1, 3))
+                    blk = img.reshape(th // K, K, tw // K, K).mean(axis=(1, 3),
+                                                                   dtype=np.float64)
                     out[oy // K:(oy + th) // K, ox // K:(ox + tw) // K] = blk
         return out
 

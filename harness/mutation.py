@@ -1,0 +1,143 @@
+r'''The mutation suite: renderer faults the gate must catch, clean renderers it must pass
+
+SYNOPSIS
+
+    from harness.mutation import run_suite
+
+    report = run_suite("runs/mutation", reruns=10)
+    report["ok"]                  # every effective fault flagged, every clean rerun passed
+    report["faults"]["half_pixel"]["failures"]   # ["params.Hc: 0.5 > 0.006", ...]
+
+Each fault of renderers.legacy.FAULTS is injected into the exact ray caster
+(renderer "faulty", options {"fault": name}) and a small campaign is run on a
+camera where the fault means something (MER B navcam, slot 15, CAHVOR: Hc and
+Vc 0.25 px from the half pixel, aspect 0.99966, theta 90.024 deg; CAHV of the
+same camera for theta90; MER A front hazcam, slot 8, CAHVORE with E != 0, for
+ignore_e). The gate (campaigns/mutation-gate.toml) must fail every faulty run,
+and at least one failure must name a parameter the fault moves
+(FAULT_FIELDS). The clean renderer (raycast) is rerun `reruns` times and must
+pass every time.
+
+float32 (ROAMS's single-precision model vectors) moves projections by less
+than 1e-4 px on these cameras: no gate at the calibrators' accuracy
+(~0.001 px) can see it, so it is run and reported as "below detection", not
+required to fail.
+'''
+
+import tempfile
+import time
+from pathlib import Path
+
+SUITE_SPP = 16
+SUITE_POSES = 6
+GATE_SPEC = Path(__file__).resolve().parents[1] / "campaigns" / "mutation-gate.toml"
+
+# fault -> (camera, model family) it is injected on
+FAULT_CASES = {
+    "half_pixel": (15, "CAHVOR"),
+    "swap_hv": (15, "CAHVOR"),
+    "r1_sign": (15, "CAHVOR"),
+    "ignore_e": (8, "CAHVORE"),
+    "focal_scale": (15, "CAHVOR"),
+    "shift_001": (15, "CAHVOR"),
+    "round_centre": (15, "CAHVOR"),
+    "rounded_aspect": (15, "CAHVOR"),
+    "theta90": (15, "CAHV"),
+    "float32": (15, "CAHVOR"),
+}
+# gate fields that name the parameter each fault moves (any of them must fail)
+FAULT_FIELDS = {
+    "half_pixel": ("params.Hc", "params.Vc"),
+    "swap_hv": ("status", "params.Hc", "params.Vc", "params.Hs", "params.Vs",
+                "params.theta_deg", "projection.rms"),
+    "r1_sign": ("params.R1",),
+    "ignore_e": ("params.E0",),
+    "focal_scale": ("params.Hs", "params.Vs"),
+    "shift_001": ("params.Hc",),
+    "round_centre": ("params.Hc", "params.Vc"),
+    "rounded_aspect": ("params.Hs",),
+    "theta90": ("params.theta_deg",),
+    "float32": (),
+}
+BELOW_DETECTION = {"float32": "float32 rounding of C, A, H, V, O, R moves projections by "
+                              "< 1e-4 px; below any gate at the calibrators' accuracy"}
+CLEAN_CASES = ((15, "CAHVOR"), (8, "CAHVORE"))
+
+
+def _register_faulty():
+    # campaigns construct renderers by name; "faulty" lives in renderers.legacy
+    from renderers import base
+    base.BUILTIN_RENDERERS.setdefault("faulty", "renderers.legacy:FaultyRenderer")
+
+
+def campaign_doc(camera, family, fault=None, spp=SUITE_SPP, poses=SUITE_POSES, name=None):
+    renderer = {"name": "raycast", "spp": spp}
+    if fault is not None:
+        renderer = {"name": "faulty", "spp": spp, "options": {"fault": fault}}
+    return {"name": name or f"mutation-{fault or 'clean'}", "cameras": [camera],
+            "models": [family], "targets": ["dots"], "poses": {"n": poses, "seed": 0},
+            "renderer": [renderer], "calibrator": [{"name": "jpl"}]}
+
+
+def _run(doc, run_dir, spec):
+    from harness.campaign import parse_campaign
+    from harness.gate import check
+    from harness.runner import run_campaign
+
+    run = run_campaign(parse_campaign(doc), run_dir, progress=False)
+    failures = check(run, spec)
+    return run, failures
+
+
+def _describe(f):
+    return f"{f.field}: {f.value} (expected {f.limit}) [{f.fullname}]"
+
+
+def run_suite(run_dir=None, faults=None, reruns=10, spp=SUITE_SPP, poses=SUITE_POSES,
+              progress=None):
+    r'''Run every fault and the clean reruns; returns a JSON-able report (see module doc)'''
+    from harness.gate import load_gate_spec
+
+    _register_faulty()
+    spec = load_gate_spec(GATE_SPEC)
+    base = Path(run_dir) if run_dir else Path(tempfile.mkdtemp(prefix="camval-mutation-"))
+    base.mkdir(parents=True, exist_ok=True)
+    report = {"gate": str(GATE_SPEC), "spp": spp, "poses": poses, "faults": {}, "clean": []}
+    for fault in (faults or list(FAULT_CASES)):
+        camera, family = FAULT_CASES[fault]
+        t0 = time.perf_counter()
+        run, failures = _run(campaign_doc(camera, family, fault, spp, poses),
+                             base / f"fault-{fault}", spec)
+        fields = {f.field for f in failures}
+        wanted = FAULT_FIELDS[fault]
+        named = sorted(fields & set(wanted))
+        if fault in BELOW_DETECTION:
+            verdict = "below detection"
+        elif failures and named:
+            verdict = "caught"
+        elif failures:
+            verdict = "caught, wrong parameter"
+        else:
+            verdict = "missed"
+        report["faults"][fault] = dict(
+            camera=camera, model=family, verdict=verdict, named=named,
+            failures=[_describe(f) for f in failures],
+            seconds=round(time.perf_counter() - t0, 1))
+        if progress:
+            progress(f"{fault:15s} {verdict:25s} {', '.join(named) or '-'}")
+    for i in range(reruns):
+        for camera, family in CLEAN_CASES:
+            t0 = time.perf_counter()
+            run, failures = _run(campaign_doc(camera, family, None, spp, poses),
+                                 base / f"clean-{camera}-{family}-{i}", spec)
+            report["clean"].append(dict(camera=camera, model=family, rerun=i,
+                                        passed=not failures,
+                                        failures=[_describe(f) for f in failures],
+                                        seconds=round(time.perf_counter() - t0, 1)))
+            if progress:
+                progress(f"clean {camera} {family} rerun {i}: "
+                         f"{'pass' if not failures else 'FAIL ' + str(len(failures))}")
+    report["ok"] = (all(v["verdict"] in ("caught", "below detection")
+                        for v in report["faults"].values())
+                    and all(c["passed"] for c in report["clean"]))
+    return report
