@@ -147,6 +147,19 @@ def test_chessboard_on_planned_poses():
         assert err.max() < 0.35 and np.sqrt(np.mean(err ** 2)) < 0.15
 
 
+@pytest.mark.slow
+def test_chessboard_on_a_large_image():
+    r'''Large images are searched at reduced size (here 1/3) and polished at full size'''
+    t = load_target("chessboard")
+    m = pinhole(1600, 1200, 1000.0)
+    Rt = plan_poses(m, t, seed=0)[2]
+    det = detect(render(m, t.pattern(), Rt, K=2), t)
+    assert det.status == "ok" and det.n_found == 100
+    assert det.info["method"] == "findChessboardCornersSB at 1/3 size"
+    err = np.linalg.norm(det.q - projected_points(m, t, Rt), axis=-1)
+    assert err.max() < 0.35
+
+
 def test_chessboard_mirrored_is_numbered_by_the_mark():
     t = load_target("chessboard")
     m = _mirrored_camera(480, 360, 300.0)
