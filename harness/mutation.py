@@ -141,3 +141,25 @@ def run_suite(run_dir=None, faults=None, reruns=10, spp=SUITE_SPP, poses=SUITE_P
                         for v in report["faults"].values())
                     and all(c["passed"] for c in report["clean"]))
     return report
+
+
+def main(argv=None):
+    r'''python -m harness.mutation [RUN_DIR] [--reruns N] [--out report.json]'''
+    import argparse
+    import json
+
+    ap = argparse.ArgumentParser(description="camval mutation suite: renderer faults vs the gate")
+    ap.add_argument("run_dir", nargs="?", default=None)
+    ap.add_argument("--reruns", type=int, default=10)
+    ap.add_argument("--out", default=None, help="write the report as JSON here")
+    args = ap.parse_args(argv)
+    report = run_suite(args.run_dir, reruns=args.reruns, progress=print)
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump(report, f, indent=1, allow_nan=False)
+    print("mutation suite:", "PASS" if report["ok"] else "FAIL")
+    return 0 if report["ok"] else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
