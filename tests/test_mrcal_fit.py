@@ -14,10 +14,6 @@ from harness.compare import compare, projection_difference
 
 TARGET = default_target()
 MODELS = [(k, m.with_theta_90()) for k, m in catalogue_models() if m.family != "CAHV"]
-# mrcal's solver crawls along the nearly flat R0 / focal-length valley of these narrow
-# CAHVOR lenses with O off A (pancam: fx slides 3628 -> 4384 px; residuals stop at 3e-3 px;
-# Mastcam-Z 110 mm right: 0.8 px projection difference)
-CRAWLS = {"13", "14", "MCAM_Z_RIGHT-Z110"}
 
 
 def _exact(truth):
@@ -40,11 +36,7 @@ def test_exact_recovery_fast(key):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "key,truth",
-    [pytest.param(k, m, marks=pytest.mark.xfail(strict=True, reason="mrcal crawls in the "
-                                                  "R0/focal valley")) if k in CRAWLS
-     else (k, m) for k, m in MODELS], ids=[k for k, _ in MODELS])
+@pytest.mark.parametrize("key,truth", MODELS, ids=[k for k, _ in MODELS])
 def test_exact_recovery_every_catalogue_model(key, truth):
     _check(truth, _exact(truth))
 

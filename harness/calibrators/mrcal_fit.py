@@ -50,6 +50,8 @@ NAME = "mrcal"
 LIBRARY = "mrcal"
 MODELS = ("CAHV", "CAHVOR", "CAHVORE", "OPENCV8", "SPLINED")
 SPLINED_NX, SPLINED_NY = 16, 12
+# an RMS residual below this (px) is an exact fit: no second start is tried
+EXACT_RMS = 1e-7
 
 
 def library_version():
@@ -170,7 +172,7 @@ def _Rt_board_grid(origin):
 
 def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
         bias_passes=4, bias_tolerance=1e-5, regularization=None, max_rms=1.0,
-        linearity=None, max_restarts=40):
+        linearity=None, max_restarts=15):
     r'''The mrcal calibrator (see the module docstring); returns a CalibrationResult'''
     import mrcal
 
@@ -233,6 +235,7 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     problem["intrinsics"][0, :4] = seed
     iterations = 0
     stages = []
+    start_info = {}
 
     def problem_rms():
         Rt_f = mrcal.Rt_from_rt(problem["rt_ref_frame"])
@@ -285,13 +288,30 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
             rms_prev = r
 
     if nint > 4:
-        # regularised first: the R0 / focal-length valley is flat, and unregularised
-        # from the seed the solver slides along it (fx 96 -> 56 px for a hazcam) and stops
-        # anywhere; then, if asked, unregularised from there
-        solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True,
-              do_apply_regularization=True)
-        if not regularization:
-            polish()
+        if regularization:
+            solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
+        else:
+            # Two starts, keep the better. The R0 / focal-length valley is nearly flat:
+            # unregularised from the pinhole seed the solver may slide along it and stop
+            # anywhere (fx 96 -> 56 px for a MER hazcam CAHVORE) or fall into a local
+            # minimum (Mastcam-Z, large R1, R2); from a regularised optimum it may crawl away
+            # (MER pancam CAHVOR: fx 3628 -> 4384 px, R0 -> -0.17). Each path ends with
+            # unregularised restarts (polish).
+            seed_state = _snapshot(problem)
+            best = None
+            for pre_regularised in (True, False):
+                _restore(problem, seed_state)
+                if pre_regularised:
+                    solve(do_optimize_intrinsics_core=True,
+                          do_optimize_intrinsics_distortions=True, do_apply_regularization=True)
+                polish()
+                r = problem_rms()
+                if best is None or r < best[0]:
+                    best = (r, _snapshot(problem), pre_regularised)
+                if r < EXACT_RMS:
+                    break
+            _restore(problem, best[1])
+            start_info["pre_regularised"] = best[2]
 
     if known_poses:
         Rt_ref_grid = np.array([mrcal.compose_Rt(Rt, _Rt_board_grid(origin))
@@ -361,7 +381,16 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
         info={"lensmodel": lensmodel, "known_poses": bool(known_poses),
               "world_frame": bool(known_poses), "regularization": bool(regularization),
               "bias_corrected": bias_applied, "passes": passes, "seed_pinhole": seed,
-              "intrinsics": cm.intrinsics()[1], "cameramodel": cm})
+              "intrinsics": cm.intrinsics()[1], "cameramodel": cm, **start_info})
+
+
+def _snapshot(problem):
+    return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in problem.items()}
+
+
+def _restore(problem, state):
+    for k, v in state.items():
+        problem[k] = v.copy() if isinstance(v, np.ndarray) else v
 
 
 def _to_model(cm, model_name):
