@@ -87,8 +87,9 @@ floor, as reference_models.cahvore does.'''
         dg = 1.0 + r0 + chi2 * (3.0 * r1 + 5.0 * r2 * chi2)
         step = g / dg
         chi = chi - step
-        if not (abs(step) > tolerance * max(1.0, abs(chi))):
-            if (tolerance <= NEWTON_TOLERANCE
+        scale = max(1.0, abs(chi))
+        if not (abs(step) > tolerance * scale):
+            if (not (abs(step) > NEWTON_TOLERANCE * scale)
                     or abs(chi * (6.0 * r1 + 20.0 * r2 * chi2)) <= 2.0 * abs(dg)):
                 return chi
     return math.nan
@@ -387,10 +388,15 @@ pixel is then only supersampled needlessly), never "clear" where it is not."""
         iy = math.floor(fy)
         nx = f[F_CELLS + 3]
         ny = f[F_CELLS + 4]
-        # cmat and cmask have a ring of board cells around the cells
-        if ix >= -1.0 and iy >= -1.0 and ix <= nx and iy <= ny:
-            if r >= cs:
+        if r >= cs:
+            # a disc wider than a cell: clear only when it misses the cell grid
+            dx = max(max(f[F_CELLS] - x, 0.0), x - (f[F_CELLS] + nx * cs))
+            dy = max(max(f[F_CELLS + 1] - y, 0.0), y - (f[F_CELLS + 1] + ny * cs))
+            if dx * dx + dy * dy <= r * r:
                 return False, 0
+        # cmat and cmask have a ring of board cells around the cells; a disc narrower
+        # than a cell centred outside the ring misses the cells
+        elif ix >= -1.0 and iy >= -1.0 and ix <= nx and iy <= ny:
             cell = (int(iy) + 1) * (int(nx) + 2) + int(ix) + 1
             m = ii[ii[I_OFFSETS] + cell]
             mask = ii[ii[I_OFFSETS + 1] + cell]

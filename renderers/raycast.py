@@ -171,7 +171,7 @@ between cells of one albedo are not edges.
             raise PatternError("pattern circles hold non-finite numbers")
         bad = np.flatnonzero(~(circ[:, 2] > 0.0))
         if bad.size:
-            raise PatternError(f"pattern circle {bad[0]} has radius {circ[bad[0], 2]!r}; "
+            raise PatternError(f"pattern circle {bad[0]} has radius {float(circ[bad[0], 2])!r}; "
                                "expected a radius > 0 (a zero-size dot cannot be drawn)")
         bucket_geometry, bstart, bitems = _buckets(circ)
 
@@ -349,9 +349,10 @@ ray_cache ("cold" or "warm"), ray_cache_seconds.
         if isinstance(K, bool) or not isinstance(K, int) or K < 1:
             raise CamvalError(f"supersampling K must be a positive integer; got {K!r}")
         _check_model(model)
-        if not hasattr(scene, "extent") and callable(getattr(scene, "pattern", None)):
+        from targets.pattern import Pattern
+        if not isinstance(scene, Pattern) and callable(getattr(scene, "pattern", None)):
             scene = scene.pattern()
-        if not hasattr(scene, "extent"):
+        if not isinstance(scene, Pattern):
             raise CamvalError(f"the ray-cast renderer draws a targets.pattern.Pattern; "
                               f"got {type(scene).__name__}")
         cp = self._compiled(scene)

@@ -1,0 +1,358 @@
+r'''The exact ray-cast renderer: rays, pixel convention, adaptive == full, bad input'''
+
+import math
+
+import numpy as np
+import pytest
+
+from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
+from reference_models.catalogue import load_catalogue
+from reference_models.errors import CamvalError
+from renderers import _raycast_kernels as kern
+from renderers.base import RenderSettings, get_renderer
+from renderers.raycast import PatternError, PoseError, RaycastRenderer, Rt_board_ref
+from targets.boards import load_target
+from targets.centroids import board_to_ref, polygon_centroid
+from targets.pattern import Pattern
+from targets.poses import plan_poses
+
+
+def _pinhole_parts(width, height, f, cx=None, cy=None):
+    cx = (width - 1) / 2 if cx is None else cx
+    cy = (height - 1) / 2 if cy is None else cy
+    A = np.array([0.0, 0.0, 1.0])
+    return dict(C=np.array([0.1, -0.2, 0.3]), A=A, H=np.array([f, 0.0, 0.0]) + cx * A,
+                V=np.array([0.0, f, 0.0]) + cy * A, width=width, height=height)
+
+
+def _tilted(deg):
+    t = math.radians(deg)
+    return np.array([math.sin(t), 0.2 * math.sin(t), math.cos(t)])
+
+
+def small_models():
+    r'''Small synthetic cameras of every family (fast to render fully)'''
+    p = _pinhole_parts(200, 150, 160.0, cx=97.3, cy=80.1)
+    return {
+        "cahv": CAHV(**p),
+        "cahvor": CAHVOR(O=_tilted(1.5), R=[0.0, -0.15, 0.03], **p),
+        "cahvore-noncentral": CAHVORE(O=_tilted(2.0), R=[0.0, 0.02, -0.01],
+                                      E=[0.01, 0.02, -0.005], model_type=3, linearity=0.37,
+                                      **_pinhole_parts(200, 150, 90.0)),
+        "cahvore-fisheye": CAHVORE(O=_tilted(0.5), R=[0.0, 0.01, 0.0], E=[0.003, -0.002, 0.001],
+                                   model_type=2, **_pinhole_parts(160, 160, 60.0)),
+    }
+
+
+def catalogue_models():
+    cat = load_catalogue()
+    return {f"slot{i}": cat.get(i).model for i in (1, 12, 15, 17)} | \
+        {"SuperCam": cat.get("SuperCam").model}
+
+
+def dot_pattern(n=6, spacing=0.1, r=0.03, background=0.25):
+    g = np.arange(n) * spacing
+    X, Y = np.meshgrid(g, g)
+    circles = np.stack((X.ravel(), Y.ravel(), np.full(n * n, r)), axis=1)
+    m = spacing
+    return Pattern(extent=(-m, (n - 1) * spacing + m, -m, (n - 1) * spacing + m),
+                   board_value=0.9, background_value=background, circles=circles,
+                   circle_value=0.05)
+
+
+def board_pose(model, distance, euler_deg=(0, 0, 0), centre=(0.25, 0.25), offset=(0, 0)):
+    r'''Rt_cam_board: the board point `centre` at (offset, distance) in the camera frame'''
+    from scipy.spatial.transform import Rotation
+    R = Rotation.from_euler("xyz", euler_deg, degrees=True).as_matrix()
+    t = np.array([offset[0], offset[1], distance]) - R @ np.array([centre[0], centre[1], 0.0])
+    return np.vstack((R, t))
+
+
+# --- rays -------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["cahv", "cahvor", "cahvore-noncentral", "cahvore-fisheye",
+                                  "slot1", "slot12", "slot15", "slot17", "SuperCam"])
+def test_rays_equal_model_unproject(name):
+    model = (small_models() | catalogue_models())[name]
+    rng = np.random.default_rng(3)
+    W, H = model.width, model.height
+    q = np.concatenate((rng.uniform([-0.5, -0.5], [W - 0.5, H - 0.5], (4000, 2)),
+                        [[-0.5, -0.5], [W - 0.5, H - 0.5], [-0.5, H - 0.5], [W / 2, H / 2]]))
+    cam = kern.pack_model(model)
+    origin, v = kern.unproject_grid(cam, q)
+    origin_ref, v_ref = model.unproject(q)
+    assert np.all(np.isfinite(v)) and np.all(np.isfinite(v_ref))
+    np.testing.assert_allclose(v, v_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(origin, origin_ref, rtol=0, atol=1e-12)
+    if not model.is_central:
+        assert np.ptp(origin @ model.O) > 1e-4   # the pupil does move
+
+
+@pytest.mark.parametrize("name", ["cahvor", "cahvore-noncentral", "slot12", "slot15"])
+def test_subsample_rays_from_warm_start_equal_model_unproject(name):
+    r'''The subsample rays (unnormalised, Newton from the pixel centre's chi) are the
+same rays as model.unproject'''
+    from numba import njit
+
+    @njit
+    def trace(cam, q, out_s, out_v):
+        for i in range(q.shape[0]):
+            warm = kern.warm_start(cam, math.floor(q[i, 0] + 0.5), math.floor(q[i, 1] + 0.5))
+            s, vx, vy, vz = kern.ray_warm(cam, q[i, 0], q[i, 1], warm)
+            out_s[i] = s
+            out_v[i, 0] = vx
+            out_v[i, 1] = vy
+            out_v[i, 2] = vz
+
+    model = (small_models() | catalogue_models())[name]
+    q = np.random.default_rng(5).uniform([-0.5, -0.5],
+                                         [model.width - 0.5, model.height - 0.5], (4000, 2))
+    cam = kern.pack_model(model)
+    s = np.empty(len(q))
+    v = np.empty((len(q), 3))
+    trace(cam, q, s, v)
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    origin_ref, v_ref = model.unproject(q)
+    np.testing.assert_allclose(v, v_ref, rtol=0, atol=1e-12)
+    O = getattr(model, "O", np.zeros(3))
+    np.testing.assert_allclose(model.C + s[:, None] * O, origin_ref, rtol=0, atol=1e-12)
+
+
+def test_board_transform_is_inverse_of_board_to_ref():
+    model = small_models()["cahvore-noncentral"]
+    Rt = board_pose(model, 1.0, (20, -30, 10))
+    p_board = np.array([[0.1, 0.2, 0.0], [0.4, -0.1, 0.0]])
+    p_ref = board_to_ref(model, Rt, p_board)
+    Rt_br = Rt_board_ref(model, Rt)
+    np.testing.assert_allclose(p_ref @ Rt_br[:3].T + Rt_br[3], p_board, atol=1e-14)
+
+
+# --- the image ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["cahv", "cahvore-noncentral"])
+def test_unsupersampled_pixels_are_the_albedo_where_model_unproject_rays_meet_the_board(name):
+    r'''K = 1: each pixel is Pattern.albedo at the board point of its centre ray, the ray
+computed by the reference model (independent of the kernels)'''
+    model = small_models()[name]
+    pattern = dot_pattern()
+    Rt = board_pose(model, 0.9, (25, -20, 5))
+    image = RaycastRenderer().render(model, pattern, Rt, RenderSettings(spp=1)).image
+    from reference_models.conventions import pixel_centres
+    origin, v = model.unproject(pixel_centres(model.width, model.height))
+    Rt_br = Rt_board_ref(model, Rt)
+    o = origin @ Rt_br[:3].T + Rt_br[3]
+    d = v @ Rt_br[:3].T
+    t = -o[..., 2] / d[..., 2]
+    x = o[..., 0] + t * d[..., 0]
+    y = o[..., 1] + t * d[..., 1]
+    ref = np.where(t > 0, pattern.albedo(x, y), pattern.background_value).astype(np.float32)
+    assert (image != ref).sum() == 0
+
+
+@pytest.mark.parametrize("name", ["cahvor", "cahvore-noncentral"])
+def test_supersampled_pixels_average_albedo_at_subsample_rays(name):
+    r'''K = 3 (no adaptivity): the mean albedo over the subsample rays (ix + (i+0.5)/3 - 0.5,
+iy + (j+0.5)/3 - 0.5) of the reference model'''
+    K = 3
+    model = small_models()[name]
+    pattern = dot_pattern()
+    Rt = board_pose(model, 0.9, (-15, 25, 40))
+    image = RaycastRenderer().render(model, pattern, Rt,
+                                     RenderSettings(spp=K, adaptive=False)).image
+    off = (np.arange(K) + 0.5) / K - 0.5
+    iy, ix = np.mgrid[0:model.height, 0:model.width]
+    Rt_br = Rt_board_ref(model, Rt)
+    acc = np.zeros(image.shape)
+    for oy in off:
+        for ox in off:
+            q = np.stack((ix + ox, iy + oy), axis=-1)
+            origin, v = model.unproject(q)
+            o = origin @ Rt_br[:3].T + Rt_br[3]
+            d = v @ Rt_br[:3].T
+            t = -o[..., 2] / d[..., 2]
+            a = pattern.albedo(o[..., 0] + t * d[..., 0], o[..., 1] + t * d[..., 1])
+            acc += np.where(t > 0, a, pattern.background_value)
+    np.testing.assert_allclose(image, acc / K**2, rtol=0, atol=2e-7)
+
+
+def _dot_darkness_centroid(image, board_value, window):
+    r'''Darkness-weighted centroid over a window (x0, x1, y0, y1) of pixels'''
+    x0, x1, y0, y1 = window
+    w = board_value - image[y0:y1, x0:x1].astype(np.float64)
+    iy, ix = np.mgrid[y0:y1, x0:x1]
+    return np.array([(w * ix).sum() / w.sum(), (w * iy).sum() / w.sum()])
+
+
+@pytest.mark.parametrize("name,tilt", [("slot15", (30, -35, 10)), ("slot12", (-40, 20, 0)),
+                                       ("cahvore-noncentral", (35, 30, 0))])
+def test_single_dot_centroid_is_the_exact_expected_centroid(name, tilt):
+    r'''A lone dot's darkness-weighted centroid equals the area centroid of its projected
+outline to 1e-3 px: this proves the pixel convention (centre of pixel (0,0) at q = (0,0))
+and the area sampling'''
+    model = (small_models() | catalogue_models())[name]
+    # the dot ~40 px in radius, away from the centre of the image
+    ph = model.photogrammetric()
+    q_target = np.array([0.3 * model.width, 0.65 * model.height])
+    origin, v = model.unproject(q_target)
+    Rt_ref_cam = model.Rt_ref_cam()
+    v_cam = v @ Rt_ref_cam[:3]
+    o_cam = (origin - Rt_ref_cam[3]) @ Rt_ref_cam[:3]
+    distance = 0.5
+    centre_cam = o_cam + distance * v_cam
+    radius = 40.0 * distance / ph.Hs
+    from scipy.spatial.transform import Rotation
+    R = Rotation.from_euler("xyz", tilt, degrees=True).as_matrix()
+    Rt = np.vstack((R, centre_cam))         # the board origin at the dot
+    pattern = Pattern(extent=(-8 * radius, 8 * radius, -8 * radius, 8 * radius),
+                      board_value=1.0, background_value=1.0,
+                      circles=np.array([[0.0, 0.0, radius]]), circle_value=0.0)
+    # K = 64: the K x K grid errs by ~1e-3 px at K = 16, ~1e-4 px at K = 64 (measured)
+    result = RaycastRenderer().render(model, pattern, Rt, RenderSettings(spp=64))
+    t = np.linspace(0, 2 * math.pi, 1440, endpoint=False)
+    outline = np.stack((radius * np.cos(t), radius * np.sin(t), 0 * t), axis=-1)
+    q = model.project(board_to_ref(model, Rt, outline))
+    expected = polygon_centroid(q)
+    lo = np.floor(q.min(axis=0)).astype(int) - 3
+    hi = np.ceil(q.max(axis=0)).astype(int) + 4
+    assert 40 < (hi - lo).min() < 200
+    got = _dot_darkness_centroid(result.image, 1.0, (lo[0], hi[0], lo[1], hi[1]))
+    assert np.linalg.norm(got - expected) < 1e-3
+    # the same dot rendered off by half a pixel would be way off: the test can fail
+    assert np.linalg.norm(got + 0.5 - expected) > 0.5
+
+
+# --- adaptive == full ---------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["cahv", "cahvor", "cahvore-noncentral", "cahvore-fisheye"])
+@pytest.mark.parametrize("K", [2, 5, 8])
+def test_adaptive_equals_full_supersampling_bit_for_bit(name, K):
+    model = small_models()[name]
+    r = RaycastRenderer()
+    for Rt in (board_pose(model, 0.7, (25, -20, 5)), board_pose(model, 1.2, (-40, 30, 60),
+                                                                 offset=(0.2, -0.1))):
+        for pattern in (dot_pattern(), load_target("chessboard").pattern(),
+                        load_target("apriltag").pattern()):
+            a = r.render(model, pattern, Rt, RenderSettings(spp=K, adaptive=True))
+            f = r.render(model, pattern, Rt, RenderSettings(spp=K, adaptive=False))
+            assert a.metadata["board_fraction"] > 0.01
+            assert 0 < a.metadata["adaptive_fraction"] < 0.8
+            assert f.metadata["adaptive_fraction"] == 1.0
+            assert np.array_equal(a.image, f.image)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("slot,target", [(12, "dots"), (15, "dots"), (5, "apriltag"),
+                                         (16, "chessboard")])
+def test_adaptive_equals_full_on_planned_poses_of_catalogue_cameras(slot, target):
+    r'''The bit-for-bit check on real cameras (incl. the noncentral CAHVORE hazcams) at
+K = 16, on the rows of the image where the target is'''
+    model = load_catalogue().get(slot).model
+    tgt = load_target(target)
+    r = RaycastRenderer()
+    Rt = plan_poses(model, tgt, n=6, seed=0)[slot % 6]
+    a = r.render(model, tgt.pattern(), Rt, RenderSettings(spp=16))
+    # full supersampling of a band of rows through the board (all of it is too slow here)
+    rows = np.flatnonzero((a.image != a.image[0, 0]).any(axis=1))
+    start = int(np.clip(rows[len(rows) // 2] - 24, 0, model.height - 48))
+    band = slice(start, start + 48)
+    crop = model.replace(V=model.V - band.start * model.A, height=48)
+    f = r.render(crop, tgt.pattern(), Rt, RenderSettings(spp=16, adaptive=False))
+    assert np.array_equal(a.image[band], f.image)
+    assert len(np.unique(f.image)) > 50
+
+
+# --- output, metadata, cache ----------------------------------------------------------------------
+def test_output_range_dtype_and_metadata():
+    model = small_models()["cahvore-noncentral"]
+    renderer = get_renderer("raycast")
+    assert renderer.name == "raycast" and renderer.version().startswith("raycast ")
+    res = renderer.render(model, dot_pattern(), board_pose(model, 0.8, (10, 10, 0)),
+                          RenderSettings(spp=4))
+    img = res.image
+    assert img.dtype == np.float32 and img.shape == (model.height, model.width)
+    assert img.min() >= 0.0 and img.max() <= 1.0
+    assert set(np.unique(img)) >= {np.float32(0.25), np.float32(0.9), np.float32(0.05)}
+    md = res.metadata
+    assert md["renderer"] == "raycast" and md["settings"] == {"spp": 4, "adaptive": True,
+                                                              "options": {}}
+    assert md["seconds"] > 0 and md["samples"] > 0 and 0 < md["adaptive_fraction"] < 1
+    assert md["version"] == renderer.version()
+
+
+def test_target_objects_render_like_their_pattern():
+    model = small_models()["cahvor"]
+    tgt = load_target("apriltag")
+    Rt = board_pose(model, 1.2, (10, 10, 0), centre=tgt.centre()[:2])
+    r = RaycastRenderer()
+    a = r.render(model, tgt, Rt, RenderSettings(spp=2)).image
+    b = r.render(model, tgt.pattern(), Rt, RenderSettings(spp=2)).image
+    assert np.array_equal(a, b) and len(np.unique(a)) > 3
+
+
+def test_ray_cache_is_reused_and_bounded():
+    models = small_models()
+    r = RaycastRenderer(cache_bytes=0)
+    Rt = board_pose(models["cahv"], 1.0)
+    m1 = r.render(models["cahv"], dot_pattern(), Rt, RenderSettings(spp=1)).metadata
+    m2 = r.render(models["cahv"], dot_pattern(), Rt, RenderSettings(spp=2)).metadata
+    assert (m1["ray_cache"], m2["ray_cache"]) == ("cold", "warm")
+    r.render(models["cahvor"], dot_pattern(), Rt, RenderSettings(spp=1))
+    assert len(r._rays) == 1        # cache_bytes = 0 keeps only the latest camera
+    assert r.render(models["cahv"], dot_pattern(), Rt,
+                    RenderSettings(spp=1)).metadata["ray_cache"] == "cold"
+
+
+# --- bad input ----------------------------------------------------------------------------------
+def test_board_behind_the_camera_renders_blank():
+    model = small_models()["cahvore-noncentral"]
+    Rt = board_pose(model, -1.0)
+    res = RaycastRenderer().render(model, dot_pattern(), Rt, RenderSettings(spp=4))
+    assert res.metadata["board_fraction"] == 0.0
+    assert np.all(res.image == np.float32(0.25))
+
+
+def test_board_edge_on_renders_without_crash():
+    model = small_models()["cahvor"]
+    # the camera's optical axis lies in the board plane
+    R = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])
+    Rt = np.vstack((R, [0.0, 0.0, 0.5]))
+    res = RaycastRenderer().render(model, dot_pattern(), Rt, RenderSettings(spp=4))
+    assert np.all(np.isfinite(res.image))
+
+
+@pytest.mark.parametrize("spp", [0, -3, 2.5, True])
+def test_non_positive_or_non_integer_K_is_an_error(spp):
+    with pytest.raises(CamvalError, match="positive integer"):
+        RaycastRenderer().render(small_models()["cahv"], dot_pattern(), board_pose(None, 1.0),
+                                 RenderSettings(spp=spp))
+
+
+def test_zero_size_dot_is_an_error():
+    p = Pattern(extent=(0, 1, 0, 1), circles=np.array([[0.5, 0.5, 0.1], [0.2, 0.2, 0.0]]))
+    with pytest.raises(PatternError, match="circle 1 has radius 0.0"):
+        RaycastRenderer().render(small_models()["cahv"], p, board_pose(None, 1.0),
+                                 RenderSettings(spp=1))
+
+
+@pytest.mark.parametrize("pattern,match", [
+    (Pattern(extent=(1, 0, 0, 1)), "xmin < xmax"),
+    (Pattern(extent=(0, 1, 0, 1), board_value=1.5), "board_value = 1.5"),
+    (Pattern(extent=(0, 1, 0, 1), cells=np.zeros((2, 2)), cell_size=0.0), "cell_size"),
+    (Pattern(extent=(0, 1, 0, 1), circles=np.zeros((2, 2))), r"expected \(N,3\)"),
+])
+def test_bad_patterns_are_errors(pattern, match):
+    with pytest.raises(PatternError, match=match):
+        RaycastRenderer().render(small_models()["cahv"], pattern, board_pose(None, 1.0),
+                                 RenderSettings(spp=1))
+
+
+@pytest.mark.parametrize("Rt,match", [(np.zeros((3, 3)), "shape"),
+                                      (np.vstack((2 * np.eye(3), np.ones(3))), "rotation"),
+                                      (np.full((4, 3), np.nan), "non-finite")])
+def test_bad_poses_are_errors(Rt, match):
+    with pytest.raises(PoseError, match=match):
+        RaycastRenderer().render(small_models()["cahv"], dot_pattern(), Rt,
+                                 RenderSettings(spp=1))
+
+
+def test_not_a_pattern_is_an_error():
+    with pytest.raises(CamvalError, match="Pattern"):
+        RaycastRenderer().render(small_models()["cahv"], "dots", board_pose(None, 1.0),
+                                 RenderSettings(spp=1))
