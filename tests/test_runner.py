@@ -76,7 +76,7 @@ def test_records_have_real_numbers(first_run):
     assert im.shape == (480, 640) and 0 <= im.min() < 0.5 < im.max() <= 1
     import numpy as np
     dets = np.load(d / r["artifacts"]["detections"])
-    assert dets["q"].shape == (6, 600, 2) and dets["Rt_cam_board"].shape == (6, 4, 3)
+    assert dets["q"].shape == (6, 100, 2) and dets["Rt_cam_board"].shape == (6, 4, 3)
     f = doc["records"][NOT_VISIBLE]
     assert f["status"] == "failed" and f["stage"] == "poses"
     assert "outside the 2048x2048 image" in f["reason"]
