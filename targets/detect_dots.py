@@ -224,7 +224,8 @@ ARGUMENTS
         return failed(target, f"no contrast in the image (range {img.min():.3g}.."
                       f"{img.max():.3g})", DETECTOR)
     H, W = img.shape
-    thr = _otsu(img) if threshold is None else float(threshold)
+    # the threshold only splits dark from light: a quarter of the pixels give it
+    thr = _otsu(img[::2, ::2]) if threshold is None else float(threshold)
     dark = (img < thr).astype(np.uint8)
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(dark, connectivity=8)
     x0, y0, w, h, area = (stats[:, k] for k in range(5))
