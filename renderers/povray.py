@@ -56,6 +56,7 @@ import shutil
 import subprocess
 import tempfile
 import time
+import weakref
 
 import numpy as np
 
@@ -231,6 +232,9 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
                              fault=fault, keep_dir=keep_dir)
         self._check_options(self.defaults)
         self._version = None
+        self._mesh_cache = {}
+        self._mesh_count = 0
+        self._cache_dir = None
 
     @staticmethod
     def _check_options(o):
@@ -310,25 +314,12 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
                 f"povray mesh camera: {W}x{H} px at K={K} needs {nrays} rays "
                 f"(~{nrays * 250 / 1e9:.1f} GB of scene file); the limit is {max_rays} "
                 "(option max_mesh_rays); use camera='perspective' or a smaller K")
-        # sub-pixel centres of the K-times finer image, in model pixels
-        u = (np.arange(W * K) + 0.5) / K - 0.5
-        w = (np.arange(H * K) + 0.5) / K - 0.5
-        q = np.stack(np.meshgrid(u, w), axis=-1).reshape(-1, 2)
-        Rt = model.Rt_ref_cam()
-        origin, v = model.unproject(q)
-        o_cam = (origin - Rt[3]) @ Rt[:3]
-        v_cam = v @ Rt[:3]
-        if not np.all(np.isfinite(v_cam)):
-            raise RendererError(f"{model.family} model: some pixels have no ray; cannot build "
-                                "a mesh camera")
-        F = np.array([1.0, -1.0, 1.0])
-        P = mesh_camera_triangles(o_cam * F, v_cam * F)
+        rays = os.path.join(workdir, "rays.inc")
+        self._mesh_include(model, K, rays)
 
         def write(f):
             f.write(scene_header(pattern))
-            f.write("#declare CamvalRays = mesh2 {\n")
-            _write_mesh2(f, P)
-            f.write("}\n")
+            f.write('#include "rays.inc"\n')
             f.write("camera { mesh_camera { 1 0 mesh { CamvalRays } } "
                     "location <0,0,0> direction <0,0,1> }\n")
             f.write(scene_objects(pattern, Rt_cam_board))
@@ -338,7 +329,50 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
         img, seconds, nbytes = self._run(workdir, write, W * K, H * K + MESH_ROW_OFFSET, 1,
                                          threads)
         img = img[MESH_ROW_OFFSET:]
+        nbytes += os.path.getsize(rays)
         return box_downsample(img, K), dict(povray_seconds=seconds, finer=K, scene_bytes=nbytes)
+
+    def _mesh_include(self, model, K, path):
+        r"""Write (or link from the per-renderer cache) the camera mesh declaring CamvalRays
+
+The mesh depends on the camera and K only; the most recent one is kept in a
+temporary directory for the renderer's lifetime (~250 bytes per ray).
+"""
+        key = (repr(model), int(K))
+        cached = self._mesh_cache.get(key)
+        if cached is None or not os.path.exists(cached):
+            if self._cache_dir is None:
+                self._cache_dir = tempfile.mkdtemp(prefix="camval-povray-mesh-")
+                weakref.finalize(self, shutil.rmtree, self._cache_dir, True)
+            for old in self._mesh_cache.values():
+                if os.path.exists(old):
+                    os.remove(old)
+            self._mesh_cache.clear()
+            self._mesh_count += 1
+            cached = os.path.join(self._cache_dir, f"rays-{self._mesh_count}.inc")
+            W, H = model.width, model.height
+            # sub-pixel centres of the K-times finer image, in model pixels
+            u = (np.arange(W * K) + 0.5) / K - 0.5
+            w = (np.arange(H * K) + 0.5) / K - 0.5
+            q = np.stack(np.meshgrid(u, w), axis=-1).reshape(-1, 2)
+            Rt = model.Rt_ref_cam()
+            origin, v = model.unproject(q)
+            o_cam = (origin - Rt[3]) @ Rt[:3]
+            v_cam = v @ Rt[:3]
+            if not np.all(np.isfinite(v_cam)):
+                raise RendererError(f"{model.family} model: some pixels have no ray; cannot "
+                                    "build a mesh camera")
+            F = np.array([1.0, -1.0, 1.0])
+            P = mesh_camera_triangles(o_cam * F, v_cam * F)
+            with open(cached, "w") as f:
+                f.write("#declare CamvalRays = mesh2 {\n")
+                _write_mesh2(f, P)
+                f.write("}\n")
+            self._mesh_cache[key] = cached
+        try:
+            os.link(cached, path)
+        except OSError:
+            shutil.copyfile(cached, path)
 
     def render(self, model, scene, Rt_cam_board, settings=None):
         from .legacy import apply_defects
