@@ -77,3 +77,24 @@ def test_failures():
     r = calibrate("colmap", obs.replace(q=bad), TARGET, "OPENCV", bias_correction=False)
     assert r.status == "failed"
     assert r.reason.startswith(("diverged", "degenerate poses", "exception inside pycolmap"))
+
+
+def test_parallel_boards_are_degenerate_poses():
+    # boards translated in their own plane: the focal length trades against the range
+    truth = dict(catalogue_models())["15"]
+    Rts = [np.vstack((np.eye(3), [-0.45 + 0.05 * i, -0.45, 2.0])) for i in range(6)]
+    obs = exact_observations(truth, TARGET, Rts)
+    r = calibrate("colmap", obs, TARGET, "OPENCV", bias_correction=False)
+    assert r.status == "failed"
+    assert r.reason.startswith("degenerate poses: the board views leave the focal length")
+    same = exact_observations(truth, TARGET, [synthetic_poses(truth, TARGET)[1]] * 6)
+    r = calibrate("colmap", same, TARGET, "OPENCV", bias_correction=False)
+    assert r.status == "failed" and r.reason.startswith("degenerate poses")
+
+
+def test_opencv_on_a_pinhole_truth():
+    truth = MODELS["15"].to_cahv()
+    obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET))
+    r = calibrate("colmap", obs, TARGET, "OPENCV", bias_correction=False)
+    assert r.ok, r.reason
+    assert r.residual_stats()["rms"] < 0.05

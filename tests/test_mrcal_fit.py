@@ -112,7 +112,8 @@ def test_a_single_pose_is_degenerate_or_fails():
     one = obs.replace(q=obs.q[:1], p_board=obs.p_board[:1], Rt_ref_board=None)
     r = calibrate("mrcal", one, TARGET, "CAHVOR")
     assert r.status == "failed"
-    assert "at least 2" in r.reason
+    assert r.reason == ("degenerate poses: only 1 usable board views; need at least 3 for "
+                        "unknown board poses")
 
 
 def test_not_a_grid():
@@ -135,3 +136,16 @@ def test_unknown_model_is_not_applicable():
     truth, obs = _navcam_obs()
     r = calibrate("mrcal", obs, TARGET, "FULL_OPENCV")
     assert r.status == "not-applicable"
+
+
+def test_parallel_boards_are_degenerate_poses():
+    # boards translated in their own plane: the focal length trades against the range
+    truth = dict(catalogue_models())["15"]
+    Rts = [np.vstack((np.eye(3), [-0.45 + 0.05 * i, -0.45, 2.0])) for i in range(6)]
+    obs = exact_observations(truth, TARGET, Rts)
+    r = calibrate("mrcal", obs, TARGET, "CAHVOR", bias_correction=False)
+    assert r.status == "failed"
+    assert r.reason.startswith("degenerate poses: the board views leave the focal length")
+    same = exact_observations(truth, TARGET, [synthetic_poses(truth, TARGET)[1]] * 6)
+    r = calibrate("mrcal", same, TARGET, "CAHVOR", bias_correction=False)
+    assert r.status == "failed" and r.reason.startswith("degenerate poses")

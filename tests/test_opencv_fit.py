@@ -90,3 +90,27 @@ def test_garbage_diverges():
     r = calibrate("opencv", obs.replace(q=q), TARGET, "OPENCV5", bias_correction=False)
     assert r.status == "failed"
     assert r.reason.startswith("diverged") or r.reason.startswith("exception inside opencv")
+
+
+def test_parallel_boards_are_degenerate_poses():
+    # boards translated in their own plane: the focal length trades against the range
+    truth = dict(catalogue_models())["15"]
+    Rts = [np.vstack((np.eye(3), [-0.45 + 0.05 * i, -0.45, 2.0])) for i in range(6)]
+    obs = exact_observations(truth, TARGET, Rts)
+    r = calibrate("opencv", obs, TARGET, "OPENCV5", bias_correction=False)
+    assert r.status == "failed"
+    assert r.reason.startswith("degenerate poses: the board views leave the focal length")
+    same = exact_observations(truth, TARGET, [synthetic_poses(truth, TARGET)[1]] * 6)
+    r = calibrate("opencv", same, TARGET, "OPENCV5", bias_correction=False)
+    assert r.status == "failed" and r.reason.startswith("degenerate poses")
+
+
+def test_opencv5_on_a_pinhole_truth():
+    # a CAHV with theta off 90 deg: OpenCV has no skew, so its fit cannot be exact
+    truth = MODELS["15"].to_cahv()
+    obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET))
+    r = calibrate("opencv", obs, TARGET, "OPENCV5", bias_correction=False)
+    assert r.ok, r.reason
+    s = compare(r, truth)
+    assert 0.0 < s["residuals"]["rms"] < 0.05
+    assert s["parameters"]["theta_deg"] is None

@@ -218,6 +218,91 @@ info:           calibrator-specific figures (first pass, coefficients, options)
         return out
 
 
+# board normals all within this angle of each other: the focal length is not observable
+MIN_TILT_SPREAD_DEG = 2.0
+
+
+def check_pose_diversity(Rt_cam_board, min_spread_deg=MIN_TILT_SPREAD_DEG):
+    r'''Raise CalibrationFailed if all board planes are (nearly) parallel
+
+SYNOPSIS
+
+    check_pose_diversity(Rt_cam_board)   # (Nposes,4,3); NaN poses are ignored
+
+A planar target calibrates a camera with unknown board poses only if the
+boards are tilted differently (Zhang): with all normals parallel the focal
+length trades against the range. The spread is the largest angle between two
+board normals.
+'''
+    Rt = np.asarray(Rt_cam_board, dtype=np.float64)
+    n = Rt[:, :3, 2]
+    n = n[np.all(np.isfinite(n), axis=-1)]
+    if len(n) < 2:
+        raise CalibrationFailed("degenerate poses: fewer than 2 board poses")
+    c = np.clip(np.abs(n @ n.T), -1.0, 1.0)
+    spread = math.degrees(math.acos(c.min()))
+    if spread < min_spread_deg:
+        raise CalibrationFailed(
+            f"degenerate poses: all {len(n)} board planes are within {spread:.3g} deg of "
+            f"parallel (need >= {min_spread_deg:g} deg of tilt between poses to observe the "
+            "focal length)")
+    return spread
+
+
+# Zhang's constraints: second-smallest / largest singular value below this = degenerate
+MIN_ZHANG_CONDITION = 1e-3
+
+
+def check_homography_conditioning(obs, min_ratio=MIN_ZHANG_CONDITION):
+    r'''Raise CalibrationFailed if the board views cannot determine the intrinsics
+
+SYNOPSIS
+
+    ratio = check_homography_conditioning(obs)   # for unknown board poses
+
+Zhang's method: each view's board-to-image homography gives two linear
+constraints on the image of the absolute conic (6 unknowns, plus zero skew).
+With boards all parallel (e.g. translated in their plane) the system keeps a
+second null direction: the focal length trades against the range, and a
+calibrator returns a focal length of any size with small residuals. The
+ratio of the second-smallest to the largest singular value (image coordinates
+scaled by the width) measures it: 0.01-0.25 for the planned poses of the
+catalogue cameras, 2e-5-1e-4 for translated fronto-parallel boards of
+narrow lenses. Distorted wide lenses make even parallel boards look tilted
+(0.01): this check does not catch those; check_pose_diversity() after the fit
+does.
+'''
+    import cv2
+    W, H = obs.imagersize
+    N = np.array([[1.0 / W, 0.0, -0.5], [0.0, 1.0 / W, -0.5 * H / W], [0.0, 0.0, 1.0]])
+
+    def v(a, b):
+        return np.array([a[0] * b[0], a[0] * b[1] + a[1] * b[0], a[1] * b[1],
+                         a[2] * b[0] + a[0] * b[2], a[2] * b[1] + a[1] * b[2], a[2] * b[2]])
+
+    rows = [np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0])]  # zero skew
+    for i in range(obs.Nposes):
+        f = obs.found[i]
+        if f.sum() < 4:
+            continue
+        Hm, _ = cv2.findHomography(obs.p_board[i][f][:, :2], obs.q[i][f], 0)
+        if Hm is None or not np.all(np.isfinite(Hm)):
+            continue
+        Hm = N @ Hm
+        h1, h2 = Hm[:, 0], Hm[:, 1]
+        rows += [v(h1, h2), v(h1, h1) - v(h2, h2)]
+    if len(rows) < 6:
+        raise CalibrationFailed(f"degenerate poses: only {(len(rows) - 1) // 2} usable board "
+                                "views; need at least 3 for unknown board poses")
+    s = np.linalg.svd(np.array(rows), compute_uv=False)
+    ratio = float(s[-2] / s[0])
+    if ratio < min_ratio:
+        raise CalibrationFailed(
+            f"degenerate poses: the board views leave the focal length undetermined (Zhang "
+            f"condition {ratio:.2g} < {min_ratio:g}; boards parallel to each other?)")
+    return ratio
+
+
 def residual_stats(residuals):
     r'''min, max and RMS over points of the residual norms
 

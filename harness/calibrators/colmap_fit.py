@@ -40,7 +40,12 @@ import time
 
 import numpy as np
 
-from .base import CalibrationFailed, CalibrationResult
+from .base import (
+    CalibrationFailed,
+    CalibrationResult,
+    check_homography_conditioning,
+    check_pose_diversity,
+)
 from .bias import centroid_bias
 
 NAME = "colmap"
@@ -133,6 +138,7 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     if len(views) < 2 or sum(int(found[i].sum()) for i in views) < 30:
         raise CalibrationFailed(f"too few points: {int(found.sum())} found in {len(views)} "
                                 "usable poses; colmap needs >= 30 points in >= 2 poses")
+    check_homography_conditioning(obs)
     W, H = obs.imagersize
     K = _seed(obs, views, found)
     params = np.zeros(NPARAMS[model_name])
@@ -154,7 +160,11 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
         nonlocal iterations
         rec = pycolmap.Reconstruction()
         rec.add_camera_with_trivial_rig(model.camera())
-        point_ids = [rec.add_point3D(p_world[j], pycolmap.Track()) for j in range(len(p_world))]
+        # only observed points: a constant point without observations aborts the process
+        # (Ceres: "Parameter block not found ... before it can be set constant")
+        seen = np.any(found[views], axis=0)
+        point_ids = {j: rec.add_point3D(p_world[j], pycolmap.Track())
+                     for j in np.flatnonzero(seen)}
         config = pycolmap.BundleAdjustmentConfig()
         for k, i in enumerate(views):
             idx = np.flatnonzero(found[i])
@@ -166,7 +176,7 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
             for n, j in enumerate(idx):
                 rec.add_observation(point_ids[j], pycolmap.TrackElement(k + 1, n))
             config.add_image(k + 1)
-        for pid in point_ids:
+        for pid in point_ids.values():
             config.add_constant_point(pid)
         options = pycolmap.BundleAdjustmentOptions()
         options.refine_focal_length = True
@@ -200,6 +210,7 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
         p = np.einsum("fij,fnj->fni", Rts[:, :3], obs.p_board) + Rts[:, None, 3]
         return q - model.project(p)
 
+    check_pose_diversity(Rts_of(poses))
     model, poses = adjust(obs.q, model, poses)
     # once more from the adjusted start: the first adjustment starts from zero distortion
     model, poses = adjust(obs.q, model, poses)

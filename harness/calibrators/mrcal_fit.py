@@ -43,7 +43,12 @@ import time
 
 import numpy as np
 
-from .base import CalibrationFailed, CalibrationResult
+from .base import (
+    CalibrationFailed,
+    CalibrationResult,
+    check_homography_conditioning,
+    check_pose_diversity,
+)
 from .bias import centroid_bias
 
 NAME = "mrcal"
@@ -187,6 +192,7 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     nfound = int(found.sum())
     if nfound < 30:
         raise CalibrationFailed(f"too few points: {nfound} found, mrcal needs at least 30")
+    check_homography_conditioning(obs)
     seed = _seed_pinhole(obs, found)
     W, H = obs.imagersize
     fov = 2.0 * math.degrees(math.atan(0.5 * W / seed[0])) * 1.2
@@ -212,6 +218,7 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     Rt_cam_grid = np.asarray(Rt_cam_grid, dtype=np.float64).reshape(Nposes, 4, 3)
     if not np.all(np.isfinite(Rt_cam_grid)):
         raise CalibrationFailed("degenerate poses: mrcal could not estimate the board poses")
+    check_pose_diversity(Rt_cam_grid)
 
     nint = mrcal.lensmodel_num_params(lensmodel)
     problem = dict(

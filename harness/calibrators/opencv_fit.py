@@ -34,7 +34,12 @@ import time
 
 import numpy as np
 
-from .base import CalibrationFailed, CalibrationResult
+from .base import (
+    CalibrationFailed,
+    CalibrationResult,
+    check_homography_conditioning,
+    check_pose_diversity,
+)
 from .bias import centroid_bias
 
 NAME = "opencv"
@@ -175,6 +180,7 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     if sum(int(found[i].sum()) for i in views) < 30 or len(views) < 2:
         raise CalibrationFailed(f"too few points: {int(found.sum())} found in {len(views)} "
                                 "usable poses; OpenCV needs >= 30 points in >= 2 poses")
+    check_homography_conditioning(obs)
     W, H = obs.imagersize
 
     def run(q, K0=None, dist0=None):
@@ -198,6 +204,7 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D))):
         raise CalibrationFailed("diverged: OpenCV returned non-finite intrinsics")
     model, Rts = state(K, D, rvecs, tvecs)
+    check_pose_diversity(Rts)
     q_used = obs.q
     passes = [{"pass": 1, "opencv_rms": float(rms)}]
     bias_applied = False
