@@ -60,22 +60,37 @@ def _pose_files(d):
     return [p[1:] for p in sorted(pairs)]
 
 
+def _find_model_fields(x, depth=0):
+    r'''The first dict (depth-first, "model"-like keys first) holding C, A, H, V, width, height'''
+    if depth > 4:
+        return None
+    if isinstance(x, dict):
+        if all(k in x for k in ("C", "A", "H", "V", "width", "height")):
+            return x
+        keys = sorted(x, key=lambda k: (0 if "model" in str(k) or k in ("truth", "camera")
+                                        else 1))
+        for k in keys:
+            found = _find_model_fields(x[k], depth + 1)
+            if found is not None:
+                return found
+    return None
+
+
 def _model_from_sidecar(side, path):
     from reference_models.catalogue import model_from_fields
     from reference_models.errors import CamvalError
     from reference_models.jpl_files import parse_model_text
-    for key in ("model", "camera_model", "truth", "camera"):
+    fields = _find_model_fields(side)
+    if fields is not None:
+        return model_from_fields(fields, where=f"'{path}'")
+    for key in ("model", "camera_model", "model_text", "truth", "camera"):
         v = side.get(key)
         if isinstance(v, dict):
-            fields = v.get("fields", v.get("model", v))
-            if isinstance(fields, dict) and "C" in fields:
-                return model_from_fields(fields, where=f"'{path}' {key}")
-            if isinstance(v.get("text"), str):
-                return parse_model_text(v["text"], path=str(path))
+            v = v.get("text")
         if isinstance(v, str) and ("C =" in v or "C=" in v):
             return parse_model_text(v, path=str(path))
     raise CamvalError(f"'{path}': no camera model found; expected a 'model' entry with "
-                      "C, A, H, V, ... (as `camval render` writes)")
+                      "C, A, H, V, width, height (as `camval render` writes)")
 
 
 def _target_from_sidecar(side, path):
