@@ -25,9 +25,13 @@ Steps:
    image +x (ambiguous by design; the info says so).
 4. Subpixel centre: the darkness-weighted centroid over the blob mask
    dilated by window_dilation_px (default 2) - not a bounding box, which
-   picks up grey board-edge pixels - with weights (board level - intensity)
-   clipped at 0. The board level is the median intensity of a ring around
-   the window (ring_px wide), so it follows shading across the board.
+   picks up grey board-edge pixels - with weights 1 - intensity/(board
+   level), clipped at 0. The board level is a plane fitted to a ring around
+   the window (ring_px wide), so it follows shading across the board: with a
+   uniform board the weights are (board level - intensity) up to a constant;
+   under multiplicative shading (vignetting) they stay proportional to the
+   dot area each pixel covers (a 50 % vignette biased the plain weights by
+   0.03 px RMS on 320x240 test renders).
 
 For a uniformly dark dot on a uniform board imaged as an area average, this
 centroid is the area centroid of the dot's projected outline:
@@ -45,6 +49,7 @@ DETECTOR = "dots"
 NEIGHBOUR_TOLERANCE = 0.3      # of the local spacing
 AREA_RATIO_MAX = 4.0           # between neighbouring blobs
 NSEEDS = 6
+MIN_RING_FOR_PLANE = 12
 ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, True)
                   for fb in (False, True)]
 
@@ -192,6 +197,24 @@ def _unmarked_choice(nodes, c, target):
                               "note": "target has no orientation mark: numbering assumed"}
 
 
+def _board_level(crop, ring, window, xx, yy):
+    r'''The board's intensity around a dot: a plane a + b x + c y fitted (with one round of
+outlier rejection) to the ring pixels, so that a shading gradient does not bias the
+centroid; the ring's median when it is too small for a plane'''
+    v = crop[ring]
+    if len(v) < MIN_RING_FOR_PLANE:
+        return float(np.median(v)) if len(v) else float(crop[window].max())
+    x, y = xx[ring] - xx[ring].mean(), yy[ring] - yy[ring].mean()
+    A = np.column_stack((np.ones_like(x), x, y))
+    keep = np.ones(len(v), bool)
+    for _ in range(2):
+        coef, *_ = np.linalg.lstsq(A[keep], v[keep], rcond=None)
+        r = v - A @ coef
+        mad = np.median(np.abs(r[keep])) + 1e-12
+        keep = np.abs(r) < 5 * 1.4826 * mad + 1e-9
+    return coef[0] + coef[1] * (xx - xx[ring].mean()) + coef[2] * (yy - yy[ring].mean())
+
+
 def detect_dots(image, target, *, window_dilation_px=2, ring_px=3, min_area_px=6,
                 min_found=None, threshold=None):
     r'''Detect a dot grid; see the module docstring
@@ -290,11 +313,15 @@ ARGUMENTS
         mask = (lab == label).astype(np.uint8)
         window = cv2.dilate(mask, win_kernel).astype(bool)
         ring = cv2.dilate(mask, ring_kernel).astype(bool) & ~window & (lab == 0)
-        board = float(np.median(crop[ring])) if ring.any() else float(crop[window].max())
-        wgt = np.clip(board - crop, 0.0, None) * window
+        yy, xx = np.mgrid[ya:yb, xa:xb]
+        board = _board_level(crop, ring, window, xx, yy)
+        # darkness relative to the local board level: 1 - I/B is proportional to the dot
+        # area a pixel covers even when shading (vignetting) tilts the board level
+        with np.errstate(divide="ignore", invalid="ignore"):
+            wgt = np.clip(1.0 - crop / board, 0.0, None) * window
+        wgt[~np.isfinite(wgt)] = 0.0
         s = wgt.sum()
         if not s > 0:
             continue
-        yy, xx = np.mgrid[ya:yb, xa:xb]
         q[gy * nx + gx] = ((wgt * xx).sum() / s, (wgt * yy).sum() / s)
     return result(target, q, DETECTOR, min_found=min_found, info=info)
