@@ -132,14 +132,17 @@ ARGUMENTS (defaults; RenderSettings.options override them)
 
 - interpolation: warp interpolation, "bilinear" or "bicubic"
 - warp_scale: pinhole resolution relative to the model's finest pixel
+- warp_samples: n, average n x n remaps per model pixel (use with warp_scale = n)
 - legacy / fault: render a defective model (renderers.legacy)
 '''
 
     name = "osmesa"
 
-    def __init__(self, interpolation="bilinear", warp_scale=1.0, legacy=None, fault=None):
+    def __init__(self, interpolation="bilinear", warp_scale=1.0, warp_samples=1, legacy=None,
+                 fault=None):
         self.GL, self.arrays, self.osmesa = _import_gl()
-        self.defaults = dict(interpolation=interpolation, warp_scale=warp_scale, legacy=legacy,
+        self.defaults = dict(interpolation=interpolation, warp_scale=warp_scale,
+                             warp_samples=warp_samples, legacy=legacy,
                              fault=fault)
         self._check(self.defaults)
         with _GL_LOCK:
@@ -232,7 +235,8 @@ ARGUMENTS (defaults; RenderSettings.options override them)
         self._check(o)
         render_model, defects = apply_defects(model, o["legacy"], o["fault"])
         t0 = time.perf_counter()
-        warp = PinholeWarp.for_model(render_model, scale=float(o["warp_scale"]))
+        warp = PinholeWarp.for_model(render_model, scale=float(o["warp_scale"]),
+                                         samples=int(o["warp_samples"]))
         t1 = time.perf_counter()
         pin = self.render_pinhole(warp.pinhole, scene, Rt_cam_board, settings.spp)
         t2 = time.perf_counter()

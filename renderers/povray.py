@@ -210,6 +210,7 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
 - camera: "perspective" (oversized pinhole + warp, the paper's path) or "mesh"
 - interpolation: warp interpolation, "bilinear" or "bicubic"
 - warp_scale: pinhole resolution relative to the model's finest pixel (>= 1)
+- warp_samples: n, average n x n remaps per model pixel (use with warp_scale = n)
 - binary: the POV-Ray executable
 - threads: POV-Ray work threads (None: POV-Ray's default, all cores)
 - max_mesh_rays: refuse mesh-camera renders with more rays than this (scene
@@ -220,6 +221,7 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
     name = "povray"
 
     def __init__(self, camera="perspective", interpolation="bilinear", warp_scale=1.0,
+                 warp_samples=1,
                  binary="povray", threads=None, max_mesh_rays=DEFAULT_MAX_MESH_RAYS,
                  legacy=None, fault=None, keep_dir=None):
         path = shutil.which(binary)
@@ -228,6 +230,7 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
                 f"renderer 'povray': the POV-Ray binary {binary!r} is not on PATH; {INSTALL_HINT}")
         self.binary = path
         self.defaults = dict(camera=camera, interpolation=interpolation, warp_scale=warp_scale,
+                             warp_samples=warp_samples,
                              threads=threads, max_mesh_rays=max_mesh_rays, legacy=legacy,
                              fault=fault, keep_dir=keep_dir)
         self._check_options(self.defaults)
@@ -396,7 +399,8 @@ temporary directory for the renderer's lifetime (~250 bytes per ray).
                                              o["threads"], o["max_mesh_rays"])
                 warp_info = {}
             else:
-                warp = PinholeWarp.for_model(render_model, scale=float(o["warp_scale"]))
+                warp = PinholeWarp.for_model(render_model, scale=float(o["warp_scale"]),
+                                         samples=int(o["warp_samples"]))
                 pin_img, info = self.render_pinhole(warp.pinhole, scene, Rt_cam_board, K,
                                                     workdir, o["threads"])
                 img = warp.apply(pin_img, o["interpolation"], Rt_cam_board=Rt_cam_board)

@@ -35,8 +35,16 @@ plane (they only see the uniform background) use the point at
 `noncentral_range` metres along the ray. Without a pose the whole map uses
 that range. Central models have one map per camera, independent of the pose.
 
-Maps are cached per (model, scale, margin): PinholeWarp.for_model returns the
-same object for the same camera, and the per-pixel rays are computed once.
+Maps are cached per (model, scale, margin, samples): PinholeWarp.for_model
+returns the same object for the same camera, and the per-pixel rays are
+computed once.
+
+Area sampling: a remap samples the pinhole image at one point per model pixel
+(the pixel centre), a point sample of the pinhole image blurred by its own
+pixels and the interpolation kernel. With `samples` = n > 1 the warp averages
+n x n remaps at the sub-pixel centres of each model pixel, which approximates
+the model pixel's area average; use it with a finer pinhole (scale = n):
+a finer pinhole sampled at one point per model pixel aliases.
 
 cv2.remap samples with 1/32-px fixed-point weights (INTER_BITS = 5); that
 quantisation is part of the warp's measured cost, as in the paper's ROAMS.
@@ -127,14 +135,17 @@ class PinholeWarp:
     _lock = threading.Lock()
 
     def __init__(self, model, scale=1.0, margin=DEFAULT_MARGIN,
-                 noncentral_range=NONCENTRAL_RANGE):
+                 noncentral_range=NONCENTRAL_RANGE, samples=1):
         if not (scale > 0 and math.isfinite(scale)):
             raise WarpError(f"warp scale must be a positive number; got {scale!r}")
         if not (margin >= 0 and math.isfinite(margin)):
             raise WarpError(f"warp margin must be >= 0 px; got {margin!r}")
         if not (noncentral_range > 0):
             raise WarpError(f"noncentral_range must be > 0 m; got {noncentral_range!r}")
+        if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= 8:
+            raise WarpError(f"warp samples must be an integer in [1, 8]; got {samples!r}")
         self.model = model
+        self.samples = samples
         self.scale = float(scale)
         self.margin = float(margin)
         self.noncentral_range = float(noncentral_range)
@@ -142,6 +153,10 @@ class PinholeWarp:
         W, H = model.width, model.height
         q = pixel_centres(W, H)
         self._origin, self._v = _rays_cam(model, q)
+        # sub-pixel sample offsets of the warp (samples x samples per model pixel)
+        d = (np.arange(samples) + 0.5) / samples - 0.5
+        self.offsets = [(float(dx), float(dy)) for dy in d for dx in d]
+        self._sub_rays = {}
         # the outline of the image (pixel edges) bounds the pinhole
         edge = np.concatenate((
             np.stack((np.linspace(-0.5, W - 0.5, 4 * W + 1), np.full(4 * W + 1, -0.5)), -1),
@@ -185,25 +200,36 @@ class PinholeWarp:
                 f"(limit {MAX_PINHOLE_SIDE}); its field of view is too wide for a pinhole warp")
         self.pinhole = Pinhole(fx=f, fy=f, cx=float(cx), cy=float(cy),
                                width=width, height=height)
-        self._central_map = None
+        self._central_maps = {}
 
     @classmethod
     def for_model(cls, model, scale=1.0, margin=DEFAULT_MARGIN,
-                  noncentral_range=NONCENTRAL_RANGE):
-        r'''The cached warp of a camera model (one per model, scale, margin)'''
-        key = (repr(model), float(scale), float(margin), float(noncentral_range))
+                  noncentral_range=NONCENTRAL_RANGE, samples=1):
+        r'''The cached warp of a camera model (one per model, scale, margin, samples)'''
+        key = (repr(model), float(scale), float(margin), float(noncentral_range), int(samples))
         with cls._lock:
             w = cls._cache.get(key)
         if w is None:
-            w = cls(model, scale=scale, margin=margin, noncentral_range=noncentral_range)
+            w = cls(model, scale=scale, margin=margin, noncentral_range=noncentral_range,
+                    samples=samples)
             with cls._lock:
                 if len(cls._cache) > 16:
                     cls._cache.clear()
                 cls._cache[key] = w
         return w
 
-    def map(self, Rt_cam_board=None):
-        r'''Pinhole coordinates of every model pixel centre
+    def _rays(self, isample):
+        dx, dy = self.offsets[isample]
+        if dx == 0.0 and dy == 0.0:
+            return self._origin, self._v
+        r = self._sub_rays.get(isample)
+        if r is None:
+            q = pixel_centres(self.model.width, self.model.height) + (dx, dy)
+            r = self._sub_rays[isample] = _rays_cam(self.model, q)
+        return r
+
+    def map(self, Rt_cam_board=None, isample=None):
+        r'''Pinhole coordinates of every model pixel centre (or of sub-pixel sample isample)
 
 SYNOPSIS
 
@@ -211,14 +237,19 @@ SYNOPSIS
 
 For central models the map is the same for every pose (and cached); for
 noncentral CAHVORE it is exact on the board plane (see the module docstring).
+isample indexes warp.offsets (default: the pixel centre when samples is odd,
+else sample 0).
 '''
+        if isample is None:
+            isample = len(self.offsets) // 2
         if self.is_central:
-            if self._central_map is None:
-                q = self.pinhole.project(self._v)
-                self._central_map = (q[..., 0].astype(np.float32),
-                                     q[..., 1].astype(np.float32))
-            return self._central_map
-        o, v = self._origin, self._v
+            m = self._central_maps.get(isample)
+            if m is None:
+                q = self.pinhole.project(self._rays(isample)[1])
+                m = self._central_maps[isample] = (q[..., 0].astype(np.float32),
+                                                   q[..., 1].astype(np.float32))
+            return m
+        o, v = self._rays(isample)
         s = np.full(v.shape[:-1], self.noncentral_range)
         if Rt_cam_board is not None:
             Rt = np.asarray(Rt_cam_board, dtype=np.float64)
@@ -247,7 +278,10 @@ Returns a float32 image of shape (model.height, model.width).
         if img.shape != (self.pinhole.height, self.pinhole.width):
             raise WarpError(f"pinhole image has shape {img.shape}; expected "
                             f"{(self.pinhole.height, self.pinhole.width)}")
-        map_x, map_y = self.map(Rt_cam_board)
         flag = cv2.INTER_LINEAR if interpolation == "bilinear" else cv2.INTER_CUBIC
-        out = cv2.remap(img, map_x, map_y, flag, borderMode=cv2.BORDER_REPLICATE)
-        return np.clip(out, 0.0, 1.0)
+        acc = None
+        for i in range(len(self.offsets)):
+            map_x, map_y = self.map(Rt_cam_board, i)
+            out = cv2.remap(img, map_x, map_y, flag, borderMode=cv2.BORDER_REPLICATE)
+            acc = out.astype(np.float64) if acc is None else acc + out
+        return np.clip(acc / len(self.offsets), 0.0, 1.0).astype(np.float32)

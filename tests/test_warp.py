@@ -131,3 +131,23 @@ def test_bad_input():
                    O=[0, 0, 1], R=[0, 0, 0], E=[0, 0, 0], model_type=2, width=256, height=192)
     with pytest.raises(WarpError, match="field of view"):
         PinholeWarp(fish)
+
+
+def test_area_samples_average_remaps_at_sub_pixel_centres():
+    m = small_model("CAHVOR")
+    w = PinholeWarp(m, scale=2.0, samples=2)
+    assert w.offsets == [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)]
+    # sample 3 is the ray of pixel centre + (0.25, 0.25)
+    mx, my = w.map(None, 3)
+    _, v = m.unproject(np.array([[10.25, 20.25]]))
+    u = w.pinhole.project(v)[0]
+    assert abs(mx[20, 10] - u[0]) < 1e-3 and abs(my[20, 10] - u[1]) < 1e-3
+    # a linear ramp averages to its value at the pixel centre
+    pin = w.pinhole
+    uu, vv = np.meshgrid(np.arange(pin.width), np.arange(pin.height))
+    img = w.apply(uu / pin.width, "bilinear")
+    centre = PinholeWarp(m, scale=2.0).map()[0]
+    # the sub-sample mean of a smooth map differs from the centre by its curvature only
+    assert np.abs(img - centre / pin.width).max() < 0.05 / pin.width
+    with pytest.raises(WarpError, match="samples"):
+        PinholeWarp(m, samples=0)
