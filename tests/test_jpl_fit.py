@@ -179,3 +179,18 @@ def test_rendered_images_meet_the_bars(key, family):
     assert abs(s["parameters"]["theta_deg"]) <= 0.001
     assert s["projection"]["rotation"]["rms"] <= 0.002
     assert s["projection"]["world"]["rms"] <= 0.002
+
+
+@pytest.mark.parametrize("model_type,linearity", [(1, None), (2, None), (3, 0.6)])
+def test_cahvore_types(model_type, linearity):
+    _, base = next((k, m) for k, m in MODELS if m.family == "CAHVORE" and m.width == 640)
+    truth = type(base)(C=base.C, A=base.A, H=base.H, V=base.V, O=base.O, R=base.R,
+                       E=np.array([0.002, 0.004, -0.003]), width=base.width,
+                       height=base.height, model_type=model_type, linearity=linearity)
+    obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET))
+    r = calibrate("jpl", obs, TARGET, "CAHVORE", truth=truth, bias_correction=False)
+    assert r.ok, r.reason
+    assert (r.model.model_type, r.model.linearity) == (truth.model_type, truth.linearity)
+    d = projection_difference(truth, r.model, mode="world", step=32)
+    assert d["max"] <= 1e-6
+    np.testing.assert_allclose(r.model.E, truth.E, atol=1e-7)
