@@ -108,3 +108,19 @@ def test_projection_difference_agrees_with_mrcal():
                                use_uncertainties=False)[0]
     assert d["rms"] == pytest.approx(float(np.sqrt(np.mean(dl ** 2))), rel=0.01)
     assert d["rms"] <= float(np.sqrt(np.mean(dl ** 2)))  # ours minimises exactly this
+
+
+def test_observations_from_camera_poses_match_the_survey():
+    from harness.calibrators.base import Observations
+    from harness.calibrators.synthetic import default_target, exact_observations, synthetic_poses
+    t = default_target()
+    Rts = synthetic_poses(NAVCAM, t)
+    obs = exact_observations(NAVCAM, t, Rts)
+    o2 = Observations.from_camera_poses(obs.q, t.points(), (1024, 1024), Rts,
+                                        NAVCAM.Rt_ref_cam())
+    np.testing.assert_allclose(o2.p_ref(), obs.p_ref(), atol=1e-14)
+    # and the world points project (through the truth) to the observations
+    q = NAVCAM.project(o2.p_ref())
+    f = obs.found
+    np.testing.assert_allclose(q[f], obs.q[f], atol=1e-9)
+    assert Observations.from_camera_poses(obs.q, t.points(), (1024, 1024)).Rt_ref_board is None

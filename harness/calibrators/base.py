@@ -145,6 +145,29 @@ SYNOPSIS
     def replace(self, **changes):
         return dataclasses.replace(self, **changes)
 
+    @classmethod
+    def from_camera_poses(cls, q, p_board, imagersize, Rt_cam_board=None, Rt_ref_cam=None,
+                          point_ids=None):
+        r'''Observations from board poses in a camera frame (what a render sidecar gives)
+
+SYNOPSIS
+
+    obs = Observations.from_camera_poses(q, target.points(), (W, H),
+                                         Rt_cam_board, truth.Rt_ref_cam())
+
+The survey in the world frame is Rt_ref_board = Rt_ref_cam o Rt_cam_board;
+without Rt_cam_board the poses are unknown. Rt_ref_cam defaults to identity.
+'''
+        Rt_ref_board = None
+        if Rt_cam_board is not None:
+            Rt_cam_board = np.asarray(Rt_cam_board, dtype=np.float64)
+            Rt = (np.vstack((np.eye(3), np.zeros(3))) if Rt_ref_cam is None
+                  else np.asarray(Rt_ref_cam, dtype=np.float64))
+            Rt_ref_board = np.array([np.vstack((Rt[:3] @ x[:3], Rt[:3] @ x[3] + Rt[3]))
+                                     for x in Rt_cam_board])
+        return cls(q=q, p_board=p_board, imagersize=imagersize, Rt_ref_board=Rt_ref_board,
+                   point_ids=point_ids)
+
 
 @dataclass(frozen=True, eq=False)
 class CalibrationResult:
@@ -159,7 +182,9 @@ model:          the fitted model in the calibrator's own family (a reference_mod
                 width, height, family), None when not ok
 residuals:      (Nposes,Npoints,2) px (observed - projected), NaN where not observed
 Rt_cam_board:   (Nposes,4,3) board poses in the fitted camera's frame, or None
-iterations:     solver iterations (or function evaluations when that is all we get)
+iterations:     the solver work: jpl, scipy function evaluations; mrcal, calls of
+                mrcal.optimize; opencv, calls of calibrateCamera; colmap, bundle
+                adjustments (these libraries do not report their inner iterations)
 seconds:        wall time of the fit
 library:        name of the library that did the fit; library_version its version
 info:           calibrator-specific figures (first pass, coefficients, options)
