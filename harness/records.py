@@ -294,10 +294,12 @@ SYNOPSIS
     def started(self):
         return _read_json(self.dir / "campaign.json").get("started")
 
-    def save_job(self, job_key, records):
+    def save_job(self, job_key, records, final=True):
+        r'''Store a job's records (atomic). final=False: the records say why the job could
+not run (a worker died); they are reported, but resume runs the job again.'''
         recs = [r.as_dict() if isinstance(r, Record) else jsonable(r) for r in records]
         write_json_atomic(self.records_dir / job_filename(job_key),
-                          {"job": job_key, "records": recs})
+                          {"job": job_key, "final": bool(final), "records": recs})
 
     def _job_files(self):
         return sorted(self.records_dir.glob("*.json"))
@@ -307,8 +309,10 @@ SYNOPSIS
         done = set()
         for path in self._job_files():
             try:
-                done.add(_read_json(path)["job"])
-            except (RunError, KeyError):
+                doc = _read_json(path)
+                if doc.get("final", True):
+                    done.add(doc["job"])
+            except (RunError, KeyError, AttributeError):
                 continue
         return done
 

@@ -570,8 +570,9 @@ SYNOPSIS
     n_done = run_jobs(jobs, RunStore.open(run_dir), executor="local", workers=2)
 
 Jobs already stored are skipped (resume). A job whose worker crashed is
-stored as failed records (stage "worker"). Largest jobs are started first,
-so the slowest ones do not finish last. Returns the number of jobs run.
+stored as failed records (stage "worker") that resume runs again. Largest
+jobs are started first, so the slowest ones do not finish last. Returns the
+number of jobs run.
 '''
     if executor not in EXECUTORS:
         raise RunnerError(f"unknown executor {executor!r}; known: {', '.join(EXECUTORS)}")
@@ -587,10 +588,12 @@ so the slowest ones do not finish last. Returns the number of jobs run.
                    else _local_results(fn, todo, workers))
         for job, out in results:
             if isinstance(out, BaseException):
+                # the worker died (killed, out of memory): reported, and retried on resume
                 recs = failure_records(job, "worker", _reason(out))
+                store.save_job(job.key, recs, final=False)
             else:
                 recs = out["records"]
-            store.save_job(job.key, recs)
+                store.save_job(job.key, recs)
             statuses = {}
             for r in recs:
                 statuses[r["status"]] = statuses.get(r["status"], 0) + 1

@@ -188,3 +188,22 @@ def test_dask_local_cluster_gives_the_same_records(first_run, tmp_path):
     assert other["execution"]["executor"] == "dask"
     assert _comparable(other) == _comparable(doc)
     assert os.listdir(tmp_path / "dask" / "maps")
+
+
+def _die(job):
+    os._exit(3)   # a worker killed mid-job (out of memory, SIGKILL)
+
+
+def test_dead_worker_is_reported_and_retried_on_resume(tmp_path):
+    c = parse_campaign(dict(SMALL, cameras=["SuperCam"]))
+    jobs = expand_jobs(c)
+    store = RunStore.create(tmp_path / "r", c.as_dict())
+    assert run_jobs(jobs, store, fn=_die, workers=2, progress=False) == 1
+    (rec,) = store.records().values()
+    assert rec["status"] == "failed" and rec["stage"] == "worker"
+    assert "BrokenProcessPool" in rec["reason"]
+    assert store.done_jobs() == set()
+    assert run_jobs(jobs, store, workers=1, progress=False) == 1
+    (rec,) = store.records().values()
+    assert rec["stage"] == "poses"
+    assert store.done_jobs() == {jobs[0].key}
