@@ -372,4 +372,4 @@ def load_campaign(path):
         raise CampaignError(f"'{path}': not valid TOML: {e}") from None
     except OSError as e:
         raise CampaignError(f"'{path}': cannot read: {e.strerror}") from None
-    return parse_campaign(doc, source=str(path), base_dir=path.parent)
+    return parse_campaign(doc, source=str(path), base_dir=path.resolve().parent)
