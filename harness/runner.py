@@ -643,7 +643,9 @@ def run_campaign(campaign, run_dir, executor="local", workers=None, scheduler=No
     expected = {j.key for j in jobs}
     stray = {k for k in store.done_jobs() if k not in expected}
     return store.assemble(adapters=adapters_from_records(records),
-                          extra={"execution": {"executor": executor, "workers": workers,
+                          extra={"execution": {"executor": executor,
+                                               "workers": None if executor == "dask"
+                                               else workers or os.cpu_count(),
                                                "scheduler": scheduler,
                                                "jobs": len(jobs), "jobs_run": n,
                                                "stray_jobs": sorted(stray),

@@ -225,7 +225,7 @@ def fig_projection(records, out):
         "between the camera frames fitted).", logy=True)
 
 
-def fig_maps(records, run_dir, out, limit=24):
+def fig_maps(records, run_dir, out, limit=72):
     r'''Small multiples of the stored projection-difference maps (keep_maps), per calibrator'''
     figs = []
     panels = calibrator_panels(records)
