@@ -207,3 +207,22 @@ def test_dead_worker_is_reported_and_retried_on_resume(tmp_path):
     (rec,) = store.records().values()
     assert rec["stage"] == "poses"
     assert store.done_jobs() == {jobs[0].key}
+
+
+def test_rich_progress_bar_on_a_terminal():
+    import io
+
+    from harness.runner import _Progress
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    term = Terminal()
+    bar = _Progress(2, stream=term)
+    assert bar.bar is not None
+    bar.advance("15/CAHV/dots/raycast[spp=16,adaptive]", {"ok": 3})
+    bar.advance("17/CAHV/dots/raycast[spp=16,adaptive]", {"failed": 1})
+    bar.close()
+    out = term.getvalue()
+    assert "2/2" in out and "ETA" in out and "1 failed" in out
