@@ -144,7 +144,6 @@ def run(args):
 
     from harness.calibrators import calibrate, models_of
     from harness.calibrators.base import Observations, jsonable
-    from harness.calibrators.synthetic import compose
     from harness.compare import compare
     from reference_models.errors import CamvalError
     from targets.detect import detect
@@ -170,11 +169,10 @@ def run(args):
         detections.append({"image": png.name, "status": det.status, "reason": det.reason,
                            "n_found": int(det.n_found), "n_expected": int(det.n_expected)})
         qs.append(det.q)
-    Rt_ref_cam = truth.Rt_ref_cam()
-    obs = Observations(q=np.array(qs), p_board=np.asarray(target.points(), dtype=np.float64),
-                       imagersize=(truth.width, truth.height),
-                       Rt_ref_board=np.array([compose(Rt_ref_cam, Rt) for Rt in Rts]),
-                       point_ids=np.asarray(target.point_ids()))
+    obs = Observations.from_camera_poses(
+        np.array(qs), np.asarray(target.points(), dtype=np.float64),
+        (truth.width, truth.height), Rts, truth.Rt_ref_cam(),
+        point_ids=np.asarray(target.point_ids()))
     options = {"bias_correction": not args.no_bias_correction}
     if args.known_poses:
         options["known_poses"] = True
