@@ -8,7 +8,9 @@ SYNOPSIS
 Runs campaigns/quick.toml (target <= 20 s) and campaigns/paper.toml (22
 cameras x CAHV/CAHVOR/CAHVORE x 6 poses, jpl/mrcal/opencv; target <= 90 s)
 with the local process executor, each into a fresh run directory (a temporary
-one unless --keep), without the report. Prints the wall time against the
+one unless --keep), without the report. First one small job runs in this
+process (unless --cold) so that the renderer's compiled kernels are cached
+and the workers load them instead of compiling. Prints the wall time against the
 target, the time summed per stage (poses, render, detect, calibrate per
 calibrator, compare; these are CPU-side seconds summed over the workers, so
 they can exceed the wall time), the number of images, and the record counts.
@@ -54,6 +56,19 @@ def stage_seconds(records):
     return out, images
 
 
+def warm_up():
+    r'''Run the smallest quick job once in this process: compiles (and caches) the renderer's
+numba kernels and imports every stage, so the timed runs measure the work, not the JIT'''
+    from harness.campaign import load_campaign
+    from harness.runner import expand_jobs, run_job
+    campaign = load_campaign(ROOT / "campaigns" / "quick.toml")
+    job = min(expand_jobs(campaign), key=lambda j: (j.cost, j.key))
+    t0 = time.perf_counter()
+    out = run_job(job)
+    return {"job": job.key, "seconds": time.perf_counter() - t0,
+            "statuses": [r["status"] for r in out["records"]]}
+
+
 def bench(name, workers, keep=None):
     from harness.campaign import load_campaign
     from harness.runner import run_campaign
@@ -81,8 +96,14 @@ def main(argv=None):
     ap.add_argument("-j", "--jobs", type=int, default=os.cpu_count())
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "campaign.json"))
     ap.add_argument("--keep", metavar="DIR", help="keep the run directories under DIR")
+    ap.add_argument("--cold", action="store_true",
+                    help="no warm-up job: include the numba compilation in the times")
     args = ap.parse_args(argv)
     names = [args.only] if args.only else ["quick", "paper"]
+    warm = None
+    if not args.cold:
+        warm = warm_up()
+        print(f"warm-up: {warm['job']} in {warm['seconds']:.1f} s ({warm['statuses']})")
     results = []
     for name in names:
         r = bench(name, args.jobs, args.keep)
@@ -96,7 +117,7 @@ def main(argv=None):
     doc = {"benchmark": "bench_campaign", "utc": datetime.now(UTC).isoformat(),
            "machine": {"node": platform.node(), "cpus": os.cpu_count(),
                        "python": platform.python_version()},
-           "results": results}
+           "warm_up": warm, "results": results}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=1) + "\n")
     print(f"\nwrote {args.out}")
