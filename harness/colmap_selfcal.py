@@ -128,7 +128,8 @@ convention), registered images, points, mean reprojection error
 
 
 def target_based(camera, colmap_model, spp=8, n_poses=6):
-    r'''The same COLMAP model calibrated on the dot board (campaign runner stages)'''
+    r'''The same COLMAP model calibrated on the dot board (campaign runner stages),
+at the camera's native size'''
     from harness import runner
     job = runner.Job(key="selfcal-target", camera=str(camera), camera_key=str(camera),
                      family="CAHVORE", target="dots", renderer="raycast", settings={},
@@ -155,7 +156,7 @@ def target_based(camera, colmap_model, spp=8, n_poses=6):
 def run_selfcal(camera=15, colmap_model=None, n_images=10, step_m=0.25, spp=2,
                 camera_height_m=None, look_range_m=5.0, yaw_deg=15.0, pitch_deg=6.0,
                 relief_m=0.5, refine_principal_point=False, workdir="selfcal", seed=0,
-                with_target=True, progress=None):
+                with_target=True, scale=1.0, progress=None):
     r'''Render the sequence, self-calibrate with COLMAP, compare (see the module docstring)'''
     import cv2
 
@@ -166,6 +167,9 @@ def run_selfcal(camera=15, colmap_model=None, n_images=10, step_m=0.25, spp=2,
     say = progress or (lambda s: None)
     entry = load_catalogue().get(camera)
     truth = entry.model
+    if scale != 1.0:
+        from harness.stereo import scale_model
+        truth = scale_model(truth, scale)
     colmap_model = colmap_model or closest_colmap_model(truth)
     h = camera_height_m if camera_height_m is not None else default_geometry(entry.role)[0]
     workdir = Path(workdir)
@@ -199,6 +203,7 @@ def run_selfcal(camera=15, colmap_model=None, n_images=10, step_m=0.25, spp=2,
            "yaw_deg": yaw_deg, "pitch_deg": pitch_deg, "relief_m": relief_m,
            "refine_principal_point": refine_principal_point,
            "render_seconds": t_render, "terrain": terrain.as_dict(), "selfcal": sc}
+    out["scale"] = scale
     if with_target:
         say("target-based COLMAP calibration on the dot board")
         out["target"] = target_based(camera, colmap_model)

@@ -29,7 +29,11 @@ order of STAGE_ORDER, whatever the order of the keys:
     charge:   shot_noise -> dark_current -> hot_pixels / dead_pixels -> saturation
     readout:  read_noise -> quantise
 
-and the result is clipped to [0,1] (the analogue-to-digital range). The noise
+and the result is clipped to [0,1] (the analogue-to-digital range). The
+conversion gain is implied: with quantise.bits = b, one DN is
+full_well_e / (2^b - 1) electrons (e.g. 20000 e- and 12 bits: 4.88 e-/DN);
+global_gain scales the signal before the charge stages (exposure or analogue
+gain), so its noise is that of the amplified signal. The noise
 stages draw from one numpy Generator seeded by `seed` (override per image with
 apply(..., seed=)); the hot/dead pixel positions come from their own
 `pattern_seed`, so they stay fixed from image to image like a real sensor's.
