@@ -349,7 +349,6 @@ def run_job(job):
 
 Never raises for a failing stage: the records say which stage failed and why.
 '''
-    import numpy as np
     entry = None
     seconds = {}
     try:
@@ -384,43 +383,53 @@ Never raises for a failing stage: the records say which stage failed and why.
             entry=entry, seconds=seconds)}
 
     render_info = render_summary([r.metadata for r in renders])
+    ctx = dict(obs=obs, target=target, truth=truth, entry=entry, seconds=seconds,
+               detections=detections, artifacts=artifacts, rversion=rversion,
+               render_info=render_info)
     records = []
     for cal, model, options in job.calibrators:
-        res = calibrate_stage(cal, obs, target, model, truth, options)
-        sec = dict(seconds, calibrate=float(res.seconds))
-        versions = {"renderer": _named_version(job.renderer, rversion),
-                    "calibrator": _named_version(res.library, res.library_version)}
-        info = {"iterations": int(res.iterations), "render": render_info}
-        if res.status != "ok":
-            records.append(_record(job, cal, model, entry, status=res.status,
-                                   stage="calibrate", reason=res.reason or "(no reason given)",
-                                   residuals=res.residual_stats(), seconds=sec,
-                                   detections=detections, artifacts=artifacts,
-                                   versions=versions, info=info))
-            continue
-        t0 = time.perf_counter()
         try:
-            params, projection, themap = compare_stage(truth, res)
-        except Exception as e:
-            sec["compare"] = time.perf_counter() - t0
-            records.append(_record(job, cal, model, entry, status="failed", stage="compare",
-                                   reason=_reason(e), residuals=res.residual_stats(),
-                                   seconds=sec, detections=detections, artifacts=artifacts,
-                                   versions=versions, info=info))
-            continue
-        sec["compare"] = time.perf_counter() - t0
-        arts = dict(artifacts)
-        if job.keep_maps and job.run_dir and themap is not None:
-            rel = Path("maps") / (_slug(job.fullname(cal, model)) + ".npy")
-            path = Path(job.run_dir) / rel
-            path.parent.mkdir(parents=True, exist_ok=True)
-            np.save(path, _downsample(themap).astype(np.float32))
-            arts["map"] = str(rel)
-        records.append(_record(job, cal, model, entry, status="ok",
-                               residuals=res.residual_stats(), params=params,
-                               projection=projection, seconds=sec, detections=detections,
-                               artifacts=arts, versions=versions, info=info))
+            records.append(_calibrator_record(job, cal, model, options, **ctx))
+        except Exception as e:  # a bug after the calibrator ran: this record only
+            tb = traceback.extract_tb(e.__traceback__)[-1]
+            records.append(_record(job, cal, model, entry, status="failed", stage="internal",
+                                   reason=f"{_reason(e)} ({Path(tb.filename).name}:"
+                                          f"{tb.lineno})", seconds=dict(seconds),
+                                   detections=detections, artifacts=artifacts))
     return {"job": job.key, "records": records}
+
+
+def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, seconds,
+                       detections, artifacts, rversion, render_info):
+    r'''Calibrate, compare, keep the map -> one record dict'''
+    import numpy as np
+    res = calibrate_stage(cal, obs, target, model, truth, options)
+    sec = dict(seconds, calibrate=float(res.seconds))
+    common = dict(residuals=res.residual_stats(), seconds=sec, detections=detections,
+                  versions={"renderer": _named_version(job.renderer, rversion),
+                            "calibrator": _named_version(res.library, res.library_version)},
+                  info={"iterations": int(res.iterations), "render": render_info})
+    if res.status != "ok":
+        return _record(job, cal, model, entry, status=res.status, stage="calibrate",
+                       reason=res.reason or "(no reason given)", artifacts=artifacts,
+                       **common)
+    t0 = time.perf_counter()
+    try:
+        params, projection, themap = compare_stage(truth, res)
+    except Exception as e:
+        sec["compare"] = time.perf_counter() - t0
+        return _record(job, cal, model, entry, status="failed", stage="compare",
+                       reason=_reason(e), artifacts=artifacts, **common)
+    sec["compare"] = time.perf_counter() - t0
+    arts = dict(artifacts)
+    if job.keep_maps and job.run_dir and themap is not None:
+        rel = Path("maps") / (_slug(job.fullname(cal, model)) + ".npy")
+        path = Path(job.run_dir) / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.save(path, _downsample(themap).astype(np.float32))
+        arts["map"] = str(rel)
+    return _record(job, cal, model, entry, status="ok", params=params, projection=projection,
+                   artifacts=arts, **common)
 
 
 # renderer metadata that depends only on the job (not on caches, threads or timing)
