@@ -44,8 +44,10 @@ LEAF_SAMPLES = 4
 FOOTPRINT_SAFETY = 0.01
 # a pixel whose footprint is this far from affine is supersampled outright
 MAX_NONLINEARITY = 0.25
+# ... and subsamples are predicted (not traced) only where it is closer to affine than this
+PREDICT_NONLINEARITY = 0.05
 # blocks of pixels are split down to this size before pixels are tested one by one
-MIN_BLOCK = 4
+MIN_BLOCK = 2
 # footprints wider than this many buckets are not looked up (they are split)
 MAX_BUCKET_SPAN = 4.0
 
@@ -560,6 +562,59 @@ without tracing its subsamples."""
 
 
 @njit(cache=True, error_model="numpy")
+def _supersample_predicted(cam, xf, ix, iy, K, offs, counts, stack, jac, values, pat):
+    r"""The value of pixel (ix, iy) from its K x K subsamples, tracing only those whose
+board point cannot be told from its prediction; returns (value, rays)
+
+Where the pixel's footprint is affine to within jac[4] (the bound on the
+quadratic part over the pixel), the board point of the subsample at offset d
+from the pixel centre is P(d) = jac[5:7] + J d within
+e = jac[4] + FOOTPRINT_SAFETY * (footprint radius): the centre's point is an
+exact ray's, J comes from the neighbours' exact rays. Blocks of subsamples
+(split into quadrants) whose predicted points keep farther than e (plus the
+block's own radius) from every edge count towards the material there; the
+subsamples closer than e to an edge are traced."""
+    px = jac[5]
+    py = jac[6]
+    e = jac[7]
+    warm = (math.nan, 0.0, 0.0, 0.0)
+    have_warm = False
+    nrays = 0
+    nst = _push_quadrants(stack, 0, 0, K, 0, K)
+    while nst > 0:
+        nst -= 1
+        i0 = stack[nst, 0]
+        i1 = stack[nst, 1]
+        j0 = stack[nst, 2]
+        j1 = stack[nst, 3]
+        cx = 0.5 * (offs[i0] + offs[i1 - 1])
+        cy = 0.5 * (offs[j0] + offs[j1 - 1])
+        wx = 0.5 * (offs[i1 - 1] - offs[i0])
+        wy = 0.5 * (offs[j1 - 1] - offs[j0])
+        bx = px + cx * jac[0] + cy * jac[2]
+        by = py + cx * jac[1] + cy * jac[3]
+        ex = wx * jac[0] + wy * jac[2]
+        ey = wx * jac[1] + wy * jac[3]
+        fx = wx * jac[0] - wy * jac[2]
+        fy = wx * jac[1] - wy * jac[3]
+        rb = max(math.sqrt(ex * ex + ey * ey), math.sqrt(fx * fx + fy * fy)) + e
+        clear, m = _classify(bx, by, rb, pat)
+        n = (i1 - i0) * (j1 - j0)
+        if clear:
+            counts[m] += n
+        elif n == 1:
+            if not have_warm:
+                warm = warm_start(cam, ix, iy)
+                have_warm = True
+                nrays += 1
+            counts[_sample(cam, xf, ix + offs[i0], iy + offs[j0], warm, pat)] += 1
+            nrays += 1
+        else:
+            nst = _push_quadrants(stack, nst, i0, i1, j0, j1)
+    return _pixel_value(counts, values, float(K * K)), nrays
+
+
+@njit(cache=True, error_model="numpy")
 def _block_uniform(hx, hy, hok, k0, k1, c0, c1, pat):
     r"""(uniform, material) of the block of pixels whose ring of neighbouring pixel
 centres is band rows k0, k1 and band columns c0, c1
@@ -656,13 +711,20 @@ def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, ja
         clear, m = _classify(px, py, r, pat)
         if clear:
             return values[m], 0, 0
+        if quad <= PREDICT_NONLINEARITY * lin and K * K > 1:
+            jac[5] = px
+            jac[6] = py
+            jac[7] = quad + FOOTPRINT_SAFETY * lin + 1e-12 * (1.0 + abs(px) + abs(py))
+            v, n = _supersample_predicted(cam, xf, ix, iy, K, offs, counts, stack, jac, values,
+                                          pat)
+            return v, n, 1
     v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, affine, jac, values, pat)
     return v, n, 1
 
 
 @njit(cache=True, error_model="numpy")
 def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values, out,
-                 stats, pat):
+                 stats, pat, qbox):
     H, W = out.shape
     nk = r1 - r0 + 2
     # board points of the centre rays of image rows r0-1 .. r1 (band row k = iy - r0 + 1)
@@ -672,9 +734,20 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
     hok = np.zeros((nk, W + 2), dtype=np.int64)
     rect = pat[0]
     nboard = 0
+    # adaptive: only the tiles that meet the image of the board need their rays
+    g0 = 0
+    g1 = W + 2
+    if adaptive:
+        if r1 - 0.5 < qbox[2] or r0 - 0.5 > qbox[3]:
+            g1 = 0
+        else:
+            ta = math.floor((min(max(qbox[0], -1.0), W + 1.0) + 0.5) / T)
+            tb = math.floor((min(max(qbox[1], -1.0), W + 1.0) + 0.5) / T) + 1
+            g0 = max(0, int(ta) * T)
+            g1 = min(W, int(tb) * T) + 2
     for k in range(nk):
         gy = r0 + k
-        for gx in range(W + 2):
+        for gx in range(g0, g1):
             s = shift[gy, gx] if noncentral else 0.0
             ok, x, y = _hit(xf, s, dirs[gy, gx, 0], dirs[gy, gx, 1], dirs[gy, gx, 2])
             hok[k, gx] = ok
@@ -690,7 +763,7 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
         offs[i] = (i + 0.5) / K - 0.5
     stack = np.empty((4 * (int(math.log2(K)) + 3), 4), dtype=np.int64)
     blocks = np.empty((4 * (int(math.log2(T)) + 3), 4), dtype=np.int64)
-    jac = np.zeros(5)
+    jac = np.zeros(8)
     nrays = 0
     nsuper = 0
     nblocks = 0
@@ -715,8 +788,13 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
             yb = blocks[nb, 1]
             xa = blocks[nb, 2]
             xb = blocks[nb, 3]
-            uniform, m = _block_uniform(hx, hy, hok, ya - r0, yb - r0 + 1, xa, xb + 1, pat)
-            nblocks += 1
+            if (xb - 0.5 < qbox[0] or xa - 0.5 > qbox[1]
+                    or yb - 0.5 < qbox[2] or ya - 0.5 > qbox[3]):
+                # the block lies outside the image of the board
+                uniform, m = True, pat[1][0]
+            else:
+                uniform, m = _block_uniform(hx, hy, hok, ya - r0, yb - r0 + 1, xa, xb + 1, pat)
+                nblocks += 1
             if uniform:
                 v = values[m]
                 for iy in range(ya, yb):
@@ -742,15 +820,18 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive, T, values, out, stats, pat):
+def render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive, T, values, out, stats, pat,
+                  qbox):
     r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
 
 stats (Nbands,5) receives per band: rays traced, supersampled pixels, pixels
-whose centre ray sees the board, blocks of pixels tested, pixels tested."""
+whose centre ray sees the board, blocks of pixels tested, pixels tested.
+qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
+not known); adaptive mode fills the pixels outside with the background."""
     H = out.shape[0]
     for b in prange(stats.shape[0]):
         r0 = b * T
         r1 = min(H, r0 + T)
         if r1 > r0:
             _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values,
-                         out, stats[b], pat)
+                         out, stats[b], pat, qbox)

@@ -53,6 +53,8 @@ DEFAULT_CACHE_BYTES = 1 << 30
 # the image is rendered in tiles of TILE x TILE pixels; a tile far from every edge is
 # filled without looking at its pixels
 TILE = 16
+# the image of the board is taken to lie within this many pixels of its projected outline
+BOX_MARGIN_PX = 2.0
 MAX_BUCKETS = 1 << 22
 
 
@@ -254,6 +256,47 @@ SYNOPSIS
     return mrcal.invert_Rt(mrcal.compose_Rt(model.Rt_ref_cam(), _check_pose(Rt_cam_board)))
 
 
+def board_image_box(model, Rt_cam_board, rect, margin_px=BOX_MARGIN_PX):
+    r'''A box (xmin, xmax, ymin, ymax) in the image that holds the image of the board
+
+SYNOPSIS
+
+    qbox = board_image_box(model, Rt_cam_board, (xmin, xmax, ymin, ymax))   # (4,)
+
+The board rectangle's outline is projected, densely enough that neighbouring
+projected points lie within 1 px; the image of the board is the region this
+closed curve bounds, so it lies in the curve's bounding box (grown by
+margin_px). When any outline point does not project (behind the camera, out
+of the model's domain) or the outline turns out not to be simple, the box is
+the whole plane (+-inf): nothing is known.
+'''
+    import mrcal
+    unknown = np.array([-np.inf, np.inf, -np.inf, np.inf])
+    Rt_ref_board = mrcal.compose_Rt(model.Rt_ref_cam(), np.asarray(Rt_cam_board, float))
+    xmin, xmax, ymin, ymax = (float(v) for v in rect)
+    n = 64
+    while True:
+        s = np.arange(n) / n
+        xy = np.concatenate((
+            np.stack((xmin + s * (xmax - xmin), np.full(n, ymin)), -1),
+            np.stack((np.full(n, xmax), ymin + s * (ymax - ymin)), -1),
+            np.stack((xmax - s * (xmax - xmin), np.full(n, ymax)), -1),
+            np.stack((np.full(n, xmin), ymax - s * (ymax - ymin)), -1)))
+        p = np.concatenate((xy, np.zeros((len(xy), 1))), -1)
+        q = model.project(mrcal.transform_point_Rt(Rt_ref_board, p))
+        if not np.all(np.isfinite(q)):
+            return unknown
+        step = np.linalg.norm(np.diff(np.concatenate((q, q[:1])), axis=0), axis=-1).max()
+        if step <= 1.0:
+            break
+        if n >= 1 << 14:
+            return unknown
+        n *= 2
+    lo = q.min(axis=0) - margin_px
+    hi = q.max(axis=0) + margin_px
+    return np.array([lo[0], hi[0], lo[1], hi[1]])
+
+
 class RaycastRenderer:
     r'''The embedded exact ray-cast renderer (see the module docstring)
 
@@ -371,8 +414,9 @@ ray_cache ("cold" or "warm"), ray_cache_seconds.
         H, W = model.height, model.width
         out = np.empty((H, W), dtype=np.float32)
         stats = np.zeros((-(-H // TILE), 5), dtype=np.int64)
+        qbox = board_image_box(model, Rt_cam_board, cp.f[:4])
         kern.render_kernel(cam, dirs, shift, noncentral, xf, K, bool(settings.adaptive), TILE,
-                           cp.values, out, stats, cp.kernel_args())
+                           cp.values, out, stats, cp.kernel_args(), qbox)
         if not np.all(np.isfinite(out)):
             raise RendererError("the ray-cast renderer produced non-finite pixels (a bug)")
         total = stats.sum(axis=0)
