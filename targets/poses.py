@@ -161,25 +161,34 @@ class _Planner:
         return hi if hi <= self.max_range else None
 
     def push(self, q_centre, corner, d, tilt, azimuth, roll):
-        r'''Move the board's anchor from the image centre towards an image corner, along x
-then y (twice), as far as it still fits: the board ends touching both edges'''
-        s = np.zeros(2)
+        r'''Move the board's anchor from the image centre towards an image corner as far as
+it still fits: x, y, x or y, x, y, whichever gets further towards the corner (which
+order a fisheye's bulging edges allow depends on the image's shape); the board ends
+touching both edges'''
         span = np.asarray(corner, dtype=np.float64) - q_centre
 
         def ok(s):
             return self.fits(self.pose(q_centre + s * span, d, tilt, azimuth, roll))
 
-        for _ in range(2):
-            for k in (0, 1):
-                lo, hi = s[k], 1.0
-                trial = s.copy()
-                for _ in range(14):
-                    trial[k] = 0.5 * (lo + hi)
-                    if ok(trial):
-                        lo = trial[k]
-                    else:
-                        hi = trial[k]
-                s[k] = lo
+        def bisect(s, direction):
+            lo, hi = 0.0, float(np.min((1.0 - s)[direction > 0] / direction[direction > 0]))
+            for _ in range(10):
+                mid = 0.5 * (lo + hi)
+                if ok(s + mid * direction):
+                    lo = mid
+                else:
+                    hi = mid
+            return s + lo * direction
+
+        ex, ey = np.array([1.0, 0.0]), np.array([0.0, 1.0])
+        best = None
+        for order in ((ex, ey, ex), (ey, ex, ey)):
+            s = np.zeros(2)
+            for direction in order:
+                s = bisect(s, direction)
+            if best is None or s.sum() > best.sum():
+                best = s
+        s = best
         return q_centre + s * span
 
 
