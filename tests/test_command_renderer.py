@@ -123,3 +123,24 @@ def test_bad_construction():
         CommandRenderer(command=["no-such-renderer-program"])
     with pytest.raises(RendererError, match="output format"):
         CommandRenderer(command=[sys.executable], output_format="exr")
+
+
+@pytest.mark.slow
+def test_external_example_gives_the_same_records_as_the_built_in_adapter(tmp_path):
+    from harness.campaign import parse_campaign
+    from harness.runner import run_campaign
+
+    def record(renderer, where):
+        doc = {"name": "same-records", "cameras": [17], "models": ["CAHV"],
+               "targets": ["dots"], "poses": {"n": 3, "seed": 0},
+               "renderer": [dict(renderer, spp=4)], "calibrator": [{"name": "jpl"}]}
+        run = run_campaign(parse_campaign(doc), tmp_path / where, progress=False, workers=1)
+        (r,) = run["records"].values()
+        return r
+
+    ext = record({"name": "command", "options": {"command": EXAMPLE, "output_format": "npy"}},
+                 "command")
+    ref = record({"name": "raycast"}, "raycast")
+    assert ext["status"] == "ok", ext.get("reason")
+    for field in ("status", "params", "projection", "residuals", "detections"):
+        assert ext[field] == ref[field], field

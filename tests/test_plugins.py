@@ -75,3 +75,31 @@ def test_without_the_plugin_the_name_is_unknown():
     assert "wrapped_raycast" not in known_renderers()
     with pytest.raises(UnknownRendererError, match="known renderers: .*raycast"):
         get_renderer("wrapped_raycast")
+
+
+SAME_FIELDS = ("status", "params", "projection", "residuals", "detections")
+
+
+def campaign_records(renderer):
+    import tempfile
+
+    from harness.campaign import parse_campaign
+    from harness.runner import run_campaign
+
+    doc = {"name": "same-records", "cameras": [17], "models": ["CAHV"], "targets": ["dots"],
+           "poses": {"n": 3, "seed": 0}, "renderer": [dict(renderer, spp=4)],
+           "calibrator": [{"name": "jpl"}]}
+    run = run_campaign(parse_campaign(doc), tempfile.mkdtemp(prefix="camval-test-"),
+                       progress=False, workers=1)
+    (record,) = run["records"].values()
+    return record
+
+
+@pytest.mark.slow
+def test_plugin_gives_the_same_records_as_the_built_in_adapter(plugin_on_path):
+    a = campaign_records({"name": "wrapped_raycast"})
+    b = campaign_records({"name": "raycast"})
+    assert a["status"] == "ok"
+    assert a["fullname"] != b["fullname"]
+    for field in SAME_FIELDS:
+        assert a[field] == b[field], field
