@@ -185,3 +185,17 @@ def test_pattern_albedo_of_non_finite_points_is_background():
         pat = load_target(name).pattern()
         a = pat.albedo(np.array([np.nan, np.inf, -np.inf, 1e300]), np.array([0.0, 0.0, 0, 0]))
         assert np.all(a == pat.background_value)
+
+
+@pytest.mark.parametrize("name", ["dots", "apriltag", "chessboard"])
+def test_as_dict_spec_rebuilds_the_target(name):
+    import json
+    t = load_target(name)
+    spec = json.loads(json.dumps(t.as_dict()))["spec"]
+    u = target_from_dict(spec, source="sidecar.json")
+    assert np.array_equal(u.points(), t.points()) and np.array_equal(u.point_ids(), t.point_ids())
+    assert u.extent == t.extent and u.kind == t.kind and u.name == t.name
+    x = np.linspace(t.extent[0], t.extent[1], 97)
+    y = np.linspace(t.extent[2], t.extent[3], 89)
+    X, Y = np.meshgrid(x, y)
+    assert np.array_equal(u.pattern().albedo(X, Y), t.pattern().albedo(X, Y))
