@@ -57,6 +57,8 @@ MODELS = ("CAHV", "CAHVOR", "CAHVORE", "OPENCV8", "SPLINED")
 SPLINED_NX, SPLINED_NY = 16, 12
 # an RMS residual below this (px) is an exact fit: no second start is tried
 EXACT_RMS = 1e-7
+# restarts of mrcal.optimize continue while each gains more than 0.1% in RMS
+POLISH_GAIN = 0.999
 
 
 def library_version():
@@ -177,7 +179,7 @@ def _Rt_board_grid(origin):
 
 def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
         bias_passes=4, bias_tolerance=1e-5, regularization=None, max_rms=1.0,
-        linearity=None, max_restarts=15):
+        linearity=None, max_restarts=25):
     r'''The mrcal calibrator (see the module docstring); returns a CalibrationResult'''
     import mrcal
 
@@ -285,12 +287,14 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     def polish():
         # mrcal's solver stops early in flat valleys (narrow lenses: focal length vs range;
         # R0 vs focal length); restarting it keeps making progress. Stop when a restart gains
-        # less than 10% in RMS or after max_restarts.
+        # less than 0.1% in RMS or after max_restarts. A CAHVOR truth with theta != 90 is
+        # reached this way: mrcal absorbs the skew through the R0 gauge (R0 -> -0.94 for a
+        # MER hazcam, theta 90.018 deg), exactly, after ~20 restarts.
         rms_prev = math.inf
         for _ in range(max_restarts):
             solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
             r = problem_rms()
-            if r < 1e-10 or r > 0.99 * rms_prev:
+            if r < 1e-10 or r > POLISH_GAIN * rms_prev:
                 break
             rms_prev = r
 
