@@ -2,42 +2,24 @@
 
 import json
 
-import cv2
-import numpy as np
 import pytest
 
-from harness.calibrators.synthetic import catalogue_models, default_target
+from harness.calibrators.synthetic import catalogue_models
 from harness.cli import main
 from reference_models.cahvore import truncate
 from reference_models.jpl_files import read_model
 
 
-def _fields(m):
-    d = {"C": m.C.tolist(), "A": m.A.tolist(), "H": m.H.tolist(), "V": m.V.tolist(),
-         "width": m.width, "height": m.height}
-    if m.family != "CAHV":
-        d.update(O=m.O.tolist(), R=m.R.tolist())
-    return d
-
-
 @pytest.fixture(scope="module")
 def rendered_dir(tmp_path_factory):
-    r'''6 planned poses of the 640x480 Rocky8 hazcam (as CAHVOR), ray-cast K=16, 16-bit PNG,
-with sidecars as `camval render --poses` writes them (model, Rt_cam_board, target)'''
-    from renderers.base import RenderSettings, get_renderer
-    from targets.poses import plan_poses
+    r'''`camval render MODEL --poses DIR`: 6 planned poses of the 640x480 Rocky8 hazcam
+truncated to CAHVOR (ray-cast K=16, 16-bit PNG, JSON sidecars)'''
+    from reference_models.jpl_files import write_model
     d = tmp_path_factory.mktemp("poses")
     truth = truncate(dict(catalogue_models())["17"], "CAHVOR")
-    target = default_target()
-    r = get_renderer("raycast")
-    for i, Rt in enumerate(plan_poses(truth, target, n=6, seed=0)):
-        img = r.render(truth, target.pattern(), Rt, RenderSettings(spp=16)).image
-        cv2.imwrite(str(d / f"pose{i}.png"),
-                    np.round(np.clip(img, 0, 1) * 65535).astype(np.uint16))
-        side = {"model": _fields(truth), "Rt_cam_board": Rt.tolist(), "target": "dots",
-                "points": target.points().tolist()}
-        (d / f"pose{i}.json").write_text(json.dumps(side))
-    return d, truth
+    write_model(truth, d / "truth.cahvor")
+    assert main(["render", str(d / "truth.cahvor"), "--poses", str(d / "poses")]) == 0
+    return d / "poses", truth
 
 
 @pytest.mark.slow
