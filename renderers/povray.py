@@ -25,11 +25,11 @@ Camera paths (option `camera`):
 - "perspective" (the paper's ROAMS path): an oversized pinhole
   (renderers.warp.PinholeWarp) rendered by POV-Ray's perspective camera, then
   warped to the model with cv2.remap (option `interpolation`, bilinear or
-  bicubic). Pixel convention: POV-Ray 3.7 traces pixel (i, j) through the
-  screen point x0 = i/W - 0.5, y0 = 0.5 - j/H (core/render/tracepixel.cpp;
-  the tracer passes integer pixel indices), so its principal point is at
-  (W/2, H/2) in camval's convention, not ((W-1)/2, (H-1)/2): the direction
-  vector is offset to put the pinhole's (cx, cy) where it belongs.
+  bicubic). Pixel convention, measured with POV-Ray 3.7.0.10 (tests): pixel
+  (i, j) is traced through the screen point ((i+0.5)/W - 0.5,
+  0.5 - (j+0.5)/H) of the right/up vectors, so the principal point is
+  ((W-1)/2, (H-1)/2) in camval's convention; the direction vector is offset
+  to put the pinhole's (cx, cy) where it belongs.
   Supersampling K x K: POV-Ray's non-adaptive anti-aliasing forced on every
   pixel (+AM1 +A0.0 -J +R n, n <= 9) samples an n x n grid centred on the
   pixel and averages it with the pixel's centre sample (weights 1/(n^2+1),
@@ -45,6 +45,13 @@ Camera paths (option `camera`):
   Triangles have unit size around the ray origin and vertices are written
   with 17 significant digits: POV-Ray computes the face normal from the
   parsed (double) vertices, so small or rounded triangles tilt the rays.
+  The one-row offset of FINDINGS.md: POV-Ray 3.7.0.10 traces face row j - 1
+  for image row j (columns are right; image row 0 repeats face row 0, the
+  row index being clamped at 0). The adapter probes the offset once per binary (a 2x4 image),
+  renders that many extra rows and drops them; the dot-centroid test pins
+  the result. `mesh2` is written, not mesh{triangle{}}: POV-Ray hashes every
+  vertex of a `mesh` into 1000 buckets (quadratic: 10 minutes for 800k
+  triangles).
 
 A missing `povray` binary raises RendererUnavailableError at construction.
 '''
@@ -67,7 +74,8 @@ CAMERAS = ("perspective", "mesh")
 LAYER_OFFSET = 1e-7
 MAX_AA_DEPTH = 9
 DEFAULT_MAX_MESH_RAYS = 4_500_000
-# POV-Ray 3.7.0's mesh_camera traces face (row j - 1) for image row j: the "one-row offset"
+# POV-Ray 3.7.0.10's mesh_camera traces face row j - 1 for image row j: the "one-row
+# offset" (measured here; probed once per binary by PovrayRenderer.mesh_row_offset())
 MESH_ROW_OFFSET = 1
 INSTALL_HINT = "install Debian package povray (apt-get install povray)"
 
@@ -327,13 +335,53 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
                     "location <0,0,0> direction <0,0,1> }\n")
             f.write(scene_objects(pattern, Rt_cam_board))
 
-        # POV-Ray 3.7.0 shows face row j - 1 in image row j (measured, see MESH_ROW_OFFSET):
-        # render one more row and drop the first
-        img, seconds, nbytes = self._run(workdir, write, W * K, H * K + MESH_ROW_OFFSET, 1,
-                                         threads)
-        img = img[MESH_ROW_OFFSET:]
+        # POV-Ray 3.7.0 shows face row j - 1 in image row j: render one more row and drop
+        # the first (the offset is probed once per binary)
+        off = self.mesh_row_offset()
+        img, seconds, nbytes = self._run(workdir, write, W * K, H * K + off, 1, threads)
+        img = img[off:]
         nbytes += os.path.getsize(rays)
         return box_downsample(img, K), dict(povray_seconds=seconds, finer=K, scene_bytes=nbytes)
+
+    _row_offsets = {}
+
+    def mesh_row_offset(self):
+        r"""Which face row this POV-Ray's mesh_camera traces for image row j: j - offset
+
+Probed with a 2x4 image whose faces of row 0 look at a white box and the
+others away from it; cached per binary. 1 for POV-Ray 3.7.0.10 (Debian 12).
+"""
+        off = self._row_offsets.get(self.binary)
+        if off is not None:
+            return off
+        W, H = 2, 4
+        v = np.tile([0.0, 0.0, -1.0], (W * H, 1))
+        v[:W] = (0.0, 0.0, 1.0)
+        P = mesh_camera_triangles(np.zeros_like(v), v)
+
+        def write(f):
+            f.write("#version 3.7;\nglobal_settings { assumed_gamma 1.0 }\n"
+                    "background { rgb 0 }\n#declare CamvalRays = mesh2 {\n")
+            _write_mesh2(f, P)
+            f.write("}\ncamera { mesh_camera { 1 0 mesh { CamvalRays } } "
+                    "location <0,0,0> direction <0,0,1> }\n"
+                    "box { <-1,-1,1>, <1,1,2> pigment { rgb 1 } finish { ambient 1 diffuse 0 } }\n")
+
+        workdir = tempfile.mkdtemp(prefix="camval-povray-probe-")
+        try:
+            img, _, _ = self._run(workdir, write, W, H + 2, 1, None)
+        finally:
+            shutil.rmtree(workdir, ignore_errors=True)
+        # face row 0 shows in image row `off`; rows above it are clamped to face row 0
+        # (3.7.0.10: rows 0 and 1 are white)
+        white = np.nonzero(img.min(axis=1) > 0.5)[0].tolist()
+        if not white or white[-1] > 2 or white not in ([white[-1]], list(range(white[-1] + 1))):
+            raise RendererError(f"povray mesh_camera probe: face row 0 shows in image rows "
+                                f"{white} of {img.shape[0]}; expected one row, or rows 0..n "
+                                "with n <= 2: this POV-Ray maps mesh faces to pixels in an "
+                                "unknown way")
+        off = self._row_offsets[self.binary] = white[-1]
+        return off
 
     def _mesh_include(self, model, K, path):
         r"""Write (or link from the per-renderer cache) the camera mesh declaring CamvalRays
