@@ -63,3 +63,20 @@ def test_bad_input_exits_2(tmp_path, capsys):
     assert "is not a directory" in capsys.readouterr().err
     assert main(["calibrate", str(tmp_path)]) == 2
     assert "no poseN.png + poseN.json pairs" in capsys.readouterr().err
+
+
+def test_a_model_the_calibrator_cannot_fit_exits_2(tmp_path, capsys):
+    import json
+
+    import numpy as np
+
+    from renderers.png import save_png16
+    truth = dict(catalogue_models())["15"]
+    save_png16(tmp_path / "pose0.png", np.zeros((truth.height, truth.width), np.float32))
+    side = {"model": {"C": truth.C.tolist(), "A": truth.A.tolist(), "H": truth.H.tolist(),
+                      "V": truth.V.tolist(), "O": truth.O.tolist(), "R": truth.R.tolist(),
+                      "width": truth.width, "height": truth.height},
+            "Rt_cam_board": np.vstack((np.eye(3), [0, 0, 2.0])).tolist(), "target": "dots"}
+    (tmp_path / "pose0.json").write_text(json.dumps(side))
+    assert main(["calibrate", str(tmp_path), "--calibrator", "opencv", "--model", "CAHVOR"]) == 2
+    assert "calibrator opencv cannot fit 'CAHVOR'" in capsys.readouterr().err

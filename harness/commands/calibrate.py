@@ -142,7 +142,7 @@ def run(args):
 
     import numpy as np
 
-    from harness.calibrators import calibrate, models_of
+    from harness.calibrators import calibrate, calibrator_module, models_of
     from harness.calibrators.base import Observations, jsonable
     from harness.compare import compare
     from reference_models.errors import CamvalError
@@ -154,8 +154,8 @@ def run(args):
     truth = _model_from_sidecar(*sides[0])
     target = _target_from_sidecar(*sides[0])
     model_name = args.model or DEFAULT_MODEL.get(args.calibrator, truth.family)
-    if model_name.upper() not in models_of(args.calibrator) and \
-            not model_name.upper().startswith("LENSMODEL_"):
+    canonical = getattr(calibrator_module(args.calibrator), "canonical_model", str.upper)
+    if canonical(model_name) not in models_of(args.calibrator):
         raise CamvalError(f"calibrator {args.calibrator} cannot fit {model_name!r}; it fits "
                           f"{', '.join(models_of(args.calibrator))}")
     out = Path(args.output) if args.output else d / f"calibration-{args.calibrator}-{model_name}"
