@@ -155,7 +155,7 @@ at the camera's native size'''
 
 def run_selfcal(camera=15, colmap_model=None, n_images=10, step_m=0.25, spp=2,
                 camera_height_m=None, look_range_m=5.0, yaw_deg=15.0, pitch_deg=6.0,
-                relief_m=0.5, refine_principal_point=False, workdir="selfcal", seed=0,
+                relief_m=0.5, refine_principal_point=True, workdir="selfcal", seed=0,
                 with_target=True, scale=1.0, progress=None):
     r'''Render the sequence, self-calibrate with COLMAP, compare (see the module docstring)'''
     import cv2
@@ -220,13 +220,14 @@ def main(argv=None):
     ap.add_argument("--spp", type=int, default=2)
     ap.add_argument("--relief", type=float, default=0.5, help="terrain relief std, m")
     ap.add_argument("--yaw", type=float, default=15.0, help="mast yaw amplitude, deg")
-    ap.add_argument("--refine-principal-point", action="store_true")
+    ap.add_argument("--fix-principal-point", action="store_true",
+                    help="keep the principal point at the image centre (COLMAP's default)")
     ap.add_argument("-o", "--out", default="selfcal")
     ap.add_argument("--no-target", action="store_true")
     a = ap.parse_args(argv)
     r = run_selfcal(a.camera, a.colmap_model, n_images=a.images, spp=a.spp, workdir=a.out,
                     relief_m=a.relief, yaw_deg=a.yaw,
-                    refine_principal_point=a.refine_principal_point,
+                    refine_principal_point=not a.fix_principal_point,
                     with_target=not a.no_target, progress=lambda s: print(f"  {s}", flush=True))
     Path(a.out, "selfcal.json").write_text(json.dumps(r, indent=1, allow_nan=False))
     for k in ("selfcal", "target"):
