@@ -71,9 +71,14 @@ def run(args):
         run_dir = Path(args.out) if args.out else Path("runs") / utc_stamp()
     entries = campaign.validate()
     print(f"camval verify: campaign {campaign.name!r} -> {run_dir}", file=sys.stderr)
-    doc = run_campaign(campaign, run_dir, executor=args.executor, workers=args.jobs,
-                       scheduler=args.scheduler, resume=bool(args.resume),
-                       progress=not args.quiet, entries=entries)
+    try:
+        doc = run_campaign(campaign, run_dir, executor=args.executor, workers=args.jobs,
+                           scheduler=args.scheduler, resume=bool(args.resume),
+                           progress=not args.quiet, entries=entries)
+    except KeyboardInterrupt:
+        print(f"camval verify: interrupted; the finished jobs are kept: resume with "
+              f"camval verify --resume {run_dir}", file=sys.stderr)
+        return 130
     counts = {}
     for r in doc["records"].values():
         counts[r["status"]] = counts.get(r["status"], 0) + 1
