@@ -46,6 +46,8 @@ FOOTPRINT_SAFETY = 0.01
 MAX_NONLINEARITY = 0.25
 # ... and subsamples are predicted (not traced) only where it is closer to affine than this
 PREDICT_NONLINEARITY = 0.05
+# circles an edge pixel is classified against directly
+MAX_LOCAL_CIRCLES = 8
 # blocks of pixels are split down to this size before pixels are tested one by one
 MIN_BLOCK = 2
 # footprints wider than this many buckets are not looked up (they are split)
@@ -562,7 +564,73 @@ without tracing its subsamples."""
 
 
 @njit(cache=True, error_model="numpy")
-def _supersample_predicted(cam, xf, ix, iy, K, offs, counts, stack, jac, values, pat):
+def _local_circles(x, y, R, cand, pat):
+    r"""(ncand, base): the circles whose outline lies within R of (x, y), into cand, and
+the material of the disc of radius R apart from them; ncand = -1 when the disc
+meets another edge (board rectangle, cells) or too many circles"""
+    f, ii = pat
+    if f[F_CELLS + 2] > 0.0:
+        return -1, 0
+    if not (x >= f[0] and x < f[1] and y >= f[2] and y < f[3]):
+        return -1, 0
+    if min(min(x - f[0], f[1] - x), min(y - f[2], f[3] - y)) <= R:
+        return -1, 0
+    base = ii[1]
+    nbx = f[F_BUCKETS + 4]
+    if nbx <= 0.0:
+        return 0, base
+    inv = f[F_BUCKETS + 3]
+    if 2.0 * R * inv > MAX_BUCKET_SPAN:
+        return -1, 0
+    bx0 = int(max(math.floor((x - R - f[F_BUCKETS]) * inv), 0.0))
+    bx1 = int(min(math.floor((x + R - f[F_BUCKETS]) * inv), nbx - 1.0))
+    by0 = int(max(math.floor((y - R - f[F_BUCKETS + 1]) * inv), 0.0))
+    by1 = int(min(math.floor((y + R - f[F_BUCKETS + 1]) * inv), f[F_BUCKETS + 5] - 1.0))
+    start = ii[I_OFFSETS + 2]
+    items = ii[I_OFFSETS + 3]
+    n = 0
+    for jy in range(by0, by1 + 1):
+        for jx in range(bx0, bx1 + 1):
+            b = start + jy * int(nbx) + jx
+            for k in range(ii[b], ii[b + 1]):
+                c = ii[items + k]
+                dx = x - f[F_CIRCLES + 3 * c]
+                dy = y - f[F_CIRCLES + 3 * c + 1]
+                rc = f[F_CIRCLES + 3 * c + 2]
+                d = math.sqrt(dx * dx + dy * dy)
+                if abs(d - rc) <= R:
+                    # a circle listed in two buckets is listed here twice: harmless
+                    if n == cand.shape[0]:
+                        return -1, 0
+                    cand[n] = c
+                    n += 1
+                elif d < rc:
+                    base = ii[2]
+    return n, base
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _classify_local(x, y, r, cand, ncand, base, pat):
+    r"""_classify() against the circles of _local_circles() alone"""
+    f, ii = pat
+    m = base
+    for k in range(ncand):
+        c = F_CIRCLES + 3 * cand[k]
+        dx = x - f[c]
+        dy = y - f[c + 1]
+        d2 = dx * dx + dy * dy
+        rc = f[c + 2]
+        hi = rc + r
+        lo = rc - r
+        if d2 <= hi * hi and (lo <= 0.0 or d2 >= lo * lo):
+            return False, 0
+        if d2 <= rc * rc:
+            m = ii[2]
+    return True, m
+
+
+@njit(cache=True, error_model="numpy")
+def _supersample_predicted(cam, xf, ix, iy, K, offs, counts, stack, jac, cand, values, pat):
     r"""The value of pixel (ix, iy) from its K x K subsamples, tracing only those whose
 board point cannot be told from its prediction; returns (value, rays)
 
@@ -580,6 +648,10 @@ subsamples closer than e to an edge are traced."""
     warm = (math.nan, 0.0, 0.0, 0.0)
     have_warm = False
     nrays = 0
+    # the circles whose outline comes within the pixel's footprint (radius jac[8]) of
+    # the centre: where they are the only edges there, blocks are classified against
+    # them alone
+    ncand, base = _local_circles(px, py, jac[8], cand, pat)
     nst = _push_quadrants(stack, 0, 0, K, 0, K)
     while nst > 0:
         nst -= 1
@@ -598,7 +670,10 @@ subsamples closer than e to an edge are traced."""
         fx = wx * jac[0] - wy * jac[2]
         fy = wx * jac[1] - wy * jac[3]
         rb = max(math.sqrt(ex * ex + ey * ey), math.sqrt(fx * fx + fy * fy)) + e
-        clear, m = _classify(bx, by, rb, pat)
+        if ncand >= 0:
+            clear, m = _classify_local(bx, by, rb, cand, ncand, base, pat)
+        else:
+            clear, m = _classify(bx, by, rb, pat)
         n = (i1 - i0) * (j1 - j0)
         if clear:
             counts[m] += n
@@ -670,8 +745,8 @@ the longest step between neighbouring ring points for the curve between them."""
 
 
 @njit(cache=True, error_model="numpy")
-def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, jac, values,
-                  pat):
+def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, jac, cand,
+                  values, pat):
     r"""Adaptive value of pixel (ix, iy) (band row k, column c); returns (value, rays, 0|1)"""
     nok = 0
     for dk in range(-1, 2):
@@ -715,8 +790,10 @@ def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, ja
             jac[5] = px
             jac[6] = py
             jac[7] = quad + FOOTPRINT_SAFETY * lin + 1e-12 * (1.0 + abs(px) + abs(py))
-            v, n = _supersample_predicted(cam, xf, ix, iy, K, offs, counts, stack, jac, values,
-                                          pat)
+            # every block's disc lies within |J_x|/2 + |J_y|/2 <= 2 lin (+ e) of the centre
+            jac[8] = 2.0 * (lin + quad) * (1.0 + FOOTPRINT_SAFETY) + jac[7]
+            v, n = _supersample_predicted(cam, xf, ix, iy, K, offs, counts, stack, jac, cand,
+                                          values, pat)
             return v, n, 1
     v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, affine, jac, values, pat)
     return v, n, 1
@@ -763,7 +840,8 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
         offs[i] = (i + 0.5) / K - 0.5
     stack = np.empty((4 * (int(math.log2(K)) + 3), 4), dtype=np.int64)
     blocks = np.empty((4 * (int(math.log2(T)) + 3), 4), dtype=np.int64)
-    jac = np.zeros(8)
+    jac = np.zeros(9)
+    cand = np.empty(MAX_LOCAL_CIRCLES, dtype=np.int64)
     nrays = 0
     nsuper = 0
     nblocks = 0
@@ -808,7 +886,8 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
                 for ix in range(xa, xb):
                     ntested += 1
                     v, n, sup = _render_pixel(cam, xf, ix, iy, iy - r0 + 1, ix + 1, hx, hy,
-                                              hok, K, offs, counts, stack, jac, values, pat)
+                                              hok, K, offs, counts, stack, jac, cand, values,
+                                              pat)
                     out[iy, ix] = v
                     nrays += n
                     nsuper += sup
