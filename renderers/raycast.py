@@ -23,14 +23,32 @@ area coverage of the pixel [ix-0.5, ix+0.5) x [iy-0.5, iy+0.5)
 Adaptive mode gives the same image as full supersampling, bit for bit. A pixel
 is the area average computed from integer counts of the materials its
 subsamples hit (a pixel that hits one material is that material's albedo
-exactly), so a block of subsamples known to hit one material can be counted
-without tracing it. Whether a block is uniform is decided conservatively: the
-board point of its centre ray must be farther from every edge of the pattern
-(board rectangle, cell edges between different albedos, circle outlines) than
-the radius of the block's footprint on the board. The footprint comes from
-the board points of the neighbouring pixels' rays (Jacobian plus a bound on
-the quadratic term). Non-uniform pixels are subdivided into quadrants
-recursively down to 2x2 subsamples, which are traced.
+exactly), so a block of subsamples known to hit one material is counted
+without tracing it. Whether a region is uniform is decided conservatively:
+its board points must all lie farther than the region's footprint radius
+from every edge of the pattern (board rectangle, cell edges between
+different albedos, circle outlines; circles are found through a bucket grid):
+
+1. tiles of 16x16 pixels outside the projected outline of the board are
+   background; other tiles (then 8x8, 4x4, 2x2 blocks) are uniform when the
+   board point of their centre ray is farther from every edge than the
+   largest distance to the board points of the ring of pixel centres around
+   them (the image of the block lies inside that ring's image);
+2. a pixel of a non-uniform block is uniform when its centre's board point is
+   farther from every edge than its footprint radius (from the Jacobian of
+   the neighbouring pixels' board points, plus a bound on the quadratic term,
+   plus 1%);
+3. an edge pixel's subsamples are split into quadrants; the board point of a
+   block's centre is predicted from the pixel's exact centre point and
+   Jacobian (to within the quadratic bound + 1% of the footprint); a block
+   whose predicted disc has no edge counts towards the material there, and
+   only the subsamples within that tolerance of an edge are traced, as exact
+   rays (Newton started from the pixel centre's solution). Pixels whose
+   footprint is far from affine (near the board plane's horizon) or whose
+   neighbours miss the plane are traced in full.
+
+tests/test_raycast.py checks adaptive == full bit for bit on several cameras,
+targets and poses (including noncentral CAHVOREs at K = 16).
 
 The rays of the pixel centres (and a one-pixel ring) are cached per camera
 model: 24 bytes per pixel, 32 for a noncentral CAHVORE (0.63 GB for a
@@ -374,10 +392,12 @@ ARGUMENTS
 RETURNED VALUE
 
 RenderResult(image, metadata). metadata: renderer, version, settings, seconds,
-samples (rays traced, pixel-centre rays included), adaptive_fraction (pixels
-supersampled / pixels), board_fraction (pixels whose centre ray sees the
-board; 0 for a board behind the camera, which renders blank background),
-ray_cache ("cold" or "warm"), ray_cache_seconds.
+samples (rays traced in this render: subsample rays and the pixel-centre rays
+that start their Newton solves; the cached pixel-centre rays are not counted),
+adaptive_fraction (pixels supersampled / pixels), board_fraction (pixels whose
+centre ray sees the board; 0 for a board behind the camera, which renders as
+blank background), blocks_tested and pixels_tested (adaptive bookkeeping),
+ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
 '''
         import numba
 
