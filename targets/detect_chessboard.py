@@ -28,6 +28,8 @@ from .detect import as_float_image, failed, result
 DETECTOR = "chessboard"
 # images larger than twice this (smaller side) are searched at a reduced size first
 SEARCH_SIZE_PX = 400
+# how far along the diagonals (in grid steps) a corner's saddle is checked
+SADDLE_PROBE = 0.15
 ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, True)
                   for fb in (False, True)]
 
@@ -58,6 +60,22 @@ def _square_centres(G):
     return c
 
 
+def _is_saddle(img, G):
+    r'''(ny,nx) bool: the image around each corner is a chessboard saddle
+
+Four samples at SADDLE_PROBE of the local grid steps along the diagonals: the two on one
+diagonal must be alike, and differ from the two on the other by at least a
+third of the image's contrast. A corner that a detector misplaced onto a plain
+square (or an edge) fails.'''
+    u = np.gradient(G, axis=1)
+    v = np.gradient(G, axis=0)
+    r = SADDLE_PROBE
+    a = _bilinear(img, G + r * (u + v)) + _bilinear(img, G - r * (u + v))
+    b = _bilinear(img, G + r * (u - v)) + _bilinear(img, G - r * (u - v))
+    contrast = float(img.max() - img.min())
+    return np.abs(a - b) / 2 > contrast / 3
+
+
 def _expected_squares(target):
     r'''(ny-1, nx-1) expected brightness class of interior squares: 0 dark, 1 light'''
     nx, ny = target.grid_shape
@@ -70,7 +88,7 @@ def _expected_squares(target):
     return light
 
 
-def detect_chessboard(image, target, *, min_found=None, refine=True):
+def detect_chessboard(image, target, *, min_found=None, refine=True, reduced_search=True):
     r'''Detect a chessboard; see the module docstring
 
 SYNOPSIS
@@ -83,6 +101,8 @@ ARGUMENTS
 - target: a "chessboard" targets.boards.Target
 - min_found: fewest corners for status "ok" (default: all)
 - refine: polish the corners with cv2.cornerSubPix (window 0.15 of the smallest square)
+- reduced_search: on large images, search at reduced size first (falls back to full
+  size when a corner wanders off its refinement window)
 '''
     import cv2
 
@@ -100,7 +120,7 @@ ARGUMENTS
     # the sector-based detector costs ~1.3 s on 1024x1024: find the board on a reduced
     # image first (the corners are polished at full resolution below)
     shrink = int(min(img8.shape) // SEARCH_SIZE_PX)
-    if shrink >= 2 and refine:
+    if shrink >= 2 and refine and reduced_search:
         small = cv2.resize(img8, (img8.shape[1] // shrink, img8.shape[0] // shrink),
                            interpolation=cv2.INTER_AREA)
         ok, corners = cv2.findChessboardCornersSB(small, (nx, ny), flags=flags_sb)
@@ -154,13 +174,30 @@ ARGUMENTS
         # and the last one well inside the smallest square (~0.1 px on distorted boards)
         step = min(np.linalg.norm(np.diff(G, axis=0), axis=-1).min(),
                    np.linalg.norm(np.diff(G, axis=1), axis=-1).min())
-        wins = [int(np.clip(0.25 * step, 2, 40)), int(np.clip(0.15 * step, 2, 5))]
+        wins = [int(np.clip(0.25 * step, 2, 40)), int(np.clip(0.2 * step, 2, 10))]
         info["subpix_windows_px"] = wins
         img32 = img.astype(np.float32)
         G = G.reshape(-1, 1, 2).astype(np.float32)
+        wandered = np.zeros(len(G), bool)
         for win in wins:
-            G = cv2.cornerSubPix(
-                img32, G, (win, win), (-1, -1),
+            G1 = cv2.cornerSubPix(
+                img32, G.copy(), (win, win), (-1, -1),
                 (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-5))
-    return result(target, np.asarray(G, dtype=np.float64).reshape(-1, 2), DETECTOR,
+            # a corner that left its window was pulled off by another edge (a mark dot
+            # close to the corner on a foreshortened board): keep where it was
+            bad = np.linalg.norm((G1 - G).reshape(-1, 2), axis=-1) > win
+            wandered |= bad
+            G = np.where(bad[:, None, None], G, G1)
+        if wandered.any():
+            info["unrefined_corners"] = int(wandered.sum())
+    G = np.asarray(G, dtype=np.float64).reshape(ny, nx, 2)
+    not_saddle = ~_is_saddle(img, G)
+    if not_saddle.any():
+        if info["method"].endswith("size"):
+            # the reduced-size search was too coarse here: search at full size
+            return detect_chessboard(image, target, min_found=min_found, refine=refine,
+                                     reduced_search=False)
+        info["rejected_corners"] = int(not_saddle.sum())
+        G[not_saddle] = np.nan
+    return result(target, G.reshape(-1, 2), DETECTOR,
                   min_found=min_found, info=info)
