@@ -900,15 +900,24 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive, T, values, out, stats, pat,
-                  qbox):
+                  qbox, nthreads):
     r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
 
 stats (Nbands,5) receives per band: rays traced, supersampled pixels, pixels
 whose centre ray sees the board, blocks of pixels tested, pixels tested.
 qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
-not known); adaptive mode fills the pixels outside with the background."""
+not known); adaptive mode fills the pixels outside with the background.
+nthreads: numba's thread count (bands are dealt out round-robin among them)."""
     H = out.shape[0]
-    for b in prange(stats.shape[0]):
+    nb = stats.shape[0]
+    # prange hands each thread a contiguous run of iterations; deal the bands out
+    # round-robin instead, so that a board in one part of the image is shared
+    nthreads = max(1, min(nthreads, nb))
+    run = -(-nb // nthreads)
+    for i in prange(run * nthreads):
+        b = (i % run) * nthreads + i // run
+        if b >= nb:
+            continue
         r0 = b * T
         r1 = min(H, r0 + T)
         if r1 > r0:

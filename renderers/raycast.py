@@ -436,7 +436,8 @@ ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
         stats = np.zeros((-(-H // TILE), 5), dtype=np.int64)
         qbox = board_image_box(model, Rt_cam_board, cp.f[:4])
         kern.render_kernel(cam, dirs, shift, noncentral, xf, K, bool(settings.adaptive), TILE,
-                           cp.values, out, stats, cp.kernel_args(), qbox)
+                           cp.values, out, stats, cp.kernel_args(), qbox,
+                           numba.get_num_threads())
         if not np.all(np.isfinite(out)):
             raise RendererError("the ray-cast renderer produced non-finite pixels (a bug)")
         total = stats.sum(axis=0)
