@@ -27,6 +27,8 @@ COMMANDS = {
     "gate": "harness.commands.gate",
     "baseline": "harness.commands.baseline",
     "renderers": "harness.commands.renderers",
+    "stereo": "harness.commands.stereo",
+    "sweep": "harness.commands.sweep",
 }
 
 
