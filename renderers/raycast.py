@@ -281,17 +281,25 @@ SYNOPSIS
 
     qbox = board_image_box(model, Rt_cam_board, (xmin, xmax, ymin, ymax))   # (4,)
 
-The board rectangle's outline is projected, densely enough that neighbouring
-projected points lie within 1 px; the image of the board is the region this
-closed curve bounds, so it lies in the curve's bounding box (grown by
-margin_px). When any outline point does not project (behind the camera, out
-of the model's domain) or the outline turns out not to be simple, the box is
-the whole plane (+-inf): nothing is known.
+When the whole board lies in front of the camera (every corner at a positive
+range along A), projection maps it one to one into the image, and its image
+is the region bounded by the image of its outline. The outline is projected
+densely enough that neighbouring projected points lie within 1 px, so the
+image of the board lies in the bounding box of those points grown by
+margin_px; a 64 x 64 grid of board points is checked to lie inside too. When
+part of the board is behind the camera (a wide-angle CAHVORE sees behind its
+own plane, and the image of such a board need not be bounded by its outline),
+when a point does not project, or when the check fails, the box is the whole
+plane (+-inf): nothing is known.
 '''
     import mrcal
     unknown = np.array([-np.inf, np.inf, -np.inf, np.inf])
     Rt_ref_board = mrcal.compose_Rt(model.Rt_ref_cam(), np.asarray(Rt_cam_board, float))
     xmin, xmax, ymin, ymax = (float(v) for v in rect)
+    corners = np.array([[xmin, ymin, 0.0], [xmax, ymin, 0.0], [xmax, ymax, 0.0],
+                        [xmin, ymax, 0.0]])
+    if not np.all(model.range(mrcal.transform_point_Rt(Rt_ref_board, corners)) > 0.0):
+        return unknown
     n = 64
     while True:
         s = np.arange(n) / n
@@ -312,6 +320,11 @@ the whole plane (+-inf): nothing is known.
         n *= 2
     lo = q.min(axis=0) - margin_px
     hi = q.max(axis=0) + margin_px
+    gx, gy = np.meshgrid(np.linspace(xmin, xmax, 64), np.linspace(ymin, ymax, 64))
+    grid = np.stack((gx.ravel(), gy.ravel(), np.zeros(gx.size)), axis=-1)
+    qg = model.project(mrcal.transform_point_Rt(Rt_ref_board, grid))
+    if not (np.all(np.isfinite(qg)) and np.all(qg >= lo) and np.all(qg <= hi)):
+        return unknown
     return np.array([lo[0], hi[0], lo[1], hi[1]])
 
 

@@ -356,3 +356,20 @@ def test_not_a_pattern_is_an_error():
     with pytest.raises(CamvalError, match="Pattern"):
         RaycastRenderer().render(small_models()["cahv"], "dots", board_pose(None, 1.0),
                                  RenderSettings(spp=1))
+
+
+@pytest.mark.parametrize("name", ["cahvore-fisheye", "cahvore-noncentral"])
+def test_adaptive_equals_full_with_the_horizon_in_view(name):
+    r'''A board plane seen nearly edge-on by a wide-angle camera: its horizon crosses the
+image, part of the board recedes to grazing angles (footprints far from affine)'''
+    model = small_models()[name]
+    r = RaycastRenderer()
+    big = dot_pattern(n=20, spacing=0.1, r=0.03)
+    Rt = board_pose(model, 0.4, (80, 0, 10), centre=(0.95, 0.95))
+    a = r.render(model, big, Rt, RenderSettings(spp=6))
+    f = r.render(model, big, Rt, RenderSettings(spp=6, adaptive=False))
+    assert 0.05 < a.metadata["board_fraction"] < 0.9
+    assert np.array_equal(a.image, f.image)
+    # the horizon: some pixel rows see the plane, the top ones do not
+    sees = np.any(a.image != np.float32(0.25), axis=1)
+    assert sees.any() and not sees.all()
