@@ -38,7 +38,7 @@ baseline has and the run lacks fails; a baseline record that was ok and is
 not ok now fails.
 '''
 
-import fnmatch
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -225,8 +225,15 @@ def load_gate_spec(path):
     return parse_gate_spec(doc, source=str(path))
 
 
+def _glob_regex(glob):
+    # Fullnames carry brackets ("15/CAHVOR/dots/raycast[spp=16]/jpl[CAHVOR]"), so only
+    # * and ? are wildcards; fnmatch would read "[*]" as a one-character class.
+    return re.compile("".join(".*" if c == "*" else "." if c == "?" else re.escape(c)
+                              for c in glob) + r"\Z", re.S)
+
+
 def _matches(fullname, globs):
-    return any(fnmatch.fnmatchcase(fullname, g) for g in globs)
+    return any(_glob_regex(g).match(fullname) for g in globs)
 
 
 _ABSENT = object()
@@ -263,6 +270,11 @@ GateUsageError when the spec has regressions and baseline is None.
                              f" but no baseline was given; pass --baseline FILE")
     records = run["records"]
     failures = []
+    # a limit whose globs select no record would pass silently: that is a failure
+    for lim in spec.limits:
+        if not any(_matches(name, lim.match) for name in records):
+            failures.append(Failure("(gate spec)", lim.field, "matched no record",
+                                    "match " + " or ".join(lim.match), "unmatched"))
     for name, r in records.items():
         if _matches(name, spec.status_match) and r.get("status") not in spec.statuses:
             failures.append(Failure(name, "status", f"{r.get('status')}: {r.get('reason')}",

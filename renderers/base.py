@@ -37,6 +37,7 @@ BUILTIN_RENDERERS = {
     "povray": "renderers.povray:PovrayRenderer",
     "osmesa": "renderers.osmesa:OSMesaRenderer",
     "command": "renderers.command:CommandRenderer",
+    "faulty": "renderers.legacy:FaultyRenderer",
 }
 
 
