@@ -15,7 +15,9 @@ length, image centre and distortion:
   the board fits (it fills most of the image);
 - poses 1-4: pushed into each corner of the image (top-left, top-right,
   bottom-right, bottom-left) until the board touches both image edges, at a
-  larger range and tilted 30-45 deg about varying axes;
+  larger range and tilted 30-45 deg about varying axes (the corners of the
+  1024x1024 fisheye hazcams look more than 90 deg off axis: a board in front
+  of the camera reaches into, not onto, them);
 - pose 5: in the middle again, tilted about 40 deg, at a middle range.
 
 More poses cycle through these with other tilts. A seed jitters tilt angle,
