@@ -278,10 +278,33 @@ SYNOPSIS
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def _fill_ray_cache(cam, dirs, shift, noncentral):
+    r"""ray() for every grid point, each Newton solve started from the linear
+prediction of the previous point of its row (fewer steps, same tolerance)"""
+    kind = cam[_KIND]
+    r0, r1, r2 = cam[_R], cam[_R + 1], cam[_R + 2]
     for gy in prange(dirs.shape[0]):
         y = gy - 1.0
+        u0 = math.nan
+        chi0 = 0.0
+        a0 = 0.0
         for gx in range(dirs.shape[1]):
-            s, vx, vy, vz = ray(cam, gx - 1.0, y)
+            x = gx - 1.0
+            wx, wy, wz = _pinhole_ray(cam, x, y)
+            s = 0.0
+            if kind == KIND_CAHV:
+                vx, vy, vz = wx, wy, wz
+            else:
+                u, ux, uy, uz = _split(cam, wx, wy, wz)
+                if math.isfinite(u0):
+                    start = chi0 + (u - u0) * a0
+                else:
+                    start = u / (1.0 + r0)
+                chi = _newton_chi(u, start, r0, r1, r2, NEWTON_TOLERANCE)
+                s, vx, vy, vz = _ray_from_chi(cam, chi, ux, uy, uz)
+                chi2 = chi * chi
+                a0 = 1.0 / (1.0 + r0 + chi2 * (3.0 * r1 + 5.0 * r2 * chi2))
+                u0 = u if (math.isfinite(chi) and math.isfinite(a0)) else math.nan
+                chi0 = chi
             dirs[gy, gx, 0] = vx
             dirs[gy, gx, 1] = vy
             dirs[gy, gx, 2] = vz
