@@ -57,6 +57,7 @@ model: 24 bytes per pixel, 32 for a noncentral CAHVORE (0.63 GB for a
 '''
 
 import math
+import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -351,6 +352,7 @@ camera is always kept); threads sets numba's thread count (default: all).
         self.threads = threads
         self._rays = OrderedDict()
         self._pattern = (None, None)
+        self._lock = threading.Lock()
 
     def version(self):
         import numba
@@ -361,29 +363,34 @@ camera is always kept); threads sets numba's thread count (default: all).
         r'''(cam, dirs, shift, noncentral, cold) of a model, from the cache or traced now'''
         from renderers import _raycast_kernels as kern
         key = _model_key(model)
-        entry = self._rays.get(key)
-        if entry is not None:
-            self._rays.move_to_end(key)
-            return entry + (False,)
-        cam = kern.pack_model(model)
-        noncentral = not model.is_central
-        dirs, shift = kern.build_ray_cache(cam, model.width, model.height, noncentral)
-        entry = (cam, dirs, shift, noncentral)
-        self._rays[key] = entry
-        while len(self._rays) > 1 and self._cache_size() > self.cache_bytes:
-            self._rays.popitem(last=False)
-        return entry + (True,)
+        with self._lock:
+            entry = self._rays.get(key)
+            if entry is not None:
+                self._rays.move_to_end(key)
+                return entry + (False,)
+            cam = kern.pack_model(model)
+            noncentral = not model.is_central
+            dirs, shift = kern.build_ray_cache(cam, model.width, model.height, noncentral)
+            entry = (cam, dirs, shift, noncentral)
+            self._rays[key] = entry
+            while len(self._rays) > 1 and self._cache_size() > self.cache_bytes:
+                self._rays.popitem(last=False)
+            return entry + (True,)
 
     def _cache_size(self):
         return sum(e[1].nbytes + e[2].nbytes for e in self._rays.values())
 
     def clear_cache(self):
-        self._rays.clear()
+        with self._lock:
+            self._rays.clear()
 
     def _compiled(self, pattern):
-        if self._pattern[0] is not pattern:
-            self._pattern = (pattern, compile_pattern(pattern))
-        return self._pattern[1]
+        last = self._pattern
+        if last[0] is pattern:
+            return last[1]
+        cp = compile_pattern(pattern)
+        self._pattern = (pattern, cp)
+        return cp
 
     # --- rendering -----------------------------------------------------------
     def render(self, model, scene, Rt_cam_board, settings=None):
