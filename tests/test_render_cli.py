@@ -155,3 +155,49 @@ def test_renderers_list_check_reports_versions(capsys):
     assert main(["renderers", "list", "--check"]) == 0
     out = capsys.readouterr().out
     assert "ok: raycast " in out
+
+
+# --- renderers.png ------------------------------------------------------------------------------
+def test_png16_round_trip(tmp_path):
+    from renderers.png import save_png16
+    rng = np.random.default_rng(0)
+    levels = rng.integers(0, 65536, (37, 53))
+    img = (levels / 65535.0).astype(np.float32)
+    save_png16(tmp_path / "a.png", img)
+    raw = cv2.imread(str(tmp_path / "a.png"), cv2.IMREAD_UNCHANGED)
+    assert raw.dtype == np.uint16 and np.array_equal(raw, levels)
+    back = load_png(tmp_path / "a.png")
+    assert back.dtype == np.float32 and back.shape == (37, 53)
+    assert np.abs(back - img).max() < 1e-7
+    assert back.min() >= 0 and back.max() <= 1
+
+
+def test_load_png_reads_8_bit(tmp_path):
+    raw = np.array([[0, 128, 255]], dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "b.png"), raw)
+    np.testing.assert_allclose(load_png(tmp_path / "b.png"), [[0.0, 128 / 255, 1.0]], rtol=1e-6)
+
+
+@pytest.mark.parametrize("image,name,match", [
+    (np.full((4, 4), 1.5), "x.png", r"span \[1.5, 1.5\]; expected \[0, 1\]"),
+    (np.full((4, 4), np.nan), "x.png", "non-finite"),
+    (np.zeros((4, 4, 3)), "x.png", "expected \\(height, width\\)"),
+    (np.zeros((4, 4)), "x.tif", "expected a .png"),
+    (np.zeros((4, 4)), "missing/x.png", "does its directory exist"),
+])
+def test_save_png16_bad_input(tmp_path, image, name, match):
+    from renderers.png import ImageFileError, save_png16
+    with pytest.raises(ImageFileError, match=match):
+        save_png16(tmp_path / name, image)
+
+
+def test_load_png_bad_input(tmp_path):
+    from renderers.png import ImageFileError
+    with pytest.raises(ImageFileError, match="no such file"):
+        load_png(tmp_path / "none.png")
+    (tmp_path / "junk.png").write_bytes(b"not a png")
+    with pytest.raises(ImageFileError, match="cv2 can decode"):
+        load_png(tmp_path / "junk.png")
+    cv2.imwrite(str(tmp_path / "rgb.png"), np.zeros((3, 3, 3), np.uint8))
+    with pytest.raises(ImageFileError, match="3 channels"):
+        load_png(tmp_path / "rgb.png")
