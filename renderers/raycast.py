@@ -329,30 +329,40 @@ plane (+-inf): nothing is known.
     return np.array([lo[0], hi[0], lo[1], hi[1]])
 
 
+# the ray cache shared by the renderers of a process (shared_cache=True)
+_SHARED_RAYS = OrderedDict()
+_SHARED_LOCK = threading.Lock()
+
+
 class RaycastRenderer:
     r'''The embedded exact ray-cast renderer (see the module docstring)
 
 SYNOPSIS
 
-    r = RaycastRenderer(cache_bytes=1 << 30, threads=None)
+    r = RaycastRenderer(cache_bytes=1 << 30, threads=None, shared_cache=True)
     result = r.render(model, pattern, Rt_cam_board, RenderSettings(spp=16))
 
-cache_bytes bounds the memory of the per-camera ray cache (the most recent
-camera is always kept); threads sets numba's thread count (default: all).
+cache_bytes bounds the memory of the per-camera ray cache (the least recently
+used cameras are dropped when a new one is added; the newest is always kept);
+by default all RaycastRenderers of a process share one cache, so a renderer
+made per job still finds the rays of a camera it has seen. threads sets
+numba's thread count (default: all).
 '''
 
     name = "raycast"
 
-    def __init__(self, cache_bytes=DEFAULT_CACHE_BYTES, threads=None):
+    def __init__(self, cache_bytes=DEFAULT_CACHE_BYTES, threads=None, shared_cache=True):
         if not (isinstance(cache_bytes, int) and cache_bytes >= 0):
             raise CamvalError(f"cache_bytes = {cache_bytes!r}; expected an integer >= 0")
         if threads is not None and not (isinstance(threads, int) and threads >= 1):
             raise CamvalError(f"threads = {threads!r}; expected a positive integer")
         self.cache_bytes = cache_bytes
         self.threads = threads
-        self._rays = OrderedDict()
+        if shared_cache:
+            self._rays, self._lock = _SHARED_RAYS, _SHARED_LOCK
+        else:
+            self._rays, self._lock = OrderedDict(), threading.Lock()
         self._pattern = (None, None)
-        self._lock = threading.Lock()
 
     def version(self):
         import numba

@@ -306,7 +306,7 @@ def test_target_objects_render_like_their_pattern():
 
 def test_ray_cache_is_reused_and_bounded():
     models = small_models()
-    r = RaycastRenderer(cache_bytes=0)
+    r = RaycastRenderer(cache_bytes=0, shared_cache=False)
     Rt = board_pose(models["cahv"], 1.0)
     m1 = r.render(models["cahv"], dot_pattern(), Rt, RenderSettings(spp=1)).metadata
     m2 = r.render(models["cahv"], dot_pattern(), Rt, RenderSettings(spp=2)).metadata
@@ -315,6 +315,15 @@ def test_ray_cache_is_reused_and_bounded():
     assert len(r._rays) == 1        # cache_bytes = 0 keeps only the latest camera
     assert r.render(models["cahv"], dot_pattern(), Rt,
                     RenderSettings(spp=1)).metadata["ray_cache"] == "cold"
+
+
+def test_renderers_share_the_ray_cache_by_default():
+    model = small_models()["cahvore-fisheye"].replace(width=97, height=61)
+    Rt = board_pose(model, 1.0)
+    first = get_renderer("raycast").render(model, dot_pattern(), Rt, RenderSettings(spp=1))
+    again = get_renderer("raycast").render(model, dot_pattern(), Rt, RenderSettings(spp=1))
+    assert (first.metadata["ray_cache"], again.metadata["ray_cache"]) == ("cold", "warm")
+    assert np.array_equal(first.image, again.image)
 
 
 # --- bad input ----------------------------------------------------------------------------------
