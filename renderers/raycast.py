@@ -74,6 +74,7 @@ DEFAULT_CACHE_BYTES = 1 << 30
 TILE = 16
 # the image of the board is taken to lie within this many pixels of its projected outline
 BOX_MARGIN_PX = 2.0
+MAX_OUTLINE_STEP_PX = 4.0
 MAX_BUCKETS = 1 << 22
 
 
@@ -285,12 +286,13 @@ SYNOPSIS
 When the whole board lies in front of the camera (every corner at a positive
 range along A), projection maps it one to one into the image, and its image
 is the region bounded by the image of its outline. The outline is projected
-densely enough that neighbouring projected points lie within 1 px, so the
-image of the board lies in the bounding box of those points grown by
-margin_px; a 64 x 64 grid of board points is checked to lie inside too. When
-part of the board is behind the camera (a wide-angle CAHVORE sees behind its
-own plane, and the image of such a board need not be bounded by its outline),
-when a point does not project, or when the check fails, the box is the whole
+densely enough that neighbouring projected points lie within 4 px (the
+outline's image curves far less than margin_px between them), so the image of
+the board lies in the bounding box of those points grown by margin_px; a
+16 x 16 grid of board points is checked to lie inside too. When part of the
+board is behind the camera (a wide-angle CAHVORE sees behind its own plane,
+and the image of such a board need not be bounded by its outline), when a
+point does not project, or when the check fails, the box is the whole
 plane (+-inf): nothing is known.
 '''
     import mrcal
@@ -314,14 +316,14 @@ plane (+-inf): nothing is known.
         if not np.all(np.isfinite(q)):
             return unknown
         step = np.linalg.norm(np.diff(np.concatenate((q, q[:1])), axis=0), axis=-1).max()
-        if step <= 1.0:
+        if step <= MAX_OUTLINE_STEP_PX:
             break
         if n >= 1 << 14:
             return unknown
-        n *= 2
+        n = min(1 << 14, int(n * 1.25 * step / MAX_OUTLINE_STEP_PX) + 1)
     lo = q.min(axis=0) - margin_px
     hi = q.max(axis=0) + margin_px
-    gx, gy = np.meshgrid(np.linspace(xmin, xmax, 64), np.linspace(ymin, ymax, 64))
+    gx, gy = np.meshgrid(np.linspace(xmin, xmax, 16), np.linspace(ymin, ymax, 16))
     grid = np.stack((gx.ravel(), gy.ravel(), np.zeros(gx.size)), axis=-1)
     qg = model.project(mrcal.transform_point_Rt(Rt_ref_board, grid))
     if not (np.all(np.isfinite(qg)) and np.all(qg >= lo) and np.all(qg <= hi)):
