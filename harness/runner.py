@@ -278,9 +278,9 @@ def _downsample(m, size=MAP_SIZE):
     H, W = (m.shape[0] // step) * step, (m.shape[1] // step) * step
     if H == 0 or W == 0:
         return m[::step, ::step]
-    with np.errstate(invalid="ignore"):
-        blocks = m[:H, :W].reshape(H // step, step, W // step, step)
-        return np.nanmax(blocks, axis=(1, 3)) if np.isfinite(blocks).any() else blocks[:, 0, :, 0]
+    blocks = m[:H, :W].reshape(H // step, step, W // step, step)
+    # blocks the fit cannot project at all stay NaN (nanmax would warn about them)
+    return np.fmax.reduce(np.fmax.reduce(blocks, axis=3), axis=1)
 
 
 def compare_stage(truth, result):
