@@ -122,3 +122,17 @@ def test_interrupted_run_resumes_and_dask_agrees(tmp_path):
                              scheduler=cluster.scheduler_address, progress=False)
     assert {k: without_timings(r) for k, r in other["records"].items()} == \
         {k: without_timings(r) for k, r in doc["records"].items()}
+
+
+def test_gate_fails_an_aliased_renderer(tmp_path):
+    # K=1, no supersampling: the aliasing the paper's renderer had; the default gate catches it
+    small = dict(SMALL, cameras=[17], models=["CAHV"],
+                 renderer=[{"name": "raycast", "spp": 1, "adaptive": False}])
+    run = tmp_path / "k1"
+    doc = run_campaign(parse_campaign(small), run, workers=1, progress=False)
+    (rec,) = doc["records"].values()
+    assert rec["status"] == "ok" and rec["residuals"]["rms"] > 0.003
+    out = _camval("gate", run, "--spec", "campaigns/gate.toml", timeout=300)
+    assert out.returncode == 1
+    assert "17/CAHV/dots/raycast[spp=1,full]/jpl[CAHV]" in out.stdout
+    assert "residuals.rms" in out.stdout
