@@ -70,8 +70,9 @@ def _param(r, name):
 
 
 def _per_camera_figure(records, out, key, title, ylabel, series, caption, logy=False,
-                       absolute=False):
-    r'''series: [(label, marker, getter(record) -> float or None), ...]'''
+                       absolute=False, paper=()):
+    r'''series: [(label, marker, getter(record) -> float or None), ...];
+paper: [(value, label)] the paper's figures, drawn as dashed lines'''
     panels = calibrator_panels(records)
     cams = camera_order(records)
     xpos = {c: i for i, c in enumerate(cams)}
@@ -106,6 +107,8 @@ def _per_camera_figure(records, out, key, title, ylabel, series, caption, logy=F
             ax.plot(xv[:, 0], xv[:, 1], marker, color=FAMILY_COLOURS.get(fam, "k"), ms=5,
                     ls="none", mfc="none" if marker in ("^", "v") else None,
                     label=f"{fam} {label}".strip())
+        for value, label in paper:
+            ax.axhline(value, color="tab:red", ls="--", lw=0.8, label=f"paper: {label}")
         ax.set_title(f"{cal}" + ("" if cm == "family" else f" [{cm}]"), fontsize=9)
         ax.set_ylabel(ylabel, fontsize=8)
         ax.set_xticks(range(len(cams)))
@@ -146,7 +149,8 @@ def fig_residuals(records, out):
         "residual (px)",
         [("min", "v", _res("min")), ("RMS", "o", _res("rms")), ("max", "^", _res("max"))],
         "Minimum, RMS and maximum per-point residual of each calibration. The paper: RMS "
-        "about 1/30 px, worst 0.14 px.", logy=True)
+        "about 1/30 px, worst 0.14 px (dashed).", logy=True,
+        paper=((1 / 30, "RMS 1/30 px"), (0.14, "worst 0.14 px")))
 
 
 def fig_center(records, out):
@@ -180,7 +184,7 @@ def fig_C(records, out):
         records, out, "fig07_C", "Error in C (paper Fig. 7)", "|C error| (mm)",
         [("C", "o", _p("C_mm"))],
         "Distance between the recovered and true camera centres. The paper: below 0.06 mm "
-        "under CAHV.", logy=True)
+        "under CAHV.", logy=True, paper=((0.06, "CAHV < 0.06 mm"),))
 
 
 def fig_A(records, out):
@@ -188,7 +192,7 @@ def fig_A(records, out):
         records, out, "fig08_A", "Angular error in A (paper Fig. 8)", "angle (deg)",
         [("A", "o", _p("A_deg"))],
         "Angle between the recovered and true axis A. The paper: at most 0.005 deg under "
-        "CAHV.", logy=True)
+        "CAHV.", logy=True, paper=((0.005, "CAHV 0.005 deg"),))
 
 
 def fig_O(records, out):
@@ -196,7 +200,8 @@ def fig_O(records, out):
         records, out, "fig09_O", "Angular error in O (paper Fig. 9)", "angle (deg)",
         [("O", "o", _p("O_deg"))],
         "Angle between the recovered and true optical axis O (each in its camera frame). "
-        "The paper: within 0.1 deg except the MER mast cameras (13-16).", logy=True)
+        "The paper: within 0.1 deg except the MER mast cameras (13-16).", logy=True,
+        paper=((0.1, "0.1 deg"),))
 
 
 def fig_R_abs(records, out):
