@@ -5,7 +5,9 @@ SYNOPSIS
     cam = pack_model(model)                       # (NCAM,) float64
     s, vx, vy, vz = ray(cam, x, y)                # one exact ray of pixel q = (x, y)
     origin, v = unproject_grid(cam, q)            # q (N,2) -> (N,3), (N,3), = model.unproject(q)
-    dirs, shift = build_ray_cache(cam, W, H)      # centre rays of pixels -1..W, -1..H
+    warm = warm_start(cam, ix, iy)                # Newton start near pixel (ix, iy)
+    s, vx, vy, vz = ray_warm(cam, x, y, warm)     # the same ray, unnormalised, faster
+    dirs, shift = build_ray_cache(cam, W, H, noncentral)  # centre rays of pixels -1..W, -1..H
     render_kernel(...)                            # fills an image; see renderers.raycast
 
 The ray of a pixel is the model's unprojection (reference_models.cahvore),
