@@ -11,7 +11,7 @@ def _run(rms):
     name = "15/CAHVOR/dots/raycast[spp=16,adaptive]/jpl[CAHVOR]"
     rec = {"fullname": name, "status": "ok", "residuals": {"rms": rms, "max": rms},
            "projection": {"rms": rms, "max": rms},
-           "params": {"Hc": 0.0, "Vc": 0.0, "theta_deg": 0.0}}
+           "params": {"Hc": 0.0, "Vc": 0.0, "theta_deg": 0.0, "C_mm": 0.0, "A_deg": 0.0}}
     return {"records": {name: rec}}
 
 
