@@ -10,6 +10,7 @@ import json
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -181,8 +182,13 @@ def test_process_pool_gives_the_same_records(first_run, tmp_path):
 def test_dask_local_cluster_gives_the_same_records(first_run, tmp_path):
     from dask.distributed import LocalCluster
     _, doc = first_run
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                      dashboard_address=None) as cluster:
+    with warnings.catch_warnings():
+        # distributed warns when a loaded machine is slow to make its scratch directory
+        warnings.filterwarnings("ignore", message="Creating scratch directories",
+                                category=UserWarning)
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                               dashboard_address=None)
+    with cluster:
         other = run_campaign(_campaign(), tmp_path / "dask", executor="dask",
                              scheduler=cluster.scheduler_address, progress=False)
     assert other["execution"]["executor"] == "dask"

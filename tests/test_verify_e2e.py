@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -116,8 +117,13 @@ def test_interrupted_run_resumes_and_dask_agrees(tmp_path):
 
     # the same campaign on a Dask cluster gives the same records as the resumed local run
     from dask.distributed import LocalCluster
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                      dashboard_address=None) as cluster:
+    with warnings.catch_warnings():
+        # distributed warns when a loaded machine is slow to make its scratch directory
+        warnings.filterwarnings("ignore", message="Creating scratch directories",
+                                category=UserWarning)
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                               dashboard_address=None)
+    with cluster:
         other = run_campaign(parse_campaign(SMALL), tmp_path / "dask", executor="dask",
                              scheduler=cluster.scheduler_address, progress=False)
     assert {k: without_timings(r) for k, r in other["records"].items()} == \
