@@ -232,3 +232,29 @@ def test_rich_progress_bar_on_a_terminal():
     bar.close()
     out = term.getvalue()
     assert "2/2" in out and "ETA" in out and "1 failed" in out
+
+
+@pytest.mark.slow
+def test_cli_dask_executor_with_a_scheduler_address(first_run, tmp_path):
+    from dask.distributed import LocalCluster
+    _, doc = first_run
+    camp = tmp_path / "small.toml"
+    camp.write_text('name = "small"\ncameras = [17, "SuperCam"]\nmodels = ["CAHV"]\n'
+                    'keep_images = true\n[[renderer]]\nname = "raycast"\nspp = 4\n'
+                    '[[calibrator]]\nname = "jpl"\n')
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Creating scratch directories",
+                                category=UserWarning)
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                               protocol="tcp", dashboard_address=None)
+    with cluster:
+        assert cluster.scheduler_address.startswith("tcp://")
+        out = subprocess.run([sys.executable, "-m", "harness.cli", "verify", str(camp),
+                              "--executor", "dask", "--scheduler", cluster.scheduler_address,
+                              "--out", str(tmp_path / "run"), "--no-report", "--quiet"],
+                             capture_output=True, text=True, cwd=ROOT, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    other = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert other["execution"]["executor"] == "dask"
+    assert other["execution"]["scheduler"] == cluster.scheduler_address
+    assert _comparable(other) == _comparable(doc)
