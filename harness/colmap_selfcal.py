@@ -81,7 +81,29 @@ def selfcal_colmap(image_dir, workdir, colmap_model, refine_principal_point=True
 
 RETURNED VALUE: dict with status, reason, camera model and params (COLMAP's
 convention), registered images, points, mean reprojection error
+
+The pycolmap pipeline runs in a child process of its own: its native code
+(SIFT, matching, Ceres) can abort the process or leave its heap corrupted
+(seen here: a "corrupted size vs. prev_size" abort at the exit of a test
+process that had run it), and a calibrator's failure must be a result, not
+the end of the caller.
 '''
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    with ProcessPoolExecutor(max_workers=1,
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
+        job = pool.submit(_selfcal_colmap_here, str(image_dir), str(workdir), colmap_model,
+                          refine_principal_point, threads)
+        try:
+            return job.result()
+        except BrokenProcessPool as e:
+            return {"status": "failed", "reason": f"pycolmap's process died: {e}",
+                    "seconds": {}}
+
+
+def _selfcal_colmap_here(image_dir, workdir, colmap_model, refine_principal_point, threads):
     import pycolmap
     workdir = Path(workdir)
     db = workdir / "database.db"
