@@ -106,3 +106,28 @@ SYNOPSIS
     if expected is None:
         expected = outline_centroids(model, p_board, radii, Rt_cam_board)
     return expected - centres
+
+
+def bias_step(model, target, Rt_cam_board, p_board, b_prev=None, views=None):
+    r'''One pass of the iterated bias correction the calibrators share
+
+SYNOPSIS
+
+    b, change = bias_step(model, target, Rts, obs.p_board, b_prev, views)
+    # b has shape (Nposes,Npoints,2), or is None when the target has no dots
+    q_used = obs.q - b
+
+The bias of every dot under the current model and poses Rt_cam_board
+(Nposes,4,3); poses outside `views` (when given) get none. `change` is the
+largest change of the bias since b_prev (its largest value on the first pass).
+'''
+    if target is None:
+        return None, None
+    b = [centroid_bias(model, target, Rt, p_board[i])
+         if views is None or i in views else np.zeros((p_board.shape[-2], 2))
+         for i, Rt in enumerate(Rt_cam_board)]
+    if any(x is None for x in b):
+        return None, None
+    b = np.array(b)
+    change = float(np.nanmax(np.abs(b if b_prev is None else b - b_prev)))
+    return b, change

@@ -64,7 +64,7 @@ from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
 from reference_models.errors import ModelError
 
 from .base import CalibrationFailed, CalibrationResult
-from .bias import centroid_bias
+from .bias import bias_step
 
 NAME = "jpl"
 LIBRARY = "scipy"
@@ -311,15 +311,11 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4
         b_prev = None
         for ipass in range(bias_passes):
             Rts = Rt_cam_board_of(model, obs.Rt_ref_board)
-            b = [centroid_bias(model, target, Rt, obs.p_board[i]) if target is not None
-                 else None for i, Rt in enumerate(Rts)]
-            if any(x is None for x in b):
+            b, change = bias_step(model, target, Rts, obs.p_board, b_prev)
+            if b is None:
                 passes.append({"pass": ipass + 2, "skipped": "the target has no dots: "
                                "no centroid bias to correct"})
                 break
-            b = np.array(b)
-            change = (float(np.nanmax(np.abs(b - b_prev))) if b_prev is not None
-                      else float(np.nanmax(np.abs(b))))
             if b_prev is not None and change < bias_tolerance:
                 break
             b_prev = b

@@ -49,7 +49,7 @@ from .base import (
     check_homography_conditioning,
     check_pose_diversity,
 )
-from .bias import centroid_bias
+from .bias import bias_step
 
 NAME = "mrcal"
 LIBRARY = "mrcal"
@@ -361,13 +361,10 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     if bias_correction and bias_passes > 0 and target is not None:
         b_prev = None
         for ipass in range(bias_passes):
-            b = [centroid_bias(model, target, Rt, obs.p_board[i])
-                 for i, Rt in enumerate(Rt_cam_board)]
-            if any(x is None for x in b):
+            b, change = bias_step(model, target, Rt_cam_board, obs.p_board, b_prev)
+            if b is None:
                 passes.append({"pass": ipass + 2, "skipped": "no dots: no centroid bias"})
                 break
-            b = np.array(b)
-            change = float(np.nanmax(np.abs(b if b_prev is None else b - b_prev)))
             if b_prev is not None and change < bias_tolerance:
                 break
             b_prev = b

@@ -40,7 +40,7 @@ from .base import (
     check_homography_conditioning,
     check_pose_diversity,
 )
-from .bias import centroid_bias
+from .bias import bias_step
 
 NAME = "opencv"
 LIBRARY = "opencv"
@@ -211,12 +211,9 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     if bias_correction and target is not None:
         b_prev = None
         for ipass in range(bias_passes):
-            b = [centroid_bias(model, target, Rts[i], obs.p_board[i]) if i in views
-                 else np.zeros((obs.Npoints, 2)) for i in range(obs.Nposes)]
-            if any(x is None for x in b):
+            b, change = bias_step(model, target, Rts, obs.p_board, b_prev, views)
+            if b is None:
                 break
-            b = np.array(b)
-            change = float(np.nanmax(np.abs(b if b_prev is None else b - b_prev)))
             if b_prev is not None and change < bias_tolerance:
                 break
             b_prev = b
