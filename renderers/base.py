@@ -124,3 +124,15 @@ def get_renderer(name, **options):
     r'''Construct the renderer called `name` (raises RendererUnavailableError with the fix
 when its backend is missing here)'''
     return renderer_class(name)(**options)
+
+
+def merged_options(renderer_name, defaults, settings):
+    r'''A renderer's default options updated with settings.options
+
+An option the renderer does not know is a RendererError naming the known ones.
+'''
+    unknown = set(settings.options) - set(defaults)
+    if unknown:
+        raise RendererError(f"{renderer_name}: unknown option(s) {', '.join(sorted(unknown))}; "
+                            f"known: {', '.join(sorted(defaults))}")
+    return {**defaults, **settings.options}

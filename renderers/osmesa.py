@@ -38,7 +38,13 @@ import time
 
 import numpy as np
 
-from .base import RendererError, RendererUnavailableError, RenderResult, RenderSettings
+from .base import (
+    RendererError,
+    RendererUnavailableError,
+    RenderResult,
+    RenderSettings,
+    merged_options,
+)
 from .warp import INTERPOLATIONS, PinholeWarp
 
 INSTALL_HINT = "install Debian package libosmesa6 (apt-get install libosmesa6)"
@@ -226,12 +232,7 @@ ARGUMENTS (defaults; RenderSettings.options override them)
         from .legacy import apply_defects
 
         settings = RenderSettings() if settings is None else settings
-        o = dict(self.defaults)
-        unknown = set(settings.options) - set(o)
-        if unknown:
-            raise RendererError(f"osmesa: unknown option(s) {', '.join(sorted(unknown))}; "
-                                f"known: {', '.join(sorted(o))}")
-        o.update(settings.options)
+        o = merged_options("osmesa", self.defaults, settings)
         self._check(o)
         render_model, defects = apply_defects(model, o["legacy"], o["fault"])
         t0 = time.perf_counter()

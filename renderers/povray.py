@@ -67,7 +67,13 @@ import weakref
 
 import numpy as np
 
-from .base import RendererError, RendererUnavailableError, RenderResult, RenderSettings
+from .base import (
+    RendererError,
+    RendererUnavailableError,
+    RenderResult,
+    RenderSettings,
+    merged_options,
+)
 from .warp import INTERPOLATIONS, PinholeWarp, box_downsample
 
 CAMERAS = ("perspective", "mesh")
@@ -429,12 +435,7 @@ temporary directory for the renderer's lifetime (~250 bytes per ray).
         from .legacy import apply_defects
 
         settings = RenderSettings() if settings is None else settings
-        o = dict(self.defaults)
-        unknown = set(settings.options) - set(o)
-        if unknown:
-            raise RendererError(f"povray: unknown option(s) {', '.join(sorted(unknown))}; "
-                                f"known: {', '.join(sorted(o))}")
-        o.update(settings.options)
+        o = merged_options("povray", self.defaults, settings)
         self._check_options(o)
         K = settings.spp
         render_model, defects = apply_defects(model, o["legacy"], o["fault"])
