@@ -8,6 +8,7 @@ SYNOPSIS
     c.cameras        # ("15", "17", "5"): slot ids, extras' names, model-file paths
     c.models         # ("CAHV", "CAHVOR", "CAHVORE")
     c.renderers[0].settings()   # [{"spp": 16, "adaptive": True, "options": {}}]
+    c.responses                 # (ResponseSpec("clean", {}), ...): camera-response profiles
     c.validate()     # names checked against the catalogue and the registries
 
 A campaign is a TOML file (tomllib):
@@ -21,6 +22,8 @@ A campaign is a TOML file (tomllib):
     keep_maps = true         # keep downsampled projection-difference maps (maps/)
     catalogue = "overlay.toml"   # optional catalogue overlay (user models in slots)
 
+    seed = 0                 # the campaign's noise seed (camera-response stages)
+
     [poses]
     n = 6
     seed = 0
@@ -30,19 +33,47 @@ A campaign is a TOML file (tomllib):
     spp = [4, 16]            # an int or a list: one job per value
     adaptive = true          # a bool or a list
     options = {}             # renderer-specific settings
+    response = ["clean", "realistic"]   # optional: the [response.*] profiles to run
+                                        # (default: every profile, in file order)
 
     [[calibrator]]
     name = "jpl"
     models = ["family"]      # "family" = the job's model family; or named models
     options = {}
 
-A job is camera x model family x target x renderer setting; every calibrator
-runs on each job's detections. A family richer than the camera (CAHVORE from
-a CAHVOR camera) is recorded as not-applicable, not an error. Every mistake in
-the file (unknown key, missing camera, unknown renderer) is a CamvalError of
-one line naming the key and the choices.
+    [response.clean]         # a profile with no stages: the rendered image as it is
+
+    [response.realistic]     # camera response applied after rendering, before detection
+    full_well_e = 20000      # electrons at image value 1.0
+    seed = 0                 # optional: the profile's own noise seed
+    psf = {kind = "gaussian", sigma_px = 0.7}
+    shot_noise = {}
+    read_noise = {sigma_e = 12.0}
+    quantise = {bits = 12}
+
+A job is camera x model family x target x renderer setting x response
+profile; every calibrator runs on each job's detections. A family richer than
+the camera (CAHVORE from a CAHVOR camera) is recorded as not-applicable, not
+an error. Every mistake in the file (unknown key, missing camera, unknown
+renderer, unknown response stage or parameter) is a CamvalError of one line
+naming the key and the choices.
+
+Camera response. Each [response.NAME] table is one profile: the stages of
+renderers/response.py (vignetting, psf, motion_blur, global_gain, shot_noise,
+dark_current, hot_pixels, dead_pixels, saturation, read_noise, quantise), each
+a table of its parameters ({} for the defaults), plus full_well_e and seed.
+Every stage is off unless named; the stages run in their physical order
+whatever the order in the file. Without a [response] table every job renders
+clean, as before. A profile with no stages is the clean render and leaves the
+fullname unchanged; any other profile adds ",response=NAME" to the renderer
+settings of the fullname (15/CAHVOR/dots/raycast[spp=16,adaptive,
+response=realistic]/jpl[CAHVOR]), so the same camera with and without noise
+are distinct records. The noise of image i of a job is drawn from
+numpy.random.default_rng([seed, profile seed, sha256(job key) as four 32-bit
+words, i]): reproducible bit for bit, and different for every job.
 '''
 
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,9 +84,10 @@ FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
 JOB_FAMILY = "family"
 
 TOP_KEYS = ("name", "description", "cameras", "models", "targets", "keep_images", "keep_maps",
-            "catalogue", "poses", "renderer", "calibrator")
+            "catalogue", "seed", "poses", "renderer", "calibrator", "response")
 POSE_KEYS = ("n", "seed")
-RENDERER_KEYS = ("name", "spp", "adaptive", "options")
+RENDERER_KEYS = ("name", "spp", "adaptive", "options", "response")
+PROFILE_NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 CALIBRATOR_KEYS = ("name", "models", "options")
 KNOWN_TARGETS = ("dots", "apriltag", "chessboard")
 
@@ -103,20 +135,80 @@ def _int(source, key, value, minimum):
 
 
 @dataclass(frozen=True)
+class ResponseSpec:
+    r'''A camera-response profile: a name and its renderers.response configuration
+
+config: {"full_well_e": ..., "seed": ..., stage name: {parameter: value}} as in
+the campaign file (checked by renderers.response.ResponseChain.from_config).
+A profile without stages is the clean render.
+'''
+    name: str
+    config: dict = field(default_factory=dict)
+
+    def stages(self):
+        from renderers.response import STAGES
+        return [k for k in self.config if k in STAGES]
+
+    @property
+    def clean(self):
+        return not self.stages()
+
+    def label(self):
+        r'''The profile's part of the renderer settings: None for a clean profile'''
+        return None if self.clean else self.name
+
+    def as_dict(self):
+        return {"name": self.name, "config": _plain(self.config)}
+
+
+def _plain(x):
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    return x
+
+
+@dataclass(frozen=True)
 class RendererSpec:
     name: str
     spp: tuple = (16,)
     adaptive: tuple = (True,)
     options: dict = field(default_factory=dict)
+    response: tuple = None     # profile names to run (None: every profile of the campaign)
 
-    def settings(self):
-        r'''[{"spp", "adaptive", "options"}, ...]: one per job, in file order'''
-        return [{"spp": k, "adaptive": a, "options": dict(self.options)}
-                for k in self.spp for a in self.adaptive]
+    def settings(self, responses=()):
+        r'''[{"spp", "adaptive", "options"[, "response"]}, ...]: one per job, in file order
+
+responses: the campaign's ResponseSpecs; the settings of a job with a
+profile that has stages carry "response": its name.
+'''
+        chosen = [r for r in responses if self.response is None or r.name in self.response]
+        if self.response is not None:
+            chosen.sort(key=lambda r: self.response.index(r.name))
+        out = []
+        for k in self.spp:
+            for a in self.adaptive:
+                for prof in chosen or [None]:
+                    s = {"spp": k, "adaptive": a, "options": dict(self.options)}
+                    if prof is not None and prof.label() is not None:
+                        s["response"] = prof.label()
+                    out.append(s)
+        return out
+
+    def profiles(self, responses=()):
+        r'''The ResponseSpecs of settings(responses), in the same order (None: no response)'''
+        chosen = [r for r in responses if self.response is None or r.name in self.response]
+        if self.response is not None:
+            chosen.sort(key=lambda r: self.response.index(r.name))
+        return [p for _ in self.spp for _ in self.adaptive for p in (chosen or [None])]
 
     def as_dict(self):
-        return {"name": self.name, "spp": list(self.spp), "adaptive": list(self.adaptive),
-                "options": dict(self.options)}
+        d = {"name": self.name, "spp": list(self.spp), "adaptive": list(self.adaptive),
+             "options": dict(self.options)}
+        if self.response is not None:
+            d["response"] = list(self.response)
+        return d
 
 
 @dataclass(frozen=True)
@@ -148,6 +240,15 @@ class Campaign:
     catalogue: str = None
     description: str = ""
     source: str = ""
+    seed: int = 0
+    responses: tuple = ()
+
+    def response(self, name):
+        r'''The ResponseSpec called name (KeyError if there is none)'''
+        for r in self.responses:
+            if r.name == name:
+                return r
+        raise KeyError(name)
 
     def as_dict(self):
         r'''The campaign as plain JSON (what a run stores, and what resume re-reads)'''
@@ -158,7 +259,8 @@ class Campaign:
                 "calibrators": [c.as_dict() for c in self.calibrators],
                 "poses": {"n": self.poses_n, "seed": self.poses_seed},
                 "keep_images": self.keep_images, "keep_maps": self.keep_maps,
-                "catalogue": self.catalogue}
+                "catalogue": self.catalogue, "seed": self.seed,
+                "response": [r.as_dict() for r in self.responses]}
 
     @classmethod
     def from_dict(cls, d):
@@ -167,14 +269,18 @@ class Campaign:
                    cameras=tuple(d["cameras"]), models=tuple(d["models"]),
                    targets=tuple(d["targets"]),
                    renderers=tuple(RendererSpec(r["name"], tuple(r["spp"]),
-                                                tuple(r["adaptive"]), dict(r["options"]))
+                                                tuple(r["adaptive"]), dict(r["options"]),
+                                                tuple(r["response"]) if "response" in r
+                                                else None)
                                    for r in d["renderers"]),
                    calibrators=tuple(CalibratorSpec(c["name"], tuple(c["models"]),
                                                     dict(c["options"]))
                                      for c in d["calibrators"]),
                    poses_n=d["poses"]["n"], poses_seed=d["poses"]["seed"],
                    keep_images=d["keep_images"], keep_maps=d["keep_maps"],
-                   catalogue=d.get("catalogue"))
+                   catalogue=d.get("catalogue"), seed=d.get("seed", 0),
+                   responses=tuple(ResponseSpec(r["name"], r["config"])
+                                   for r in d.get("response", ())))
 
     def replace(self, **kw):
         import dataclasses
@@ -247,6 +353,53 @@ def _calibrator_has_model(mod, model):
     return canonical in tuple(getattr(mod, "MODELS", ()))
 
 
+def parse_responses(source, doc):
+    r'''The [response.NAME] tables of a campaign -> (ResponseSpec, ...) in file order
+
+Checks the profile names, the stage names and each stage's parameter names
+here (so the messages name the campaign key) and the values through
+renderers.response.ResponseChain.from_config.
+'''
+    from renderers.response import GLOBAL_KEYS, STAGE_ORDER, STAGES, ResponseChain
+
+    if doc is None:
+        return ()
+    if not isinstance(doc, dict):
+        raise CampaignError(f"{_where(source, 'response')}: expected tables "
+                            f"[response.NAME], one per camera-response profile")
+    known = tuple(GLOBAL_KEYS) + tuple(c.name for c, _ in STAGE_ORDER)
+    out = []
+    for name, cfg in doc.items():
+        key = f"response.{name}"
+        if not isinstance(cfg, dict):
+            raise CampaignError(f"{_where(source, key)}: expected a table [response.{name}] "
+                                f"of response stages; got {cfg!r}")
+        if not PROFILE_NAME.match(name):
+            raise CampaignError(f"{_where(source, key)}: a profile name may hold only "
+                                f"letters, digits, '_' and '-'")
+        _unknown(source, key + ".", cfg, known)
+        for stage, params in cfg.items():
+            if stage in GLOBAL_KEYS:
+                continue
+            if not isinstance(params, dict):
+                raise CampaignError(f"{_where(source, key + '.' + stage)}: expected a table "
+                                    f"of the stage's parameters ({{}} for its defaults); "
+                                    f"got {params!r}")
+            _unknown(source, f"{key}.{stage}.", params, tuple(STAGES[stage].params))
+        if "seed" in cfg:
+            _int(source, key + ".seed", cfg["seed"], 0)
+        try:
+            ResponseChain.from_config(cfg)
+        except CamvalError as e:
+            raise CampaignError(f"{_where(source, key)}: {e}") from None
+        out.append(ResponseSpec(name, _plain(cfg)))
+    clean = [r.name for r in out if r.clean]
+    if len(clean) > 1:
+        raise CampaignError(f"{_where(source, 'response')}: profiles {clean[0]!r} and "
+                            f"{clean[1]!r} both have no stages (the clean render); keep one")
+    return tuple(out)
+
+
 def parse_campaign(doc, source="", base_dir=None):
     r'''Validate the structure of a parsed campaign TOML (dict) -> Campaign
 
@@ -289,6 +442,8 @@ Relative model-file paths among the cameras are taken from base_dir.
     _unknown(source, "poses.", poses, POSE_KEYS)
     n = _int(source, "poses.n", poses.get("n", 6), 1)
     seed = _int(source, "poses.seed", poses.get("seed", 0), 0)
+    noise_seed = _int(source, "seed", doc.get("seed", 0), 0)
+    responses = parse_responses(source, doc.get("response"))
 
     rend = doc.get("renderer", [{"name": "raycast"}])
     if not isinstance(rend, list) or not rend:
@@ -311,8 +466,19 @@ Relative model-file paths among the cameras are taken from base_dir.
         opts = r.get("options", {})
         if not isinstance(opts, dict):
             raise CampaignError(f"{_where(source, key + '.options')}: expected a table")
-        renderers.append(RendererSpec(r["name"], tuple(spp), tuple(ad), dict(opts)))
-    names = [(r.name, r.spp, r.adaptive, tuple(sorted(r.options.items(), key=str)))
+        chosen = None
+        if "response" in r:
+            chosen = tuple(_list_of(source, key + ".response", r["response"], (str,),
+                                    "response profile names"))
+            names_known = [p.name for p in responses]
+            for c in chosen:
+                if c not in names_known:
+                    raise CampaignError(
+                        f"{_where(source, key + '.response')}: unknown response profile "
+                        f"{c!r}; known profiles: "
+                        f"{', '.join(names_known) or '(none: add [response.NAME] tables)'}")
+        renderers.append(RendererSpec(r["name"], tuple(spp), tuple(ad), dict(opts), chosen))
+    names = [(r.name, r.spp, r.adaptive, tuple(sorted(r.options.items(), key=str)), r.response)
              for r in renderers]
     if len(set(map(repr, names))) != len(names):
         raise CampaignError(f"{_where(source, 'renderer')}: two [[renderer]] tables are the same")
@@ -357,7 +523,7 @@ Relative model-file paths among the cameras are taken from base_dir.
                     calibrators=tuple(calibrators), poses_n=n, poses_seed=seed,
                     keep_images=_bool(source, "keep_images", doc.get("keep_images", False)),
                     keep_maps=_bool(source, "keep_maps", doc.get("keep_maps", True)),
-                    catalogue=cat)
+                    catalogue=cat, seed=noise_seed, responses=responses)
 
 
 def load_campaign(path):

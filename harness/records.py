@@ -86,7 +86,10 @@ def jsonable(x):
 def settings_label(settings):
     r'''"spp=16,adaptive" for {"spp": 16, "adaptive": True, "options": {...}}
 
-Options follow, sorted by name, as key=value.
+Options follow, sorted by name, as key=value; then the camera-response
+profile, if the settings name one ("response": "realistic" ->
+",response=realistic"). Settings without a response give the label they
+always had, so clean records keep their fullnames.
 '''
     parts = [f"spp={int(settings.get('spp', 1))}",
              "adaptive" if settings.get("adaptive", False) else "full"]
@@ -94,6 +97,8 @@ Options follow, sorted by name, as key=value.
         if isinstance(v, bool):
             v = "true" if v else "false"
         parts.append(f"{k}={v}")
+    if settings.get("response"):
+        parts.append(f"response={settings['response']}")
     return ",".join(parts)
 
 
@@ -111,7 +116,7 @@ fullname:         camera/model/target/renderer[settings]/calibrator[model]
 camera:           catalogue key of the camera ("15", "supercam", a file name)
 camera_label:     human name ("MER B navcam left")
 model:            the model family the images were rendered with (CAHV, CAHVOR, CAHVORE)
-target, renderer: names; settings: {"spp", "adaptive", "options"}
+target, renderer: names; settings: {"spp", "adaptive", "options"[, "response": profile]}
 calibrator, calibrator_model: e.g. "jpl", "CAHVOR"
 status:           "ok" | "failed" | "not-applicable"; reason: why not ok
 stage:            the stage that failed ("camera", "poses", "render", "detect",
@@ -122,12 +127,20 @@ params:           {name: fit - truth} (harness.compare.parameter_errors: Hc, Vc 
                   E0..E2); None = not estimated by this calibrator
 projection:       {"rms", "max"} px (fitted-rotation projection difference, truth vs
                   fit) and per mode {"rotation"|"intrinsics"|"world": {"rms", "max", ...}}
-seconds:          {"render_per_image", "render", "detect", "calibrate", "compare"}
+seconds:          {"render_per_image", "render", "detect", "calibrate", "compare",
+                  "response" (the camera response of all images), "response_stages":
+                  {stage: seconds summed over the images, "setup": building the chain}}
 detections:       {"n_expected", "n_found", "per_pose": [n_found, ...]}
 image_size:       [width, height]
 artifacts:        relative paths inside the run dir ({"map": "maps/....npy", "images": [...]})
 versions:         {"renderer": "...", "calibrator": "..."}
 info:             anything else the stages reported
+response:         the camera response applied after rendering: {"profile": name ("" for
+                  none), "stages": [{"stage", "params"}, ...] in the order they ran,
+                  "full_well_e", "seed": {"campaign", "profile", "job_sha256"}};
+                  None in records written before camera response existed
+features:         what the renderer modelled beyond geometry: {"shading", "texture",
+                  "shadows"} (bools); a board target is flat albedo: all false
 '''
 
     fullname: str
@@ -151,6 +164,8 @@ info:             anything else the stages reported
     artifacts: dict = field(default_factory=dict)
     versions: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    response: dict = None
+    features: dict = None
 
     def __post_init__(self):
         if self.status not in STATUSES:

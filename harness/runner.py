@@ -19,6 +19,8 @@ stages, each a plain function on plain values:
     camera_stage     catalogue entry -> truth model (truncated to the family)
     poses_stage      truth, target -> [Rt_cam_board] (targets.poses.plan_poses)
     render_stage     truth, pattern, poses -> [RenderResult]
+    response_stage   images -> images through the job's camera-response profile
+                     (renderers/response.py; skipped for a clean job)
     detect_stage     images, target -> [Detection]
     calibrate_stage  detections -> CalibrationResult, once per calibrator model
     compare_stage    truth, CalibrationResult -> parameter errors, projection difference
@@ -31,8 +33,13 @@ in local processes (concurrent.futures, forkserver) or on a Dask cluster
 (--executor dask --scheduler ADDRESS). Each job's records are stored in the
 run directory as soon as the job ends, so an interrupted run resumes with only
 the missing jobs.
+
+Before local worker processes start, warm_up() compiles (or loads) the
+renderer's numba kernels once in this process, so the workers load the
+cached kernels instead of each compiling them.
 '''
 
+import hashlib
 import math
 import os
 import pickle
@@ -65,6 +72,9 @@ camera:       the campaign's camera spec (slot id, extra name, model file)
 camera_key:   the catalogue key used in fullnames
 calibrators:  ((name, model, options), ...)
 run_dir:      where images and maps are kept (None: keep nothing)
+response:     the camera-response profile's configuration ({} : clean)
+response_name: the profile's name ("" : the campaign has no profiles)
+seed:         the campaign's noise seed
 '''
 
     key: str
@@ -82,6 +92,9 @@ run_dir:      where images and maps are kept (None: keep nothing)
     catalogue: str = None
     run_dir: str = None
     cost: float = 1.0
+    response: dict = field(default_factory=dict)
+    response_name: str = ""
+    seed: int = 0
 
     def fullname(self, calibrator, model):
         return make_fullname(self.camera_key, self.family, self.target, self.renderer,
@@ -103,7 +116,8 @@ entries: {camera spec: CatalogueEntry} from campaign.validate() (validated here 
         for family in campaign.models:
             for target in campaign.targets:
                 for r in campaign.renderers:
-                    for s in r.settings():
+                    for s, prof in zip(r.settings(campaign.responses),
+                                       r.profiles(campaign.responses), strict=True):
                         cals = tuple((c.name, m, dict(c.options)) for c in campaign.calibrators
                                      for m in c.models_for(family))
                         jobs.append(Job(
@@ -114,7 +128,10 @@ entries: {camera spec: CatalogueEntry} from campaign.validate() (validated here 
                             keep_images=campaign.keep_images, keep_maps=campaign.keep_maps,
                             catalogue=campaign.catalogue,
                             run_dir=str(run_dir) if run_dir is not None else None,
-                            cost=float(w * h) * (1.0 + 0.02 * s["spp"])))
+                            cost=float(w * h) * (1.0 + 0.02 * s["spp"]),
+                            response=dict(prof.config) if prof is not None else {},
+                            response_name=prof.name if prof is not None else "",
+                            seed=int(getattr(campaign, "seed", 0))))
     keys = [j.key for j in jobs]
     if len(set(keys)) != len(keys):
         dup = sorted({k for k in keys if keys.count(k) > 1})
@@ -223,6 +240,81 @@ def render_stage(renderer_name, truth, target, poses, settings):
     return results, secs, version
 
 
+def noise_seed(job, i_image):
+    r'''The noise seed of image i of a job: [campaign seed, profile seed, sha256(job key)
+as four 32-bit words, i] (numpy.random.default_rng takes the list)'''
+    d = hashlib.sha256(job.key.encode()).digest()
+    words = [int.from_bytes(d[k:k + 4], "little") for k in range(0, 16, 4)]
+    return [int(job.seed), int((job.response or {}).get("seed", 0)), *words, int(i_image)]
+
+
+def response_info(job):
+    r'''The record's "response" entry: profile, stages with their parameters, seeds
+
+Deterministic (no timings); the same for every record of the job, whether it
+ran or failed earlier.
+'''
+    cfg = job.response or {}
+    info = {"profile": job.response_name, "stages": [],
+            "seed": {"campaign": int(job.seed), "profile": int(cfg.get("seed", 0)),
+                     "job_sha256": hashlib.sha256(job.key.encode()).hexdigest()[:16]}}
+    try:
+        from renderers.response import ResponseChain
+        chain = ResponseChain.from_config(cfg)
+    except Exception as e:  # reported by response_stage as the job's failure
+        info["error"] = _reason(e)
+        return jsonable(info)
+    if chain.stages:
+        info["full_well_e"] = chain.full_well_e
+    info["stages"] = [{"stage": st.name, "params": st.describe()} for st in chain.stages]
+    return jsonable(info)
+
+
+def response_stage(job, truth, images):
+    r'''-> (images through the job's camera response, {stage: seconds summed over images})
+
+The seconds also hold "setup": building the chain (imports, kernels). A clean
+job (no stages) returns the images unchanged and {}. Image i's noise
+comes from noise_seed(job, i): the same job gives the same images bit for bit.
+'''
+    cfg = job.response or {}
+    t0 = time.perf_counter()
+    try:
+        from renderers.response import ResponseChain
+        chain = ResponseChain.from_config(cfg)
+        if not chain.stages:
+            return images, {}
+        out, secs = [], {"setup": time.perf_counter() - t0}
+        for i, im in enumerate(images):
+            r = chain.apply(im, model=truth, seed=noise_seed(job, i))
+            out.append(r.image)
+            for st in r.stages:
+                secs[st["stage"]] = secs.get(st["stage"], 0.0) + float(st["seconds"])
+    except Exception as e:
+        raise StageFailed("response", _reason(e)) from None
+    return out, secs
+
+
+# what a renderer modelled beyond geometry; a board (targets.pattern.Pattern) is
+# flat albedo under no light: none of them
+BOARD_FEATURES = {"shading": False, "texture": False, "shadows": False}
+
+
+def render_features(metadatas):
+    r'''{"shading", "texture", "shadows"}: any render of the job that reported the feature
+
+A renderer may report metadata["features"] = {name: bool}; one that does not
+drew a board pattern, which needs none.
+'''
+    out = dict(BOARD_FEATURES)
+    for m in metadatas:
+        f = m.get("features") if isinstance(m, dict) else None
+        if isinstance(f, dict):
+            for k, v in f.items():
+                out[str(k)] = bool(out.get(str(k), False) or v)
+    return out
+
+
 def detect_stage(images, target):
     r'''-> ([Detection], seconds)'''
     from targets.detect import detect
@@ -320,7 +412,7 @@ def _record(job, cal, model, entry, **kw):
                 model=job.family, target=job.target, renderer=job.renderer,
                 settings=job.settings, calibrator=cal, calibrator_model=model,
                 image_size=[model_obj.width, model_obj.height] if model_obj is not None
-                else None)
+                else None, response=response_info(job), features=dict(BOARD_FEATURES))
     base.update(kw)
     return Record(**base).as_dict()
 
@@ -351,6 +443,7 @@ Never raises for a failing stage: the records say which stage failed and why.
 '''
     entry = None
     seconds = {}
+    features = None
     try:
         entry, truth = camera_stage(job)
         target = _target(job.target)
@@ -361,7 +454,11 @@ Never raises for a failing stage: the records say which stage failed and why.
                                                 job.settings)
         seconds["render"] = float(sum(rsecs))
         seconds["render_per_image"] = float(sum(rsecs) / len(rsecs))
-        images = [r.image for r in renders]
+        features = render_features([r.metadata for r in renders])
+        images, rsec = response_stage(job, truth, [r.image for r in renders])
+        if rsec:
+            seconds["response"] = float(sum(rsec.values()))
+            seconds["response_stages"] = rsec
         artifacts = {}
         if job.keep_images and job.run_dir:
             artifacts["images"] = _keep_images(job, images)
@@ -375,17 +472,18 @@ Never raises for a failing stage: the records say which stage failed and why.
         obs = observations_from(truth, target, poses, dets)
     except StageFailed as e:
         return {"job": job.key, "records": failure_records(
-            job, e.stage, e.reason, status=e.status, entry=entry, seconds=seconds)}
+            job, e.stage, e.reason, status=e.status, entry=entry, seconds=seconds,
+            **({"features": features} if features else {}))}
     except Exception as e:  # a bug in a stage: still a record, with where it happened
         tb = traceback.extract_tb(e.__traceback__)[-1]
         return {"job": job.key, "records": failure_records(
             job, "internal", f"{_reason(e)} ({Path(tb.filename).name}:{tb.lineno})",
-            entry=entry, seconds=seconds)}
+            entry=entry, seconds=seconds, **({"features": features} if features else {}))}
 
     render_info = render_summary([r.metadata for r in renders])
     ctx = dict(obs=obs, target=target, truth=truth, entry=entry, seconds=seconds,
                detections=detections, artifacts=artifacts, rversion=rversion,
-               render_info=render_info)
+               render_info=render_info, features=features)
     records = []
     for cal, model, options in job.calibrators:
         try:
@@ -395,12 +493,13 @@ Never raises for a failing stage: the records say which stage failed and why.
             records.append(_record(job, cal, model, entry, status="failed", stage="internal",
                                    reason=f"{_reason(e)} ({Path(tb.filename).name}:"
                                           f"{tb.lineno})", seconds=dict(seconds),
-                                   detections=detections, artifacts=artifacts))
+                                   detections=detections, artifacts=artifacts,
+                                   features=features))
     return {"job": job.key, "records": records}
 
 
 def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, seconds,
-                       detections, artifacts, rversion, render_info):
+                       detections, artifacts, rversion, render_info, features):
     r'''Calibrate, compare, keep the map -> one record dict'''
     import numpy as np
     res = calibrate_stage(cal, obs, target, model, truth, options)
@@ -408,7 +507,8 @@ def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, s
     common = dict(residuals=res.residual_stats(), seconds=sec, detections=detections,
                   versions={"renderer": _named_version(job.renderer, rversion),
                             "calibrator": _named_version(res.library, res.library_version)},
-                  info={"iterations": int(res.iterations), "render": render_info})
+                  info={"iterations": int(res.iterations), "render": render_info},
+                  features=features)
     if res.status != "ok":
         return _record(job, cal, model, entry, status=res.status, stage="calibrate",
                        reason=res.reason or "(no reason given)", artifacts=artifacts,

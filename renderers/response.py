@@ -79,6 +79,12 @@ def _number(stage, name, value, lo=None, hi=None, integer=False):
     return int(value) if integer else float(value)
 
 
+def _import_convolution():
+    r'''Import scipy.signal when a convolution stage is configured (seconds under load),
+so that the stage's recorded seconds measure the convolution, not the import'''
+    import scipy.signal  # noqa: F401
+
+
 def _convolve_same(image, kernel):
     r'''Zero-padded 2-D convolution: light falling off the sensor is lost, none is made up'''
     from scipy.signal import fftconvolve
@@ -229,6 +235,7 @@ except what spreads past the sensor's edge.
             self.kernel = _disc_kernel(r)
         else:
             raise ResponseConfigError(f"psf.kind = {k!r} is unknown; known: gaussian, disc")
+        _import_convolution()
 
     def describe(self):
         k = self.cfg["kind"]
@@ -257,6 +264,7 @@ kernel, so the centroid of a blob does not move; its variance along v grows by
         vx = _number(self.name, "velocity_px[0]", v[0], lo=-500, hi=500)
         vy = _number(self.name, "velocity_px[1]", v[1], lo=-500, hi=500)
         self.kernel = _segment_kernel(vx, vy)
+        _import_convolution()
 
     def __call__(self, s, ctx):
         return _convolve_same(s, self.kernel)
