@@ -30,7 +30,7 @@ def test_breakdown_is_the_first_broken_level():
 
 
 def test_unknown_difficulty_names_the_choices():
-    with pytest.raises(SweepError, match="known: noise, blur, motion, spp, poses"):
+    with pytest.raises(SweepError, match="known: noise, blur, motion, spp, poses, tilt, range, dots, fov"):
         run_sweep(17, difficulty="fog")
 
 
