@@ -1,0 +1,243 @@
+'''Terrain shadows three ways: exact shadow rays (raycast_terrain), POV-Ray's own
+shadows (povray_terrain) and the paper's two-pass z-buffer (osmesa_terrain)
+
+The methods are asked about the same points: the centroid of each triangle of
+every cell, seen from straight above (renderers.terrain_shadows). Bounds are
+the measured figures with about 2x headroom (measured values in comments).
+'''
+
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from reference_models.cahvore import CAHV
+from renderers.base import RendererError, RendererUnavailableError
+from renderers.terrain_shadows import (
+    ShadowCompareError,
+    compare,
+    raycast_cell_shadows,
+    sample_points,
+)
+from targets.terrain import Sun, Terrain, ground_pose, make_terrain
+
+HAVE_POVRAY = shutil.which("povray") is not None
+
+
+def _osmesa():
+    try:
+        from renderers import osmesa_terrain
+        osmesa_terrain.gl_version()
+    except RendererUnavailableError as e:
+        pytest.skip(f"OSMesa is not available here: {e}")
+    return osmesa_terrain
+
+
+needs_povray = pytest.mark.skipif(not HAVE_POVRAY, reason="the povray binary is not installed")
+
+
+def rough_terrain(elevation_deg, azimuth_deg=120.0):
+    # 8 x 8 m, 10 cm cells (12800 triangles), relief and rocks up to 0.4 m
+    return make_terrain(extent=(0, 8, 0, 8), cell=0.1, texel=0.05, seed=5, relief_m=0.3,
+                        relief_wavelength_m=3.0, rocks_per_m2=1.5, rock_radius_m=(0.05, 0.4),
+                        sun=Sun(azimuth_deg, elevation_deg))
+
+
+def wall_terrain(elevation_deg=20.0, **kw):
+    r'''Flat ground with a one-node ridge at x = 2 m whose shadow (sun from -x) ends
+at x = 2.95 m: half way between the centroids at 2.9333 and 2.9667 m'''
+    height = 0.95 * math.tan(math.radians(elevation_deg))
+    return Terrain.from_function(lambda x, y: np.where(np.abs(x - 2.0) < 1e-6, height, 0.0) + 0 * y,
+                                 (0, 6, 0, 3), 0.1, sun=Sun(180.0, elevation_deg), **kw)
+
+
+def wall_truth(terrain):
+    r'''The analytic codes of wall_terrain: 0 lit, 1 facing away, 2 cast'''
+    x, _ = sample_points(terrain)
+    code = np.zeros(x.shape, np.uint8)
+    code[(x > 2.0) & (x < 2.1)] = 1                # the ridge's far slope faces away
+    code[(x > 2.1) & (x < 2.95)] = 2
+    return code
+
+
+# ---------------------------------------------------------------------------
+@needs_povray
+@pytest.mark.parametrize("method", ["raycast", "povray", "osmesa"])
+def test_each_method_finds_the_analytic_shadow_of_a_ridge(method):
+    t = wall_terrain()
+    if method == "raycast":
+        code = raycast_cell_shadows(t)
+    elif method == "povray":
+        from renderers.povray_terrain import cell_shadows
+        code = cell_shadows(t)
+    else:
+        code = _osmesa().cell_shadows(t)
+    truth = wall_truth(t)
+    assert (truth == 2).mean() == pytest.approx(0.14, abs=0.01)
+    assert np.array_equal(code, truth)
+
+
+@needs_povray
+@pytest.mark.parametrize("elevation_deg, bound_ro", [(12.0, 0.006), (25.0, 0.003)])
+def test_the_three_agree_on_which_cells_are_in_shadow(elevation_deg, bound_ro):
+    from renderers.povray_terrain import cell_shadows as povray_cells
+
+    osm = _osmesa()
+    t = rough_terrain(elevation_deg)
+    r = raycast_cell_shadows(t)
+    p = povray_cells(t)
+    o = osm.cell_shadows(t, map_size=4096)
+    rp, ro, po = compare(r, p, t), compare(r, o, t), compare(p, o, t)
+    # a low sun puts a non-trivial part of the terrain in shadow, for every method
+    # (measured: 36.9% at 12 deg, 9.4% at 25 deg; cast shadows 17.4% / 3.0%)
+    for c in (rp, ro):
+        assert 0.05 < c["shadowed_fraction_a"] < 0.6
+        assert 0.05 < c["shadowed_fraction_b"] < 0.6
+    assert rp["cast_fraction_a"] > 0.02
+    # POV-Ray's shadow rays and the exact ones: measured 0 of 12800 triangles differ
+    assert rp["disagree_fraction"] <= 0.0005
+    # the shadow map (4096^2): measured 0.30% / 0.11% of triangles, 0.13% / 0.04% of
+    # the sunlight; nobody disagrees on which triangles face away from the sun
+    for c in (ro, po):
+        assert 0 < c["disagree_fraction"] <= bound_ro
+        assert c["sunlight_weighted_disagreement"] <= bound_ro / 2
+        assert c["facing_disagree"] == 0
+        # where: at shadow edges or on triangles nearly edge-on to the sun; measured
+        # max 3 / 1 cells from an edge of the exact shadow
+        assert c["max_edge_distance_cells"] <= 5
+        assert c["near_edge_fraction"] + c["grazing_fraction"] >= 0.9
+
+
+def test_the_shadow_map_converges_with_its_resolution():
+    osm = _osmesa()
+    t = rough_terrain(12.0)
+    r = raycast_cell_shadows(t)
+    d = {S: compare(r, osm.cell_shadows(t, map_size=S), t)["disagree_fraction"]
+         for S in (256, 1024, 4096)}
+    # measured: 4.2%, 1.2%, 0.30%
+    assert d[256] > d[1024] > d[4096]
+    assert d[256] > 0.02
+
+
+@pytest.mark.parametrize("tilt_deg, expected", [(-20.0, 0), (0.0, 0), (7.0, 0), (9.5, 0),
+                                                (12.0, 1)])
+def test_no_self_shadowing_on_tilted_planes(tilt_deg, expected):
+    r'''A plane rising towards a 10 deg sun by tilt_deg: cos i = sin(10 - tilt),
+down to 0.009 (0.5 deg from edge-on): lit everywhere (the bias keeps the
+shadow map from shadowing the plane itself); past 10 deg it faces away'''
+    osm = _osmesa()
+    k = math.tan(math.radians(tilt_deg))
+    t = Terrain.from_function(lambda x, y: k * x + 0 * y, (0, 5, 0, 3), 0.1, sun=Sun(0.0, 10.0))
+    codes = [raycast_cell_shadows(t), osm.cell_shadows(t, map_size=1024)]
+    if HAVE_POVRAY:
+        from renderers.povray_terrain import cell_shadows
+        codes.append(cell_shadows(t))
+    for code in codes:
+        assert np.all(code == expected)
+
+
+# ---------------------------------------------------------------------------
+def top_down_camera(W=320, H=160, f=500.0, centre=(3.01234, 1.48765), height=10.0):
+    # off the grid's lattice: from (3.0, 1.5) many pixel rays meet the surface exactly
+    # on a cell diagonal, where POV-Ray's shadow rays leak through or hit the
+    # neighbouring triangle (speckled lines; the exact renderer has none)
+    A = np.array([0.0, 0.0, -1.0])
+    Hp = np.array([1.0, 0.0, 0.0])
+    Vp = np.cross(A, Hp)
+    cx, cy = (W - 1) / 2.0, (H - 1) / 2.0
+    return CAHV(C=np.array([centre[0], centre[1], height]), A=A, H=f * Hp + cx * A,
+                V=f * Vp + cy * A, width=W, height=H)
+
+
+def test_osmesa_darkens_shadowed_fragments_by_the_paper_factor():
+    osm = _osmesa()
+    t = wall_terrain(ambient=0.15)          # uniform albedo 0.5
+    m = top_down_camera()
+    shadowed = tuple(np.rint(m.project([2.5, 1.5, 0.0])).astype(int))
+    lit = tuple(np.rint(m.project([4.0, 1.5, 0.0])).astype(int))
+    lit_value = 0.5 * (0.15 + math.sin(math.radians(20.0)))
+    for factor in (0.3, 0.6):
+        img = osm.render_terrain(m, t, shadow_factor=factor).image
+        assert img[lit[1], lit[0]] == pytest.approx(lit_value, rel=1e-5)
+        assert img[shadowed[1], shadowed[0]] == pytest.approx(factor * lit_value, rel=1e-5)
+    # the default factor gives flat ground in shadow the exact renderer's value (ambient only)
+    r = osm.render_terrain(m, t)
+    assert r.metadata["shadow_factor"] == pytest.approx(0.15 / (0.15 + math.sin(math.radians(20))))
+    from renderers.raycast_terrain import render_terrain as raycast_render
+    exact = raycast_render(m, t).image
+    for q in (shadowed, lit):
+        assert r.image[q[1], q[0]] == pytest.approx(exact[q[1], q[0]], rel=1e-5)
+    assert exact[shadowed[1], shadowed[0]] == pytest.approx(0.5 * 0.15, rel=1e-6)
+    # shadows off: nothing is darkened
+    off = osm.render_terrain(m, t, shadows=False).image
+    assert off[shadowed[1], shadowed[0]] == pytest.approx(lit_value, rel=1e-5)
+
+
+@needs_povray
+def test_povray_shades_like_the_exact_renderer():
+    from renderers.povray_terrain import render_terrain as povray_render
+    from renderers.raycast_terrain import render_terrain as raycast_render
+
+    t = wall_terrain(ambient=0.15)
+    m = top_down_camera()
+    shadowed = tuple(np.rint(m.project([2.5, 1.5, 0.0])).astype(int))
+    lit = tuple(np.rint(m.project([4.0, 1.5, 0.0])).astype(int))
+    img = povray_render(m, t).image
+    exact = raycast_render(m, t).image
+    for q in (shadowed, lit):
+        # 16-bit output: within 2 DN
+        assert img[q[1], q[0]] == pytest.approx(exact[q[1], q[0]], abs=3e-5)
+
+
+@needs_povray
+def test_camera_renders_of_the_three_agree():
+    from harness.stereo import scale_model
+    from reference_models.catalogue import load_catalogue
+    from renderers.povray_terrain import render_terrain as povray_render
+    from renderers.raycast_terrain import render_terrain as raycast_render
+
+    osm = _osmesa()
+    t = make_terrain(extent=(0, 10, -5, 5), cell=0.1, texel=0.02, seed=5, relief_m=0.3,
+                     relief_wavelength_m=3.0, rocks_per_m2=1.5, rock_radius_m=(0.05, 0.4),
+                     sun=Sun(120.0, 12.0))
+    m = scale_model(load_catalogue().get(21).model, 0.05)   # Mars 2020 navcam, 256x192
+    pose = ground_pose(1.9, pitch_deg=20.0)
+    exact = raycast_render(m, t, pose, spp=2)
+    images = {"povray": povray_render(m, t, pose, spp=2),
+              "osmesa": osm.render_terrain(m, t, pose, spp=2)}
+    ground = np.isfinite(exact.range)
+    # measured: 58% ground, 30% of it unlit
+    assert 0.3 < ground.mean() < 0.9
+    assert 0.1 < (exact.shadow[ground] != 0).mean() < 0.6
+    for name, r in images.items():
+        assert r.image.shape == exact.image.shape and r.image.dtype == np.float32
+        d = np.abs(r.image.astype(np.float64) - exact.image)
+        # measured mean 0.0033 (povray) / 0.0048 (osmesa: its darkening factor is one
+        # number, exact on flat ground only), median 0.0002 / 0.0004: pinhole + warp
+        # against exact rays, and shadow edges
+        assert d.mean() < 0.01, name
+        assert np.median(d) < 0.002, name
+        assert r.metadata["renderer"] in ("povray_terrain", "osmesa_terrain")
+
+
+# ---------------------------------------------------------------------------
+def test_bad_input_is_refused_with_a_reason():
+    osm = _osmesa()
+    t = wall_terrain()
+    m = top_down_camera(W=32, H=16)
+    with pytest.raises(RendererError, match="map_size"):
+        osm.cell_shadows(t, map_size=8)
+    with pytest.raises(RendererError, match="shadow_factor"):
+        osm.render_terrain(m, t, shadow_factor=1.5)
+    with pytest.raises(RendererError, match="supersampling K"):
+        osm.render_terrain(m, t, spp=0)
+    with pytest.raises(RendererError, match="Rt_ref_terrain"):
+        osm.render_terrain(m, t, Rt_ref_terrain=np.zeros((3, 3)))
+    from renderers.povray_terrain import cell_shadows, render_terrain
+    with pytest.raises(RendererUnavailableError, match="apt-get install povray"):
+        cell_shadows(t, binary="no-such-povray-binary")
+    with pytest.raises(RendererUnavailableError, match="apt-get install povray"):
+        render_terrain(m, t, binary="no-such-povray-binary")
+    with pytest.raises(ShadowCompareError, match=r"\(Ny-1, Nx-1, 2\)"):
+        compare(np.zeros((3, 3, 2), np.uint8), np.zeros((3, 4, 2), np.uint8))
