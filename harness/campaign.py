@@ -374,6 +374,10 @@ renderers.response.ResponseChain.from_config.
         if not isinstance(cfg, dict):
             raise CampaignError(f"{_where(source, key)}: expected a table [response.{name}] "
                                 f"of response stages; got {cfg!r}")
+        if name in known:
+            raise CampaignError(f"{_where(source, key)}: a profile named like a response "
+                                f"setting; put the stages in a profile table "
+                                f"[response.NAME], e.g. [response.noisy]")
         if not PROFILE_NAME.match(name):
             raise CampaignError(f"{_where(source, key)}: a profile name may hold only "
                                 f"letters, digits, '_' and '-'")

@@ -121,3 +121,123 @@ def test_cli_bad_campaign_is_one_line_exit_2(tmp_path):
     assert len(lines) == 1, out.stderr
     assert "renderer[0].name: unknown renderer 'blender'" in lines[0]
     assert not (tmp_path / "run").exists()
+
+
+# --- camera-response profiles ([response.NAME]) --------------------------------------
+def test_response_campaign_expands_clean_and_realistic_jobs():
+    c = load_campaign(ROOT / "campaigns" / "response.toml")
+    assert [r.name for r in c.responses] == ["clean", "realistic"]
+    assert c.response("clean").clean and not c.response("realistic").clean
+    assert c.response("realistic").stages() == ["psf", "shot_noise", "read_noise", "quantise"]
+    assert c.seed == 0
+    jobs = expand_jobs(c)
+    assert len(jobs) == 3 * 3 * 2
+    assert [j.key for j in jobs[:2]] == ["15/CAHV/dots/raycast[spp=16,adaptive]",
+                                         "15/CAHV/dots/raycast[spp=16,adaptive,response=realistic]"]
+    # the clean jobs are the quick campaign's jobs, under the same fullnames
+    quick = {j.key: j for j in expand_jobs(load_campaign(ROOT / "campaigns" / "quick.toml"))}
+    clean = [j for j in jobs if j.response_name == "clean"]
+    assert {j.key for j in clean} == set(quick)
+    assert all(j.settings == quick[j.key].settings and j.response == {} for j in clean)
+    noisy = jobs[1]
+    assert noisy.settings == {"spp": 16, "adaptive": True, "options": {},
+                              "response": "realistic"}
+    assert noisy.response == {"full_well_e": 20000, "psf": {"kind": "gaussian", "sigma_px": 0.7},
+                              "shot_noise": {}, "read_noise": {"sigma_e": 12.0},
+                              "quantise": {"bits": 12}}
+    assert noisy.fullname("jpl", "CAHV") == \
+        "15/CAHV/dots/raycast[spp=16,adaptive,response=realistic]/jpl[CAHV]"
+    assert Campaign.from_dict(c.as_dict()) == c
+
+
+def test_renderer_chooses_its_profiles_in_its_order(tmp_path):
+    c = load_campaign(_write(tmp_path, '''
+cameras = [17]
+models = ["CAHV"]
+seed = 5
+[[renderer]]
+name = "raycast"
+spp = 4
+response = ["blur", "clean"]
+[[renderer]]
+name = "raycast"
+spp = 1
+response = ["noise"]
+[response.clean]
+[response.noise]
+shot_noise = {}
+[response.blur]
+psf = {sigma_px = 2.0}
+'''))
+    jobs = expand_jobs(c)
+    assert [j.key for j in jobs] == ["17/CAHV/dots/raycast[spp=4,adaptive,response=blur]",
+                                     "17/CAHV/dots/raycast[spp=4,adaptive]",
+                                     "17/CAHV/dots/raycast[spp=1,adaptive,response=noise]"]
+    assert [j.response_name for j in jobs] == ["blur", "clean", "noise"]
+    assert {j.seed for j in jobs} == {5}
+    assert Campaign.from_dict(c.as_dict()) == c
+    # without renderer.response every profile runs, in file order
+    c2 = load_campaign(_write(tmp_path, 'cameras = [17]\nmodels = ["CAHV"]\n'
+                                        '[response.noise]\nshot_noise = {}\n[response.clean]\n',
+                              "c2.toml"))
+    assert [j.key for j in expand_jobs(c2)] == [
+        "17/CAHV/dots/raycast[spp=16,adaptive,response=noise]",
+        "17/CAHV/dots/raycast[spp=16,adaptive]"]
+
+
+def test_a_campaign_document_from_before_response_profiles_still_loads():
+    c = load_campaign(ROOT / "campaigns" / "quick.toml")
+    old = c.as_dict()
+    del old["seed"], old["response"]
+    assert Campaign.from_dict(old) == c
+    assert c.responses == () and [j.response for j in expand_jobs(c)] == [{}] * 9
+
+
+R = 'cameras = [15]\n'
+
+
+@pytest.mark.parametrize("text, message", [
+    (R + '[response.noisy]\nshotnoise = {}\n',
+     r"c\.toml: response\.noisy\.shotnoise: unknown key; known keys: seed, full_well_e, "
+     r"vignetting, psf, motion_blur, global_gain, shot_noise, dark_current, hot_pixels, "
+     r"dead_pixels, saturation, read_noise, quantise$"),
+    (R + '[response.noisy]\nread_noise = {sigma = 3}\n',
+     r"response\.noisy\.read_noise\.sigma: unknown key; known keys: sigma_e$"),
+    (R + '[response.noisy]\nquantise = {bits = 9}\n',
+     r"response\.noisy: quantise\.bits = 9; known: 8, 10, 12, 14, 16"),
+    (R + '[response.noisy]\npsf = {kind = "airy"}\n',
+     r"response\.noisy: psf\.kind = 'airy' is unknown; known: gaussian, disc"),
+    (R + '[response.noisy]\nread_noise = {}\n', r"response\.noisy: .*needs 'sigma_e'"),
+    (R + '[response.noisy]\nshot_noise = true\n',
+     r"response\.noisy\.shot_noise: expected a table of the stage's parameters"),
+    (R + '[response.noisy]\nseed = -1\nshot_noise = {}\n',
+     r"response\.noisy\.seed: expected an integer >= 0; got -1"),
+    (R + 'response = 3\n', r"response: expected tables \[response\.NAME\]"),
+    (R + '[response]\nshot_noise = {}\n',
+     r"response\.shot_noise: a profile named like a response setting; put the stages in a "
+     r"profile table \[response\.NAME\]"),
+    (R + '[response]\nfull_well_e = 1000\n', r"response\.full_well_e: expected a table"),
+    (R + '[response."a b"]\nshot_noise = {}\n', r"a profile name may hold only letters"),
+    (R + '[response.a]\n[response.b]\n', r"profiles 'a' and 'b' both have no stages"),
+    (R + 'seed = -2\n', r"c\.toml: seed: expected an integer >= 0; got -2"),
+    (R + '[[renderer]]\nname = "raycast"\nresponse = ["noisy"]\n[response.clean]\n',
+     r"renderer\[0\]\.response: unknown response profile 'noisy'; known profiles: clean$"),
+    (R + '[[renderer]]\nname = "raycast"\nresponse = ["noisy"]\n',
+     r"unknown response profile 'noisy'; known profiles: \(none: add \[response\.NAME\]"),
+])
+def test_response_errors_name_the_key(tmp_path, text, message):
+    with pytest.raises(CampaignError, match=message):
+        load_campaign(_write(tmp_path, text))
+
+
+def test_cli_bad_response_stage_is_one_line_exit_2(tmp_path):
+    p = _write(tmp_path, 'cameras = [15]\n[response.noisy]\nshot_noise = {}\nblur = {}\n')
+    out = subprocess.run([sys.executable, "-m", "harness.cli", "verify", str(p), "--out",
+                          str(tmp_path / "run")], capture_output=True, text=True, cwd=ROOT,
+                         timeout=120)
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1, out.stderr
+    assert "response.noisy.blur: unknown key; known keys: seed, full_well_e, vignetting" \
+        in lines[0]
+    assert not (tmp_path / "run").exists()
