@@ -67,7 +67,7 @@ DIFFICULTIES = {
               "unit": "board range, x the range at which it fills the image", "rerender": True},
     "dots": {"levels": [16.0, 12.0, 8.0, 6.0, 4.0, 3.0, 2.5, 2.0],
              "unit": "dot diameter, px (median)", "rerender": True},
-    "fov": {"levels": ["MCAM_Z_LEFT-Z110", "13", "15", "21", "8", "3"],
+    "fov": {"levels": ["MCAM_Z_LEFT-Z110", "13", "MCAM_Z_LEFT-Z026", "15", "21", "8", "17"],
             "unit": "camera, ordered by horizontal field of view", "rerender": True},
 }
 DEFAULT_BAR_PX = 0.05

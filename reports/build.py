@@ -13,16 +13,51 @@ Both hold the run's facts (campaign, commit, machine, adapters), one summary
 table per calibrator beside the paper's numbers, the figures, and every
 failed record with its stage and reason. Existing report files of the run are
 replaced (they are derived data; the run document is never touched).
+
+Two sections appear when the run has their data:
+
+- Legacy signature (paper Figs. 4-5): when records were rendered in legacy
+  mode (renderer option legacy = true, e.g. campaigns/legacy.toml), the
+  recovered (Hc, Vc) error against the truth and against the truth rounded to
+  the half pixel, per camera, with the clean records of the same cameras as
+  the control, and the numbers in a table. The truths come from the
+  catalogue (the campaign's overlay if it named one).
+- Stability sweeps: sweep documents of `camval sweep` (sweep_*.json) found in
+  the run directory or its sweeps/ folder: one stability chart per sweep with
+  each method's breakdown marked, and the breakdown table.
+
+    paths = build_sweep_report("out/")   # camval sweep's own page: the sweeps alone
 '''
 
 import base64
 import html
+import json
 from pathlib import Path
 
 from harness.records import load_run, write_atomic
+from reference_models.errors import CamvalError
 
-from .figures import make_figures
-from .tables import failure_rows, run_facts, summary_tables
+from .figures import fig_legacy_signature, fig_sweeps, make_figures
+from .tables import (
+    failure_rows,
+    legacy_signature_rows,
+    legacy_signature_table,
+    run_facts,
+    summary_tables,
+    sweep_level_rows,
+    sweep_rows,
+)
+
+
+class ReportError(CamvalError):
+    '''A report that cannot be written from what was given (no run, no sweeps).'''
+
+
+SWEEP_HEADER = ("method", "breaks at", "why", "best projection RMS (px)", "at level",
+                "lowest detection rate (%)")
+SWEEP_LEVEL_HEADER = ("level", "method", "status", "detection (%)", "projection RMS (px)",
+                      "residual RMS (px)", "scene (mean range m, mean tilt deg, median dot px) "
+                      "or why not run")
 
 CSS = """
 body { font-family: system-ui, sans-serif; max-width: 1200px; margin: 1em auto; padding: 0 1em;
@@ -83,6 +118,102 @@ def _md_table(header, rows):
     return "\n".join(out)
 
 
+def _html_figure(f):
+    data = base64.b64encode(Path(f.path).read_bytes()).decode("ascii")
+    return (f"<figure id=\"{_e(f.key)}\"><h3>{_e(f.title)}</h3>"
+            f"<img alt=\"{_e(f.title)}\" src=\"data:image/png;base64,{data}\">"
+            f"<figcaption>{_e(f.caption)}</figcaption></figure>")
+
+
+def _md_figure(f, out):
+    rel = Path(f.path).relative_to(out)
+    return [f"### {f.title}", "", f"![{f.title}]({rel.as_posix()})", "", f.caption, ""]
+
+
+def is_sweep(doc):
+    r'''Whether a JSON document is a harness.sweep.run_sweep result'''
+    return (isinstance(doc, dict) and isinstance(doc.get("records"), list)
+            and isinstance(doc.get("breakdown"), dict) and "difficulty" in doc
+            and "levels" in doc)
+
+
+def find_sweeps(directory):
+    r'''[sweep document] from DIR/sweep_*.json and DIR/sweeps/**/sweep_*.json, by path'''
+    d = Path(directory)
+    paths = sorted(set(d.glob("sweep_*.json")) | set(d.glob("sweeps/**/sweep_*.json")))
+    out = []
+    for p in paths:
+        try:
+            doc = json.loads(p.read_text())
+        except (OSError, ValueError):
+            continue     # not ours or half written: the report is about the run
+        if is_sweep(doc):
+            doc["_path"] = str(p.relative_to(d))
+            out.append(doc)
+    return out
+
+
+def truth_resolver(doc, run_dir):
+    r'''truth_of(camera, family) -> the true model of a run's camera, or None'''
+    from reference_models.cahvore import truncate
+    from reference_models.catalogue import load_catalogue
+    from reference_models.errors import CamvalError
+    overlay = (doc.get("campaign") or {}).get("catalogue")
+    cache = {}
+
+    def catalogue():
+        if "cat" not in cache:
+            cat = None
+            if overlay:
+                for base in (Path(run_dir), Path.cwd()):
+                    try:
+                        cat = load_catalogue(overlay=str(base / overlay))
+                        break
+                    except (CamvalError, OSError):
+                        continue
+            cache["cat"] = cat or load_catalogue()
+        return cache["cat"]
+
+    def truth_of(camera, family):
+        key = (camera, family)
+        if key not in cache:
+            try:
+                cache[key] = truncate(catalogue().get(camera).model, family)
+            except (CamvalError, ValueError):
+                cache[key] = None
+        return cache[key]
+    return truth_of
+
+
+def _sweep_sections(sweeps, figs, out):
+    r'''(html lines, markdown lines) of the stability-sweep section'''
+    h = ["<h2 id=\"sweeps\">Stability sweeps</h2>",
+         "<p>One difficulty varied at a time (harness/sweep.py), everything else fixed. A "
+         "method breaks at the first level where the target is not found in every point of "
+         "every image, the calibration fails, or the projection difference exceeds the "
+         "bar.</p>"]
+    m = ["## Stability sweeps", "",
+         "One difficulty varied at a time (harness/sweep.py), everything else fixed. A method "
+         "breaks at the first level where the target is not found in every point of every "
+         "image, the calibration fails, or the projection difference exceeds the bar.", ""]
+    for sw, f in zip(sweeps, figs, strict=True):
+        h.append(_html_figure(f))
+        h.append(_html_table(SWEEP_HEADER, sweep_rows(sw)))
+        h.append(f"<details><summary>every level ({len(sw['records'])} records, "
+                 f"{sw.get('seconds', 0):.0f} s)</summary>")
+        h.append(_html_table(SWEEP_LEVEL_HEADER, sweep_level_rows(sw)))
+        h.append("</details>")
+        m += _md_figure(f, out)
+        m += [_md_table(SWEEP_HEADER, sweep_rows(sw)), ""]
+    return h, m
+
+
+def _page_head(title):
+    return ["<!DOCTYPE html>", "<html lang=\"en\"><head><meta charset=\"utf-8\">",
+            f"<title>{_e(title)}</title>", f"<style>{CSS}</style>",
+            f"<script>{IMAGE_CHECK}</script>", "</head><body>", f"<h1>{_e(title)}</h1>"]
+
+
 def build_report(run, out_dir=None):
     r'''Write report.html, report.md and figures/*.png for a run -> {"html", "markdown", ...}'''
     run = Path(run)
@@ -92,6 +223,10 @@ def build_report(run, out_dir=None):
     out = Path(out_dir) if out_dir else run_dir / "report"
     fig_dir = out / "figures"
     figs = make_figures(records, run_dir, fig_dir)
+    legacy_rows = legacy_signature_rows(records, truth_resolver(doc, run_dir))
+    legacy_fig = fig_legacy_signature(legacy_rows, fig_dir) if legacy_rows else None
+    sweeps = find_sweeps(run_dir)
+    sweep_figs = fig_sweeps(sweeps, fig_dir) if sweeps else []
     tables = summary_tables(records)
     failures = failure_rows(records)
     not_app = failure_rows(records, statuses=("not-applicable",))
@@ -100,10 +235,15 @@ def build_report(run, out_dir=None):
     title = f"camval verification report: {name}"
 
     # --- HTML -------------------------------------------------------------------------
-    h = ["<!DOCTYPE html>", "<html lang=\"en\"><head><meta charset=\"utf-8\">",
-         f"<title>{_e(title)}</title>", f"<style>{CSS}</style>",
-         f"<script>{IMAGE_CHECK}</script>", "</head><body>", f"<h1>{_e(title)}</h1>",
-         _html_table(("", ""), facts)]
+    h = _page_head(title) + [_html_table(("", ""), facts)]
+    sections = [("summary", "Summary per calibrator"), ("figures", "Figures")]
+    if legacy_fig:
+        sections.append(("legacy", "Legacy signature (paper Figs. 4-5)"))
+    if sweep_figs:
+        sections.append(("sweeps", "Stability sweeps"))
+    sections += [("failures", "Failures"), ("not-applicable", "Not applicable")]
+    h.append("<p>" + " | ".join(f"<a href=\"#{k}\">{_e(t)}</a>" for k, t in sections) +
+             "</p>")
     h.append("<h2 id=\"summary\">Summary per calibrator, beside the paper</h2>")
     h.append("<p>Statistics over each calibrator's successful records, per model family the "
              "images were rendered with. The paper's column is what ROAMS achieved "
@@ -116,10 +256,18 @@ def build_report(run, out_dir=None):
         h.append("<ul>" + "".join(f"<li><a href=\"#{_e(f.key)}\">{_e(f.title)}</a></li>"
                                   for f in figs) + "</ul>")
     for f in figs:
-        data = base64.b64encode(Path(f.path).read_bytes()).decode("ascii")
-        h.append(f"<figure id=\"{_e(f.key)}\"><h3>{_e(f.title)}</h3>"
-                 f"<img alt=\"{_e(f.title)}\" src=\"data:image/png;base64,{data}\">"
-                 f"<figcaption>{_e(f.caption)}</figcaption></figure>")
+        h.append(_html_figure(f))
+    legacy_table = legacy_signature_table(legacy_rows) if legacy_fig else None
+    if legacy_fig:
+        h.append("<h2 id=\"legacy\">Legacy signature (paper Figs. 4-5)</h2>")
+        h.append(f"<p>{_e(legacy_table.note)}</p>")
+        h.append(_html_figure(legacy_fig))
+        h.append(f"<h3>{_e(legacy_table.title)}</h3>")
+        h.append(_html_table(legacy_table.header, legacy_table.rows))
+    sweep_m = []
+    if sweep_figs:
+        sweep_h, sweep_m = _sweep_sections(sweeps, sweep_figs, out)
+        h += sweep_h
     h.append(f"<h2 id=\"failures\">Failures ({len(failures)})</h2>")
     h.append(_html_table(("fullname", "status", "stage", "reason"), failures)
              if failures else "<p>None.</p>")
@@ -137,8 +285,13 @@ def build_report(run, out_dir=None):
         m += [f"### {t.title}", "", t.note, "", _md_table(t.header, t.rows), ""]
     m += ["## Figures", ""]
     for f in figs:
-        rel = Path(f.path).relative_to(out)
-        m += [f"### {f.title}", "", f"![{f.title}]({rel.as_posix()})", "", f.caption, ""]
+        m += _md_figure(f, out)
+    if legacy_fig:
+        m += ["## Legacy signature (paper Figs. 4-5)", "", legacy_table.note, ""]
+        m += _md_figure(legacy_fig, out)
+        m += [f"### {legacy_table.title}", "",
+              _md_table(legacy_table.header, legacy_table.rows), ""]
+    m += sweep_m
     m += [f"## Failures ({len(failures)})", ""]
     m += [_md_table(("fullname", "status", "stage", "reason"), failures) if failures
           else "None.", ""]
@@ -146,6 +299,45 @@ def build_report(run, out_dir=None):
     m += [_md_table(("fullname", "status", "stage", "reason"), not_app) if not_app
           else "None.", ""]
     md_path = out / "report.md"
+    write_atomic(md_path, "\n".join(m))
+    all_figs = figs + ([legacy_fig] if legacy_fig else []) + sweep_figs
+    return {"html": str(html_path), "markdown": str(md_path), "figures_dir": str(fig_dir),
+            "figures": [f.path for f in all_figs],
+            "legacy_rows": legacy_rows, "sweeps": [sw["_path"] for sw in sweeps]}
+
+
+def build_sweep_report(sweep_dir, out_dir=None):
+    r'''The stability sweeps of a directory on their own page
+
+SYNOPSIS
+
+    paths = build_sweep_report("out/")     # reads out/sweep_*.json (and out/sweeps/)
+    paths["html"], paths["markdown"], paths["figures"]
+
+Writes OUT/sweep_report.html (figures embedded), OUT/sweep_report.md and one
+stability chart per sweep in OUT/sweep_figures/ (OUT defaults to sweep_dir).
+Raises ReportError when the directory holds no sweep document.
+'''
+    sweep_dir = Path(sweep_dir)
+    sweeps = find_sweeps(sweep_dir)
+    if not sweeps:
+        raise ReportError(f"'{sweep_dir}' holds no sweep document (sweep_*.json written by "
+                          "camval sweep)")
+    out = Path(out_dir) if out_dir else sweep_dir
+    fig_dir = out / "sweep_figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    figs = fig_sweeps(sweeps, fig_dir)
+    title = "camval stability sweeps"
+    facts = [(sw["_path"], f"{sw['difficulty']}: {len(sw['levels'])} levels, "
+                           f"{len(sw['records'])} records, {sw.get('seconds', 0):.0f} s")
+             for sw in sweeps]
+    sweep_h, sweep_m = _sweep_sections(sweeps, figs, out)
+    h = _page_head(title) + [_html_table(("sweep", ""), facts)] + sweep_h
+    h.append("</body></html>")
+    html_path = out / "sweep_report.html"
+    write_atomic(html_path, "\n".join(h) + "\n")
+    m = [f"# {title}", "", _md_table(("sweep", ""), facts), ""] + sweep_m
+    md_path = out / "sweep_report.md"
     write_atomic(md_path, "\n".join(m))
     return {"html": str(html_path), "markdown": str(md_path), "figures_dir": str(fig_dir),
             "figures": [f.path for f in figs]}

@@ -152,3 +152,159 @@ def run_facts(doc):
         if ad.get(kind):
             facts.append((kind, "; ".join(f"{k}: {v}" for k, v in sorted(ad[kind].items()))))
     return facts
+
+
+# ---------------------------------------------------------------------------------------------
+# the paper's Figs. 4-5 signature of the legacy (ROAMS) renderer
+def _defect_names(v):
+    if not v:
+        return set()
+    if v is True:
+        return {"all"}
+    if isinstance(v, str):
+        return {v}
+    return {str(x) for x in v}
+
+
+def render_mode(record):
+    r'''"legacy" when the record's images were rendered with (Hc, Vc) rounded to the half
+pixel (renderer option legacy = true, or a legacy / fault list naming round_centre),
+"faulty" for any other injected defect, "clean" otherwise'''
+    opts = (record.get("settings") or {}).get("options") or {}
+    legacy = _defect_names(opts.get("legacy"))
+    fault = _defect_names(opts.get("fault"))
+    if "all" in legacy or "round_centre" in legacy or "round_centre" in fault:
+        return "legacy"
+    return "faulty" if legacy or fault else "clean"
+
+
+def round_half(x):
+    r'''x rounded to the nearest half pixel (renderers.legacy's rule)'''
+    return round(2.0 * x) / 2.0
+
+
+def legacy_signature_rows(records, truth_of):
+    r'''The recovered (Hc, Vc) errors of the legacy records and their clean controls
+
+SYNOPSIS
+
+    rows = legacy_signature_rows(records, truth_of)
+    # truth_of(camera, family) -> the true model (or None when it cannot be had)
+    rows[0]["Hc_error"], rows[0]["Hc_rounding"], rows[0]["Hc_error_vs_rounded"]
+
+One row per ok record that estimates Hc and Vc, for every camera/model/target
+that has at least one legacy-mode record (render_mode == "legacy"): the
+legacy records and the clean records of the same camera, model and target
+(the control). Hc_error = recovered - true (the record's params.Hc);
+Hc_rounding = round_half(true Hc) - true Hc, what the legacy renderer moved
+the centre by; Hc_error_vs_rounded = recovered - round_half(true Hc) =
+Hc_error - Hc_rounding (the paper's Fig. 5). Same for Vc. Returns [] when
+the run has no legacy records.
+'''
+    modes = {k: render_mode(r) for k, r in records.items()}
+    groups = {(r["camera"], r["model"], r["target"]) for k, r in records.items()
+              if modes[k] == "legacy"}
+    rows = []
+    for k, r in records.items():
+        g = (r["camera"], r["model"], r["target"])
+        if g not in groups or modes[k] == "faulty" or r["status"] != "ok":
+            continue
+        p = r.get("params") or {}
+        if p.get("Hc") is None or p.get("Vc") is None:
+            continue
+        truth = truth_of(r["camera"], r["model"])
+        if truth is None:
+            continue
+        ph = truth.photogrammetric()
+        row = {"fullname": r["fullname"], "camera": r["camera"], "model": r["model"],
+               "target": r["target"], "mode": modes[k], "calibrator": _cal_label(r),
+               "renderer": r["renderer"], "Hc_true": float(ph.Hc), "Vc_true": float(ph.Vc)}
+        for name in ("Hc", "Vc"):
+            t = row[f"{name}_true"]
+            row[f"{name}_rounding"] = round_half(t) - t
+            row[f"{name}_error"] = float(p[name])
+            row[f"{name}_error_vs_rounded"] = float(p[name]) - row[f"{name}_rounding"]
+        rows.append(row)
+
+    def order(row):
+        c = row["camera"]
+        return ((0, int(c), "") if c.isdigit() else (1, 0, c), row["model"],
+                row["calibrator"], row["mode"] != "legacy", row["fullname"])
+    return sorted(rows, key=order)
+
+
+def legacy_signature_table(rows):
+    r'''Table of legacy_signature_rows (the figure's numbers) and a one-line verdict note'''
+    header = ("camera", "model", "calibrator", "renderer", "true Hc", "true Vc",
+              "rounding Hc", "rounding Vc", "error Hc", "error Vc",
+              "error vs rounded Hc", "error vs rounded Vc")
+    out = []
+    for r in rows:
+        out.append((r["camera"], r["model"], r["calibrator"],
+                    f"{r['mode']} ({r['renderer']})", f"{r['Hc_true']:.4f}",
+                    f"{r['Vc_true']:.4f}",
+                    *(f"{r[k]:+.4f}" for k in ("Hc_rounding", "Vc_rounding", "Hc_error",
+                                                "Vc_error", "Hc_error_vs_rounded",
+                                                "Vc_error_vs_rounded"))))
+    note = legacy_signature_note(rows)
+    return Table("Recovered image centre against the truth and the truth rounded to the half "
+                 "pixel (px)", header, tuple(out), note)
+
+
+def legacy_signature_note(rows):
+    r'''One sentence: how close the legacy errors sit to the rounding, and the control'''
+    def worst(mode, key):
+        v = [abs(r[f"Hc_{key}"]) for r in rows if r["mode"] == mode]
+        v += [abs(r[f"Vc_{key}"]) for r in rows if r["mode"] == mode]
+        return max(v) if v else None
+    n_leg = sum(r["mode"] == "legacy" for r in rows)
+    n_clean = sum(r["mode"] == "clean" for r in rows)
+    parts = []
+    if n_leg:
+        parts.append(f"legacy renderer ({n_leg} records): |error| up to "
+                     f"{worst('legacy', 'error'):.3f} px against the truth, "
+                     f"{worst('legacy', 'error_vs_rounded'):.4f} px against the truth rounded "
+                     "to the half pixel")
+    if n_clean:
+        parts.append(f"clean renderer ({n_clean} records, the control): |error| up to "
+                     f"{worst('clean', 'error'):.4f} px against the truth, "
+                     f"{worst('clean', 'error_vs_rounded'):.3f} px against the rounded truth")
+    return "; ".join(parts) + "." if parts else ""
+
+
+# ---------------------------------------------------------------------------------------------
+# stability sweeps (harness/sweep.py documents)
+def sweep_rows(sweep):
+    r'''[(method, breaks at, why, best projection RMS px, at level, lowest detection rate %)]'''
+    out = []
+    keys = sorted({f"{r['calibrator']}/{r['model']}" for r in sweep["records"]})
+    for key in keys:
+        recs = [r for r in sweep["records"] if f"{r['calibrator']}/{r['model']}" == key]
+        ok = [r for r in recs if r.get("projection_rms_px") is not None]
+        best = min(ok, key=lambda r: r["projection_rms_px"]) if ok else None
+        rates = [r["detection_rate"] for r in recs if r.get("detection_rate") is not None]
+        b = sweep["breakdown"].get(key) or {}
+        out.append((key, "never" if b.get("level") is None else str(b["level"]),
+                    b.get("reason") or "",
+                    _fmt(best["projection_rms_px"]) if best else "—",
+                    str(best["level"]) if best else "—",
+                    f"{100 * min(rates):.1f}" if rates else "—"))
+    return out
+
+
+def sweep_level_rows(sweep):
+    r'''[(level, method, status, detection %, projection RMS px, residual RMS px, scene)]'''
+    out = []
+    for lv in sweep["levels"]:
+        for r in sweep["records"]:
+            if r["level"] != lv:
+                continue
+            sc = r.get("scene") or {}
+            scene = ", ".join(f"{k} {v:.3g}" for k, v in sc.items() if v is not None)
+            rate = r.get("detection_rate")
+            out.append((str(lv), f"{r['calibrator']}/{r['model']}",
+                        r["status"] + (" (broken)" if r.get("broken") else ""),
+                        "—" if rate is None else f"{100 * rate:.1f}",
+                        _fmt(r.get("projection_rms_px")), _fmt(r.get("residual_rms_px")),
+                        scene if r["status"] != "not-applicable" else r.get("reason", "")))
+    return out
