@@ -3,7 +3,10 @@ r'''The report: figures, tables and a self-contained HTML page checked in headle
 The records are real: exact correspondences (projected dot centres of the
 planned poses) recalibrated by the jpl calibrator and compared with the truth
 by the runner's own compare stage, plus a genuinely failing calibration (too
-few points) and a not-applicable record.
+few points) and a not-applicable record. The legacy run holds the exact
+projections of the legacy (ROAMS) models recalibrated the same way, with the
+clean control, and a slow test runs the legacy renderer itself through a
+campaign.
 '''
 
 import re
@@ -22,9 +25,10 @@ from harness.records import Record, RunStore, make_fullname
 from harness.runner import _downsample, compare_stage
 from reference_models.cahvore import truncate
 from reference_models.catalogue import load_catalogue
-from reports.build import build_report
-from reports.figures import pareto_front, speed_accuracy_points
-from reports.tables import summary_tables
+from renderers.legacy import legacy_model
+from reports.build import build_report, build_sweep_report, find_sweeps
+from reports.figures import fig_speed, pareto_front, speed_accuracy_points, speed_series
+from reports.tables import legacy_signature_rows, render_mode, round_half, summary_tables
 from targets.boards import load_target
 from targets.poses import plan_poses
 
@@ -165,7 +169,9 @@ def _chromium():
     return None
 
 
-def test_html_in_headless_chromium(run_dir):
+@pytest.mark.parametrize("which", ["run_dir", "legacy_run"])
+def test_html_in_headless_chromium(which, request):
+    run_dir = request.getfixturevalue(which)
     exe = _chromium()
     if exe is None:
         pytest.fail("chromium is not installed; scripts/setup.sh installs the Debian package")
@@ -203,3 +209,186 @@ def test_cli_report(run_dir, tmp_path):
     out = subprocess.run([sys.executable, "-m", "harness.cli", "report", str(tmp_path)],
                          capture_output=True, text=True, cwd=root, timeout=120)
     assert out.returncode == 2 and "not a camval run directory" in out.stderr
+
+
+# ---------------------------------------------------------------------------------------------
+# the legacy signature (paper Figs. 4-5) and sweeps in a run's report
+LEGACY = {"spp": 16, "adaptive": True, "options": {"legacy": True}}
+CLEAN = {"spp": 16, "adaptive": True, "options": {}}
+
+
+def _legacy_records(cameras=(15, 17), families=("CAHV", "CAHVOR")):
+    r'''jpl fits of the exact projections of the legacy model (what a perfect detector sees
+in the legacy renderer's images) and of the truth, compared with the truth'''
+    cat = load_catalogue()
+    target = load_target("dots")
+    out = []
+    for cam in cameras:
+        entry = cat.get(cam)
+        for fam in families:
+            truth = truncate(entry.model, fam)
+            poses = plan_poses(truth, target, n=6, seed=0)
+            for renderer, settings, model in (("faulty", LEGACY, legacy_model(truth)),
+                                              ("raycast", CLEAN, truth)):
+                obs = exact_observations(model, target, poses)
+                res = calibrate("jpl", obs, target, fam, truth=truth, bias_correction=False)
+                assert res.status == "ok", res.reason
+                params, proj, _ = compare_stage(truth, res)
+                name = make_fullname(str(cam), fam, "dots", renderer, settings, "jpl", fam)
+                out.append(Record(
+                    fullname=name, camera=str(cam), camera_label=entry.name, model=fam,
+                    target="dots", renderer=renderer, settings=settings, calibrator="jpl",
+                    calibrator_model=fam, status="ok", residuals=res.residual_stats(),
+                    params=params, projection=proj,
+                    seconds={"render_per_image": 0.02 if renderer == "faulty" else 0.05},
+                    image_size=[truth.width, truth.height]))
+    return out
+
+
+def _sweep_doc():
+    from harness.sweep import breakdowns
+    levels = [0.0, 30.0, 60.0]
+    recs = [{"level": lv, "calibrator": "jpl", "model": "CAHVOR", "status": st,
+             "detection_rate": rate, "projection_rms_px": rms, "broken": broken,
+             "reason": why, "scene": {"range_m": 1.2, "tilt_deg": lv, "dot_px": 12.0}}
+            for lv, st, rate, rms, broken, why in (
+                (0.0, "ok", 1.0, 0.005, False, ""), (30.0, "ok", 1.0, 0.017, False, ""),
+                (60.0, "failed", 0.25, None, True, "degenerate poses"))]
+    return {"difficulty": "tilt", "unit": "board tilt, deg off fronto-parallel",
+            "levels": levels, "level_labels": [str(v) for v in levels], "camera": "17",
+            "camera_label": "Rocky8 rear hazcam left", "family": "CAHVOR", "target": "dots",
+            "renderer": "raycast", "spp": 2, "n_poses": 4, "bar_px": 0.05, "seed": 0,
+            "seconds": 9.0, "records": recs, "breakdown": breakdowns(recs, levels)}
+
+
+@pytest.fixture(scope="module")
+def legacy_run(tmp_path_factory):
+    import json
+    d = tmp_path_factory.mktemp("legacy")
+    store = RunStore.create(d, {"name": "legacy-test"})
+    for r in _legacy_records():
+        store.save_job(r.fullname, [r])
+    store.assemble(adapters={"renderers": {"raycast": "raycast test"}})
+    (d / "sweeps").mkdir()
+    (d / "sweeps" / "sweep_tilt.json").write_text(json.dumps(_sweep_doc(), allow_nan=False))
+    (d / "sweeps" / "notes.json").write_text("{}")        # not a sweep: ignored
+    return d
+
+
+def test_render_mode():
+    def rec(opts):
+        return {"settings": {"spp": 1, "options": opts}}
+    assert render_mode(rec({"legacy": True})) == "legacy"
+    assert render_mode(rec({"legacy": ["round_centre", "theta90"]})) == "legacy"
+    assert render_mode(rec({"fault": "round_centre"})) == "legacy"
+    assert render_mode(rec({"legacy": ["theta90"]})) == "faulty"
+    assert render_mode(rec({"fault": "half_pixel"})) == "faulty"
+    assert render_mode(rec({"legacy": False, "camera": "mesh"})) == "clean"
+    assert round_half(500.7484) == 500.5 and round_half(327.2050) == 327.0
+
+
+def test_legacy_signature_values(legacy_run):
+    from harness.records import load_run
+    from reports.build import truth_resolver
+    doc = load_run(legacy_run)
+    rows = legacy_signature_rows(doc["records"], truth_resolver(doc, legacy_run))
+    assert len(rows) == 8
+    legacy = [r for r in rows if r["mode"] == "legacy"]
+    clean = [r for r in rows if r["mode"] == "clean"]
+    assert len(legacy) == 4 and len(clean) == 4
+    for r in legacy:
+        # the recovered centre is the rounded one: error = rounding residual
+        for name in ("Hc", "Vc"):
+            assert abs(r[f"{name}_error"] - r[f"{name}_rounding"]) < 0.01, r
+            assert abs(r[f"{name}_error_vs_rounded"]) < 0.01
+        assert r["Hc_true"] + r["Hc_rounding"] == pytest.approx(round_half(r["Hc_true"]))
+    # MER B navcam: its centre is a quarter pixel from the half pixel in both axes
+    (nav,) = [r for r in legacy if r["camera"] == "15" and r["model"] == "CAHVOR"]
+    assert nav["Hc_error"] == pytest.approx(-0.2484, abs=0.01)
+    assert nav["Vc_error"] == pytest.approx(0.2230, abs=0.01)
+    for r in clean:
+        assert abs(r["Hc_error"]) < 0.01 and abs(r["Vc_error"]) < 0.01
+        assert r["Hc_error_vs_rounded"] == pytest.approx(-r["Hc_rounding"], abs=0.01)
+
+
+def test_legacy_and_sweep_sections(legacy_run):
+    paths = build_report(legacy_run)
+    html = Path(paths["html"]).read_text()
+    md = Path(paths["markdown"]).read_text()
+    fig = Path(paths["figures_dir"]) / "fig04_05_legacy_signature.png"
+    assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert str(fig) in paths["figures"]
+    assert 'id="legacy"' in html and 'id="fig04_05_legacy_signature"' in html
+    assert "Legacy signature (paper Figs. 4-5)" in html
+    assert "![Legacy signature" in md and "figures/fig04_05_legacy_signature.png" in md
+    # the table holds the numbers: MER B navcam CAHVOR, legacy, Hc rounding -0.2484
+    assert "| 15 | CAHVOR | jpl | legacy (faulty) | 500.7484 | 502.7770 | -0.2484 | +0.2230 |" \
+        in md
+    # sweeps found in the run's sweeps/ folder: one stability chart, the breakdown table
+    assert paths["sweeps"] == ["sweeps/sweep_tilt.json"]
+    assert (Path(paths["figures_dir"]) / "sweep_tilt_17.png").is_file()
+    assert 'id="sweeps"' in html and 'id="sweep_tilt_17"' in html
+    assert "| jpl/CAHVOR | 60.0 | detection rate 25.0%; degenerate poses |" in md
+    assert html.count("<img ") == len(paths["figures"])
+
+
+def test_sweep_report_page(legacy_run, tmp_path):
+    assert len(find_sweeps(legacy_run)) == 1
+    paths = build_sweep_report(legacy_run, out_dir=tmp_path)
+    html = Path(paths["html"]).read_text()
+    assert html.count('src="data:image/png;base64,') == 1
+    assert Path(paths["figures"][0]).is_file()
+    md = Path(paths["markdown"]).read_text()
+    assert "](sweep_figures/sweep_tilt_17.png)" in md
+    from reports.build import ReportError
+    with pytest.raises(ReportError, match="holds no sweep document"):
+        build_sweep_report(tmp_path / "sweep_figures")
+
+
+def test_speed_chart_labels_renderer_paths(legacy_run, tmp_path):
+    from harness.records import load_run
+    records = load_run(legacy_run)["records"]
+    base = next(r for r in records.values() if r["renderer"] == "raycast")
+    recs = {}
+    for name, opts, adaptive in (("povray", {"camera": "perspective"}, False),
+                                 ("povray", {"camera": "mesh"}, False),
+                                 ("raycast", {}, True)):
+        for k in (1, 4, 16):
+            s = {"spp": k, "adaptive": adaptive, "options": opts}
+            r = dict(base, renderer=name, settings=s, seconds={"render_per_image": 0.1 * k},
+                     fullname=make_fullname("15", "CAHVOR", "dots", name, s, "jpl", "CAHVOR"))
+            recs[r["fullname"]] = r
+    series = speed_series(recs)
+    assert sorted(set(series.values())) == sorted(
+        [(n, k) for n in ("povray (full) camera=mesh", "povray (full) camera=perspective",
+                          "raycast") for k in (1, 4, 16)])
+    assert len(speed_accuracy_points(recs)) == 9
+    assert Path(fig_speed(recs, tmp_path).path).is_file()
+
+
+@pytest.mark.slow
+def test_legacy_renderer_campaign_signature(tmp_path):
+    r'''The legacy renderer itself (ray caster rendering the ROAMS model) through a campaign:
+detection, jpl calibration; the report's rows put the recovered centre on the half pixel'''
+    from harness.campaign import parse_campaign
+    from harness.records import load_run
+    from harness.runner import run_campaign
+    from reports.build import truth_resolver
+    doc = {"name": "legacy-mini", "cameras": [17], "models": ["CAHV"], "targets": ["dots"],
+           "poses": {"n": 6, "seed": 0},
+           "renderer": [{"name": "faulty", "spp": 8, "options": {"legacy": True}},
+                        {"name": "raycast", "spp": 8}],
+           "calibrator": [{"name": "jpl"}]}
+    run_campaign(parse_campaign(doc), tmp_path / "run", progress=False, workers=1)
+    run = load_run(tmp_path / "run")
+    rows = legacy_signature_rows(run["records"], truth_resolver(run, tmp_path / "run"))
+    (leg,) = [r for r in rows if r["mode"] == "legacy"]
+    (cln,) = [r for r in rows if r["mode"] == "clean"]
+    # Rocky8 rear hazcam: true centre (327.205, 249.656) -> rounded (327.0, 249.5)
+    assert leg["Hc_rounding"] == pytest.approx(-0.2050, abs=1e-3)
+    assert abs(leg["Hc_error"] - leg["Hc_rounding"]) < 0.01
+    assert abs(leg["Vc_error"] - leg["Vc_rounding"]) < 0.01
+    assert abs(cln["Hc_error"]) < 0.01 and abs(cln["Vc_error"]) < 0.01
+    paths = build_report(tmp_path / "run")
+    assert Path(paths["figures_dir"], "fig04_05_legacy_signature.png").is_file()
+    assert 'id="fig04_05_legacy_signature"' in Path(paths["html"]).read_text()
