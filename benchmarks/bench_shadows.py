@@ -16,7 +16,7 @@ raycast_terrain's exact shadow rays, POV-Ray's own shadows
 at 4096, slope_bias 0.5 and 2.0. Prints and records for each pair the
 fraction of triangles (and cells) that differ, the share of direct sunlight
 that lands differently, and where the differences are: within one cell of an
-exact shadow edge, on triangles nearly edge-on to the sun (cos i < 0.05),
+exact shadow edge, on triangles nearly edge-on to the sun (cos i < 0.1),
 and whether moving the sun by <= 0.1 / 0.25 / 0.5 / 1 deg (elevation or
 azimuth) flips the exact answer there ("marginal"). Timings of each method.
 '''
@@ -85,6 +85,7 @@ def main():
     records = []
     keys = ("disagree_fraction", "disagree_cells_fraction", "sunlight_weighted_disagreement",
             "disagree_fraction_not_grazing", "near_edge_fraction", "grazing_fraction",
+            "edge_or_grazing_fraction",
             "max_edge_distance_cells", "facing_disagree", "shadowed_fraction_a",
             "shadowed_fraction_b", "cast_fraction_a", "cast_fraction_b")
     for el in elevations:
@@ -119,7 +120,8 @@ def main():
             print(f"  {na:8s} vs {nb:26s} differ {c['disagree_fraction']:7.3%} of triangles, "
                   f"{c['disagree_cells_fraction']:7.3%} of cells, sunlight "
                   f"{c['sunlight_weighted_disagreement']:6.3%}; at edge "
-                  f"{c['near_edge_fraction']:.2f} grazing {c['grazing_fraction']:.2f} "
+                  f"{c['near_edge_fraction']:.2f} grazing {c['grazing_fraction']:.2f} either "
+                  f"{c['edge_or_grazing_fraction']:.3f} "
                   f"max {c['max_edge_distance_cells']} cells{m}  ({tb:.2f} s)")
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,

@@ -51,7 +51,6 @@ itself (not the darkened colour).
 '''
 
 import math
-import threading
 import time
 
 import numpy as np
@@ -68,7 +67,6 @@ MAX_TAN = 20.0
 NEAR = 0.01
 
 _STATE = {}
-_LOCK = threading.RLock()
 
 _VS_DEPTH = """
 #version 330 compatibility
@@ -129,6 +127,13 @@ void main() {
 """
 
 
+def _lock():
+    r'''renderers.osmesa's lock: one thread at a time in OSMesa/OpenGL in this process'''
+    from renderers.osmesa import _GL_LOCK
+
+    return _GL_LOCK
+
+
 def _gl():
     r'''(GL, osmesa) through renderers.osmesa's loader (PYOPENGL_PLATFORM=osmesa)'''
     from renderers.osmesa import _import_gl
@@ -171,7 +176,7 @@ def _program(GL, vs, fs):
 
 
 def gl_version():
-    with _LOCK:
+    with _lock():
         _context(1, 1)
         return _STATE["version"]
 
@@ -434,7 +439,7 @@ the centroids (pitch cell/3); a pixel's shadow-test flag and facing flag
     if max(W, H) > 16384:
         raise RendererError(f"the top-down view of this grid would be {W}x{H} px; OSMesa's "
                             "limit is 16384 (use a coarser grid or a part of it)")
-    with _LOCK:
+    with _lock():
         scene = _Scene(terrain, map_size, slope_bias, True)
         try:
             buf = scene.view(top_down_matrix(terrain), W, H, 1.0)
@@ -509,7 +514,7 @@ warp_scale.
     K = spp
     step = max(1, TILE // K) * K
     pin = np.empty((warp.pinhole.height, warp.pinhole.width))
-    with _LOCK:
+    with _lock():
         scene = _Scene(terrain, map_size, slope_bias, shadows)
         t1 = time.perf_counter()
         try:

@@ -122,7 +122,7 @@ raycast_terrain traces the exact shadow ray from there.
     return code
 
 
-def compare(code_a, code_b, terrain=None, grazing_cos=0.05):
+def compare(code_a, code_b, terrain=None, grazing_cos=0.1):
     r'''How two methods' shadow codes disagree
 
 SYNOPSIS
@@ -144,7 +144,10 @@ RETURNED VALUE: a dict with
   disagreeing triangle from the nearest shadow edge of method a
 With the terrain (i the angle between a triangle's normal and the sun):
 - grazing_fraction: of the disagreeing triangles, those with 0 < cos i < grazing_cos
-  (nearly edge-on to the sun: a cm of geometry decides, and the sun adds < 5% there)
+  (nearly edge-on to the sun, i > 84 deg at 0.1: there a shadow map's bias hides
+  occluders a few cm away, and the sun adds < 10% of its full light)
+- edge_or_grazing_fraction: of the disagreeing triangles, those near an edge
+  (as near_edge_fraction) or grazing
 - disagree_fraction_not_grazing: triangles with cos i >= grazing_cos that differ / all
   triangles with cos i >= grazing_cos
 - sunlight_weighted_disagreement: sum of cos i over differing triangles / sum of
@@ -189,6 +192,8 @@ With the terrain (i the angle between a triangle's normal and the sun):
         out.update({
             "grazing_cos": grazing_cos,
             "grazing_fraction": float((diff & grazing).sum() / nd) if nd else 0.0,
+            "edge_or_grazing_fraction":
+                float((diff & (grazing | (dist <= 1)[..., None])).sum() / nd) if nd else 1.0,
             "disagree_fraction_not_grazing": float((diff & steep).sum() / max(steep.sum(), 1)),
             "sunlight_weighted_disagreement":
                 float((lit_w * diff).sum() / max(lit_w.sum(), 1e-300)),
