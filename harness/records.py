@@ -137,7 +137,8 @@ versions:         {"renderer": "...", "calibrator": "..."}
 info:             anything else the stages reported
 response:         the camera response applied after rendering: {"profile": name ("" for
                   none), "stages": [{"stage", "params"}, ...] in the order they ran,
-                  "full_well_e", "seed": {"campaign", "profile", "job_sha256"}};
+                  "full_well_e", "seed": {"campaign", "profile", "job_sha256"}} (the
+                  last two only when stages ran);
                   None in records written before camera response existed
 features:         what the renderer modelled beyond geometry: {"shading", "texture",
                   "shadows"} (bools); a board target is flat albedo: all false

@@ -252,7 +252,7 @@ def response_info(job):
     r'''The record's "response" entry: profile, stages with their parameters, seeds
 
 Deterministic (no timings); the same for every record of the job, whether it
-ran or failed earlier.
+ran or failed earlier. A clean job records {"profile", "stages": []} only.
 '''
     cfg = job.response or {}
     info = {"profile": job.response_name, "stages": [],
@@ -264,8 +264,9 @@ ran or failed earlier.
     except Exception as e:  # reported by response_stage as the job's failure
         info["error"] = _reason(e)
         return jsonable(info)
-    if chain.stages:
-        info["full_well_e"] = chain.full_well_e
+    if not chain.stages:   # nothing drawn: the seeds play no part
+        return {"profile": job.response_name, "stages": []}
+    info["full_well_e"] = chain.full_well_e
     info["stages"] = [{"stage": st.name, "params": st.describe()} for st in chain.stages]
     return jsonable(info)
 
@@ -567,6 +568,58 @@ def _keep_detections(job, dets, poses):
     return str(rel)
 
 
+# --- warm-up ------------------------------------------------------------------------
+# renderers whose kernels numba compiles (and caches on disk) on first use
+NUMBA_RENDERERS = ("raycast",)
+
+
+def warm_up(jobs):
+    r'''Compile (or load from numba's cache) the kernels the jobs need, in this process
+
+SYNOPSIS
+
+    info = warm_up(jobs)   # {"seconds": ..., "renders": ["raycast/CAHV", ...], "failed": [...]}
+
+Renders one image per model family used by the jobs' numba renderers (the
+job's own camera and first planned pose, K=1, with a private ray cache that is
+dropped afterwards), and runs the blooming kernel if a job's response uses it.
+numba writes what it compiles to its cache directory, so worker processes
+started afterwards load the kernels instead of each compiling them (after a
+kernel change that is a minute or more per worker on a loaded machine).
+Never raises: a job that cannot be warmed fails later, in its own record.
+'''
+    t0 = time.perf_counter()
+    done, failed = [], []
+    seen = set()
+    for job in jobs:
+        key = (job.renderer, job.family)
+        if job.renderer not in NUMBA_RENDERERS or key in seen:
+            continue
+        try:
+            from renderers.base import RenderSettings, get_renderer
+            _, truth = camera_stage(job)
+            target = _target(job.target)
+            Rt = poses_stage(truth, target, 1, job.poses_seed)[0]
+            renderer = get_renderer(job.renderer, shared_cache=False)
+            renderer.render(truth, target.pattern(), Rt, RenderSettings(spp=1, adaptive=True))
+            seen.add(key)
+            done.append(f"{job.renderer}/{job.family}")
+        except Exception as e:  # not-applicable family, invisible target: try the next job
+            failed.append(f"{job.key}: {_reason(e)}")
+    if any((j.response or {}).get("saturation", {}).get("blooming") for j in jobs):
+        try:
+            import numpy as np
+
+            from renderers.response import ResponseChain
+            ResponseChain.from_config({"saturation": {"blooming": True}}).apply(
+                np.full((4, 4), 2.0))
+            done.append("response/blooming")
+        except Exception as e:
+            failed.append(f"response/blooming: {_reason(e)}")
+    return {"seconds": time.perf_counter() - t0, "renders": done,
+            "failed": sorted(set(failed))[:10]}
+
+
 # --- executors --------------------------------------------------------------------
 def _local_results(fn, jobs, workers):
     r'''Yield (job, result or exception) as jobs finish, in local processes'''
@@ -607,10 +660,15 @@ def _dask_results(fn, jobs, scheduler):
     except ImportError:
         raise RunnerError("--executor dask needs dask.distributed; install camval's "
                           "dependencies (uv sync)") from None
+    import dask.config
+    # dask's own connect timeout (30 s unless configured, e.g. by
+    # DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT): a loaded machine answers slowly
+    timeout = dask.config.get("distributed.comm.timeouts.connect")
     try:
-        client = Client(scheduler, timeout="20s")
+        client = Client(scheduler, timeout=timeout)
     except (OSError, TimeoutError) as e:
-        raise RunnerError(f"cannot reach the Dask scheduler at {scheduler!r}: {e}") from None
+        raise RunnerError(f"cannot reach the Dask scheduler at {scheduler!r} within "
+                          f"{timeout}: {e}") from None
     try:
         futs = {}
         for i, job in enumerate(jobs):
@@ -624,7 +682,20 @@ def _dask_results(fn, jobs, scheduler):
             except Exception as e:
                 yield futs[fut], e
     finally:
-        client.close()
+        _close_client(client)
+
+
+def _close_client(client):
+    r'''Close a Dask client; a slow or failed close (a loaded scheduler) is not an error:
+every job's records are stored by then'''
+    import dask.config
+    from dask.utils import parse_timedelta
+    timeout = 4 * parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), "s")
+    try:
+        client.close(timeout=timeout)
+    except (OSError, TimeoutError) as e:
+        print(f"camval: the Dask client did not close cleanly ({type(e).__name__}); the "
+              f"records are stored", file=sys.stderr)
 
 
 class _Progress:
@@ -671,7 +742,7 @@ class _Progress:
 
 
 def run_jobs(jobs, store, fn=run_job, executor="local", workers=None, scheduler=None,
-             progress=True):
+             progress=True, warm=True, report=None):
     r'''Run jobs, storing each job's records in `store` as it finishes
 
 SYNOPSIS
@@ -682,6 +753,10 @@ Jobs already stored are skipped (resume). A job whose worker crashed is
 stored as failed records (stage "worker") that resume runs again. Largest
 jobs are started first, so the slowest ones do not finish last. Returns the
 number of jobs run.
+
+warm: before starting local worker processes (workers > 1, fn = run_job),
+compile the renderer's kernels once here (warm_up) so that the workers load
+them from numba's cache. report: a dict that receives {"warm_up": {...}}.
 '''
     if executor not in EXECUTORS:
         raise RunnerError(f"unknown executor {executor!r}; known: {', '.join(EXECUTORS)}")
@@ -691,6 +766,10 @@ number of jobs run.
     todo = sorted((j for j in jobs if j.key not in done), key=lambda j: (-j.cost, j.key))
     if workers is None:
         workers = min(len(todo), os.cpu_count() or 1)
+    if (warm and executor == "local" and workers > 1 and fn is run_job and todo):
+        info = warm_up(todo)
+        if report is not None:
+            report["warm_up"] = info
     bar = _Progress(len(todo), enabled=progress)
     try:
         results = (_dask_results(fn, todo, scheduler) if executor == "dask"
@@ -737,16 +816,21 @@ def library_versions():
 
 
 def run_campaign(campaign, run_dir, executor="local", workers=None, scheduler=None,
-                 resume=False, progress=True, entries=None):
-    r'''Run (or resume) a campaign into run_dir; write run.json; return the run document'''
+                 resume=False, progress=True, entries=None, warm=True):
+    r'''Run (or resume) a campaign into run_dir; write run.json; return the run document
+
+warm: compile the renderer's kernels once before local workers start (run_jobs).
+The document's "execution" says how the jobs ran (and the warm-up's seconds).
+'''
     if resume:
         store = RunStore.open(run_dir)
     else:
         store = RunStore.create(run_dir, campaign.as_dict())
     jobs = expand_jobs(campaign, entries=entries, run_dir=store.dir)
     t0 = time.perf_counter()
+    report = {}
     n = run_jobs(jobs, store, executor=executor, workers=workers, scheduler=scheduler,
-                 progress=progress)
+                 progress=progress, warm=warm, report=report)
     wall = time.perf_counter() - t0
     records = store.records()
     expected = {j.key for j in jobs}
@@ -758,7 +842,8 @@ def run_campaign(campaign, run_dir, executor="local", workers=None, scheduler=No
                                                "scheduler": scheduler,
                                                "jobs": len(jobs), "jobs_run": n,
                                                "stray_jobs": sorted(stray),
-                                               "wall_seconds": wall}})
+                                               "wall_seconds": wall,
+                                               "warm_up": report.get("warm_up")}})
 
 
 @dataclass

@@ -6,6 +6,7 @@ Rocky8 hazcam under CAHV at K=4, and the SuperCam extra, which cannot see a
 board (its planner failure is a record).
 '''
 
+import contextlib
 import json
 import os
 import subprocess
@@ -13,6 +14,7 @@ import sys
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from harness.campaign import parse_campaign
@@ -176,24 +178,173 @@ def test_process_pool_gives_the_same_records(first_run, tmp_path):
     other = run_campaign(_campaign(), tmp_path / "pool", workers=2, progress=False)
     assert other["execution"]["workers"] == 2
     assert _comparable(other) == _comparable(doc)
+    # the kernels were compiled (or loaded) once here before the two workers started
+    warm = other["execution"]["warm_up"]
+    assert warm["renders"] == ["raycast/CAHV"] and warm["seconds"] > 0
+    assert any(f.startswith("SuperCam/CAHV/") for f in warm["failed"])
+    assert doc["execution"]["warm_up"] is None       # one worker: the jobs run here
+
+
+# A loaded machine (two cores shared by several test runs and compilations) answers
+# slowly: distributed's default 30 s connect and comm timeouts and its 5 minute worker
+# time-to-live are raised for the clusters of these tests. Nothing is asserted on time.
+PATIENT_DASK = {"distributed.comm.timeouts.connect": "600s",
+                "distributed.comm.timeouts.tcp": "600s",
+                "distributed.scheduler.worker-ttl": None}
+PATIENT_DASK_ENV = {"DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT": "600s",
+                    "DASK_DISTRIBUTED__COMM__TIMEOUTS__TCP": "600s"}
+
+
+@contextlib.contextmanager
+def patient_local_cluster(**kw):
+    r'''An in-process LocalCluster (one worker, one thread) with patient timeouts'''
+    import dask.config
+    from dask.distributed import LocalCluster
+    with dask.config.set(PATIENT_DASK), warnings.catch_warnings():
+        # distributed warns when a loaded machine is slow to make its scratch directory
+        warnings.filterwarnings("ignore", message="Creating scratch directories",
+                                category=UserWarning)
+        with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                          dashboard_address=None, **kw) as cluster:
+            yield cluster
 
 
 @pytest.mark.slow
 def test_dask_local_cluster_gives_the_same_records(first_run, tmp_path):
-    from dask.distributed import LocalCluster
     _, doc = first_run
-    with warnings.catch_warnings():
-        # distributed warns when a loaded machine is slow to make its scratch directory
-        warnings.filterwarnings("ignore", message="Creating scratch directories",
-                                category=UserWarning)
-        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                               dashboard_address=None)
-    with cluster:
+    with patient_local_cluster() as cluster:
         other = run_campaign(_campaign(), tmp_path / "dask", executor="dask",
                              scheduler=cluster.scheduler_address, progress=False)
     assert other["execution"]["executor"] == "dask"
     assert _comparable(other) == _comparable(doc)
     assert os.listdir(tmp_path / "dask" / "maps")
+
+
+# --- camera response in campaigns -------------------------------------------------------
+NOISY = {"full_well_e": 20000.0, "psf": {"kind": "gaussian", "sigma_px": 0.7},
+         "shot_noise": {}, "read_noise": {"sigma_e": 12.0}, "quantise": {"bits": 12}}
+RESPONSE = dict(SMALL, cameras=[17], seed=3, keep_images=True,
+                renderer=[{"name": "raycast", "spp": 4, "response": ["clean", "noisy"]}],
+                response={"clean": {}, "noisy": NOISY})
+NOISY_KEY = "17/CAHV/dots/raycast[spp=4,adaptive,response=noisy]"
+
+
+@pytest.fixture(scope="module")
+def response_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("runs") / "response"
+    campaign = parse_campaign(RESPONSE, source="response")
+    doc = run_campaign(campaign, d, workers=1, progress=False)
+    return d, doc, campaign
+
+
+def test_noisy_records_differ_from_clean_and_list_their_stages(first_run, response_run):
+    _, clean_doc = first_run
+    d, doc, _ = response_run
+    assert sorted(doc["records"]) == sorted([OK, NOISY_KEY + "/jpl[CAHV]"])
+    clean, noisy = doc["records"][OK], doc["records"][NOISY_KEY + "/jpl[CAHV]"]
+    assert noisy["status"] == "ok" and noisy["settings"]["response"] == "noisy"
+    # the clean job is the one of a campaign without profiles, apart from the profile's name
+    assert clean["response"]["profile"] == "clean" and clean["response"]["stages"] == []
+    before = without_timings(clean_doc["records"][OK])
+    assert before["response"]["profile"] == ""
+    before["response"]["profile"] = "clean"
+    assert without_timings(clean) == before
+    assert "response" not in clean["seconds"]
+    # what ran, with which parameters, in which order, and what it cost
+    assert noisy["response"]["profile"] == "noisy"
+    assert noisy["response"]["full_well_e"] == 20000.0
+    assert noisy["response"]["stages"] == [
+        {"stage": "psf", "params": {"kind": "gaussian", "sigma_px": 0.7}},
+        {"stage": "shot_noise", "params": {}},
+        {"stage": "read_noise", "params": {"sigma_e": 12.0}},
+        {"stage": "quantise", "params": {"bits": 12}}]
+    assert noisy["response"]["seed"]["campaign"] == 3
+    secs = noisy["seconds"]["response_stages"]
+    assert set(secs) == {"setup", "psf", "shot_noise", "read_noise", "quantise"}
+    assert all(v > 0 for v in secs.values())
+    assert noisy["seconds"]["response"] == pytest.approx(sum(secs.values()))
+    # a board render models no shading, texture or shadows
+    for r in (clean, noisy):
+        assert r["features"] == {"shading": False, "texture": False, "shadows": False}
+    # noise and blur: same detections, a different (and still sub-pixel) fit
+    assert noisy["detections"]["n_found"] == 600
+    assert noisy["residuals"]["rms"] != clean["residuals"]["rms"]
+    assert clean["residuals"]["rms"] < noisy["residuals"]["rms"] < 0.05
+    assert noisy["params"]["Hc"] != clean["params"]["Hc"]
+    assert noisy["projection"]["rms"] < 0.05
+    # the kept images are what the detector saw: 12-bit levels, not the clean render
+    from renderers.png import load_png
+    im_noisy = load_png(d / noisy["artifacts"]["images"][0]).astype(np.float64)
+    im_clean = load_png(d / clean["artifacts"]["images"][0]).astype(np.float64)
+    k = im_noisy * 4095
+    assert np.max(np.abs(k - np.round(k))) < 0.1
+    assert np.max(np.abs(im_noisy - im_clean)) > 0.01
+
+
+def test_noisy_job_is_reproducible_bit_for_bit(response_run, tmp_path):
+    d, doc, campaign = response_run
+    (job,) = [j for j in expand_jobs(campaign, run_dir=tmp_path) if j.key == NOISY_KEY]
+    (again,) = run_job(job)["records"]
+    first = doc["records"][NOISY_KEY + "/jpl[CAHV]"]
+    assert without_timings(again) == without_timings(first)
+    # the images the detector saw, byte for byte, and the projection-difference map
+    assert len(first["artifacts"]["images"]) == 6
+    for rel in first["artifacts"]["images"] + [first["artifacts"]["detections"],
+                                               first["artifacts"]["map"]]:
+        assert (tmp_path / rel).read_bytes() == (d / rel).read_bytes(), rel
+
+
+def test_response_stage_noise_depends_on_the_job_and_the_seeds(response_run):
+    import dataclasses
+
+    from harness.runner import camera_stage, noise_seed, response_stage
+    _, _, campaign = response_run
+    (job,) = [j for j in expand_jobs(campaign) if j.key == NOISY_KEY]
+    _, truth = camera_stage(job)
+    flat = [np.full((truth.height, truth.width), 0.5, dtype=np.float32)] * 2
+    a, secs = response_stage(job, truth, flat)
+    b, _ = response_stage(job, truth, flat)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+    assert not np.array_equal(a[0], a[1])            # each image its own noise
+    other = dataclasses.replace(job, key=job.key + "x")
+    c, _ = response_stage(other, truth, flat)
+    assert not np.array_equal(a[0], c[0])
+    d, _ = response_stage(dataclasses.replace(job, seed=4), truth, flat)
+    assert not np.array_equal(a[0], d[0])
+    assert noise_seed(job, 1)[:2] == [3, 0] and noise_seed(job, 1)[-1] == 1
+    # the centre of a flat image: shot + read noise of a 0.5 well, 12-bit levels
+    e = a[0][100:380, 100:540].astype(np.float64) * 20000
+    assert abs(e.var() / (10000 + 144 + 4.88 ** 2 / 12) - 1) < 0.03
+    # a clean job passes the images through untouched
+    clean = dataclasses.replace(job, response={}, response_name="clean")
+    out, secs = response_stage(clean, truth, flat)
+    assert out is flat and secs == {}
+
+
+def test_a_bad_response_is_a_failed_record():
+    import dataclasses
+    (job,) = expand_jobs(parse_campaign(dict(SMALL, cameras=[17])))
+    bad = dataclasses.replace(job, response={"shot_noise": {}, "quantise": {"bits": 9}},
+                              response_name="bad")
+    (rec,) = run_job(bad)["records"]
+    assert rec["status"] == "failed" and rec["stage"] == "response"
+    assert rec["reason"] == "quantise.bits = 9; known: 8, 10, 12, 14, 16"
+    assert rec["response"]["error"] == rec["reason"]
+    assert rec["features"] == {"shading": False, "texture": False, "shadows": False}
+
+
+def test_warm_up_renders_each_family_once():
+    from harness.runner import warm_up
+    jobs = expand_jobs(parse_campaign({"cameras": ["SuperCam", 15, 17],
+                                       "models": ["CAHV", "CAHVORE"],
+                                       "renderer": [{"name": "raycast", "spp": [1, 4]}]}))
+    info = warm_up(jobs)
+    assert info["renders"] == ["raycast/CAHV", "raycast/CAHVORE"]
+    # SuperCam sees no board; camera 15 has no CAHVORE: each says so
+    assert any(f.startswith("SuperCam/CAHV/") for f in info["failed"])
+    assert any(f.startswith("15/CAHVORE/") and "cannot be derived" in f
+               for f in info["failed"])
+    assert warm_up([])["renders"] == []
 
 
 def _die(job):
@@ -236,23 +387,18 @@ def test_rich_progress_bar_on_a_terminal():
 
 @pytest.mark.slow
 def test_cli_dask_executor_with_a_scheduler_address(first_run, tmp_path):
-    from dask.distributed import LocalCluster
     _, doc = first_run
     camp = tmp_path / "small.toml"
     camp.write_text('name = "small"\ncameras = [17, "SuperCam"]\nmodels = ["CAHV"]\n'
                     'keep_images = true\n[[renderer]]\nname = "raycast"\nspp = 4\n'
                     '[[calibrator]]\nname = "jpl"\n')
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Creating scratch directories",
-                                category=UserWarning)
-        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                               protocol="tcp", dashboard_address=None)
-    with cluster:
+    with patient_local_cluster(protocol="tcp") as cluster:
         assert cluster.scheduler_address.startswith("tcp://")
         out = subprocess.run([sys.executable, "-m", "harness.cli", "verify", str(camp),
                               "--executor", "dask", "--scheduler", cluster.scheduler_address,
                               "--out", str(tmp_path / "run"), "--no-report", "--quiet"],
-                             capture_output=True, text=True, cwd=ROOT, timeout=900)
+                             capture_output=True, text=True, cwd=ROOT, timeout=1800,
+                             env=dict(os.environ, **PATIENT_DASK_ENV))
     assert out.returncode == 0, out.stderr[-3000:]
     other = json.loads((tmp_path / "run" / "run.json").read_text())
     assert other["execution"]["executor"] == "dask"
