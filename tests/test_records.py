@@ -38,6 +38,27 @@ def test_fullname_and_settings_label():
         "15/CAHVOR/dots/raycast[spp=4,full,legacy=true,noise=2.0]/mrcal[CAHVOR]"
 
 
+def test_response_profile_in_the_fullname():
+    s = {"spp": 16, "adaptive": True, "options": {"legacy": True}, "response": "realistic"}
+    assert settings_label(s) == "spp=16,adaptive,legacy=true,response=realistic"
+    assert make_fullname("15", "CAHVOR", "dots", "raycast", s, "jpl", "CAHVOR") == \
+        "15/CAHVOR/dots/raycast[spp=16,adaptive,legacy=true,response=realistic]/jpl[CAHVOR]"
+    # no profile, or an empty one: the label a clean record always had
+    assert settings_label(dict(s, response="")) == settings_label(
+        {"spp": 16, "adaptive": True, "options": {"legacy": True}}) == "spp=16,adaptive,legacy=true"
+
+
+def test_a_record_from_before_camera_response_loads():
+    d = _record().as_dict()
+    old = {k: v for k, v in d.items() if k not in ("response", "features")}
+    r = Record.from_dict(old)
+    assert r.response is None and r.features is None and r == _record()
+    noisy = _record(response={"profile": "noisy", "stages": [{"stage": "shot_noise",
+                                                             "params": {}}]},
+                    features={"shading": False, "texture": False, "shadows": False})
+    assert Record.from_dict(json.loads(json.dumps(noisy.as_dict()))) == noisy
+
+
 def test_jsonable_maps_nan_and_numpy():
     d = jsonable({"a": np.float32(1.5), "b": np.nan, "c": np.arange(3), "d": np.bool_(True),
                   "e": (np.int64(2), math.inf)})
