@@ -32,6 +32,13 @@ model. A noncentral CAHVORE model is warped as if every pixel saw the point
 warp.NONCENTRAL_RANGE metres along its ray (the warp cannot know the terrain's
 depth); the raycast renderer is exact for those.
 
+Measured: pixel rays that meet the surface exactly on a triangle edge (a
+camera looking straight down with its pixel rays on the grid's lattice, e.g.
+every ray on a cell diagonal) come out speckled: POV-Ray's shadow ray from a
+point on an edge hits the neighbouring triangle or slips between the two.
+Off the lattice (any real pose) the image equals raycast_terrain's to 16-bit
+precision away from edges (tests/test_shadow_agreement.py).
+
 cell_shadows renders the terrain from straight above with an orthographic
 camera whose pixel centres are the triangle centroids (pitch cell/3), white
 albedo, ambient 0 and a light so bright that any lit point saturates: a pixel
