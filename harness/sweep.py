@@ -338,6 +338,9 @@ breakdown. A stage failing at one level is a record, never an exception.
             raise SweepError(f"{difficulty} levels must be numbers; got {levels!r}") from None
     t_start = time.perf_counter()
     tgt = runner._target(target)
+    if difficulty == "dots" and tgt.kind != "dots":
+        raise SweepError(f"the dots difficulty scales the dots of a dot target; target "
+                         f"{target!r} is {tgt.kind!r}")
     entry = truth = truth_family = None
     if difficulty != "fov":
         try:

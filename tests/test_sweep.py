@@ -55,6 +55,8 @@ def test_unknown_difficulty_names_the_choices():
     with pytest.raises(SweepError,
                        match="known: noise, blur, motion, spp, poses, tilt, range, dots, fov"):
         run_sweep(17, difficulty="fog")
+    with pytest.raises(SweepError, match="'chessboard' is 'chessboard'"):
+        run_sweep(17, target="chessboard", difficulty="dots")
 
 
 @pytest.mark.slow
