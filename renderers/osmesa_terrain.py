@@ -7,7 +7,8 @@ SYNOPSIS
 
     r = render_terrain(model, terrain, Rt_ref_terrain=ground_pose(1.9, pitch_deg=20), spp=1)
     r.image       # (H,W) float32 in [0,1], as renderers.raycast_terrain
-    r.range, r.shadow      # None (the pinhole's are not warped)
+    r.shadow      # (H,W) uint8: 0 lit, 1 facing away, 2 shadowed by the map, 255 sky
+    r.range       # None
     r.metadata    # GL version, shadow-map size, bias, darkening factor, timings
 
     code = cell_shadows(terrain, map_size=4096)   # (Ny-1, Nx-1, 2) uint8 (terrain_shadows)
@@ -61,6 +62,7 @@ from renderers.raycast_terrain import TerrainRender
 from renderers.terrain_shadows import centroid_pixels, top_down_size
 
 NAME = "osmesa_terrain"
+SKY = 255
 TILE = 2048
 DEFAULT_MAP_SIZE = 4096
 BIAS_CONSTANT = 1e-6      # metres
@@ -490,7 +492,9 @@ def render_terrain(model, terrain, Rt_ref_terrain=None, spp=1, shadows=True, exp
 SYNOPSIS
 
     r = render_terrain(model, terrain, Rt_ref_terrain, spp=1, shadows=True)
-    # r.image (H,W) float32 in [0,1]; r.range, r.shadow are None
+    # r.image (H,W) float32 in [0,1]; r.range is None
+    # r.shadow (H,W) uint8 as raycast_terrain's: 0 lit, 1 facing away, 2 shadow-map
+    # shadow, 255 sky (the pinhole pixel nearest each pixel centre's ray)
 
 Arguments as renderers.raycast_terrain.render_terrain, plus shadow_factor
 (the paper's darkening factor; None: default_shadow_factor(terrain)),
@@ -498,6 +502,8 @@ map_size (the sun's z-buffer is map_size^2), slope_bias (in texel
 diagonals, see the module docstring), and the warp's interpolation and
 warp_scale.
 '''
+    import cv2
+
     from renderers.warp import PinholeWarp, box_downsample
 
     if isinstance(spp, bool) or not isinstance(spp, int) or spp < 1:
@@ -515,6 +521,7 @@ warp_scale.
     K = spp
     step = max(1, TILE // K) * K
     pin = np.empty((warp.pinhole.height, warp.pinhole.width))
+    pin_code = np.empty(pin.shape, np.uint8)
     with _lock():
         scene = _Scene(terrain, map_size, slope_bias, shadows)
         t1 = time.perf_counter()
@@ -524,15 +531,24 @@ warp_scale.
                     tw, th = min(step, fine.width - ox), min(step, fine.height - oy)
                     tile = fine.shifted(ox, oy, tw, th)
                     buf = scene.view(_projection(tile, far) @ M, tw, th, factor, exposure, sky)
-                    img = buf[::-1, :, 0].astype(np.float64)     # top row first
-                    pin[oy // K:(oy + th) // K, ox // K:(ox + tw) // K] = box_downsample(img, K)
+                    buf = buf[::-1]                              # top row first
+                    img = buf[..., 0].astype(np.float64)
+                    blk = np.s_[oy // K:(oy + th) // K, ox // K:(ox + tw) // K]
+                    pin[blk] = box_downsample(img, K)
+                    # the shadow code of the (K//2, K//2) sub-pixel: the centre for odd K
+                    c = buf[K // 2::K, K // 2::K]
+                    pin_code[blk] = np.where(c[..., 3] < 0.5, SKY, np.where(
+                        c[..., 2] < 0.5, 1, np.where(c[..., 1] > 0.5, 2, 0)))
         finally:
             scene.release()
     t2 = time.perf_counter()
     image = warp.apply(pin, interpolation)
+    map_x, map_y = warp.map()
+    shadow = cv2.remap(pin_code, map_x, map_y, cv2.INTER_NEAREST,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=SKY)
     t3 = time.perf_counter()
     return TerrainRender(
-        image=np.clip(image, 0.0, 1.0).astype(np.float32), range=None, shadow=None,
+        image=np.clip(image, 0.0, 1.0).astype(np.float32), range=None, shadow=shadow,
         metadata={"renderer": NAME, "version": gl_version(), "spp": spp,
                   "shadows": bool(shadows), "exposure": exposure, "shadow_factor": factor,
                   "map_size": map_size, "slope_bias": slope_bias,
