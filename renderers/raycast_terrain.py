@@ -92,9 +92,9 @@ the highest of each cell's 4 nodes.
 
 
 @njit(cache=True, fastmath=False)
-def _cell_hit(ox, oy, oz, dx, dy, dz, h, i, j, x0, y0, cell, tmin):
+def _cell_hit(ox, oy, oz, dx, dy, dz, h, i, j, x0, y0, cell, tmin, any_hit):
     r'''Nearest t >= tmin where the ray meets the two triangles of cell (i, j); inf if none.
-Also returns the triangle (0: u >= v, 1: u < v).'''
+Also returns the triangle (0: u >= v, 1: u < v). any_hit: the first triangle met.'''
     h00 = h[j, i]
     h10 = h[j, i + 1]
     h01 = h[j + 1, i]
@@ -134,21 +134,59 @@ Also returns the triangle (0: u >= v, 1: u < v).'''
             continue
         best = t
         tri = k
+        if any_hit:
+            break
     return best, tri
+
+
+def _walk_pyramid(heights, tol):
+    r"""Max-height pyramid laid out for the walk: both children of every cell are stored
+
+RETURNED VALUE: (flat, offs, width, rows, ncx, ncy): level k is
+flat[offs[k]:offs[k] + width[k]*rows[k]] as rows of width[k]; a level below the
+top stores twice the cells of the level above in each direction (padded with
+-inf), so children 2i, 2i+1 of any cell exist; ncx[k], ncy[k] count its real
+cells. Each value is the highest node of the cell plus tol, the walk's margin
+for rounding.
+"""
+    flat0, offs0, nx, ny = build_pyramid(heights)
+    top = offs0.size - 1
+    levels = []
+    for k in range(top + 1):
+        lv = flat0[offs0[k]:offs0[k] + nx[k] * ny[k]].reshape(ny[k], nx[k])
+        if k < top:
+            pad = np.full((2 * ny[k + 1], 2 * nx[k + 1]), -np.inf)
+            pad[:ny[k], :nx[k]] = lv
+            lv = pad
+        levels.append(lv + tol)
+    width = np.array([lv.shape[1] for lv in levels], np.int64)
+    rows = np.array([lv.shape[0] for lv in levels], np.int64)
+    offs = np.concatenate(([0], np.cumsum([lv.size for lv in levels])[:-1])).astype(np.int64)
+    flat = np.concatenate([lv.ravel() for lv in levels])
+    return flat, offs, width, rows, nx.astype(np.int64), ny.astype(np.int64)
 
 
 @njit(cache=True)
 def _trace(ox, oy, oz, dx, dy, dz, tmin, tmax, h, x0, y0, cell,
-           pyr, offs, pnx, pny, zlo, zhi, start_level):
-    r'''Nearest hit of one ray with the height field: (t, i, j, triangle) or (inf, -1, -1, -1)
+           pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, start_level, any_hit):
+    r"""Nearest hit of one ray with the height field: (t, i, j, triangle, level)
 
-The walk starts at pyramid level start_level (clipped to the top): the top for
-rays from afar, 0 for rays leaving the surface (shadow rays), which climb as
-they rise.'''
+(inf, -1, -1, -1, level) if the ray misses. level: the level of the first cell
+the ray passed over (-1 if none), a good start_level for a neighbouring ray.
+
+The ray walks the pyramid of _walk_pyramid (cell maxima + tol) in grid units.
+A cell the ray passes above is skipped; otherwise the walk goes down to the
+child that holds the ray just after t (decided by where the ray crosses the
+cell's middle lines), and at level 0 the cell's two triangles are solved
+exactly (_cell_hit). Entering a new parent cell climbs one level. The walk
+starts at level start_level (clipped to the top): the top for rays from afar,
+0 for rays leaving the surface (shadow rays), which climb as they rise.
+any_hit (shadow rays): the first triangle met in the first cell met, not
+necessarily the nearer of the cell's two.
+"""
     ny_nodes, nx_nodes = h.shape
     # every bound is widened by tol so rounding never lets a ray slip past a surface
     # that it grazes (a flat floor at the lowest height meets the z bound exactly)
-    tol = 1e-9 * max(1.0, zhi - zlo, cell)
     xmax = x0 + (nx_nodes - 1) * cell + tol
     ymax = y0 + (ny_nodes - 1) * cell + tol
     xmn = x0 - tol
@@ -166,7 +204,7 @@ they rise.'''
         t0 = max(t0, ta)
         t1 = min(t1, tb)
     elif ox < xmn or ox > xmax:
-        return np.inf, -1, -1, -1
+        return np.inf, -1, -1, -1, -1
     if dy != 0.0:
         ta = (ymn - oy) / dy
         tb = (ymax - oy) / dy
@@ -175,7 +213,7 @@ they rise.'''
         t0 = max(t0, ta)
         t1 = min(t1, tb)
     elif oy < ymn or oy > ymax:
-        return np.inf, -1, -1, -1
+        return np.inf, -1, -1, -1, -1
     if dz != 0.0:
         ta = (zlo - oz) / dz
         tb = (zhi - oz) / dz
@@ -184,85 +222,154 @@ they rise.'''
         t0 = max(t0, ta)
         t1 = min(t1, tb)
     elif oz < zlo or oz > zhi:
-        return np.inf, -1, -1, -1
+        return np.inf, -1, -1, -1, -1
     if not (t0 <= t1):
-        return np.inf, -1, -1, -1
+        return np.inf, -1, -1, -1, -1
 
     dxy = math.sqrt(dx * dx + dy * dy)
     if dxy < 1e-300:
         # a vertical ray: one cell
         i = min(max(int(math.floor((ox - x0) / cell)), 0), nx_nodes - 2)
         j = min(max(int(math.floor((oy - y0) / cell)), 0), ny_nodes - 2)
-        t, tri = _cell_hit(ox, oy, oz, dx, dy, dz, h, i, j, x0, y0, cell, tmin)
+        t, tri = _cell_hit(ox, oy, oz, dx, dy, dz, h, i, j, x0, y0, cell, tmin, False)
         if t <= t1 + 1e-12:
-            return t, i, j, tri
-        return np.inf, -1, -1, -1
+            return t, i, j, tri, 0
+        return np.inf, -1, -1, -1, -1
+    # grid units: cell (i, j) of level k spans [i, i+1] x [j, j+1] times 2^k
+    gx = (ox - x0) / cell
+    gy = (oy - y0) / cell
+    gdx = dx / cell
+    gdy = dy / cell
     # a step that moves the ray 1e-9 cells sideways: to leave a cell boundary
     nudge = 1e-9 * cell / dxy
-    idx = 1.0 / dx if dx != 0.0 else np.inf
-    idy = 1.0 / dy if dy != 0.0 else np.inf
-    stepx = 1 if dx > 0.0 else -1
-    stepy = 1 if dy > 0.0 else -1
     top = offs.size - 1
     level = min(max(start_level, 0), top)
     t = t0
-    recompute = True
-    s = cell
-    ix = iy = 0
-    nxl = nyl = 1
+    s = float(1 << level)
+    tm = t + nudge
+    ix = min(max(int(math.floor((gx + tm * gdx) / s)), 0), pnx[level] - 1)
+    iy = min(max(int(math.floor((gy + tm * gdy) / s)), 0), pny[level] - 1)
+    # tx, ty: the ray parameters where it crosses the cell's next x and y boundaries;
+    # dtx, dty: the parameter across one cell of this level
+    stepx = 1 if gdx > 0.0 else -1
+    stepy = 1 if gdy > 0.0 else -1
+    igx = 1.0 / gdx if gdx != 0.0 else np.inf
+    igy = 1.0 / gdy if gdy != 0.0 else np.inf
     tx = ty = dtx = dty = np.inf
+    if gdx != 0.0:
+        tx = ((ix + (1 if gdx > 0.0 else 0)) * s - gx) * igx
+        dtx = abs(s * igx)
+    if gdy != 0.0:
+        ty = ((iy + (1 if gdy > 0.0 else 0)) * s - gy) * igy
+        dty = abs(s * igy)
+    # which child of a cell the ray meets first along x (along y): 0 or 1
+    nearx = 0 if gdx >= 0.0 else 1
+    neary = 0 if gdy >= 0.0 else 1
+    base = offs[level]
+    wl = pw[level]
+    hl = ph[level]
+    first = -1
     while True:
-        if recompute:
-            # the cell of this level that holds the ray just after t, and the ray
-            # parameters where it crosses that cell's next x and y boundaries
-            s = cell * (1 << level)
-            nxl = pnx[level]
-            nyl = pny[level]
-            tm = t + nudge
-            ix = min(max(int(math.floor((ox + tm * dx - x0) / s)), 0), nxl - 1)
-            iy = min(max(int(math.floor((oy + tm * dy - y0) / s)), 0), nyl - 1)
-            if dx != 0.0:
-                tx = (x0 + (ix + (1 if dx > 0.0 else 0)) * s - ox) * idx
-                dtx = abs(s * idx)
-            if dy != 0.0:
-                ty = (y0 + (iy + (1 if dy > 0.0 else 0)) * s - oy) * idy
-                dty = abs(s * idy)
-            recompute = False
         te = min(tx, ty, t1)
         if te < t:
             te = t
         # lowest point of the ray over [t - nudge, te] (z is linear in t)
-        zray = min(oz + (t - nudge) * dz, oz + te * dz)
-        if zray <= pyr[offs[level] + iy * nxl + ix] + tol:
+        if dz < 0.0:
+            zray = oz + te * dz
+        else:
+            zray = oz + (t - nudge) * dz
+        if zray <= pyr[base + iy * wl + ix]:
             if level > 0:
+                # down to the child holding the ray just after t: the near child when
+                # the ray crosses the middle line later than that, else the far one
                 level -= 1
-                recompute = True
+                s *= 0.5
+                base = offs[level]
+                wl = pw[level]
+                hl = ph[level]
+                dtx *= 0.5
+                dty *= 0.5
+                # a child past the grid's edge (padding) holds the ray only within tol
+                # of the edge: the real child next to it takes the ray instead
+                if gdx != 0.0:
+                    tmid = ((2 * ix + 1) * s - gx) * igx
+                    if tmid > t + nudge:
+                        ix = 2 * ix + nearx
+                        if ix >= pnx[level]:
+                            ix -= 1
+                        else:
+                            tx = tmid
+                    else:
+                        ix = 2 * ix + 1 - nearx
+                        if ix >= pnx[level]:
+                            ix -= 1
+                            tx = tmid
+                else:
+                    ix = min(2 * ix + (1 if gx >= (2 * ix + 1) * s else 0), pnx[level] - 1)
+                if gdy != 0.0:
+                    tmid = ((2 * iy + 1) * s - gy) * igy
+                    if tmid > t + nudge:
+                        iy = 2 * iy + neary
+                        if iy >= pny[level]:
+                            iy -= 1
+                        else:
+                            ty = tmid
+                    else:
+                        iy = 2 * iy + 1 - neary
+                        if iy >= pny[level]:
+                            iy -= 1
+                            ty = tmid
+                else:
+                    iy = min(2 * iy + (1 if gy >= (2 * iy + 1) * s else 0), pny[level] - 1)
                 continue
-            th, tri = _cell_hit(ox, oy, oz, dx, dy, dz, h, ix, iy, x0, y0, cell, tmin)
+            th, tri = _cell_hit(ox, oy, oz, dx, dy, dz, h, ix, iy, x0, y0, cell, tmin,
+                                any_hit)
             if th <= t1 + 1e-12:
-                return th, ix, iy, tri
+                return th, ix, iy, tri, first
         # the ray passes this cell: on to the next one of the same level
         t = te
+        if first < 0:
+            first = level
         if t >= t1:
             break
         if tx <= ty:
-            old = ix
             ix += stepx
             tx += dtx
-            if ix < 0 or ix >= nxl:
+            if ix < 0 or ix >= wl:
                 break
-            changed = (ix >> 1) != (old >> 1)
+            # entered a new parent cell (as its child met first along x): climb
+            if level < top and (ix & 1) == nearx:
+                level += 1
+                s *= 2.0
+                tx += dtx
+                dtx *= 2.0
+                if (iy & 1) == neary:
+                    ty += dty
+                dty *= 2.0
+                ix >>= 1
+                iy >>= 1
+                base = offs[level]
+                wl = pw[level]
+                hl = ph[level]
         else:
-            old = iy
             iy += stepy
             ty += dty
-            if iy < 0 or iy >= nyl:
+            if iy < 0 or iy >= hl:
                 break
-            changed = (iy >> 1) != (old >> 1)
-        if changed and level < top:
-            level += 1
-            recompute = True
-    return np.inf, -1, -1, -1
+            if level < top and (iy & 1) == neary:
+                level += 1
+                s *= 2.0
+                ty += dty
+                dty *= 2.0
+                if (ix & 1) == nearx:
+                    tx += dtx
+                dtx *= 2.0
+                ix >>= 1
+                iy >>= 1
+                base = offs[level]
+                wl = pw[level]
+                hl = ph[level]
+    return np.inf, -1, -1, -1, -1
 
 
 @njit(cache=True)
@@ -293,7 +400,7 @@ def _albedo(a, x, y, xmin, ymin, w, hgt):
 
 
 @njit(parallel=True, cache=True)
-def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pnx, pny, zlo, zhi,
+def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol,
                 albedo, sun, ambient, exposure, sky, shadows,
                 out_value, out_t, out_code):
     N = O.shape[0]
@@ -308,6 +415,7 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pnx, pny, zlo, zhi,
     nruns = (N + RUN - 1) // RUN
     for worker in prange(NW):
         for run in range(worker, nruns, NW):
+            start = 1000
             for n in range(run * RUN, min(N, (run + 1) * RUN)):
                 # into the terrain frame: p_t = R^T (p_ref - T)
                 ax = O[n, 0] - T[0]
@@ -326,8 +434,12 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pnx, pny, zlo, zhi,
                     out_t[n] = np.nan
                     out_code[n] = 255
                     continue
-                t, i, j, tri = _trace(ox, oy, oz, dx, dy, dz, 0.0, np.inf, h, x0, y0, cell,
-                                      pyr, offs, pnx, pny, zlo, zhi, 1000)
+                t, i, j, tri, lvl = _trace(ox, oy, oz, dx, dy, dz, 0.0, np.inf, h, x0, y0, cell,
+                                           pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, start,
+                                           False)
+                # the next ray of the run starts where this one first passed a cell
+                # (any start level gives the same hit; this one saves the descent)
+                start = lvl if lvl >= 0 else 1000
                 if i < 0:
                     out_value[n] = sky
                     out_t[n] = np.nan
@@ -346,9 +458,9 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pnx, pny, zlo, zhi,
                     # leave the surface along its normal by a hair: the hit triangle itself
                     # cannot be met again, as the sun is above its plane
                     off = 1e-7 * cell
-                    ts, si, sj, stri = _trace(px + off * nx_, py + off * ny_, pz + off * nz_,
+                    ts, si, sj, stri, _ = _trace(px + off * nx_, py + off * ny_, pz + off * nz_,
                                               sun[0], sun[1], sun[2], 0.0, np.inf, h, x0, y0, cell,
-                                              pyr, offs, pnx, pny, zlo, zhi, 0)
+                                              pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, 0, True)
                     if si >= 0:
                         code = 2
                         cosi = 0.0
@@ -360,12 +472,13 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pnx, pny, zlo, zhi,
 
 def _prepared(terrain):
     key = id(terrain)
-    cached = getattr(terrain, "_raycast_cache", None)
+    cached = getattr(terrain, "_raycast_walk", None)
     if cached is not None and cached[0] == key:
         return cached[1]
-    flat, offs, pnx, pny = build_pyramid(terrain.heights)
-    prep = (flat, offs, pnx, pny, float(terrain.heights.min()), float(terrain.heights.max()))
-    object.__setattr__(terrain, "_raycast_cache", (key, prep))
+    zlo, zhi = float(terrain.heights.min()), float(terrain.heights.max())
+    tol = 1e-9 * max(1.0, zhi - zlo, terrain.cell)
+    prep = _walk_pyramid(terrain.heights, tol) + (zlo, zhi, tol)
+    object.__setattr__(terrain, "_raycast_walk", (key, prep))
     return prep
 
 
@@ -390,14 +503,14 @@ is given. Rays with non-finite numbers miss.
     O = np.ascontiguousarray(O.reshape(-1, 3))
     D = np.ascontiguousarray(D.reshape(-1, 3))
     Rt = _identity_Rt() if Rt_ref_terrain is None else _check_Rt(Rt_ref_terrain)
-    flat, offs, pnx, pny, zlo, zhi = _prepared(terrain)
+    flat, offs, pw, ph, pnx, pny, zlo, zhi, tol = _prepared(terrain)
     N = O.shape[0]
     value = np.empty(N)
     t = np.empty(N)
     code = np.empty(N, np.uint8)
     x0, y0 = terrain.origin
     _shade_rays(O, D, np.ascontiguousarray(Rt[:3]), np.ascontiguousarray(Rt[3]),
-                terrain.heights, x0, y0, terrain.cell, flat, offs, pnx, pny, zlo, zhi,
+                terrain.heights, x0, y0, terrain.cell, flat, offs, pw, ph, pnx, pny, zlo, zhi, tol,
                 terrain.albedo, terrain.sun.direction(), float(terrain.ambient),
                 float(exposure), float(sky), bool(shadows), value, t, code)
     return value.reshape(shape), t.reshape(shape), code.reshape(shape)

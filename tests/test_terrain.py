@@ -209,3 +209,86 @@ def test_supersampling_averages_and_keeps_centre_range():
     assert np.array_equal(r1.shadow, r3.shadow)
     assert np.mean(np.abs(r2.image - r1.image)) < 0.05
     assert r2.metadata["rays"] == 4 * 60 * 50
+
+
+def _brute_force_hits(terrain, o, d):
+    r'''Nearest hit of each ray with every triangle of the grid (no acceleration)'''
+    h = terrain.heights
+    ny, nx = h.shape
+    x0, y0 = terrain.origin
+    c = terrain.cell
+    j, i = np.meshgrid(np.arange(ny - 1), np.arange(nx - 1), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    h00, h10, h01, h11 = h[j, i], h[j, i + 1], h[j + 1, i], h[j + 1, i + 1]
+    best = np.full(len(o), np.inf)
+    u0 = (o[:, 0, None] - (x0 + i * c)) / c
+    v0 = (o[:, 1, None] - (y0 + j * c)) / c
+    du, dv = d[:, 0, None] / c, d[:, 1, None] / c
+    for a, b, cc, lower in ((h00, h10 - h00, h11 - h10, True), (h00, h11 - h01, h01 - h00, False)):
+        den = d[:, 2, None] - b * du - cc * dv
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (a + b * u0 + cc * v0 - o[:, 2, None]) / den
+        u, v = u0 + t * du, v0 + t * dv
+        e = 1e-9
+        ok = (t >= 0) & (u >= -e) & (u <= 1 + e) & (v >= -e) & (v <= 1 + e)
+        ok &= (u - v >= -e) if lower else (v - u >= -e)
+        best = np.minimum(best, np.where(ok, t, np.inf).min(axis=1))
+    return best
+
+
+@pytest.mark.parametrize("shape", [(14, 11), (17, 33), (2, 2), (9, 2)])
+def test_pyramid_walk_equals_brute_force(shape):
+    # odd and tiny grids (padded pyramid levels), rays along grid lines and axes, rays
+    # from outside the grid, from below and above, vertical rays, grazing rays
+    rng = np.random.default_rng(shape[0] * 100 + shape[1])
+    ny, nx = shape
+    z = 0.3 * rng.normal(size=shape)
+    z[rng.random(shape) < 0.2] += 0.8
+    ter = Terrain(heights=z, cell=0.25, origin=(-1.0, 2.0), sun=Sun(30, 40))
+    xmin, xmax, ymin, ymax = ter.extent()
+    n = 3000
+    o = np.column_stack((rng.uniform(xmin - 1, xmax + 1, n), rng.uniform(ymin - 1, ymax + 1, n),
+                         rng.uniform(-0.5, 3.0, n)))
+    target = np.column_stack((rng.uniform(xmin, xmax, n), rng.uniform(ymin, ymax, n),
+                              rng.uniform(-1.0, 1.0, n)))
+    d = target - o
+    k = n // 6
+    # along grid lines / axes: origins on nodes' lines, directions with zero x or y
+    o[:k, 0] = xmin + ter.cell * rng.integers(0, nx, k)
+    d[:k, 0] = 0.0
+    o[k:2 * k, 1] = ymin + ter.cell * rng.integers(0, ny, k)
+    d[k:2 * k, 1] = 0.0
+    d[2 * k:2 * k + 50, :2] = 0.0                       # vertical
+    d[3 * k:4 * k, 2] = rng.uniform(-0.05, 0.05, k)    # grazing
+    _, t, code = trace_rays(ter, o, d, shadows=False)
+    want = _brute_force_hits(ter, o, d)
+    hit = np.isfinite(want)
+    assert hit.sum() > n // 5 and (~hit).sum() > n // 10
+    assert np.array_equal(np.isfinite(t), hit)
+    assert np.max(np.abs(t[hit] - want[hit]) / np.linalg.norm(d[hit], axis=1)) < 1e-9
+    # shadow rays: a point facing the sun is in a cast shadow exactly when the ray towards
+    # the sun from the point lifted off its triangle (1e-7 cells along the normal, as the
+    # renderer does) meets a triangle
+    p = o[hit] + t[hit, None] * d[hit]
+    _, _, code = trace_rays(ter, o[hit], d[hit])
+    sun = ter.sun.direction()
+    lifted = p + 1e-7 * ter.cell * _normals(ter, p)
+    blocked = np.isfinite(_brute_force_hits(ter, lifted, np.broadcast_to(sun, p.shape)))
+    facing = code != 1
+    if min(shape) > 2:     # a one-cell-wide grid casts few shadows
+        assert blocked[facing].sum() > 20 and (~blocked[facing]).sum() > 20
+    assert np.array_equal(code[facing] == 2, blocked[facing])
+
+
+def _normals(terrain, p):
+    r'''Unit upward normals of the triangles under points p (N,3) of the surface'''
+    h, c = terrain.heights, terrain.cell
+    gx = (p[:, 0] - terrain.origin[0]) / c
+    gy = (p[:, 1] - terrain.origin[1]) / c
+    i = np.clip(np.floor(gx).astype(int), 0, h.shape[1] - 2)
+    j = np.clip(np.floor(gy).astype(int), 0, h.shape[0] - 2)
+    lower = gx - i >= gy - j
+    b = np.where(lower, h[j, i + 1] - h[j, i], h[j + 1, i + 1] - h[j + 1, i]) / c
+    cc = np.where(lower, h[j + 1, i + 1] - h[j, i + 1], h[j + 1, i] - h[j, i]) / c
+    n = np.column_stack((-b, -cc, np.ones_like(b)))
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
