@@ -9,9 +9,11 @@ After a change to the ray-cast kernels numba's cache is stale and every
 process that renders compiles the kernels again. harness.runner.run_jobs
 therefore compiles them once in the parent (warm_up) before it starts the
 local worker processes, which then load the cached kernels. This benchmark
-runs the campaign twice in fresh child processes, each with an empty
-NUMBA_CACHE_DIR (the state right after a kernel change): once with warm=False
-(every worker compiles) and once with warm=True. It prints the wall time,
+runs the campaign three times in fresh child processes: with an empty
+NUMBA_CACHE_DIR (the state right after a kernel change) and warm=False (every
+worker compiles); with another empty one and warm=True (the parent compiles,
+the workers load); and again on that now filled cache with warm=True (the
+warm-up only reads numba's cache index). It prints the wall time,
 the warm-up's seconds, and the render seconds of the slowest job (the first
 job of a worker, which includes the compilation when not warmed), and writes
 one JSON document. Not a test: the machine is shared, so the figures depend on
@@ -67,26 +69,32 @@ def main(argv=None):
         print(json.dumps(child(args.campaign, args.jobs, args.child == "warm")))
         return 0
     results = []
-    for mode in ("cold", "warm"):
-        with tempfile.TemporaryDirectory(prefix="numba-cache-") as cache:
-            env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    labels = {"cold": "stale cache, no warm-up", "warm": "stale cache, warm-up",
+              "cached": "cache up to date, warm-up"}
+    with tempfile.TemporaryDirectory(prefix="numba-cache-") as tmp:
+        # cold: every worker compiles; warm: the parent compiles, the workers load;
+        # cached: the same cache again (the warm-up only checks numba's index)
+        for mode, cache in (("cold", "a"), ("warm", "b"), ("cached", "b")):
+            env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / cache))
             t0 = time.perf_counter()
-            out = subprocess.run([sys.executable, __file__, "--child", mode, "--campaign",
+            out = subprocess.run([sys.executable, __file__, "--child",
+                                  "cold" if mode == "cold" else "warm", "--campaign",
                                   args.campaign, "-j", str(args.jobs)], env=env, cwd=ROOT,
                                  capture_output=True, text=True, check=False)
             if out.returncode != 0:
                 print(out.stderr[-3000:], file=sys.stderr)
                 return 1
             r = json.loads(out.stdout.strip().splitlines()[-1])
+            r["mode"] = mode
             r["process_seconds"] = time.perf_counter() - t0
             results.append(r)
             wu = r["warm_up"]
-            print(f"{'warm-up in the parent' if r['warm'] else 'no warm-up (workers compile)':32s}"
-                  f" wall {r['wall_seconds']:6.1f} s (process {r['process_seconds']:6.1f} s), "
-                  f"warm-up {wu['seconds'] if wu else 0.0:5.1f} s, slowest job renders "
+            print(f"{labels[mode]:26s} wall {r['wall_seconds']:6.1f} s (process "
+                  f"{r['process_seconds']:6.1f} s), warm-up {wu['seconds'] if wu else 0.0:5.1f} s"
+                  f", slowest job renders "
                   f"{', '.join(f'{x:.1f}' for x in r['slowest_job_render_seconds'])} s, "
                   f"render total {r['render_seconds_total']:.1f} s, load "
-                  f"{r['load_average'][0]:.1f}, {r['statuses']}")
+                  f"{r['load_average'][0]:.1f}, {r['statuses']}", flush=True)
     doc = {"benchmark": "bench_warmup", "utc": datetime.now(UTC).isoformat(),
            "campaign": args.campaign, "cpus": os.cpu_count(), "results": results}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

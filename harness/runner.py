@@ -569,31 +569,58 @@ def _keep_detections(job, dets, poses):
 
 
 # --- warm-up ------------------------------------------------------------------------
-# renderers whose kernels numba compiles (and caches on disk) on first use
-NUMBA_RENDERERS = ("raycast",)
+# renderers whose kernels numba compiles (and caches on disk) on first use, and the
+# kernels a render calls from Python (module, names)
+NUMBA_RENDERERS = {"raycast": ("renderers._raycast_kernels", ("render_kernel",
+                                                               "_fill_ray_cache"))}
 
 
-def warm_up(jobs):
+def kernels_cached(renderer):
+    r'''True when numba's on-disk cache holds the renderer's kernels for their current source
+
+Reads only numba's cache index (its stamp of the source file), loads no code:
+False after a kernel change, for a new cache directory, or when numba's
+internals cannot be read (then warming is the safe choice).
+'''
+    import importlib
+    if renderer not in NUMBA_RENDERERS:
+        return True
+    modname, names = NUMBA_RENDERERS[renderer]
+    try:
+        mod = importlib.import_module(modname)
+        return all(bool(getattr(mod, n)._cache._cache_file._load_index()) for n in names)
+    except Exception:
+        return False
+
+
+def warm_up(jobs, force=False):
     r'''Compile (or load from numba's cache) the kernels the jobs need, in this process
 
 SYNOPSIS
 
-    info = warm_up(jobs)   # {"seconds": ..., "renders": ["raycast/CAHV", ...], "failed": [...]}
+    info = warm_up(jobs)   # {"seconds", "renders": ["raycast/CAHV", ...], "cached", "failed"}
+    # force=True: warm even when numba's cache is up to date
 
 Renders one image per model family used by the jobs' numba renderers (the
 job's own camera and first planned pose, K=1, with a private ray cache that is
 dropped afterwards), and runs the blooming kernel if a job's response uses it.
 numba writes what it compiles to its cache directory, so worker processes
 started afterwards load the kernels instead of each compiling them (after a
-kernel change that is a minute or more per worker on a loaded machine).
-Never raises: a job that cannot be warmed fails later, in its own record.
+kernel change that is minutes per worker on a loaded machine). A renderer
+whose kernels are already cached for their source (kernels_cached) is not
+warmed: loading them here too would only add the loading time (seconds under
+load) before the workers start. Never raises: a job that cannot be warmed
+fails later, in its own record.
 '''
     t0 = time.perf_counter()
-    done, failed = [], []
+    done, failed, cached = [], [], []
     seen = set()
+    for name in sorted({j.renderer for j in jobs if j.renderer in NUMBA_RENDERERS}):
+        if not force and kernels_cached(name):
+            cached.append(name)
     for job in jobs:
         key = (job.renderer, job.family)
-        if job.renderer not in NUMBA_RENDERERS or key in seen:
+        if job.renderer not in NUMBA_RENDERERS or job.renderer in cached or key in seen:
             continue
         try:
             from renderers.base import RenderSettings, get_renderer
@@ -616,7 +643,7 @@ Never raises: a job that cannot be warmed fails later, in its own record.
             done.append("response/blooming")
         except Exception as e:
             failed.append(f"response/blooming: {_reason(e)}")
-    return {"seconds": time.perf_counter() - t0, "renders": done,
+    return {"seconds": time.perf_counter() - t0, "renders": done, "cached": cached,
             "failed": sorted(set(failed))[:10]}
 
 
