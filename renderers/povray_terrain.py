@@ -7,7 +7,9 @@ SYNOPSIS
 
     r = render_terrain(model, terrain, Rt_ref_terrain=ground_pose(1.9, pitch_deg=20), spp=1)
     r.image       # (H,W) float32 in [0,1], as renderers.raycast_terrain
-    r.range, r.shadow      # None: POV-Ray gives no per-pixel range or shadow code
+    r.range       # None: POV-Ray gives no per-pixel range
+    r.shadow      # None, or with shadow_codes=True POV-Ray's per-pixel verdict (uint8,
+                  # raycast_terrain's codes) from one more render
     r.metadata    # POV-Ray version, timings, the pinhole
 
     code = cell_shadows(terrain)   # (Ny-1, Nx-1, 2) uint8 per triangle centroid (terrain_shadows)
@@ -149,8 +151,9 @@ def _sun_light(terrain, M, t, colour, shadowless=False):
             f"{' shadowless' if shadowless else ''} }}\n")
 
 
-def _run(binary, workdir, scene, width, height, aa_depth=1, threads=None):
-    r'''Run POV-Ray on `scene` (text) in workdir; the 16-bit linear image as float64 [0,1]'''
+def _run(binary, workdir, scene, width, height, aa_depth=1, threads=None, rgb=False):
+    r'''Run POV-Ray on `scene` (text) in workdir; the 16-bit linear image as float64 [0,1]
+(its green channel, or (H,W,3) R, G, B with rgb=True)'''
     import cv2
 
     pov = os.path.join(workdir, "scene.pov")
@@ -177,7 +180,11 @@ def _run(binary, workdir, scene, width, height, aa_depth=1, threads=None):
     img = cv2.imread(png, cv2.IMREAD_UNCHANGED)
     if img is None or img.shape[:2] != (height, width):
         raise RendererError(f"povray wrote an unreadable or mis-sized image {png}")
-    if img.ndim == 3:
+    if rgb:
+        if img.ndim != 3:
+            raise RendererError(f"povray wrote a grey image {png}; expected colour")
+        img = img[..., 2::-1]           # OpenCV reads B, G, R
+    elif img.ndim == 3:
         img = img[..., 1]
     scale = 65535.0 if img.dtype == np.uint16 else 255.0
     return img.astype(np.float64) / scale, seconds
@@ -246,6 +253,27 @@ def scene_text(terrain, M, t, camera, png_name, exposure=1.0, sky=0.0, shadows=T
     return s.getvalue()
 
 
+def code_scene_text(terrain, M, t, camera):
+    r'''The scene whose colours tell the shadow code: red from a sun casting shadows,
+green from a shadowless sun (facing the sun), blue from ambient (terrain, not sky);
+both suns so bright that any light saturates'''
+    from io import StringIO
+
+    s = StringIO()
+    s.write("#version 3.7;\n"
+            "global_settings { assumed_gamma 1.0 ambient_light rgb 1 max_trace_level 5 }\n"
+            "background { rgb 0 }\n")
+    s.write(camera)
+    s.write(_sun_light(terrain, M, t, 1.0).replace("color rgb 1", "color rgb <1e9,0,0>"))
+    s.write(_sun_light(terrain, M, t, 1.0, shadowless=True).replace("color rgb 1",
+                                                                    "color rgb <0,1e9,0>"))
+    write_mesh2(s, terrain)
+    mat = ",".join(_fmt(v) for v in (*M[:, 0], *M[:, 1], *M[:, 2], *t))
+    s.write("object { CamvalTerrain pigment { rgb 1 } finish { ambient rgb <0,0,1> diffuse 1 "
+            f"specular 0 phong 0 reflection 0 }} matrix <{mat}> }}\n")
+    return s.getvalue()
+
+
 def _Rt_cam_terrain(model, Rt_ref_terrain):
     import mrcal
 
@@ -258,19 +286,23 @@ def _Rt_cam_terrain(model, Rt_ref_terrain):
 
 def render_terrain(model, terrain, Rt_ref_terrain=None, spp=1, shadows=True, exposure=1.0,
                    sky=0.0, interpolation="bilinear", warp_scale=1.0, binary="povray",
-                   threads=None, keep_dir=None):
+                   threads=None, keep_dir=None, shadow_codes=False):
     r'''Render a terrain through a camera model with POV-Ray (pinhole, then the warp)
 
 SYNOPSIS
 
     r = render_terrain(model, terrain, Rt_ref_terrain, spp=1, shadows=True)
-    # r.image (H,W) float32 in [0,1]; r.range, r.shadow are None
+    # r.image (H,W) float32 in [0,1]; r.range is None
+    r = render_terrain(model, terrain, Rt_ref_terrain, shadow_codes=True)
+    # r.shadow (H,W) uint8 as raycast_terrain's: 0 lit, 1 facing away, 2 cast, 255 sky
 
 Arguments as renderers.raycast_terrain.render_terrain, plus the warp's
 interpolation ("bilinear"/"bicubic") and warp_scale, the POV-Ray binary,
 threads and keep_dir (keep the scene files there). spp = K: POV-Ray's
 non-adaptive anti-aliasing (n x n, n <= 9) on a b times finer image, K = n b,
-as renderers/povray.py.
+as renderers/povray.py. shadow_codes=True renders the pinhole once more
+(code_scene_text: one ray per pixel) for POV-Ray's per-pixel verdict, taken
+at the pinhole pixel nearest each model pixel's ray; otherwise r.shadow is None.
 '''
     from renderers.povray import perspective_camera, split_supersampling
     from renderers.warp import PinholeWarp, box_downsample
@@ -292,6 +324,18 @@ as renderers/povray.py.
         scene = scene_text(terrain, M, t, perspective_camera(fine), "albedo.png",
                            exposure=exposure, sky=sky, shadows=shadows)
         img, pov_seconds = _run(bin_path, workdir, scene, fine.width, fine.height, n, threads)
+        shadow = None
+        if shadow_codes:
+            import cv2
+            pin_cam = perspective_camera(warp.pinhole)
+            c, s2 = _run(bin_path, workdir, code_scene_text(terrain, M, t, pin_cam),
+                         warp.pinhole.width, warp.pinhole.height, 1, threads, rgb=True)
+            pov_seconds += s2
+            pin_code = np.where(c[..., 2] < 0.5, 255, np.where(
+                c[..., 1] < 0.5, 1, np.where(c[..., 0] < 0.5, 2, 0))).astype(np.uint8)
+            map_x, map_y = warp.map()
+            shadow = cv2.remap(pin_code, map_x, map_y, cv2.INTER_NEAREST,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=255)
     finally:
         if not keep_dir:
             shutil.rmtree(workdir, ignore_errors=True)
@@ -299,7 +343,7 @@ as renderers/povray.py.
     image = warp.apply(pin, interpolation)
     t1 = time.perf_counter()
     return TerrainRender(
-        image=np.clip(image, 0.0, 1.0).astype(np.float32), range=None, shadow=None,
+        image=np.clip(image, 0.0, 1.0).astype(np.float32), range=None, shadow=shadow,
         metadata={"renderer": NAME, "version": povray_version(binary), "spp": spp,
                   "shadows": bool(shadows), "exposure": exposure, "seconds": t1 - t0,
                   "povray_seconds": pov_seconds, "pinhole": warp.pinhole.as_dict(),

@@ -205,7 +205,7 @@ def test_camera_renders_of_the_three_agree():
     m = scale_model(load_catalogue().get(21).model, 0.05)   # Mars 2020 navcam, 256x192
     pose = ground_pose(1.9, pitch_deg=20.0)
     exact = raycast_render(m, t, pose, spp=2)
-    images = {"povray": povray_render(m, t, pose, spp=2),
+    images = {"povray": povray_render(m, t, pose, spp=2, shadow_codes=True),
               "osmesa": osm.render_terrain(m, t, pose, spp=2)}
     ground = np.isfinite(exact.range)
     # measured: 58% ground, 30% of it unlit
@@ -220,12 +220,14 @@ def test_camera_renders_of_the_three_agree():
         assert d.mean() < 0.01, name
         assert np.median(d) < 0.002, name
         assert r.metadata["renderer"] in ("povray_terrain", "osmesa_terrain")
-    # the shadow map's per-pixel verdict (nearest pinhole pixel) against the exact one:
-    # measured 98.5% of pixels agree on lit / unlit, 99.85% on sky
-    code = images["osmesa"].shadow
-    assert code.shape == exact.shadow.shape and code.dtype == np.uint8
-    assert ((code == 255) == (exact.shadow == 255)).mean() > 0.995
-    assert ((code != 0) == (exact.shadow != 0)).mean() > 0.97
+    # per-pixel verdicts (the pinhole pixel nearest each pixel's ray) against the exact
+    # ones: measured 98.5% (osmesa) / 98.6% (povray) of pixels agree on lit / unlit,
+    # 99.85% on sky: the nearest-pixel resampling, more than the shadow test, differs
+    for name, r in images.items():
+        code = r.shadow
+        assert code.shape == exact.shadow.shape and code.dtype == np.uint8, name
+        assert ((code == 255) == (exact.shadow == 255)).mean() > 0.995, name
+        assert ((code != 0) == (exact.shadow != 0)).mean() > 0.97, name
 
 
 # ---------------------------------------------------------------------------
