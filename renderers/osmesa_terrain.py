@@ -406,20 +406,22 @@ colour, shadow-test flag, facing-the-sun flag, coverage.'''
             GL.glDeleteTextures(texs)
 
 
-def top_down_matrix(terrain):
-    r'''(4,4) centred terrain -> clip; window pixel (a, b) is centred on
-(x0 + a cell/3, y0 + b cell/3)'''
+def top_down_matrix(terrain, ox=0, oy=0, width=None, height=None):
+    r'''(4,4) centred terrain -> clip of a top-down window: its pixel (a, b) is centred on
+(x0 + (ox + a) cell/3, y0 + (oy + b) cell/3); width, height default to the whole grid'''
     W, H = top_down_size(terrain)
+    W = W if width is None else width
+    H = H if height is None else height
     d = terrain.cell / 3.0
     x0, y0 = terrain.origin
     c = _centre(terrain)
     zlo, zhi = terrain.heights.min() - c[2] - 1.0, terrain.heights.max() - c[2] + 1.0
     P = np.zeros((4, 4))
-    # window x_w = (x - x0)/d + 1/2; ndc = 2 x_w / W - 1
+    # window x_w = (x - x0)/d - ox + 1/2; ndc = 2 x_w / W - 1
     P[0, 0] = 2.0 / (d * W)
-    P[0, 3] = 2.0 * ((c[0] - x0) / d + 0.5) / W - 1.0
+    P[0, 3] = 2.0 * ((c[0] - x0) / d - ox + 0.5) / W - 1.0
     P[1, 1] = 2.0 / (d * H)
-    P[1, 3] = 2.0 * ((c[1] - y0) / d + 0.5) / H - 1.0
+    P[1, 3] = 2.0 * ((c[1] - y0) / d - oy + 0.5) / H - 1.0
     # highest -> nearest (ndc -1)
     P[2, 2] = -2.0 / (zhi - zlo)
     P[2, 3] = (zhi + zlo) / (zhi - zlo)
@@ -435,21 +437,24 @@ SYNOPSIS
     code = cell_shadows(terrain, map_size=4096)   # (Ny-1, Nx-1, 2) uint8: 0 lit, 1 away, 2 cast
 
 Pass 2 is drawn by an orthographic top-down camera whose pixel centres are
-the centroids (pitch cell/3); a pixel's shadow-test flag and facing flag
-(cos i > 0, float32 in the shader) give the code.
+the centroids (pitch cell/3), in tiles of at most TILE x TILE pixels; a
+pixel's shadow-test flag and facing flag (cos i > 0, float32 in the shader)
+give the code.
 '''
     W, H = top_down_size(terrain)
-    if max(W, H) > 16384:
-        raise RendererError(f"the top-down view of this grid would be {W}x{H} px; OSMesa's "
-                            "limit is 16384 (use a coarser grid or a part of it)")
+    col, row = centroid_pixels(terrain)
+    px = np.full(col.shape + (4,), np.nan, np.float32)
     with _lock():
         scene = _Scene(terrain, map_size, slope_bias, True)
         try:
-            buf = scene.view(top_down_matrix(terrain), W, H, 1.0)
+            for oy in range(0, H, TILE):
+                for ox in range(0, W, TILE):
+                    tw, th = min(TILE, W - ox), min(TILE, H - oy)
+                    buf = scene.view(top_down_matrix(terrain, ox, oy, tw, th), tw, th, 1.0)
+                    inside = (col >= ox) & (col < ox + tw) & (row >= oy) & (row < oy + th)
+                    px[inside] = buf[row[inside] - oy, col[inside] - ox]
         finally:
             scene.release()
-    col, row = centroid_pixels(terrain)
-    px = buf[row, col]
     if not np.all(px[..., 3] == 1.0):
         raise RendererError("OSMesa top-down view: some triangle centroids were not drawn")
     return np.where(px[..., 2] < 0.5, 1, np.where(px[..., 1] > 0.5, 2, 0)).astype(np.uint8)

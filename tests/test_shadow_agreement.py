@@ -120,6 +120,14 @@ def test_the_shadow_map_converges_with_its_resolution():
     assert d[256] > 0.02
 
 
+def test_tiled_top_down_view_gives_the_same_codes(monkeypatch):
+    osm = _osmesa()
+    t = rough_terrain(12.0)
+    whole = osm.cell_shadows(t, map_size=1024)
+    monkeypatch.setattr(osm, "TILE", 100)          # 240 x 240 px in 9 tiles
+    assert np.array_equal(osm.cell_shadows(t, map_size=1024), whole)
+
+
 @pytest.mark.parametrize("tilt_deg, expected", [(-20.0, 0), (0.0, 0), (7.0, 0), (9.5, 0),
                                                 (12.0, 1)])
 def test_no_self_shadowing_on_tilted_planes(tilt_deg, expected):
