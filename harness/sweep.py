@@ -59,7 +59,7 @@ DIFFICULTIES = {
              "unit": "PSF sigma, px", "rerender": False},
     "motion": {"levels": [0.0, 1.0, 2.0, 4.0, 8.0, 16.0],
                "unit": "motion blur length, px", "rerender": False},
-    "spp": {"levels": [1, 2, 4, 8, 16], "unit": "supersampling K", "rerender": True},
+    "spp": {"levels": [16, 8, 4, 2, 1], "unit": "supersampling K (falling)", "rerender": True},
     "poses": {"levels": [12, 9, 6, 4, 3], "unit": "board poses", "rerender": True},
     "tilt": {"levels": [0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 75.0, 80.0],
              "unit": "board tilt, deg off fronto-parallel", "rerender": True},
@@ -96,6 +96,11 @@ def response_for(difficulty, level):
     if difficulty == "motion":
         return {} if level == 0 else {"motion_blur": {"velocity_px": [float(level), 0.0]}}
     return {}
+
+
+def level_text(v):
+    r'''A level as tick and table text: 1000.0 -> "1000", 2.5 -> "2.5", "15" -> "15"'''
+    return f"{v:g}" if isinstance(v, float) else str(v)
 
 
 def _finite(v):
@@ -326,7 +331,7 @@ breakdown. A stage failing at one level is a record, never an exception.
     levels = list(spec["levels"] if levels is None else levels)
     if not levels:
         raise SweepError("a sweep needs at least one level")
-    labels = [str(lv) for lv in levels]
+    labels = [level_text(lv) for lv in levels]
     if difficulty == "fov":
         ordered = order_by_fov(levels)
         levels = [c for c, _ in ordered]
@@ -453,7 +458,7 @@ def tick_labels(sweep):
     r'''The x tick label of every level: the level, with the camera's field of view (fov)
 or the mean board range in metres (range)'''
     levels = sweep["levels"]
-    labels = list(sweep.get("level_labels") or [str(v) for v in levels])
+    labels = list(sweep.get("level_labels") or [level_text(v) for v in levels])
     if sweep["difficulty"] == "range":
         for i, lv in enumerate(levels):
             sc = next((r.get("scene") for r in sweep["records"]
@@ -471,7 +476,7 @@ levels that could not be set up shaded'''
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(8, 5))
+    fig, ax = plt.subplots(figsize=(8, 5.6))
     ax2 = ax.twinx()
     levels = sweep["levels"]
     xs = np.arange(len(levels))
@@ -488,7 +493,7 @@ levels that could not be set up shaded'''
         if finite:
             floor = min(finite) if floor is None else min(floor, min(finite))
         b = sweep["breakdown"].get(key, {}).get("level")
-        label = key + (f" (breaks at {b})" if b is not None else " (never broke)")
+        label = key + (f" (breaks at {level_text(b)})" if b is not None else " (never broke)")
         ax.plot(xs, ys, "o-", color=f"C{k}", label=label)
         if b is not None:
             ib = levels.index(b)
@@ -525,7 +530,8 @@ levels that could not be set up shaded'''
                  fontsize=9)
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, loc="upper left", fontsize=7)
+    ax.legend(h1 + h2, l1 + l2, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=3,
+              fontsize=7, frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

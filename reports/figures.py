@@ -493,7 +493,7 @@ reports.tables.legacy_signature_rows'''
 
 def fig_sweeps(sweeps, out):
     r'''One stability chart per sweep document (harness.sweep.stability_chart) -> [Figure]'''
-    from harness.sweep import stability_chart
+    from harness.sweep import level_text, stability_chart
     figs = []
     used = set()
     for sw in sweeps:
@@ -509,7 +509,7 @@ def fig_sweeps(sweeps, out):
         stability_chart(sw, path)
         where = ("one camera per level" if sw["difficulty"] == "fov"
                  else f"camera {sw['camera']} ({sw['camera_label']})")
-        broke = "; ".join(f"{k} breaks at {b['level']}" if b["level"] is not None
+        broke = "; ".join(f"{k} breaks at {level_text(b['level'])}" if b["level"] is not None
                           else f"{k} never broke" for k, b in sorted(sw["breakdown"].items()))
         figs.append(Figure(
             key, f"Stability: {sw['difficulty']} ({where})",

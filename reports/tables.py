@@ -274,6 +274,10 @@ def legacy_signature_note(rows):
 
 # ---------------------------------------------------------------------------------------------
 # stability sweeps (harness/sweep.py documents)
+def _lv(v):
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
 def sweep_rows(sweep):
     r'''[(method, breaks at, why, best projection RMS px, at level, lowest detection rate %)]'''
     out = []
@@ -284,10 +288,10 @@ def sweep_rows(sweep):
         best = min(ok, key=lambda r: r["projection_rms_px"]) if ok else None
         rates = [r["detection_rate"] for r in recs if r.get("detection_rate") is not None]
         b = sweep["breakdown"].get(key) or {}
-        out.append((key, "never" if b.get("level") is None else str(b["level"]),
+        out.append((key, "never" if b.get("level") is None else _lv(b["level"]),
                     b.get("reason") or "",
                     _fmt(best["projection_rms_px"]) if best else "—",
-                    str(best["level"]) if best else "—",
+                    _lv(best["level"]) if best else "—",
                     f"{100 * min(rates):.1f}" if rates else "—"))
     return out
 
@@ -302,7 +306,7 @@ def sweep_level_rows(sweep):
             sc = r.get("scene") or {}
             scene = ", ".join(f"{k} {v:.3g}" for k, v in sc.items() if v is not None)
             rate = r.get("detection_rate")
-            out.append((str(lv), f"{r['calibrator']}/{r['model']}",
+            out.append((_lv(lv), f"{r['calibrator']}/{r['model']}",
                         r["status"] + (" (broken)" if r.get("broken") else ""),
                         "—" if rate is None else f"{100 * rate:.1f}",
                         _fmt(r.get("projection_rms_px")), _fmt(r.get("residual_rms_px")),

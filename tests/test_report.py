@@ -328,7 +328,7 @@ def test_legacy_and_sweep_sections(legacy_run):
     assert paths["sweeps"] == ["sweeps/sweep_tilt.json"]
     assert (Path(paths["figures_dir"]) / "sweep_tilt_17.png").is_file()
     assert 'id="sweeps"' in html and 'id="sweep_tilt_17"' in html
-    assert "| jpl/CAHVOR | 60.0 | detection rate 25.0%; degenerate poses |" in md
+    assert "| jpl/CAHVOR | 60 | detection rate 25.0%; degenerate poses |" in md
     assert html.count("<img ") == len(paths["figures"])
 
 
