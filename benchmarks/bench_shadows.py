@@ -19,6 +19,12 @@ that lands differently, and where the differences are: within one cell of an
 exact shadow edge, on triangles nearly edge-on to the sun (cos i < 0.1),
 and whether moving the sun by <= 0.1 / 0.25 / 0.5 / 1 deg (elevation or
 azimuth) flips the exact answer there ("marginal"). Timings of each method.
+
+Then (unless --no-camera) renders the terrain at the first elevation through
+the Mars 2020 navcam (slot 21) scaled by 0.2 (1024x768, CAHVORE) on a mast
+1.9 m high pitched 20 deg down, with each renderer's render_terrain (K = 2,
+shadow codes on), and records the time, the image difference from the exact
+render and the per-pixel shadow agreement.
 '''
 
 import argparse
@@ -59,6 +65,53 @@ moves by each step (elevation or azimuth, either way)'''
     return out
 
 
+def _camera_renders(terrain):
+    from harness.stereo import scale_model
+    from reference_models.catalogue import load_catalogue
+    from renderers import osmesa_terrain, povray_terrain, raycast_terrain
+    from targets.terrain import ground_pose
+
+    model = scale_model(load_catalogue().get(21).model, 0.2)
+    # the terrain starts 1 m ahead of the mast
+    x0, y0 = terrain.origin
+    terrain = terrain.replace(origin=(1.0, y0 - (terrain.extent()[3] - y0) / 2))
+    pose = ground_pose(1.9, pitch_deg=20.0)
+    print(f"\ncamera renders: slot 21 scaled 0.2 ({model.width}x{model.height}), K = 2, "
+          f"sun elevation {terrain.sun.elevation_deg:g} deg")
+    raycast_terrain.render_terrain(model, terrain, pose, spp=2)     # compile, rays
+    out = {}
+    records = []
+    for name, fn in (("raycast", raycast_terrain.render_terrain),
+                     ("povray", lambda *a, **k: povray_terrain.render_terrain(
+                         *a, shadow_codes=True, **k)),
+                     ("osmesa", osmesa_terrain.render_terrain)):
+        t0 = time.perf_counter()
+        r = fn(model, terrain, pose, spp=2)
+        seconds = time.perf_counter() - t0
+        out[name] = r
+        rec = {"renderer": name, "seconds": seconds, "width": model.width,
+               "height": model.height, "spp": 2}
+        if name != "raycast":
+            e = out["raycast"]
+            d = np.abs(r.image.astype(np.float64) - e.image)
+            rec.update(image_mean_abs_diff=float(d.mean()),
+                       image_median_abs_diff=float(np.median(d)),
+                       image_p99_abs_diff=float(np.percentile(d, 99)),
+                       pixels_agree_lit_unlit=float(np.mean((r.shadow != 0) == (e.shadow != 0))),
+                       pixels_agree_sky=float(np.mean((r.shadow == 255) == (e.shadow == 255))))
+            print(f"  {name:8s} {seconds:6.2f} s; |image - exact| mean {d.mean():.4f} median "
+                  f"{np.median(d):.4f} p99 {np.percentile(d, 99):.4f}; lit/unlit agree on "
+                  f"{rec['pixels_agree_lit_unlit']:.2%} of pixels")
+        else:
+            g = np.isfinite(r.range)
+            rec.update(ground_fraction=float(g.mean()),
+                       unlit_fraction_of_ground=float(np.mean(r.shadow[g] != 0)))
+            print(f"  {name:8s} {seconds:6.2f} s; ground {g.mean():.1%} of pixels, "
+                  f"{rec['unlit_fraction_of_ground']:.1%} of it unlit")
+        records.append(rec)
+    return records
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=float, default=16.0, help="terrain side (m)")
@@ -66,6 +119,7 @@ def main():
     ap.add_argument("--elevations", default="8,15,30,50")
     ap.add_argument("--map-sizes", default="1024,2048,4096,8192")
     ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--no-camera", action="store_true", help="skip the camera renders")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "shadows.json"))
     args = ap.parse_args()
 
@@ -123,6 +177,8 @@ def main():
                   f"{c['near_edge_fraction']:.2f} grazing {c['grazing_fraction']:.2f} either "
                   f"{c['edge_or_grazing_fraction']:.3f} "
                   f"max {c['max_edge_distance_cells']} cells{m}  ({tb:.2f} s)")
+    camera_records = [] if args.no_camera else _camera_renders(base.replace(
+        sun=Sun(120.0, elevations[0])))
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
                                 text=True).stdout.strip()
@@ -132,7 +188,8 @@ def main():
            "commit": commit, "machine": platform.machine(), "cpus": os.cpu_count(),
            "load_average": os.getloadavg(), "povray": povray_terrain.povray_version(),
            "opengl": osmesa_terrain.gl_version(), "terrain": base.as_dict(),
-           "sun_steps_deg": list(SUN_STEPS_DEG), "records": records}
+           "sun_steps_deg": list(SUN_STEPS_DEG), "records": records,
+           "camera_renders": camera_records}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=1, allow_nan=False))
     print(f"\nload average {os.getloadavg()}; wrote {args.out}")
