@@ -92,18 +92,19 @@ the highest of each cell's 4 nodes.
 
 
 @njit(cache=True, fastmath=False)
-def _cell_hit(ox, oy, oz, dx, dy, dz, h, i, j, x0, y0, cell, tmin, any_hit):
-    r'''Nearest t >= tmin where the ray meets the two triangles of cell (i, j); inf if none.
-Also returns the triangle (0: u >= v, 1: u < v). any_hit: the first triangle met.'''
+def _cell_hit(u0, v0, oz, du, dv, dz, h, i, j, tmin, any_hit):
+    r"""Nearest t >= tmin where a ray meets the two triangles of cell (i, j); inf if none
+
+The ray is in grid units: x = x0 + (u0 + t du) cell, y = y0 + (v0 + t dv) cell,
+z = oz + t dz, so (u0 - i + t du, v0 - j + t dv) are the cell's (u, v). Also
+returns the triangle (0: u >= v, 1: u < v). any_hit: the first triangle met.
+"""
     h00 = h[j, i]
     h10 = h[j, i + 1]
     h01 = h[j + 1, i]
     h11 = h[j + 1, i + 1]
-    # local coordinates along the ray: u = u0 + t du, v = v0 + t dv
-    u0 = (ox - (x0 + i * cell)) / cell
-    v0 = (oy - (y0 + j * cell)) / cell
-    du = dx / cell
-    dv = dy / cell
+    u0 = u0 - i
+    v0 = v0 - j
     eps = 1e-9
     best = np.inf
     tri = -1
@@ -139,36 +140,121 @@ Also returns the triangle (0: u >= v, 1: u < v). any_hit: the first triangle met
     return best, tri
 
 
-def _walk_pyramid(heights, tol):
-    r"""Max-height pyramid laid out for the walk: both children of every cell are stored
+def _walk_pyramid(cells, tol):
+    r"""A max pyramid of per-cell values laid out for the walk
 
-RETURNED VALUE: (flat, offs, width, rows, ncx, ncy): level k is
+SYNOPSIS
+
+    flat, offs, width, rows, ncx, ncy = _walk_pyramid(cells, tol)   # cells (Ny-1,Nx-1)
+
+Level 0 is cells + tol (tol: the walk's margin for rounding); each cell of
+level k+1 holds the largest of its 2x2 cells of level k. Level k is
 flat[offs[k]:offs[k] + width[k]*rows[k]] as rows of width[k]; a level below the
 top stores twice the cells of the level above in each direction (padded with
 -inf), so children 2i, 2i+1 of any cell exist; ncx[k], ncy[k] count its real
-cells. Each value is the highest node of the cell plus tol, the walk's margin
-for rounding.
+cells.
 """
-    flat0, offs0, nx, ny = build_pyramid(heights)
-    top = offs0.size - 1
-    levels = []
-    for k in range(top + 1):
-        lv = flat0[offs0[k]:offs0[k] + nx[k] * ny[k]].reshape(ny[k], nx[k])
-        if k < top:
-            pad = np.full((2 * ny[k + 1], 2 * nx[k + 1]), -np.inf)
-            pad[:ny[k], :nx[k]] = lv
-            lv = pad
-        levels.append(lv + tol)
+    lv = np.asarray(cells, np.float64)
+    levels, ncx, ncy = [], [], []
+    while True:
+        ny, nx = lv.shape
+        ncx.append(nx)
+        ncy.append(ny)
+        if ny == 1 and nx == 1:
+            levels.append(lv)
+            break
+        pad = np.full((ny + (ny & 1), nx + (nx & 1)), -np.inf)
+        pad[:ny, :nx] = lv
+        levels.append(pad)
+        lv = np.maximum(np.maximum(pad[0::2, 0::2], pad[1::2, 0::2]),
+                        np.maximum(pad[0::2, 1::2], pad[1::2, 1::2]))
     width = np.array([lv.shape[1] for lv in levels], np.int64)
     rows = np.array([lv.shape[0] for lv in levels], np.int64)
     offs = np.concatenate(([0], np.cumsum([lv.size for lv in levels])[:-1])).astype(np.int64)
-    flat = np.concatenate([lv.ravel() for lv in levels])
-    return flat, offs, width, rows, nx.astype(np.int64), ny.astype(np.int64)
+    flat = np.concatenate([lv.ravel() for lv in levels]) + tol
+    return flat, offs, width, rows, np.array(ncx, np.int64), np.array(ncy, np.int64)
+
+
+def _cell_maxima(heights):
+    h = heights
+    return np.maximum(np.maximum(h[:-1, :-1], h[1:, :-1]), np.maximum(h[:-1, 1:], h[1:, 1:]))
+
+
+@njit(parallel=True, cache=True)
+def _sun_bound(mmax, sx, sy, k, zhi):
+    r"""For each cell, a height above which the ray towards the sun from any point of
+the cell meets no other cell
+
+SYNOPSIS
+
+    V = _sun_bound(mmax, sx, sy, k, zhi)   # mmax, V (Ny-1,Nx-1): cells' highest nodes
+
+(sx, sy) is the sun's horizontal unit direction and k the rise of the ray per
+cell of horizontal travel (tan(elevation) * cell). A ray from a point q of cell
+m reaches cell m' after at least r = pmin(m') - pmax(m) cells (p: the
+coordinate along (sx, sy)), where it is at least k r higher than at q, so
+V(m) = max over the cells m' of the strip swept by m towards the sun of
+mmax(m') - k max(0, r). The strip is walked in pieces one cell long; each
+piece's bounding box is scanned and the cells that overlap the strip's width
+are kept. The walk stops where nothing further can exceed V (zhi: the highest
+node).
+"""
+    ny, nx = mmax.shape
+    out = np.empty((ny, nx))
+    # extent of a cell along (sx, sy) (p) and across it (l = -x sy + y sx)
+    plo = min(0.0, sx) + min(0.0, sy)
+    phi = max(0.0, sx) + max(0.0, sy)
+    llo = min(0.0, -sy) + min(0.0, sx)
+    lhi = max(0.0, -sy) + max(0.0, sx)
+    ext = phi - plo
+    marg = 1e-9
+    for j in prange(ny):
+        for i in range(nx):
+            pm0 = i * sx + j * sy + plo
+            pm1 = i * sx + j * sy + phi
+            lm0 = -i * sy + j * sx + llo - marg
+            lm1 = -i * sy + j * sx + lhi + marg
+            v = mmax[j, i]
+            d = 0
+            while True:
+                a = pm0 + d
+                if zhi - k * max(0.0, a - ext - pm1) <= v:
+                    break
+                b = a + 1.0
+                # the piece p in [a, b], l in [lm0, lm1]: its bounding box in cells
+                xa = a * sx - lm0 * sy
+                xb = a * sx - lm1 * sy
+                xc = b * sx - lm0 * sy
+                xd = b * sx - lm1 * sy
+                ya = a * sy + lm0 * sx
+                yb = a * sy + lm1 * sx
+                yc = b * sy + lm0 * sx
+                yd = b * sy + lm1 * sx
+                i0 = int(math.floor(min(xa, xb, xc, xd)))
+                i1 = int(math.floor(max(xa, xb, xc, xd)))
+                j0 = int(math.floor(min(ya, yb, yc, yd)))
+                j1 = int(math.floor(max(ya, yb, yc, yd)))
+                if i1 < 0 or j1 < 0 or i0 >= nx or j0 >= ny:
+                    break
+                for jj in range(max(j0, 0), min(j1, ny - 1) + 1):
+                    for ii in range(max(i0, 0), min(i1, nx - 1) + 1):
+                        c = -ii * sy + jj * sx
+                        if c + lhi < lm0 or c + llo > lm1:
+                            continue
+                        p0 = ii * sx + jj * sy + plo
+                        if p0 + ext < pm0 - marg:
+                            continue
+                        w = mmax[jj, ii] - k * max(0.0, p0 - pm1)
+                        if w > v:
+                            v = w
+                d += 1
+            out[j, i] = v
+    return out
 
 
 @njit(cache=True)
 def _trace(ox, oy, oz, dx, dy, dz, tmin, tmax, h, x0, y0, cell,
-           pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, start_level, any_hit):
+           pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, start_level, any_hit, vpyr):
     r"""Nearest hit of one ray with the height field: (t, i, j, triangle, level)
 
 (inf, -1, -1, -1, level) if the ray misses. level: the level of the first cell
@@ -182,79 +268,78 @@ exactly (_cell_hit). Entering a new parent cell climbs one level. The walk
 starts at level start_level (clipped to the top): the top for rays from afar,
 0 for rays leaving the surface (shadow rays), which climb as they rise.
 any_hit (shadow rays): the first triangle met in the first cell met, not
-necessarily the nearer of the cell's two.
+necessarily the nearer of the cell's two; and vpyr, if it has values, is the
+pyramid (same layout) of _sun_bound: the ray goes towards the sun and misses
+once it is above the bound of the cell it is in.
 """
     ny_nodes, nx_nodes = h.shape
+    # grid units: cell (i, j) of level k spans [i, i+1] x [j, j+1] times 2^k
+    icell = 1.0 / cell
+    gx = (ox - x0) * icell
+    gy = (oy - y0) * icell
+    gdx = dx * icell
+    gdy = dy * icell
+    igx = 1.0 / gdx if gdx != 0.0 else np.inf
+    igy = 1.0 / gdy if gdy != 0.0 else np.inf
     # every bound is widened by tol so rounding never lets a ray slip past a surface
     # that it grazes (a flat floor at the lowest height meets the z bound exactly)
-    xmax = x0 + (nx_nodes - 1) * cell + tol
-    ymax = y0 + (ny_nodes - 1) * cell + tol
-    xmn = x0 - tol
-    ymn = y0 - tol
-    zlo = zlo - tol
-    zhi = zhi + tol
+    gtol = tol * icell
     t0 = tmin
     t1 = tmax
     # clip to the grid's box (x, y) and to the height range (z)
-    if dx != 0.0:
-        ta = (xmn - ox) / dx
-        tb = (xmax - ox) / dx
+    if gdx != 0.0:
+        ta = (-gtol - gx) * igx
+        tb = (nx_nodes - 1 + gtol - gx) * igx
         if ta > tb:
             ta, tb = tb, ta
         t0 = max(t0, ta)
         t1 = min(t1, tb)
-    elif ox < xmn or ox > xmax:
+    elif gx < -gtol or gx > nx_nodes - 1 + gtol:
         return np.inf, -1, -1, -1, -1
-    if dy != 0.0:
-        ta = (ymn - oy) / dy
-        tb = (ymax - oy) / dy
+    if gdy != 0.0:
+        ta = (-gtol - gy) * igy
+        tb = (ny_nodes - 1 + gtol - gy) * igy
         if ta > tb:
             ta, tb = tb, ta
         t0 = max(t0, ta)
         t1 = min(t1, tb)
-    elif oy < ymn or oy > ymax:
+    elif gy < -gtol or gy > ny_nodes - 1 + gtol:
         return np.inf, -1, -1, -1, -1
     if dz != 0.0:
-        ta = (zlo - oz) / dz
-        tb = (zhi - oz) / dz
+        idz = 1.0 / dz
+        ta = (zlo - tol - oz) * idz
+        tb = (zhi + tol - oz) * idz
         if ta > tb:
             ta, tb = tb, ta
         t0 = max(t0, ta)
         t1 = min(t1, tb)
-    elif oz < zlo or oz > zhi:
+    elif oz < zlo - tol or oz > zhi + tol:
         return np.inf, -1, -1, -1, -1
     if not (t0 <= t1):
         return np.inf, -1, -1, -1, -1
 
-    dxy = math.sqrt(dx * dx + dy * dy)
-    if dxy < 1e-300:
+    if abs(gdx) < 1e-300 and abs(gdy) < 1e-300:
         # a vertical ray: one cell
-        i = min(max(int(math.floor((ox - x0) / cell)), 0), nx_nodes - 2)
-        j = min(max(int(math.floor((oy - y0) / cell)), 0), ny_nodes - 2)
-        t, tri = _cell_hit(ox, oy, oz, dx, dy, dz, h, i, j, x0, y0, cell, tmin, False)
+        i = min(max(int(math.floor(gx)), 0), nx_nodes - 2)
+        j = min(max(int(math.floor(gy)), 0), ny_nodes - 2)
+        t, tri = _cell_hit(gx, gy, oz, gdx, gdy, dz, h, i, j, tmin, False)
         if t <= t1 + 1e-12:
             return t, i, j, tri, 0
         return np.inf, -1, -1, -1, -1
-    # grid units: cell (i, j) of level k spans [i, i+1] x [j, j+1] times 2^k
-    gx = (ox - x0) / cell
-    gy = (oy - y0) / cell
-    gdx = dx / cell
-    gdy = dy / cell
-    # a step that moves the ray 1e-9 cells sideways: to leave a cell boundary
-    nudge = 1e-9 * cell / dxy
+    # a step that moves the ray at least 1e-9 cells sideways: to leave a cell boundary
+    nudge = 1e-9 * min(abs(igx), abs(igy))
     top = offs.size - 1
     level = min(max(start_level, 0), top)
     t = t0
     s = float(1 << level)
     tm = t + nudge
-    ix = min(max(int(math.floor((gx + tm * gdx) / s)), 0), pnx[level] - 1)
-    iy = min(max(int(math.floor((gy + tm * gdy) / s)), 0), pny[level] - 1)
+    # floor(g / 2^level) = floor(g) >> level
+    ix = min(max(int(math.floor(gx + tm * gdx)) >> level, 0), pnx[level] - 1)
+    iy = min(max(int(math.floor(gy + tm * gdy)) >> level, 0), pny[level] - 1)
     # tx, ty: the ray parameters where it crosses the cell's next x and y boundaries;
     # dtx, dty: the parameter across one cell of this level
     stepx = 1 if gdx > 0.0 else -1
     stepy = 1 if gdy > 0.0 else -1
-    igx = 1.0 / gdx if gdx != 0.0 else np.inf
-    igy = 1.0 / gdy if gdy != 0.0 else np.inf
     tx = ty = dtx = dty = np.inf
     if gdx != 0.0:
         tx = ((ix + (1 if gdx > 0.0 else 0)) * s - gx) * igx
@@ -269,7 +354,10 @@ necessarily the nearer of the cell's two.
     wl = pw[level]
     hl = ph[level]
     first = -1
+    bounded = vpyr.size > 0
     while True:
+        if bounded and oz + (t - nudge) * dz > vpyr[base + iy * wl + ix]:
+            break
         te = min(tx, ty, t1)
         if te < t:
             te = t
@@ -322,8 +410,7 @@ necessarily the nearer of the cell's two.
                 else:
                     iy = min(2 * iy + (1 if gy >= (2 * iy + 1) * s else 0), pny[level] - 1)
                 continue
-            th, tri = _cell_hit(ox, oy, oz, dx, dy, dz, h, ix, iy, x0, y0, cell, tmin,
-                                any_hit)
+            th, tri = _cell_hit(gx, gy, oz, gdx, gdy, dz, h, ix, iy, tmin, any_hit)
             if th <= t1 + 1e-12:
                 return th, ix, iy, tri, first
         # the ray passes this cell: on to the next one of the same level
@@ -373,15 +460,15 @@ necessarily the nearer of the cell's two.
 
 
 @njit(cache=True)
-def _normal(h, i, j, tri, cell):
+def _normal(h, i, j, tri, icell):
     if tri == 0:
-        b = (h[j, i + 1] - h[j, i]) / cell
-        c = (h[j + 1, i + 1] - h[j, i + 1]) / cell
+        b = (h[j, i + 1] - h[j, i]) * icell
+        c = (h[j + 1, i + 1] - h[j, i + 1]) * icell
     else:
-        b = (h[j + 1, i + 1] - h[j + 1, i]) / cell
-        c = (h[j + 1, i] - h[j, i]) / cell
-    n = math.sqrt(b * b + c * c + 1.0)
-    return -b / n, -c / n, 1.0 / n
+        b = (h[j + 1, i + 1] - h[j + 1, i]) * icell
+        c = (h[j + 1, i] - h[j, i]) * icell
+    n = 1.0 / math.sqrt(b * b + c * c + 1.0)
+    return -b * n, -c * n, n
 
 
 @njit(cache=True)
@@ -400,7 +487,7 @@ def _albedo(a, x, y, xmin, ymin, w, hgt):
 
 
 @njit(parallel=True, cache=True)
-def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol,
+def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, vpyr,
                 albedo, sun, ambient, exposure, sky, shadows,
                 out_value, out_t, out_code):
     N = O.shape[0]
@@ -436,7 +523,7 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pw, ph, pnx, pny, zlo, z
                     continue
                 t, i, j, tri, lvl = _trace(ox, oy, oz, dx, dy, dz, 0.0, np.inf, h, x0, y0, cell,
                                            pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, start,
-                                           False)
+                                           False, vpyr[:0])
                 # the next ray of the run starts where this one first passed a cell
                 # (any start level gives the same hit; this one saves the descent)
                 start = lvl if lvl >= 0 else 1000
@@ -448,7 +535,7 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pw, ph, pnx, pny, zlo, z
                 px = ox + t * dx
                 py = oy + t * dy
                 pz = oz + t * dz
-                nx_, ny_, nz_ = _normal(h, i, j, tri, cell)
+                nx_, ny_, nz_ = _normal(h, i, j, tri, 1.0 / cell)
                 cosi = nx_ * sun[0] + ny_ * sun[1] + nz_ * sun[2]
                 code = 0
                 if cosi <= 0.0:
@@ -460,7 +547,8 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pw, ph, pnx, pny, zlo, z
                     off = 1e-7 * cell
                     ts, si, sj, stri, _ = _trace(px + off * nx_, py + off * ny_, pz + off * nz_,
                                               sun[0], sun[1], sun[2], 0.0, np.inf, h, x0, y0, cell,
-                                              pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, 0, True)
+                                              pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, 0, True,
+                                                 vpyr)
                     if si >= 0:
                         code = 2
                         cosi = 0.0
@@ -471,13 +559,24 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pw, ph, pnx, pny, zlo, z
 
 
 def _prepared(terrain):
+    r"""The walk's pyramid and the sun bound's pyramid of a terrain, made once per terrain"""
     key = id(terrain)
     cached = getattr(terrain, "_raycast_walk", None)
     if cached is not None and cached[0] == key:
         return cached[1]
     zlo, zhi = float(terrain.heights.min()), float(terrain.heights.max())
     tol = 1e-9 * max(1.0, zhi - zlo, terrain.cell)
-    prep = _walk_pyramid(terrain.heights, tol) + (zlo, zhi, tol)
+    mmax = _cell_maxima(terrain.heights)
+    walk = _walk_pyramid(mmax, tol)
+    sun = terrain.sun.direction()
+    horizontal = math.hypot(sun[0], sun[1])
+    if horizontal < 1e-12:
+        vpyr = walk[0]          # the sun at the zenith: only the cell itself can shade
+    else:
+        V = _sun_bound(mmax, sun[0] / horizontal, sun[1] / horizontal,
+                       sun[2] / horizontal * terrain.cell, zhi)
+        vpyr = _walk_pyramid(V, tol)[0]
+    prep = walk + (zlo, zhi, tol, vpyr)
     object.__setattr__(terrain, "_raycast_walk", (key, prep))
     return prep
 
@@ -503,7 +602,7 @@ is given. Rays with non-finite numbers miss.
     O = np.ascontiguousarray(O.reshape(-1, 3))
     D = np.ascontiguousarray(D.reshape(-1, 3))
     Rt = _identity_Rt() if Rt_ref_terrain is None else _check_Rt(Rt_ref_terrain)
-    flat, offs, pw, ph, pnx, pny, zlo, zhi, tol = _prepared(terrain)
+    flat, offs, pw, ph, pnx, pny, zlo, zhi, tol, vpyr = _prepared(terrain)
     N = O.shape[0]
     value = np.empty(N)
     t = np.empty(N)
@@ -511,6 +610,7 @@ is given. Rays with non-finite numbers miss.
     x0, y0 = terrain.origin
     _shade_rays(O, D, np.ascontiguousarray(Rt[:3]), np.ascontiguousarray(Rt[3]),
                 terrain.heights, x0, y0, terrain.cell, flat, offs, pw, ph, pnx, pny, zlo, zhi, tol,
+                vpyr,
                 terrain.albedo, terrain.sun.direction(), float(terrain.ambient),
                 float(exposure), float(sky), bool(shadows), value, t, code)
     return value.reshape(shape), t.reshape(shape), code.reshape(shape)
