@@ -36,15 +36,21 @@ depth); the raycast renderer is exact for those.
 
 Measured: pixel rays that meet the surface exactly on a triangle edge (a
 camera looking straight down with its pixel rays on the grid's lattice, e.g.
-every ray on a cell diagonal) come out speckled: POV-Ray's shadow ray from a
-point on an edge hits the neighbouring triangle or slips between the two.
-Off the lattice (any real pose) the image equals raycast_terrain's to 16-bit
-precision away from edges (tests/test_shadow_agreement.py).
+every ray on a cell diagonal) come out speckled, and points 0.07 mm from a
+concave cell diagonal that the exact shadow ray finds shadowed by the
+triangle across the fold are lit for POV-Ray (its shadow rays skip occluders
+very close to their origin). Points a few mm from edges agree with
+raycast_terrain exactly (tests/test_shadow_agreement.py: 0 of 12800 triangle
+centroids, 0 of 160000 texels), and off the lattice (any real pose) the image
+equals raycast_terrain's to 16-bit precision away from edges.
 
 cell_shadows renders the terrain from straight above with an orthographic
-camera whose pixel centres are the triangle centroids (pitch cell/3), white
-albedo, ambient 0 and a light so bright that any lit point saturates: a pixel
-is 0 exactly when POV-Ray finds the point unlit.
+camera whose pixel centres are the triangle centroids (pitch cell/3), one
+ray per pixel, white albedo and two suns so bright that any light saturates:
+one casting shadows (red), one shadowless (green, i.e. facing the sun), plus
+ambient (blue, i.e. terrain): POV-Ray's own verdict, lit / facing away / cast.
+shadow_texture is the paper's first method: the same verdict at every texel,
+baked into the albedo texture for a renderer without shadows.
 '''
 
 import functools
@@ -59,7 +65,7 @@ import numpy as np
 
 from renderers.base import RendererError, RendererUnavailableError
 from renderers.raycast_terrain import TerrainRender
-from renderers.terrain_shadows import centroid_pixels, facing_away, top_down_size
+from renderers.terrain_shadows import centroid_pixels, top_down_size
 
 NAME = "povray_terrain"
 SUN_DISTANCE = 100.0
@@ -190,6 +196,39 @@ def _run(binary, workdir, scene, width, height, aa_depth=1, threads=None, rgb=Fa
     return img.astype(np.float64) / scale, seconds
 
 
+def top_down_codes(terrain, first, step, size, binary="povray", threads=None, keep_dir=None):
+    r'''POV-Ray's shadow code at every pixel of an orthographic view from straight above
+
+SYNOPSIS
+
+    code = top_down_codes(terrain, first=(x, y), step=(dx, dy), size=(W, H))
+    # (H, W) uint8: 0 lit, 1 facing away from the sun, 2 cast shadow, 255 no terrain;
+    # pixel (a, b) is the surface point above (x + a dx, y + b dy)
+
+One render of code_scene_text (one ray per pixel, no anti-aliasing): a sun
+that casts shadows lights the red channel, a shadowless one the green
+channel, ambient light the blue one, each saturating.
+'''
+    bin_path = find_povray(binary)
+    (xf, yf), (dx, dy), (W, H) = first, step, size
+    zhi = float(terrain.heights.max())
+    # pixel (a, b) is traced from location + ((a+1/2)/W - 1/2) right + (1/2 - (b+1/2)/H) up:
+    # up = -H dy y puts row b at yf + b dy
+    loc = (xf + (W - 1) / 2.0 * dx, yf + (H - 1) / 2.0 * dy, zhi + 10.0)
+    camera = (f"camera {{ orthographic location {_vec(loc)} direction <0,0,-1> "
+              f"right <{_fmt(W * dx)},0,0> up <0,{_fmt(-H * dy)},0> }}\n")
+    workdir = keep_dir or tempfile.mkdtemp(prefix="camval-povray-terrain-")
+    os.makedirs(workdir, exist_ok=True)
+    try:
+        c, _ = _run(bin_path, workdir, code_scene_text(terrain, np.eye(3), np.zeros(3), camera),
+                    int(W), int(H), 1, threads, rgb=True)
+    finally:
+        if not keep_dir:
+            shutil.rmtree(workdir, ignore_errors=True)
+    return np.where(c[..., 2] < 0.5, 255, np.where(
+        c[..., 1] < 0.5, 1, np.where(c[..., 0] < 0.5, 2, 0))).astype(np.uint8)
+
+
 def cell_shadows(terrain, binary="povray", threads=None, keep_dir=None):
     r'''POV-Ray's shadow verdict at every triangle centroid, seen from straight above
 
@@ -197,42 +236,51 @@ SYNOPSIS
 
     code = cell_shadows(terrain)   # (Ny-1, Nx-1, 2) uint8: 0 lit, 1 facing away, 2 cast
 
-Rendered with an orthographic camera over the grid (pixel pitch cell/3, the
-centroids at pixel centres, no anti-aliasing), white albedo, ambient 0 and a
-light of colour 1e9: a pixel is 0 exactly when POV-Ray finds no light there.
-Unlit triangles whose normal faces away from the sun get code 1, others 2.
+top_down_codes over the grid with pixel pitch cell/3: the centroids are
+pixel centres (renderers.terrain_shadows.centroid_pixels).
 '''
-    bin_path = find_povray(binary)
     W, H = top_down_size(terrain)
-    x0, y0 = terrain.origin
     d = terrain.cell / 3.0
-    zhi = float(terrain.heights.max())
-    # pixel (a, b) is traced from location + ((a+1/2)/W - 1/2) right + (1/2 - (b+1/2)/H) up:
-    # up = -H d y puts row b at y0 + b d
-    loc = (x0 + (W - 1) / 2.0 * d, y0 + (H - 1) / 2.0 * d, zhi + 10.0)
-    ident = np.eye(3), np.zeros(3)
-    workdir = keep_dir or tempfile.mkdtemp(prefix="camval-povray-terrain-")
-    os.makedirs(workdir, exist_ok=True)
-    try:
-        from io import StringIO
-        s = StringIO()
-        s.write("#version 3.7;\n"
-                "global_settings { assumed_gamma 1.0 ambient_light rgb 0 max_trace_level 5 }\n"
-                "background { rgb 0 }\n")
-        s.write(f"camera {{ orthographic location {_vec(loc)} direction <0,0,-1> "
-                f"right <{_fmt(W * d)},0,0> up <0,{_fmt(-H * d)},0> }}\n")
-        s.write(_sun_light(terrain, *ident, 1e9))
-        write_mesh2(s, terrain)
-        s.write("object { CamvalTerrain pigment { rgb 1 } "
-                "finish { ambient 0 diffuse 1 specular 0 phong 0 reflection 0 } }\n")
-        img, _ = _run(bin_path, workdir, s.getvalue(), W, H, 1, threads)
-    finally:
-        if not keep_dir:
-            shutil.rmtree(workdir, ignore_errors=True)
+    img = top_down_codes(terrain, terrain.origin, (d, d), (W, H), binary, threads, keep_dir)
     col, row = centroid_pixels(terrain)
-    lit = img[row, col] > 0.0
-    away = facing_away(terrain)
-    return np.where(lit, 0, np.where(away, 1, 2)).astype(np.uint8)
+    code = img[row, col]
+    if np.any(code == 255):
+        raise RendererError("POV-Ray's top-down view missed the terrain at some centroids")
+    return code
+
+
+def shadow_texture(terrain, shadow_factor=None, binary="povray", threads=None,
+                   nudge=(0.25, -0.25)):
+    r'''The paper's first method: POV-Ray's shadow map of the terrain baked into its texture
+
+SYNOPSIS
+
+    albedo, code = shadow_texture(terrain)     # each (Ty, Tx): float32, uint8 codes
+    r = osmesa_terrain.render_terrain(model, terrain.replace(albedo=albedo), pose,
+                                      shadows=False)
+
+"Povray ... render[s] a shadow map of the terrain, which is then combined
+with the terrain's original colour texture image. Dspace uses this augmented
+texture to render the terrain" (section 3.5). Every texel centre is asked
+(top_down_codes); texels in a cast shadow are multiplied by shadow_factor
+(None: ambient / (ambient + sin(elevation)), as osmesa_terrain's default).
+Facing away from the sun is left to the renderer's lighting. The sample
+points are (xmin + (ti + 1/2 + nudge[0]) dx, ymin + (tj + 1/2 + nudge[1]) dy),
+off the texel centres: at the centres themselves many lie exactly on cell
+diagonals, where POV-Ray's shadow rays misbehave (see the module docstring).
+'''
+    if shadow_factor is None:
+        s = math.sin(math.radians(terrain.sun.elevation_deg))
+        shadow_factor = terrain.ambient / (terrain.ambient + s)
+    if not (0.0 <= shadow_factor <= 1.0):
+        raise RendererError(f"shadow_factor must be in [0,1]; got {shadow_factor!r}")
+    xmin, xmax, ymin, ymax = terrain.extent()
+    ty, tx = terrain.albedo.shape
+    dx, dy = (xmax - xmin) / tx, (ymax - ymin) / ty
+    first = (xmin + (0.5 + nudge[0]) * dx, ymin + (0.5 + nudge[1]) * dy)
+    code = top_down_codes(terrain, first, (dx, dy), (tx, ty), binary, threads)
+    albedo = np.where(code == 2, shadow_factor, 1.0) * terrain.albedo
+    return albedo.astype(np.float32), code
 
 
 def scene_text(terrain, M, t, camera, png_name, exposure=1.0, sky=0.0, shadows=True):
