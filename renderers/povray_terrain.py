@@ -13,6 +13,7 @@ SYNOPSIS
     r.metadata    # POV-Ray version, timings, the pinhole
 
     code = cell_shadows(terrain)   # (Ny-1, Nx-1, 2) uint8 per triangle centroid (terrain_shadows)
+    albedo, code = shadow_texture(terrain)   # (Ty,Tx): the albedo darkened where cast-shadowed
 
 The terrain is a `mesh2` with one vertex per grid node (%.17g, full
 precision) and the same two triangles per cell as targets/terrain.py: node
@@ -41,8 +42,9 @@ concave cell diagonal that the exact shadow ray finds shadowed by the
 triangle across the fold are lit for POV-Ray (its shadow rays skip occluders
 very close to their origin). Points a few mm from edges agree with
 raycast_terrain exactly (tests/test_shadow_agreement.py: 0 of 12800 triangle
-centroids, 0 of 160000 texels), and off the lattice (any real pose) the image
-equals raycast_terrain's to 16-bit precision away from edges.
+centroids, 0 of 25600 texels; 0 of 160000 on a 2 cm texture), and off the
+lattice (any real pose) the image equals raycast_terrain's to 16-bit
+precision away from edges.
 
 cell_shadows renders the terrain from straight above with an orthographic
 camera whose pixel centres are the triangle centroids (pitch cell/3), one
