@@ -180,7 +180,6 @@ def _cell_maxima(heights):
     return np.maximum(np.maximum(h[:-1, :-1], h[1:, :-1]), np.maximum(h[:-1, 1:], h[1:, 1:]))
 
 
-@njit(parallel=True, cache=True)
 def _sun_bound(mmax, sx, sy, k, zhi):
     r"""For each cell, a height above which the ray towards the sun from any point of
 the cell meets no other cell
@@ -189,16 +188,23 @@ SYNOPSIS
 
     V = _sun_bound(mmax, sx, sy, k, zhi)   # mmax, V (Ny-1,Nx-1): cells' highest nodes
 
-(sx, sy) is the sun's horizontal unit direction and k the rise of the ray per
-cell of horizontal travel (tan(elevation) * cell). A ray from a point q of cell
-m reaches cell m' after at least r = pmin(m') - pmax(m) cells (p: the
-coordinate along (sx, sy)), where it is at least k r higher than at q, so
-V(m) = max over the cells m' of the strip swept by m towards the sun of
-mmax(m') - k max(0, r). The strip is walked in pieces one cell long; each
-piece's bounding box is scanned and the cells that overlap the strip's width
-are kept. The walk stops where nothing further can exceed V (zhi: the highest
-node).
+(sx, sy) is the sun's horizontal unit direction, k the rise of the ray per cell
+of horizontal travel (tan(elevation) * cell), zhi the highest node. A ray from
+a point of cell m stays in the strip that m sweeps towards the sun, and it
+reaches a cell m' of the strip only after travelling at least r = p(m') -
+pmax(m) cells (p: the coordinate along (sx, sy); p(m'): the lowest p of the
+strip within m''s column, or m''s own lowest p), where it has risen k r. So V(m) = max over the
+strip's cells of mmax(m') - k max(0, r) bounds what a ray from m can meet.
 """
+    if abs(sx) >= abs(sy):
+        return _sun_bound_columns(mmax, sx, sy, k, zhi)
+    # the same with x and y swapped
+    return np.ascontiguousarray(_sun_bound_columns(np.ascontiguousarray(mmax.T), sy, sx, k, zhi).T)
+
+
+@njit(parallel=True, cache=True)
+def _sun_bound_columns(mmax, sx, sy, k, zhi):
+    r"""_sun_bound for |sx| >= |sy|: the strip is walked column by column"""
     ny, nx = mmax.shape
     out = np.empty((ny, nx))
     # extent of a cell along (sx, sy) (p) and across it (l = -x sy + y sx)
@@ -206,48 +212,42 @@ node).
     phi = max(0.0, sx) + max(0.0, sy)
     llo = min(0.0, -sy) + min(0.0, sx)
     lhi = max(0.0, -sy) + max(0.0, sx)
-    ext = phi - plo
+    isx = 1.0 / sx
+    step = 1 if sx > 0.0 else -1
     marg = 1e-9
     for j in prange(ny):
         for i in range(nx):
-            pm0 = i * sx + j * sy + plo
             pm1 = i * sx + j * sy + phi
             lm0 = -i * sy + j * sx + llo - marg
             lm1 = -i * sy + j * sx + lhi + marg
             v = mmax[j, i]
-            d = 0
-            while True:
-                a = pm0 + d
-                if zhi - k * max(0.0, a - ext - pm1) <= v:
+            ii = i
+            while 0 <= ii < nx:
+                # the strip within column ii: x in [ii, ii+1], l in [lm0, lm1];
+                # y = (l + x sy) / sx and p = (x + l sy) / sx there
+                ya = (lm0 + ii * sy) * isx
+                yb = (lm0 + (ii + 1) * sy) * isx
+                yc = (lm1 + ii * sy) * isx
+                yd = (lm1 + (ii + 1) * sy) * isx
+                pa = (ii + lm0 * sy) * isx
+                pb = (ii + 1 + lm0 * sy) * isx
+                pc = (ii + lm1 * sy) * isx
+                pd = (ii + 1 + lm1 * sy) * isx
+                reach = max(0.0, min(pa, pb, pc, pd) - marg - pm1)
+                if zhi - k * reach <= v:
                     break
-                b = a + 1.0
-                # the piece p in [a, b], l in [lm0, lm1]: its bounding box in cells
-                xa = a * sx - lm0 * sy
-                xb = a * sx - lm1 * sy
-                xc = b * sx - lm0 * sy
-                xd = b * sx - lm1 * sy
-                ya = a * sy + lm0 * sx
-                yb = a * sy + lm1 * sx
-                yc = b * sy + lm0 * sx
-                yd = b * sy + lm1 * sx
-                i0 = int(math.floor(min(xa, xb, xc, xd)))
-                i1 = int(math.floor(max(xa, xb, xc, xd)))
-                j0 = int(math.floor(min(ya, yb, yc, yd)))
-                j1 = int(math.floor(max(ya, yb, yc, yd)))
-                if i1 < 0 or j1 < 0 or i0 >= nx or j0 >= ny:
-                    break
-                for jj in range(max(j0, 0), min(j1, ny - 1) + 1):
-                    for ii in range(max(i0, 0), min(i1, nx - 1) + 1):
-                        c = -ii * sy + jj * sx
-                        if c + lhi < lm0 or c + llo > lm1:
-                            continue
-                        p0 = ii * sx + jj * sy + plo
-                        if p0 + ext < pm0 - marg:
-                            continue
-                        w = mmax[jj, ii] - k * max(0.0, p0 - pm1)
-                        if w > v:
-                            v = w
-                d += 1
+                j0 = max(int(math.floor(min(ya, yb, yc, yd) - marg)), 0)
+                j1 = min(int(math.floor(max(ya, yb, yc, yd) + marg)), ny - 1)
+                for jj in range(j0, j1 + 1):
+                    c = -ii * sy + jj * sx
+                    if c + lhi < lm0 or c + llo > lm1:
+                        continue
+                    # the ray enters m' no nearer than m''s own lowest p either
+                    p0 = ii * sx + jj * sy + plo - marg
+                    w = mmax[jj, ii] - k * max(reach, p0 - pm1)
+                    if w > v:
+                        v = w
+                ii += step
             out[j, i] = v
     return out
 

@@ -244,7 +244,7 @@ def test_pyramid_walk_equals_brute_force(shape):
     ny, nx = shape
     z = 0.3 * rng.normal(size=shape)
     z[rng.random(shape) < 0.2] += 0.8
-    ter = Terrain(heights=z, cell=0.25, origin=(-1.0, 2.0), sun=Sun(30, 40))
+    ter = Terrain(heights=z, cell=0.25, origin=(-1.0, 2.0), sun=Sun(30, 12))
     xmin, xmax, ymin, ymax = ter.extent()
     n = 3000
     o = np.column_stack((rng.uniform(xmin - 1, xmax + 1, n), rng.uniform(ymin - 1, ymax + 1, n),
@@ -292,3 +292,29 @@ def _normals(terrain, p):
     cc = np.where(lower, h[j + 1, i + 1] - h[j, i + 1], h[j + 1, i] - h[j, i]) / c
     n = np.column_stack((-b, -cc, np.ones_like(b)))
     return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("azimuth", [0.0, 30.0, 45.0, 90.0, 160.0, 200.0, 270.0, 315.0])
+def test_sun_bound_is_above_every_ray_towards_the_sun(azimuth):
+    # the shadow walk stops once a ray is above its cell's bound V: every point of a cell
+    # below which the surface rises into the ray must lie under V
+    from renderers.raycast_terrain import _cell_maxima, _sun_bound
+    ter = small_terrain(11, sun=Sun(azimuth_deg=azimuth, elevation_deg=8.0))
+    mmax = _cell_maxima(ter.heights)
+    s = ter.sun.direction()
+    hz = math.hypot(s[0], s[1])
+    V = _sun_bound(mmax, s[0] / hz, s[1] / hz, s[2] / hz * ter.cell, ter.heights.max())
+    assert V.shape == mmax.shape and np.all(V >= mmax)
+    rng = np.random.default_rng(int(azimuth))
+    ny, nx = mmax.shape
+    j, i = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
+    # corners and random points of every cell
+    for fu, fv in [(0, 0), (1, 0), (0, 1), (1, 1)] + [tuple(rng.random(2)) for _ in range(3)]:
+        x = ter.origin[0] + (i + fu) * ter.cell
+        y = ter.origin[1] + (j + fv) * ter.cell
+        r = np.arange(0.0, 3.0, 0.002)[:, None, None]          # metres along the ground
+        zs = ter.height_at(x + r * s[0] / hz, y + r * s[1] / hz) - r * s[2] / hz
+        need = np.nanmax(zs, axis=0)                            # height to clear the surface
+        assert np.all(need <= V + 1e-9)
+    # and far below the trivial bound (the highest node) for most cells
+    assert np.median(V - mmax) < 0.3 * (ter.heights.max() - np.median(mmax))
