@@ -56,14 +56,13 @@ Camera paths (option `camera`):
 A missing `povray` binary raises RendererUnavailableError at construction.
 '''
 
-import math
 import os
 import re
 import shutil
 import subprocess
 import tempfile
 import time
-import weakref
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -79,10 +78,22 @@ from .warp import INTERPOLATIONS, PinholeWarp, box_downsample
 CAMERAS = ("perspective", "mesh")
 LAYER_OFFSET = 1e-7
 MAX_AA_DEPTH = 9
-DEFAULT_MAX_MESH_RAYS = 4_500_000
-# POV-Ray 3.7.0.10's mesh_camera traces face row j - 1 for image row j: the "one-row
-# offset" (measured here; probed once per binary by PovrayRenderer.mesh_row_offset())
-MESH_ROW_OFFSET = 1
+# mesh camera: the grid step (px) of its vertices where edges are: the coarsest of
+# MESH_STEPS whose interpolated rays are within MESH_TOLERANCE px of the exact ones
+MESH_TOLERANCE = 1e-4
+MESH_STEPS = (2, 1)
+# elsewhere (pixels that see one material) the coarsest of MESH_COARSE_STEPS within
+# MESH_COARSE_TOLERANCE (edge_pixels leaves them >= 0.5 px from any edge)
+MESH_COARSE_TOLERANCE = 0.05
+MESH_COARSE_STEPS = (64, 32, 16, 8, 4, 2, 1)
+# adaptive supersampling in cells of MESH_CELL x MESH_CELL pixels
+MESH_CELL = 2
+# faces per POV-Ray run: distribution 3 finds a sample's face by a linear scan
+MESH_RUN_FACES = 8192
+# fine pixels per POV-Ray run (its image buffer takes ~20 bytes per pixel) and atlas width
+MESH_RUN_PIXELS = 1 << 23
+MESH_ATLAS_WIDTH = 2048
+MESH_ATLAS_TOP = 1
 INSTALL_HINT = "install Debian package povray (apt-get install povray)"
 
 
@@ -171,49 +182,282 @@ def perspective_camera(pinhole):
             f"right <{_fmt(W / pinhole.fx)},0,0> up <0,{_fmt(H / pinhole.fy)},0> }}\n")
 
 
-def mesh_camera_triangles(origin, v):
-    r'''Triangles whose centroids are `origin` and whose POV-Ray normals are `v`
+def _corner_rays(model):
+    r'''Rays of the pixel-corner grid: origins and mesh normals (H+1, W+1, 3), camera frame
+
+Corner (i, j) is the camval point (i - 0.5, j - 0.5). The normal is the ray
+direction scaled to z = 1 (a point of the pinhole plane: a pinhole's normals
+are then linear in the pixel coordinates, so POV-Ray's interpolation leaves
+only the distortion's curvature); unit directions when some ray is within
+84 deg of the image plane. Cached per model.
+'''
+    key = repr(model)
+    hit = _CORNER_RAYS.get(key)
+    if hit is None:
+        W, H = model.width, model.height
+        x = np.arange(W + 1, dtype=np.float64) - 0.5
+        y = np.arange(H + 1, dtype=np.float64) - 0.5
+        q = np.stack(np.meshgrid(x, y), axis=-1)
+        Rt = model.Rt_ref_cam()
+        origin, v = model.unproject(q)
+        o_cam = (origin - Rt[3]) @ Rt[:3]
+        v_cam = v @ Rt[:3]
+        if not np.all(np.isfinite(v_cam)):
+            raise RendererError(f"{model.family} model: some pixel corners have no ray "
+                                "(unprojection failed); the mesh camera needs a ray for "
+                                "every corner")
+        if float(v_cam[..., 2].min()) > 0.1:
+            v_cam = v_cam / v_cam[..., 2:3]
+        if len(_CORNER_RAYS) > 8:
+            _CORNER_RAYS.clear()
+        hit = _CORNER_RAYS[key] = (o_cam, v_cam)
+    return hit
+
+
+_CORNER_RAYS = {}
+_MESH_STEPS = {}
+
+
+def _interpolated_rays(o, n, b):
+    r'''POV-Ray's smooth mesh_camera ray at barycentric b (...,3) of triangles o, n (...,3,3)
+
+POV-Ray 3.7 interpolates the vertex normals as given (not normalised) and
+normalises the result (measured: pinhole-plane normals and unit normals give
+different images).
+'''
+    d = (b[..., :, None] * n).sum(-2)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return (b[..., :, None] * o).sum(-2), d
+
+
+def mesh_interpolation_error(model, step, ncells=96):
+    r'''Largest error (px) of the smooth mesh camera's interpolated rays for a grid step
 
 SYNOPSIS
 
-    P = mesh_camera_triangles(origin, v)   # origin, v (N,3) -> P (N,3,3) vertices
+    err = mesh_interpolation_error(model, 4)   # px
 
-POV-Ray computes a mesh face's normal as normalise((P3-P1) x (P2-P1)) before
-it reorders the vertices, and mesh_camera uses it as the ray direction.
+The mesh camera's vertices sit on the pixel-corner grid every `step` pixels
+(two triangles per square, split along the main diagonal); POV-Ray
+interpolates the vertex normals barycentrically and normalises. This projects
+interpolated rays at the centroid and edge midpoints of the triangles of up to
+ncells x ncells grid squares spread over the image (the first and last rows
+and columns included) and returns the largest distance to the image point
+they stand for.
 '''
-    v = v / np.linalg.norm(v, axis=-1, keepdims=True)
-    # a unit vector perpendicular to each v
-    helper = np.where(np.abs(v[:, 0:1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    a = np.cross(v, helper)
-    a /= np.linalg.norm(a, axis=-1, keepdims=True)
-    b = np.cross(v, a)
-    # three points at 120 deg on a unit circle about the origin, in the plane ⟂ v
-    c, s = -0.5, math.sqrt(3.0) / 2.0
-    p1 = a
-    p2 = c * a + s * b
-    p3 = c * a - s * b
-    n = np.cross(p3 - p1, p2 - p1)
-    flip = (n * v).sum(-1) < 0
-    p2[flip], p3[flip] = p3[flip].copy(), p2[flip].copy()
-    return origin[:, None, :] + np.stack((p1, p2, p3), axis=1)
+    o, n = _corner_rays(model)
+    W, H = model.width, model.height
+    ix = np.unique(np.minimum(np.arange(0, W + step, step), W))
+    iy = np.unique(np.minimum(np.arange(0, H + step, step), H))
+    # a spread of squares (index of the top-left corner in ix, iy)
+    sx = np.unique(np.linspace(0, len(ix) - 2, min(ncells, len(ix) - 1)).round().astype(int))
+    sy = np.unique(np.linspace(0, len(iy) - 2, min(ncells, len(iy) - 1)).round().astype(int))
+    Sx, Sy = np.meshgrid(sx, sy)
+    tri_idx = (((0, 0), (0, 1), (1, 1)), ((0, 0), (1, 1), (1, 0)))
+    bary = np.array([[1, 1, 1], [1, 1, 0], [0, 1, 1], [1, 0, 1]], dtype=np.float64)
+    bary /= bary.sum(-1, keepdims=True)
+    Rt = model.Rt_ref_cam()
+    worst = 0.0
+    for tri in tri_idx:
+        cx = np.stack([ix[Sx + dx] for dy, dx in tri], axis=-1)      # (..., 3) corner indices
+        cy = np.stack([iy[Sy + dy] for dy, dx in tri], axis=-1)
+        To, Tn = o[cy, cx], n[cy, cx]
+        Tq = np.stack((cx, cy), -1).astype(np.float64) - 0.5
+        for b in bary:
+            oi, di = _interpolated_rays(To, Tn, np.broadcast_to(b, To.shape[:-1]))
+            q_true = (b[:, None] * Tq).sum(-2)
+            p_ref = (oi + di) @ Rt[:3].T + Rt[3]
+            d = np.linalg.norm(model.project(p_ref) - q_true, axis=-1)
+            worst = max(worst, float(np.max(np.where(np.isfinite(d), d, np.inf))))
+    return worst
 
 
-def _write_mesh2(f, P):
-    # mesh2 reads its vertex array as given (mesh{triangle{}} hashes every vertex into
-    # 1000 buckets: quadratic time, 10 minutes for 800k triangles); 17 significant digits
-    N = len(P)
-    f.write(f"vertex_vectors {{ {3 * N},\n")
-    fmt = "<%.17g,%.17g,%.17g>,<%.17g,%.17g,%.17g>,<%.17g,%.17g,%.17g>\n"
-    flat = P.reshape(-1, 9)
-    chunk = 65536
-    for i in range(0, N, chunk):
-        f.write("".join(fmt % tuple(row) for row in flat[i:i + chunk].tolist()))
-    f.write("}\n")
-    f.write(f"face_indices {{ {N},\n")
-    for i in range(0, N, chunk):
-        idx = np.arange(i, min(N, i + chunk))
-        f.write("".join(f"<{3 * k},{3 * k + 1},{3 * k + 2}>\n" for k in idx.tolist()))
-    f.write("}\n")
+def mesh_grid_step(model, tolerance=MESH_TOLERANCE, steps=MESH_STEPS):
+    r'''(step, error px): the coarsest of `steps` within `tolerance` (else the finest)'''
+    key = (repr(model), float(tolerance), tuple(steps))
+    hit = _MESH_STEPS.get(key)
+    if hit is None:
+        for step in steps:
+            err = mesh_interpolation_error(model, step)
+            if err <= tolerance:
+                break
+        hit = _MESH_STEPS[key] = (step, err)
+    return hit
+
+
+def edge_pixels(model, pattern, Rt_cam_board, spacing_px=0.25):
+    r'''Pixels that an edge of the board pattern crosses
+
+SYNOPSIS
+
+    mask = edge_pixels(model, pattern, Rt_cam_board)   # (H, W) bool
+
+Every edge of the scene (board outline, cell outlines, dot circles) is sampled
+every <= spacing_px in the image; each sample s marks the pixels holding
+s + (+-0.3, +-0.3): a pixel that the curve crosses at c holds one of them,
+since |c - s| <= spacing_px / 2 per axis. Pixels outside the mask see one
+material over their whole area, and their centres lie >= 0.5 px from any edge.
+'''
+    W, H = model.width, model.height
+    Rt = np.asarray(Rt_cam_board, dtype=np.float64)
+    Rr = model.Rt_ref_cam()
+    M = Rr[:3] @ Rt[:3]
+    t = Rr[:3] @ Rt[3] + Rr[3]
+    mask = np.zeros((H, W), dtype=bool)
+
+    def mark(curves):
+        # curves (N, n, 2): board-frame polylines, refined until samples are close in the image
+        while True:
+            n = curves.shape[1]
+            p = np.concatenate((curves, np.zeros(curves.shape[:-1] + (1,))), -1) @ M.T + t
+            q = model.project(p)
+            gap = np.linalg.norm(np.diff(q, axis=1), axis=-1)
+            if not np.any(gap > spacing_px) or n >= 1 << 16:
+                break
+            s = np.linspace(0.0, n - 1.0, 2 * n - 1)
+            i0 = np.minimum(s.astype(np.int64), n - 2)
+            f = (s - i0)[None, :, None]
+            curves = curves[:, i0] * (1 - f) + curves[:, i0 + 1] * f
+        q = q.reshape(-1, 2)
+        q = q[np.all(np.isfinite(q), axis=-1)]
+        for d in ((-0.3, -0.3), (-0.3, 0.3), (0.3, -0.3), (0.3, 0.3)):
+            i = np.floor(q + d + 0.5).astype(np.int64)
+            ok = (i[:, 0] >= 0) & (i[:, 0] < W) & (i[:, 1] >= 0) & (i[:, 1] < H)
+            mask[i[ok, 1], i[ok, 0]] = True
+
+    def sides(x0, x1, y0, y1):
+        c = np.array([(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)])
+        return np.stack((c[:-1], c[1:]), axis=1)
+
+    xmin, xmax, ymin, ymax = (float(v) for v in pattern.extent)
+    segs = [sides(xmin, xmax, ymin, ymax)]
+    if pattern.cells is not None:
+        cells = np.asarray(pattern.cells, dtype=np.float64)
+        s = float(pattern.cell_size)
+        ox, oy = (float(v) for v in pattern.cell_origin)
+        for iy, ix in zip(*np.nonzero(np.isfinite(cells)), strict=True):
+            x0c, x1c = max(ox + ix * s, xmin), min(ox + (ix + 1) * s, xmax)
+            y0c, y1c = max(oy + iy * s, ymin), min(oy + (iy + 1) * s, ymax)
+            if x1c > x0c and y1c > y0c:
+                segs.append(sides(x0c, x1c, y0c, y1c))
+    mark(np.concatenate(segs))
+    if pattern.circles is not None and len(pattern.circles):
+        c = np.asarray(pattern.circles, dtype=np.float64)
+        a = np.linspace(0.0, 2 * np.pi, 65)
+        mark(np.stack((c[:, None, 0] + c[:, None, 2] * np.cos(a),
+                       c[:, None, 1] + c[:, None, 2] * np.sin(a)), axis=-1))
+    return mask
+
+
+@dataclass(frozen=True)
+class MeshRect:
+    r'''A block of model pixels (x0..x0+w-1, y0..y0+h-1) rendered k x k per pixel'''
+    x0: int
+    y0: int
+    w: int
+    h: int
+    k: int
+
+
+def rect_faces(r, step):
+    r'''Number of mesh faces of a MeshRect at a grid step'''
+    return 2 * -(-r.w // step) * -(-r.h // step)
+
+
+def pack_rects(rects, steps, max_pixels=MESH_RUN_PIXELS, max_faces=MESH_RUN_FACES,
+               width=MESH_ATLAS_WIDTH):
+    r'''Shelf-pack rects into atlases: [(atlas width, height, [(rect, step, ax, ay), ...]), ...]
+
+Each atlas is one POV-Ray run of at most max_pixels fine pixels and max_faces
+faces (a rect larger than that gets a run of its own); steps[i] is rect i's
+mesh grid step. Rects keep their order; a rect of another height starts a new
+shelf; an atlas is as wide as its first rect when that is >= 256 fine pixels
+wide (an image tile: the cells that follow fill the rows below it), else
+`width`. Atlas pixels that no face covers cost POV-Ray a scan of every face,
+so the packing leaves few.
+Row 0 of an atlas is left empty: POV-Ray 3.7.0 samples image row 0 half a
+row low (measured: rows j >= 1 are sampled at y = j, row 0 at y = 0.5; the
+clamp that also gives distribution 0 its one-row offset).
+'''
+    runs = []
+    top = MESH_ATLAS_TOP
+    cur, Wa, H, x, y, shelf_h, nf = [], 0, top, 0, top, 0, 0
+    for r, step in zip(rects, steps, strict=True):
+        fw, fh = r.w * r.k, r.h * r.k
+        f = rect_faces(r, step)
+        if cur:
+            if x > 0 and (x + fw > Wa or fh != shelf_h):     # next shelf
+                x, y, shelf_h = 0, y + shelf_h, fh
+            if fw > Wa or (y + fh) * Wa > max_pixels or nf + f > max_faces:
+                runs.append((Wa, H, cur))
+                cur = []
+        if not cur:
+            Wa = fw if fw >= 256 else max(fw, width)
+            H, x, y, shelf_h, nf = top, 0, top, fh, 0
+        cur.append((r, step, x, y))
+        H = max(H, y + fh)
+        nf += f
+        x += fw
+    if cur:
+        runs.append((Wa, H, cur))
+    return runs
+
+
+def _rows(a):
+    r'''Rows of a (N, n) array as POV-Ray vectors <a,b,...> (repr: shortest exact form)'''
+    s = list(map(repr, a.ravel().tolist()))
+    n = a.shape[1]
+    return ",\n".join("<" + ",".join(s[i:i + n]) + ">" for i in range(0, len(s), n))
+
+
+def mesh_camera_text(model, placed, atlas_w, atlas_h, surface):
+    r'''The mesh2 CamvalRays of a smooth mesh_camera (distribution 3) rendering `placed`
+
+SYNOPSIS
+
+    text, nfaces = mesh_camera_text(model, [(MeshRect, step, ax, ay), ...], Wa, Ha, surface)
+
+Vertices sit on the pixel-corner grid of each rect every `step` pixels, at
+origin + surface * normal of that corner's ray (camera frame, y negated;
+_corner_rays), with the normal as vertex normal and the corner's atlas
+position as uv. POV-Ray 3.7 samples atlas pixel (I, J) at uv
+(I/Wa, 1 - J/Ha) (measured), so fine pixel (a, b) of a rect stands for the
+model point (x0 + (a + 0.5)/k - 0.5, y0 + (b + 0.5)/k - 0.5): k x k
+sub-pixel centres. Numbers are written exactly (repr).
+'''
+    o, n = _corner_rays(model)
+    F = np.array([1.0, -1.0, 1.0])
+    groups = {}
+    for r, step, ax, ay in placed:
+        groups.setdefault((r.w, r.h, r.k, step), []).append((r.x0, r.y0, ax, ay))
+    P, N, UV, faces = [], [], [], []
+    nv = 0
+    for (w, h, k, step), where in groups.items():
+        xs = np.unique(np.minimum(np.arange(0, w + step, step), w))
+        ys = np.unique(np.minimum(np.arange(0, h + step, step), h))
+        gx, gy = np.meshgrid(xs, ys)                       # (ny, nx) corner offsets
+        x0, y0, ax, ay = (c[:, None, None] for c in np.array(where, dtype=np.int64).T)
+        cx, cy = x0 + gx, y0 + gy                          # (R, ny, nx) corner indices
+        P.append(((o[cy, cx] + surface * n[cy, cx]) * F).reshape(-1, 3))
+        N.append((n[cy, cx] * F).reshape(-1, 3))
+        # corner (cx, cy) is the model point (cx - 0.5, cy - 0.5): atlas I = ax + k gx - 0.5
+        I = ax + k * gx - 0.5
+        J = ay + k * gy - 0.5
+        UV.append(np.stack((I / atlas_w, 1.0 - J / atlas_h), -1).reshape(-1, 2))
+        idx = np.arange(gx.size).reshape(gx.shape)
+        a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]
+        tmpl = np.concatenate((np.stack((a, b, c), -1).reshape(-1, 3),
+                               np.stack((a, c, d), -1).reshape(-1, 3)))
+        R = len(where)
+        faces.append((nv + gx.size * np.arange(R)[:, None, None] + tmpl).reshape(-1, 3))
+        nv += R * gx.size
+    P, N, UV, faces = (np.concatenate(x) for x in (P, N, UV, faces))
+    out = ["#declare CamvalRays = mesh2 {",
+           f"vertex_vectors {{ {len(P)},", _rows(P), "}",
+           f"normal_vectors {{ {len(N)},", _rows(N), "}",
+           f"uv_vectors {{ {len(UV)},", _rows(UV), "}",
+           f"face_indices {{ {len(faces)},", _rows(faces), "}", "}", ""]
+    return "\n".join(out), len(faces)
 
 
 class PovrayRenderer:
@@ -227,8 +471,6 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
 - warp_samples: n, average n x n remaps per model pixel (use with warp_scale = n)
 - binary: the POV-Ray executable
 - threads: POV-Ray work threads (None: POV-Ray's default, all cores)
-- max_mesh_rays: refuse mesh-camera renders with more rays than this (scene
-  files take ~250 bytes per ray)
 - legacy / fault: render a defective model (renderers.legacy)
 '''
 
@@ -236,7 +478,7 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
 
     def __init__(self, camera="perspective", interpolation="bilinear", warp_scale=1.0,
                  warp_samples=1,
-                 binary="povray", threads=None, max_mesh_rays=DEFAULT_MAX_MESH_RAYS,
+                 binary="povray", threads=None,
                  legacy=None, fault=None, keep_dir=None):
         path = shutil.which(binary)
         if path is None:
@@ -245,13 +487,10 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
         self.binary = path
         self.defaults = dict(camera=camera, interpolation=interpolation, warp_scale=warp_scale,
                              warp_samples=warp_samples,
-                             threads=threads, max_mesh_rays=max_mesh_rays, legacy=legacy,
+                             threads=threads, legacy=legacy,
                              fault=fault, keep_dir=keep_dir)
         self._check_options(self.defaults)
         self._version = None
-        self._mesh_cache = {}
-        self._mesh_count = 0
-        self._cache_dir = None
 
     @staticmethod
     def _check_options(o):
@@ -321,115 +560,75 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
         return box_downsample(img, b), dict(povray_seconds=seconds, aa_depth=n, finer=b,
                                             scene_bytes=nbytes)
 
-    def render_mesh(self, model, pattern, Rt_cam_board, K, workdir, threads=None,
-                    max_rays=DEFAULT_MAX_MESH_RAYS):
-        r'''Render the model directly: one mesh_camera ray per sub-pixel'''
+    def render_mesh(self, model, pattern, Rt_cam_board, K, adaptive, workdir, threads=None):
+        r'''Render the model directly through a smooth mesh_camera, K x K per pixel
+
+With adaptive, one run renders the whole image at one ray per pixel and the
+MESH_CELL-pixel cells that an edge of the pattern crosses (edge_pixels) at K x K.
+'''
         W, H = model.width, model.height
-        nrays = W * H * K * K
-        if nrays > max_rays:
-            raise RendererError(
-                f"povray mesh camera: {W}x{H} px at K={K} needs {nrays} rays "
-                f"(~{nrays * 250 / 1e9:.1f} GB of scene file); the limit is {max_rays} "
-                "(option max_mesh_rays); use camera='perspective' or a smaller K")
-        rays = os.path.join(workdir, "rays.inc")
-        self._mesh_include(model, K, rays)
+        Rt = np.asarray(Rt_cam_board, dtype=np.float64)
+        if Rt.shape != (4, 3) or not np.all(np.isfinite(Rt)):
+            raise RendererError(f"Rt_cam_board must be a finite (4,3) array; got shape {Rt.shape}")
+        step, interp_err = mesh_grid_step(model)
+        coarse, _ = mesh_grid_step(model, MESH_COARSE_TOLERANCE, MESH_COARSE_STEPS)
+        # the rays start on the mesh, `surface` metres out: well short of the board's plane
+        plane = abs(float(Rt[3] @ Rt[:3, 2]))
+        if not plane > 1e-6:
+            raise RendererError(f"the board plane passes {plane:.2g} m from the camera centre; "
+                                "the mesh camera needs it in front of the camera")
+        _, n = _corner_rays(model)
+        surface = 0.25 * plane / float(np.linalg.norm(n, axis=-1).max())
 
-        def write(f):
-            f.write(scene_header(pattern))
-            f.write('#include "rays.inc"\n')
-            f.write("camera { mesh_camera { 1 0 mesh { CamvalRays } } "
-                    "location <0,0,0> direction <0,0,1> }\n")
-            f.write(scene_objects(pattern, Rt_cam_board))
+        def tiles(k, side):
+            return [MeshRect(x, y, min(side, W - x), min(side, H - y), k)
+                    for y in range(0, H, side) for x in range(0, W, side)]
 
-        # POV-Ray 3.7.0 shows face row j - 1 in image row j: render one more row and drop
-        # the first (the offset is probed once per binary)
-        off = self.mesh_row_offset()
-        img, seconds, nbytes = self._run(workdir, write, W * K, H * K + off, 1, threads)
-        img = img[off:]
-        nbytes += os.path.getsize(rays)
-        return box_downsample(img, K), dict(povray_seconds=seconds, finer=K, scene_bytes=nbytes)
+        if adaptive:
+            C = MESH_CELL
+            mask = edge_pixels(model, pattern, Rt)
+            Hc, Wc = -(-H // C), -(-W // C)
+            padded = np.zeros((Hc * C, Wc * C), dtype=bool)
+            padded[:H, :W] = mask
+            cells = padded.reshape(Hc, C, Wc, C).any(axis=(1, 3))
+            base = tiles(1, MESH_ATLAS_WIDTH)
+            fine = [MeshRect(int(cx) * C, int(cy) * C, min(C, W - int(cx) * C),
+                             min(C, H - int(cy) * C), K)
+                    for cy, cx in zip(*np.nonzero(cells), strict=True)]
+            rects, steps = base + fine, [coarse] * len(base) + [step] * len(fine)
+            supersampled = sum(r.w * r.h for r in fine) if K > 1 else 0
+        else:
+            # tiles of at most MESH_RUN_FACES / 2 squares of the fine step
+            side = min(max(MESH_CELL, MESH_ATLAS_WIDTH // K),
+                       step * int(np.sqrt(MESH_RUN_FACES / 2)))
+            rects = tiles(K, side)
+            steps = [step] * len(rects)
+            supersampled = W * H if K > 1 else 0
+        out = np.zeros((H, W))
+        seconds, nbytes, nfaces, nruns, traced = 0.0, 0, 0, 0, 0
+        for Wa, Ha, placed in pack_rects(rects, steps):
+            text, nf = mesh_camera_text(model, placed, Wa, Ha, surface)
 
-    _row_offsets = {}
+            def write(f, text=text):
+                f.write(scene_header(pattern))
+                f.write(text)
+                f.write("camera { mesh_camera { 1 3 mesh { CamvalRays } smooth } "
+                        "location <0,0,0> direction <0,0,1> }\n")
+                f.write(scene_objects(pattern, Rt))
 
-    def mesh_row_offset(self):
-        r"""Which face row this POV-Ray's mesh_camera traces for image row j: j - offset
-
-Probed with a 2x4 image whose faces of row 0 look at a white box and the
-others away from it; cached per binary. 1 for POV-Ray 3.7.0.10 (Debian 12).
-"""
-        off = self._row_offsets.get(self.binary)
-        if off is not None:
-            return off
-        W, H = 2, 4
-        v = np.tile([0.0, 0.0, -1.0], (W * H, 1))
-        v[:W] = (0.0, 0.0, 1.0)
-        P = mesh_camera_triangles(np.zeros_like(v), v)
-
-        def write(f):
-            f.write("#version 3.7;\nglobal_settings { assumed_gamma 1.0 }\n"
-                    "background { rgb 0 }\n#declare CamvalRays = mesh2 {\n")
-            _write_mesh2(f, P)
-            f.write("}\ncamera { mesh_camera { 1 0 mesh { CamvalRays } } "
-                    "location <0,0,0> direction <0,0,1> }\n"
-                    "box { <-1,-1,1>, <1,1,2> pigment { rgb 1 } finish { ambient 1 diffuse 0 } }\n")
-
-        workdir = tempfile.mkdtemp(prefix="camval-povray-probe-")
-        try:
-            img, _, _ = self._run(workdir, write, W, H + 2, 1, None)
-        finally:
-            shutil.rmtree(workdir, ignore_errors=True)
-        # face row 0 shows in image row `off`; rows above it are clamped to face row 0
-        # (3.7.0.10: rows 0 and 1 are white)
-        white = np.nonzero(img.min(axis=1) > 0.5)[0].tolist()
-        if not white or white[-1] > 2 or white not in ([white[-1]], list(range(white[-1] + 1))):
-            raise RendererError(f"povray mesh_camera probe: face row 0 shows in image rows "
-                                f"{white} of {img.shape[0]}; expected one row, or rows 0..n "
-                                "with n <= 2: this POV-Ray maps mesh faces to pixels in an "
-                                "unknown way")
-        off = self._row_offsets[self.binary] = white[-1]
-        return off
-
-    def _mesh_include(self, model, K, path):
-        r"""Write (or link from the per-renderer cache) the camera mesh declaring CamvalRays
-
-The mesh depends on the camera and K only; the most recent one is kept in a
-temporary directory for the renderer's lifetime (~250 bytes per ray).
-"""
-        key = (repr(model), int(K))
-        cached = self._mesh_cache.get(key)
-        if cached is None or not os.path.exists(cached):
-            if self._cache_dir is None:
-                self._cache_dir = tempfile.mkdtemp(prefix="camval-povray-mesh-")
-                weakref.finalize(self, shutil.rmtree, self._cache_dir, True)
-            for old in self._mesh_cache.values():
-                if os.path.exists(old):
-                    os.remove(old)
-            self._mesh_cache.clear()
-            self._mesh_count += 1
-            cached = os.path.join(self._cache_dir, f"rays-{self._mesh_count}.inc")
-            W, H = model.width, model.height
-            # sub-pixel centres of the K-times finer image, in model pixels
-            u = (np.arange(W * K) + 0.5) / K - 0.5
-            w = (np.arange(H * K) + 0.5) / K - 0.5
-            q = np.stack(np.meshgrid(u, w), axis=-1).reshape(-1, 2)
-            Rt = model.Rt_ref_cam()
-            origin, v = model.unproject(q)
-            o_cam = (origin - Rt[3]) @ Rt[:3]
-            v_cam = v @ Rt[:3]
-            if not np.all(np.isfinite(v_cam)):
-                raise RendererError(f"{model.family} model: some pixels have no ray; cannot "
-                                    "build a mesh camera")
-            F = np.array([1.0, -1.0, 1.0])
-            P = mesh_camera_triangles(o_cam * F, v_cam * F)
-            with open(cached, "w") as f:
-                f.write("#declare CamvalRays = mesh2 {\n")
-                _write_mesh2(f, P)
-                f.write("}\n")
-            self._mesh_cache[key] = cached
-        try:
-            os.link(cached, path)
-        except OSError:
-            shutil.copyfile(cached, path)
+            img, sec, nb = self._run(workdir, write, Wa, Ha, 1, threads)
+            for r, _, ax, ay in placed:
+                blk = img[ay:ay + r.h * r.k, ax:ax + r.w * r.k]
+                out[r.y0:r.y0 + r.h, r.x0:r.x0 + r.w] = box_downsample(blk, r.k)
+                traced += r.w * r.h * r.k * r.k
+            seconds += sec
+            nbytes = max(nbytes, nb)
+            nfaces = max(nfaces, nf)
+            nruns += 1
+        return out, dict(povray_seconds=seconds, scene_bytes=nbytes, mesh_faces=nfaces,
+                         povray_runs=nruns, mesh_step=step, mesh_coarse_step=coarse,
+                         mesh_interpolation_px=interp_err, rays_traced=traced,
+                         adaptive_fraction=supersampled / (W * H))
 
     def render(self, model, scene, Rt_cam_board, settings=None):
         from .legacy import apply_defects
@@ -444,8 +643,8 @@ temporary directory for the renderer's lifetime (~250 bytes per ray).
         os.makedirs(workdir, exist_ok=True)
         try:
             if o["camera"] == "mesh":
-                img, info = self.render_mesh(render_model, scene, Rt_cam_board, K, workdir,
-                                             o["threads"], o["max_mesh_rays"])
+                img, info = self.render_mesh(render_model, scene, Rt_cam_board, K,
+                                             bool(settings.adaptive), workdir, o["threads"])
                 warp_info = {}
             else:
                 warp = PinholeWarp.for_model(render_model, scale=float(o["warp_scale"]),
