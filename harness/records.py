@@ -119,7 +119,7 @@ model:            the model family the images were rendered with (CAHV, CAHVOR, 
 target, renderer: names; settings: {"spp", "adaptive", "options"[, "response": profile]}
 calibrator, calibrator_model: e.g. "jpl", "CAHVOR"
 status:           "ok" | "failed" | "not-applicable"; reason: why not ok
-stage:            the stage that failed ("camera", "poses", "render", "detect",
+stage:            the stage that failed ("camera", "poses", "render", "response", "detect",
                   "calibrate", "compare") or "" when ok
 residuals:        {"n", "min", "max", "rms", "mean"} px, per point (paper Fig. 3)
 params:           {name: fit - truth} (harness.compare.parameter_errors: Hc, Vc px;
