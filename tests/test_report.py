@@ -392,3 +392,13 @@ detection, jpl calibration; the report's rows put the recovered centre on the ha
     paths = build_report(tmp_path / "run")
     assert Path(paths["figures_dir"], "fig04_05_legacy_signature.png").is_file()
     assert 'id="fig04_05_legacy_signature"' in Path(paths["html"]).read_text()
+
+
+def test_legacy_campaign_file():
+    from harness.campaign import load_campaign
+    c = load_campaign(Path(__file__).resolve().parent.parent / "campaigns" / "legacy.toml")
+    c.validate()
+    modes = sorted(render_mode({"settings": s}) for r in c.renderers for s in r.settings())
+    assert modes == ["clean", "legacy"]
+    assert [r.name for r in c.renderers] == ["raycast", "faulty"]
+    assert [cal.name for cal in c.calibrators] == ["jpl"]
