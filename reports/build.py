@@ -138,7 +138,8 @@ def is_sweep(doc):
 
 
 def find_sweeps(directory):
-    r'''[sweep document] from DIR/sweep_*.json and DIR/sweeps/**/sweep_*.json, by path'''
+    r'''[sweep document] from DIR/sweep_*.json and DIR/sweeps/**/sweep_*.json, in the order
+of harness.sweep.DIFFICULTIES'''
     d = Path(directory)
     paths = sorted(set(d.glob("sweep_*.json")) | set(d.glob("sweeps/**/sweep_*.json")))
     out = []
@@ -150,7 +151,9 @@ def find_sweeps(directory):
         if is_sweep(doc):
             doc["_path"] = str(p.relative_to(d))
             out.append(doc)
-    return out
+    from harness.sweep import DIFFICULTIES
+    order = {k: i for i, k in enumerate(DIFFICULTIES)}
+    return sorted(out, key=lambda sw: (order.get(sw["difficulty"], len(order)), sw["_path"]))
 
 
 def truth_resolver(doc, run_dir):
