@@ -8,11 +8,17 @@ import numpy as np
 import pytest
 
 from harness.stereo import (
+    REFINE_FLAT,
+    REFINE_NO_MATCH,
+    REFINE_OK,
     StereoError,
     StereoSetup,
     _error_stats,
+    _to_u8,
     rectifiable,
+    refine_disparity,
     scale_model,
+    sgbm,
     terrain_pose_for,
 )
 
@@ -74,33 +80,162 @@ def test_error_statistics():
     assert s["all"]["median_abs_error_m"] == pytest.approx(0.02)
 
 
+def _texture(x, y, seed=0, n=60):
+    r"""A band-limited texture (sum of cosines up to 0.3 cycles/px), evaluated exactly"""
+    rng = np.random.default_rng(seed)
+    f = rng.uniform(0.02, 0.3, n)
+    th = rng.uniform(0, 2 * np.pi, n)
+    ph = rng.uniform(0, 2 * np.pi, n)
+    a = 1 / (1 + 10 * f)
+    out = np.zeros(np.broadcast(x, y).shape)
+    for fi, ti, pi, ai in zip(f, th, ph, a, strict=True):
+        out += ai * np.cos(2 * np.pi * fi * (np.cos(ti) * x + np.sin(ti) * y) + pi)
+    return 0.5 + 0.125 * out / np.sqrt(np.sum(a ** 2) / 2)
+
+
+def _slanted_pair(H=120, W=160, d0=7.3, slope=0.15):
+    r"""A rectified pair seeing a surface whose disparity rises `slope` px per row,
+as the ground does in the hazcams (0.1-0.2 px per row)"""
+    y, x = np.mgrid[0:H, 0:W].astype(float)
+    dtrue = d0 + slope * (y - H / 2)
+    # right pixel x' sees what left pixel x' + d sees
+    return _texture(x, y), _texture(x + dtrue, y), dtrue
+
+
+def test_refinement_removes_sgbm_bias_on_a_slanted_surface():
+    L, R, dtrue = _slanted_pair()
+    d_sgbm = sgbm(_to_u8(L), _to_u8(R), 32, block_size=5)
+    d, status = refine_disparity(L, R, d_sgbm, radius=4)
+    m = np.isfinite(d)
+    assert m.mean() > 0.6
+    assert np.all(status[m] == REFINE_OK)
+    assert np.all(status[~np.isfinite(d_sgbm)] == REFINE_NO_MATCH)
+    e_sgbm = (d_sgbm - dtrue)[m]
+    e = (d - dtrue)[m]
+    # SGBM: 1/16 px steps, a staircase on the slant (measured 0.075 px median |error|)
+    assert np.median(np.abs(e_sgbm)) > 0.04
+    # the fitted plane of disparities: measured 0.0039 px median |error|, bias 0.0003 px
+    assert np.median(np.abs(e)) < 0.01
+    assert abs(np.median(e)) < 0.002
+
+
+def test_refinement_needs_texture_and_valid_input():
+    flat = np.full((40, 50), 0.4)
+    d0 = np.full((40, 50), 3.0)
+    d, status = refine_disparity(flat, flat, d0, radius=3)
+    assert np.all(np.isnan(d))
+    assert np.all(status[3:-3, 3:-3] == REFINE_FLAT)
+    with pytest.raises(StereoError, match="one shape"):
+        refine_disparity(flat, flat[:, :-1], d0)
+    with pytest.raises(StereoError, match="radius"):
+        refine_disparity(flat, flat, d0, radius=0)
+
+
+def test_every_response_stage_has_a_variant():
+    from harness.commands.stereo import STAGE_VARIANTS, VARIANTS
+    from renderers.response import STAGES, ResponseChain
+    covered = set()
+    for name in STAGE_VARIANTS:
+        covered |= set(ResponseChain.from_config(VARIANTS[name]).names())
+    assert covered == set(STAGES)
+    assert STAGE_VARIANTS[0] == "clean" and STAGE_VARIANTS[-1] == "all"
+    # all but the saturation row (overexposed so that it saturates) are one stage each
+    single = [n for n in STAGE_VARIANTS if n not in ("clean", "all", "saturation")]
+    assert all(ResponseChain.from_config(VARIANTS[n]).names() == [n] for n in single)
+
+
+def test_stage_table_and_markdown():
+    from harness.commands.stereo import markdown_table, stage_table
+
+    def stats(med, medabs, valid):
+        return {"valid_fraction": valid, "all": {"median_abs_rel_error": medabs / 10,
+                                                   "p95_abs_rel_error": medabs},
+                "band": {"range_m": [4.5, 5.5], "n": 100, "valid_fraction": valid,
+                         "median_rel_error": med, "median_abs_rel_error": medabs,
+                         "p95_abs_rel_error": 5 * medabs}}
+    doc = {"cameras": ["12 left", "11 right"],
+           "meta": {"scale": 1.0, "image_size": [1024, 1024], "spp": 2,
+                    "rectified_size": [1421, 1420], "pixels_per_deg": 11.9,
+                    "baseline_m": 0.1, "matcher": "SGBM + refinement"},
+           "variants": {"clean": {"response": {}, "stats": stats(-0.002, 0.0076, 0.8),
+                                  "stats_sgbm": stats(-0.005, 0.017, 0.83)},
+                        "psf": {"response": {"psf": {"sigma_px": 1.0}},
+                                "stats": stats(-0.004, 0.0090, 0.79), "stats_sgbm": {}}}}
+    rows = stage_table(doc)
+    assert [r["variant"] for r in rows] == ["clean", "psf"]
+    assert rows[0]["delta_band_median_abs"] == 0.0
+    assert rows[1]["delta_band_median_abs"] == pytest.approx(0.0014)
+    assert rows[1]["stages"] == ["psf"] and rows[0]["stages"] == ["none"]
+    assert math.isnan(rows[1]["sgbm_band_median_abs"])
+    md = markdown_table(doc, rows).splitlines()
+    assert md[0] == "# Stereo range check: 12 left / 11 right"
+    assert md[-2].startswith("| clean | none | 80.00 | -0.20 | 0.76 | 3.80 | +0.00 | 1.70 |")
+    assert md[-1].startswith("| psf | psf | 79.00 | -0.40 | 0.90 | 4.50 | +0.14 | - |")
+
+
 def test_unknown_variant_is_refused(tmp_path):
     from harness.commands import stereo as cmd
     p = argparse.ArgumentParser()
     cmd.add_arguments(p)
-    with pytest.raises(StereoError, match="known: clean, noise"):
+    with pytest.raises(StereoError, match="known: clean, vignetting, psf"):
         cmd.run(p.parse_args(["12", "11", "-o", str(tmp_path), "--variants", "fog"]))
 
 
-@pytest.mark.slow
-def test_hazcam_pair_range_error(tmp_path):
-    r'''MER B front hazcams (slots 12, 11) at half resolution: the whole check and its outputs'''
+def test_hazcam_quarter_scale_command(tmp_path):
+    r"""MER B front hazcams at quarter scale (256x256) through camval stereo: the files,
+the table and the refinement's gain over SGBM, with measured values"""
     from harness.commands import stereo as cmd
     p = argparse.ArgumentParser()
     cmd.add_arguments(p)
-    args = p.parse_args(["12", "11", "-o", str(tmp_path), "--scale", "0.5", "--spp", "2",
-                         "--variants", "clean,noise"])
+    args = p.parse_args(["12", "11", "-o", str(tmp_path), "--scale", "0.25",
+                         "--variants", "clean,psf"])
     assert cmd.run(args) == 0
     doc = json.loads((tmp_path / "stereo_12_11.json").read_text())
-    assert (tmp_path / "stereo_12_11.png").stat().st_size > 50_000
-    clean = doc["variants"]["clean"]["stats"]
-    noise = doc["variants"]["noise"]["stats"]
-    assert clean["valid_fraction"] > 0.85
-    assert abs(clean["all"]["median_rel_error"]) < 0.005
-    assert clean["all"]["median_abs_rel_error"] < 0.01
-    # near 5 m the disparity is ~4.5 px at this scale
-    assert clean["band"]["n"] > 1000
-    assert abs(clean["band"]["median_rel_error"]) < 0.02
-    assert clean["band"]["median_abs_rel_error"] < 0.04
-    assert noise["all"]["median_abs_rel_error"] > clean["all"]["median_abs_rel_error"]
-    assert doc["meta"]["rectified_size"][0] > 400
+    md = (tmp_path / "stereo_12_11.md").read_text()
+    assert (tmp_path / "stereo_12_11.png").stat().st_size > 30_000
+    assert "| clean | none |" in md and "| psf | psf |" in md
+    assert [r["variant"] for r in doc["table"]] == ["clean", "psf"]
+    assert doc["meta"]["rectified_size"] == [355, 355] and doc["meta"]["refine"]
+    clean = doc["variants"]["clean"]
+    s, s0 = clean["stats"], clean["stats_sgbm"]
+    # measured: valid 0.83 (SGBM 0.85); median |error| over all pixels 0.19% (SGBM 0.55%)
+    assert 0.78 < s["valid_fraction"] <= s0["valid_fraction"]
+    assert s["all"]["median_abs_rel_error"] < 0.004
+    assert s["all"]["median_abs_rel_error"] < 0.6 * s0["all"]["median_abs_rel_error"]
+    assert s["refinement"]["ok"] > 0.8 * s["pixels_with_truth"]
+    # at 5 m the disparity is ~3.5 px at this scale and the ground's texture is finer
+    # than a pixel: 7.3% median |error|; the full-resolution bar is a slow test
+    assert s["band"]["n"] > 800
+    assert s["band"]["median_abs_rel_error"] < 0.12
+
+
+@pytest.mark.slow
+def test_hazcam_pair_meets_the_bar_at_full_resolution():
+    r"""Slots 12, 11 (1024x1024): median |range error| at 4.5-5.5 m within 1% on clean
+images (measured 0.76%, signed -0.17%, valid 80%; SGBM alone 1.75%)"""
+    from harness.stereo import run_stereo_check
+    setup = StereoSetup.from_catalogue(12, 11)
+    r = run_stereo_check(setup, variants={"clean": {}}, spp=2)
+    b = r.variants["clean"].stats["band"]
+    assert b["range_m"] == pytest.approx([4.5, 5.5])
+    assert b["n"] > 15_000
+    assert b["median_abs_rel_error"] < 0.01
+    assert abs(b["median_rel_error"]) < 0.005
+    assert b["valid_fraction"] > 0.75
+    assert r.variants["clean"].stats_sgbm["band"]["median_abs_rel_error"] > 0.01
+
+
+@pytest.mark.slow
+def test_navcam_pair_meets_the_bar():
+    r"""Slots 21, 22 at quarter scale (1280x960): median |range error| at 4.5-5.5 m within
+1% on clean images (measured 0.076%, valid 86%), and noise makes it worse"""
+    from harness.commands.stereo import VARIANTS
+    from harness.stereo import run_stereo_check
+    setup = StereoSetup.from_catalogue(21, 22, scale=0.25)
+    r = run_stereo_check(setup, variants={"clean": {}, "noise": VARIANTS["noise"]}, spp=2)
+    b = r.variants["clean"].stats["band"]
+    assert b["n"] > 100_000
+    assert b["median_abs_rel_error"] < 0.01
+    assert b["valid_fraction"] > 0.8
+    bn = r.variants["noise"].stats["band"]
+    assert bn["median_abs_rel_error"] > b["median_abs_rel_error"]
