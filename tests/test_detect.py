@@ -280,3 +280,41 @@ camera: every target found with all its points, dots at their exact centroids'''
                      else projected_points(m, t, Rt))
             err = np.linalg.norm(det.q - truth, axis=-1)
             assert err.max() < {"dots": 0.05, "apriltag": 1.0, "chessboard": 0.5}[name], where
+
+
+@pytest.mark.parametrize("dtype", ["float32", "uint8"])
+def test_large_image_path_gives_the_full_labelling(dots, monkeypatch, dtype):
+    r'''Above LARGE_IMAGE_PIXELS the blobs are located in a reduced image and labelled in
+their boxes: the dots, their centroids and the numbering are bit for bit those of the full
+labelling. The threshold is lowered here so that a 320x240 render takes that path.'''
+    from targets import detect_dots as dd
+    m = pinhole(WIDE["width"], WIDE["height"], WIDE["f"], R=WIDE["R"])
+    Rt = plan_poses(m, dots, seed=0)[0]
+    img = render(m, dots.pattern(), Rt, K=4).astype(np.float32)
+    if dtype == "uint8":
+        img = np.round(img * 255).astype(np.uint8)
+    full = detect(img, dots)
+    monkeypatch.setattr(dd, "LARGE_IMAGE_PIXELS", 1000)
+    monkeypatch.setattr(dd, "REDUCTION", 2)
+    calls = []
+    real = dd._blobs_from_reduced
+    monkeypatch.setattr(dd, "_blobs_from_reduced",
+                        lambda *a: calls.append(real(*a)) or calls[-1])
+    fast = detect(img, dots)
+    assert calls and calls[0] is not None        # the reduced path ran and was used
+    assert full.status == fast.status == "ok"
+    assert fast.n_found == full.n_found == 100
+    assert np.array_equal(fast.q, full.q)
+
+
+def test_large_image_path_falls_back_when_the_reduction_hides_the_dots(monkeypatch, dots):
+    r'''Dots too small for the reduction: the full image is labelled, nothing is lost'''
+    from targets import detect_dots as dd
+    m = pinhole(WIDE["width"], WIDE["height"], WIDE["f"], R=WIDE["R"])
+    Rt = plan_poses(m, dots, seed=0)[0]
+    img = render(m, dots.pattern(), Rt, K=4)
+    monkeypatch.setattr(dd, "LARGE_IMAGE_PIXELS", 1000)
+    monkeypatch.setattr(dd, "REDUCTION", 64)
+    assert dd._blobs_from_reduced(img.astype(np.float32), 0.5, 64) is None
+    det = detect(img, dots)
+    assert det.status == "ok" and det.n_found == 100
