@@ -20,4 +20,6 @@ if [ ${#need[@]} -gt 0 ]; then
         echo "camval setup: missing Debian packages ${need[*]} (run as root: apt-get install ${need[*]})" >&2
     fi
 fi
-uv sync --frozen --quiet
+# --compile-bytecode: the environment sets PYTHONDONTWRITEBYTECODE, so without .pyc files every
+# process (each campaign worker, each test subprocess) would compile numba, scipy... again (~3 s)
+uv sync --frozen --quiet --compile-bytecode
