@@ -33,7 +33,14 @@ oversized pinhole (renderers.warp.PinholeWarp) rendered by POV-Ray's
 perspective camera (renderers.povray.perspective_camera), then warped to the
 model. A noncentral CAHVORE model is warped as if every pixel saw the point
 warp.NONCENTRAL_RANGE metres along its ray (the warp cannot know the terrain's
-depth); the raycast renderer is exact for those.
+depth), and a field of view past 88.8 deg cannot be warped. camera="mesh"
+traces model.unproject's exact rays instead: a mesh_camera (distribution 0,
+one unit triangle per sub-pixel ray, %.17g), with the face-row offset of
+POV-Ray 3.7.0.10 probed once per binary (mesh_row_offset). Self-contained
+here (renderers/povray.py is moving to another mesh camera). Measured: on
+the MER hazcam (CAHVORE fisheye, 256x256, K = 2) the image equals
+raycast_terrain's to 7e-6 on average (16-bit output) and 99.99% of the pixel
+shadow codes are equal.
 
 Measured: pixel rays that meet the surface exactly on a triangle edge (a
 camera looking straight down with its pixel rays on the grid's lattice, e.g.
@@ -334,10 +341,108 @@ def _Rt_cam_terrain(model, Rt_ref_terrain):
     return mrcal.compose_Rt(mrcal.invert_Rt(model.Rt_ref_cam()), Rt)
 
 
+MAX_MESH_RAYS = 4_500_000
+_ROW_OFFSETS = {}
+
+
+def mesh_camera_triangles(origin, v):
+    r'''Triangles (N,3,3) whose centroids are origin (N,3) and whose POV-Ray normals are v
+
+POV-Ray's mesh_camera (distribution 0) shoots one ray per face from its
+centroid along its normal, normalise((P3-P1) x (P2-P1)); unit-size triangles
+written at full precision keep that normal exact (renderers/povray.py).
+'''
+    v = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    helper = np.where(np.abs(v[:, 0:1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    a = np.cross(v, helper)
+    a /= np.linalg.norm(a, axis=-1, keepdims=True)
+    b = np.cross(v, a)
+    c, s = -0.5, math.sqrt(3.0) / 2.0
+    p1, p2, p3 = a, c * a + s * b, c * a - s * b
+    flip = (np.cross(p3 - p1, p2 - p1) * v).sum(-1) < 0
+    p2[flip], p3[flip] = p3[flip].copy(), p2[flip].copy()
+    return origin[:, None, :] + np.stack((p1, p2, p3), axis=1)
+
+
+def _write_faces_mesh2(f, P, name):
+    N = len(P)
+    f.write(f"#declare {name} = mesh2 {{\nvertex_vectors {{ {3 * N},\n")
+    flat = P.reshape(-1, 3).tolist()
+    chunk = 65536
+    for k in range(0, len(flat), chunk):
+        f.write("".join(f"<{a:.17g},{b:.17g},{c:.17g}>\n" for a, b, c in flat[k:k + chunk]))
+    f.write(f"}}\nface_indices {{ {N},\n")
+    for k in range(0, N, chunk):
+        f.write("".join(f"<{3 * i},{3 * i + 1},{3 * i + 2}>\n"
+                        for i in range(k, min(N, k + chunk))))
+    f.write("}\n}\n")
+
+
+def write_camera_rays(model, K, path):
+    r'''Write the mesh_camera mesh `CamvalRays`: one face per sub-pixel ray of model
+
+Sub-pixel (a, b) of the K-times finer image is the model point
+((a + 1/2)/K - 1/2, (b + 1/2)/K - 1/2); its exact ray (model.unproject, in
+the camera frame with y negated, as the scene) becomes face b W K + a.
+'''
+    W, H = model.width, model.height
+    u = (np.arange(W * K) + 0.5) / K - 0.5
+    w = (np.arange(H * K) + 0.5) / K - 0.5
+    q = np.stack(np.meshgrid(u, w), axis=-1).reshape(-1, 2)
+    Rt = model.Rt_ref_cam()
+    origin, v = model.unproject(q)
+    o_cam = (origin - Rt[3]) @ Rt[:3]
+    v_cam = v @ Rt[:3]
+    if not np.all(np.isfinite(v_cam)):
+        raise RendererError(f"{model.family} model: some pixels have no ray; cannot build a "
+                            "mesh camera")
+    F = np.array([1.0, -1.0, 1.0])
+    with open(path, "w") as f:
+        _write_faces_mesh2(f, mesh_camera_triangles(o_cam * F, v_cam * F), "CamvalRays")
+
+
+def mesh_row_offset(bin_path):
+    r'''Which face row POV-Ray's mesh_camera traces for image row j: j - offset
+
+Probed once per binary with a 2x4 image whose faces of row 0 look at a white
+box (POV-Ray 3.7.0.10: 1, the "one-row offset" of FINDINGS.md).
+'''
+    off = _ROW_OFFSETS.get(bin_path)
+    if off is not None:
+        return off
+    W, H = 2, 4
+    v = np.tile([0.0, 0.0, -1.0], (W * H, 1))
+    v[:W] = (0.0, 0.0, 1.0)
+    from io import StringIO
+    s = StringIO()
+    s.write("#version 3.7;\nglobal_settings { assumed_gamma 1.0 }\nbackground { rgb 0 }\n")
+    _write_faces_mesh2(s, mesh_camera_triangles(np.zeros_like(v), v), "CamvalRays")
+    s.write("camera { mesh_camera { 1 0 mesh { CamvalRays } } location <0,0,0> "
+            "direction <0,0,1> }\n"
+            "box { <-1,-1,1>, <1,1,2> pigment { rgb 1 } finish { ambient 1 diffuse 0 } }\n")
+    workdir = tempfile.mkdtemp(prefix="camval-povray-probe-")
+    try:
+        img, _ = _run(bin_path, workdir, s.getvalue(), W, H + 2, 1, None)
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+    white = np.nonzero(img.min(axis=1) > 0.5)[0].tolist()
+    if not white or white[-1] > 2 or white != list(range(white[0], white[-1] + 1)):
+        raise RendererError(f"povray mesh_camera probe: face row 0 shows in image rows {white}; "
+                            "this POV-Ray maps mesh faces to pixels in an unknown way")
+    off = _ROW_OFFSETS[bin_path] = white[-1]
+    return off
+
+
+def _codes_from_rgb(c):
+    return np.where(c[..., 2] < 0.5, 255, np.where(
+        c[..., 1] < 0.5, 1, np.where(c[..., 0] < 0.5, 2, 0))).astype(np.uint8)
+
+
 def render_terrain(model, terrain, Rt_ref_terrain=None, spp=1, shadows=True, exposure=1.0,
-                   sky=0.0, interpolation="bilinear", warp_scale=1.0, binary="povray",
-                   threads=None, keep_dir=None, shadow_codes=False):
-    r'''Render a terrain through a camera model with POV-Ray (pinhole, then the warp)
+                   sky=0.0, camera="perspective", interpolation="bilinear", warp_scale=1.0,
+                   binary="povray", threads=None, keep_dir=None, shadow_codes=False,
+                   max_mesh_rays=None):
+    r'''Render a terrain through a camera model with POV-Ray
 
 SYNOPSIS
 
@@ -345,57 +450,95 @@ SYNOPSIS
     # r.image (H,W) float32 in [0,1]; r.range is None
     r = render_terrain(model, terrain, Rt_ref_terrain, shadow_codes=True)
     # r.shadow (H,W) uint8 as raycast_terrain's: 0 lit, 1 facing away, 2 cast, 255 sky
+    r = render_terrain(fisheye, terrain, Rt_ref_terrain, camera="mesh")
 
-Arguments as renderers.raycast_terrain.render_terrain, plus the warp's
-interpolation ("bilinear"/"bicubic") and warp_scale, the POV-Ray binary,
-threads and keep_dir (keep the scene files there). spp = K: POV-Ray's
-non-adaptive anti-aliasing (n x n, n <= 9) on a b times finer image, K = n b,
-as renderers/povray.py. shadow_codes=True renders the pinhole once more
-(code_scene_text: one ray per pixel) for POV-Ray's per-pixel verdict, taken
-at the pinhole pixel nearest each model pixel's ray; otherwise r.shadow is None.
+Arguments as renderers.raycast_terrain.render_terrain, plus:
+
+- camera: "perspective" (the paper's path: oversized pinhole, then the warp with
+  `interpolation` and `warp_scale`; spp = K is POV-Ray's non-adaptive
+  anti-aliasing n x n, n <= 9, on a b times finer image, K = n b, as
+  renderers/povray.py) or "mesh" (POV-Ray's mesh_camera with one exact ray
+  per sub-pixel from model.unproject, built by renderers.povray.PovrayRenderer:
+  any field of view, noncentral CAHVORE exact; K x K sub-pixels averaged;
+  at most max_mesh_rays rays, ~250 bytes of scene file each)
+- shadow_codes: render once more with code_scene_text (one ray per pixel)
+  for POV-Ray's per-pixel verdict: with "perspective" at the pinhole pixel
+  nearest each model pixel's ray, with "mesh" along the pixel-centre ray;
+  otherwise r.shadow is None
+- binary, threads, keep_dir (keep the scene files there)
 '''
     from renderers.povray import perspective_camera, split_supersampling
     from renderers.warp import PinholeWarp, box_downsample
 
     if isinstance(spp, bool) or not isinstance(spp, int) or spp < 1:
         raise RendererError(f"supersampling K must be a positive integer; got {spp!r}")
+    if camera not in ("perspective", "mesh"):
+        raise RendererError(f"povray_terrain camera {camera!r} is unknown; "
+                            "known: perspective, mesh")
     bin_path = find_povray(binary)
     t0 = time.perf_counter()
     Rt = _Rt_cam_terrain(model, Rt_ref_terrain)
     F = np.diag([1.0, -1.0, 1.0])          # POV-Ray's y is up: the camera frame with y negated
     M, t = F @ Rt[:3], F @ Rt[3]
-    warp = PinholeWarp.for_model(model, scale=float(warp_scale))
-    n, b = split_supersampling(spp)
-    fine = warp.pinhole.scaled(b)
     workdir = keep_dir or tempfile.mkdtemp(prefix="camval-povray-terrain-")
     os.makedirs(workdir, exist_ok=True)
+    shadow = None
+    meta = {}
     try:
         write_albedo_png(terrain, os.path.join(workdir, "albedo.png"))
-        scene = scene_text(terrain, M, t, perspective_camera(fine), "albedo.png",
-                           exposure=exposure, sky=sky, shadows=shadows)
-        img, pov_seconds = _run(bin_path, workdir, scene, fine.width, fine.height, n, threads)
-        shadow = None
-        if shadow_codes:
-            import cv2
-            pin_cam = perspective_camera(warp.pinhole)
-            c, s2 = _run(bin_path, workdir, code_scene_text(terrain, M, t, pin_cam),
-                         warp.pinhole.width, warp.pinhole.height, 1, threads, rgb=True)
-            pov_seconds += s2
-            pin_code = np.where(c[..., 2] < 0.5, 255, np.where(
-                c[..., 1] < 0.5, 1, np.where(c[..., 0] < 0.5, 2, 0))).astype(np.uint8)
-            map_x, map_y = warp.map()
-            shadow = cv2.remap(pin_code, map_x, map_y, cv2.INTER_NEAREST,
-                               borderMode=cv2.BORDER_CONSTANT, borderValue=255)
+        if camera == "perspective":
+            warp = PinholeWarp.for_model(model, scale=float(warp_scale))
+            n, b = split_supersampling(spp)
+            fine = warp.pinhole.scaled(b)
+            scene = scene_text(terrain, M, t, perspective_camera(fine), "albedo.png",
+                               exposure=exposure, sky=sky, shadows=shadows)
+            img, pov_seconds = _run(bin_path, workdir, scene, fine.width, fine.height, n,
+                                    threads)
+            image = warp.apply(box_downsample(img, b), interpolation)
+            if shadow_codes:
+                import cv2
+                c, s2 = _run(bin_path, workdir,
+                             code_scene_text(terrain, M, t, perspective_camera(warp.pinhole)),
+                             warp.pinhole.width, warp.pinhole.height, 1, threads, rgb=True)
+                pov_seconds += s2
+                map_x, map_y = warp.map()
+                shadow = cv2.remap(_codes_from_rgb(c), map_x, map_y, cv2.INTER_NEAREST,
+                                   borderMode=cv2.BORDER_CONSTANT, borderValue=255)
+            meta = {"pinhole": warp.pinhole.as_dict(), "interpolation": interpolation,
+                    "aa_depth": n, "finer": b}
+        else:
+            W, H = model.width, model.height
+            limit = MAX_MESH_RAYS if max_mesh_rays is None else int(max_mesh_rays)
+            if W * H * spp * spp > limit:
+                raise RendererError(
+                    f"povray_terrain mesh camera: {W}x{H} px at K={spp} needs "
+                    f"{W * H * spp * spp} rays (~250 bytes of scene file each); the limit is "
+                    f"{limit} (max_mesh_rays)")
+            off = mesh_row_offset(bin_path)
+            mesh_cam = ('#include "rays.inc"\ncamera { mesh_camera { 1 0 mesh { CamvalRays } } '
+                        "location <0,0,0> direction <0,0,1> }\n")
+            rays = os.path.join(workdir, "rays.inc")
+            write_camera_rays(model, spp, rays)
+            scene = scene_text(terrain, M, t, mesh_cam, "albedo.png", exposure=exposure,
+                               sky=sky, shadows=shadows)
+            # POV-Ray 3.7.0 shows face row j - off in image row j: render off more rows
+            img, pov_seconds = _run(bin_path, workdir, scene, W * spp, H * spp + off, 1,
+                                    threads)
+            image = box_downsample(img[off:], spp)
+            if shadow_codes:
+                write_camera_rays(model, 1, rays)
+                c, s2 = _run(bin_path, workdir, code_scene_text(terrain, M, t, mesh_cam),
+                             W, H + off, 1, threads, rgb=True)
+                pov_seconds += s2
+                shadow = _codes_from_rgb(c[off:])
+            meta = {"mesh_row_offset": off}
     finally:
         if not keep_dir:
             shutil.rmtree(workdir, ignore_errors=True)
-    pin = box_downsample(img, b)
-    image = warp.apply(pin, interpolation)
     t1 = time.perf_counter()
     return TerrainRender(
         image=np.clip(image, 0.0, 1.0).astype(np.float32), range=None, shadow=shadow,
-        metadata={"renderer": NAME, "version": povray_version(binary), "spp": spp,
-                  "shadows": bool(shadows), "exposure": exposure, "seconds": t1 - t0,
-                  "povray_seconds": pov_seconds, "pinhole": warp.pinhole.as_dict(),
-                  "interpolation": interpolation, "aa_depth": n, "finer": b,
+        metadata={"renderer": NAME, "version": povray_version(binary), "camera": camera,
+                  "spp": spp, "shadows": bool(shadows), "exposure": exposure,
+                  "seconds": t1 - t0, "povray_seconds": pov_seconds, **meta,
                   "surface": "triangle pair per cell (mesh2)", "terrain": terrain.as_dict()})
