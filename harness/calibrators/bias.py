@@ -23,6 +23,11 @@ model with project(p) and Rt_ref_cam() works (OpenCV, COLMAP fits included).
 import numpy as np
 
 NOUTLINE = 1440
+# outline points per dot for the bias of a JPL model (targets.centroids.expected_centroids):
+# its Richardson-extrapolated polygon centroid converges as 1/N^4, and 192 points are within
+# 5e-8 px of 1440 (that function's default) on every camera measured (MER hazcam CAHVORE,
+# MER pancam, Mars 2020 navcam 5120x3840, Rocky8 hazcam), 10x faster
+BIAS_NOUTLINE = 192
 
 
 def dot_radii(target, p_board):
@@ -101,7 +106,8 @@ SYNOPSIS
         except ImportError:
             expected_centroids = None
         if expected_centroids is not None:
-            expected = np.asarray(expected_centroids(model, target, Rt_cam_board),
+            expected = np.asarray(expected_centroids(model, target, Rt_cam_board,
+                                                     Noutline=BIAS_NOUTLINE),
                                   dtype=np.float64)
     if expected is None:
         expected = outline_centroids(model, p_board, radii, Rt_cam_board)
