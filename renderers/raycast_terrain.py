@@ -91,7 +91,7 @@ the highest of each cell's 4 nodes.
     return flat, offsets, nx, ny
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, inline="always")
 def _cell_hit(u0, v0, oz, du, dv, dz, h, i, j, tmin, any_hit):
     r"""Nearest t >= tmin where a ray meets the two triangles of cell (i, j); inf if none
 
@@ -252,7 +252,7 @@ def _sun_bound_columns(mmax, sx, sy, k, zhi):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _trace(ox, oy, oz, dx, dy, dz, tmin, tmax, h, x0, y0, cell,
            pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, start_level, any_hit, vpyr):
     r"""Nearest hit of one ray with the height field: (t, i, j, triangle, level)
@@ -459,7 +459,7 @@ once it is above the bound of the cell it is in.
     return np.inf, -1, -1, -1, -1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _normal(h, i, j, tri, icell):
     if tri == 0:
         b = (h[j, i + 1] - h[j, i]) * icell
@@ -471,7 +471,7 @@ def _normal(h, i, j, tri, icell):
     return -b * n, -c * n, n
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _albedo(a, x, y, xmin, ymin, w, hgt):
     ty, tx = a.shape
     fx = min(max((x - xmin) / w * tx - 0.5, 0.0), tx - 1.0)
@@ -500,6 +500,7 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pw, ph, pnx, pny, zlo, z
     RUN = 64
     NW = 64
     nruns = (N + RUN - 1) // RUN
+    no_bound = vpyr[:0]
     for worker in prange(NW):
         for run in range(worker, nruns, NW):
             start = 1000
@@ -523,7 +524,7 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pw, ph, pnx, pny, zlo, z
                     continue
                 t, i, j, tri, lvl = _trace(ox, oy, oz, dx, dy, dz, 0.0, np.inf, h, x0, y0, cell,
                                            pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, start,
-                                           False, vpyr[:0])
+                                           False, no_bound)
                 # the next ray of the run starts where this one first passed a cell
                 # (any start level gives the same hit; this one saves the descent)
                 start = lvl if lvl >= 0 else 1000
