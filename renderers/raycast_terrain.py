@@ -559,27 +559,34 @@ def _shade_rays(O, D, R, T, h, x0, y0, cell, pyr, offs, pw, ph, pnx, pny, zlo, z
                 out_code[n] = code
 
 
-def _prepared(terrain):
-    r"""The walk's pyramid and the sun bound's pyramid of a terrain, made once per terrain"""
-    key = id(terrain)
+def _prepared(terrain, shadows=True):
+    r"""The walk's pyramid of a terrain and (for shadows) the pyramid of its sun bound
+
+Made once per terrain (kept on the terrain object; the sun bound only once
+shadows are asked for): (flat, offs, width, rows, ncx, ncy, zlo, zhi, tol, vpyr),
+vpyr empty without shadows.
+"""
     cached = getattr(terrain, "_raycast_walk", None)
-    if cached is not None and cached[0] == key:
-        return cached[1]
-    zlo, zhi = float(terrain.heights.min()), float(terrain.heights.max())
-    tol = 1e-9 * max(1.0, zhi - zlo, terrain.cell)
-    mmax = _cell_maxima(terrain.heights)
-    walk = _walk_pyramid(mmax, tol)
-    sun = terrain.sun.direction()
-    horizontal = math.hypot(sun[0], sun[1])
-    if horizontal < 1e-12:
-        vpyr = walk[0]          # the sun at the zenith: only the cell itself can shade
-    else:
-        V = _sun_bound(mmax, sun[0] / horizontal, sun[1] / horizontal,
-                       sun[2] / horizontal * terrain.cell, zhi)
-        vpyr = _walk_pyramid(V, tol)[0]
-    prep = walk + (zlo, zhi, tol, vpyr)
-    object.__setattr__(terrain, "_raycast_walk", (key, prep))
-    return prep
+    if cached is None or cached[0] != id(terrain):
+        zlo, zhi = float(terrain.heights.min()), float(terrain.heights.max())
+        tol = 1e-9 * max(1.0, zhi - zlo, terrain.cell)
+        mmax = _cell_maxima(terrain.heights)
+        cached = (id(terrain), mmax, _walk_pyramid(mmax, tol) + (zlo, zhi, tol), {})
+        object.__setattr__(terrain, "_raycast_walk", cached)
+    _, mmax, walk, bound = cached
+    if not shadows:
+        return walk + (np.empty(0),)
+    if "vpyr" not in bound:
+        zhi, tol = walk[7], walk[8]
+        sun = terrain.sun.direction()
+        horizontal = math.hypot(sun[0], sun[1])
+        if horizontal < 1e-12:
+            bound["vpyr"] = walk[0]     # the sun at the zenith: only the cell itself shades
+        else:
+            V = _sun_bound(mmax, sun[0] / horizontal, sun[1] / horizontal,
+                           sun[2] / horizontal * terrain.cell, zhi)
+            bound["vpyr"] = _walk_pyramid(V, tol)[0]
+    return walk + (bound["vpyr"],)
 
 
 def trace_rays(terrain, origins, directions, shadows=True, exposure=1.0, sky=0.0,
@@ -603,7 +610,7 @@ is given. Rays with non-finite numbers miss.
     O = np.ascontiguousarray(O.reshape(-1, 3))
     D = np.ascontiguousarray(D.reshape(-1, 3))
     Rt = _identity_Rt() if Rt_ref_terrain is None else _check_Rt(Rt_ref_terrain)
-    flat, offs, pw, ph, pnx, pny, zlo, zhi, tol, vpyr = _prepared(terrain)
+    flat, offs, pw, ph, pnx, pny, zlo, zhi, tol, vpyr = _prepared(terrain, bool(shadows))
     N = O.shape[0]
     value = np.empty(N)
     t = np.empty(N)
@@ -695,10 +702,13 @@ sky is the value of rays that miss the terrain. Values are clipped to [0,1].
     t_start = time.perf_counter()
     o, v = pixel_rays(model, spp)
     t_rays = time.perf_counter()
+    _prepared(terrain, bool(shadows))
+    t_prep = time.perf_counter()
     value, t, code = trace_rays(terrain, o, v, shadows=shadows, exposure=exposure, sky=sky,
                                 Rt_ref_terrain=Rt)
     K2 = spp * spp
-    image = value.reshape(Hh, W, K2).mean(axis=-1)
+    image = value.reshape(Hh, W) if spp == 1 else value.reshape(Hh, W, K2).mean(axis=-1)
+    image = np.clip(image, 0.0, 1.0, out=image).astype(np.float32)
     if spp == 1:
         rng, shadow = t.reshape(Hh, W), code.reshape(Hh, W)
     elif spp % 2 == 1:
@@ -710,12 +720,13 @@ sky is the value of rays that miss the terrain. Values are clipped to [0,1].
         rng, shadow = tc.reshape(Hh, W), cc.reshape(Hh, W)
     t_end = time.perf_counter()
     return TerrainRender(
-        image=np.clip(image, 0.0, 1.0).astype(np.float32),
+        image=image,
         range=np.ascontiguousarray(rng, dtype=np.float64),
         shadow=np.ascontiguousarray(shadow),
         metadata={"renderer": NAME, "version": f"numba {numba.__version__}",
                   "spp": spp, "shadows": bool(shadows), "exposure": exposure,
                   "rays": int(value.size), "threads": numba.get_num_threads(),
                   "seconds": t_end - t_start, "seconds_rays": t_rays - t_start,
-                  "seconds_trace": t_end - t_rays, "surface": "triangle pair per cell",
+                  "seconds_prepare": t_prep - t_rays, "seconds_trace": t_end - t_prep,
+                  "surface": "triangle pair per cell",
                   "terrain": terrain.as_dict()})
