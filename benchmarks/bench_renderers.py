@@ -4,6 +4,8 @@ SYNOPSIS
 
     uv run python benchmarks/bench_renderers.py [--poses 2] [--K 1 4 16]
         [--out benchmarks/results/renderers.json]
+    uv run python benchmarks/bench_renderers.py --from-run runs/<id>
+        # the recalibration table of a `camval verify campaigns/renderers.toml` run
 
 The navcam-like CAHVOR of /work/shared/FINDINGS.md (1024x1024, f = 1236 px,
 O tilted 0.47 deg, R = [0, -0.1, 0.02]) looks at the JPL 10x10 dot board
@@ -15,9 +17,13 @@ projected dot outline (targets.centroids.expected_centroids). Reported per
 a camera includes building its rays or warp map, reported apart), centroid
 error RMS and max over all found dots, dots found.
 
-POV-Ray's mesh camera needs one ray per sub-pixel written into the scene file
-(about 250 bytes each): 1M rays at K = 1, 17M at K = 4. Only K = 1 is run;
-larger K are recorded as skipped with the reason.
+POV-Ray's mesh camera (a smooth mesh_camera on the pixel-corner grid,
+adaptive K x K where pattern edges are) runs at every K.
+
+"warp-only" isolates the resampling error of the warp paths: the ray caster
+renders the warp's own pinhole camera (an exact CAHV, K x K area samples),
+then renderers.warp maps it to the model as POV-Ray's and OSMesa's paths do.
+Whatever it adds to the ray caster's own error is the warp's.
 
 "-area2" configurations render the pinhole twice as fine with 2 x 2 warp
 samples per model pixel (renderers.warp area sampling) at K/2, the same
@@ -55,6 +61,27 @@ def navcam_like():
                   width=W, height=H)
 
 
+def pinhole_cahv(pinhole):
+    r'''The CAHV model of a renderers.warp.Pinhole (camera frame = world frame)'''
+    from reference_models.cahvore import CAHV
+
+    A = np.array([0.0, 0.0, 1.0])
+    return CAHV(C=[0.0, 0.0, 0.0], A=A, H=pinhole.fx * np.array([1.0, 0, 0]) + pinhole.cx * A,
+                V=pinhole.fy * np.array([0, 1.0, 0]) + pinhole.cy * A,
+                width=pinhole.width, height=pinhole.height)
+
+
+def warp_only(raycast, model, pattern, Rt_cam_board, K):
+    r'''The exact pinhole render (ray caster, K x K) warped to the model (bilinear)'''
+    from renderers.base import RenderSettings
+    from renderers.warp import PinholeWarp
+
+    warp = PinholeWarp.for_model(model)
+    pin = raycast.render(pinhole_cahv(warp.pinhole), pattern, Rt_cam_board,
+                         RenderSettings(spp=K)).image
+    return warp.apply(pin, "bilinear", Rt_cam_board=Rt_cam_board)
+
+
 def git_commit():
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
@@ -63,7 +90,36 @@ def git_commit():
         return None
 
 
+def run_table(run_dir):
+    r'''Print one row per (camera, model, renderer path, K) of a campaign run: time per
+image, projection-difference RMS, residual RMS, Hc/Vc errors, and the 0.002 px bars'''
+    from harness.records import load_run
+
+    recs = load_run(run_dir)["records"]
+    rows = []
+    for r in recs.values():
+        s = r["settings"]
+        path = r["renderer"] + "".join(f" {k}={v}" for k, v in sorted(s["options"].items()))
+        rows.append((r["camera"], r["model"], path, s["spp"], r))
+    rows.sort(key=lambda x: (x[0], x[1], x[2], x[3]))
+    print(f"{'camera':6s} {'model':8s} {'renderer path':28s} {'K':>3s} {'s/image':>8s} "
+          f"{'proj RMS':>9s} {'resid RMS':>9s} {'Hc err':>8s} {'Vc err':>8s}  bars")
+    for cam, model, path, K, r in rows:
+        if r["status"] != "ok":
+            print(f"{cam:6s} {model:8s} {path:28s} {K:3d}  {r['status']}: {r['reason'][:70]}")
+            continue
+        t = r["seconds"]["render_per_image"]
+        pr, rr = r["projection"]["rms"], r["residuals"]["rms"]
+        hc, vc = r["params"]["Hc"], r["params"]["Vc"]
+        bars = "meets" if pr <= 0.002 and rr <= 0.002 else "misses"
+        print(f"{cam:6s} {model:8s} {path:28s} {K:3d} {t:8.2f} {pr:9.4f} {rr:9.4f} "
+              f"{hc:+8.4f} {vc:+8.4f}  {bars}")
+
+
 def main():
+    if len(sys.argv) == 3 and sys.argv[1] == "--from-run":
+        run_table(sys.argv[2])
+        return
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--poses", type=int, default=2)
     ap.add_argument("--K", type=int, nargs="+", default=[1, 4, 16])
@@ -90,6 +146,7 @@ def main():
     configs = [("raycast", "raycast", {}), ("osmesa", "osmesa", {}),
                ("povray-perspective", "povray", {"camera": "perspective"}),
                ("povray-mesh", "povray", {"camera": "mesh"}),
+               ("warp-only", "raycast", {}),
                ("osmesa-area2", "osmesa", area),
                ("povray-perspective-area2", "povray", dict(area, camera="perspective"))]
     if args.only:
@@ -112,23 +169,22 @@ def main():
             if label.endswith("-area2"):
                 # a pinhole twice as fine: K/2 samples per pinhole pixel is K per model pixel
                 K = max(1, K // 2)
-            if label == "povray-mesh" and K > 1:
-                results.append(dict(
-                    renderer=label, K=K, status="skipped",
-                    reason=f"{1024 * 1024 * K * K} mesh-camera rays (~{K * K * 0.26:.1f} GB "
-                           "scene file); the mesh camera is run at K = 1 only"))
-                continue
             times, errors, found = [], [], 0
             first = None
             for Rt, q_true in zip(poses, truth, strict=True):
                 t0 = time.perf_counter()
-                res = renderer.render(model, pattern, Rt, RenderSettings(spp=K, options=options))
+                if label == "warp-only":
+                    image = warp_only(renderer, model, pattern, Rt, K)
+                else:
+                    res = renderer.render(model, pattern, Rt,
+                                          RenderSettings(spp=K, options=options))
+                    image = res.image
                 dt = time.perf_counter() - t0
                 if first is None:
                     first = dt
                 else:
                     times.append(dt)
-                det = detect(res.image, target)
+                det = detect(image, target)
                 ok = det.found
                 found += int(ok.sum())
                 errors.append(np.linalg.norm(det.q[ok] - q_true[ok], axis=-1))

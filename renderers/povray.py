@@ -5,7 +5,7 @@ SYNOPSIS
     from renderers.base import get_renderer, RenderSettings
 
     r = get_renderer("povray")                      # camera="perspective" (then the warp)
-    r = get_renderer("povray", camera="mesh")       # one ray per (sub)pixel, exact rays
+    r = get_renderer("povray", camera="mesh")       # exact rays per (sub)pixel
     result = r.render(model, target.pattern(), Rt_cam_board, RenderSettings(spp=4))
     # result.image has shape (model.height, model.width), float32 in [0,1]
 
@@ -30,28 +30,39 @@ Camera paths (option `camera`):
   0.5 - (j+0.5)/H) of the right/up vectors, so the principal point is
   ((W-1)/2, (H-1)/2) in camval's convention; the direction vector is offset
   to put the pinhole's (cx, cy) where it belongs.
-  Supersampling K x K: POV-Ray's non-adaptive anti-aliasing forced on every
-  pixel (+AM1 +A0.0 -J +R n, n <= 9) samples an n x n grid centred on the
-  pixel and averages it with the pixel's centre sample (weights 1/(n^2+1),
-  centre 2/(n^2+1)); K = n b with b > 1 renders b times finer and averages
-  b x b blocks.
-- "mesh": mesh_camera, distribution type 0: one triangle per ray, whose
-  centroid is the ray's origin and whose normal the ray's direction (from
-  model.unproject: exact rays, noncentral CAHVORE included). POV-Ray maps
-  pixel (x, y) to face y W + x after flooring x and y: anti-aliasing would
-  pick neighbouring faces (a half-pixel shift and a blur), so it is never
-  used; K x K supersampling renders the K-times finer image (one face per
-  sub-pixel ray at the sub-pixel centres) and averages K x K blocks.
-  Triangles have unit size around the ray origin and vertices are written
-  with 17 significant digits: POV-Ray computes the face normal from the
-  parsed (double) vertices, so small or rounded triangles tilt the rays.
-  The one-row offset of FINDINGS.md: POV-Ray 3.7.0.10 traces face row j - 1
-  for image row j (columns are right; image row 0 repeats face row 0, the
-  row index being clamped at 0). The adapter probes the offset once per binary (a 2x4 image),
-  renders that many extra rows and drops them; the dot-centroid test pins
-  the result. `mesh2` is written, not mesh{triangle{}}: POV-Ray hashes every
-  vertex of a `mesh` into 1000 buckets (quadratic: 10 minutes for 800k
-  triangles).
+  Supersampling K x K: POV-Ray's anti-aliasing (+AM1 -J +R n, n <= 9)
+  samples an n x n grid centred on the pixel and averages it with the
+  pixel's centre sample (weights 1/(n^2+1), centre 2/(n^2+1)); K = n b with
+  b > 1 renders b times finer and averages b x b blocks. Full sampling
+  (RenderSettings.adaptive False) forces it on every pixel (+A0.0); adaptive
+  lets POV-Ray supersample the pixels that differ from a neighbour by more
+  than PERSPECTIVE_AA_THRESHOLD = 0.01 (+A0.01): 6x faster at K = 4, 19x at
+  K = 16 on the 1024x1024 navcam (it compares pixel centres, so an edge that
+  clips a pixel without changing its centre's colour is missed).
+- "mesh": a smooth mesh_camera (distribution 3), exact rays up to
+  MESH_TOLERANCE. Distribution 3 maps image pixel (I, J) to the uv point
+  (I/W, 1 - J/H) of the mesh (measured; image row 0 is sampled half a row
+  low, so row 0 is left empty), finds the face holding it and starts the ray
+  at that point of the face, along the barycentric interpolation of the
+  face's vertex normals (`smooth`; not normalised before interpolating). The
+  mesh's vertices sit on the model's pixel-corner grid every `step` pixels,
+  at origin + s * n where n is the corner's ray direction scaled to z = 1
+  (the pinhole plane: the interpolation is then exact for a pinhole, and
+  leaves only the distortion's curvature, mesh_interpolation_error; s is a
+  quarter of the board plane's distance), with uv placing each corner in an
+  atlas image. Any block of model pixels can so be rendered at any K x K
+  (fine pixel (a, b) of a block samples the sub-pixel centre
+  (x0 + (a+0.5)/K - 0.5, y0 + (b+0.5)/K - 0.5)); scene files stay small.
+  Adaptive sampling (the default) renders, in one POV-Ray run when the faces
+  fit (MESH_RUN_FACES: distribution 3 finds a sample's face by a linear
+  scan), the whole image at one ray per pixel on a coarse grid, and K x K in
+  the 2x2-pixel cells that an edge of the pattern crosses (edge_pixels),
+  on a grid of the finest step needed (2 or 1 px). The ray caster's images
+  are reproduced (tests: equal at K = 4, full and adaptive, noncentral
+  CAHVORE included).
+  Distribution 0 (one face per ray, used before) needed K^2 triangles per
+  pixel (4 GB of scene file at K = 4 for 1024x1024) and traced face row
+  j - 1 for image row j in POV-Ray 3.7.0.10: the same row-0 clamp.
 
 A missing `povray` binary raises RendererUnavailableError at construction.
 '''
@@ -78,14 +89,20 @@ from .warp import INTERPOLATIONS, PinholeWarp, box_downsample
 CAMERAS = ("perspective", "mesh")
 LAYER_OFFSET = 1e-7
 MAX_AA_DEPTH = 9
+# perspective path with adaptive sampling: POV-Ray supersamples the pixels whose colour
+# differs from a neighbour's by more than this (+AM1 +A0.01); 0 (every pixel) when not adaptive
+PERSPECTIVE_AA_THRESHOLD = 0.01
 # mesh camera: the grid step (px) of its vertices where edges are: the coarsest of
 # MESH_STEPS whose interpolated rays are within MESH_TOLERANCE px of the exact ones
 MESH_TOLERANCE = 1e-4
 MESH_STEPS = (2, 1)
 # elsewhere (pixels that see one material) the coarsest of MESH_COARSE_STEPS within
-# MESH_COARSE_TOLERANCE (edge_pixels leaves them >= 0.5 px from any edge)
-MESH_COARSE_TOLERANCE = 0.05
-MESH_COARSE_STEPS = (64, 32, 16, 8, 4, 2, 1)
+# MESH_COARSE_TOLERANCE (edge_pixels leaves them >= 0.5 px from any edge). A 64-px grid
+# went wrong on the Rocky8 hazcam's CAHVOR (340 pixels far from any edge saw the board
+# where the background is; predicted interpolation error 0.037 px; not explained), 32 and
+# finer gave the ray caster's image: 32 is the coarsest step used.
+MESH_COARSE_TOLERANCE = 0.1
+MESH_COARSE_STEPS = (32, 16, 8, 4, 2, 1)
 # adaptive supersampling in cells of MESH_CELL x MESH_CELL pixels
 MESH_CELL = 2
 # faces per POV-Ray run: distribution 3 finds a sample's face by a linear scan
@@ -513,7 +530,8 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
         return self._version
 
     # --- running POV-Ray ----------------------------------------------------------
-    def _run(self, workdir, scene_text_writer, width, height, aa_depth, threads):
+    def _run(self, workdir, scene_text_writer, width, height, aa_depth, threads,
+             aa_threshold=0.0):
         pov = os.path.join(workdir, "scene.pov")
         png = os.path.join(workdir, "image.png")
         with open(pov, "w") as f:
@@ -521,7 +539,7 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
         cmd = [self.binary, "-D", "-V", "-P", "+FN16", "File_Gamma=1.0", "Output_Alpha=off",
                f"+W{width}", f"+H{height}", "+Oimage.png", "scene.pov"]
         if aa_depth > 1:
-            cmd[1:1] = ["+A0.0", "+AM1", f"+R{aa_depth}", "-J"]
+            cmd[1:1] = [f"+A{float(aa_threshold)!r}", "+AM1", f"+R{aa_depth}", "-J"]
         else:
             cmd[1:1] = ["-A"]
         if threads:
@@ -546,8 +564,13 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
         return img.astype(np.float64) / scale, seconds, os.path.getsize(pov)
 
     # --- the two camera paths -----------------------------------------------------
-    def render_pinhole(self, pinhole, pattern, Rt_cam_board, K, workdir, threads=None):
-        r'''Render the pinhole view (pinhole.height, pinhole.width) with K x K supersampling'''
+    def render_pinhole(self, pinhole, pattern, Rt_cam_board, K, workdir, threads=None,
+                       aa_threshold=0.0):
+        r'''Render the pinhole view (pinhole.height, pinhole.width) with K x K supersampling
+
+aa_threshold > 0: POV-Ray supersamples only the pixels whose colour differs
+from a neighbour's by more than that (its adaptive anti-aliasing, method 1).
+'''
         n, b = split_supersampling(K)
         fine = pinhole.scaled(b)
 
@@ -556,9 +579,10 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
             f.write(perspective_camera(fine))
             f.write(scene_objects(pattern, Rt_cam_board))
 
-        img, seconds, nbytes = self._run(workdir, write, fine.width, fine.height, n, threads)
+        img, seconds, nbytes = self._run(workdir, write, fine.width, fine.height, n, threads,
+                                         aa_threshold)
         return box_downsample(img, b), dict(povray_seconds=seconds, aa_depth=n, finer=b,
-                                            scene_bytes=nbytes)
+                                            aa_threshold=aa_threshold, scene_bytes=nbytes)
 
     def render_mesh(self, model, pattern, Rt_cam_board, K, adaptive, workdir, threads=None):
         r'''Render the model directly through a smooth mesh_camera, K x K per pixel
@@ -649,8 +673,9 @@ MESH_CELL-pixel cells that an edge of the pattern crosses (edge_pixels) at K x K
             else:
                 warp = PinholeWarp.for_model(render_model, scale=float(o["warp_scale"]),
                                          samples=int(o["warp_samples"]))
+                thr = PERSPECTIVE_AA_THRESHOLD if settings.adaptive else 0.0
                 pin_img, info = self.render_pinhole(warp.pinhole, scene, Rt_cam_board, K,
-                                                    workdir, o["threads"])
+                                                    workdir, o["threads"], thr)
                 img = warp.apply(pin_img, o["interpolation"], Rt_cam_board=Rt_cam_board)
                 warp_info = dict(pinhole=warp.pinhole.as_dict(), interpolation=o["interpolation"])
         finally:
