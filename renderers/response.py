@@ -80,8 +80,10 @@ def _number(stage, name, value, lo=None, hi=None, integer=False):
 
 
 def _import_convolution():
-    r'''Import scipy.signal when a convolution stage is configured (seconds under load),
-so that the stage's recorded seconds measure the convolution, not the import'''
+    r'''Import scipy.signal and scipy.ndimage when a convolution stage is configured
+(seconds under load), so that the stage's recorded seconds measure the
+convolution, not the import'''
+    import scipy.ndimage  # noqa: F401
     import scipy.signal  # noqa: F401
 
 
@@ -230,6 +232,7 @@ except what spreads past the sensor's edge.
             s = _number(self.name, "sigma_px", self.cfg["sigma_px"], lo=1e-3, hi=100)
             g = _pixel_gaussian_1d(s)
             self.kernel = np.outer(g, g)
+            self.separable = g
         elif k == "disc":
             r = _number(self.name, "radius_px", self.cfg["radius_px"], lo=1e-3, hi=100)
             self.kernel = _disc_kernel(r)
@@ -243,6 +246,13 @@ except what spreads past the sensor's edge.
                               else {"radius_px": self.cfg["radius_px"]})}
 
     def __call__(self, s, ctx):
+        g = getattr(self, "separable", None)
+        if g is not None and len(g) <= 64:
+            # the Gaussian kernel is an outer product: two 1-D passes, a few times faster
+            # than the 2-D FFT on a 1024x1024 image, the same up to rounding
+            from scipy.ndimage import convolve1d
+            s = convolve1d(np.asarray(s, dtype=np.float64), g, axis=0, mode="constant")
+            return convolve1d(s, g, axis=1, mode="constant")
         return _convolve_same(s, self.kernel)
 
 
