@@ -17,10 +17,21 @@ SYNOPSIS
 The surface is the triangle pair of each grid cell described in
 targets/terrain.py, and a ray's intersection with it is exact (the nearest
 hit, up to float64 rounding): the ray walks a maximum-height pyramid (each
-cell of level k holds the highest node of its 2^k x 2^k cells) from the top
-level down, skipping every cell the ray passes above, and at level 0 solves
-the ray against the two triangle planes of the cell, keeping a hit inside the
-triangle.
+cell of level k holds the highest node of its 2^k x 2^k cells), skipping every
+cell the ray passes above, going down a level where it does not and up a
+level when it enters a new parent cell, and at level 0 solves the ray against
+the two triangle planes of the cell, keeping a hit inside the triangle. The
+walk may start at any level without changing the hit; a pixel ray starts at
+the level where the previous ray of its run first passed a cell (neighbouring
+rays descend alike), instead of descending from the top every time.
+
+A shadow ray needs any hit, not the nearest, and most are lit: it stops as
+soon as it is above the sun bound of the cell it is in. The bound of a cell is
+the highest cell of the strip it sweeps towards the sun less the rise of the
+ray on the way there (_sun_bound), so a ray above it can meet no cell; it is
+made once per terrain (and sun), kept with the pyramid, and a pyramid of it
+lets the test run at every level. Lit shadow rays end after 1-2 cells instead
+of climbing ~8 cells out of the height range.
 
 Shading is Lambertian: radiance = exposure * albedo * (ambient + cos i * lit),
 i the angle between the triangle's normal and the sun, lit = 0 when the shadow
@@ -34,6 +45,12 @@ per pixel (spp = K); they are computed once per (model, K) and cached (with
 the compiled unprojection of renderers._raycast_kernels when available). The
 image is the mean over the subpixels; range and shadow are those of the
 pixel-centre ray.
+
+Speed (benchmarks/bench_terrain.py): a warm 1024x1024 render with shadows,
+MER hazcam over a 21 x 24 m terrain of 5 cm cells, costs ~0.17 CPU s (0.09 s
+wall on 2 free cores); a new process pays the pixel rays once per (model, K)
+(~0.45 s for CAHVORE) and the pyramid and sun bound once per terrain (~0.07 s);
+the kernels load from numba's cache.
 '''
 
 import math

@@ -318,3 +318,20 @@ def test_sun_bound_is_above_every_ray_towards_the_sun(azimuth):
         assert np.all(need <= V + 1e-9)
     # and far below the trivial bound (the highest node) for most cells
     assert np.median(V - mmax) < 0.3 * (ter.heights.max() - np.median(mmax))
+
+
+def test_hits_do_not_depend_on_the_order_of_rays():
+    # a ray starts its walk where the previous ray of its run first passed a cell; any
+    # start level must give the same hit, so shuffling the rays changes nothing
+    m = forward_camera(20.0, 50.0, 80, 60)
+    ter = small_terrain(5, sun=Sun(azimuth_deg=200.0, elevation_deg=15.0))
+    from renderers.raycast_terrain import pixel_rays
+    o, v = pixel_rays(m, 1)
+    o, v = o.reshape(-1, 3), v.reshape(-1, 3)
+    Rt = ground_pose(0.4)
+    value, t, code = trace_rays(ter, o, v, Rt_ref_terrain=Rt)
+    assert 0.3 < np.mean(np.isfinite(t)) < 1 and np.sum(code == 2) > 20
+    perm = np.random.default_rng(0).permutation(len(o))
+    value2, t2, code2 = trace_rays(ter, o[perm], v[perm], Rt_ref_terrain=Rt)
+    assert np.array_equal(t2, t[perm], equal_nan=True)
+    assert np.array_equal(code2, code[perm]) and np.array_equal(value2, value[perm])
