@@ -7,6 +7,7 @@ board (its planner failure is a record).
 '''
 
 import contextlib
+import copy
 import json
 import os
 import subprocess
@@ -245,7 +246,7 @@ def test_noisy_records_differ_from_clean_and_list_their_stages(first_run, respon
     assert noisy["status"] == "ok" and noisy["settings"]["response"] == "noisy"
     # the clean job is the one of a campaign without profiles, apart from the profile's name
     assert clean["response"]["profile"] == "clean" and clean["response"]["stages"] == []
-    before = without_timings(clean_doc["records"][OK])
+    before = copy.deepcopy(without_timings(clean_doc["records"][OK]))
     assert before["response"]["profile"] == ""
     before["response"]["profile"] = "clean"
     assert without_timings(clean) == before
