@@ -67,6 +67,8 @@ NAME = "raycast_terrain"
 SKY = 255
 _RAY_CACHE = {}
 _RAY_CACHE_SIZE = 4
+# columns of the sunward strip examined per cell for the sun bound (_sun_bound)
+SUN_BOUND_COLUMNS = 48
 
 
 class TerrainRenderError(CamvalError):
@@ -212,15 +214,19 @@ reaches a cell m' of the strip only after travelling at least r = p(m') -
 pmax(m) cells (p: the coordinate along (sx, sy); p(m'): the lowest p of the
 strip within m''s column, or m''s own lowest p), where it has risen k r. So V(m) = max over the
 strip's cells of mmax(m') - k max(0, r) bounds what a ray from m can meet.
+Beyond SUN_BOUND_COLUMNS columns (a low sun over a large relief) the rest of
+the strip counts as the highest node: looser, still a bound, and the cost
+stays below ~3 * SUN_BOUND_COLUMNS cells per cell.
 """
     if abs(sx) >= abs(sy):
-        return _sun_bound_columns(mmax, sx, sy, k, zhi)
+        return _sun_bound_columns(mmax, sx, sy, k, zhi, SUN_BOUND_COLUMNS)
     # the same with x and y swapped
-    return np.ascontiguousarray(_sun_bound_columns(np.ascontiguousarray(mmax.T), sy, sx, k, zhi).T)
+    return np.ascontiguousarray(
+        _sun_bound_columns(np.ascontiguousarray(mmax.T), sy, sx, k, zhi, SUN_BOUND_COLUMNS).T)
 
 
 @njit(parallel=True, cache=True)
-def _sun_bound_columns(mmax, sx, sy, k, zhi):
+def _sun_bound_columns(mmax, sx, sy, k, zhi, max_columns):
     r"""_sun_bound for |sx| >= |sy|: the strip is walked column by column"""
     ny, nx = mmax.shape
     out = np.empty((ny, nx))
@@ -252,6 +258,11 @@ def _sun_bound_columns(mmax, sx, sy, k, zhi):
                 pd = (ii + 1 + lm1 * sy) * isx
                 reach = max(0.0, min(pa, pb, pc, pd) - marg - pm1)
                 if zhi - k * reach <= v:
+                    break
+                if abs(ii - i) >= max_columns:
+                    # the rest of the strip (a long way under a low sun): bounded by
+                    # the highest node, risen to from here
+                    v = max(v, zhi - k * reach)
                     break
                 j0 = max(int(math.floor(min(ya, yb, yc, yd) - marg)), 0)
                 j1 = min(int(math.floor(max(ya, yb, yc, yd) + marg)), ny - 1)
@@ -587,10 +598,10 @@ vpyr empty without shadows.
     if cached is None or cached[0] != id(terrain):
         zlo, zhi = float(terrain.heights.min()), float(terrain.heights.max())
         tol = 1e-9 * max(1.0, zhi - zlo, terrain.cell)
-        mmax = _cell_maxima(terrain.heights)
-        cached = (id(terrain), mmax, _walk_pyramid(mmax, tol) + (zlo, zhi, tol), {})
+        walk = _walk_pyramid(_cell_maxima(terrain.heights), tol) + (zlo, zhi, tol)
+        cached = (id(terrain), walk, {})
         object.__setattr__(terrain, "_raycast_walk", cached)
-    _, mmax, walk, bound = cached
+    _, walk, bound = cached
     if not shadows:
         return walk + (np.empty(0),)
     if "vpyr" not in bound:
@@ -600,7 +611,7 @@ vpyr empty without shadows.
         if horizontal < 1e-12:
             bound["vpyr"] = walk[0]     # the sun at the zenith: only the cell itself shades
         else:
-            V = _sun_bound(mmax, sun[0] / horizontal, sun[1] / horizontal,
+            V = _sun_bound(_cell_maxima(terrain.heights), sun[0] / horizontal, sun[1] / horizontal,
                            sun[2] / horizontal * terrain.cell, zhi)
             bound["vpyr"] = _walk_pyramid(V, tol)[0]
     return walk + (bound["vpyr"],)
