@@ -127,7 +127,8 @@ def _html_figure(f):
 
 def _md_figure(f, out):
     rel = Path(f.path).relative_to(out)
-    return [f"### {f.title}", "", f"![{f.title}]({rel.as_posix()})", "", f.caption, ""]
+    alt = f.title.replace("[", "(").replace("]", ")")   # brackets would end the alt text
+    return [f"### {f.title}", "", f"![{alt}]({rel.as_posix()})", "", f.caption, ""]
 
 
 def is_sweep(doc):

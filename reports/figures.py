@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .tables import render_variant, render_variants
+
 FAMILY_COLOURS = {"CAHV": "tab:blue", "CAHVOR": "tab:orange", "CAHVORE": "tab:green"}
 FAMILY_OFFSET = {"CAHV": -0.22, "CAHVOR": 0.0, "CAHVORE": 0.22}
 
@@ -48,10 +50,17 @@ def camera_order(records):
 
 
 def calibrator_panels(records):
-    r'''[(calibrator, calibrator_model label), ...] that have ok records, in a stable order'''
-    out = sorted({(r["calibrator"], _calmodel(r)) for r in records.values()
-                  if r["status"] == "ok"})
+    r'''[(calibrator, calibrator_model label, render variant), ...] that have ok records,
+in a stable order; the variant (tables.render_variant) is "" when the run has only one,
+so that records of different renderers, K or response profiles never share a panel'''
+    several = len(render_variants(records)) > 1
+    out = sorted({(r["calibrator"], _calmodel(r), render_variant(r) if several else "")
+                  for r in records.values() if r["status"] == "ok"})
     return out
+
+
+def _panel_title(cal, cm, variant):
+    return cal + ("" if cm == "family" else f" [{cm}]") + (f" on {variant}" if variant else "")
 
 
 def _calmodel(r):
@@ -59,9 +68,10 @@ def _calmodel(r):
     return "family" if m == r["model"] else m
 
 
-def _panel_records(records, cal, calmodel):
+def _panel_records(records, cal, calmodel, variant=""):
     return [r for r in records.values()
-            if r["status"] == "ok" and r["calibrator"] == cal and _calmodel(r) == calmodel]
+            if r["status"] == "ok" and r["calibrator"] == cal and _calmodel(r) == calmodel
+            and (not variant or render_variant(r) == variant)]
 
 
 def _param(r, name):
@@ -77,8 +87,8 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
     cams = camera_order(records)
     xpos = {c: i for i, c in enumerate(cams)}
     rows = []
-    for cal, cm in panels:
-        recs = _panel_records(records, cal, cm)
+    for cal, cm, variant in panels:
+        recs = _panel_records(records, cal, cm, variant)
         pts = []
         for r in recs:
             for label, marker, get in series:
@@ -92,13 +102,13 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
                 pts.append((xpos[r["camera"]] + FAMILY_OFFSET.get(r["model"], 0), v,
                             r["model"], label, marker))
         if pts:
-            rows.append((cal, cm, pts))
+            rows.append((_panel_title(cal, cm, variant), pts))
     if not rows:
         return None
     plt = _plt()
     fig, axes = plt.subplots(len(rows), 1, figsize=(max(7.0, 0.38 * len(cams) + 3), 2.6 *
                                                     len(rows) + 0.6), squeeze=False)
-    for ax, (cal, cm, pts) in zip(axes[:, 0], rows, strict=True):
+    for ax, (panel_title, pts) in zip(axes[:, 0], rows, strict=True):
         groups = {}
         for x, v, fam, label, marker in pts:
             groups.setdefault((fam, label, marker), []).append((x, v))
@@ -109,7 +119,7 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
                     label=f"{fam} {label}".strip())
         for value, label in paper:
             ax.axhline(value, color="tab:red", ls="--", lw=0.8, label=f"paper: {label}")
-        ax.set_title(f"{cal}" + ("" if cm == "family" else f" [{cm}]"), fontsize=9)
+        ax.set_title(panel_title, fontsize=9)
         ax.set_ylabel(ylabel, fontsize=8)
         ax.set_xticks(range(len(cams)))
         ax.set_xticklabels(cams, fontsize=7, rotation=90 if len(cams) > 30 else 0)
@@ -235,8 +245,8 @@ def fig_maps(records, run_dir, out, limit=72):
     figs = []
     panels = calibrator_panels(records)
     order = {c: i for i, c in enumerate(camera_order(records))}
-    for cal, cm in panels:
-        recs = [r for r in _panel_records(records, cal, cm)
+    for cal, cm, variant in panels:
+        recs = [r for r in _panel_records(records, cal, cm, variant)
                 if (r.get("artifacts") or {}).get("map")
                 and (Path(run_dir) / r["artifacts"]["map"]).is_file()]
         recs.sort(key=lambda r: (order[r["camera"]], r["model"], r["fullname"]))
@@ -258,11 +268,12 @@ def fig_maps(records, run_dir, out, limit=72):
             setting = f" {r['renderer']} K{r['settings'].get('spp')}" if several else ""
             ax.set_title(f"{r['camera']} {r['model']}{setting}\nmax {vmax:.2g} px", fontsize=7)
             fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=5)
-        label = cal + ("" if cm == "family" else f" [{cm}]")
+        label = _panel_title(cal, cm, variant)
         more = f" (first {limit} of {len(recs)})" if len(recs) > limit else ""
         fig.suptitle(f"Projection difference |fit - truth| (px), {label}{more}", fontsize=9)
         fig.tight_layout()
-        key = f"maps_{cal}" + ("" if cm == "family" else f"_{cm}")
+        key = f"maps_{cal}" + ("" if cm == "family" else f"_{cm}") + (
+            "_" + "".join(c if c.isalnum() else "_" for c in variant) if variant else "")
         path = Path(out) / f"{key}.png"
         fig.savefig(path, dpi=80)
         plt.close(fig)

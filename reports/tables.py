@@ -92,11 +92,28 @@ def _cal_label(r):
     return r["calibrator"] if m == r["model"] else f"{r['calibrator']}[{m}]"
 
 
+def render_variant(r):
+    r'''The renderer and its settings of a record, as its fullname writes them
+(e.g. "raycast[spp=16,adaptive,response=realistic]")'''
+    from harness.records import settings_label
+    return f"{r['renderer']}[{settings_label(r.get('settings') or {})}]"
+
+
+def render_variants(records):
+    r'''The distinct render variants of a run's records, sorted'''
+    return sorted({render_variant(r) for r in records.values()})
+
+
 def summary_tables(records):
-    r'''One Table per calibrator (and named model): paper | CAHV | CAHVOR | CAHVORE'''
+    r'''One Table per calibrator (and named model): paper | CAHV | CAHVOR | CAHVORE
+
+A run with several render variants (renderers, K, response profiles) gets one table
+per calibrator and variant: their statistics are not pooled.'''
+    several = len(render_variants(records)) > 1
     by_cal = {}
     for r in records.values():
-        by_cal.setdefault(_cal_label(r), []).append(r)
+        label = _cal_label(r) + (f" on {render_variant(r)}" if several else "")
+        by_cal.setdefault(label, []).append(r)
     tables = []
     for cal in sorted(by_cal):
         recs = by_cal[cal]

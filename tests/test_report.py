@@ -27,7 +27,13 @@ from reference_models.cahvore import truncate
 from reference_models.catalogue import load_catalogue
 from renderers.legacy import legacy_model
 from reports.build import build_report, build_sweep_report, find_sweeps
-from reports.figures import fig_speed, pareto_front, speed_accuracy_points, speed_series
+from reports.figures import (
+    calibrator_panels,
+    fig_speed,
+    pareto_front,
+    speed_accuracy_points,
+    speed_series,
+)
 from reports.tables import legacy_signature_rows, render_mode, round_half, summary_tables
 from targets.boards import load_target
 from targets.poses import plan_poses
@@ -114,17 +120,28 @@ def test_compare_stage_agrees_with_harness_compare():
 def test_tables_and_speed_points(run_dir):
     from harness.records import load_run
     records = load_run(run_dir)["records"]
-    (t,) = summary_tables(records)
-    assert t.title == "Calibrator jpl"
-    assert t.header[:3] == ("quantity", "unit", "paper (ROAMS)")
-    assert t.header[3:] == ("CAHV (4 ok)", "CAHVOR (4 ok)", "CAHVORE (0 ok)")
-    rows = {r[0]: r for r in t.rows}
-    assert rows["worst residual"][2] == "0.14"
-    # exact correspondences: the fit is exact, residuals tiny
-    assert float(rows["worst residual"][3]) < 1e-6
-    assert float(rows["projection difference RMS, median"][4]) == pytest.approx(
-        (3e-3 + 1e-3) / 2, rel=1e-3)
-    assert "1 failed" in t.note and "1 not-applicable" in t.note
+    # two render settings: one table each, never pooled
+    t16, t4 = summary_tables(records)
+    assert t4.title == "Calibrator jpl on raycast[spp=4,adaptive]"
+    assert t16.title == "Calibrator jpl on raycast[spp=16,adaptive]"
+    for t, noise in ((t4, 3e-3), (t16, 1e-3)):
+        assert t.header[:3] == ("quantity", "unit", "paper (ROAMS)")
+        rows = {r[0]: r for r in t.rows}
+        assert rows["worst residual"][2] == "0.14"
+        # exact correspondences: the fit is exact, residuals tiny
+        assert float(rows["worst residual"][3]) < 1e-6
+        assert float(rows["projection difference RMS, median"][4]) == pytest.approx(
+            noise, rel=1e-3)
+    assert t4.header[3:] == ("CAHV (2 ok)", "CAHVOR (2 ok)", "CAHVORE (0 ok)")
+    assert t16.header[3:] == ("CAHV (2 ok)", "CAHVOR (2 ok)")
+    assert "1 failed" in t4.note and "1 not-applicable" in t4.note
+    assert t16.note == "4 ok"
+    # the per-camera figures get one panel per calibrator and setting
+    panels = calibrator_panels(records)
+    assert panels == [("jpl", "family", "raycast[spp=16,adaptive]"),
+                      ("jpl", "family", "raycast[spp=4,adaptive]")]
+    one = {k: r for k, r in records.items() if r["settings"]["spp"] == 4}
+    assert calibrator_panels(one) == [("jpl", "family", "")]
     pts = speed_accuracy_points(records)
     assert [(p[0], p[1]) for p in pts] == [("raycast[spp=16,adaptive]", "jpl"),
                                            ("raycast[spp=4,adaptive]", "jpl")]
@@ -141,8 +158,11 @@ def test_report_files(run_dir):
     names = sorted(Path(p).name for p in paths["figures"])
     for key in ("fig03_residuals", "fig04_center", "fig06_focal", "fig_theta", "fig07_C",
                 "fig08_A", "fig09_O", "fig10_R_abs", "fig11_R_frac", "fig_projection",
-                "maps_jpl", "speed_accuracy"):
+                "speed_accuracy"):
         assert f"{key}.png" in names
+    # one map figure per render setting
+    assert "maps_jpl_raycast_spp_4_adaptive_.png" in names
+    assert "maps_jpl_raycast_spp_16_adaptive_.png" in names
     for p in paths["figures"]:
         assert Path(p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert html.count("<img ") == len(names)
