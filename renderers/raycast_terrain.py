@@ -285,7 +285,7 @@ def _trace(ox, oy, oz, dx, dy, dz, tmin, tmax, h, x0, y0, cell,
            pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, start_level, any_hit, vpyr):
     r"""Nearest hit of one ray with the height field: (t, i, j, triangle, level)
 
-(inf, -1, -1, -1, level) if the ray misses. level: the level of the first cell
+(inf, -1, -1, -1, -1) if the ray misses. level: the level of the first cell
 the ray passed over (-1 if none), a good start_level for a neighbouring ray.
 
 The ray walks the pyramid of _walk_pyramid (cell maxima + tol) in grid units.
