@@ -385,10 +385,46 @@ def _get_refine_kernel():
             g += (dw if u >= 0.0 else -dw) * row[j]
         return v, g
 
+    @njit(cache=True)
+    def solve(A, b, n, x):
+        # Gaussian elimination with partial pivoting on the leading n x n block;
+        # False if singular (A and b are overwritten)
+        scale = 0.0
+        for i in range(n):
+            scale = max(scale, abs(A[i, i]))
+        for c in range(n):
+            piv = c
+            for r in range(c + 1, n):
+                if abs(A[r, c]) > abs(A[piv, c]):
+                    piv = r
+            if not abs(A[piv, c]) > 1e-12 * scale:
+                return False
+            if piv != c:
+                for k in range(n):
+                    A[c, k], A[piv, k] = A[piv, k], A[c, k]
+                b[c], b[piv] = b[piv], b[c]
+            for r in range(c + 1, n):
+                f = A[r, c] / A[c, c]
+                for k in range(c, n):
+                    A[r, k] -= f * A[c, k]
+                b[r] -= f * b[c]
+        for c in range(n - 1, -1, -1):
+            s = b[c]
+            for k in range(c + 1, n):
+                s -= A[c, k] * x[k]
+            x[c] = s / A[c, c]
+        return True
+
     @njit(parallel=True, cache=True)
-    def kernel(L, R, d0, radius, max_iter, tol, max_step, min_texture, out, status):
+    def kernel(L, R, d0, radius, max_iter, tol, max_step, min_texture, nparams, out, status,
+               gain):
         Hh, W = L.shape
         for y in prange(Hh):
+            A = np.empty((5, 5))
+            bb = np.empty(5)
+            J = np.empty(5)
+            p = np.empty(5)
+            step = np.empty(5)
             for x in range(W):
                 out[y, x] = np.nan
                 if not np.isfinite(d0[y, x]):
@@ -397,74 +433,71 @@ def _get_refine_kernel():
                 if y < radius or y + radius >= Hh or x < radius or x + radius >= W:
                     status[y, x] = 4
                     continue
-                d = d0[y, x]
-                a = 0.0          # dd/drow
-                b = 0.0          # dd/dcol
+                # d, dd/drow, dd/dcol, gain, offset: L ~ gain R(x - d(.)) + offset
+                p[0] = d0[y, x]
+                p[1] = 0.0
+                p[2] = 0.0
+                p[3] = 1.0
+                p[4] = 0.0
                 st = 2
                 for _ in range(max_iter):
-                    # normal equations of the Gauss-Newton step in (d, a, b)
-                    s00 = s01 = s02 = s11 = s12 = s22 = 0.0
-                    r0 = r1 = r2 = 0.0
+                    A[:, :] = 0.0
+                    bb[:] = 0.0
+                    sgg = 0.0
                     for dy in range(-radius, radius + 1):
                         rowR = R[y + dy]
                         for dx in range(-radius, radius + 1):
-                            xs = x + dx - (d + a * dy + b * dx)
+                            xs = x + dx - (p[0] + p[1] * dy + p[2] * dx)
                             if xs < 0.0 or xs > W - 1.0:
                                 continue
                             rv, rg = cubic(rowR, W, xs)
-                            e = L[y + dy, x + dx] - rv
-                            # d(R(xs))/d(d) = -rg
-                            j0 = -rg
-                            j1 = j0 * dy
-                            j2 = j0 * dx
-                            s00 += j0 * j0
-                            s01 += j0 * j1
-                            s02 += j0 * j2
-                            s11 += j1 * j1
-                            s12 += j1 * j2
-                            s22 += j2 * j2
-                            r0 += j0 * e
-                            r1 += j1 * e
-                            r2 += j2 * e
-                    n = (2 * radius + 1) ** 2
-                    if s00 < min_texture * n:
+                            e = L[y + dy, x + dx] - (p[3] * rv + p[4])
+                            J[0] = -p[3] * rg
+                            J[1] = J[0] * dy
+                            J[2] = J[0] * dx
+                            J[3] = rv
+                            J[4] = 1.0
+                            sgg += rg * rg
+                            for i in range(nparams):
+                                bb[i] += J[i] * e
+                                for k in range(i, nparams):
+                                    A[i, k] += J[i] * J[k]
+                    if sgg < min_texture * (2 * radius + 1) ** 2:
                         st = 3
                         break
-                    # solve the symmetric 3x3 system by Cramer's rule
-                    c00 = s11 * s22 - s12 * s12
-                    c01 = s02 * s12 - s01 * s22
-                    c02 = s01 * s12 - s02 * s11
-                    det = s00 * c00 + s01 * c01 + s02 * c02
-                    if not det > 1e-12 * s00 * s11 * s22:
+                    for i in range(nparams):
+                        for k in range(i):
+                            A[i, k] = A[k, i]
+                    # e = L - model; model(p + step) ~ model + J step: J step = e
+                    if not solve(A, bb, nparams, step):
                         st = 3
                         break
-                    c11 = s00 * s22 - s02 * s02
-                    c12 = s01 * s02 - s00 * s12
-                    c22 = s00 * s11 - s01 * s01
-                    step0 = (c00 * r0 + c01 * r1 + c02 * r2) / det
-                    step1 = (c01 * r0 + c11 * r1 + c12 * r2) / det
-                    step2 = (c02 * r0 + c12 * r1 + c22 * r2) / det
-                    # e = L - R(xs); R(xs + delta) ~ R + J delta: the step solves J delta = e
-                    d += step0
-                    a += step1
-                    b += step2
-                    if abs(d - d0[y, x]) > max_step or abs(a) > 1.0 or abs(b) > 1.0:
+                    for i in range(nparams):
+                        p[i] += step[i]
+                    if (abs(p[0] - d0[y, x]) > max_step or abs(p[1]) > 1.0
+                            or abs(p[2]) > 1.0 or not p[3] > 0.1):
                         st = 2
                         break
-                    if abs(step0) < tol:
+                    if abs(step[0]) < tol:
                         st = 1
                         break
+                else:
+                    # out of steps: a fit still moving by < 10 tol (noise makes
+                    # Gauss-Newton circle its optimum) is as good as converged
+                    if abs(step[0]) < 10.0 * tol:
+                        st = 1
                 status[y, x] = st
+                gain[y, x] = p[3]
                 if st == 1:
-                    out[y, x] = d
+                    out[y, x] = p[0]
         return out
 
     _refine_kernel = kernel
     return kernel
 
 
-def refine_disparity(left, right, disparity, radius=4, max_iter=15, tol=1e-3, max_step=None,
-                     min_texture=1e-8):
+def refine_disparity(left, right, disparity, radius=4, photometric="auto", max_iter=20,
+                     tol=1e-3, max_step=None, min_texture=1e-8):
     r'''Subpixel disparities by a slanted-window Lucas-Kanade fit on a rectified pair
 
 SYNOPSIS
@@ -491,7 +524,16 @@ correspond exactly, so the interpolation is 1-D). The window's slant is part
 of the model, so texture concentrated in part of the window does not pull the
 estimate towards that part's disparity. A pixel is dropped (NaN) when the fit
 moves more than max_step px from d0 (default: 2 px), tilts by more than 1 px
-per px, finds no texture, or does not converge to tol px in max_iter steps.
+per px, finds no texture, or its last step is still above 10 tol px after
+max_iter steps (noise makes Gauss-Newton circle the optimum by ~tol).
+
+photometric: False fits (d, a, b) only; True also a gain and an offset of the
+right image (L ~ gain R + offset); "auto" (default) fits (d, a, b) and gives
+the pixels it lost a second try with gain and offset. Measured on the MER
+hazcams at 5 m (1024x1024, median |range error|): geometric only 0.78% on
+clean images but 4.9% (27% valid) under cos^4 vignetting, which makes the
+same point 5% brighter in one camera than in the other; gain and offset
+everywhere 0.91% and 0.80%; "auto" 0.81% and 1.7%.
 Images should be low-pass filtered first (run_stereo_check does: the
 resampling of the raw images into the rectified grid is not the same in the
 two cameras near the Nyquist frequency).
@@ -504,17 +546,30 @@ two cameras near the Nyquist frequency).
                           f"{L.shape}, {R.shape}, {d0.shape}")
     if isinstance(radius, bool) or not isinstance(radius, int) or radius < 1:
         raise StereoError(f"refinement window radius must be an integer >= 1; got {radius!r}")
+    if photometric not in (True, False, "auto"):
+        raise StereoError(f"photometric must be True, False or 'auto'; got {photometric!r}")
     kernel = _get_refine_kernel()
     out = np.empty_like(d0)
     status = np.empty(d0.shape, np.uint8)
-    kernel(L, R, d0, int(radius), int(max_iter), float(tol),
-           float(2.0 if max_step is None else max_step), float(min_texture), out, status)
+    args = (int(radius), int(max_iter), float(tol), float(2.0 if max_step is None else max_step),
+            float(min_texture))
+    gain = np.ones_like(d0)
+    kernel(L, R, d0, *args, 5 if photometric is True else 3, out, status, gain)
+    if photometric == "auto":
+        # the pixels the geometric fit lost get a second try with gain and offset
+        again = (status == REFINE_DIVERGED) | (status == REFINE_FLAT)
+        if again.any():
+            out5 = np.empty_like(d0)
+            status5 = np.empty(d0.shape, np.uint8)
+            kernel(L, R, np.where(again, d0, np.nan), *args, 5, out5, status5, gain)
+            out = np.where(again, out5, out)
+            status = np.where(again, status5, status).astype(np.uint8)
     return out, status
 
 
 def run_stereo_check(setup, variants=None, spp=2, render_model="true", block_size=5,
-                     oversample=1.5, refine=True, refine_radius=4, prefilter_px=0.8, seed=0,
-                     progress=None):
+                     oversample=1.5, refine=True, refine_radius=4, prefilter_px=0.8,
+                     photometric="auto", seed=0, progress=None):
     r'''Render, rectify, match, triangulate and compare, for each response variant
 
 SYNOPSIS
@@ -535,6 +590,8 @@ refine:   fit subpixel disparities with refine_disparity (radius refine_radius)
           starting at SGBM's; False keeps SGBM's 1/16 px disparities
 prefilter_px: std (in raw pixels) of the Gaussian low-pass applied to both
           rectified images before the refinement (0: none)
+photometric: refine_disparity's photometric ("auto", True: fit a gain and
+          offset everywhere, False)
 block_size: StereoSGBM's block size (px)
 render_model: "true" (the catalogue models; the rectification is then off by
           their skew and CAHVORE pupil shift) or "rectifiable" (render with the
@@ -619,7 +676,8 @@ them and in the band of true ranges within +-10% of setup.look_range_m.
         if refine:
             if sigma_rect > 0:
                 rect = [cv2.GaussianBlur(im, (0, 0), sigma_rect) for im in rect]
-            d, status = refine_disparity(rect[0], rect[1], d_sgbm, radius=refine_radius)
+            d, status = refine_disparity(rect[0], rect[1], d_sgbm, radius=refine_radius,
+                                         photometric=photometric)
         else:
             d, status = d_sgbm, None
         t_refine = time.perf_counter() - t0
@@ -645,7 +703,7 @@ them and in the band of true ranges within +-10% of setup.look_range_m.
                           setup.right.photogrammetric().theta_deg],
             "baseline_m": baseline, "pixels_per_deg": px_per_rad * math.pi / 180.0,
             "oversample": oversample, "refine": bool(refine), "refine_radius": refine_radius,
-            "prefilter_px": prefilter_px,
+            "prefilter_px": prefilter_px, "photometric": photometric,
             "num_disparities": int(16 * math.ceil(max_disp / 16)), "block_size": block_size,
             "camera_height_m": setup.camera_height_m, "pitch_deg": setup.pitch_deg,
             "look_range_m": setup.look_range_m, "seconds": tm,
