@@ -67,6 +67,7 @@ NAME = "raycast_terrain"
 SKY = 255
 _RAY_CACHE = {}
 _RAY_CACHE_SIZE = 4
+_RAY_CACHE_BYTES = 1 << 30
 # columns of the sunward strip examined per cell for the sun bound (_sun_bound)
 SUN_BOUND_COLUMNS = 48
 
@@ -687,11 +688,14 @@ SYNOPSIS
     # origins, v have shape (H*W, K*K, 3) in the model's frame; |v| = 1
 
 Subpixel points are at offsets (k + 1/2)/K - 1/2 (k = 0..K-1) from the pixel
-centre (reference_models.conventions). Cached per (model, K).
+centre (reference_models.conventions). Cached per (model, K): at most
+_RAY_CACHE_SIZE cameras and _RAY_CACHE_BYTES of rays, least recently used
+dropped first.
 '''
     key = (repr(model), int(spp))
-    hit = _RAY_CACHE.get(key)
+    hit = _RAY_CACHE.pop(key, None)
     if hit is not None:
+        _RAY_CACHE[key] = hit           # the most recently used goes last
         return hit
     W, Hh = model.width, model.height
     off = (np.arange(spp) + 0.5) / spp - 0.5
@@ -702,7 +706,11 @@ centre (reference_models.conventions). Cached per (model, K).
     origins, v = _unproject(model, q)
     origins = np.ascontiguousarray(origins)
     v = np.ascontiguousarray(v)
-    if len(_RAY_CACHE) >= _RAY_CACHE_SIZE:
+    # keep at most _RAY_CACHE_SIZE entries and _RAY_CACHE_BYTES (a 1024x1024 camera at
+    # K = 4 holds 0.8 GB of rays), dropping the least recently used first
+    size = origins.nbytes + v.nbytes
+    while _RAY_CACHE and (len(_RAY_CACHE) >= _RAY_CACHE_SIZE or size + sum(
+            a.nbytes + b.nbytes for a, b in _RAY_CACHE.values()) > _RAY_CACHE_BYTES):
         _RAY_CACHE.pop(next(iter(_RAY_CACHE)))
     _RAY_CACHE[key] = (origins, v)
     return origins, v

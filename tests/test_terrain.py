@@ -340,3 +340,17 @@ def test_hits_do_not_depend_on_the_order_of_rays():
     value2, t2, code2 = trace_rays(ter, o[perm], v[perm], Rt_ref_terrain=Rt)
     assert np.array_equal(t2, t[perm], equal_nan=True)
     assert np.array_equal(code2, code[perm]) and np.array_equal(value2, value[perm])
+
+
+def test_pixel_rays_are_cached_within_a_byte_budget(monkeypatch):
+    from renderers import raycast_terrain
+    from renderers.raycast_terrain import pixel_rays
+    monkeypatch.setattr(raycast_terrain, "_RAY_CACHE", {})
+    a, b = forward_camera(20.0, 50.0, 40, 30), forward_camera(25.0, 50.0, 40, 30)
+    ra = pixel_rays(a, 2)
+    assert pixel_rays(a, 2)[0] is ra[0]                 # computed once
+    assert ra[0].shape == (1200, 4, 3) and np.allclose(np.linalg.norm(ra[1], axis=-1), 1)
+    # a budget of one camera's rays: b's rays push a's out
+    monkeypatch.setattr(raycast_terrain, "_RAY_CACHE_BYTES", ra[0].nbytes + ra[1].nbytes)
+    pixel_rays(b, 2)
+    assert len(raycast_terrain._RAY_CACHE) == 1 and pixel_rays(a, 2)[0] is not ra[0]
