@@ -39,27 +39,31 @@ Camera paths (option `camera`):
   than PERSPECTIVE_AA_THRESHOLD = 0.01 (+A0.01): 6x faster at K = 4, 19x at
   K = 16 on the 1024x1024 navcam (it compares pixel centres, so an edge that
   clips a pixel without changing its centre's colour is missed).
-- "mesh": a smooth mesh_camera (distribution 3), exact rays up to
-  MESH_TOLERANCE. Distribution 3 maps image pixel (I, J) to the uv point
-  (I/W, 1 - J/H) of the mesh (measured; image row 0 is sampled half a row
-  low, so row 0 is left empty), finds the face holding it and starts the ray
-  at that point of the face, along the barycentric interpolation of the
-  face's vertex normals (`smooth`; not normalised before interpolating). The
-  mesh's vertices sit on the model's pixel-corner grid every `step` pixels,
-  at origin + s * n where n is the corner's ray direction scaled to z = 1
-  (the pinhole plane: the interpolation is then exact for a pinhole, and
-  leaves only the distortion's curvature, mesh_interpolation_error; s is a
-  quarter of the board plane's distance), with uv placing each corner in an
-  atlas image. Any block of model pixels can so be rendered at any K x K
-  (fine pixel (a, b) of a block samples the sub-pixel centre
+- "mesh": a smooth mesh_camera (distribution 3), the model's rays up to
+  MESH_TOLERANCE = 0.001 px. Distribution 3 maps image pixel (I, J) to the
+  uv point (I/W, 1 - J/H) of the mesh (measured; image row 0 is sampled half
+  a row low, so row 0 is left empty), finds the face holding it and starts
+  the ray at that point of the face, along the barycentric mix of the face's
+  vertex normals (`smooth`), which POV-Ray normalises when it parses them
+  and again after mixing (measured). The mesh's vertices sit on the model's
+  pixel-corner grid every `step` pixels, at origin + s * v for the corner's
+  unit ray direction v (so a ray starts on the interpolated ray through the
+  interpolated origin; s is a quarter of the board plane's distance), with
+  v as normal and uv placing each corner in an atlas image. The mix of unit
+  vectors departs from the exact ray by mesh_interpolation_error (quadratic
+  in the step: 0.0008 px at 2 px, 0.05 px at 16 px on the MER B navcam).
+  Any block of model pixels can so be rendered at any K x K (fine pixel
+  (a, b) of a block samples the sub-pixel centre
   (x0 + (a+0.5)/K - 0.5, y0 + (b+0.5)/K - 0.5)); scene files stay small.
   Adaptive sampling (the default) renders, in one POV-Ray run when the faces
   fit (MESH_RUN_FACES: distribution 3 finds a sample's face by a linear
   scan), the whole image at one ray per pixel on a coarse grid, and K x K in
   the 2x2-pixel cells that an edge of the pattern crosses (edge_pixels),
-  on a grid of the finest step needed (2 or 1 px). The ray caster's images
-  are reproduced (tests: equal at K = 4, full and adaptive, noncentral
-  CAHVORE included).
+  on the 2- or 1-px grid that MESH_TOLERANCE needs (the coarse grid may be
+  off by up to MESH_COARSE_TOLERANCE = 0.1 px: those pixels' centres lie
+  >= 0.5 px from any edge). The ray caster's images are reproduced (tests:
+  equal at K = 4 up to 2 pixels, full and adaptive, noncentral CAHVORE
+  included).
   Distribution 0 (one face per ray, used before) needed K^2 triangles per
   pixel (4 GB of scene file at K = 4 for 1024x1024) and traced face row
   j - 1 for image row j in POV-Ray 3.7.0.10: the same row-0 clamp.
@@ -94,13 +98,11 @@ MAX_AA_DEPTH = 9
 PERSPECTIVE_AA_THRESHOLD = 0.01
 # mesh camera: the grid step (px) of its vertices where edges are: the coarsest of
 # MESH_STEPS whose interpolated rays are within MESH_TOLERANCE px of the exact ones
-MESH_TOLERANCE = 1e-4
+# (MER B navcam: 7.7e-4 px at 2 px; Rocky8 hazcam: 9e-4 (CAHVOR), 5e-4 (CAHVORE) at 1 px)
+MESH_TOLERANCE = 1e-3
 MESH_STEPS = (2, 1)
 # elsewhere (pixels that see one material) the coarsest of MESH_COARSE_STEPS within
-# MESH_COARSE_TOLERANCE (edge_pixels leaves them >= 0.5 px from any edge). A 64-px grid
-# went wrong on the Rocky8 hazcam's CAHVOR (340 pixels far from any edge saw the board
-# where the background is; predicted interpolation error 0.037 px; not explained), 32 and
-# finer gave the ray caster's image: 32 is the coarsest step used.
+# MESH_COARSE_TOLERANCE (edge_pixels leaves them >= 0.5 px from any edge)
 MESH_COARSE_TOLERANCE = 0.1
 MESH_COARSE_STEPS = (32, 16, 8, 4, 2, 1)
 # adaptive supersampling in cells of MESH_CELL x MESH_CELL pixels
@@ -200,13 +202,9 @@ def perspective_camera(pinhole):
 
 
 def _corner_rays(model):
-    r'''Rays of the pixel-corner grid: origins and mesh normals (H+1, W+1, 3), camera frame
+    r'''Rays of the pixel-corner grid: origins and unit directions (H+1, W+1, 3), camera frame
 
-Corner (i, j) is the camval point (i - 0.5, j - 0.5). The normal is the ray
-direction scaled to z = 1 (a point of the pinhole plane: a pinhole's normals
-are then linear in the pixel coordinates, so POV-Ray's interpolation leaves
-only the distortion's curvature); unit directions when some ray is within
-84 deg of the image plane. Cached per model.
+Corner (i, j) is the camval point (i - 0.5, j - 0.5). Cached per model.
 '''
     key = repr(model)
     hit = _CORNER_RAYS.get(key)
@@ -223,8 +221,6 @@ only the distortion's curvature); unit directions when some ray is within
             raise RendererError(f"{model.family} model: some pixel corners have no ray "
                                 "(unprojection failed); the mesh camera needs a ray for "
                                 "every corner")
-        if float(v_cam[..., 2].min()) > 0.1:
-            v_cam = v_cam / v_cam[..., 2:3]
         if len(_CORNER_RAYS) > 8:
             _CORNER_RAYS.clear()
         hit = _CORNER_RAYS[key] = (o_cam, v_cam)
@@ -238,10 +234,13 @@ _MESH_STEPS = {}
 def _interpolated_rays(o, n, b):
     r'''POV-Ray's smooth mesh_camera ray at barycentric b (...,3) of triangles o, n (...,3,3)
 
-POV-Ray 3.7 interpolates the vertex normals as given (not normalised) and
-normalises the result (measured: pinhole-plane normals and unit normals give
-different images).
+POV-Ray 3.7 normalises the vertex normals when it parses the mesh, mixes them
+barycentrically and normalises the result (measured: normals scaled to z = 1,
+which would make a pinhole's interpolation exact, gave a CAHV camera 0.1 px
+errors on an 8-px grid and 1.8 px on a 64-px grid, as predicted for unit
+normals).
 '''
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     d = (b[..., :, None] * n).sum(-2)
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     return (b[..., :, None] * o).sum(-2), d
@@ -391,13 +390,14 @@ mesh grid step. Rects keep their order; a rect of another height starts a new
 shelf; an atlas is as wide as its first rect when that is >= 256 fine pixels
 wide (an image tile: the cells that follow fill the rows below it), else
 `width`. Atlas pixels that no face covers cost POV-Ray a scan of every face,
-so the packing leaves few.
-Row 0 of an atlas is left empty: POV-Ray 3.7.0 samples image row 0 half a
-row low (measured: rows j >= 1 are sampled at y = j, row 0 at y = 0.5; the
-clamp that also gives distribution 0 its one-row offset).
+so the packing leaves few. Row 0 of an atlas is left empty: POV-Ray 3.7.0
+samples image row 0 half a row low (measured: rows j >= 1 are sampled at
+y = j, row 0 at y = 0.5; the clamp that also gives distribution 0 its
+one-row offset).
 '''
     runs = []
     top = MESH_ATLAS_TOP
+
     cur, Wa, H, x, y, shelf_h, nf = [], 0, top, 0, top, 0, 0
     for r, step in zip(rects, steps, strict=True):
         fw, fh = r.w * r.k, r.h * r.k
