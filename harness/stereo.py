@@ -569,7 +569,7 @@ two cameras near the Nyquist frequency).
 
 def run_stereo_check(setup, variants=None, spp=2, render_model="true", block_size=5,
                      oversample=1.5, refine=True, refine_radius=4, prefilter_px=0.8,
-                     photometric="auto", seed=0, progress=None):
+                     photometric="auto", flat_field=False, seed=0, progress=None):
     r'''Render, rectify, match, triangulate and compare, for each response variant
 
 SYNOPSIS
@@ -592,6 +592,10 @@ prefilter_px: std (in raw pixels) of the Gaussian low-pass applied to both
           rectified images before the refinement (0: none)
 photometric: refine_disparity's photometric ("auto", True: fit a gain and
           offset everywhere, False)
+flat_field: divide each image by its vignetting stage's falloff (if the
+          variant has one) before rectification, as radiometric correction
+          would; the images are then no longer clipped to [0,1] where the
+          falloff brightened them past it
 block_size: StereoSGBM's block size (px)
 render_model: "true" (the catalogue models; the rectification is then off by
           their skew and CAHVORE pupil shift) or "rectifiable" (render with the
@@ -666,6 +670,12 @@ them and in the band of true ranges within +-10% of setup.look_range_m.
         say(f"variant {name}: response {chain.names() or 'none'}")
         iL = chain.apply(rL.image, model=mL, seed=seed + 2 * k).image
         iR = chain.apply(rR.image, model=mR, seed=seed + 2 * k + 1).image
+        if flat_field:
+            # radiometric correction with the known falloff, as ground processing does
+            for st in chain.stages:
+                if st.name == "vignetting":
+                    iL = iL / np.maximum(st.factor(iL.shape, mL), 1e-3).astype(np.float32)
+                    iR = iR / np.maximum(st.factor(iR.shape, mR), 1e-3).astype(np.float32)
         t_resp = time.perf_counter() - t0
         t0 = time.perf_counter()
         rect = [cv2.remap(im, mp[..., 0], mp[..., 1], cv2.INTER_LINEAR)
@@ -704,6 +714,7 @@ them and in the band of true ranges within +-10% of setup.look_range_m.
             "baseline_m": baseline, "pixels_per_deg": px_per_rad * math.pi / 180.0,
             "oversample": oversample, "refine": bool(refine), "refine_radius": refine_radius,
             "prefilter_px": prefilter_px, "photometric": photometric,
+            "flat_field": bool(flat_field),
             "num_disparities": int(16 * math.ceil(max_disp / 16)), "block_size": block_size,
             "camera_height_m": setup.camera_height_m, "pitch_deg": setup.pitch_deg,
             "look_range_m": setup.look_range_m, "seconds": tm,

@@ -209,13 +209,18 @@ the table and the refinement's gain over SGBM, with measured values"""
     p = argparse.ArgumentParser()
     cmd.add_arguments(p)
     args = p.parse_args(["12", "11", "-o", str(tmp_path), "--scale", "0.25",
-                         "--variants", "clean,psf"])
+                         "--variants", "clean,psf,vignetting", "--flat-field"])
     assert cmd.run(args) == 0
     doc = json.loads((tmp_path / "stereo_12_11.json").read_text())
     md = (tmp_path / "stereo_12_11.md").read_text()
     assert (tmp_path / "stereo_12_11.png").stat().st_size > 30_000
     assert "| clean | none |" in md and "| psf | psf |" in md
-    assert [r["variant"] for r in doc["table"]] == ["clean", "psf"]
+    assert [r["variant"] for r in doc["table"]] == ["clean", "psf", "vignetting"]
+    # a flat-fielded, noise-free vignetting leaves the images as they were
+    vig = doc["variants"]["vignetting"]["stats"]
+    assert vig["valid_fraction"] == pytest.approx(doc["variants"]["clean"]["stats"]
+                                                  ["valid_fraction"], abs=0.002)
+    assert doc["meta"]["flat_field"] is True
     assert doc["meta"]["rectified_size"] == [355, 355] and doc["meta"]["refine"]
     clean = doc["variants"]["clean"]
     s, s0 = clean["stats"], clean["stats_sgbm"]

@@ -93,6 +93,9 @@ def add_arguments(p):
                    help="refinement: fit a gain and offset between the images only where "
                         "the geometric fit fails (auto), everywhere (on: robust to "
                         "vignetting, 0.1%% worse on clean hazcam images) or nowhere")
+    p.add_argument("--flat-field", action="store_true",
+                   help="divide the images by the vignetting stage's falloff before "
+                        "rectification (radiometric correction)")
     p.add_argument("--prefilter", type=float, default=0.8,
                    help="Gaussian low-pass before the refinement, std in raw px (default 0.8)")
     p.add_argument("--seed", type=int, default=0, help="terrain and noise seed")
@@ -282,6 +285,7 @@ def run(args):
                               refine_radius=args.refine_radius, prefilter_px=args.prefilter,
                               photometric={"auto": "auto", "on": True,
                                            "off": False}[args.photometric],
+                              flat_field=args.flat_field,
                               seed=args.seed, progress=lambda s: print(f"  {s}", flush=True))
     doc = result.as_dict()
     rows = stage_table(doc)
