@@ -38,19 +38,23 @@ passed through camera-response stages (renderers/response.py), then:
    m); the error is (stereo - true) / true over the pixels of the band that
    have a stereo range, and the valid fraction says how many do.
 
-What moved the hazcam pair (slots 12, 11, 1024x1024) from 1.42% to 0.76%
-median |range error| at 5 m (benchmarks/bench_stereo.py --ablation): SGBM's
-disparities were 0.05 px too large there (ranges 0.7% short) on smooth
-ground as well as at rock edges, for every block size in HH mode, and moved
-with its smoothness penalties (SGBM mode: -0.27 px), i.e. the matcher's
-bias on ground whose disparity rises ~0.1-0.2 px per row; the rectification
-itself is exact (ranges from the true disparities agree to 3e-13). A
-refinement on the raw rectified images was no better (median |error| 0.11 px)
-because the bilinear resampling of the two raw images into the rectified grid
-differs near the Nyquist frequency (the right image warped by the true
-disparities differed from the left by 1.4x the rms horizontal gradient, at
-K = 2 and K = 4 alike); on images rendered directly in the rectified
-geometry the same refinement reached 0.39%. Hence the oversampled
+What moved the hazcam pair (slots 12, 11, 1024x1024) from 1.42% to 0.79%
+median |range error| at 5 m: SGBM's disparities were 0.05 px too large there
+(ranges 0.7% short) on smooth ground as well as at rock edges, for every
+block size in HH mode, and moved with its smoothness penalties (SGBM mode:
+-0.27 px), i.e. the matcher's bias on ground whose disparity rises ~0.1-0.2
+px per row; the rectification itself is exact (ranges from the true
+disparities agree to 3e-13), and rendering at K = 4 instead of 2 changed
+SGBM's result by less than 0.25%. A refinement on the raw rectified images
+was no better than SGBM (median |error| 0.11 px) because the bilinear
+resampling of the two raw images into the rectified grid differs near the
+Nyquist frequency (the right image warped by the true disparities differed
+from the left by 1.4x the rms horizontal gradient, at K = 2 and K = 4
+alike); on images rendered directly in the rectified geometry the same
+refinement reached 0.39%. benchmarks/bench_stereo.py --ablation measures
+each piece: all of them 0.79%; rectified at 1 px per raw px 0.91%; without
+the low-pass 1.95%; window radius 3 instead of 4 0.85%; SGBM alone at 1 px
+per raw px 1.42% (the old pipeline). Hence the oversampled
 grid and the low-pass before the refinement.
 
 The rectification uses the models mrcal can represent (rectifiable()): theta
