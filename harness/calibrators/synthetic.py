@@ -132,36 +132,10 @@ project outside the image are NaN.
 
 
 def catalogue_models():
-    r'''[(key, model)] of every catalogue camera: the 22 slots, then the extras
-
-Uses reference_models.catalogue when it exists, else reads the shared TOML.
-'''
-    try:
-        from reference_models.catalogue import load_catalogue
-    except ImportError:
-        return _toml_models()
+    r'''[(key, model)] of every catalogue camera: the 22 slots, then the extras'''
+    from reference_models.catalogue import load_catalogue
     cat = load_catalogue()
     return [(str(e.key), e.model) for e in list(cat.slots()) + list(cat.extras())]
-
-
-def _toml_models(path="/work/shared/catalogue/cameras.toml"):
-    import tomllib
-
-    from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
-    with open(path, "rb") as f:
-        data = tomllib.load(f)
-    out = []
-    for e in data["camera"] + data["extra"]:
-        kw = dict(C=e["C"], A=e["A"], H=e["H"], V=e["V"], width=e["width"], height=e["height"])
-        if "E" in e:
-            m = CAHVORE(O=e["O"], R=e["R"], E=e["E"], model_type=e["model_type"],
-                        linearity=e["linearity"], **kw)
-        elif "O" in e:
-            m = CAHVOR(O=e["O"], R=e["R"], **kw)
-        else:
-            m = CAHV(**kw)
-        out.append((str(e.get("id", e.get("name"))), m))
-    return out
 
 
 def rendered_observations(truth, target, Rt_cam_board=None, renderer="raycast", spp=16,
