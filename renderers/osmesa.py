@@ -74,10 +74,11 @@ def _import_gl():
     return _GL
 
 
-def projection_matrix(pinhole):
+def projection_matrix(pinhole, near=NEAR, far=FAR):
     r'''The OpenGL projection (4,4) of a renderers.warp.Pinhole, camera frame -> clip
 
-Camera frame: x = H', y = A x H' (down the image), z = A (forward); clip w = z.
+Camera frame: x = H', y = A x H' (down the image), z = A (forward); clip w = z;
+depth from the near to the far plane (m).
 '''
     W, H = pinhole.width, pinhole.height
     P = np.zeros((4, 4))
@@ -85,8 +86,8 @@ Camera frame: x = H', y = A x H' (down the image), z = A (forward); clip w = z.
     P[0, 2] = 2.0 * (pinhole.cx + 0.5) / W - 1.0
     P[1, 1] = -2.0 * pinhole.fy / H
     P[1, 2] = 1.0 - (2.0 * pinhole.cy + 1.0) / H
-    P[2, 2] = (FAR + NEAR) / (FAR - NEAR)
-    P[2, 3] = -2.0 * FAR * NEAR / (FAR - NEAR)
+    P[2, 2] = (far + near) / (far - near)
+    P[2, 3] = -2.0 * far * near / (far - near)
     P[3, 2] = 1.0
     return P
 

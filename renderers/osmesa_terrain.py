@@ -58,6 +58,7 @@ import time
 import numpy as np
 
 from renderers.base import RendererError, RendererUnavailableError
+from renderers.osmesa import projection_matrix
 from renderers.raycast_terrain import TerrainRender
 from renderers.terrain_shadows import centroid_pixels, top_down_size
 
@@ -475,20 +476,6 @@ def _camera_matrix(model, Rt_ref_terrain, terrain):
     return M
 
 
-def _projection(pinhole, far):
-    r'''renderers.osmesa.projection_matrix with near = NEAR and the given far plane'''
-    W, H = pinhole.width, pinhole.height
-    P = np.zeros((4, 4))
-    P[0, 0] = 2.0 * pinhole.fx / W
-    P[0, 2] = 2.0 * (pinhole.cx + 0.5) / W - 1.0
-    P[1, 1] = -2.0 * pinhole.fy / H
-    P[1, 2] = 1.0 - (2.0 * pinhole.cy + 1.0) / H
-    P[2, 2] = (far + NEAR) / (far - NEAR)
-    P[2, 3] = -2.0 * far * NEAR / (far - NEAR)
-    P[3, 2] = 1.0
-    return P
-
-
 def render_terrain(model, terrain, Rt_ref_terrain=None, spp=1, shadows=True, exposure=1.0,
                    sky=0.0, shadow_factor=None, map_size=DEFAULT_MAP_SIZE, slope_bias=0.5,
                    interpolation="bilinear", warp_scale=1.0):
@@ -535,7 +522,8 @@ warp_scale.
                 for ox in range(0, fine.width, step):
                     tw, th = min(step, fine.width - ox), min(step, fine.height - oy)
                     tile = fine.shifted(ox, oy, tw, th)
-                    buf = scene.view(_projection(tile, far) @ M, tw, th, factor, exposure, sky)
+                    P = projection_matrix(tile, near=NEAR, far=far)
+                    buf = scene.view(P @ M, tw, th, factor, exposure, sky)
                     buf = buf[::-1]                              # top row first
                     img = buf[..., 0].astype(np.float64)
                     blk = np.s_[oy // K:(oy + th) // K, ox // K:(ox + tw) // K]
