@@ -477,6 +477,55 @@ sub-pixel centres. Numbers are written exactly (repr).
     return "\n".join(out), len(faces)
 
 
+def run_povray(binary, workdir, scene_text_writer, width, height, aa_depth=1, threads=None,
+               aa_threshold=0.0, rgb=False):
+    r'''Run POV-Ray headless on the scene scene_text_writer(f) writes, in workdir
+
+SYNOPSIS
+
+    img, seconds, scene_bytes = run_povray("povray", workdir, write, W, H, aa_depth=4)
+    # img (H,W) float64 in [0,1]: the 16-bit linear image's green channel
+    # (rgb=True: (H,W,3) R, G, B)
+
+aa_depth > 1: anti-aliasing method 1 with aa_depth x aa_depth samples where
+neighbours differ by more than aa_threshold (0: every pixel, full supersampling).
+'''
+    import cv2
+    pov = os.path.join(workdir, "scene.pov")
+    png = os.path.join(workdir, "image.png")
+    with open(pov, "w") as f:
+        scene_text_writer(f)
+    cmd = [binary, "-D", "-V", "-P", "+FN16", "File_Gamma=1.0", "Output_Alpha=off",
+           f"+W{width}", f"+H{height}", "+Oimage.png", "scene.pov"]
+    if aa_depth > 1:
+        cmd[1:1] = [f"+A{float(aa_threshold)!r}", "+AM1", f"+R{aa_depth}", "-J"]
+    else:
+        cmd[1:1] = ["-A"]
+    if threads:
+        cmd.insert(1, f"+WT{int(threads)}")
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True)
+    except OSError as e:
+        raise RendererUnavailableError(f"cannot run {binary}: {e}; {INSTALL_HINT}") from e
+    seconds = time.perf_counter() - t0
+    if proc.returncode != 0 or not os.path.exists(png):
+        tail = "\n".join((proc.stderr or proc.stdout).strip().splitlines()[-8:])
+        raise RendererError(f"povray failed (exit {proc.returncode}) on {pov}: {tail}")
+    img = cv2.imread(png, cv2.IMREAD_UNCHANGED)
+    if img is None or img.shape[:2] != (height, width):
+        raise RendererError(f"povray wrote an unreadable or mis-sized image {png}: "
+                            f"{None if img is None else img.shape}, expected {(height, width)}")
+    if rgb:
+        if img.ndim != 3:
+            raise RendererError(f"povray wrote a grey image {png}; expected colour")
+        img = img[..., 2::-1]           # OpenCV reads B, G, R
+    elif img.ndim == 3:
+        img = img[..., 1]
+    scale = 65535.0 if img.dtype == np.uint16 else 255.0
+    return img.astype(np.float64) / scale, seconds, os.path.getsize(pov)
+
+
 class PovrayRenderer:
     r'''POV-Ray 3.7 renderer (see the module docstring)
 
@@ -532,36 +581,8 @@ ARGUMENTS (defaults for every render; RenderSettings.options override them)
     # --- running POV-Ray ----------------------------------------------------------
     def _run(self, workdir, scene_text_writer, width, height, aa_depth, threads,
              aa_threshold=0.0):
-        pov = os.path.join(workdir, "scene.pov")
-        png = os.path.join(workdir, "image.png")
-        with open(pov, "w") as f:
-            scene_text_writer(f)
-        cmd = [self.binary, "-D", "-V", "-P", "+FN16", "File_Gamma=1.0", "Output_Alpha=off",
-               f"+W{width}", f"+H{height}", "+Oimage.png", "scene.pov"]
-        if aa_depth > 1:
-            cmd[1:1] = [f"+A{float(aa_threshold)!r}", "+AM1", f"+R{aa_depth}", "-J"]
-        else:
-            cmd[1:1] = ["-A"]
-        if threads:
-            cmd.insert(1, f"+WT{int(threads)}")
-        t0 = time.perf_counter()
-        try:
-            proc = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True)
-        except OSError as e:
-            raise RendererUnavailableError(f"cannot run {self.binary}: {e}; {INSTALL_HINT}") from e
-        seconds = time.perf_counter() - t0
-        if proc.returncode != 0 or not os.path.exists(png):
-            tail = "\n".join((proc.stderr or proc.stdout).strip().splitlines()[-8:])
-            raise RendererError(f"povray failed (exit {proc.returncode}) on {pov}: {tail}")
-        import cv2
-        img = cv2.imread(png, cv2.IMREAD_UNCHANGED)
-        if img is None or img.shape[:2] != (height, width):
-            raise RendererError(f"povray wrote an unreadable or mis-sized image {png}: "
-                                f"{None if img is None else img.shape}, expected {(height, width)}")
-        if img.ndim == 3:
-            img = img[..., 1]
-        scale = 65535.0 if img.dtype == np.uint16 else 255.0
-        return img.astype(np.float64) / scale, seconds, os.path.getsize(pov)
+        return run_povray(self.binary, workdir, scene_text_writer, width, height, aa_depth,
+                          threads, aa_threshold)
 
     # --- the two camera paths -----------------------------------------------------
     def render_pinhole(self, pinhole, pattern, Rt_cam_board, K, workdir, threads=None,

@@ -66,7 +66,6 @@ import functools
 import math
 import os
 import shutil
-import subprocess
 import tempfile
 import time
 
@@ -167,42 +166,11 @@ def _sun_light(terrain, M, t, colour, shadowless=False):
 
 
 def _run(binary, workdir, scene, width, height, aa_depth=1, threads=None, rgb=False):
-    r'''Run POV-Ray on `scene` (text) in workdir; the 16-bit linear image as float64 [0,1]
-(its green channel, or (H,W,3) R, G, B with rgb=True)'''
-    import cv2
-
-    pov = os.path.join(workdir, "scene.pov")
-    png = os.path.join(workdir, "image.png")
-    with open(pov, "w") as f:
-        f.write(scene)
-    cmd = [binary, "-D", "-V", "-P", "+FN16", "File_Gamma=1.0", "Output_Alpha=off",
-           f"+W{width}", f"+H{height}", "+Oimage.png", "scene.pov"]
-    if aa_depth > 1:
-        cmd[1:1] = ["+A0.0", "+AM1", f"+R{aa_depth}", "-J"]
-    else:
-        cmd[1:1] = ["-A"]
-    if threads:
-        cmd.insert(1, f"+WT{int(threads)}")
-    t0 = time.perf_counter()
-    try:
-        proc = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True)
-    except OSError as e:
-        raise RendererUnavailableError(f"cannot run {binary}: {e}; {INSTALL_HINT}") from e
-    seconds = time.perf_counter() - t0
-    if proc.returncode != 0 or not os.path.exists(png):
-        tail = "\n".join((proc.stderr or proc.stdout).strip().splitlines()[-8:])
-        raise RendererError(f"povray failed (exit {proc.returncode}) on {pov}: {tail}")
-    img = cv2.imread(png, cv2.IMREAD_UNCHANGED)
-    if img is None or img.shape[:2] != (height, width):
-        raise RendererError(f"povray wrote an unreadable or mis-sized image {png}")
-    if rgb:
-        if img.ndim != 3:
-            raise RendererError(f"povray wrote a grey image {png}; expected colour")
-        img = img[..., 2::-1]           # OpenCV reads B, G, R
-    elif img.ndim == 3:
-        img = img[..., 1]
-    scale = 65535.0 if img.dtype == np.uint16 else 255.0
-    return img.astype(np.float64) / scale, seconds
+    r'''renderers.povray.run_povray on `scene` (text): (image, seconds)'''
+    from renderers.povray import run_povray
+    img, seconds, _ = run_povray(binary, workdir, lambda f: f.write(scene), width, height,
+                                 aa_depth, threads, rgb=rgb)
+    return img, seconds
 
 
 def top_down_codes(terrain, first, step, size, binary="povray", threads=None, keep_dir=None):
