@@ -282,6 +282,30 @@ def _sun_bound_columns(mmax, sx, sy, k, zhi, max_columns):
 
 
 @njit(cache=True, inline="always")
+def _child(i, t_next, g, gd, ig, near, s, t_after, n):
+    r'''One axis of the step down the pyramid: the child index (of n) that holds the ray
+just after t_after and the ray parameter of its next boundary on this axis
+
+g, gd, ig: the ray's start, step and 1/step along the axis (grid units); s: the
+child size; near: 0 for a ray going up the axis, 1 going down. The near child
+when the ray crosses the middle line later than t_after, else the far one. A
+child past the grid's edge (padding) holds the ray only within tol of the edge:
+the real child next to it takes the ray instead.'''
+    if gd == 0.0:
+        return min(2 * i + (1 if g >= (2 * i + 1) * s else 0), n - 1), t_next
+    tmid = ((2 * i + 1) * s - g) * ig
+    if tmid > t_after:
+        i = 2 * i + near
+        if i >= n:
+            return i - 1, t_next
+        return i, tmid
+    i = 2 * i + 1 - near
+    if i >= n:
+        return i - 1, tmid
+    return i, t_next
+
+
+@njit(cache=True, inline="always")
 def _trace(ox, oy, oz, dx, dy, dz, tmin, tmax, h, x0, y0, cell,
            pyr, offs, pw, ph, pnx, pny, zlo, zhi, tol, start_level, any_hit, vpyr):
     r"""Nearest hit of one ray with the height field: (t, i, j, triangle, level)
@@ -408,36 +432,8 @@ once it is above the bound of the cell it is in.
                 dty *= 0.5
                 # a child past the grid's edge (padding) holds the ray only within tol
                 # of the edge: the real child next to it takes the ray instead
-                if gdx != 0.0:
-                    tmid = ((2 * ix + 1) * s - gx) * igx
-                    if tmid > t + nudge:
-                        ix = 2 * ix + nearx
-                        if ix >= pnx[level]:
-                            ix -= 1
-                        else:
-                            tx = tmid
-                    else:
-                        ix = 2 * ix + 1 - nearx
-                        if ix >= pnx[level]:
-                            ix -= 1
-                            tx = tmid
-                else:
-                    ix = min(2 * ix + (1 if gx >= (2 * ix + 1) * s else 0), pnx[level] - 1)
-                if gdy != 0.0:
-                    tmid = ((2 * iy + 1) * s - gy) * igy
-                    if tmid > t + nudge:
-                        iy = 2 * iy + neary
-                        if iy >= pny[level]:
-                            iy -= 1
-                        else:
-                            ty = tmid
-                    else:
-                        iy = 2 * iy + 1 - neary
-                        if iy >= pny[level]:
-                            iy -= 1
-                            ty = tmid
-                else:
-                    iy = min(2 * iy + (1 if gy >= (2 * iy + 1) * s else 0), pny[level] - 1)
+                ix, tx = _child(ix, tx, gx, gdx, igx, nearx, s, t + nudge, pnx[level])
+                iy, ty = _child(iy, ty, gy, gdy, igy, neary, s, t + nudge, pny[level])
                 continue
             th, tri = _cell_hit(gx, gy, oz, gdx, gdy, dz, h, ix, iy, tmin, any_hit)
             if th <= t1 + 1e-12:
