@@ -20,6 +20,8 @@ A campaign is a TOML file (tomllib):
     targets = ["dots"]
     keep_images = false      # keep the rendered images (images/ in the run dir)
     keep_maps = true         # keep downsampled projection-difference maps (maps/)
+    share_identical_cameras = true   # render once the cameras that are one camera
+                                     # (harness.runner.group_twins)
     catalogue = "overlay.toml"   # optional catalogue overlay (user models in slots)
 
     seed = 0                 # the campaign's noise seed (camera-response stages)
@@ -84,7 +86,8 @@ FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
 JOB_FAMILY = "family"
 
 TOP_KEYS = ("name", "description", "cameras", "models", "targets", "keep_images", "keep_maps",
-            "catalogue", "seed", "poses", "renderer", "calibrator", "response")
+            "share_identical_cameras", "catalogue", "seed", "poses", "renderer", "calibrator",
+            "response")
 POSE_KEYS = ("n", "seed")
 RENDERER_KEYS = ("name", "spp", "adaptive", "options", "response")
 PROFILE_NAME = re.compile(r"^[A-Za-z0-9_-]+$")
@@ -242,6 +245,7 @@ class Campaign:
     source: str = ""
     seed: int = 0
     responses: tuple = ()
+    share_identical_cameras: bool = True
 
     def response(self, name):
         r'''The ResponseSpec called name (KeyError if there is none)'''
@@ -260,7 +264,8 @@ class Campaign:
                 "poses": {"n": self.poses_n, "seed": self.poses_seed},
                 "keep_images": self.keep_images, "keep_maps": self.keep_maps,
                 "catalogue": self.catalogue, "seed": self.seed,
-                "response": [r.as_dict() for r in self.responses]}
+                "response": [r.as_dict() for r in self.responses],
+                "share_identical_cameras": self.share_identical_cameras}
 
     @classmethod
     def from_dict(cls, d):
@@ -280,7 +285,8 @@ class Campaign:
                    keep_images=d["keep_images"], keep_maps=d["keep_maps"],
                    catalogue=d.get("catalogue"), seed=d.get("seed", 0),
                    responses=tuple(ResponseSpec(r["name"], r["config"])
-                                   for r in d.get("response", ())))
+                                   for r in d.get("response", ())),
+                   share_identical_cameras=d.get("share_identical_cameras", True))
 
     def replace(self, **kw):
         import dataclasses
@@ -527,7 +533,9 @@ Relative model-file paths among the cameras are taken from base_dir.
                     calibrators=tuple(calibrators), poses_n=n, poses_seed=seed,
                     keep_images=_bool(source, "keep_images", doc.get("keep_images", False)),
                     keep_maps=_bool(source, "keep_maps", doc.get("keep_maps", True)),
-                    catalogue=cat, seed=noise_seed, responses=responses)
+                    catalogue=cat, seed=noise_seed, responses=responses,
+                    share_identical_cameras=_bool(source, "share_identical_cameras",
+                                                  doc.get("share_identical_cameras", True)))
 
 
 def load_campaign(path):

@@ -34,6 +34,17 @@ in local processes (concurrent.futures, forkserver) or on a Dask cluster
 run directory as soon as the job ends, so an interrupted run resumes with only
 the missing jobs.
 
+Cameras that are one camera (twins): a catalogue slot derived from another by a
+rigid motion (a stereo partner, a rear-facing copy) images every point of its
+camera frame at the same pixel. For a renderer that is exact in the camera
+frame (camera_frame_exact, the ray caster) and a clean job, its poses, images
+and detections are those of its twin, and so is the fit of every calibrator
+that does not read the world frame. run_campaign() folds such jobs into one
+(group_twins; the campaign key share_identical_cameras = false turns it off):
+the images are rendered once, the world-frame calibrators (jpl) fit each
+camera, and each camera gets its own records, compared with its own truth,
+with info["shared"] saying what was computed for which camera.
+
 Before local worker processes start, warm_up() compiles (or loads) the
 renderer's numba kernels once in this process, so the workers load the
 cached kernels instead of each compiling them.
@@ -75,6 +86,8 @@ run_dir:      where images and maps are kept (None: keep nothing)
 response:     the camera-response profile's configuration ({} : clean)
 response_name: the profile's name ("" : the campaign has no profiles)
 seed:         the campaign's noise seed
+twins:        ((camera spec, camera key), ...) of other cameras that are this one
+              (group_twins): run_job() gives their records too
 '''
 
     key: str
@@ -95,10 +108,21 @@ seed:         the campaign's noise seed
     response: dict = field(default_factory=dict)
     response_name: str = ""
     seed: int = 0
+    twins: tuple = ()
 
     def fullname(self, calibrator, model):
         return make_fullname(self.camera_key, self.family, self.target, self.renderer,
                              self.settings, calibrator, model)
+
+    def members(self):
+        r'''[this job, then one job per twin camera] (each with its own key, no twins)'''
+        import dataclasses
+        out = [dataclasses.replace(self, twins=())]
+        for spec, key in self.twins:
+            out.append(dataclasses.replace(
+                self, camera=spec, camera_key=key, twins=(),
+                key=key + self.key[len(self.camera_key):]))
+        return out
 
 
 def expand_jobs(campaign, entries=None, run_dir=None):
@@ -146,6 +170,114 @@ def camera_key(entry, spec):
     if getattr(entry, "kind", "") == "file" or "/" in key:
         key = "file-" + _slug(Path(key).name)
     return key
+
+
+# --- cameras that are one camera ------------------------------------------------
+# twins project every camera-frame point to within this many px of the same pixel
+TWIN_TOLERANCE_PX = 1e-9
+TWIN_GRID = 17
+TWIN_RANGES_M = (0.05, 0.5, 5.0, 500.0)
+# what a twin takes from the camera that ran its job
+TWIN_STAGES = ("poses", "render", "detect")
+
+
+def same_camera(a, b, tolerance_px=TWIN_TOLERANCE_PX):
+    r'''Whether models a and b image every point of their own camera frames alike
+
+SYNOPSIS
+
+    same_camera(slot8.model, slot7.model)   # True: slot 7 is slot 8 yawed 180 degrees
+
+Compared: the class, the image size, and the pixels of points of a
+TWIN_GRID x TWIN_GRID grid of a's pixels (corners included) unprojected by a
+to TWIN_RANGES_M (so a moving entrance pupil counts), carried from a's camera
+frame (Rt_ref_cam) into b's and projected by b: each within tolerance_px of
+the pixel it came from. Then a renderer exact in the camera frame gives b
+the images of a for the same camera-frame board poses.
+'''
+    import numpy as np
+    if type(a) is not type(b) or (a.width, a.height) != (b.width, b.height):
+        return False
+    if getattr(a, "linearity", None) != getattr(b, "linearity", None):
+        return False
+    x = np.linspace(-0.5, a.width - 0.5, TWIN_GRID)
+    y = np.linspace(-0.5, a.height - 0.5, TWIN_GRID)
+    q = np.stack(np.meshgrid(x, y), axis=-1).reshape(-1, 2)
+    try:
+        origin, v = a.unproject(q)
+        Ra, Rb = a.Rt_ref_cam(), b.Rt_ref_cam()
+        for r in TWIN_RANGES_M:
+            p_cam = (origin + r * v - Ra[3]) @ Ra[:3]
+            qa = a.project(origin + r * v)
+            qb = b.project(p_cam @ Rb[:3].T + Rb[3])
+            if not (np.all(np.isfinite(qa)) and np.all(np.isfinite(qb))):
+                return False
+            if np.max(np.abs(qb - qa)) > tolerance_px:
+                return False
+    except (CamvalError, ValueError, FloatingPointError):
+        return False
+    return True
+
+
+def camera_frame_exact(renderer_name):
+    r'''Whether the renderer declares that it renders exactly in the camera frame (then
+two cameras for which same_camera() holds get the same images)'''
+    try:
+        from renderers.base import renderer_class
+        return bool(getattr(renderer_class(renderer_name), "camera_frame_exact", False))
+    except CamvalError:
+        return False
+
+
+def group_twins(jobs, skip=()):
+    r'''Jobs with the jobs of twin cameras folded into the first of them
+
+SYNOPSIS
+
+    jobs = group_twins(expand_jobs(campaign), skip=store.done_jobs())
+    jobs[i].twins       # ((camera spec, camera key), ...) it also gives records for
+
+Two jobs are folded when everything but the camera is the same, the job is
+clean (no camera-response profile: noise differs per camera), the renderer is
+camera_frame_exact(), and same_camera() holds for their truths. Jobs in skip
+(finished in an earlier run) and jobs whose camera stage fails are left
+alone. The order of the remaining jobs is kept.
+'''
+    import dataclasses
+    skip = set(skip)
+    exact = {}
+    leaders = []      # [job, truth, [twins]]
+    out = []
+    for job in jobs:
+        if job.key in skip or job.response or job.twins:
+            out.append(job)
+            continue
+        if job.renderer not in exact:
+            exact[job.renderer] = camera_frame_exact(job.renderer)
+        try:
+            truth = camera_stage(job)[1] if exact[job.renderer] else None
+        except StageFailed:
+            truth = None
+        if truth is None:
+            out.append(job)
+            continue
+        sig = _twin_signature(job)
+        for lead in leaders:
+            if _twin_signature(lead[0]) == sig and same_camera(lead[1], truth):
+                lead[2].append((job.camera, job.camera_key))
+                break
+        else:
+            leaders.append([job, truth, []])
+            out.append(leaders[-1])
+    return [dataclasses.replace(x[0], twins=tuple(x[2]),
+                                cost=x[0].cost * (1.0 + 0.25 * len(x[2])))
+            if isinstance(x, list) else x for x in out]
+
+
+def _twin_signature(job):
+    return (job.family, job.target, job.renderer, settings_label(job.settings),
+            repr(job.calibrators), job.poses_n, job.poses_seed, job.keep_images,
+            job.keep_maps, job.catalogue, job.run_dir, job.seed)
 
 
 # --- per-process caches (a worker runs many jobs) -----------------------------
@@ -441,7 +573,10 @@ def run_job(job):
     r'''Run one job's stages -> {"job": key, "records": [record dict, ...]}
 
 Never raises for a failing stage: the records say which stage failed and why.
+A job with twins (group_twins) gives the records of each of its cameras.
 '''
+    members = job.members()
+    job = members[0]
     entry = None
     seconds = {}
     features = None
@@ -472,44 +607,105 @@ Never raises for a failing stage: the records say which stage failed and why.
             artifacts["detections"] = _keep_detections(job, dets, poses)
         obs = observations_from(truth, target, poses, dets)
     except StageFailed as e:
-        return {"job": job.key, "records": failure_records(
-            job, e.stage, e.reason, status=e.status, entry=entry, seconds=seconds,
+        return {"job": job.key, "records": _member_failures(
+            members, e.stage, e.reason, status=e.status, entry=entry, seconds=seconds,
             **({"features": features} if features else {}))}
     except Exception as e:  # a bug in a stage: still a record, with where it happened
         tb = traceback.extract_tb(e.__traceback__)[-1]
-        return {"job": job.key, "records": failure_records(
-            job, "internal", f"{_reason(e)} ({Path(tb.filename).name}:{tb.lineno})",
+        return {"job": job.key, "records": _member_failures(
+            members, "internal", f"{_reason(e)} ({Path(tb.filename).name}:{tb.lineno})",
             entry=entry, seconds=seconds, **({"features": features} if features else {}))}
 
     render_info = render_summary([r.metadata for r in renders])
     ctx = dict(obs=obs, target=target, truth=truth, entry=entry, seconds=seconds,
                detections=detections, artifacts=artifacts, rversion=rversion,
                render_info=render_info, features=features)
-    records = []
-    for cal, model, options in job.calibrators:
+    fits = {} if len(members) > 1 else None
+    twins = [m.camera_key for m in members[1:]]
+    records = _calibrator_records(job, ctx, fits, {"twins": twins} if twins else None)
+    for twin in members[1:]:
         try:
-            records.append(_calibrator_record(job, cal, model, options, **ctx))
-        except Exception as e:  # a bug after the calibrator ran: this record only
-            tb = traceback.extract_tb(e.__traceback__)[-1]
-            records.append(_record(job, cal, model, entry, status="failed", stage="internal",
-                                   reason=f"{_reason(e)} ({Path(tb.filename).name}:"
-                                          f"{tb.lineno})", seconds=dict(seconds),
-                                   detections=detections, artifacts=artifacts,
-                                   features=features))
+            entry_t, truth_t = camera_stage(twin)
+        except StageFailed as e:
+            records += failure_records(twin, e.stage, e.reason, status=e.status)
+            continue
+        seconds_t = {"poses": 0.0, "render": 0.0,
+                     "render_per_image": seconds["render_per_image"], "detect": 0.0}
+        ctx_t = dict(ctx, obs=observations_from(truth_t, target, poses, dets), truth=truth_t,
+                     entry=entry_t, seconds=seconds_t)
+        records += _calibrator_records(twin, ctx_t, fits, {"with": job.camera_key})
     return {"job": job.key, "records": records}
 
 
+def _member_failures(members, stage, reason, *, entry, seconds, **kw):
+    r'''failure_records of a job and of each of its twins (their own catalogue entries)'''
+    out = failure_records(members[0], stage, reason, entry=entry, seconds=seconds, **kw)
+    for twin in members[1:]:
+        try:
+            entry_t = camera_stage(twin)[0]
+        except StageFailed:
+            entry_t = None
+        out += failure_records(twin, stage, reason, entry=entry_t, **kw)
+    return out
+
+
+def _calibrator_records(job, ctx, fits, shared):
+    r'''One record per calibrator model of the job (ctx: run_job's stage outputs)
+
+fits: None, or {(calibrator, model, options): CalibrationResult} shared by the
+cameras of a twin group: a calibrator that does not read the world frame fits
+once (on observations without the surveyed poses) and the other cameras reuse it.
+shared: the record's info["shared"] ({"twins": [...]} for the camera that ran
+the stages, {"with": key, "stages": [...]} for its twins), or None.
+'''
+    import dataclasses
+
+    from harness.calibrators import uses_world_frame
+    records = []
+    for cal, model, options in job.calibrators:
+        res, info = None, shared
+        try:
+            if fits is not None and not uses_world_frame(cal, options):
+                k = (cal, model, repr(sorted(options.items())))
+                if k in fits:
+                    res = fits[k]
+                    info = dict(shared, stages=list(TWIN_STAGES) + ["calibrate"])
+                else:
+                    obs = dataclasses.replace(ctx["obs"], Rt_ref_board=None)
+                    res = fits[k] = calibrate_stage(cal, obs, ctx["target"], model,
+                                                    ctx["truth"], options)
+            if info is not None and "with" in info and "stages" not in info:
+                info = dict(info, stages=list(TWIN_STAGES))
+            records.append(_calibrator_record(job, cal, model, options, res=res, shared=info,
+                                              **ctx))
+        except Exception as e:  # a bug after the calibrator ran: this record only
+            tb = traceback.extract_tb(e.__traceback__)[-1]
+            records.append(_record(job, cal, model, ctx["entry"], status="failed",
+                                   stage="internal",
+                                   reason=f"{_reason(e)} ({Path(tb.filename).name}:"
+                                          f"{tb.lineno})", seconds=dict(ctx["seconds"]),
+                                   detections=ctx["detections"], artifacts=ctx["artifacts"],
+                                   features=ctx["features"]))
+    return records
+
+
 def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, seconds,
-                       detections, artifacts, rversion, render_info, features):
-    r'''Calibrate, compare, keep the map -> one record dict'''
+                       detections, artifacts, rversion, render_info, features, res=None,
+                       shared=None):
+    r'''Calibrate (unless res is given: a fit shared with a twin), compare, keep the map
+-> one record dict'''
     import numpy as np
-    res = calibrate_stage(cal, obs, target, model, truth, options)
-    sec = dict(seconds, calibrate=float(res.seconds))
+    reused = res is not None and shared is not None and "calibrate" in shared.get("stages", ())
+    if res is None:
+        res = calibrate_stage(cal, obs, target, model, truth, options)
+    sec = dict(seconds, calibrate=0.0 if reused else float(res.seconds))
+    info = {"iterations": int(res.iterations), "render": render_info}
+    if shared is not None:
+        info["shared"] = shared
     common = dict(residuals=res.residual_stats(), seconds=sec, detections=detections,
                   versions={"renderer": _named_version(job.renderer, rversion),
                             "calibrator": _named_version(res.library, res.library_version)},
-                  info={"iterations": int(res.iterations), "render": render_info},
-                  features=features)
+                  info=info, features=features)
     if res.status != "ok":
         return _record(job, cal, model, entry, status=res.status, stage="calibrate",
                        reason=res.reason or "(no reason given)", artifacts=artifacts,
@@ -779,7 +975,7 @@ SYNOPSIS
 Jobs already stored are skipped (resume). A job whose worker crashed is
 stored as failed records (stage "worker") that resume runs again. Largest
 jobs are started first, so the slowest ones do not finish last. Returns the
-number of jobs run.
+number of jobs run (a job with twins counts each of its cameras).
 
 warm: before starting local worker processes (workers > 1, fn = run_job),
 compile the renderer's kernels once here (warm_up) so that the workers load
@@ -802,20 +998,22 @@ them from numba's cache. report: a dict that receives {"warm_up": {...}}.
         results = (_dask_results(fn, todo, scheduler) if executor == "dask"
                    else _local_results(fn, todo, workers))
         for job, out in results:
+            members = job.members()
             if isinstance(out, BaseException):
                 # the worker died (killed, out of memory): reported, and retried on resume
-                recs = failure_records(job, "worker", _reason(out))
-                store.save_job(job.key, recs, final=False)
+                recs = [r for m in members for r in failure_records(m, "worker", _reason(out))]
             else:
                 recs = out["records"]
-                store.save_job(job.key, recs)
+            for m in members:   # each camera's records under its own job key
+                store.save_job(m.key, [r for r in recs if r["fullname"].startswith(m.key + "/")],
+                               final=not isinstance(out, BaseException))
             statuses = {}
             for r in recs:
                 statuses[r["status"]] = statuses.get(r["status"], 0) + 1
             bar.advance(job.key, statuses)
     finally:
         bar.close()
-    return len(todo)
+    return sum(1 + len(j.twins) for j in todo)
 
 
 def adapters_from_records(records):
@@ -854,20 +1052,24 @@ The document's "execution" says how the jobs ran (and the warm-up's seconds).
     else:
         store = RunStore.create(run_dir, campaign.as_dict())
     jobs = expand_jobs(campaign, entries=entries, run_dir=store.dir)
+    expected = {j.key for j in jobs}
+    if campaign.share_identical_cameras:
+        jobs = group_twins(jobs, skip=store.done_jobs())
     t0 = time.perf_counter()
     report = {}
     n = run_jobs(jobs, store, executor=executor, workers=workers, scheduler=scheduler,
                  progress=progress, warm=warm, report=report)
     wall = time.perf_counter() - t0
     records = store.records()
-    expected = {j.key for j in jobs}
     stray = {k for k in store.done_jobs() if k not in expected}
     return store.assemble(adapters=adapters_from_records(records),
                           extra={"execution": {"executor": executor,
                                                "workers": None if executor == "dask"
                                                else workers or os.cpu_count(),
                                                "scheduler": scheduler,
-                                               "jobs": len(jobs), "jobs_run": n,
+                                               "jobs": len(expected), "jobs_run": n,
+                                               "twins": {j.key: [k for _, k in j.twins]
+                                                         for j in jobs if j.twins},
                                                "stray_jobs": sorted(stray),
                                                "wall_seconds": wall,
                                                "warm_up": report.get("warm_up")}})

@@ -32,6 +32,7 @@ from .base import (
 )
 
 __all__ = ["calibrate", "known_calibrators", "calibrator_module", "models_of",
+           "uses_world_frame",
            "CalibrationResult", "Observations", "CalibratorError"]
 
 CALIBRATORS = {
@@ -51,6 +52,25 @@ def calibrator_module(name):
         raise UnknownCalibratorError(
             f"unknown calibrator {name!r}; known calibrators: {', '.join(CALIBRATORS)}")
     return importlib.import_module(CALIBRATORS[name])
+
+
+def uses_world_frame(name, options):
+    r'''Whether calibrator `name` with these options reads the world frame
+
+SYNOPSIS
+
+    uses_world_frame("jpl", {})                        # True: surveyed world points
+    uses_world_frame("mrcal", {"known_poses": True})   # True
+    uses_world_frame("mrcal", {})                      # False: board poses estimated
+
+A calibrator that does not (it estimates the board poses and fits the camera
+in its own frame) gives the same result for two cameras that see the same
+images, wherever they are: a campaign computes it once for both
+(harness.runner.group_twins). A calibrator module that does not say is taken
+to read it.
+'''
+    f = getattr(calibrator_module(name), "uses_world_frame", None)
+    return True if f is None else bool(f(**dict(options or {})))
 
 
 def models_of(name):

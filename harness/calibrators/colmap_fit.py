@@ -56,6 +56,11 @@ NPARAMS = {"OPENCV": 8, "FULL_OPENCV": 12, "OPENCV_FISHEYE": 8}
 COLMAP_OFFSET = 0.5
 
 
+def uses_world_frame(**options):
+    r'''False: the adapter estimates the board poses; the fitted camera is its own frame'''
+    return False
+
+
 def library_version():
     import pycolmap
     return f"pycolmap {pycolmap.__version__}"

@@ -77,6 +77,11 @@ UNPROJECTABLE_RESIDUAL = 1e4
 COPLANAR_TOLERANCE = 1e-6
 
 
+def uses_world_frame(**options):
+    r'''True: the fit is made to the surveyed world points (Observations.p_ref())'''
+    return True
+
+
 def library_version():
     return f"scipy {scipy.__version__}"
 

@@ -69,6 +69,11 @@ POLISH_GAIN_FINE = 0.999
 FINE_RMS = 5e-4
 
 
+def uses_world_frame(known_poses=False, **options):
+    r'''Whether the fit reads the surveyed board poses: only with known_poses=True'''
+    return bool(known_poses)
+
+
 def library_version():
     import importlib.metadata
     return f"mrcal {importlib.metadata.version('mrcal')}"

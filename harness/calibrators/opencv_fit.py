@@ -48,6 +48,11 @@ MODELS = ("OPENCV5", "RATIONAL", "FISHEYE")
 ALIASES = {"OPENCV8": "RATIONAL", "OPENCV_RATIONAL": "RATIONAL", "OPENCV_FISHEYE": "FISHEYE"}
 
 
+def uses_world_frame(**options):
+    r'''False: OpenCV estimates the board poses; the fitted camera is its own frame'''
+    return False
+
+
 def library_version():
     import cv2
     return f"opencv {cv2.__version__}"

@@ -1,0 +1,146 @@
+r'''Cameras that are one camera: found exactly, rendered once, each with its own records
+
+The catalogue's derived slots (stereo partners and rear-facing copies: 5-7 of
+8, 9-11 of 12, 14 of 13, 18 of 17) image every camera-frame point at the same
+pixel as their source. A campaign renders them once (harness.runner.group_twins)
+and must give exactly the records it gives without sharing, apart from timings
+and info["shared"].
+'''
+
+import json
+
+import numpy as np
+import pytest
+
+from harness.calibrators import uses_world_frame
+from harness.campaign import CampaignError, load_campaign, parse_campaign
+from harness.records import RunStore, job_filename, without_timings
+from harness.runner import expand_jobs, group_twins, run_campaign, same_camera
+from reference_models.cahvore import truncate
+from reference_models.catalogue import load_catalogue
+
+CAT = load_catalogue()
+
+
+def _model(slot, family=None):
+    m = CAT.get(slot).model
+    return truncate(m, family) if family else m
+
+
+@pytest.mark.parametrize("a, b", [(8, 5), (8, 6), (8, 7), (12, 9), (12, 10), (12, 11),
+                                  (13, 14), (17, 18)])
+def test_derived_slots_are_the_same_camera(a, b):
+    assert same_camera(_model(a), _model(b))
+    assert same_camera(_model(b), _model(a))
+    for family in ("CAHV", "CAHVOR"):
+        assert same_camera(_model(a, family), _model(b, family))
+
+
+@pytest.mark.parametrize("a, b", [(15, 16), (21, 22), (1, 2), (5, 9)])
+def test_other_slots_are_not(a, b):
+    assert not same_camera(_model(a), _model(b))
+
+
+def test_a_change_far_below_a_pixel_is_a_different_camera():
+    m = _model(17)
+    assert same_camera(m, m)
+    # the image centre moved by 1e-7 px: H = Hs H' + Hc A
+    moved = m.replace(H=np.asarray(m.H) + 1e-7 * np.asarray(m.A))
+    assert not same_camera(m, moved)
+    assert not same_camera(m, truncate(m, "CAHVOR"))   # the class differs
+    assert not same_camera(_model(15), _model(15).replace(width=1023))
+
+
+def test_paper_campaign_folds_the_derived_slots():
+    jobs = expand_jobs(load_campaign("campaigns/paper.toml"))
+    grouped = group_twins(jobs)
+    twins = {j.key: [k for _, k in j.twins] for j in grouped if j.twins}
+    assert len(jobs) == 66 and len(grouped) == 43
+    assert twins == {
+        **{f"5/{f}/dots/raycast[spp=16,adaptive]": ["6", "7", "8"]
+           for f in ("CAHV", "CAHVOR", "CAHVORE")},
+        **{f"9/{f}/dots/raycast[spp=16,adaptive]": ["10", "11", "12"]
+           for f in ("CAHV", "CAHVOR", "CAHVORE")},
+        **{f"13/{f}/dots/raycast[spp=16,adaptive]": ["14"] for f in ("CAHV", "CAHVOR")},
+        **{f"17/{f}/dots/raycast[spp=16,adaptive]": ["18"]
+           for f in ("CAHV", "CAHVOR", "CAHVORE")}}
+    # every job is there once, as itself or as a twin
+    members = [m.key for j in grouped for m in j.members()]
+    assert sorted(members) == sorted(j.key for j in jobs)
+    # the pancams' CAHVORE jobs are not-applicable (no CAHVORE of a CAHVOR): not folded
+    assert "14/CAHVORE/dots/raycast[spp=16,adaptive]" in {j.key for j in grouped}
+
+
+def test_only_exact_renderers_and_clean_jobs_share():
+    c = parse_campaign({"cameras": [17, 18], "models": ["CAHV"],
+                        "renderer": [{"name": "raycast"}, {"name": "povray"}],
+                        "response": {"clean": {}, "noisy": {"read_noise": {"sigma_e": 5.0}}}},
+                       source="c.toml")
+    grouped = group_twins(expand_jobs(c))
+    shared = [j.key for j in grouped if j.twins]
+    assert shared == ["17/CAHV/dots/raycast[spp=16,adaptive]"]
+    assert len(grouped) == len(expand_jobs(c)) - 1
+    # finished jobs are left as they are
+    assert not any(j.twins for j in group_twins(expand_jobs(c), skip={shared[0]}))
+
+
+def test_calibrators_say_whether_they_read_the_world_frame():
+    assert uses_world_frame("jpl", {})
+    assert not uses_world_frame("mrcal", {})
+    assert uses_world_frame("mrcal", {"known_poses": True})
+    assert not uses_world_frame("opencv", {})
+    assert not uses_world_frame("colmap", {})
+
+
+def test_campaign_key_share_identical_cameras():
+    c = parse_campaign({"cameras": [17], "share_identical_cameras": False}, source="c.toml")
+    assert c.share_identical_cameras is False
+    assert c.as_dict()["share_identical_cameras"] is False
+    assert parse_campaign({"cameras": [17]}, source="c.toml").share_identical_cameras is True
+    with pytest.raises(CampaignError, match="share_identical_cameras"):
+        parse_campaign({"cameras": [17], "share_identical_cameras": "yes"}, source="c.toml")
+
+
+def _without_sharing_info(r):
+    r = without_timings(r)
+    r["info"] = {k: v for k, v in r["info"].items() if k != "shared"}
+    return json.dumps(r, sort_keys=True)
+
+
+@pytest.mark.slow
+def test_shared_records_equal_unshared_records(tmp_path):
+    spec = {"cameras": [17, 18], "models": ["CAHVOR"],
+            "renderer": [{"name": "raycast", "spp": 4}],
+            "calibrator": [{"name": "jpl"}, {"name": "mrcal"},
+                           {"name": "opencv", "models": ["OPENCV5"]}]}
+    docs = {}
+    for share in (True, False):
+        c = parse_campaign(dict(spec, share_identical_cameras=share), source="c.toml")
+        docs[share] = run_campaign(c, tmp_path / str(share), workers=1, progress=False)
+    shared, alone = docs[True]["records"], docs[False]["records"]
+    assert sorted(shared) == sorted(alone) and len(shared) == 6
+    for k in shared:
+        assert _without_sharing_info(shared[k]) == _without_sharing_info(alone[k]), k
+    assert docs[True]["execution"]["twins"] == {"17/CAHVOR/dots/raycast[spp=4,adaptive]": ["18"]}
+    assert docs[True]["execution"]["jobs_run"] == 2
+    key = "18/CAHVOR/dots/raycast[spp=4,adaptive]"
+    jpl, mrcal = shared[key + "/jpl[CAHVOR]"], shared[key + "/mrcal[CAHVOR]"]
+    assert jpl["info"]["shared"] == {"with": "17", "stages": ["poses", "render", "detect"]}
+    assert mrcal["info"]["shared"] == {"with": "17",
+                                       "stages": ["poses", "render", "detect", "calibrate"]}
+    assert shared["17/CAHVOR/dots/raycast[spp=4,adaptive]/jpl[CAHVOR]"]["info"]["shared"] == \
+        {"twins": ["18"]}
+    # the twin's own work is timed, the shared work is not counted twice
+    assert jpl["seconds"]["render"] == 0.0 and jpl["seconds"]["detect"] == 0.0
+    assert jpl["seconds"]["calibrate"] > 0.0 and mrcal["seconds"]["calibrate"] == 0.0
+    assert jpl["seconds"]["render_per_image"] == \
+        shared["17/CAHVOR/dots/raycast[spp=4,adaptive]/jpl[CAHVOR]"]["seconds"]["render_per_image"]
+    # each camera has its own job file, so a lost twin is redone alone on resume
+    store = RunStore.open(tmp_path / "True")
+    assert {"17/CAHVOR/dots/raycast[spp=4,adaptive]", key} <= store.done_jobs()
+    (store.records_dir / job_filename(key)).unlink()
+    c = parse_campaign(dict(spec, share_identical_cameras=True), source="c.toml")
+    again = run_campaign(c, tmp_path / "True", resume=True, workers=1, progress=False)
+    assert again["execution"]["jobs_run"] == 1 and again["execution"]["twins"] == {}
+    for k in shared:
+        assert _without_sharing_info(again["records"][k]) == _without_sharing_info(alone[k]), k
