@@ -41,7 +41,9 @@ and projected by the fit placed in its own camera frame:
   the fit lives in the truth's world frame, e.g. jpl).
 '''
 
+import dataclasses
 import math
+import threading
 
 import numpy as np
 
@@ -194,6 +196,53 @@ def _fit_rotation(fit, p_cam, q, nmax=2000):
     return _R_from_r(sol.x)
 
 
+# the truth's side of projection_difference(), for the few truths compared last: the
+# records of one job compare 2-3 modes each against at most 3 truths (raw, and moved
+# to the jpl and mrcal fits' R0)
+_TRUTH_POINTS = {}
+_TRUTH_POINTS_LOCK = threading.Lock()   # a Dask worker may compare in several threads
+TRUTH_POINTS_MEMO = 4
+
+
+def _model_key(model):
+    r'''A hashable key holding every parameter of a JPL-family model, exactly'''
+    return (type(model),) + tuple(
+        (f.name, v.tobytes() if isinstance(v, np.ndarray) else v)
+        for f in dataclasses.fields(model) for v in (getattr(model, f.name),))
+
+
+def truth_points(truth, range_m=DEFAULT_RANGE_M, step=DEFAULT_GRID_STEP):
+    r'''The image grid, and points at range_m along the truth's rays through it
+
+SYNOPSIS
+
+    q, p_ref, p_cam = truth_points(truth, range_m=2.0, step=16)
+    # q (ny,nx,2) px; p_ref (ny,nx,3) in the truth's world frame, p_cam the same
+    # points in its camera frame (Rt_ref_cam); all three read-only
+
+The same for every fit compared with this truth, so the last few are
+memoised (keyed on every parameter of the truth, exactly): unprojecting the
+grid of a 5120x3840 CAHVORE costs as much as projecting it.
+'''
+    key = (_model_key(truth), float(range_m), step)
+    with _TRUTH_POINTS_LOCK:
+        hit = _TRUTH_POINTS.pop(key, None)
+    if hit is None:
+        q = image_grid(truth.width, truth.height, step)
+        o, v = truth.unproject(q)
+        p_ref = o + range_m * v
+        Rt = truth.Rt_ref_cam()
+        p_cam = (p_ref - Rt[3]) @ Rt[:3]
+        for a in (q, p_ref, p_cam):
+            a.setflags(write=False)
+        hit = (q, p_ref, p_cam)
+    with _TRUTH_POINTS_LOCK:
+        _TRUTH_POINTS[key] = hit      # the most recently used last
+        while len(_TRUTH_POINTS) > TRUTH_POINTS_MEMO:
+            del _TRUTH_POINTS[next(iter(_TRUTH_POINTS))]
+    return hit
+
+
 def projection_difference(truth, fit, mode="rotation", range_m=DEFAULT_RANGE_M,
                           step=DEFAULT_GRID_STEP):
     r'''|fit - truth| in projection over the whole image
@@ -203,6 +252,7 @@ SYNOPSIS
     d = projection_difference(truth, fit, mode="rotation")
     # d["map"] (ny,nx) px, NaN where the fit cannot project; d["q"] (ny,nx,2)
     # d["rms"], d["max"] px over the finite entries; d["n_invalid"]
+    # (d["q"] is read-only: the truth's side is memoised, see truth_points)
 
 mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
 (camera frames identified) or "world" (the world frames identified).
@@ -215,15 +265,11 @@ mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
             truth.family in ("CAHVOR", "CAHVORE"):
         # the same projection, in the camera frame matching the fit's R0 gauge
         truth = with_R0(truth, float(fit.R[0]))
-    q = image_grid(truth.width, truth.height, step)
-    o, v = truth.unproject(q)
-    p_ref = o + range_m * v
+    q, p_ref, p_cam = truth_points(truth, range_m, step)
     if mode == "world":
         qf = fit.project(p_ref)
         R = None
     else:
-        Rt = truth.Rt_ref_cam()
-        p_cam = (p_ref - Rt[3]) @ Rt[:3]
         R = np.eye(3)
         if mode == "rotation":
             R = _fit_rotation(fit, p_cam.reshape(-1, 3), q.reshape(-1, 2))

@@ -76,9 +76,14 @@ class NotVisibleError(CamvalError):
 def _rotation(axis, angle):
     r'''Rodrigues: rotation matrix about a unit axis by angle (rad)'''
     axis = np.asarray(axis, dtype=np.float64)
-    axis = axis / np.linalg.norm(axis)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
+    # axis / np.linalg.norm(axis), bit for bit, without norm's overhead
+    a0, a1, a2 = (axis / math.sqrt(axis.dot(axis))).tolist()
+    K = np.array([[0.0, -a2, a1], [a2, 0.0, -a0], [-a1, a0, 0.0]])
+    return _EYE3 + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
+
+
+_EYE3 = np.eye(3)
+_EX = np.array([1.0, 0.0, 0.0])
 
 
 class _Planner:
@@ -106,46 +111,75 @@ class _Planner:
             self._rays[key] = ray
         return ray
 
-    def pose(self, q_anchor, d, tilt, azimuth, roll):
-        r'''Rt_cam_board placing the board centre at range d along the ray of q_anchor'''
+    def orientation(self, q_anchor, tilt, azimuth, roll):
+        r'''(o, v, R, R @ centre_board): the board facing the ray (o, v) of q_anchor
+
+None when the ray is not finite. The range along the ray plays no part: a
+range search computes this once and moves the board with place().
+'''
         o, v = self.ray_cam(q_anchor)
-        if not (np.all(np.isfinite(o)) and np.all(np.isfinite(v))):
+        if not (np.isfinite(o).all() and np.isfinite(v).all()):
             return None
         # board axes facing the ray: z along the ray, x as close to the camera's x as possible
-        ex = np.array([1.0, 0.0, 0.0])
-        x = ex - (ex @ v) * v
-        if np.linalg.norm(x) < 1e-6:
+        x = _EX - (_EX @ v) * v
+        # |x| as np.linalg.norm computes it (sqrt of the dot product), bit for bit
+        if math.sqrt(x.dot(x)) < 1e-6:
             x = np.array([0.0, 1.0, 0.0]) - v[1] * v
-        x /= np.linalg.norm(x)
-        y = np.cross(v, x)
-        R = np.stack((x, y, v), axis=1)
+        x /= math.sqrt(x.dot(x))
+        # y = np.cross(v, x), bit for bit (the same products and differences)
+        v0, v1, v2 = v.tolist()
+        x0, x1, x2 = x.tolist()
+        y = np.array([v1 * x2 - v2 * x1, v2 * x0 - v0 * x2, v0 * x1 - v1 * x0])
+        R = np.empty((3, 3))
+        R[:, 0], R[:, 1], R[:, 2] = x, y, v
         a = math.radians(azimuth)
         axis = math.cos(a) * x + math.sin(a) * y
         R = _rotation(v, math.radians(roll)) @ _rotation(axis, math.radians(tilt)) @ R
-        t = o + d * v - R @ self.centre_board
-        return np.vstack((R, t))
+        return o, v, R, R @ self.centre_board
 
-    def fits(self, Rt):
+    def place(self, orientation, d):
+        r'''Rt_cam_board of an orientation() with the board centre at range d along its ray'''
+        o, v, R, Rc = orientation
+        return np.vstack((R, o + d * v - Rc))
+
+    def pose(self, q_anchor, d, tilt, azimuth, roll):
+        r'''Rt_cam_board placing the board centre at range d along the ray of q_anchor'''
+        orientation = self.orientation(q_anchor, tilt, azimuth, roll)
+        return None if orientation is None else self.place(orientation, d)
+
+    def fits(self, Rt, outline_cam=None):
+        r'''Whether the board at Rt lies in front of the camera, faces it and is in the image
+
+outline_cam: self.outline @ Rt[:3].T, when the caller has it already.
+'''
         if Rt is None:
             return False
-        p_cam = self.outline @ Rt[:3].T + Rt[3]
-        if not np.all(p_cam[:, 2] > 0):
+        if outline_cam is None:
+            outline_cam = self.outline @ Rt[:3].T
+        p_cam = outline_cam + Rt[3]
+        if not (p_cam[:, 2] > 0).all():
             return False
         n = Rt[:3, 2]
         # rays from the camera centre: the board must face the camera, not too obliquely
         u = p_cam / np.linalg.norm(p_cam, axis=-1, keepdims=True)
-        if not np.all(u @ n >= self.cos_view_max):
+        if not (u @ n).min() >= self.cos_view_max:
             return False
         q = self.model.project(p_cam @ self.R_ref_cam.T + self.t_ref_cam)
+        # the bounds are NaN when any q is (min and max propagate NaN): the board does not fit
+        (xmin, ymin), (xmax, ymax) = q.min(axis=0).tolist(), q.max(axis=0).tolist()
         m = self.margin
-        return bool(np.all(np.isfinite(q))
-                    and np.all(q[:, 0] >= m - 0.5) and np.all(q[:, 0] <= self.W - 0.5 - m)
-                    and np.all(q[:, 1] >= m - 0.5) and np.all(q[:, 1] <= self.H - 0.5 - m))
+        return (xmin >= m - 0.5 and xmax <= self.W - 0.5 - m
+                and ymin >= m - 0.5 and ymax <= self.H - 0.5 - m)
 
     def closest_fit_range(self, q_anchor, tilt, azimuth, roll):
         r'''Smallest range at which the board fits with its centre on the ray of q_anchor'''
+        orientation = self.orientation(q_anchor, tilt, azimuth, roll)
+        if orientation is None:
+            return None
+        outline_cam = self.outline @ orientation[2].T
+
         def ok(d):
-            return self.fits(self.pose(q_anchor, d, tilt, azimuth, roll))
+            return self.fits(self.place(orientation, d), outline_cam)
         hi = self.size
         while not ok(hi):
             hi *= 2.0
