@@ -12,6 +12,7 @@ from harness.compare import (
     image_grid,
     parameter_errors,
     projection_difference,
+    truth_points,
     with_R0,
 )
 
@@ -124,3 +125,58 @@ def test_observations_from_camera_poses_match_the_survey():
     f = obs.found
     np.testing.assert_allclose(q[f], obs.q[f], atol=1e-9)
     assert Observations.from_camera_poses(obs.q, t.points(), (1024, 1024)).Rt_ref_board is None
+
+
+def _perturbed(m):
+    ph = m.photogrammetric()
+    m2 = m.with_photogrammetric(type(ph)(ph.Hc + 0.3, ph.Vc - 0.2, ph.Hs * 1.0005, ph.Vs,
+                                         ph.Hp, ph.Vp))
+    return m2.replace(R=np.array([0.01, 1.05 * m.R[1], 0.97 * m.R[2]]))
+
+
+# (rms, max, rotation_deg) px, px, deg of a perturbed navcam (CAHVOR) and hazcam
+# (CAHVORE) against the truth, step 32, computed before the truth's side was memoised
+# (commit cf58840); the fit's R0 = 0.01 moves the truth along the R0 gauge
+PINNED = {
+    "15": {"rotation": (3.977307230534928, 6.738869023416855, 0.024284825122015095),
+           "intrinsics": (4.016367718192235, 7.086839733694504, 0.0),
+           "world": (3.9935766863584563, 6.980501209087156, None)},
+    "8": {"rotation": (4.411453246948816, 8.716842126745739, 0.04371763062094848),
+          "intrinsics": (4.422584861630407, 8.892646453987439, 0.0),
+          "world": (4.423031157982672, 8.897998738684132, None)},
+}
+
+
+@pytest.mark.parametrize("key", list(PINNED))
+def test_projection_difference_figures_are_pinned(key):
+    truth = MODELS[key]
+    fit = _perturbed(truth)
+    for _ in range(2):      # computed, then with the truth's side from the memo
+        for mode, (rms, mx, rot) in PINNED[key].items():
+            d = projection_difference(truth, fit, mode=mode, step=32)
+            assert d["n"] == 33 * 33 and d["n_invalid"] == 0
+            assert d["rms"] == pytest.approx(rms, rel=1e-12, abs=0)
+            assert d["max"] == pytest.approx(mx, rel=1e-12, abs=0)
+            assert d.get("rotation_deg") == (None if rot is None
+                                             else pytest.approx(rot, rel=1e-9, abs=1e-15))
+
+
+def test_truth_points_memo_is_keyed_on_every_parameter():
+    m = HAZCAM
+    q, p_ref, p_cam = truth_points(m, step=64)
+    assert not (q.flags.writeable or p_ref.flags.writeable or p_cam.flags.writeable)
+    # an equal model built anew shares the entry
+    same = type(m)(**{f: getattr(m, f) for f in ("C", "A", "H", "V", "O", "R", "E",
+                                                 "model_type", "linearity",
+                                                 "width", "height")})
+    assert truth_points(same, step=64)[1] is p_ref
+    # one ulp of one parameter, another step or range: other points
+    C = m.C.copy()
+    C[0] = np.nextafter(C[0], 1.0)
+    p_other = truth_points(m.replace(C=C), step=64)[1]
+    assert p_other is not p_ref and not np.array_equal(p_other, p_ref)
+    assert truth_points(m, step=32)[0].shape == (33, 33, 2)
+    assert not np.array_equal(truth_points(m, range_m=4.0, step=64)[2], p_cam)
+    # the memoised points are the unprojected grid, exactly
+    o, v = m.unproject(image_grid(m.width, m.height, 64))
+    np.testing.assert_array_equal(truth_points(m, step=64)[1], o + 2.0 * v)
