@@ -7,7 +7,6 @@ SYNOPSIS
     origin, v = unproject_grid(cam, q)            # q (N,2) -> (N,3), (N,3), = model.unproject(q)
     warm = warm_start(cam, ix, iy)                # Newton start near pixel (ix, iy)
     s, vx, vy, vz = ray_warm(cam, x, y, warm)     # the same ray, unnormalised, faster
-    dirs, shift, done = new_ray_cache(W, H, noncentral)   # empty: filled by render_kernel
     dirs, shift = build_ray_cache(cam, W, H, noncentral)  # centre rays of pixels -1..W, -1..H
     render_kernel(...)                            # fills an image; see renderers.raycast
 
@@ -313,26 +312,6 @@ prediction of the previous point of its row (fewer steps, same tolerance)"""
             dirs[gy, gx, 2] = vz
             if noncentral:
                 shift[gy, gx] = s
-
-
-def new_ray_cache(width, height, noncentral):
-    r'''An empty ray cache of the layout of build_ray_cache(), filled lazily by render_kernel
-
-SYNOPSIS
-
-    dirs, shift, done = new_ray_cache(W, H, noncentral)
-    # done (H+2,W+2) uint8: 0 where dirs, shift are not computed yet
-
-render_kernel computes a pixel-centre ray with ray() (a cold Newton start, so
-the value does not depend on which rays were computed before) when it first
-needs it, stores it and marks done with the render's epoch (1..255). The
-arrays are allocated untouched (the operating system maps their pages on
-first write), so a cache holds memory only where the renders looked.
-'''
-    dirs = np.empty((height + 2, width + 2, 3), dtype=np.float64)
-    shift = np.empty((height + 2, width + 2) if noncentral else (1, 1), dtype=np.float64)
-    done = np.zeros((height + 2, width + 2), dtype=np.uint8)
-    return dirs, shift, done
 
 
 def build_ray_cache(cam, width, height, noncentral):
@@ -845,73 +824,40 @@ def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, ja
     return v, n, 1
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _centre(k, c, lazy):
-    r"""Compute (once) the board point of the centre ray of band row k, column c
-
-lazy = (r0, own0, own1, cam, dirs, shift, done, epoch, noncentral, xf, hx, hy, hok, hdone):
-the band starts at image row r0 (band row k = image row r0 + k - 1, band column
-c = image column c - 1) and owns the cache rows own0..own1. The ray comes from
-the cache where done marks it; a missing ray is computed with ray() and, in a
-row the band owns, stored. Only the band's own thread writes a row of the cache
-during a render_kernel call, so in another band's row only the rays stored by
-earlier calls (done != 0 and != this call's epoch) are read; others are
-computed again, to the same bits."""
-    r0, own0, own1, cam, dirs, shift, done, epoch, noncentral, xf, hx, hy, hok, hdone = lazy
-    if hdone[k, c]:
-        return
-    hdone[k, c] = 1
-    gy = r0 + k
-    own = gy >= own0 and gy <= own1
-    d = done[gy, c]
-    if d != 0 and (own or d != epoch):
-        s = shift[gy, c] if noncentral else 0.0
-        vx = dirs[gy, c, 0]
-        vy = dirs[gy, c, 1]
-        vz = dirs[gy, c, 2]
-    else:
-        s, vx, vy, vz = ray(cam, c - 1.0, gy - 1.0)
-        if own:
-            dirs[gy, c, 0] = vx
-            dirs[gy, c, 1] = vy
-            dirs[gy, c, 2] = vz
-            if noncentral:
-                shift[gy, c] = s
-            done[gy, c] = epoch
-    ok, x, y = _hit(xf, s, vx, vy, vz)
-    hok[k, c] = ok
-    hx[k, c] = x
-    hy[k, c] = y
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _on_board(lazy, k, c, rect):
-    r"""1 when the centre ray of band row k, column c (computed) meets the board rectangle"""
-    hx = lazy[10]
-    hy = lazy[11]
-    x = hx[k, c]
-    y = hy[k, c]
-    return int(lazy[12][k, c] != 0 and x >= rect[0] and x < rect[1]
-               and y >= rect[2] and y < rect[3])
-
-
 @njit(cache=True, error_model="numpy")
-def _render_band(r0, r1, T, cam, dirs, shift, done, epoch, noncentral, xf, K, adaptive, values,
-                 out, stats, pat, qbox):
+def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values, out,
+                 stats, pat, qbox):
     H, W = out.shape
     nk = r1 - r0 + 2
     # board points of the centre rays of image rows r0-1 .. r1 (band row k = iy - r0 + 1)
-    # and columns -1 .. W (band column c = ix + 1), computed where a test reads them
+    # and columns -1 .. W (band column c = ix + 1)
     hx = np.empty((nk, W + 2))
     hy = np.empty((nk, W + 2))
     hok = np.zeros((nk, W + 2), dtype=np.int64)
-    hdone = np.zeros((nk, W + 2), dtype=np.uint8)
-    # the cache rows of the band's own pixels, and of the ring around the image at its edges
-    own0 = r0 + 1 if r0 > 0 else 0
-    own1 = r1 if r1 < H else H + 1
-    lazy = (r0, own0, own1, cam, dirs, shift, done, epoch, noncentral, xf, hx, hy, hok, hdone)
     rect = pat[0]
     nboard = 0
+    # adaptive: only the tiles that meet the image of the board need their rays
+    g0 = 0
+    g1 = W + 2
+    if adaptive:
+        if r1 - 0.5 < qbox[2] or r0 - 0.5 > qbox[3]:
+            g1 = 0
+        else:
+            ta = math.floor((min(max(qbox[0], -1.0), W + 1.0) + 0.5) / T)
+            tb = math.floor((min(max(qbox[1], -1.0), W + 1.0) + 0.5) / T) + 1
+            g0 = max(0, int(ta) * T)
+            g1 = min(W, int(tb) * T) + 2
+    for k in range(nk):
+        gy = r0 + k
+        for gx in range(g0, g1):
+            s = shift[gy, gx] if noncentral else 0.0
+            ok, x, y = _hit(xf, s, dirs[gy, gx, 0], dirs[gy, gx, 1], dirs[gy, gx, 2])
+            hok[k, gx] = ok
+            hx[k, gx] = x
+            hy[k, gx] = y
+            if (ok and k > 0 and k < nk - 1 and gx > 0 and gx <= W
+                    and x >= rect[0] and x < rect[1] and y >= rect[2] and y < rect[3]):
+                nboard += 1
 
     counts = np.zeros(values.shape[0], dtype=np.int64)
     offs = np.empty(K)
@@ -930,8 +876,6 @@ def _render_band(r0, r1, T, cam, dirs, shift, done, epoch, noncentral, xf, K, ad
         if not adaptive:
             for iy in range(r0, r1):
                 for ix in range(x0, x1):
-                    _centre(iy - r0 + 1, ix + 1, lazy)
-                    nboard += _on_board(lazy, iy - r0 + 1, ix + 1, rect)
                     v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, False, jac,
                                         values, pat)
                     out[iy, ix] = v
@@ -952,24 +896,8 @@ def _render_band(r0, r1, T, cam, dirs, shift, done, epoch, noncentral, xf, K, ad
                 # the block lies outside the image of the board
                 uniform, m = True, pat[1][0]
             else:
-                # the ring of pixel centres around the block, and its centre
-                k0 = ya - r0
-                k1 = yb - r0 + 1
-                for c in range(xa, xb + 2):
-                    _centre(k0, c, lazy)
-                    _centre(k1, c, lazy)
-                for k in range(k0 + 1, k1):
-                    _centre(k, xa, lazy)
-                    _centre(k, xb + 1, lazy)
-                kc = (k0 + k1) // 2
-                cc = (xa + xb + 1) // 2
-                _centre(kc, cc, lazy)
-                uniform, m = _block_uniform(hx, hy, hok, k0, k1, xa, xb + 1, pat)
+                uniform, m = _block_uniform(hx, hy, hok, ya - r0, yb - r0 + 1, xa, xb + 1, pat)
                 nblocks += 1
-                if uniform:
-                    # the board points of the block lie within the disc of its centre's,
-                    # which lies wholly on the board or wholly off it
-                    nboard += _on_board(lazy, kc, cc, rect) * (yb - ya) * (xb - xa)
             if uniform:
                 v = values[m]
                 for iy in range(ya, yb):
@@ -982,14 +910,9 @@ def _render_band(r0, r1, T, cam, dirs, shift, done, epoch, noncentral, xf, K, ad
             for iy in range(ya, yb):
                 for ix in range(xa, xb):
                     ntested += 1
-                    k = iy - r0 + 1
-                    c = ix + 1
-                    for dk in range(-1, 2):
-                        for dc in range(-1, 2):
-                            _centre(k + dk, c + dc, lazy)
-                    nboard += _on_board(lazy, k, c, rect)
-                    v, n, sup = _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs,
-                                              counts, stack, jac, cand, values, pat)
+                    v, n, sup = _render_pixel(cam, xf, ix, iy, iy - r0 + 1, ix + 1, hx, hy,
+                                              hok, K, offs, counts, stack, jac, cand, values,
+                                              pat)
                     out[iy, ix] = v
                     nrays += n
                     nsuper += sup
@@ -1001,16 +924,10 @@ def _render_band(r0, r1, T, cam, dirs, shift, done, epoch, noncentral, xf, K, ad
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def render_kernel(cam, dirs, shift, done, epoch, noncentral, xf, K, adaptive, T, values, out,
-                  stats, pat, qbox, nthreads):
+def render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive, T, values, out, stats, pat,
+                  qbox, nthreads):
     r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
 
-dirs, shift, done: the ray cache (new_ray_cache(); or build_ray_cache() with
-done all nonzero); the centre rays the render reads and the cache lacks are
-computed, stored and marked with epoch (1..255). A band reads another band's
-rows only where done holds another epoch (stored by an earlier call), so the
-caller changes epoch from one call to the next (renderers.raycast cycles it)
-and never runs two calls on one cache at the same time.
 stats (Nbands,5) receives per band: rays traced, supersampled pixels, pixels
 whose centre ray sees the board, blocks of pixels tested, pixels tested.
 qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
@@ -1029,5 +946,5 @@ nthreads: numba's thread count (bands are dealt out round-robin among them)."""
         r0 = b * T
         r1 = min(H, r0 + T)
         if r1 > r0:
-            _render_band(r0, r1, T, cam, dirs, shift, done, epoch, noncentral, xf, K, adaptive,
-                         values, out, stats[b], pat, qbox)
+            _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values,
+                         out, stats[b], pat, qbox)

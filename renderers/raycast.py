@@ -51,19 +51,9 @@ tests/test_raycast.py checks adaptive == full bit for bit on several cameras,
 targets and poses (including noncentral CAHVOREs at K = 16).
 
 The rays of the pixel centres (and a one-pixel ring) are cached per camera
-model: 25 bytes per pixel, 33 for a noncentral CAHVORE (0.65 GB for a
+model: 24 bytes per pixel, 32 for a noncentral CAHVORE (0.63 GB for a
 5120x3840 camera); subsample rays are traced on the fly. The cache is bounded
-(cache_bytes, least recently used models are dropped). It is filled lazily:
-a render computes (and stores) only the centre rays its tests read, and then
-only their board points, when it first reads them: the tiles outside the
-board's image read none, a uniform tile only its ring and centre. A ray is
-computed from a cold Newton start (renderers._raycast_kernels.ray), so its
-value does not depend on what was computed before; the image does not depend
-on the cache at all beyond the conservative tests (tests/test_raycast.py
-checks the lazy cache against the eager one, bit for bit). The arrays are
-allocated untouched, so the memory the process holds grows with the rays
-computed (the bound counts the full arrays). Renders of one camera model take
-turns (its entry's lock); renders of different models run together.
+(cache_bytes, least recently used models are dropped).
 '''
 
 import math
@@ -341,27 +331,6 @@ plane (+-inf): nothing is known.
     return np.array([lo[0], hi[0], lo[1], hi[1]])
 
 
-@dataclass(eq=False)
-class RayCache:
-    r'''The cached pixel-centre rays of one camera model (renderers._raycast_kernels
-new_ray_cache / build_ray_cache)
-
-lock: held while a render reads and fills the arrays; renders: how many
-renders used it (the epoch of the next one is renders % 255 + 1).'''
-
-    cam: np.ndarray
-    dirs: np.ndarray
-    shift: np.ndarray
-    done: np.ndarray
-    noncentral: bool
-    lock: threading.Lock
-    renders: int = 0
-
-    @property
-    def nbytes(self):
-        return self.dirs.nbytes + self.shift.nbytes + self.done.nbytes
-
-
 # the ray cache shared by the renderers of a process (shared_cache=True)
 _SHARED_RAYS = OrderedDict()
 _SHARED_LOCK = threading.Lock()
@@ -372,30 +341,25 @@ class RaycastRenderer:
 
 SYNOPSIS
 
-    r = RaycastRenderer(cache_bytes=1 << 30, threads=None, shared_cache=True, lazy_rays=True)
+    r = RaycastRenderer(cache_bytes=1 << 30, threads=None, shared_cache=True)
     result = r.render(model, pattern, Rt_cam_board, RenderSettings(spp=16))
 
 cache_bytes bounds the memory of the per-camera ray cache (the least recently
 used cameras are dropped when a new one is added; the newest is always kept);
 by default all RaycastRenderers of a process share one cache, so a renderer
 made per job still finds the rays of a camera it has seen. threads sets
-numba's thread count (default: all). lazy_rays=False computes every
-pixel-centre ray of a camera when it is first seen (build_ray_cache, Newton
-started along the rows), as the renderer did before the cache was lazy: the
-images are the same; eager entries are cached apart from lazy ones.
+numba's thread count (default: all).
 '''
 
     name = "raycast"
 
-    def __init__(self, cache_bytes=DEFAULT_CACHE_BYTES, threads=None, shared_cache=True,
-                 lazy_rays=True):
+    def __init__(self, cache_bytes=DEFAULT_CACHE_BYTES, threads=None, shared_cache=True):
         if not (isinstance(cache_bytes, int) and cache_bytes >= 0):
             raise CamvalError(f"cache_bytes = {cache_bytes!r}; expected an integer >= 0")
         if threads is not None and not (isinstance(threads, int) and threads >= 1):
             raise CamvalError(f"threads = {threads!r}; expected a positive integer")
         self.cache_bytes = cache_bytes
         self.threads = threads
-        self.lazy_rays = bool(lazy_rays)
         if shared_cache:
             self._rays, self._lock = _SHARED_RAYS, _SHARED_LOCK
         else:
@@ -408,31 +372,25 @@ images are the same; eager entries are cached apart from lazy ones.
 
     # --- the per-camera ray cache --------------------------------------------
     def rays(self, model):
-        r'''(RayCache, cold) of a model: from the cache, or new (lazy: empty; eager: traced)'''
+        r'''(cam, dirs, shift, noncentral, cold) of a model, from the cache or traced now'''
         from renderers import _raycast_kernels as kern
-        key = (_model_key(model), self.lazy_rays)
+        key = _model_key(model)
         with self._lock:
             entry = self._rays.get(key)
             if entry is not None:
                 self._rays.move_to_end(key)
-                return entry, False
+                return entry + (False,)
             cam = kern.pack_model(model)
             noncentral = not model.is_central
-            W, H = model.width, model.height
-            if self.lazy_rays:
-                dirs, shift, done = kern.new_ray_cache(W, H, noncentral)
-            else:
-                dirs, shift = kern.build_ray_cache(cam, W, H, noncentral)
-                done = np.ones(dirs.shape[:2], dtype=np.uint8)
-            entry = RayCache(cam=cam, dirs=dirs, shift=shift, done=done, noncentral=noncentral,
-                             lock=threading.Lock())
+            dirs, shift = kern.build_ray_cache(cam, model.width, model.height, noncentral)
+            entry = (cam, dirs, shift, noncentral)
             self._rays[key] = entry
             while len(self._rays) > 1 and self._cache_size() > self.cache_bytes:
                 self._rays.popitem(last=False)
-            return entry, True
+            return entry + (True,)
 
     def _cache_size(self):
-        return sum(e.nbytes for e in self._rays.values())
+        return sum(e[1].nbytes + e[2].nbytes for e in self._rays.values())
 
     def clear_cache(self):
         with self._lock:
@@ -498,23 +456,20 @@ ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
             numba.set_num_threads(self.threads)
 
         t1 = time.perf_counter()
-        rc, cold = self.rays(model)
+        cam, dirs, shift, noncentral, cold = self.rays(model)
         t_rays = time.perf_counter() - t1
 
         R = Rt[:3]
         t = Rt[3]
-        O = rc.cam[12:15]
+        O = cam[12:15]
         xf = np.concatenate((R.ravel(), R @ model.C + t, R @ O))
         H, W = model.height, model.width
         out = np.empty((H, W), dtype=np.float32)
         stats = np.zeros((-(-H // TILE), 5), dtype=np.int64)
         qbox = board_image_box(model, Rt_cam_board, cp.f[:4])
-        with rc.lock:
-            epoch = rc.renders % 255 + 1
-            rc.renders += 1
-            kern.render_kernel(rc.cam, rc.dirs, rc.shift, rc.done, epoch, rc.noncentral, xf, K,
-                               bool(settings.adaptive), TILE, cp.values, out, stats,
-                               cp.kernel_args(), qbox, numba.get_num_threads())
+        kern.render_kernel(cam, dirs, shift, noncentral, xf, K, bool(settings.adaptive), TILE,
+                           cp.values, out, stats, cp.kernel_args(), qbox,
+                           numba.get_num_threads())
         if not np.all(np.isfinite(out)):
             raise RendererError("the ray-cast renderer produced non-finite pixels (a bug)")
         total = stats.sum(axis=0)

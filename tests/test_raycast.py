@@ -317,58 +317,6 @@ def test_ray_cache_is_reused_and_bounded():
                     RenderSettings(spp=1)).metadata["ray_cache"] == "cold"
 
 
-@pytest.mark.parametrize("name", ["cahv", "cahvor", "cahvore-noncentral", "cahvore-fisheye"])
-def test_lazy_ray_cache_gives_the_images_and_metadata_of_the_eager_one(name):
-    r'''The lazily filled cache against a full eager build, bit for bit: adaptive and full,
-on poses that cover part of the image (one at an image corner), rendered one after
-the other into one cache; the rays it computed are model.unproject's and it did not
-compute them all'''
-    model = small_models()[name]
-    W, H = model.width, model.height
-    lazy = RaycastRenderer(shared_cache=False)
-    eager = RaycastRenderer(shared_cache=False, lazy_rays=False)
-    poses = (board_pose(model, 2.5, (25, -20, 5), offset=(0.5, 0.3)),
-             board_pose(model, 1.8, (-30, 20, 40), offset=(-0.4, -0.2)),
-             board_pose(model, 0.7, (10, 10, 0)))
-    keys = ("samples", "adaptive_fraction", "board_fraction", "blocks_tested", "pixels_tested")
-    for i, Rt in enumerate(poses):
-        for adaptive in (True, False):
-            settings = RenderSettings(spp=4, adaptive=adaptive)
-            a = lazy.render(model, dot_pattern(), Rt, settings)
-            b = eager.render(model, dot_pattern(), Rt, settings)
-            assert np.array_equal(a.image, b.image)
-            assert [a.metadata[k] for k in keys] == [b.metadata[k] for k in keys]
-            assert 0.0 < a.metadata["board_fraction"] < (0.5 if i < 2 else 1.0)
-            if i == 0 and adaptive:
-                (entry,) = lazy._rays.values()
-                assert 0.0 < (entry.done != 0).mean() < 0.5
-    (entry,) = lazy._rays.values()
-    done = entry.done != 0
-    assert done[1:-1, 1:-1].all()       # full supersampling read every pixel's centre ray
-    (full,) = eager._rays.values()
-    q = np.stack(np.meshgrid(np.arange(-1.0, W + 1), np.arange(-1.0, H + 1)), axis=-1)
-    origin, v = model.unproject(q)
-    np.testing.assert_allclose(entry.dirs[done], v[done], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(entry.dirs[done], full.dirs[done], rtol=0, atol=1e-12)
-    if not model.is_central:
-        np.testing.assert_allclose(model.C + entry.shift[done][:, None] * model.O,
-                                   origin[done], rtol=0, atol=1e-12)
-
-
-def test_lazy_ray_cache_adaptive_renders_compute_only_the_rays_they_read():
-    r'''An adaptive render of a board in one corner leaves the rest of the cache empty'''
-    model = small_models()["cahvor"]
-    r = RaycastRenderer(shared_cache=False)
-    a = r.render(model, dot_pattern(), board_pose(model, 3.0, (10, 5, 0), offset=(0.6, 0.5)),
-                 RenderSettings(spp=4))
-    assert 0.0 < a.metadata["board_fraction"] < 0.1
-    (entry,) = r._rays.values()
-    rows, cols = np.nonzero(entry.done)
-    # the board's image lies in the bottom right quarter of the image
-    assert rows.min() > model.height // 3 and cols.min() > model.width // 3
-    assert 0.0 < entry.done.astype(bool).mean() < 0.15
-
-
 def test_renderers_share_the_ray_cache_by_default():
     model = small_models()["cahvore-fisheye"].replace(width=97, height=61)
     Rt = board_pose(model, 1.0)
