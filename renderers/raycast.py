@@ -352,6 +352,9 @@ numba's thread count (default: all).
 '''
 
     name = "raycast"
+    # renders in the camera frame, exactly: cameras that image every camera-frame point
+    # alike get the same images (campaigns render them once: harness.runner.group_twins)
+    camera_frame_exact = True
 
     def __init__(self, cache_bytes=DEFAULT_CACHE_BYTES, threads=None, shared_cache=True):
         if not (isinstance(cache_bytes, int) and cache_bytes >= 0):
