@@ -13,7 +13,8 @@ process (unless --cold) so that the renderer's compiled kernels are cached
 and the workers load them instead of compiling. Prints the wall time against the
 target, the time summed per stage (poses, render, detect, calibrate per
 calibrator, compare; these are CPU-side seconds summed over the workers, so
-they can exceed the wall time), the number of images, and the record counts.
+they can exceed the wall time), the number of images rendered (twin cameras
+share their images), and the record counts.
 Writes one JSON document. Not a test: the machine is shared, so the figures
 depend on its load (the load average is recorded).
 '''
@@ -34,28 +35,6 @@ sys.path.insert(0, str(ROOT))
 TARGETS = {"quick": 20.0, "paper": 90.0}
 
 
-def stage_seconds(records):
-    r'''{stage: seconds} summed over jobs (render, detect, poses) and records (calibrate)'''
-    jobs = {}
-    out = {"poses": 0.0, "render": 0.0, "detect": 0.0, "compare": 0.0}
-    per_cal = {}
-    images = 0
-    for r in records.values():
-        s = r.get("seconds") or {}
-        jobs.setdefault(r["fullname"].rsplit("/", 1)[0], s)
-        if "calibrate" in s:
-            per_cal[r["calibrator"]] = per_cal.get(r["calibrator"], 0.0) + s["calibrate"]
-        out["compare"] += s.get("compare", 0.0) or 0.0
-    for s in jobs.values():
-        for k in ("poses", "render", "detect"):
-            out[k] += s.get(k, 0.0) or 0.0
-        if s.get("render_per_image"):
-            images += round(s["render"] / s["render_per_image"])
-    for cal, t in sorted(per_cal.items()):
-        out[f"calibrate:{cal}"] = t
-    return out, images
-
-
 def warm_up():
     r'''Run the quick campaign's 640x480 jobs (CAHV, CAHVOR, CAHVORE) once in this process:
 compiles (and caches) the renderer's numba kernels for every model family and imports every
@@ -72,7 +51,7 @@ stage, so the timed runs measure the work, not the JIT'''
 
 def bench(name, workers, keep=None):
     from harness.campaign import load_campaign
-    from harness.runner import run_campaign
+    from harness.runner import run_campaign, stage_seconds
     campaign = load_campaign(ROOT / "campaigns" / f"{name}.toml")
     entries = campaign.validate()
     with tempfile.TemporaryDirectory() as tmp:
@@ -87,6 +66,7 @@ def bench(name, workers, keep=None):
     return {"campaign": name, "wall_seconds": wall, "target_seconds": TARGETS[name],
             "meets_target": wall <= TARGETS[name], "workers": workers,
             "jobs": doc["execution"]["jobs"], "images": images,
+            "twin_jobs": sum(len(v) for v in (doc["execution"].get("twins") or {}).values()),
             "records": len(doc["records"]), "statuses": counts, "stage_seconds": stages,
             "load_average": os.getloadavg()}
 
@@ -111,7 +91,8 @@ def main(argv=None):
         r = bench(name, args.jobs, args.keep)
         results.append(r)
         print(f"\n{name}: {r['wall_seconds']:.1f} s wall (target <= {r['target_seconds']:.0f} s: "
-              f"{'met' if r['meets_target'] else 'NOT met'}), {r['jobs']} jobs, "
+              f"{'met' if r['meets_target'] else 'NOT met'}), {r['jobs']} jobs "
+              f"({r['twin_jobs']} of them twins rendered with another camera), "
               f"{r['images']} images, {r['records']} records {r['statuses']}, "
               f"{r['workers']} workers, load average {r['load_average'][0]:.1f}")
         for stage, t in r["stage_seconds"].items():

@@ -127,7 +127,8 @@ params:           {name: fit - truth} (harness.compare.parameter_errors: Hc, Vc 
                   E0..E2); None = not estimated by this calibrator
 projection:       {"rms", "max"} px (fitted-rotation projection difference, truth vs
                   fit) and per mode {"rotation"|"intrinsics"|"world": {"rms", "max", ...}}
-seconds:          {"render_per_image", "render", "detect", "calibrate", "compare",
+seconds:          {"render_per_image" (median), "render_first_image", "render", "detect",
+                  "calibrate", "compare",
                   "response" (the camera response of all images), "response_stages":
                   {stage: seconds summed over the images, "setup": building the chain}}
 detections:       {"n_expected", "n_found", "per_pose": [n_found, ...]}

@@ -54,6 +54,7 @@ import hashlib
 import math
 import os
 import pickle
+import statistics
 import sys
 import time
 import traceback
@@ -589,7 +590,9 @@ A job with twins (group_twins) gives the records of each of its cameras.
         renders, rsecs, rversion = render_stage(job.renderer, truth, target, poses,
                                                 job.settings)
         seconds["render"] = float(sum(rsecs))
-        seconds["render_per_image"] = float(sum(rsecs) / len(rsecs))
+        # the median: the first image of a camera also builds the renderer's caches
+        seconds["render_per_image"] = float(statistics.median(rsecs))
+        seconds["render_first_image"] = float(rsecs[0])
         features = render_features([r.metadata for r in renders])
         images, rsec = response_stage(job, truth, [r.image for r in renders])
         if rsec:
@@ -734,8 +737,9 @@ DETERMINISTIC_METADATA = ("samples", "adaptive_fraction", "board_fraction")
 
 
 def render_summary(metadatas):
-    r'''{"samples": total over the poses, "adaptive_fraction": mean, ...} of the renders'''
-    out = {}
+    r'''{"images": n, "samples": total over the poses, "adaptive_fraction": mean, ...} of
+the renders'''
+    out = {"images": len(metadatas)}
     for k in DETERMINISTIC_METADATA:
         vals = [m[k] for m in metadatas if isinstance(m, dict)
                 and isinstance(m.get(k), (int, float)) and not isinstance(m.get(k), bool)]
@@ -1075,27 +1079,29 @@ The document's "execution" says how the jobs ran (and the warm-up's seconds).
                                                "warm_up": report.get("warm_up")}})
 
 
-@dataclass
-class StageTimes:
-    r'''Per-stage seconds summed over a run's records (for benchmarks)'''
-    totals: dict = field(default_factory=dict)
+def stage_seconds(records):
+    r'''({stage: seconds summed over a run}, number of images rendered), for benchmarks
 
-    @classmethod
-    def of(cls, records):
-        seen_jobs = {}
-        cal = 0.0
-        for r in records.values():
-            s = r.get("seconds") or {}
-            job = r["fullname"].rsplit("/", 1)[0]
-            seen_jobs.setdefault(job, s)
-            cal += s.get("calibrate", 0.0) or 0.0
-        t = {"poses": 0.0, "render": 0.0, "detect": 0.0}
-        n_images = 0
-        for s in seen_jobs.values():
-            for k in t:
-                t[k] += s.get(k, 0.0) or 0.0
-            if s.get("render_per_image"):
-                n_images += round(s["render"] / s["render_per_image"])
-        t["calibrate"] = cal
-        t["images"] = n_images
-        return cls(t)
+Stages: poses, render, detect (once per job), compare and calibrate:NAME (per
+record). Seconds are those each worker measured, so with several workers they
+sum to more than the wall time. Twins (group_twins) add only their own work.
+'''
+    jobs = {}
+    out = {"poses": 0.0, "render": 0.0, "detect": 0.0, "compare": 0.0}
+    per_cal = {}
+    for r in records.values():
+        s = r.get("seconds") or {}
+        jobs.setdefault(r["fullname"].rsplit("/", 1)[0], r)
+        if "calibrate" in s:
+            per_cal[r["calibrator"]] = per_cal.get(r["calibrator"], 0.0) + s["calibrate"]
+        out["compare"] += s.get("compare", 0.0) or 0.0
+    images = 0
+    for r in jobs.values():
+        s = r.get("seconds") or {}
+        for k in ("poses", "render", "detect"):
+            out[k] += s.get(k, 0.0) or 0.0
+        if s.get("render"):
+            images += int(((r.get("info") or {}).get("render") or {}).get("images", 0))
+    for cal, t in sorted(per_cal.items()):
+        out[f"calibrate:{cal}"] = t
+    return out, images

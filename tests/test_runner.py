@@ -67,9 +67,12 @@ def test_records_have_real_numbers(first_run):
     assert 0 < r["projection"]["rms"] < 0.05
     assert r["projection"]["rms"] == r["projection"]["rotation"]["rms"]
     assert set(r["projection"]) >= {"rotation", "intrinsics", "world"}
-    for k in ("poses", "render", "render_per_image", "detect", "calibrate", "compare"):
+    for k in ("poses", "render", "render_per_image", "render_first_image", "detect",
+              "calibrate", "compare"):
         assert r["seconds"][k] > 0
+    assert r["seconds"]["render_per_image"] <= r["seconds"]["render"] / 3   # median of 6
     assert r["info"]["render"]["samples"] > 0 and 0 < r["info"]["render"]["adaptive_fraction"] < 1
+    assert r["info"]["render"]["images"] == 6
     assert r["versions"]["renderer"].startswith("raycast")
     assert r["artifacts"]["map"].startswith("maps/")
     assert (d / r["artifacts"]["map"]).is_file()
@@ -133,7 +136,7 @@ def test_stage_failures_are_records():
 def test_render_summary_keeps_only_deterministic_metadata():
     m = [{"samples": 10, "adaptive_fraction": 0.5, "ray_cache": "cold", "seconds": 1.0},
          {"samples": 12, "adaptive_fraction": 0.25, "ray_cache": "warm", "seconds": 2.0}]
-    assert render_summary(m) == {"samples": 22, "adaptive_fraction": 0.375}
+    assert render_summary(m) == {"images": 2, "samples": 22, "adaptive_fraction": 0.375}
 
 
 def test_progress_lines_when_not_a_tty(tmp_path, capsys):

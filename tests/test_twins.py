@@ -15,7 +15,7 @@ import pytest
 from harness.calibrators import uses_world_frame
 from harness.campaign import CampaignError, load_campaign, parse_campaign
 from harness.records import RunStore, job_filename, without_timings
-from harness.runner import expand_jobs, group_twins, run_campaign, same_camera
+from harness.runner import expand_jobs, group_twins, run_campaign, same_camera, stage_seconds
 from reference_models.cahvore import truncate
 from reference_models.catalogue import load_catalogue
 
@@ -135,6 +135,11 @@ def test_shared_records_equal_unshared_records(tmp_path):
     assert jpl["seconds"]["calibrate"] > 0.0 and mrcal["seconds"]["calibrate"] == 0.0
     assert jpl["seconds"]["render_per_image"] == \
         shared["17/CAHVOR/dots/raycast[spp=4,adaptive]/jpl[CAHVOR]"]["seconds"]["render_per_image"]
+    # the images are counted once: the twin rendered none
+    stages, images = stage_seconds(shared)
+    assert images == 6 and stage_seconds(alone)[1] == 12
+    assert stages["calibrate:mrcal"] == pytest.approx(
+        shared["17/CAHVOR/dots/raycast[spp=4,adaptive]/mrcal[CAHVOR]"]["seconds"]["calibrate"])
     # each camera has its own job file, so a lost twin is redone alone on resume
     store = RunStore.open(tmp_path / "True")
     assert {"17/CAHVOR/dots/raycast[spp=4,adaptive]", key} <= store.done_jobs()
