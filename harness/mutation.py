@@ -67,12 +67,6 @@ BELOW_DETECTION = {"float32": "float32 rounding of C, A, H, V, O, R moves projec
 CLEAN_CASES = ((15, "CAHVOR"), (15, "CAHV"), (8, "CAHVORE"))
 
 
-def _register_faulty():
-    # campaigns construct renderers by name; "faulty" lives in renderers.legacy
-    from renderers import base
-    base.BUILTIN_RENDERERS.setdefault("faulty", "renderers.legacy:FaultyRenderer")
-
-
 def campaign_doc(camera, family, fault=None, spp=SUITE_SPP, poses=SUITE_POSES, name=None):
     renderer = {"name": "raycast", "spp": spp}
     if fault is not None:
@@ -102,7 +96,6 @@ def run_suite(run_dir=None, faults=None, reruns=10, spp=SUITE_SPP, poses=SUITE_P
     r'''Run every fault and the clean reruns; returns a JSON-able report (see module doc)'''
     from harness.gate import load_gate_spec
 
-    _register_faulty()
     spec = load_gate_spec(GATE_SPEC)
     base = Path(run_dir) if run_dir else Path(tempfile.mkdtemp(prefix="camval-mutation-"))
     base.mkdir(parents=True, exist_ok=True)
