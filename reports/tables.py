@@ -165,10 +165,26 @@ def run_facts(doc):
         facts.append(("execution", f"{ex.get('executor')} executor, {ex.get('jobs')} jobs "
                                    f"({ex.get('jobs_run')} in the last session), "
                                    f"{ex.get('wall_seconds', 0):.1f} s wall"))
+    twins = _twin_cameras(ex.get("twins") or {})
+    if twins:
+        facts.append(("cameras rendered once for others (identical in their camera frames)",
+                      "; ".join(f"{lead} for {', '.join(others)}"
+                                for lead, others in twins.items())))
     for kind in ("renderers", "calibrators"):
         if ad.get(kind):
             facts.append((kind, "; ".join(f"{k}: {v}" for k, v in sorted(ad[kind].items()))))
     return facts
+
+
+def _twin_cameras(twins):
+    r'''{leader camera: [twin cameras]} from the run's execution.twins {job key: [keys]}'''
+    out = {}
+    for key, others in sorted(twins.items()):
+        lead = key.split("/", 1)[0]
+        for k in others:
+            if k not in out.setdefault(lead, []):
+                out[lead].append(k)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ from harness.runner import (
 )
 from reference_models.cahvore import truncate
 from reference_models.catalogue import load_catalogue
+from reports.tables import run_facts
 
 CAT = load_catalogue()
 
@@ -132,6 +133,10 @@ def test_shared_records_equal_unshared_records(tmp_path):
         assert _without_sharing_info(shared[k]) == _without_sharing_info(alone[k]), k
     assert docs[True]["execution"]["twins"] == {"17/CAHVOR/dots/raycast[spp=4,adaptive]": ["18"]}
     assert docs[True]["execution"]["jobs_run"] == 2
+    facts = dict(run_facts(docs[True]))
+    assert facts["cameras rendered once for others (identical in their camera frames)"] == \
+        "17 for 18"
+    assert not any(k.startswith("cameras rendered once") for k, _ in run_facts(docs[False]))
     key = "18/CAHVOR/dots/raycast[spp=4,adaptive]"
     jpl, mrcal = shared[key + "/jpl[CAHVOR]"], shared[key + "/mrcal[CAHVOR]"]
     assert jpl["info"]["shared"] == {"with": "17", "stages": ["poses", "render", "detect"]}
