@@ -257,15 +257,33 @@ def _unmarked_choice(nodes, c, target):
                               "note": "target has no orientation mark: numbering assumed"}
 
 
-def _board_level(crop, ring, window, xx, yy):
+def _median(v):
+    r'''np.median of a finite 1-D array, the same value bit for bit, without its overhead
+
+The middle order statistic, or the mean (a + b)/2 of the two middle ones as np.median
+takes it; np.median costs 30 us a call in checks, and the board level takes 3 per dot.'''
+    k = len(v) // 2
+    if len(v) % 2:
+        return np.partition(v, k)[k]
+    p = np.partition(v, (k - 1, k))
+    return (p[k - 1] + p[k]) / 2
+
+
+def _board_level(crop, ring, window, x0, y0):
     r'''The board's intensity around a dot: a plane a + b x + c y fitted (with one round of
 outlier rejection) to the ring pixels, so that a shading gradient does not bias the
-centroid; the ring's median when it is too small for a plane'''
+centroid; the ring's median when it is too small for a plane
+
+x0, y0: the pixel coordinates of crop[0,0]. The plane is returned as an array of the
+crop's shape, the median as a scalar.'''
     v = crop[ring]
     if len(v) < MIN_RING_FOR_PLANE:
-        return float(np.median(v)) if len(v) else float(crop[window].max())
-    xm, ym = xx[ring].mean(), yy[ring].mean()
-    x, y = xx[ring] - xm, yy[ring] - ym
+        return float(_median(v)) if len(v) else float(crop[window].max())
+    ry, rx = np.nonzero(ring)
+    rx += x0
+    ry += y0
+    xm, ym = rx.mean(), ry.mean()
+    x, y = rx - xm, ry - ym
     A = np.column_stack((np.ones_like(x), x, y))
     keep = np.ones(len(v), bool)
     for _ in range(2):
@@ -277,8 +295,11 @@ centroid; the ring's median when it is too small for a plane'''
         except np.linalg.LinAlgError:   # the ring's kept pixels are collinear
             coef = np.linalg.lstsq(Ak, v[keep], rcond=None)[0]
         r = v - A @ coef
-        mad = np.median(np.abs(r[keep])) + 1e-12
+        mad = _median(np.abs(r[keep])) + 1e-12
         keep = np.abs(r) < 5 * 1.4826 * mad + 1e-9
+    h, w = crop.shape
+    xx = np.arange(x0, x0 + w)[np.newaxis, :]
+    yy = np.arange(y0, y0 + h)[:, np.newaxis]
     return coef[0] + coef[1] * (xx - xm) + coef[2] * (yy - ym)
 
 
@@ -308,11 +329,13 @@ ARGUMENTS
     if target.kind != "dots":
         return failed(target, f"detect_dots() needs a dots target; got {target.kind!r}",
                       DETECTOR)
-    if not np.all(np.isfinite(img)):
+    # min and max propagate NaN and reach +-inf: finite both iff every pixel is finite
+    lo, hi = img.min(), img.max()
+    if not (np.isfinite(lo) and np.isfinite(hi)):
         return failed(target, "the image has non-finite pixels", DETECTOR)
-    if not img.max() - img.min() > 0.02:
-        return failed(target, f"no contrast in the image (range {img.min():.3g}.."
-                      f"{img.max():.3g})", DETECTOR)
+    if not hi - lo > 0.02:
+        return failed(target, f"no contrast in the image (range {lo:.3g}..{hi:.3g})",
+                      DETECTOR)
     H, W = img.shape
     # the threshold only splits dark from light: about a million pixels give it
     step = max(2, math.isqrt(H * W // OTSU_PIXELS))
@@ -386,11 +409,10 @@ ARGUMENTS
         # float64 from the source pixels, whatever precision the labelling used
         crop = (img[ya:yb, xa:xb] if img.dtype == np.float64
                 else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
-        mask = (lab == label).astype(np.uint8)
-        window = cv2.dilate(mask, win_kernel).astype(bool)
-        ring = cv2.dilate(mask, ring_kernel).astype(bool) & ~window & (lab == 0)
-        yy, xx = np.mgrid[ya:yb, xa:xb]
-        board = _board_level(crop, ring, window, xx, yy)
+        mask = (lab == label).view(np.uint8)
+        window = cv2.dilate(mask, win_kernel).view(bool)
+        ring = cv2.dilate(mask, ring_kernel).view(bool) & ~window & (lab == 0)
+        board = _board_level(crop, ring, window, xa, ya)
         # darkness relative to the local board level: 1 - I/B is proportional to the dot
         # area a pixel covers even when shading (vignetting) tilts the board level
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -399,5 +421,7 @@ ARGUMENTS
         s = wgt.sum()
         if not s > 0:
             continue
+        xx = np.arange(xa, xb)[np.newaxis, :]
+        yy = np.arange(ya, yb)[:, np.newaxis]
         q[gy * nx + gx] = ((wgt * xx).sum() / s, (wgt * yy).sum() / s)
     return result(target, q, DETECTOR, min_found=min_found, info=info)
