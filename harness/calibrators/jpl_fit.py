@@ -60,9 +60,10 @@ import numpy as np
 import scipy
 import scipy.optimize
 
-from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
+from reference_models.cahvore import CAHV, CAHVOR, CAHVORE, _unit
 from reference_models.errors import ModelError
 
+from ._project_kernels import CompiledProjection, pack, pack_model, project, project_packed
 from .base import CalibrationFailed, CalibrationResult
 from .bias import bias_step
 
@@ -75,6 +76,12 @@ STAGES = {"CAHV": ("CAHV",), "CAHVOR": ("CAHV", "CAHVOR"),
 UNPROJECTABLE_RESIDUAL = 1e4
 # smallest/largest singular value of the centred world points below which they are coplanar
 COPLANAR_TOLERANCE = 1e-6
+# _Chart.packed checks a trial model itself only this far inside the model's own
+# limits (reference_models.cahvore: Hs, Vs > 1e-6 |H|, |V|; 1e-3 < theta < pi - 1e-3;
+# <O,A> > 0); nearer them, or for non-finite numbers, it builds the model
+FAST_CHECK_HS = 2e-6
+FAST_CHECK_COS_THETA = math.cos(2e-3)
+FAST_CHECK_OA = 1e-6
 
 
 def uses_world_frame(**options):
@@ -132,7 +139,7 @@ Raises CalibrationFailed if the points are coplanar or the solution is degenerat
     Z = np.zeros_like(P)
     rows_x = np.hstack((P, Z, -qn[:, 0:1] * P))
     rows_y = np.hstack((Z, P, -qn[:, 1:2] * P))
-    _, s, vt = np.linalg.svd(np.vstack((rows_x, rows_y)))
+    _, s, vt = np.linalg.svd(np.vstack((rows_x, rows_y)), full_matrices=False)
     if s[-2] < 1e-12 * s[0]:
         raise CalibrationFailed("degenerate poses: the linear (DLT) solution is not unique")
     Mn = vt[-1].reshape(3, 4)
@@ -197,6 +204,43 @@ C (3), A (2, tangent plane), H (3), V (3) [, O (2), R1, R2 [, E (3)]]; R0 is hel
             return CAHVOR(**kw)
         return CAHVORE(E=x[15:18], model_type=self.model_type, linearity=self.linearity, **kw)
 
+    def packed(self, x):
+        r'''_project_kernels.pack_model(self.model(x)), or None where that raises ModelError
+
+The solver's residuals call this: the numbers are the model's own (A and O
+normalised by the same operations), and the model is not built unless a trial
+comes near the model's limits (FAST_CHECK_*) or is not finite; then the model
+decides.
+'''
+        try:
+            cam = self._packed_inside_limits(x) if np.all(np.isfinite(x)) else None
+            return cam if cam is not None else pack_model(self.model(x))
+        except ModelError:   # raised by _unit exactly where the model raises it
+            return None
+
+    def _packed_inside_limits(self, x):
+        m = self.m0
+        A = m.A + x[3] * self.eA[0] + x[4] * self.eA[1]
+        A = _unit("A", A / np.linalg.norm(A))
+        H, V = x[5:8], x[8:11]
+        h = H - float(H @ A) * A
+        v = V - float(V @ A) * A
+        Hs = float(np.linalg.norm(h))
+        Vs = float(np.linalg.norm(v))
+        if not (Hs > FAST_CHECK_HS * np.linalg.norm(H) and Vs > FAST_CHECK_HS * np.linalg.norm(V)
+                and abs(float((h / Hs) @ (v / Vs))) < FAST_CHECK_COS_THETA):
+            return None
+        if self.family == "CAHV":
+            return pack("CAHV", x[0:3], A, H, V)
+        O = m.O + x[11] * self.eO[0] + x[12] * self.eO[1]
+        O = _unit("O", O / np.linalg.norm(O))
+        if not float(O @ A) > FAST_CHECK_OA:
+            return None
+        R = np.array([self.R0, x[13], x[14]])
+        if self.family == "CAHVOR":
+            return pack("CAHVOR", x[0:3], A, H, V, O, R)
+        return pack("CAHVORE", x[0:3], A, H, V, O, R, x[15:18], m.linearity)
+
 
 def _promote(m, family, model_type, linearity, R0):
     if family == "CAHV":
@@ -215,13 +259,13 @@ def _lm(family, m0, p, q, model_type, linearity, R0, max_nfev=None):
     r'''Levenberg-Marquardt of model family `family` from m0 on world points p (N,3), pixels q'''
     chart = _Chart(family, m0, model_type, linearity, R0)
     bad = np.full(2 * len(p), UNPROJECTABLE_RESIDUAL)
+    p = np.ascontiguousarray(p, dtype=np.float64)
 
     def residuals(x):
-        try:
-            m = chart.model(x)
-        except ModelError:
+        cam = chart.packed(x)
+        if cam is None:
             return bad
-        r = (m.project(p) - q).ravel()
+        r = (project_packed(cam, p) - q).ravel()
         return np.where(np.isfinite(r), r, UNPROJECTABLE_RESIDUAL)
 
     with np.errstate(all="ignore"):
@@ -255,7 +299,7 @@ initialisation (the second pass starts from the first pass's result).
         m0_stage = _promote(m, stage, model_type, linearity, R0)
         m, sol = _lm(stage, m0_stage, p, q, model_type, linearity, R0)
         nfev += int(sol.nfev)
-        r = np.linalg.norm((m.project(p) - q), axis=-1)
+        r = np.linalg.norm((project(m, p) - q), axis=-1)
         stages.append({"family": stage, "nfev": int(sol.nfev), "status": int(sol.status),
                        "rms": float(np.sqrt(np.mean(r * r)))})
     return m, {"nfev": nfev, "stages": stages}
@@ -307,7 +351,7 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4
     p = p_ref[found]
     q_obs = obs.q
     model, info = fit_model(p, q_obs[found], model_name, W, H, mtype, lin, R0=R0)
-    r_first = np.linalg.norm(model.project(p) - q_obs[found], axis=-1)
+    r_first = np.linalg.norm(project(model, p) - q_obs[found], axis=-1)
     passes = [{"pass": 1, "rms": float(np.sqrt(np.mean(r_first ** 2))),
                "max": float(r_first.max()), **info}]
     q_used = q_obs
@@ -316,7 +360,7 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4
         b_prev = None
         for ipass in range(bias_passes):
             Rts = Rt_cam_board_of(model, obs.Rt_ref_board)
-            b, change = bias_step(model, target, Rts, obs.p_board, b_prev)
+            b, change = bias_step(CompiledProjection(model), target, Rts, obs.p_board, b_prev)
             if b is None:
                 passes.append({"pass": ipass + 2, "skipped": "the target has no dots: "
                                "no centroid bias to correct"})
@@ -329,7 +373,7 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4
             ok = found & np.all(np.isfinite(q_used), axis=-1)
             model, info = fit_model(p_ref[ok], q_used[ok], model_name, W, H, mtype, lin,
                                     m0=model, R0=R0)
-            r = np.linalg.norm(model.project(p_ref[ok]) - q_used[ok], axis=-1)
+            r = np.linalg.norm(project(model, p_ref[ok]) - q_used[ok], axis=-1)
             passes.append({"pass": ipass + 2, "bias_change_max": change,
                            "rms": float(np.sqrt(np.mean(r * r))),
                            "max": float(r.max()), **info})
