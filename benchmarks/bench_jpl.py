@@ -12,7 +12,8 @@ detected once; the observations are kept in the --obs pickle (reused by later
 runs: the rendering of a 5120x3840 camera takes minutes). Then
 harness.runner.calibrate_stage("jpl", ...) runs --repeats times after one
 warm-up fit (which loads or compiles the numba kernels); the table gives the
-median CPU (time.process_time) and wall seconds per fit, the solver's
+median CPU (time.process_time) and wall seconds per fit (with more CPU than wall
+seconds, BLAS threads spin: set OPENBLAS_NUM_THREADS=1), the solver's
 function evaluations, the final RMS residual, and a fingerprint of the fitted
 model (its projection of the surveyed points) so that two versions of the
 calibrator can be compared: --compare old.json prints the largest projection
@@ -21,6 +22,7 @@ difference between the two runs' models, per job.
 
 import argparse
 import json
+import os
 import pickle
 import platform
 import statistics
@@ -142,9 +144,16 @@ def main():
         records.append(rec)
     total = sum(r["cpu_s"] for r in records)
     print(f"total CPU per fit set: {total:.3f} s")
+    from harness.calibrators import _project_kernels as pk
+    sigs = {k.__name__: len(k.signatures) for k in (pk._project_kernel, pk._residuals_kernel,
+                                                     pk._chart_kernel)}
+    print(f"compiled signatures: {sigs}")
     doc = {"benchmark": "jpl", "date": datetime.now(UTC).isoformat(timespec="seconds"),
            "commit": _commit(), "python": platform.python_version(),
-           "command": " ".join(sys.argv), "total_cpu_s": total, "records": records}
+           "env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
+                                                   "NUMBA_NUM_THREADS")},
+           "command": " ".join(sys.argv), "total_cpu_s": total, "signatures": sigs,
+           "records": records}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(doc, indent=1) + "\n")
     print(f"wrote {args.out}")

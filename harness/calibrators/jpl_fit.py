@@ -60,10 +60,10 @@ import numpy as np
 import scipy
 import scipy.optimize
 
-from reference_models.cahvore import CAHV, CAHVOR, CAHVORE, _unit
+from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
 from reference_models.errors import ModelError
 
-from ._project_kernels import CompiledProjection, pack, pack_model, project, project_packed
+from ._project_kernels import CompiledProjection, pack_chart, pack_model, project, residuals_packed
 from .base import CalibrationFailed, CalibrationResult
 from .bias import bias_step
 
@@ -181,6 +181,9 @@ C (3), A (2, tangent plane), H (3), V (3) [, O (2), R1, R2 [, E (3)]]; R0 is hel
         self.eA = _tangent_basis(m0.A)
         if family != "CAHV":
             self.eO = _tangent_basis(m0.O)
+        # writable copies for the compiled packing (one numba signature)
+        self._A0 = np.array(m0.A)
+        self._O0 = np.array(getattr(m0, "O", m0.A))
 
     def x0(self):
         m = self.m0
@@ -207,39 +210,21 @@ C (3), A (2, tangent plane), H (3), V (3) [, O (2), R1, R2 [, E (3)]]; R0 is hel
     def packed(self, x):
         r'''_project_kernels.pack_model(self.model(x)), or None where that raises ModelError
 
-The solver's residuals call this: the numbers are the model's own (A and O
-normalised by the same operations), and the model is not built unless a trial
-comes near the model's limits (FAST_CHECK_*) or is not finite; then the model
-decides.
+The solver's residuals call this: the model is not built unless a trial comes
+near the model's limits (FAST_CHECK_*) or is not finite; then the model decides.
+A and O may differ from the model's by an ulp (their norms are summed in another order).
 '''
-        try:
-            cam = self._packed_inside_limits(x) if np.all(np.isfinite(x)) else None
-            return cam if cam is not None else pack_model(self.model(x))
-        except ModelError:   # raised by _unit exactly where the model raises it
-            return None
-
-    def _packed_inside_limits(self, x):
         m = self.m0
-        A = m.A + x[3] * self.eA[0] + x[4] * self.eA[1]
-        A = _unit("A", A / np.linalg.norm(A))
-        H, V = x[5:8], x[8:11]
-        h = H - float(H @ A) * A
-        v = V - float(V @ A) * A
-        Hs = float(np.linalg.norm(h))
-        Vs = float(np.linalg.norm(v))
-        if not (Hs > FAST_CHECK_HS * np.linalg.norm(H) and Vs > FAST_CHECK_HS * np.linalg.norm(V)
-                and abs(float((h / Hs) @ (v / Vs))) < FAST_CHECK_COS_THETA):
+        eO = self.eO if self.family != "CAHV" else self.eA
+        cam = pack_chart(x, self._A0, self.eA[0], self.eA[1], self._O0, eO[0], eO[1], self.R0,
+                         self.family, getattr(m, "linearity", None), FAST_CHECK_HS,
+                         FAST_CHECK_COS_THETA, FAST_CHECK_OA)
+        if cam is not None:
+            return cam
+        try:
+            return pack_model(self.model(x))
+        except ModelError:
             return None
-        if self.family == "CAHV":
-            return pack("CAHV", x[0:3], A, H, V)
-        O = m.O + x[11] * self.eO[0] + x[12] * self.eO[1]
-        O = _unit("O", O / np.linalg.norm(O))
-        if not float(O @ A) > FAST_CHECK_OA:
-            return None
-        R = np.array([self.R0, x[13], x[14]])
-        if self.family == "CAHVOR":
-            return pack("CAHVOR", x[0:3], A, H, V, O, R)
-        return pack("CAHVORE", x[0:3], A, H, V, O, R, x[15:18], m.linearity)
 
 
 def _promote(m, family, model_type, linearity, R0):
@@ -260,13 +245,13 @@ def _lm(family, m0, p, q, model_type, linearity, R0, max_nfev=None):
     chart = _Chart(family, m0, model_type, linearity, R0)
     bad = np.full(2 * len(p), UNPROJECTABLE_RESIDUAL)
     p = np.ascontiguousarray(p, dtype=np.float64)
+    q = np.ascontiguousarray(q, dtype=np.float64)
 
     def residuals(x):
         cam = chart.packed(x)
         if cam is None:
             return bad
-        r = (project_packed(cam, p) - q).ravel()
-        return np.where(np.isfinite(r), r, UNPROJECTABLE_RESIDUAL)
+        return residuals_packed(cam, p, q, UNPROJECTABLE_RESIDUAL)
 
     with np.errstate(all="ignore"):
         sol = scipy.optimize.least_squares(residuals, chart.x0(), method="lm", x_scale="jac",
