@@ -1,0 +1,107 @@
+r'''The dot detector's shortcuts give bit for bit what the plain computations give
+
+_label_stack labels many boxes in one call: each box's components, their order, stats
+and centroids must be those of the box labelled alone (as the detector did before, one
+connectedComponentsWithStats call per box). _median must be np.median exactly.
+'''
+
+import cv2
+import numpy as np
+import pytest
+
+from targets import detect_dots as dd
+
+
+def _label_boxes_one_by_one(img, thr, boxes):
+    r'''The reference: each box labelled alone (the former per-box loop)'''
+    H, W = img.shape
+    labels = np.zeros((H, W), np.int32)
+    stats, centroids = [[0, 0, 0, 0, 0]], [np.zeros(2)]
+    for xa, ya, xb, yb in boxes:
+        dark = (img[ya:yb, xa:xb] < thr).astype(np.uint8)
+        m, lab, cst, cc = cv2.connectedComponentsWithStats(dark, connectivity=8)
+        for k in range(1, m):
+            cx, cy, cw, ch, ca = cst[k].tolist()
+            if not ((cx > 0 or xa == 0) and (cy > 0 or ya == 0) and
+                    (cx + cw < xb - xa or xb == W) and (cy + ch < yb - ya or yb == H)):
+                continue
+            region = labels[ya + cy:ya + cy + ch, xa + cx:xa + cx + cw]
+            mine = lab[cy:cy + ch, cx:cx + cw] == k
+            if region[mine].any():
+                continue
+            region[mine] = len(stats)
+            stats.append([cx + xa, cy + ya, cw, ch, ca])
+            centroids.append(cc[k] + (xa, ya))
+    return labels, np.array(stats, np.int64), np.array(centroids)
+
+
+def _speckled(seed, H=300, W=420):
+    r'''Dark blobs of many shapes (ellipses, rings, specks, blobs touching each other and
+the border) on a noisy board, float32 like the renders'''
+    rng = np.random.default_rng(seed)
+    img = np.full((H, W), 0.8, np.float32) + rng.normal(0, 0.02, (H, W)).astype(np.float32)
+    yy, xx = np.mgrid[:H, :W]
+    for _ in range(60):
+        cx, cy = rng.uniform(-5, W + 5), rng.uniform(-5, H + 5)
+        a, b, th = rng.uniform(1, 25), rng.uniform(1, 25), rng.uniform(0, np.pi)
+        u = ((xx - cx) * np.cos(th) + (yy - cy) * np.sin(th)) / a
+        v = (-(xx - cx) * np.sin(th) + (yy - cy) * np.cos(th)) / b
+        r2 = u * u + v * v
+        img[(r2 < 1) & ((r2 > 0.3) if rng.uniform() < 0.3 else True)] = 0.1
+    img[rng.uniform(size=(H, W)) < 0.01] = 0.2       # isolated dark specks
+    return img
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_label_stack_is_each_box_labelled_alone(seed):
+    img = _speckled(seed)
+    H, W = img.shape
+    rng = np.random.default_rng(100 + seed)
+    # overlapping boxes of odd and even sizes, some at the image border, one huge
+    boxes = []
+    for _ in range(40):
+        xa, ya = int(rng.integers(0, W - 10)), int(rng.integers(0, H - 10))
+        boxes.append((xa, ya, min(W, xa + int(rng.integers(5, 90))),
+                      min(H, ya + int(rng.integers(5, 90)))))
+    boxes.insert(20, (0, 3, W, H - 1))
+    boxes.insert(30, (0, 150, W, 157))
+    ref = _label_boxes_one_by_one(img, 0.5, boxes)
+    labels = np.zeros((H, W), np.int32)
+    stats, centroids = [[0, 0, 0, 0, 0]], [np.zeros(2)]
+    runs = list(dd._stacks(boxes))
+    assert [b for r in runs for b in r] == boxes
+    for run in runs:
+        dd._label_stack(img, 0.5, run, labels, stats, centroids)
+    assert len(stats) == len(ref[1]) > 40
+    assert np.array_equal(labels, ref[0])
+    assert np.array_equal(np.array(stats, np.int64), ref[1])
+    assert np.array_equal(np.array(centroids), ref[2])     # bit for bit, not just close
+
+
+def test_stacks_keep_the_order_and_bound_the_waste():
+    boxes = [(0, 0, 10, 10)] * 5 + [(0, 0, 1000, 4)] + [(0, 0, 12, 8)] * 3
+    runs = list(dd._stacks(boxes))
+    assert [len(r) for r in runs] == [5, 2, 2]     # the wide box starts a new run
+    assert [b for r in runs for b in r] == boxes
+    for r in runs:
+        w = max(b[2] - b[0] for b in r)
+        rows = sum(b[3] - b[1] + 2 for b in r)
+        assert len(r) == 1 or w * rows <= 4 * sum((b[2] - b[0]) * (b[3] - b[1]) for b in r)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 64, 65])
+def test_median_is_np_median(n):
+    rng = np.random.default_rng(n)
+    for v in (rng.normal(size=n), np.round(rng.normal(size=n), 1), np.full(n, 0.3)):
+        m = dd._median(v.copy())
+        assert m == np.median(v) and type(m) is type(np.median(v))
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_one_non_finite_pixel_is_refused(bad, dtype):
+    from targets.boards import load_target
+    img = _speckled(0).astype(dtype)
+    img[100, 200] = bad
+    det = dd.detect_dots(img, load_target("dots"))
+    assert det.status == "failed" and det.reason == "the image has non-finite pixels"
