@@ -2,14 +2,16 @@ r'''Compiled projection of CAHV / CAHVOR / CAHVORE points (numba, float64, fastm
 
 SYNOPSIS
 
-    from harness.calibrators._project_kernels import pack, pack_model, project, project_packed
+    from harness.calibrators._project_kernels import pack_model, project, project_packed
 
-    q = project(model, p)        # p (N,3) world points -> q (N,2) pixels, = model.project(p)
+    q = project(model, p)        # p (...,3) world points -> q (...,2) pixels, = model.project(p)
 
     cam = pack_model(model)      # (NCAM,) float64, once per model; or
     cam = pack("CAHVOR", C, A, H, V, O, R)
     q = project_packed(cam, p)   # the same, without packing again
     mc = CompiledProjection(model)   # the model, with project() compiled
+    r = residuals_packed(cam, p, q, 1e4)   # (project - q).ravel(), 1e4 where not finite
+    cam = pack_chart(x, ...)     # the jpl calibrator's trial model (None: build it instead)
 
 The projection of reference_models.cahvore (the equations of its module
 docstring) ported point by point: d = p - C; for CAHVOR the bend about O by

@@ -28,7 +28,8 @@ The procedure:
    finite-difference Jacobian) over C, A, H, V: 12 numbers (11 degrees of
    freedom: A is a unit vector, moved in its tangent plane and renormalised).
    H and V are independent 3-vectors, so theta is free: this is the only
-   calibrator that can recover theta.
+   calibrator that can recover theta. The residuals project with the compiled
+   projection of harness.calibrators._project_kernels (model.project to < 1e-10 px).
 3. CAHVOR from the CAHV fit with O = A, R = 0 (O a unit vector like A), then
    CAHVORE from the CAHVOR fit with E = 0, type and linearity fixed.
 4. Second pass (bias_correction=True): each detection is corrected by the
