@@ -460,7 +460,10 @@ ARGUMENTS
         # darkness relative to the local board level: 1 - I/B is proportional to the dot
         # area a pixel covers even when shading (vignetting) tilts the board level
         with np.errstate(divide="ignore", invalid="ignore"):
-            wgt = np.clip(1.0 - crop / board, 0.0, None) * window
+            wgt = crop / board          # then in place: max(1 - wgt, 0) * window
+            np.subtract(1.0, wgt, out=wgt)
+            np.maximum(wgt, 0.0, out=wgt)
+            wgt *= window
         wgt[~np.isfinite(wgt)] = 0.0
         s = wgt.sum()
         if not s > 0:
