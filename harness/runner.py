@@ -355,8 +355,11 @@ def poses_stage(truth, target, n, seed):
 
 
 def render_stage(renderer_name, truth, target, poses, settings):
-    r'''-> ([RenderResult], seconds per image (list), renderer version)'''
-    from renderers.base import RenderSettings
+    r'''-> ([RenderResult], seconds per image (list), renderer version)
+
+A renderer that cannot render this camera by design (RendererNotApplicable: a
+field of view no pinhole warp covers) makes the job not-applicable.'''
+    from renderers.base import RendererNotApplicable, RenderSettings
     try:
         renderer = _renderer(renderer_name)
         rs = RenderSettings(spp=int(settings["spp"]), adaptive=bool(settings["adaptive"]),
@@ -369,7 +372,8 @@ def render_stage(renderer_name, truth, target, poses, settings):
             secs.append(time.perf_counter() - t0)
         version = renderer.version() if hasattr(renderer, "version") else ""
     except Exception as e:
-        raise StageFailed("render", _reason(e)) from None
+        status = "not-applicable" if isinstance(e, RendererNotApplicable) else "failed"
+        raise StageFailed("render", _reason(e), status=status) from None
     return results, secs, version
 
 

@@ -49,6 +49,11 @@ class UnknownRendererError(CamvalError):
     pass
 
 
+class RendererNotApplicable(RendererError):
+    '''The renderer cannot render this camera or scene by design (a field of view no pinhole
+covers, a defect that needs another model family): campaigns record "not-applicable".'''
+
+
 class RendererUnavailableError(RendererError):
     '''A renderer whose backend is missing on this machine; the message says the fix.'''
 

@@ -46,7 +46,7 @@ import numpy as np
 
 from reference_models.errors import CamvalError
 
-from .base import RenderResult, RenderSettings, get_renderer
+from .base import RendererNotApplicable, RenderResult, RenderSettings, get_renderer
 
 HALF_PIXEL = 0.5
 ASPECT_DECIMALS = 2
@@ -54,8 +54,8 @@ FOCAL_SCALE = 1e-4
 SHIFT_PX = 0.01
 
 
-class FaultNotApplicableError(CamvalError):
-    '''A fault that means nothing for this camera model family'''
+class FaultNotApplicableError(RendererNotApplicable):
+    '''A fault that means nothing for this camera model family (campaigns: not-applicable)'''
 
 
 class UnknownFaultError(CamvalError):

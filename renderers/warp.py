@@ -58,7 +58,7 @@ import numpy as np
 
 from reference_models.conventions import pixel_centres
 
-from .base import RendererError
+from .base import RendererError, RendererNotApplicable
 
 DEFAULT_MARGIN = 4.0
 MAX_PINHOLE_SIDE = 32768
@@ -68,6 +68,11 @@ INTERPOLATIONS = ("bilinear", "bicubic")
 
 class WarpError(RendererError):
     '''A model that the pinhole warp cannot represent (field of view >= 180 deg, ...)'''
+
+
+class FieldOfViewError(WarpError, RendererNotApplicable):
+    '''The model's field of view is too wide for a pinhole warp (not-applicable, by design).'''
+
 
 
 @dataclass(frozen=True)
@@ -170,7 +175,7 @@ class PinholeWarp:
                             "failed); the pinhole warp needs a ray for every pixel")
         cos_max = float(np.min(v_all[:, 2]))
         if cos_max < 0.02:
-            raise WarpError(
+            raise FieldOfViewError(
                 f"the field of view reaches {math.degrees(math.acos(max(-1, cos_max))):.1f} deg "
                 "from the optical axis; a pinhole cannot cover it (pinhole warps need < 88.8 deg; "
                 "use the raycast renderer or povray with camera='mesh')")
@@ -195,7 +200,7 @@ class PinholeWarp:
         width = int(math.ceil(hi[0] - lo[0] + 2 * pad)) + 1
         height = int(math.ceil(hi[1] - lo[1] + 2 * pad)) + 1
         if max(width, height) > MAX_PINHOLE_SIDE:
-            raise WarpError(
+            raise FieldOfViewError(
                 f"the pinhole covering this {model.family} model would be {width}x{height} px "
                 f"(limit {MAX_PINHOLE_SIDE}); its field of view is too wide for a pinhole warp")
         self.pinhole = Pinhole(fx=f, fy=f, cx=float(cx), cy=float(cy),

@@ -337,6 +337,20 @@ def test_a_bad_response_is_a_failed_record():
     assert rec["features"] == {"shading": False, "texture": False, "shadows": False}
 
 
+def test_a_renderer_that_cannot_render_the_camera_is_not_applicable():
+    # the legacy renderer's R1 sign defect means nothing for a CAHV camera
+    (job,) = expand_jobs(parse_campaign(dict(SMALL, cameras=[17], renderer=[
+        {"name": "faulty", "spp": 1, "options": {"fault": "r1_sign"}}])))
+    (rec,) = run_job(job)["records"]
+    assert (rec["status"], rec["stage"]) == ("not-applicable", "render")
+    assert "needs a CAHVOR or CAHVORE" in rec["reason"]
+    # a renderer that raises anything else is failed
+    (job,) = expand_jobs(parse_campaign(dict(SMALL, cameras=[17], renderer=[
+        {"name": "faulty", "spp": 1, "options": {"fault": "no-such-fault"}}])))
+    (rec,) = run_job(job)["records"]
+    assert (rec["status"], rec["stage"]) == ("failed", "render")
+
+
 def test_warm_up_renders_each_family_once_unless_cached(tmp_path):
     from harness.runner import kernels_cached, warm_up
     jobs = expand_jobs(parse_campaign({"cameras": ["SuperCam", 15, 17],

@@ -151,3 +151,13 @@ def test_area_samples_average_remaps_at_sub_pixel_centres():
     assert np.abs(img - centre / pin.width).max() < 0.05 / pin.width
     with pytest.raises(WarpError, match="samples"):
         PinholeWarp(m, samples=0)
+
+
+def test_a_field_of_view_no_pinhole_covers_is_not_applicable():
+    from reference_models.catalogue import load_catalogue
+    from renderers.base import RendererNotApplicable
+    from renderers.warp import FieldOfViewError
+    wide = load_catalogue().get(8).model     # MER A front hazcam CAHVORE: 92 deg off axis
+    with pytest.raises(FieldOfViewError, match="field of view reaches 9[0-9].[0-9] deg") as e:
+        PinholeWarp(wide)
+    assert isinstance(e.value, RendererNotApplicable) and isinstance(e.value, WarpError)
