@@ -1013,8 +1013,14 @@ them from numba's cache. report: a dict that receives {"warm_up": {...}}.
             else:
                 recs = out["records"]
             for m in members:   # each camera's records under its own job key
-                store.save_job(m.key, [r for r in recs if r["fullname"].startswith(m.key + "/")],
-                               final=not isinstance(out, BaseException))
+                mine = [r for r in recs if r["fullname"].startswith(m.key + "/")]
+                final = not isinstance(out, BaseException)
+                if not mine:    # never silently done: reported, and run again on resume
+                    mine = failure_records(m, "internal", "the job returned no records for "
+                                                          f"camera {m.camera_key}")
+                    recs = recs + mine
+                    final = False
+                store.save_job(m.key, mine, final=final)
             statuses = {}
             for r in recs:
                 statuses[r["status"]] = statuses.get(r["status"], 0) + 1

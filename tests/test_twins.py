@@ -163,3 +163,25 @@ def test_shared_records_equal_unshared_records(tmp_path):
     assert again["execution"]["jobs_run"] == 1 and again["execution"]["twins"] == {}
     for k in shared:
         assert _without_sharing_info(again["records"][k]) == _without_sharing_info(alone[k]), k
+
+
+def test_a_job_function_that_forgets_a_twin_leaves_it_to_resume(tmp_path):
+    from harness.records import RunStore
+    from harness.runner import run_job, run_jobs
+    c = parse_campaign({"cameras": [17, 18], "models": ["CAHV"],
+                        "renderer": [{"name": "raycast", "spp": 1}],
+                        "calibrator": [{"name": "jpl"}]}, source="c.toml")
+    (job,) = group_twins(expand_jobs(c))
+    assert [k for _, k in job.twins] == ["18"]
+
+    def leader_only(j):
+        out = run_job(j)
+        return dict(out, records=[r for r in out["records"] if r["camera"] == "17"])
+
+    store = RunStore.create(tmp_path / "run", c.as_dict())
+    run_jobs([job], store, fn=leader_only, workers=1, progress=False)
+    recs = store.records()
+    twin = recs["18/CAHV/dots/raycast[spp=1,adaptive]/jpl[CAHV]"]
+    assert (twin["status"], twin["stage"]) == ("failed", "internal")
+    assert "no records for camera 18" in twin["reason"]
+    assert store.done_jobs() == {"17/CAHV/dots/raycast[spp=1,adaptive]"}
