@@ -26,7 +26,6 @@ Prints both tables and writes one JSON document.
 import argparse
 import json
 import platform
-import subprocess
 import sys
 import time
 from datetime import UTC, datetime
@@ -35,16 +34,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from harness.records import git_commit  # noqa: E402
+
 RENDER_BARS = {"rms": 0.002, "max": 0.01, "Hc": 0.01, "Vc": 0.01, "theta_deg": 0.001,
                "proj_rms": 0.002}
-
-
-def _commit():
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
 
 
 def _fmt(v, f="{:.2e}"):
@@ -174,7 +167,7 @@ def main():
         rendered_part(records, [c.strip() for c in args.cameras.split(",") if c.strip()])
     import importlib.metadata
     doc = {"schema": 1, "benchmark": "calibrators", "utc": datetime.now(UTC).isoformat(),
-           "commit": _commit(), "machine": platform.platform(),
+           "commit": git_commit()["commit"], "machine": platform.platform(),
            "versions": {"scipy": scipy.__version__, "opencv": cv2.__version__,
                         "pycolmap": pycolmap.__version__,
                         "mrcal": importlib.metadata.version("mrcal")},

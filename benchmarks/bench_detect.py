@@ -23,7 +23,6 @@ Prints a table and writes one JSON document.
 import argparse
 import json
 import platform
-import subprocess
 import sys
 import time
 from datetime import UTC, datetime
@@ -34,13 +33,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-
-def _commit():
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
+from harness.records import git_commit  # noqa: E402
 
 
 def render_images(directory, cameras):
@@ -127,7 +120,8 @@ def main():
         identical = not bad
         print("detections identical to", args.check if identical else f"{args.check}: NO, {bad}")
 
-    doc = {"date": datetime.now(UTC).isoformat(timespec="seconds"), "commit": _commit(),
+    doc = {"date": datetime.now(UTC).isoformat(timespec="seconds"),
+           "commit": git_commit()["commit"],
            "python": platform.python_version(), "machine": platform.machine(),
            "repeats": args.repeats, "images": rows, "per_size": summary,
            "identical_to": str(args.check) if args.check else None, "identical": identical}

@@ -26,7 +26,6 @@ import os
 import pickle
 import platform
 import statistics
-import subprocess
 import sys
 import time
 from datetime import UTC, datetime
@@ -37,15 +36,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from harness.records import git_commit  # noqa: E402
+
 DEFAULT_JOBS = "5/CAHV,5/CAHVOR,5/CAHVORE,3/CAHV,3/CAHVOR,3/CAHVORE"
-
-
-def _commit():
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
 
 
 def _paper_job(jobs, spec):
@@ -149,7 +142,7 @@ def main():
                                                      pk._chart_kernel)}
     print(f"compiled signatures: {sigs}")
     doc = {"benchmark": "jpl", "date": datetime.now(UTC).isoformat(timespec="seconds"),
-           "commit": _commit(), "python": platform.python_version(),
+           "commit": git_commit()["commit"], "python": platform.python_version(),
            "env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
                                                    "NUMBA_NUM_THREADS")},
            "command": " ".join(sys.argv), "total_cpu_s": total, "signatures": sigs,

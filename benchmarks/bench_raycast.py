@@ -42,19 +42,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from harness.records import git_commit  # noqa: E402
+
 BARS = {"accuracy_K16_rms_px": 0.0015, "accuracy_K16_max_px": 0.005,
         "speed_1024_K16_s": 0.050, "speed_5120x3840_K16_s": 1.0,
         "peak_memory_5120x3840_GiB": 2.0}
 SPEED_CAMERAS = ("15", "12")
 LARGE_CAMERA = "1"
-
-
-def _commit():
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
 
 
 def _render(renderer, model, target, Rt, K):
@@ -214,7 +208,7 @@ def main(argv=None):
         cameras = [str(e.id) for e in load_catalogue().slots()
                    if (e.model.width, e.model.height) == (1024, 1024)]
     doc = {"schema": 1, "benchmark": "raycast", "utc": datetime.now(UTC).isoformat(),
-           "commit": _commit(), "machine": {"platform": platform.platform(),
+           "commit": git_commit()["commit"], "machine": {"platform": platform.platform(),
                                             "cpus": os.cpu_count(),
                                             "numba_threads": numba.get_num_threads(),
                                             "loadavg_start": os.getloadavg()},

@@ -28,7 +28,6 @@ import hashlib
 import json
 import os
 import platform
-import subprocess
 import sys
 import time
 from datetime import UTC, datetime
@@ -37,15 +36,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from harness.records import git_commit  # noqa: E402
+
 CAMPAIGN = ROOT / "campaigns" / "paper.toml"
-
-
-def _commit():
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
 
 
 def _warm_numba():
@@ -145,7 +138,7 @@ def main(argv=None):
     doc = {
         "benchmark": "raycast_cache",
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
-        "commit": _commit(),
+        "commit": git_commit()["commit"],
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                     "loadavg": os.getloadavg()},
         "campaign": str(CAMPAIGN.relative_to(ROOT)),

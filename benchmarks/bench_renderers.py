@@ -37,7 +37,6 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import time
 from datetime import UTC, datetime
@@ -47,6 +46,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from harness.records import git_commit  # noqa: E402
 
 
 def navcam_like():
@@ -80,14 +81,6 @@ def warp_only(raycast, model, pattern, Rt_cam_board, K):
     pin = raycast.render(pinhole_cahv(warp.pinhole), pattern, Rt_cam_board,
                          RenderSettings(spp=K)).image
     return warp.apply(pin, "bilinear", Rt_cam_board=Rt_cam_board)
-
-
-def git_commit():
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True).stdout.strip()
-    except OSError:
-        return None
 
 
 def run_table(run_dir):
@@ -204,7 +197,7 @@ def main():
                   f"found {found}/{rec['dots_expected']}  load {rec['load_average']:.1f}",
                   flush=True)
     doc = dict(schema=1, benchmark="renderers", utc=datetime.now(UTC).isoformat(),
-               commit=git_commit(), machine=platform.node(), cpus=os.cpu_count(),
+               commit=git_commit()["commit"], machine=platform.node(), cpus=os.cpu_count(),
                model="navcam-like CAHVOR 1024x1024 f=1236 (FINDINGS.md)",
                target="dots", poses=len(poses), results=previous + results)
     os.makedirs(os.path.dirname(args.out), exist_ok=True)

@@ -22,7 +22,6 @@ Prints a table and writes one JSON document.
 import argparse
 import json
 import platform
-import subprocess
 import sys
 import time
 from datetime import UTC, datetime
@@ -31,13 +30,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-
-def _commit():
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
+from harness.records import git_commit  # noqa: E402
 
 
 def plan_part(catalogue):
@@ -120,7 +113,7 @@ def main(argv=None):
     from reference_models.catalogue import load_catalogue
 
     catalogue = load_catalogue()
-    doc = {"schema": 1, "utc": datetime.now(UTC).isoformat(), "commit": _commit(),
+    doc = {"schema": 1, "utc": datetime.now(UTC).isoformat(), "commit": git_commit()["commit"],
            "machine": {"node": platform.node(), "python": platform.python_version(),
                        "processor": platform.processor()}}
     if not args.skip_plan:
