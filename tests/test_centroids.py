@@ -119,3 +119,23 @@ def test_bad_input():
     with pytest.raises(TargetError, match="rotation"):
         projected_points(m, t, np.vstack((2 * np.eye(3), [0, 0, 1])))
     assert math.isfinite(float(projected_points(m, t, _Rt(0, 0, [0, 0, 2]))[0, 0]))
+
+
+def test_calibrator_bias_of_an_opencv_model():
+    # harness.calibrators.bias takes every model's bias from expected_centroids (192 outline
+    # points, Richardson-extrapolated); for a distorting OpenCV model it agrees with a plain
+    # polygon of 11520 outline points (error ~1/N^2: ~1e-8 px there) to well below 1e-6 px
+    from harness.calibrators.bias import centroid_bias as calibrator_bias
+    from harness.calibrators.bias import dot_radii, outline_centroids
+    from harness.calibrators.opencv_fit import OpenCVModel
+    K = np.array([[900.0, 0.0, 640.5], [0.0, 905.0, 480.25], [0.0, 0.0, 1.0]])
+    m = OpenCVModel("OPENCV5", K, np.array([-0.3, 0.12, 1e-3, -5e-4, -0.02]), 1280, 960)
+    t = load_target("dots")
+    p = np.asarray(t.points(), dtype=np.float64)
+    for Rt in (_Rt(30, -20, [0.05, -0.1, 1.2]), _Rt(-10, 35, [-0.2, 0.1, 1.6])):
+        b = calibrator_bias(m, t, Rt)
+        fine = outline_centroids(m, p, dot_radii(t, p), Rt, noutline=11520)
+        ref = fine - m.project(Rt[3] + p @ Rt[:3].T)
+        assert b.shape == (100, 2) and np.all(np.isfinite(b))
+        assert 0.01 < np.abs(b).max() < 2.0
+        assert np.abs(b - ref).max() < 1e-6

@@ -13,11 +13,12 @@ The centroid of a projected dot is not the projection of its centre
 paper's second pass subtracts this offset, computed with the CURRENT estimate
 of model and pose, from each detection and solves again.
 
-targets.centroids.expected_centroids is used when that module exists and the
-model is a JPL model; otherwise the outline of each dot (a circle of the
-target's dot radius about the point, in the board plane) is projected at
-NOUTLINE points and the area centroid of the projected polygon is taken. Any
-model with project(p) and Rt_ref_cam() works (OpenCV, COLMAP fits included).
+The expected centroid is the area centroid of each dot's projected outline (a
+circle of the target's dot radius about the point, in the board plane). When
+the points are the target's own, targets.centroids.expected_centroids gives it
+(BIAS_NOUTLINE outline points, Richardson-extrapolated); otherwise the outline
+is projected at NOUTLINE points and the polygon's centroid taken. Any model
+with project(p) and Rt_ref_cam() works (JPL, OpenCV, COLMAP and mrcal fits).
 '''
 
 import numpy as np
@@ -99,8 +100,7 @@ SYNOPSIS
         return None
     centres = project_from_cam(model, _transform(Rt_cam_board, p_board))
     expected = None
-    if getattr(model, "family", None) in ("CAHV", "CAHVOR", "CAHVORE") \
-            and len(p_board) == len(target.points()):
+    if len(p_board) == len(target.points()):
         try:
             from targets.centroids import expected_centroids
         except ImportError:
