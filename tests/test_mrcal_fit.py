@@ -1,5 +1,7 @@
 '''The mrcal calibrator: exact recovery (theta = 90 models), options, failures'''
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -39,6 +41,43 @@ def test_exact_recovery_fast(key):
 @pytest.mark.parametrize("key,truth", MODELS, ids=[k for k, _ in MODELS])
 def test_exact_recovery_every_catalogue_model(key, truth):
     _check(truth, _exact(truth))
+
+
+def _grid_shapes(monkeypatch):
+    import mrcal
+    shapes = []
+    optimize = mrcal.optimize
+
+    def spy(*args, **kw):
+        shapes.append(kw["observations_board"].shape)
+        return optimize(*args, **kw)
+    monkeypatch.setattr(mrcal, "optimize", spy)
+    return shapes
+
+
+def test_polish_runs_on_the_coarse_grid_first(monkeypatch):
+    truth = dict(MODELS)["15"]
+    shapes = _grid_shapes(monkeypatch)
+    _check(truth, _exact(truth))
+    assert (6, 5, 5, 3) in shapes and (6, 10, 10, 3) in shapes
+    # the last solves are on the full grid
+    assert shapes[-1] == (6, 10, 10, 3)
+
+
+def test_coarse_grid_is_skipped_when_a_pose_has_too_few_of_its_points(monkeypatch):
+    truth = dict(MODELS)["15"]
+    obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET))
+    p = obs.p_board[0]
+    step = np.diff(np.unique(np.round(p[:, 0], 9)))[0]
+    ix = np.round((p[:, 0] - p[:, 0].min()) / step).astype(int)
+    iy = np.round((p[:, 1] - p[:, 1].min()) / step).astype(int)
+    q = obs.q.copy()
+    q[0, (ix % 2 == 0) & (iy % 2 == 0)] = np.nan   # pose 0 keeps none of the coarse grid
+    obs = dataclasses.replace(obs, q=q)
+    shapes = _grid_shapes(monkeypatch)
+    r = calibrate("mrcal", obs, TARGET, truth.family, truth=truth, bias_correction=False)
+    _check(truth, r)
+    assert set(shapes) == {(6, 10, 10, 3)}
 
 
 def test_theta_is_not_estimated_and_cahvore_linearity_comes_from_truth():
