@@ -337,19 +337,23 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
         # (R0 -> -0.94 for a MER hazcam, theta 90.018 deg), exactly, after ~20 restarts.
         # The restarts run on the coarse grid first, then on the full one (full=False: the
         # coarse grid only).
-        steps = [coarse] if coarse > 1 else []
-        if full or not steps:
-            steps.append(1)
-        for step in steps:
-            rms_prev = math.inf
-            for _ in range(min(limit or max_restarts, max_restarts)):
-                solve(step, do_optimize_intrinsics_core=True,
-                      do_optimize_intrinsics_distortions=True)
-                r = problem_rms(step)
-                gain = POLISH_GAIN_FINE if r < FINE_RMS else POLISH_GAIN
-                if r < 1e-10 or r > gain * rms_prev:
-                    break
-                rms_prev = r
+        limit = min(limit or max_restarts, max_restarts)
+        restarts(coarse, limit)
+        if full and coarse > 1:
+            restarts(1, limit)
+
+    def restarts(step, limit):
+        # restarts on the grid of every step-th row and column while each gains; its RMS
+        rms_prev = math.inf
+        for _ in range(limit):
+            solve(step, do_optimize_intrinsics_core=True,
+                  do_optimize_intrinsics_distortions=True)
+            r = problem_rms(step)
+            gain = POLISH_GAIN_FINE if r < FINE_RMS else POLISH_GAIN
+            if r < 1e-10 or r > gain * rms_prev:
+                break
+            rms_prev = r
+        return r
 
     if nint > 4:
         if regularization:
