@@ -8,6 +8,7 @@ SYNOPSIS
     warm = warm_start(cam, ix, iy)                # Newton start near pixel (ix, iy)
     s, vx, vy, vz = ray_warm(cam, x, y, warm)     # the same ray, unnormalised, faster
     dirs, shift = build_ray_cache(cam, W, H, noncentral)  # centre rays of pixels -1..W, -1..H
+                                                          # (unnormalised, as ray_warm's)
     render_kernel(...)                            # fills an image; see renderers.raycast
 
 The ray of a pixel is the model's unprojection (reference_models.cahvore),
@@ -187,17 +188,11 @@ A point outside the model's domain gives NaN.'''
     return _ray_from_chi(cam, chi, ux, uy, uz)
 
 
-@njit(cache=True, error_model="numpy")
-def warm_start(cam, x, y):
-    r'''(u0, chi0, a, b) at the image point (x, y): chi(u0 + du) = chi0 + a du + b du^2
-+ O(du^3), the start of the Newton solves of nearby points (their rays are the
-same as from a cold start, only found in fewer steps)'''
-    if cam[_KIND] == KIND_CAHV:
-        return 0.0, 0.0, 0.0, 0.0
-    wx, wy, wz = _pinhole_ray(cam, x, y)
-    u, ux, uy, uz = _split(cam, wx, wy, wz)
+@njit(cache=True, error_model="numpy", inline="always")
+def _warm_coefficients(cam, u, chi):
+    r"""(u, chi, a, b): the Taylor coefficients chi(u + du) = chi + a du + b du^2 + O(du^3)
+of the solution chi at u (NaN, 0, 0, 0 when chi or they are not finite)"""
     r0, r1, r2 = cam[_R], cam[_R + 1], cam[_R + 2]
-    chi = _newton_chi(u, u / (1.0 + r0), r0, r1, r2, NEWTON_TOLERANCE)
     chi2 = chi * chi
     a = 1.0 / (1.0 + r0 + chi2 * (3.0 * r1 + 5.0 * r2 * chi2))
     b = -0.5 * chi * (6.0 * r1 + 20.0 * r2 * chi2) * a * a * a
@@ -206,22 +201,31 @@ same as from a cold start, only found in fewer steps)'''
     return u, chi, a, b
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def ray_warm(cam, x, y, warm):
-    r'''ray(cam, x, y) with an unnormalised direction, its Newton solve started from
-the quadratic prediction of warm_start() (one Newton step, usually)
+@njit(cache=True, error_model="numpy")
+def warm_start(cam, x, y):
+    r"""(u0, chi0, a, b) at the image point (x, y): chi(u0 + du) = chi0 + a du + b du^2
++ O(du^3), the start of the Newton solves of nearby points (their rays are the
+same as from a cold start, only found in fewer steps)"""
+    if cam[_KIND] == KIND_CAHV:
+        return 0.0, 0.0, 0.0, 0.0
+    wx, wy, wz = _pinhole_ray(cam, x, y)
+    u, ux, uy, uz = _split(cam, wx, wy, wz)
+    r0, r1, r2 = cam[_R], cam[_R + 1], cam[_R + 2]
+    chi = _newton_chi(u, u / (1.0 + r0), r0, r1, r2, NEWTON_TOLERANCE)
+    return _warm_coefficients(cam, u, chi)
 
-The CAHV ray (V - y A) x (H - x A) = V x H - x V x A - y A x H is linear in
-(x, y); nothing downstream needs |v| = 1 (the board intersection does not), so
-the normalisations of ray() are skipped.'''
-    # cam[_PINHOLE:] holds V x H, V x A, A x H
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _ray_warm_chi(cam, x, y, warm):
+    r"""ray_warm(), also returning the u and chi of the ray's Newton solve (0, 0 for CAHV)"""
+    # cam[_W0:] holds V x H, V x A, A x H
     wx = cam[_W0] - x * cam[_WX] - y * cam[_WY]
     wy = cam[_W0 + 1] - x * cam[_WX + 1] - y * cam[_WY + 1]
     wz = cam[_W0 + 2] - x * cam[_WX + 2] - y * cam[_WY + 2]
     if wx * cam[_A] + wy * cam[_A + 1] + wz * cam[_A + 2] < 0.0:
         wx, wy, wz = -wx, -wy, -wz
     if cam[_KIND] == KIND_CAHV:
-        return 0.0, wx, wy, wz
+        return 0.0, wx, wy, wz, 0.0, 0.0
     ox, oy, oz = cam[_O], cam[_O + 1], cam[_O + 2]
     zeta = wx * ox + wy * oy + wz * oz
     px = wx - zeta * ox
@@ -245,8 +249,26 @@ the normalisations of ray() are skipped.'''
         n = 0.0
     if cam[_KIND] == KIND_CAHVOR:
         k = chi * n
-        return 0.0, ox + k * px, oy + k * py, oz + k * pz
-    return _ray_from_chi(cam, chi, px * n, py * n, pz * n)
+        return 0.0, ox + k * px, oy + k * py, oz + k * pz, u, chi
+    s, vx, vy, vz = _ray_from_chi(cam, chi, px * n, py * n, pz * n)
+    return s, vx, vy, vz, u, chi
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def ray_warm(cam, x, y, warm):
+    r"""ray(cam, x, y) with an unnormalised direction, its Newton solve started from
+the quadratic prediction of warm_start() (one Newton step, usually)
+
+The CAHV ray (V - y A) x (H - x A) = V x H - x V x A - y A x H is linear in
+(x, y); nothing downstream needs |v| = 1 (the board intersection does not), so
+the normalisations of ray() are skipped.
+
+Newton stops after a step below WARM_TOLERANCE (relative) where its
+convergence is quadratic with a constant <= 1 (_newton_chi): the chi left is
+within WARM_TOLERANCE^2 = 1e-16 (relative) of the root, the floating-point
+floor."""
+    s, vx, vy, vz, _, _ = _ray_warm_chi(cam, x, y, warm)
+    return s, vx, vy, vz
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -280,33 +302,19 @@ SYNOPSIS
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def _fill_ray_cache(cam, dirs, shift, noncentral):
-    r"""ray() for every grid point, each Newton solve started from the linear
-prediction of the previous point of its row (fewer steps, same tolerance)"""
-    kind = cam[_KIND]
-    r0, r1, r2 = cam[_R], cam[_R + 1], cam[_R + 2]
+    r"""ray_warm() for every grid point, each Newton solve started from the quadratic
+prediction of the previous point of its row (_warm_coefficients)
+
+Rows are independent (each starts cold), so the rays do not depend on the
+thread count."""
+    central = cam[_KIND] == KIND_CAHV
     for gy in prange(dirs.shape[0]):
         y = gy - 1.0
-        u0 = math.nan
-        chi0 = 0.0
-        a0 = 0.0
+        warm = (math.nan, 0.0, 0.0, 0.0)
         for gx in range(dirs.shape[1]):
-            x = gx - 1.0
-            wx, wy, wz = _pinhole_ray(cam, x, y)
-            s = 0.0
-            if kind == KIND_CAHV:
-                vx, vy, vz = wx, wy, wz
-            else:
-                u, ux, uy, uz = _split(cam, wx, wy, wz)
-                if math.isfinite(u0):
-                    start = chi0 + (u - u0) * a0
-                else:
-                    start = u / (1.0 + r0)
-                chi = _newton_chi(u, start, r0, r1, r2, NEWTON_TOLERANCE)
-                s, vx, vy, vz = _ray_from_chi(cam, chi, ux, uy, uz)
-                chi2 = chi * chi
-                a0 = 1.0 / (1.0 + r0 + chi2 * (3.0 * r1 + 5.0 * r2 * chi2))
-                u0 = u if (math.isfinite(chi) and math.isfinite(a0)) else math.nan
-                chi0 = chi
+            s, vx, vy, vz, u, chi = _ray_warm_chi(cam, gx - 1.0, y, warm)
+            if not central:
+                warm = _warm_coefficients(cam, u, chi)
             dirs[gy, gx, 0] = vx
             dirs[gy, gx, 1] = vy
             dirs[gy, gx, 2] = vz
@@ -322,6 +330,13 @@ SYNOPSIS
     dirs, shift = build_ray_cache(cam, W, H, noncentral)
     # dirs has shape (H+2,W+2,3): dirs[iy+1,ix+1] is the ray of pixel (ix,iy), ix in -1..W
     # shift has shape (H+2,W+2) (noncentral) or (1,1) (central): origin = C + shift O
+
+The rays are ray_warm()'s: exact to the floating-point level (Newton stopped
+by the WARM_TOLERANCE bound) with directions not normalised (|v| != 1 for
+CAHV and CAHVOR). The renderer reads them only to intersect the board plane,
+which needs no unit direction, and only to decide where to look closer (the
+bounds of its adaptive tests, which allow 1e-12 (relative) of slack); a
+pixel's value always comes from rays traced in the render.
 
 24 bytes per pixel (32 noncentral): 0.5 GB (0.6 GB) for 5120x3840.
 '''
