@@ -63,7 +63,8 @@ ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, Tru
 
 
 def _otsu(img):
-    h, edges = np.histogram(img, bins=1024, range=(float(img.min()), float(img.max())))
+    v = img.ravel()     # contiguous (a copy of a subsample): 10x faster passes below
+    h, edges = _histogram(v, 1024, float(v.min()), float(v.max()))
     centres = 0.5 * (edges[:-1] + edges[1:])
     w0 = np.cumsum(h)
     w1 = w0[-1] - w0
@@ -74,6 +75,34 @@ def _otsu(img):
         between = w0 * w1 * (mu0 - mu1) ** 2
     between[~np.isfinite(between)] = -1
     return float(edges[int(np.argmax(between)) + 1])
+
+
+def _histogram(v, bins, lo, hi):
+    r'''np.histogram(v, bins, range=(lo, hi)) of a 1-D float v within [lo, hi], the same counts and
+edges, in a few passes over v instead of np.histogram's twenty
+
+SYNOPSIS
+
+    h, edges = _histogram(v, 1024, float(v.min()), float(v.max()))
+
+np.histogram estimates each value's bin in double precision from v - lo (in v's
+precision) and then corrects it by one bin either way against its edges (in v's
+precision), so that a value counts in the bin [edges[i], edges[i+1]) that holds it, the
+last bin closed. Here the estimate is made in v's precision: it is a small fraction of a
+bin off at most (the edges are far wider apart than v's resolution; otherwise
+np.histogram itself is called), and the same correction makes it that bin.'''
+    edges = np.linspace(lo, hi, bins + 1, dtype=np.result_type(lo, hi, v))
+    if v.dtype.kind != "f" or not hi - lo > 1e-3 * max(abs(lo), abs(hi)):
+        return np.histogram(v, bins=bins, range=(lo, hi))
+    upper = np.append(edges[1:-1], edges.dtype.type(np.inf))    # the last bin is closed
+    f = v - edges.dtype.type(lo)
+    f *= edges.dtype.type(bins / (hi - lo))
+    np.minimum(f, bins - 1, out=f)
+    i = f.astype(np.intp)
+    below = np.less(v, np.take(edges, i, out=f, mode="clip"))
+    i -= below
+    i += np.greater_equal(v, np.take(upper, i, out=f, mode="clip"), out=below)
+    return np.bincount(i, minlength=bins), edges
 
 
 def _is_large(image):

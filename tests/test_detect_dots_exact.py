@@ -105,3 +105,37 @@ def test_one_non_finite_pixel_is_refused(bad, dtype):
     img[100, 200] = bad
     det = dd.detect_dots(img, load_target("dots"))
     assert det.status == "failed" and det.reason == "the image has non-finite pixels"
+
+
+def _edge_heavy(rng, dtype, lo, hi, n=200_000):
+    r'''Values in [lo, hi] many of them exactly on np.histogram's bin edges or one ulp
+either side of them, where the bin of a value is decided by the edge comparisons'''
+    edges = np.linspace(lo, hi, 1025, dtype=np.result_type(lo, hi, np.zeros(1, dtype)))
+    e = edges[rng.integers(0, 1025, n // 2)].astype(dtype)
+    e = np.where(rng.uniform(size=e.size) < 0.3, np.nextafter(e, dtype(np.inf)), e)
+    e = np.where(rng.uniform(size=e.size) < 0.3, np.nextafter(e, dtype(-np.inf)), e)
+    v = np.concatenate((e, rng.uniform(lo, hi, n - e.size).astype(dtype), [lo, hi]))
+    return np.clip(v, dtype(lo), dtype(hi))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("lo,hi", [(0.0, 1.0), (0.0123, 0.8731), (-3.5, 250.25),
+                                   (0.5, 0.5004), (0.3, 0.3)])
+def test_histogram_is_np_histogram(dtype, lo, hi):
+    rng = np.random.default_rng(int(1000 * hi))
+    v = _edge_heavy(rng, dtype, lo, hi)
+    lo, hi = float(v.min()), float(v.max())
+    h, edges = dd._histogram(v, 1024, lo, hi)
+    h0, edges0 = np.histogram(v, bins=1024, range=(lo, hi))
+    assert h.sum() == v.size
+    assert np.array_equal(h, h0) and h.dtype == h0.dtype
+    assert np.array_equal(edges, edges0) and edges.dtype == edges0.dtype
+
+
+def test_otsu_threshold_of_a_render_is_that_of_np_histogram():
+    img = _speckled(3)
+    sub = img[::2, ::2]
+    h0, edges0 = np.histogram(sub, bins=1024, range=(float(sub.min()), float(sub.max())))
+    h, edges = dd._histogram(sub.ravel(), 1024, float(sub.min()), float(sub.max()))
+    assert np.array_equal(h, h0) and np.array_equal(edges, edges0)
+    assert 0.1 < dd._otsu(sub) < 0.8
