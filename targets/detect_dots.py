@@ -350,30 +350,66 @@ unknowns (centred coordinates), 10x cheaper than lstsq for these few dozen point
         return np.linalg.lstsq(A, v, rcond=None)[0]
 
 
-def _board_level(crop, ring, window, x0, y0):
+def _board_level(crop, ring, window, xx, yy):
     r'''The board's intensity around a dot: a plane a + b x + c y fitted (with one round of
 outlier rejection) to the ring pixels, so that a shading gradient does not bias the
 centroid; the ring's median when it is too small for a plane
 
-x0, y0: the pixel coordinates of crop[0,0]. The plane is returned as an array of the
-crop's shape, the median as a scalar.'''
-    v = crop[ring]
+xx, yy: the pixel coordinates of the crop's columns (1,w) and rows (h,1), integers. The
+plane is returned as an array of the crop's shape, the median as a scalar.
+
+The ring's pixels in raster order, their coordinates' means from the exact integer sums
+(np.mean's values bit for bit) and the columns of A written in place: the values of
+crop[ring], np.nonzero(ring), rx.mean() and np.column_stack((1, x, y)).'''
+    i = np.flatnonzero(ring)
+    v = crop.ravel().take(i)
     if len(v) < MIN_RING_FOR_PLANE:
         return float(_median(v)) if len(v) else float(crop[window].max())
-    ry, rx = np.nonzero(ring)
-    rx += x0
-    ry += y0
-    xm, ym = rx.mean(), ry.mean()
-    x, y = rx - xm, ry - ym
-    A = np.column_stack((np.ones_like(x), x, y))
+    ry, rx = np.divmod(i, ring.shape[1])
+    rx += xx[0, 0]
+    ry += yy[0, 0]
+    xm, ym = rx.sum() / len(i), ry.sum() / len(i)
+    A = np.empty((len(i), 3))
+    A[:, 0] = 1.0
+    np.subtract(rx, xm, out=A[:, 1])
+    np.subtract(ry, ym, out=A[:, 2])
     # fit all, then again without the pixels beyond 5 sigma (MAD) of that fit
     r = np.abs(v - A @ _plane(A, v))
     keep = r < 5 * 1.4826 * (_median(r) + 1e-12) + 1e-9
     coef = _plane(A[keep], v[keep])
-    h, w = crop.shape
-    xx = np.arange(x0, x0 + w)[np.newaxis, :]
-    yy = np.arange(y0, y0 + h)[:, np.newaxis]
     return coef[0] + coef[1] * (xx - xm) + coef[2] * (yy - ym)
+
+
+def _dot_centroid(crop, lab, label, win_kernel, ring_kernel, xa, ya):
+    r'''The darkness-weighted centroid (x, y) of blob `label` in a crop (float64, a copy: it
+is overwritten) whose pixel crop[0,0] is (xa, ya); None if it has no weight
+
+lab: the label image over the crop. Window, ring, board level and weights as the module
+docstring says. The weights are computed in place in the crop; their non-finite values
+(a board level of 0) are zeroed only when the sum shows one.'''
+    import cv2
+    mask = (lab == label).view(np.uint8)
+    window = cv2.dilate(mask, win_kernel).view(bool)
+    ring = np.greater(cv2.dilate(mask, ring_kernel).view(bool), window)
+    ring &= lab == 0
+    h, w = crop.shape
+    xx = np.arange(xa, xa + w)[np.newaxis, :]
+    yy = np.arange(ya, ya + h)[:, np.newaxis]
+    board = _board_level(crop, ring, window, xx, yy)
+    # darkness relative to the local board level: 1 - I/B is proportional to the dot
+    # area a pixel covers even when shading (vignetting) tilts the board level
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wgt = np.divide(crop, board, out=crop)  # then in place: max(1 - wgt, 0) * window
+        np.subtract(1.0, wgt, out=wgt)
+        np.maximum(wgt, 0.0, out=wgt)
+        wgt *= window
+    s = wgt.sum()
+    if not np.isfinite(s):      # NaN or +inf weights: the sum is finite iff there are none
+        wgt[~np.isfinite(wgt)] = 0.0
+        s = wgt.sum()
+    if not s > 0:
+        return None
+    return (wgt * xx).sum() / s, (wgt * yy).sum() / s
 
 
 def detect_dots(image, target, **options):
@@ -499,26 +535,13 @@ ARGUMENTS
         label = blobs[i_blob]
         xa, ya = max(0, x0[label] - pad), max(0, y0[label] - pad)
         xb, yb = min(W, x0[label] + w[label] + pad), min(H, y0[label] + h[label] + pad)
-        lab = labels[ya:yb, xa:xb]
-        # float64 from the source pixels, whatever precision the labelling used
+        # float64 from the source pixels, whatever precision the labelling used; a copy
         crop = (img[ya:yb, xa:xb] if img.dtype == np.float64
                 else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
-        mask = (lab == label).view(np.uint8)
-        window = cv2.dilate(mask, win_kernel).view(bool)
-        ring = cv2.dilate(mask, ring_kernel).view(bool) & ~window & (lab == 0)
-        board = _board_level(crop, ring, window, xa, ya)
-        # darkness relative to the local board level: 1 - I/B is proportional to the dot
-        # area a pixel covers even when shading (vignetting) tilts the board level
-        with np.errstate(divide="ignore", invalid="ignore"):
-            wgt = crop / board          # then in place: max(1 - wgt, 0) * window
-            np.subtract(1.0, wgt, out=wgt)
-            np.maximum(wgt, 0.0, out=wgt)
-            wgt *= window
-        wgt[~np.isfinite(wgt)] = 0.0
-        s = wgt.sum()
-        if not s > 0:
-            continue
-        xx = np.arange(xa, xb)[np.newaxis, :]
-        yy = np.arange(ya, yb)[:, np.newaxis]
-        q[gy * nx + gx] = ((wgt * xx).sum() / s, (wgt * yy).sum() / s)
+        if crop.base is not None:
+            crop = crop.copy()
+        c = _dot_centroid(crop, labels[ya:yb, xa:xb], label, win_kernel, ring_kernel,
+                          xa, ya)
+        if c is not None:
+            q[gy * nx + gx] = c
     return result(target, q, DETECTOR, min_found=min_found, info=info)

@@ -139,3 +139,87 @@ def test_otsu_threshold_of_a_render_is_that_of_np_histogram():
     h, edges = dd._histogram(sub.ravel(), 1024, float(sub.min()), float(sub.max()))
     assert np.array_equal(h, h0) and np.array_equal(edges, edges0)
     assert 0.1 < dd._otsu(sub) < 0.8
+
+
+def _reference_centroid(crop, lab, label, win_kernel, ring_kernel, xa, ya):
+    r'''The former per-dot computation of detect_dots, verbatim: the window, ring, board
+plane (np.nonzero, np.mean, np.column_stack, np.linalg.solve) and weights'''
+    mask = (lab == label).view(np.uint8)
+    window = cv2.dilate(mask, win_kernel).view(bool)
+    ring = cv2.dilate(mask, ring_kernel).view(bool) & ~window & (lab == 0)
+    v = crop[ring]
+    if len(v) < dd.MIN_RING_FOR_PLANE:
+        board = float(np.median(v)) if len(v) else float(crop[window].max())
+    else:
+        ry, rx = np.nonzero(ring)
+        rx += xa
+        ry += ya
+        xm, ym = rx.mean(), ry.mean()
+        x, y = rx - xm, ry - ym
+        A = np.column_stack((np.ones_like(x), x, y))
+        r = np.abs(v - A @ np.linalg.solve(A.T @ A, A.T @ v))
+        keep = r < 5 * 1.4826 * (np.median(r) + 1e-12) + 1e-9
+        coef = np.linalg.solve(A[keep].T @ A[keep], A[keep].T @ v[keep])
+        h, w = crop.shape
+        xx = np.arange(xa, xa + w)[np.newaxis, :]
+        yy = np.arange(ya, ya + h)[:, np.newaxis]
+        board = coef[0] + coef[1] * (xx - xm) + coef[2] * (yy - ym)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wgt = np.maximum(1.0 - crop / board, 0.0) * window
+    wgt[~np.isfinite(wgt)] = 0.0
+    s = wgt.sum()
+    if not s > 0:
+        return None
+    xx = np.arange(xa, xa + crop.shape[1])[np.newaxis, :]
+    yy = np.arange(ya, ya + crop.shape[0])[:, np.newaxis]
+    return (wgt * xx).sum() / s, (wgt * yy).sum() / s
+
+
+def _dot_field(seed, H=240, W=320, K=4):
+    r'''Area-averaged dark dots of many sizes on a vignetted, noisy board (float64)'''
+    rng = np.random.default_rng(seed)
+    yy, xx = (np.mgrid[:H * K, :W * K] + 0.5) / K
+    dark = np.zeros((H * K, W * K), bool)
+    for _ in range(25):
+        cx, cy, r = rng.uniform(8, W - 8), rng.uniform(8, H - 8), rng.uniform(1.5, 9)
+        dark |= (xx - cx) ** 2 + (yy - cy) ** 2 < r * r
+    cover = dark.reshape(H, K, W, K).mean(axis=(1, 3))
+    y, x = np.mgrid[:H, :W]
+    board = 0.9 * (1 - 0.5 * ((x - W / 2) ** 2 + (y - H / 2) ** 2) / (W * W / 4 + H * H / 4))
+    return board * (1 - 0.85 * cover) + rng.normal(0, 0.01, (H, W))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_dot_centroid_is_the_former_computation(seed):
+    img = _dot_field(seed)
+    H, W = img.shape
+    n, labels, stats, _ = cv2.connectedComponentsWithStats((img < 0.4).astype(np.uint8),
+                                                           connectivity=8)
+    win, ring = dd._disk(2), dd._disk(5)
+    checked = 0
+    for label in range(1, n):
+        x0, y0, w, h, _ = stats[label]
+        xa, ya, xb, yb = max(0, x0 - 6), max(0, y0 - 6), min(W, x0 + w + 6), min(H, y0 + h + 6)
+        crop, lab = img[ya:yb, xa:xb], labels[ya:yb, xa:xb]
+        ref = _reference_centroid(crop, lab, label, win, ring, xa, ya)
+        got = dd._dot_centroid(crop.copy(), lab, label, win, ring, xa, ya)
+        assert got == ref            # bit for bit (tuples of floats, or both None)
+        checked += ref is not None
+    assert checked > 10
+
+
+def test_dot_centroid_with_a_zero_board_level():
+    r'''A ring of fewer than MIN_RING_FOR_PLANE pixels, all 0: the board level is 0, every
+weight 0/0 or x/0, none of them finite: no centroid'''
+    crop = np.full((20, 20), 0.5)
+    crop[8:12, 8:12] = 0.0
+    lab = np.full((20, 20), 2, np.int32)
+    lab[8:12, 8:12] = 1
+    lab[5, 8:13] = 0            # 5 ring pixels, 0 on the board
+    crop[5, 8:13] = 0.0
+    args = (dd._disk(2), dd._disk(5), 10, 20)
+    assert _reference_centroid(crop, lab, 1, *args) is None
+    assert dd._dot_centroid(crop.copy(), lab, 1, *args) is None
+    crop[5, 8:13] = 0.8         # a board level again: the same centroid as before
+    ref = _reference_centroid(crop, lab, 1, *args)
+    assert ref is not None and dd._dot_centroid(crop.copy(), lab, 1, *args) == ref
