@@ -123,25 +123,62 @@ elsewhere (background, or dark specks too small to show in the reduced image).''
     import cv2
     H, W = img.shape
     small = cv2.resize(img, (W // s, H // s), interpolation=cv2.INTER_AREA)
-    n, _, st, _ = cv2.connectedComponentsWithStats((small < thr).astype(np.uint8),
-                                                   connectivity=8)
-    st = st[1:]
-    # as detect_dots keeps blobs: not touching the border, not larger than a quarter image
-    st = st[(st[:, 4] >= MIN_REDUCED_AREA_PX) & (st[:, 4] <= 0.25 * small.size)
-            & (st[:, 0] > 0) & (st[:, 1] > 0) & (st[:, 0] + st[:, 2] < small.shape[1])
-            & (st[:, 1] + st[:, 3] < small.shape[0])]
+    st = _reduced_blobs(small < thr)
     if len(st) < MIN_REDUCED_BLOBS:
         return None
     margin = 2 * s
     boxes = [(max(0, bx * s - margin), max(0, by * s - margin),
               min(W, (bx + bw) * s + margin), min(H, (by + bh) * s + margin))
-             for bx, by, bw, bh, _ in st.tolist()]
+             for bx, by, bw, bh in st]
     labels = np.zeros((H, W), np.int32)
     stats = [[0, 0, 0, 0, 0]]
     centroids = [np.zeros(2)]
     for run in _stacks(boxes):
         _label_stack(img, thr, run, labels, stats, centroids)
     return labels, np.array(stats, np.int64), np.array(centroids)
+
+
+def _components(mask):
+    r'''Labels and boxes of the 8-connected components of a uint8 mask, as
+cv2.connectedComponentsWithStats gives them, without its statistics (which take 5x the
+time of the labelling)
+
+SYNOPSIS
+
+    labels, boxes = _components(mask)   # boxes (n,5): label, x, y, w, h in label order
+
+Each component has one outer border, the top level of findContours' RETR_CCOMP
+hierarchy (a component in a hole of another is at the top level too): its bounding
+rectangle is the component's, and its pixels carry the component's label.'''
+    import cv2
+    _, labels = cv2.connectedComponents(mask, connectivity=8)
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    rows = [(int(labels[c[0, 0, 1], c[0, 0, 0]]), *cv2.boundingRect(c))
+            for c, up in zip(contours, [] if hierarchy is None else hierarchy[0, :, 3],
+                             strict=True) if up < 0]
+    return labels, np.array(sorted(rows), np.int64).reshape(-1, 5)
+
+
+def _reduced_blobs(dark):
+    r'''Boxes (x, y, w, h) of the components of a reduced image's dark mask that
+detect_dots would keep: not touching the border, of MIN_REDUCED_AREA_PX to a quarter of
+the image; in label order
+
+A component's area (pixel count) lies between the width and height of its box and the
+box's area; it is counted only when these bounds do not decide.'''
+    H, W = dark.shape
+    labels, comp = _components(dark.view(np.uint8))
+    kept = []
+    for k, x, y, w, h in comp.tolist():
+        if not (x > 0 and y > 0 and x + w < W and y + h < H):
+            continue
+        if max(w, h) >= MIN_REDUCED_AREA_PX and w * h <= 0.25 * dark.size:
+            kept.append((x, y, w, h))
+        elif w * h >= MIN_REDUCED_AREA_PX:
+            area = np.count_nonzero(labels[y:y + h, x:x + w] == k)
+            if MIN_REDUCED_AREA_PX <= area <= 0.25 * dark.size:
+                kept.append((x, y, w, h))
+    return kept
 
 
 def _stacks(boxes, waste=4):
@@ -166,9 +203,8 @@ The boxes' dark masks are stacked, each from an even row (cv2 labels 2x2 blocks 
 raster order) with an empty row after it, so each box's components come out as the box
 labelled alone gives them, in the same order. A component lying wholly inside its box
 and not yet labelled (through a neighbouring box) gets the next label in labels (H,W),
-and its row of stats and centroids (appended to these lists): the centroid's y from the
-box's own integer sum of rows, as cv2 divides it by the area.'''
-    import cv2
+and its row of stats and centroids (appended to these lists), computed from its pixels
+(_components, _centroid) as cv2.connectedComponentsWithStats would give them.'''
     H, W = labels.shape
     tops, top = [], 0
     for _, ya, _, yb in boxes:
@@ -178,13 +214,11 @@ box's own integer sum of rows, as cv2 divides it by the area.'''
     stack = np.zeros((top, max(b[2] - b[0] for b in boxes)), np.uint8)
     for (xa, ya, xb, yb), t in zip(boxes, tops, strict=True):
         stack[t:t + yb - ya, :xb - xa] = img[ya:yb, xa:xb] < thr
-    m, lab, cst, cc = cv2.connectedComponentsWithStats(stack, connectivity=8)
-    box = np.searchsorted(tops, cst[1:, 1], side="right") - 1
-    for k in (1 + np.lexsort((np.arange(m - 1), box))).tolist():
-        i = int(box[k - 1])
+    lab, comp = _components(stack)
+    box = np.searchsorted(tops, comp[:, 2], side="right") - 1
+    for (k, cx, cy, cw, ch), i in zip(comp.tolist(), box.tolist(), strict=True):
         xa, ya, xb, yb = boxes[i]
         t = tops[i]
-        cx, cy, cw, ch, ca = cst[k].tolist()
         cy -= t
         inside = (cx > 0 or xa == 0) and (cy > 0 or ya == 0) and \
             (cx + cw < xb - xa or xb == W) and (cy + ch < yb - ya or yb == H)
@@ -195,9 +229,20 @@ box's own integer sum of rows, as cv2 divides it by the area.'''
         if region.any(where=mine):      # already taken through a neighbouring box
             continue
         region[mine] = len(stats)
-        stats.append([cx + xa, cy + ya, cw, ch, ca])
-        centroids.append(np.array([cc[k, 0], (np.rint(cc[k, 1] * ca) - t * ca) / ca])
-                         + (xa, ya))
+        stats.append([cx + xa, cy + ya, cw, ch, 0])
+        centroids.append(_centroid(mine, cx, cy, stats[-1]) + (xa, ya))
+
+
+def _centroid(mine, x0, y0, st):
+    r'''The centroid (x, y) of the pixels of mine (h,w) whose [0,0] is (x0, y0), as
+cv2.connectedComponentsWithStats computes it: the exact integer sums of x and y divided
+by the area (which is written into st[4])'''
+    h, w = mine.shape
+    cols = np.count_nonzero(mine, axis=0)
+    rows = np.count_nonzero(mine, axis=1)
+    st[4] = area = int(cols.sum())
+    return np.array([int(cols @ np.arange(x0, x0 + w)) / area,
+                     int(rows @ np.arange(y0, y0 + h)) / area])
 
 
 def _disk(r):

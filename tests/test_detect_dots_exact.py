@@ -223,3 +223,42 @@ weight 0/0 or x/0, none of them finite: no centroid'''
     crop[5, 8:13] = 0.8         # a board level again: the same centroid as before
     ref = _reference_centroid(crop, lab, 1, *args)
     assert ref is not None and dd._dot_centroid(crop.copy(), lab, 1, *args) == ref
+
+
+def _masks():
+    r'''Dark masks with components of every kind: specks, rings with components in their
+holes, diagonal contacts, components on the border, one over a quarter of the image'''
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        if seed % 3 == 0:
+            shape = (int(rng.integers(1, 90)), int(rng.integers(1, 90)))
+            yield (rng.uniform(size=shape) < rng.uniform(0.2, 0.7)).astype(np.uint8)
+        else:
+            m = (_speckled(seed) < 0.5).astype(np.uint8)
+            yield np.ascontiguousarray(m[5:-7, 3:]) if seed % 3 == 2 else m
+    big = np.zeros((40, 50), np.uint8)
+    big[2:35, 3:45] = 1
+    big[10:20, 10:20] = 0
+    big[14:16, 14:16] = 1
+    big[25, 47] = 1
+    yield big
+
+
+def test_components_are_those_of_cv2():
+    for mask in _masks():
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        lab, boxes = dd._components(mask)
+        assert np.array_equal(lab, labels)
+        assert np.array_equal(boxes[:, 0], np.arange(1, n))
+        assert np.array_equal(boxes[:, 1:], stats[1:, :4])
+
+
+def test_reduced_blobs_are_the_stats_filter():
+    r'''The former filter on cv2's statistics'''
+    for mask in _masks():
+        H, W = mask.shape
+        st = cv2.connectedComponentsWithStats(mask, connectivity=8)[2][1:]
+        st = st[(st[:, 4] >= dd.MIN_REDUCED_AREA_PX) & (st[:, 4] <= 0.25 * mask.size)
+                & (st[:, 0] > 0) & (st[:, 1] > 0) & (st[:, 0] + st[:, 2] < W)
+                & (st[:, 1] + st[:, 3] < H)]
+        assert dd._reduced_blobs(mask.view(bool)) == [tuple(r) for r in st[:, :4].tolist()]
