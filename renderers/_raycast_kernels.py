@@ -692,6 +692,13 @@ subsamples closer than e to an edge are traced."""
     # the centre: where they are the only edges there, blocks are classified against
     # them alone
     ncand, base = _local_circles(px, py, jac[8], cand, pat)
+    # a square block (half-widths w, w) reaches w max(|J_x + J_y|, |J_x - J_y|) from its
+    # centre's predicted point
+    sx = jac[0] + jac[2]
+    sy = jac[1] + jac[3]
+    dx = jac[0] - jac[2]
+    dy = jac[1] - jac[3]
+    g = max(math.sqrt(sx * sx + sy * sy), math.sqrt(dx * dx + dy * dy))
     nst = _push_quadrants(stack, 0, 0, K, 0, K)
     while nst > 0:
         nst -= 1
@@ -705,11 +712,14 @@ subsamples closer than e to an edge are traced."""
         wy = 0.5 * (offs[j1 - 1] - offs[j0])
         bx = px + cx * jac[0] + cy * jac[2]
         by = py + cx * jac[1] + cy * jac[3]
-        ex = wx * jac[0] + wy * jac[2]
-        ey = wx * jac[1] + wy * jac[3]
-        fx = wx * jac[0] - wy * jac[2]
-        fy = wx * jac[1] - wy * jac[3]
-        rb = max(math.sqrt(ex * ex + ey * ey), math.sqrt(fx * fx + fy * fy)) + e
+        if i1 - i0 == j1 - j0:
+            rb = wx * g + e
+        else:
+            ex = wx * jac[0] + wy * jac[2]
+            ey = wx * jac[1] + wy * jac[3]
+            fx = wx * jac[0] - wy * jac[2]
+            fy = wx * jac[1] - wy * jac[3]
+            rb = max(math.sqrt(ex * ex + ey * ey), math.sqrt(fx * fx + fy * fy)) + e
         if ncand >= 0:
             clear, m = _classify_local(bx, by, rb, cand, ncand, base, pat)
         else:
@@ -839,6 +849,60 @@ def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, ja
     return v, n, 1
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _hit_rows(xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
+    r"""The board points of the cached rays of band rows k0..k1-1, band columns c0..c1-1
+(image row r0 - 1 + k, column c - 1) into hx, hy, hok"""
+    for k in range(k0, k1):
+        gy = r0 + k
+        for gx in range(c0, c1):
+            s = shift[gy, gx] if noncentral else 0.0
+            ok, x, y = _hit(xf, s, dirs[gy, gx, 0], dirs[gy, gx, 1], dirs[gy, gx, 2])
+            hok[k, gx] = ok
+            hx[k, gx] = x
+            hy[k, gx] = y
+
+
+@njit(cache=True, error_model="numpy")
+def _hit_ring(xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
+    r"""The board points of the ring band rows k0, k1 x band columns c0..c1 (and columns
+c0, c1 between) and of its centre ((k0+k1)//2, (c0+c1)//2): what _block_uniform reads"""
+    _hit_rows(xf, dirs, shift, noncentral, r0, k0, k0 + 1, c0, c1 + 1, hx, hy, hok)
+    _hit_rows(xf, dirs, shift, noncentral, r0, k1, k1 + 1, c0, c1 + 1, hx, hy, hok)
+    for k in range(k0 + 1, k1):
+        _hit_rows(xf, dirs, shift, noncentral, r0, k, k + 1, c0, c0 + 1, hx, hy, hok)
+        _hit_rows(xf, dirs, shift, noncentral, r0, k, k + 1, c1, c1 + 1, hx, hy, hok)
+    kc = (k0 + k1) // 2
+    cc = (c0 + c1) // 2
+    _hit_rows(xf, dirs, shift, noncentral, r0, kc, kc + 1, cc, cc + 1, hx, hy, hok)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _on_board(x, y, rect):
+    return x >= rect[0] and x < rect[1] and y >= rect[2] and y < rect[3]
+
+
+@njit(cache=True, error_model="numpy")
+def _count_board(hx, hy, hok, k0, k1, c0, c1, rect):
+    r"""The number of the points k0..k1-1 x c0..c1-1 that hit the board"""
+    n = 0
+    for k in range(k0, k1):
+        for c in range(c0, c1):
+            if hok[k, c] and _on_board(hx[k, c], hy[k, c], rect):
+                n += 1
+    return n
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _centre_on_board(hx, hy, hok, k0, k1, c0, c1, rect):
+    r"""Whether the centre point of the block with ring k0, k1, c0, c1 hits the board;
+for a block _block_uniform calls uniform, then so do all its pixel centres (its
+disc lies inside the board rectangle or wholly outside it)"""
+    kc = (k0 + k1) // 2
+    cc = (c0 + c1) // 2
+    return hok[kc, cc] and _on_board(hx[kc, cc], hy[kc, cc], rect)
+
+
 @njit(cache=True, error_model="numpy")
 def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values, out,
                  stats, pat, qbox):
@@ -851,28 +915,10 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
     hok = np.zeros((nk, W + 2), dtype=np.int64)
     rect = pat[0]
     nboard = 0
-    # adaptive: only the tiles that meet the image of the board need their rays
-    g0 = 0
-    g1 = W + 2
-    if adaptive:
-        if r1 - 0.5 < qbox[2] or r0 - 0.5 > qbox[3]:
-            g1 = 0
-        else:
-            ta = math.floor((min(max(qbox[0], -1.0), W + 1.0) + 0.5) / T)
-            tb = math.floor((min(max(qbox[1], -1.0), W + 1.0) + 0.5) / T) + 1
-            g0 = max(0, int(ta) * T)
-            g1 = min(W, int(tb) * T) + 2
-    for k in range(nk):
-        gy = r0 + k
-        for gx in range(g0, g1):
-            s = shift[gy, gx] if noncentral else 0.0
-            ok, x, y = _hit(xf, s, dirs[gy, gx, 0], dirs[gy, gx, 1], dirs[gy, gx, 2])
-            hok[k, gx] = ok
-            hx[k, gx] = x
-            hy[k, gx] = y
-            if (ok and k > 0 and k < nk - 1 and gx > 0 and gx <= W
-                    and x >= rect[0] and x < rect[1] and y >= rect[2] and y < rect[3]):
-                nboard += 1
+    if not adaptive:
+        # every pixel is supersampled; the board points only count board pixels
+        _hit_rows(xf, dirs, shift, noncentral, r0, 1, nk - 1, 1, W + 1, hx, hy, hok)
+        nboard = _count_board(hx, hy, hok, 1, nk - 1, 1, W + 1, rect)
 
     counts = np.zeros(values.shape[0], dtype=np.int64)
     offs = np.empty(K)
@@ -899,7 +945,10 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
             continue
         # blocks of pixels (rows ya..yb, columns xa..xb), split into quadrants
         # until they are uniform or at most MIN_BLOCK pixels wide
+        # the board points of a tile's interior are traced only when its ring says
+        # that it is not uniform (the blocks inside and their pixels then need them)
         nb = _push(blocks, 0, r0, r1, x0, x1)
+        tile = True
         while nb > 0:
             nb -= 1
             ya = blocks[nb, 0]
@@ -911,8 +960,20 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
                 # the block lies outside the image of the board
                 uniform, m = True, pat[1][0]
             else:
+                if tile:
+                    _hit_ring(xf, dirs, shift, noncentral, r0, 0, nk - 1, x0, x1 + 1, hx, hy,
+                              hok)
                 uniform, m = _block_uniform(hx, hy, hok, ya - r0, yb - r0 + 1, xa, xb + 1, pat)
                 nblocks += 1
+                if tile:
+                    if not uniform:
+                        _hit_rows(xf, dirs, shift, noncentral, r0, 1, nk - 1, x0 + 1, x1 + 1,
+                                  hx, hy, hok)
+                        nboard += _count_board(hx, hy, hok, 1, nk - 1, x0 + 1, x1 + 1, rect)
+                    elif _centre_on_board(hx, hy, hok, 0, nk - 1, x0, x1 + 1, rect):
+                        # a uniform block whose centre is on the board lies on the board
+                        nboard += (r1 - r0) * (x1 - x0)
+            tile = False
             if uniform:
                 v = values[m]
                 for iy in range(ya, yb):
