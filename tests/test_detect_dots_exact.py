@@ -262,3 +262,13 @@ def test_reduced_blobs_are_the_stats_filter():
                 & (st[:, 0] > 0) & (st[:, 1] > 0) & (st[:, 0] + st[:, 2] < W)
                 & (st[:, 1] + st[:, 3] < H)]
         assert dd._reduced_blobs(mask.view(bool)) == [tuple(r) for r in st[:, :4].tolist()]
+
+
+def test_label_all_is_cv2_stats_and_centroids():
+    for mask in _masks():
+        n, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        lab, st, none = dd._label_all(mask)
+        assert none is None and np.array_equal(lab, labels)
+        assert np.array_equal(st[1:], stats[1:]) and st[0, 4] == stats[0, 4]
+        blobs = np.arange(1, n)
+        assert np.array_equal(dd._blob_centroids(lab, st, blobs), centroids[1:])
