@@ -111,9 +111,14 @@ def _is_large(image):
 
 
 def _blobs_from_reduced(img, thr, s):
-    r'''(labels, stats, centroids) as cv2.connectedComponentsWithStats gives them for
-img < thr, found through an image reduced s times: None when the reduced image shows too
-few blobs of a size that survives the reduction (the caller then labels the full image)
+    r'''(masks, stats, centroids) of the components of img < thr, found through an image
+reduced s times: None when the reduced image shows too few blobs of a size that survives
+the reduction (the caller then labels the full image)
+
+stats and centroids are those cv2.connectedComponentsWithStats gives the components (in
+an order of their own); masks[k] is component k's pixels (bool) over its box
+stats[k, :4] (masks[0] is None). Instead of a label image of the full size (78 MB on
+5120x3840, whose pages cost 10 ms to fault in): _label_image() makes any crop of it.
 
 The reduced image (area average) locates the dark blobs; each is then labelled at full
 resolution inside its box widened by 2 s pixels, and a full-resolution component is kept
@@ -130,12 +135,28 @@ elsewhere (background, or dark specks too small to show in the reduced image).''
     boxes = [(max(0, bx * s - margin), max(0, by * s - margin),
               min(W, (bx + bw) * s + margin), min(H, (by + bh) * s + margin))
              for bx, by, bw, bh in st]
-    labels = np.zeros((H, W), np.int32)
     stats = [[0, 0, 0, 0, 0]]
     centroids = [np.zeros(2)]
+    masks = [None]
     for run in _stacks(boxes):
-        _label_stack(img, thr, run, labels, stats, centroids)
-    return labels, np.array(stats, np.int64), np.array(centroids)
+        _label_stack(img, thr, run, stats, centroids, masks)
+    return masks, np.array(stats, np.int64), np.array(centroids)
+
+
+def _label_image(masks, stats, xa, ya, xb, yb):
+    r'''The label image (int32) over [ya:yb, xa:xb] of components given by masks and stats
+(as _blobs_from_reduced returns them): 0 where no component is'''
+    x, y, w, h = (stats[:, k] for k in range(4))
+    near = np.flatnonzero((x < xb) & (x + w > xa) & (y < yb) & (y + h > ya))
+    lab = np.zeros((yb - ya, xb - xa), np.int32)
+    for k in near.tolist():
+        if masks[k] is None:
+            continue
+        kx, ky, kw, kh = stats[k, :4].tolist()
+        x0, y0, x1, y1 = max(kx, xa), max(ky, ya), min(kx + kw, xb), min(ky + kh, yb)
+        mine = masks[k][y0 - ky:y1 - ky, x0 - kx:x1 - kx]
+        lab[y0 - ya:y1 - ya, x0 - xa:x1 - xa][mine] = k
+    return lab
 
 
 def _components(mask):
@@ -217,16 +238,19 @@ has at most waste times the pixels of the boxes themselves'''
         yield run
 
 
-def _label_stack(img, thr, boxes, labels, stats, centroids):
+def _label_stack(img, thr, boxes, stats, centroids, masks):
     r'''Label img < thr in each box as if alone, all boxes in one labelling call
 
 The boxes' dark masks are stacked, each from an even row (cv2 labels 2x2 blocks in
 raster order) with an empty row after it, so each box's components come out as the box
 labelled alone gives them, in the same order. A component lying wholly inside its box
-and not yet labelled (through a neighbouring box) gets the next label in labels (H,W),
-and its row of stats and centroids (appended to these lists), computed from its pixels
-(_components, _centroid) as cv2.connectedComponentsWithStats would give them.'''
-    H, W = labels.shape
+and not yet labelled (through a neighbouring box) gets the next label: its row of stats,
+centroids and masks (appended to these lists), the stats and centroid computed from its
+pixels (_components, _centroid) as cv2.connectedComponentsWithStats would give them.
+
+A component wholly inside its box is a component of the whole image, so one labelled
+through another box has the same box and pixels, and components of the image are
+disjoint: a component is taken iff one of the same box shares a pixel with it.'''
     tops, top = [], 0
     for _, ya, _, yb in boxes:
         tops.append(top)
@@ -235,8 +259,12 @@ and its row of stats and centroids (appended to these lists), computed from its 
     stack = np.zeros((top, max(b[2] - b[0] for b in boxes)), np.uint8)
     for (xa, ya, xb, yb), t in zip(boxes, tops, strict=True):
         stack[t:t + yb - ya, :xb - xa] = img[ya:yb, xa:xb] < thr
+    H, W = img.shape
     lab, comp = _components(stack)
     box = np.searchsorted(tops, comp[:, 2], side="right") - 1
+    taken = {}
+    for k, st in enumerate(stats[1:], 1):
+        taken.setdefault(tuple(st[:4]), []).append(k)
     for (k, cx, cy, cw, ch), i in zip(comp.tolist(), box.tolist(), strict=True):
         xa, ya, xb, yb = boxes[i]
         t = tops[i]
@@ -245,13 +273,14 @@ and its row of stats and centroids (appended to these lists), computed from its 
             (cx + cw < xb - xa or xb == W) and (cy + ch < yb - ya or yb == H)
         if not inside:
             continue
-        region = labels[ya + cy:ya + cy + ch, xa + cx:xa + cx + cw]
         mine = lab[t + cy:t + cy + ch, cx:cx + cw] == k
-        if region.any(where=mine):      # already taken through a neighbouring box
-            continue
-        region[mine] = len(stats)
-        stats.append([cx + xa, cy + ya, cw, ch, 0])
+        key = (cx + xa, cy + ya, cw, ch)
+        if any(masks[j].any(where=mine) for j in taken.get(key, ())):
+            continue                    # already taken through a neighbouring box
+        taken.setdefault(key, []).append(len(stats))
+        stats.append([*key, 0])
         centroids.append(_centroid(mine, cx, cy, stats[-1]) + (xa, ya))
+        masks.append(mine)
 
 
 def _centroid(mine, x0, y0, st):
@@ -604,8 +633,9 @@ ARGUMENTS
                 else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
         if crop.base is not None:
             crop = crop.copy()
-        c = _dot_centroid(crop, labels[ya:yb, xa:xb], label, win_kernel, ring_kernel,
-                          xa, ya)
+        lab = (labels[ya:yb, xa:xb] if isinstance(labels, np.ndarray)
+               else _label_image(labels, stats, xa, ya, xb, yb))
+        c = _dot_centroid(crop, lab, label, win_kernel, ring_kernel, xa, ya)
         if c is not None:
             q[gy * nx + gx] = c
     return result(target, q, DETECTOR, min_found=min_found, info=info)

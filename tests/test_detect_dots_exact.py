@@ -2,7 +2,7 @@ r'''The dot detector's shortcuts give bit for bit what the plain computations gi
 
 _label_stack labels many boxes in one call: each box's components, their order, stats
 and centroids must be those of the box labelled alone (as the detector did before, one
-connectedComponentsWithStats call per box). _median must be np.median exactly.
+connectedComponentsWithStats call per box), and _label_image the label image they made. _median must be np.median exactly.
 '''
 
 import cv2
@@ -66,14 +66,16 @@ def test_label_stack_is_each_box_labelled_alone(seed):
     boxes.insert(20, (0, 3, W, H - 1))
     boxes.insert(30, (0, 150, W, 157))
     ref = _label_boxes_one_by_one(img, 0.5, boxes)
-    labels = np.zeros((H, W), np.int32)
-    stats, centroids = [[0, 0, 0, 0, 0]], [np.zeros(2)]
+    stats, centroids, masks = [[0, 0, 0, 0, 0]], [np.zeros(2)], [None]
     runs = list(dd._stacks(boxes))
     assert [b for r in runs for b in r] == boxes
     for run in runs:
-        dd._label_stack(img, 0.5, run, labels, stats, centroids)
-    assert len(stats) == len(ref[1]) > 40
+        dd._label_stack(img, 0.5, run, stats, centroids, masks)
+    assert len(stats) == len(ref[1]) == len(masks) > 40
+    labels = dd._label_image(masks, np.array(stats), 0, 0, W, H)
     assert np.array_equal(labels, ref[0])
+    assert np.array_equal(dd._label_image(masks, np.array(stats), 30, 20, 200, 150),
+                          ref[0][20:150, 30:200])
     assert np.array_equal(np.array(stats, np.int64), ref[1])
     assert np.array_equal(np.array(centroids), ref[2])     # bit for bit, not just close
 
