@@ -470,23 +470,44 @@ crop[ring], np.nonzero(ring), rx.mean() and np.column_stack((1, x, y)).'''
     np.subtract(ry, ym, out=A[:, 2])
     # fit all, then again without the pixels beyond 5 sigma (MAD) of that fit
     r = np.abs(v - A @ _plane(A, v))
-    keep = r < 5 * 1.4826 * (_median(r) + 1e-12) + 1e-9
-    coef = _plane(A[keep], v[keep])
+    keep = np.flatnonzero(r < 5 * 1.4826 * (_median(r) + 1e-12) + 1e-9)
+    coef = _plane(A.take(keep, axis=0), v.take(keep))
     return coef[0] + coef[1] * (xx - xm) + coef[2] * (yy - ym)
 
 
-def _dot_centroid(crop, lab, label, win_kernel, ring_kernel, xa, ya):
-    r'''The darkness-weighted centroid (x, y) of blob `label` in a crop (float64, a copy: it
-is overwritten) whose pixel crop[0,0] is (xa, ya); None if it has no weight
+def _dot_masks(labels, stats, label, xa, ya, xb, yb):
+    r'''(mask, free) over the crop [ya:yb, xa:xb] of blob `label`: its pixels (uint8) and
+the pixels of no blob (bool), or None when no other blob comes into the crop
 
-lab: the label image over the crop. Window, ring, board level and weights as the module
+labels: the label image, or the masks of _blobs_from_reduced(): the blob's mask is then
+copied into the crop, and the label image made only when another blob's box reaches it.'''
+    if isinstance(labels, np.ndarray):
+        lab = labels[ya:yb, xa:xb]
+        return (lab == label).view(np.uint8), lab == 0
+    x, y, w, h = stats[label, :4].tolist()
+    mask = np.zeros((yb - ya, xb - xa), np.uint8)
+    mask[y - ya:y - ya + h, x - xa:x - xa + w] = labels[label]
+    sx, sy, sw, sh = (stats[:, k] for k in range(4))
+    near = (sx < xb) & (sx + sw > xa) & (sy < yb) & (sy + sh > ya)
+    near[[0, label]] = False
+    if not near.any():
+        return mask, None
+    return mask, _label_image(labels, stats, xa, ya, xb, yb) == 0
+
+
+def _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya):
+    r'''The darkness-weighted centroid (x, y) of a blob in a crop (float64, a copy: it is
+overwritten) whose pixel crop[0,0] is (xa, ya); None if it has no weight
+
+mask, free: the blob's pixels (uint8) and the pixels of no blob (bool; None: all but the
+blob's), over the crop (_dot_masks). Window, ring, board level and weights as the module
 docstring says. The weights are computed in place in the crop; their non-finite values
 (a board level of 0) are zeroed only when the sum shows one.'''
     import cv2
-    mask = (lab == label).view(np.uint8)
     window = cv2.dilate(mask, win_kernel).view(bool)
     ring = np.greater(cv2.dilate(mask, ring_kernel).view(bool), window)
-    ring &= lab == 0
+    if free is not None:        # (the ring holds none of the blob's pixels)
+        ring &= free
     h, w = crop.shape
     xx = np.arange(xa, xa + w)[np.newaxis, :]
     yy = np.arange(ya, ya + h)[:, np.newaxis]
@@ -504,7 +525,9 @@ docstring says. The weights are computed in place in the crop; their non-finite 
         s = wgt.sum()
     if not s > 0:
         return None
-    return (wgt * xx).sum() / s, (wgt * yy).sum() / s
+    wx = np.multiply(wgt, xx, out=board if np.ndim(board) else None)
+    sx = wx.sum()
+    return sx / s, np.multiply(wgt, yy, out=wx).sum() / s
 
 
 def detect_dots(image, target, **options):
@@ -633,9 +656,8 @@ ARGUMENTS
                 else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
         if crop.base is not None:
             crop = crop.copy()
-        lab = (labels[ya:yb, xa:xb] if isinstance(labels, np.ndarray)
-               else _label_image(labels, stats, xa, ya, xb, yb))
-        c = _dot_centroid(crop, lab, label, win_kernel, ring_kernel, xa, ya)
+        mask, free = _dot_masks(labels, stats, label, xa, ya, xb, yb)
+        c = _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya)
         if c is not None:
             q[gy * nx + gx] = c
     return result(target, q, DETECTOR, min_found=min_found, info=info)

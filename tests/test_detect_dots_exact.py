@@ -2,7 +2,9 @@ r'''The dot detector's shortcuts give bit for bit what the plain computations gi
 
 _label_stack labels many boxes in one call: each box's components, their order, stats
 and centroids must be those of the box labelled alone (as the detector did before, one
-connectedComponentsWithStats call per box), and _label_image the label image they made. _median must be np.median exactly.
+connectedComponentsWithStats call per box), and _label_image the label image they made.
+The other shortcuts (_median, _histogram, _components, _dot_centroid, ...) are compared
+with the numpy/OpenCV computations they replace.
 '''
 
 import cv2
@@ -74,6 +76,19 @@ def test_label_stack_is_each_box_labelled_alone(seed):
     assert len(stats) == len(ref[1]) == len(masks) > 40
     labels = dd._label_image(masks, np.array(stats), 0, 0, W, H)
     assert np.array_equal(labels, ref[0])
+    # each blob's crop as detect_dots takes it: its mask, and the pixels of no blob
+    nfree = 0
+    for k, (x, y, w, h, _) in enumerate(stats[1:], 1):
+        xa, ya, xb, yb = max(0, x - 6), max(0, y - 6), min(W, x + w + 6), min(H, y + h + 6)
+        mask, free = dd._dot_masks(masks, np.array(stats), k, xa, ya, xb, yb)
+        lab = ref[0][ya:yb, xa:xb]
+        assert mask.dtype == np.uint8 and np.array_equal(mask, lab == k)
+        if free is None:
+            assert np.all((lab == 0) | (lab == k))
+        else:
+            assert np.array_equal(free, lab == 0)
+            nfree += 1
+    assert 0 < nfree < len(stats) - 1
     assert np.array_equal(dd._label_image(masks, np.array(stats), 30, 20, 200, 150),
                           ref[0][20:150, 30:200])
     assert np.array_equal(np.array(stats, np.int64), ref[1])
@@ -204,7 +219,8 @@ def test_dot_centroid_is_the_former_computation(seed):
         xa, ya, xb, yb = max(0, x0 - 6), max(0, y0 - 6), min(W, x0 + w + 6), min(H, y0 + h + 6)
         crop, lab = img[ya:yb, xa:xb], labels[ya:yb, xa:xb]
         ref = _reference_centroid(crop, lab, label, win, ring, xa, ya)
-        got = dd._dot_centroid(crop.copy(), lab, label, win, ring, xa, ya)
+        got = dd._dot_centroid(crop.copy(), (lab == label).view(np.uint8), lab == 0, win,
+                               ring, xa, ya)
         assert got == ref            # bit for bit (tuples of floats, or both None)
         checked += ref is not None
     assert checked > 10
@@ -221,10 +237,11 @@ weight 0/0 or x/0, none of them finite: no centroid'''
     crop[5, 8:13] = 0.0
     args = (dd._disk(2), dd._disk(5), 10, 20)
     assert _reference_centroid(crop, lab, 1, *args) is None
-    assert dd._dot_centroid(crop.copy(), lab, 1, *args) is None
+    masks = (lab == 1).view(np.uint8), lab == 0
+    assert dd._dot_centroid(crop.copy(), *masks, *args) is None
     crop[5, 8:13] = 0.8         # a board level again: the same centroid as before
     ref = _reference_centroid(crop, lab, 1, *args)
-    assert ref is not None and dd._dot_centroid(crop.copy(), lab, 1, *args) == ref
+    assert ref is not None and dd._dot_centroid(crop.copy(), *masks, *args) == ref
 
 
 def _masks():
