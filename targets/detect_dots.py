@@ -110,10 +110,32 @@ def _is_large(image):
     return len(shape) >= 2 and shape[0] * shape[1] > LARGE_IMAGE_PIXELS
 
 
-def _blobs_from_reduced(img, thr, s):
-    r'''(masks, stats, centroids) of the components of img < thr, found through an image
-reduced s times: None when the reduced image shows too few blobs of a size that survives
-the reduction (the caller then labels the full image)
+def _reduce(img, s):
+    r'''img reduced s times by area averaging (cv2.INTER_AREA), as _blobs_from_reduced()
+takes it'''
+    import cv2
+    H, W = img.shape
+    return cv2.resize(img, (W // s, H // s), interpolation=cv2.INTER_AREA)
+
+
+def _range(img, small=None):
+    r'''(img.min(), img.max()), the same values and type: NaN or +-inf if a pixel is
+
+With the reduced image (_reduce) of img, in one pass (cv2.minMaxLoc) instead of two when
+the reduced image is finite: each of its pixels sums pixels of img with positive
+weights, so a NaN or infinite pixel of img makes one NaN or infinite (cv2.minMaxLoc
+would skip a NaN); where img sums to an overflow it is computed the numpy way.'''
+    import cv2
+    if small is not None and np.isfinite(small.min()) and np.isfinite(small.max()):
+        lo, hi = cv2.minMaxLoc(img)[:2]
+        return img.dtype.type(lo), img.dtype.type(hi)
+    return img.min(), img.max()
+
+
+def _blobs_from_reduced(img, small, thr, s):
+    r'''(masks, stats, centroids) of the components of img < thr, found through its
+image small reduced s times (_reduce): None when the reduced image shows too few blobs of a size
+that survives the reduction (the caller then labels the full image)
 
 stats and centroids are those cv2.connectedComponentsWithStats gives the components (in
 an order of their own); masks[k] is component k's pixels (bool) over its box
@@ -125,9 +147,7 @@ resolution inside its box widened by 2 s pixels, and a full-resolution component
 when it lies wholly inside that box. So every dot that the reduction shows gets exactly
 the pixels, statistics and centroid of the full labelling; the label image is zero
 elsewhere (background, or dark specks too small to show in the reduced image).'''
-    import cv2
     H, W = img.shape
-    small = cv2.resize(img, (W // s, H // s), interpolation=cv2.INTER_AREA)
     st = _reduced_blobs(small < thr)
     if len(st) < MIN_REDUCED_BLOBS:
         return None
@@ -576,20 +596,21 @@ ARGUMENTS
     if target.kind != "dots":
         return failed(target, f"detect_dots() needs a dots target; got {target.kind!r}",
                       DETECTOR)
+    H, W = img.shape
+    small = _reduce(img, REDUCTION) if H * W > LARGE_IMAGE_PIXELS else None
     # min and max propagate NaN and reach +-inf: finite both iff every pixel is finite
-    lo, hi = img.min(), img.max()
+    lo, hi = _range(img, small)
     if not (np.isfinite(lo) and np.isfinite(hi)):
         return failed(target, "the image has non-finite pixels", DETECTOR)
     if not hi - lo > 0.02:
         return failed(target, f"no contrast in the image (range {lo:.3g}..{hi:.3g})",
                       DETECTOR)
-    H, W = img.shape
     # the threshold only splits dark from light: about a million pixels give it
     step = max(2, math.isqrt(H * W // OTSU_PIXELS))
     thr = _otsu(img[::step, ::step]) if threshold is None else float(threshold)
     found = None
     if H * W > LARGE_IMAGE_PIXELS:
-        found = _blobs_from_reduced(img, thr, REDUCTION)
+        found = _blobs_from_reduced(img, small, thr, REDUCTION)
     if found is None:
         found = _label_all((img < thr).view(np.uint8))
     labels, stats, centroids = found

@@ -291,3 +291,30 @@ def test_label_all_is_cv2_stats_and_centroids():
         assert np.array_equal(st[1:], stats[1:]) and st[0, 4] == stats[0, 4]
         blobs = np.arange(1, n)
         assert np.array_equal(dd._blob_centroids(lab, st, blobs), centroids[1:])
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_one_non_finite_pixel_of_a_large_image_is_refused(bad):
+    r'''Through the reduced image (a size not a multiple of REDUCTION: its last rows and
+columns are averaged with fractional weights), anywhere in the image'''
+    from targets.boards import load_target
+    H, W = 1903, 2403
+    assert H * W > dd.LARGE_IMAGE_PIXELS and H % dd.REDUCTION and W % dd.REDUCTION
+    img = np.tile(_speckled(1), (7, 6))[:H, :W].copy()
+    assert dd._range(img, dd._reduce(img, dd.REDUCTION)) == (img.min(), img.max())
+    for y, x in ((0, 0), (H - 1, W - 1), (H - 1, 5), (7, W - 2), (950, 1201)):
+        img[y, x] = bad
+        det = dd.detect_dots(img, load_target("dots"))
+        assert det.status == "failed" and det.reason == "the image has non-finite pixels"
+        img[y, x] = 0.5
+
+
+def test_range_is_numpy_min_max():
+    img = _speckled(2)
+    for small in (None, dd._reduce(img, 4)):
+        lo, hi = dd._range(img, small)
+        assert (lo, hi) == (img.min(), img.max()) and type(lo) is np.float32
+    img[8:12, 8:12] = np.float32(3e38)      # finite, but the reduced image overflows
+    small = dd._reduce(img, 4)
+    assert not np.isfinite(small.max())
+    assert dd._range(img, small) == (img.min(), img.max())
