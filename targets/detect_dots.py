@@ -316,9 +316,11 @@ def _centroid(mine, x0, y0, st):
     r'''The centroid (x, y) of the pixels of mine (h,w) whose [0,0] is (x0, y0), as
 cv2.connectedComponentsWithStats computes it: the exact integer sums of x and y divided
 by the area (which is written into st[4])'''
+    import cv2
     h, w = mine.shape
-    cols = np.count_nonzero(mine, axis=0)
-    rows = np.count_nonzero(mine, axis=1)
+    u8 = mine.view(np.uint8)    # pixel counts of the columns and rows (int32, exact)
+    cols = cv2.reduce(u8, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
+    rows = cv2.reduce(u8, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
     st[4] = area = int(cols.sum())
     return np.array([int(cols @ np.arange(x0, x0 + w)) / area,
                      int(rows @ np.arange(y0, y0 + h)) / area])
