@@ -40,13 +40,13 @@ mrcal has no theta: its camera frame is orthonormal, so the fitted CAHVOR has
 theta = 90 deg exactly; compare.py reports theta as not estimated. Its
 LENSMODEL_CAHVOR reaches a skewed camera only in a limit: with e = 1 + R0 -> 0
 and fx e, fy e, R1/e, R2/e held, the projection tends to a CAHVOR whose optical
-axis is O and whose image axes meet at 90 deg - o_x o_y / o_z^2 (o = O in the
-camera frame). For a truth with theta != 90 deg the optimum lies at infinity:
+axis is O and whose image axes are skewed by o_x o_y / o_z^2 rad (o = O in
+the camera frame). For a truth with theta != 90 deg the optimum lies at infinity:
 the solver runs off along that valley (Rocky8 navcam, slot 21, theta 90.0106 deg:
-R0 -> -0.975, fx 2900 -> 117000 px, o_x o_y / o_z^2 -> 0.0099 deg) and stops
-where the restarts gain less than POLISH_GAIN. The projection is then close
-(0.03 px there; exact in the limit: MER A hazcam, slot 5, 0.0005 px) while fx, cx and R
-are far from the truth's.
+R0 -> -0.975, fx 2900 -> 117000 px, skew -> 0.0099 deg) and stops where the
+restarts gain less than POLISH_GAIN. The projection is then close (0.03 px
+there; 0.0005 px for the MER A hazcam, slot 5) while fx, cx and R are far from
+the truth's.
 '''
 
 import math
