@@ -318,3 +318,18 @@ def test_range_is_numpy_min_max():
     small = dd._reduce(img, 4)
     assert not np.isfinite(small.max())
     assert dd._range(img, small) == (img.min(), img.max())
+
+
+@pytest.mark.parametrize("rows", [1, 8, 13, 64, 1000])
+@pytest.mark.parametrize("shape,s,step", [((300, 420), 4, 4), ((300, 420), 4, 3),
+                                          ((302, 420), 4, 4), ((300, 418), 2, 5)])
+def test_scan_is_reduce_range_and_subsample(rows, shape, s, step):
+    img = np.tile(_speckled(4), (2, 2))[:shape[0], :shape[1]].copy()
+    small, lo, hi, sub = dd._scan(img, s, step, rows)
+    ref = dd._reduce(img, s)
+    assert np.array_equal(small, ref) and small.dtype == ref.dtype
+    assert (lo, hi) == (img.min(), img.max()) and type(lo) is type(img.min())
+    assert np.array_equal(sub, img[::step, ::step].ravel())
+    img[shape[0] - 1, 7] = np.nan
+    small, lo, hi, sub = dd._scan(img, s, step, rows)
+    assert np.isnan(lo) and np.isnan(hi) and np.isnan(small).any()
