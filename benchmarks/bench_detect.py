@@ -4,7 +4,7 @@ SYNOPSIS
 
     uv run --frozen python benchmarks/bench_detect.py [--images /tmp/detbench]
         [--cameras 3,21,5] [--repeats 5] [--save det.npz] [--check det.npz]
-        [--out benchmarks/results/detect.json]
+        [--against REV] [--out benchmarks/results/detect.json]
 
 The images are the ray-cast renders of the CAHVOR dots jobs of campaigns/paper.toml
 for the chosen cameras (3 and 21: 5120x3840, 5: 1024x1024), 6 poses each. They are
@@ -16,6 +16,11 @@ and their median over the images of one size. --save writes every detection (q,
 found, status, info) to an .npz; --check compares with such a file and fails unless q (NaN
 positions included), the found masks, statuses and infos are identical: a faster detector must give
 the same detections bit for bit.
+
+--against REV also times targets/detect_dots.py of git revision REV, interleaved with
+the working tree's (each repeat runs one, then the other, on the same image), so that
+both see the same load of a shared machine; its detections must be identical too. The
+per-image figures of REV are reported as cpu_s_against, wall_s_against.
 
 Prints a table and writes one JSON document.
 '''
@@ -58,6 +63,43 @@ def render_images(directory, cameras):
             np.save(directory / f"cam{cam}_{i}.npy", np.asarray(r.image))
 
 
+def load_against(rev):
+    r'''detect_dots() of targets/detect_dots.py at git revision rev, as a module of the
+targets package (its relative imports are those of the working tree)'''
+    import importlib.util
+    import subprocess
+    import tempfile
+
+    import targets  # noqa: F401  (the package of the module loaded below)
+
+    src = subprocess.run(["git", "show", f"{rev}:targets/detect_dots.py"], cwd=ROOT,
+                         capture_output=True, text=True, check=True).stdout
+    path = Path(tempfile.mkdtemp()) / "detect_dots_against.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location("targets._detect_dots_against", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module.detect_dots
+
+
+def same_detection(a, b):
+    r'''Detections identical: q (NaN positions included), found, status, reason, info'''
+    return (np.array_equal(a.q, b.q, equal_nan=True)
+            and np.array_equal(np.isnan(a.q), np.isnan(b.q))
+            and np.array_equal(a.found, b.found) and a.status == b.status
+            and a.reason == b.reason
+            and json.dumps(a.info, sort_keys=True, default=str)
+            == json.dumps(b.info, sort_keys=True, default=str))
+
+
+def timed(f, *args):
+    r'''(result, CPU seconds, wall seconds) of f(*args)'''
+    c0, w0 = time.process_time(), time.perf_counter()
+    r = f(*args)
+    return r, time.process_time() - c0, time.perf_counter() - w0
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--images", type=Path, default=Path("/tmp/detbench"))
@@ -65,6 +107,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--save", type=Path)
     ap.add_argument("--check", type=Path)
+    ap.add_argument("--against", help="git revision whose detect_dots is timed alongside")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "detect.json")
     args = ap.parse_args()
 
@@ -74,32 +117,49 @@ def main():
     cameras = args.cameras.split(",")
     render_images(args.images, cameras)
     target = load_target("dots")
+    against = load_against(args.against) if args.against else None
     paths = sorted(p for cam in cameras for p in args.images.glob(f"cam{cam}_*.npy"))
-    rows, dets = [], {}
+    rows, dets, differ = [], {}, []
     for p in paths:
         img = np.load(p)
-        cpu, wall = [], []
+        cpu, wall, cpu_a, wall_a = [], [], [], []
         for _ in range(args.repeats):
-            c0, w0 = time.process_time(), time.perf_counter()
-            det = detect(img, target)
-            cpu.append(time.process_time() - c0)
-            wall.append(time.perf_counter() - w0)
+            det, c, w = timed(detect, img, target)
+            cpu.append(c)
+            wall.append(w)
+            if against is not None:
+                det_a, c, w = timed(against, img, target)
+                cpu_a.append(c)
+                wall_a.append(w)
         dets[p.stem] = det
-        rows.append({"image": p.stem, "shape": list(img.shape), "status": det.status,
-                     "n_found": int(det.n_found), "cpu_s": min(cpu), "wall_s": min(wall)})
-        print(f"{p.stem:10s} {img.shape[1]:5d}x{img.shape[0]:<5d} {det.status:10s} "
-              f"{det.n_found:4d} dots  cpu {min(cpu):.4f} s  wall {min(wall):.4f} s",
-              flush=True)
+        row = {"image": p.stem, "shape": list(img.shape), "status": det.status,
+               "n_found": int(det.n_found), "cpu_s": min(cpu), "wall_s": min(wall)}
+        line = (f"{p.stem:10s} {img.shape[1]:5d}x{img.shape[0]:<5d} {det.status:10s} "
+                f"{det.n_found:4d} dots  cpu {min(cpu):.4f} s  wall {min(wall):.4f} s")
+        if against is not None:
+            row.update(cpu_s_against=min(cpu_a), wall_s_against=min(wall_a))
+            line += f"  ({args.against}: cpu {min(cpu_a):.4f} s)"
+            if not same_detection(det, det_a):
+                differ.append(p.stem)
+        rows.append(row)
+        print(line, flush=True)
 
     sizes = {}
     for r in rows:
         sizes.setdefault(f"{r['shape'][1]}x{r['shape'][0]}", []).append(r)
-    summary = {k: {"images": len(v), "median_cpu_s": float(np.median([r["cpu_s"] for r in v])),
-                   "median_wall_s": float(np.median([r["wall_s"] for r in v]))}
+    summary = {k: {"images": len(v),
+                   **{f"median_{key}": float(np.median([r[key] for r in v]))
+                      for key in ("cpu_s", "wall_s", "cpu_s_against", "wall_s_against")
+                      if key in v[0]}}
                for k, v in sizes.items()}
     for k, v in summary.items():
         print(f"{k:10s} {v['images']} images: median cpu {v['median_cpu_s']:.4f} s, "
-              f"wall {v['median_wall_s']:.4f} s per image")
+              f"wall {v['median_wall_s']:.4f} s per image"
+              + (f"; {args.against}: cpu {v['median_cpu_s_against']:.4f} s"
+                 if against is not None else ""))
+    if against is not None:
+        print("detections identical to", args.against if not differ else f"{args.against}: "
+              f"NO, {differ}")
 
     if args.save:
         np.savez(args.save, **{f"q_{k}": d.q for k, d in dets.items()},
@@ -124,11 +184,13 @@ def main():
            "commit": git_commit()["commit"],
            "python": platform.python_version(), "machine": platform.machine(),
            "repeats": args.repeats, "images": rows, "per_size": summary,
-           "identical_to": str(args.check) if args.check else None, "identical": identical}
+           "identical_to": str(args.check) if args.check else None, "identical": identical,
+           "against": args.against,
+           "identical_to_against": None if against is None else not differ}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(doc, indent=1) + "\n")
     print("wrote", args.out)
-    if identical is False:
+    if identical is False or differ:
         raise SystemExit(1)
 
 
