@@ -515,7 +515,7 @@ def _board_level(crop, ring, window, xx, yy):
 outlier rejection) to the ring pixels, so that a shading gradient does not bias the
 centroid; the ring's median when it is too small for a plane
 
-xx, yy: the pixel coordinates of the crop's columns (1,w) and rows (h,1), integers. The
+xx, yy: the pixel coordinates of the crop's columns (1,w) and rows (h,1), whole numbers. The
 plane is returned as an array of the crop's shape, the median as a scalar.
 
 The ring's pixels in raster order, their coordinates' means from the exact integer sums
@@ -526,8 +526,8 @@ crop[ring], np.nonzero(ring), rx.mean() and np.column_stack((1, x, y)).'''
     if len(v) < MIN_RING_FOR_PLANE:
         return float(_median(v)) if len(v) else float(crop[window].max())
     ry, rx = np.divmod(i, ring.shape[1])
-    rx += xx[0, 0]
-    ry += yy[0, 0]
+    rx += int(xx[0, 0])
+    ry += int(yy[0, 0])
     xm, ym = rx.sum() / len(i), ry.sum() / len(i)
     A = np.empty((len(i), 3))
     A[:, 0] = 1.0
@@ -574,8 +574,8 @@ docstring says. The weights are computed in place in the crop; their non-finite 
     if free is not None:        # (the ring holds none of the blob's pixels)
         ring &= free
     h, w = crop.shape
-    xx = np.arange(xa, xa + w)[np.newaxis, :]
-    yy = np.arange(ya, ya + h)[:, np.newaxis]
+    xx = np.arange(xa, xa + w, dtype=np.float64)[np.newaxis, :]    # (exact integers)
+    yy = np.arange(ya, ya + h, dtype=np.float64)[:, np.newaxis]
     board = _board_level(crop, ring, window, xx, yy)
     # darkness relative to the local board level: 1 - I/B is proportional to the dot
     # area a pixel covers even when shading (vignetting) tilts the board level
