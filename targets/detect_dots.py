@@ -80,8 +80,8 @@ def _otsu(img):
 
 
 def _histogram(v, bins, lo, hi):
-    r'''np.histogram(v, bins, range=(lo, hi)) of a 1-D float v within [lo, hi], the same counts and
-edges, in a few passes over v instead of np.histogram's twenty
+    r'''np.histogram(v, bins, range=(lo, hi)) of a 1-D float v within [lo, hi]: the same
+counts and edges, in a few passes over v instead of np.histogram's twenty
 
 SYNOPSIS
 
@@ -92,7 +92,8 @@ precision) and then corrects it by one bin either way against its edges (in v's
 precision), so that a value counts in the bin [edges[i], edges[i+1]) that holds it, the
 last bin closed. Here the estimate is made in v's precision: it is a small fraction of a
 bin off at most (the edges are far wider apart than v's resolution; otherwise
-np.histogram itself is called), and the same correction makes it that bin.'''
+np.histogram itself is called), and the same correction makes it that bin. Blocks of
+HISTOGRAM_BLOCK values go through buffers that stay in the cache.'''
     edges = np.linspace(lo, hi, bins + 1, dtype=np.result_type(lo, hi, v))
     if v.dtype.kind != "f" or not hi - lo > 1e-3 * max(abs(lo), abs(hi)):
         return np.histogram(v, bins=bins, range=(lo, hi))
@@ -101,16 +102,16 @@ np.histogram itself is called), and the same correction makes it that bin.'''
     n = np.zeros(bins, np.intp)
     f = np.empty(min(len(v), HISTOGRAM_BLOCK), v.dtype)
     i = np.empty(len(f), np.intp)
-    near = np.empty(len(f), bool)
+    step = np.empty(len(f), bool)
     for k in range(0, len(v), len(f)):
         b = v[k:k + len(f)]
-        f, i, near = f[:len(b)], i[:len(b)], near[:len(b)]
+        f, i, step = f[:len(b)], i[:len(b)], step[:len(b)]
         np.subtract(b, lo, out=f)
         f *= scale
         np.minimum(f, bins - 1, out=f)
         i[:] = f        # (truncation, as astype)
-        i -= np.less(b, np.take(edges, i, out=f, mode="clip"), out=near)
-        i += np.greater_equal(b, np.take(upper, i, out=f, mode="clip"), out=near)
+        i -= np.less(b, np.take(edges, i, out=f, mode="clip"), out=step)
+        i += np.greater_equal(b, np.take(upper, i, out=f, mode="clip"), out=step)
         n += np.bincount(i, minlength=bins)
     return n, edges
 
@@ -176,14 +177,14 @@ of blocks (cv2's area average of whole blocks); otherwise the whole image is red
 
 
 def _blobs_from_reduced(img, small, thr, s):
-    r'''(masks, stats, centroids) of the components of img < thr, found through its
-image small reduced s times (_reduce): None when the reduced image shows too few blobs of a size
-that survives the reduction (the caller then labels the full image)
+    r'''(masks, stats, centroids) of the components of img < thr, found through its image
+small reduced s times (_reduce): None when the reduced image shows too few blobs of a
+size that survives the reduction (the caller then labels the full image)
 
-stats and centroids are those cv2.connectedComponentsWithStats gives the components (in
-an order of their own); masks[k] is component k's pixels (bool) over its box
-stats[k, :4] (masks[0] is None). Instead of a label image of the full size (78 MB on
-5120x3840, whose pages cost 10 ms to fault in): _label_image() makes any crop of it.
+stats and centroids are those cv2.connectedComponentsWithStats gives the components
+(numbered box by box); masks[k] is component k's pixels (bool) over its box stats[k, :4]
+(masks[0] is None). They replace a label image of the full size (78 MB on 5120x3840,
+whose pages cost 10 ms to fault in): _label_image() makes any crop of it.
 
 The reduced image (area average) locates the dark blobs; each is then labelled at full
 resolution inside its box widened by 2 s pixels, and a full-resolution component is kept
@@ -515,8 +516,8 @@ def _board_level(crop, ring, window, xx, yy):
 outlier rejection) to the ring pixels, so that a shading gradient does not bias the
 centroid; the ring's median when it is too small for a plane
 
-xx, yy: the pixel coordinates of the crop's columns (1,w) and rows (h,1), whole numbers. The
-plane is returned as an array of the crop's shape, the median as a scalar.
+xx, yy: the pixel coordinates of the crop's columns (1,w) and rows (h,1), whole numbers.
+The plane is returned as an array of the crop's shape, the median as a scalar.
 
 The ring's pixels in raster order, their coordinates' means from the exact integer sums
 (np.mean's values bit for bit) and the columns of A written in place: the values of
