@@ -176,10 +176,11 @@ of blocks (cv2's area average of whole blocks); otherwise the whole image is red
     return small, img.dtype.type(lo), img.dtype.type(hi), sub.ravel()
 
 
-def _blobs_from_reduced(img, small, thr, s):
+def _blobs_from_reduced(img, thr, s, small=None):
     r'''(masks, stats, centroids) of the components of img < thr, found through its image
-small reduced s times (_reduce): None when the reduced image shows too few blobs of a
-size that survives the reduction (the caller then labels the full image)
+small reduced s times (_reduce(img, s), made if not given): None when the reduced image
+shows too few blobs of a size that survives the reduction (the caller then labels the
+full image)
 
 stats and centroids are those cv2.connectedComponentsWithStats gives the components
 (numbered box by box); masks[k] is component k's pixels (bool) over its box stats[k, :4]
@@ -192,6 +193,7 @@ when it lies wholly inside that box. So every dot that the reduction shows gets 
 the pixels, statistics and centroid of the full labelling; the label image is zero
 elsewhere (background, or dark specks too small to show in the reduced image).'''
     H, W = img.shape
+    small = _reduce(img, s) if small is None else small
     st = _reduced_blobs(small < thr)
     if len(st) < MIN_REDUCED_BLOBS:
         return None
@@ -659,7 +661,7 @@ ARGUMENTS
     thr = _otsu(sub) if threshold is None else float(threshold)
     found = None
     if H * W > LARGE_IMAGE_PIXELS:
-        found = _blobs_from_reduced(img, small, thr, REDUCTION)
+        found = _blobs_from_reduced(img, thr, REDUCTION, small)
     if found is None:
         found = _label_all((img < thr).view(np.uint8))
     labels, stats, centroids = found
