@@ -739,7 +739,24 @@ subsamples closer than e to an edge are traced."""
     return _pixel_value(counts, values, float(K * K)), nrays
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
+def _ring_side(xs, ys, px, py):
+    r"""(max |P_i - p|^2, max |P_i - P_i-1|^2) of the points (xs, ys) of one side of a ring"""
+    d2max = 0.0
+    s2max = 0.0
+    lx = xs[0]
+    ly = ys[0]
+    for i in range(xs.shape[0]):
+        x = xs[i]
+        y = ys[i]
+        d2max = max(d2max, (x - px) * (x - px) + (y - py) * (y - py))
+        s2max = max(s2max, (x - lx) * (x - lx) + (y - ly) * (y - ly))
+        lx = x
+        ly = y
+    return d2max, s2max
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _block_uniform(hx, hy, hok, k0, k1, c0, c1, pat):
     r"""(uniform, material) of the block of pixels whose ring of neighbouring pixel
 centres is band rows k0, k1 and band columns c0, c1
@@ -763,38 +780,19 @@ the longest step between neighbouring ring points for the curve between them."""
         return False, 0
     px = hx[kc, cc]
     py = hy[kc, cc]
-    d2max = 0.0
-    s2max = 0.0
-    for side in range(4):
-        n = c1 - c0 + 1 if side < 2 else k1 - k0 + 1
-        lx = 0.0
-        ly = 0.0
-        for i in range(n):
-            if side == 0:
-                k, c = k0, c0 + i
-            elif side == 1:
-                k, c = k1, c0 + i
-            elif side == 2:
-                k, c = k0 + i, c0
-            else:
-                k, c = k0 + i, c1
-            x = hx[k, c]
-            y = hy[k, c]
-            d2 = (x - px) * (x - px) + (y - py) * (y - py)
-            if d2 > d2max:
-                d2max = d2
-            if i > 0:
-                s2 = (x - lx) * (x - lx) + (y - ly) * (y - ly)
-                if s2 > s2max:
-                    s2max = s2
-            lx = x
-            ly = y
+    # the largest distance from the centre point and the longest step along each side
+    d2r0, s2r0 = _ring_side(hx[k0, c0:c1 + 1], hy[k0, c0:c1 + 1], px, py)
+    d2r1, s2r1 = _ring_side(hx[k1, c0:c1 + 1], hy[k1, c0:c1 + 1], px, py)
+    d2c0, s2c0 = _ring_side(hx[k0:k1 + 1, c0], hy[k0:k1 + 1, c0], px, py)
+    d2c1, s2c1 = _ring_side(hx[k0:k1 + 1, c1], hy[k0:k1 + 1, c1], px, py)
+    d2max = max(max(d2r0, d2r1), max(d2c0, d2c1))
+    s2max = max(max(s2r0, s2r1), max(s2c0, s2c1))
     r = ((math.sqrt(d2max) + 0.5 * math.sqrt(s2max)) * (1.0 + FOOTPRINT_SAFETY)
          + 1e-12 * (1.0 + abs(px) + abs(py)))
     return _classify(px, py, r, pat)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, jac, cand,
                   values, pat):
     r"""Adaptive value of pixel (ix, iy) (band row k, column c); returns (value, rays, 0|1)"""
@@ -912,7 +910,7 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
     # and columns -1 .. W (band column c = ix + 1)
     hx = np.empty((nk, W + 2))
     hy = np.empty((nk, W + 2))
-    hok = np.zeros((nk, W + 2), dtype=np.int64)
+    hok = np.zeros((nk, W + 2), dtype=np.uint8)
     rect = pat[0]
     nboard = 0
     if not adaptive:
