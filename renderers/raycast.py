@@ -29,11 +29,13 @@ its board points must all lie farther than the region's footprint radius
 from every edge of the pattern (board rectangle, cell edges between
 different albedos, circle outlines; circles are found through a bucket grid):
 
-1. tiles of 16x16 pixels outside the projected outline of the board are
-   background; other tiles (then 8x8, 4x4, 2x2 blocks) are uniform when the
-   board point of their centre ray is farther from every edge than the
-   largest distance to the board points of the ring of pixel centres around
-   them (the image of the block lies inside that ring's image);
+1. tiles of 32x32 pixels outside the projected outline of the board are
+   background; other tiles (then 16x16, 8x8, 4x4, 2x2 blocks) are uniform
+   when the board point of their centre ray is farther from every edge than
+   the largest distance to the board points of the ring of pixel centres
+   around them (the image of the block lies inside that ring's image). The
+   board points of a tile's interior are computed only when its ring says
+   that it is not uniform;
 2. a pixel of a non-uniform block is uniform when its centre's board point is
    farther from every edge than its footprint radius (from the Jacobian of
    the neighbouring pixels' board points, plus a bound on the quadratic term,
@@ -52,7 +54,10 @@ targets and poses (including noncentral CAHVOREs at K = 16).
 
 The rays of the pixel centres (and a one-pixel ring) are cached per camera
 model: 24 bytes per pixel, 32 for a noncentral CAHVORE (0.63 GB for a
-5120x3840 camera); subsample rays are traced on the fly. The cache is bounded
+5120x3840 camera); subsample rays are traced on the fly. The cached rays
+(renderers._raycast_kernels.build_ray_cache: exact to the floating-point
+level, directions not normalised) only decide where to look closer, within
+the slack of the bounds above; no pixel's value is read from them. The cache is bounded
 (cache_bytes, least recently used models are dropped).
 '''
 
@@ -71,7 +76,7 @@ RAYCAST_VERSION = "1.0"
 DEFAULT_CACHE_BYTES = 1 << 30
 # the image is rendered in tiles of TILE x TILE pixels; a tile far from every edge is
 # filled without looking at its pixels
-TILE = 16
+TILE = 32
 # the image of the board is taken to lie within this many pixels of its projected outline
 BOX_MARGIN_PX = 2.0
 MAX_OUTLINE_STEP_PX = 4.0

@@ -254,6 +254,8 @@ def test_adaptive_equals_full_supersampling_bit_for_bit(name, K):
             assert 0 < a.metadata["adaptive_fraction"] < 0.8
             assert f.metadata["adaptive_fraction"] == 1.0
             assert np.array_equal(a.image, f.image)
+            # adaptive mode counts the board pixels of uniform tiles without their rays
+            assert a.metadata["board_fraction"] == f.metadata["board_fraction"]
 
 
 @pytest.mark.slow
