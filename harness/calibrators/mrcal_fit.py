@@ -352,8 +352,9 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
             restarts(1, limit)
 
     def restarts(step, limit):
-        # restarts on the grid of every step-th row and column while each gains; its RMS
-        rms_prev = math.inf
+        # restarts on the grid of every step-th row and column while each gains (the first
+        # one too, over the state it starts from); returns the RMS
+        rms_prev = problem_rms(step)
         for _ in range(limit):
             solve(step, do_optimize_intrinsics_core=True,
                   do_optimize_intrinsics_distortions=True)
