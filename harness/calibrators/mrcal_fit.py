@@ -34,7 +34,10 @@ for the splined model, which needs it. mrcal's rms_reproj_error__pixels is per
 coordinate and includes regularisation: residuals are computed here, per
 point. Bias correction as for jpl: each detection is corrected by the dot
 centroid bias computed with the current model and estimated board poses, and
-the solve repeated until the bias changes by less than bias_tolerance px.
+the solve repeated until the bias changes by less than bias_tolerance px (or
+BIAS_RELATIVE x the RMS residual). Between bias passes the solver restarts on
+the coarse grid only; once the bias has settled, the fit is polished on the
+full grid and the bias checked again against that model.
 
 mrcal has no theta: its camera frame is orthonormal, so the fitted CAHVOR has
 theta = 90 deg exactly; compare.py reports theta as not estimated. Its
@@ -441,18 +444,29 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
                 break
             if b_prev is not None and change < max(bias_tolerance,
                                                    BIAS_RELATIVE * passes[-1]["rms"]):
-                break
+                if not unpolished:
+                    break
+                # the bias has settled on coarse polishes: polish on the full grid, then
+                # check that the bias in use still holds for that model
+                polish()
+                unpolished = False
+                cm, model, Rt_cam_board = current()
+                passes.append({"pass": ipass + 2, "bias_change_max": change,
+                               "full_grid": True,
+                               **_rms(model, obs, Rt_cam_board, q_used, found)})
+                continue
             b_prev = b
             q_used = obs.q - b
             bias_applied = True
             problem["observations_board"] = board_obs(q_used)
-            polish()
-            unpolished = False
+            # the next bias needs the model only roughly: the coarse grid's restarts
+            polish(full=False)
+            unpolished = coarse > 1
             cm, model, Rt_cam_board = current()
             passes.append({"pass": ipass + 2, "bias_change_max": change,
                            **_rms(model, obs, Rt_cam_board, q_used, found)})
 
-    if unpolished:   # the target has no dots: no bias pass ran
+    if unpolished:   # no bias pass ran (no dots), or they ran out before the bias settled
         polish()
         cm, model, Rt_cam_board = current()
     residuals = _residuals(model, obs, Rt_cam_board, q_used)
