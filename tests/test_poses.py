@@ -168,3 +168,22 @@ def test_pose_is_the_plain_formula_bit_for_bit():
                 expected = np.vstack((R, o + d * v - R @ t.centre()))
                 assert np.array_equal(planner.pose(np.array(q), d, tilt, azimuth, roll),
                                       expected)
+
+
+@pytest.mark.parametrize("key,family", [(8, "CAHVORE"), (17, "CAHVORE"), (15, "CAHVOR"),
+                                        (3, "CAHV")])
+def test_compiled_projection_plans_the_same_poses(monkeypatch, key, family):
+    import targets.poses
+    m = truncate(load_catalogue().get(key).model, family)
+    t = load_target("dots")
+    planner = _Planner(m, t, 20.0, 100.0)
+    Rt = planner.pose(np.array([(m.width - 1) / 2, (m.height - 1) / 2]), 1.0, 30.0, 40.0, 2.0)
+    p = t.outline(32) @ Rt[:3].T + Rt[3]
+    q = planner._project(np.ascontiguousarray(p @ planner.R_ref_cam.T + planner.t_ref_cam))
+    q_ref = m.project(p @ planner.R_ref_cam.T + planner.t_ref_cam)
+    assert np.isfinite(q).all()
+    np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-10)
+    compiled = plan_poses(m, t, n=7, seed=3)
+    monkeypatch.setattr(targets.poses, "_compiled_projection", lambda model: model.project)
+    reference = plan_poses(m, t, n=7, seed=3)
+    assert all(np.array_equal(a, b) for a, b in zip(compiled, reference, strict=True))
