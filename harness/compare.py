@@ -176,6 +176,31 @@ def _R_from_r(r):
     return np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * K @ K
 
 
+def _projector(fit):
+    r'''fit.project, compiled for a JPL-family fit
+
+SYNOPSIS
+
+    project = _projector(fit)
+    q = project(p)          # as fit.project(p)
+
+A CAHV, CAHVOR or CAHVORE fit projects with
+harness.calibrators._project_kernels (the equations of reference_models.cahvore
+point by point, within 1e-10 px of fit.project; the maps of 42 jpl/mrcal
+records of paper jobs within 1.1e-10 px, their rms and max within 1e-11 px);
+any other fit (OpenCV, COLMAP) with its own project(). projection_difference
+projects with it; _fit_rotation does not: the rotation's least-squares path
+is sensitive to the last bits of the residuals (the compiled projection there
+moved the maps by up to 8e-8 px), so it keeps fit.project and the fitted
+rotation is unchanged.
+'''
+    from harness.calibrators._project_kernels import KINDS, pack_model, project_packed
+    if getattr(fit, "family", None) not in KINDS:
+        return fit.project
+    cam = pack_model(fit)
+    return lambda p: project_packed(cam, p)
+
+
 def _fit_rotation(fit, p_cam, q, nmax=2000):
     r'''The rotation R minimising |fit(R p_cam) - q| (p_cam in the truth's camera frame)'''
     import scipy.optimize
@@ -266,14 +291,15 @@ mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
         # the same projection, in the camera frame matching the fit's R0 gauge
         truth = with_R0(truth, float(fit.R[0]))
     q, p_ref, p_cam = truth_points(truth, range_m, step)
+    project = _projector(fit)
     if mode == "world":
-        qf = fit.project(p_ref)
+        qf = project(p_ref)
         R = None
     else:
         R = np.eye(3)
         if mode == "rotation":
             R = _fit_rotation(fit, p_cam.reshape(-1, 3), q.reshape(-1, 2))
-        qf = fit.project(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
+        qf = project(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
     d = np.linalg.norm(qf - q, axis=-1)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "q": q, "map": d,
