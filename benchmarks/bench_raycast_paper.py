@@ -20,6 +20,12 @@ NUMBA_NUM_THREADS=1: CPU seconds of a single thread are the cleanest count of
 the work on a shared machine. Each job is run --reps times; the minimum of
 each figure is reported with the spread of the totals.
 
+--evict leaves the cache as a job left it instead of emptying it around every
+job: the next job's camera evicts it, as in a campaign worker (which renders
+job after job with one shared cache), so that the ray cache's figure includes
+what eviction saves or costs (RaycastRenderer reuses the arrays of the camera
+it drops for a new one of the same size).
+
 --save DIR writes every image (zlib-compressed float32) to DIR; --compare DIR
 reads them back and reports, per job and in all, the number of pixels that
 differ and the largest absolute difference.
@@ -87,7 +93,7 @@ def paper_jobs(cameras=None, families=None):
     return jobs
 
 
-def _job_once(job, keep):
+def _job_once(job, keep, evict=False):
     from harness.runner import _renderer, _target, camera_stage, poses_stage
     from renderers.base import RenderSettings
 
@@ -99,7 +105,10 @@ def _job_once(job, keep):
                               adaptive=bool(job.settings["adaptive"]),
                               options=dict(job.settings.get("options") or {}))
     renderer = _renderer(job.renderer)
-    renderer.clear_cache()
+    if evict:
+        _as_previous_camera(renderer, truth)
+    else:
+        renderer.clear_cache()
     c0 = time.process_time()
     renderer.rays(truth)
     cache_cpu = time.process_time() - c0
@@ -111,7 +120,8 @@ def _job_once(job, keep):
         sha.append(hashlib.sha256(result.image.tobytes()).hexdigest())
         images.append(result.image if keep else None)
         meta.append(result.metadata)
-    renderer.clear_cache()
+    if not evict:
+        renderer.clear_cache()
     return {
         "cache_cpu_s": cache_cpu,
         "render_cpu_s": render_cpu,
@@ -120,6 +130,17 @@ def _job_once(job, keep):
         "meta": meta,
         "images": images,
     }
+
+
+def _as_previous_camera(renderer, model):
+    r'''--evict: the cache keeps what the last job left, as in a campaign worker, but this
+job's own camera is filed under another key (a repeat must build its rays again,
+evicting that entry as it would evict another camera's)'''
+    from renderers.raycast import _model_key
+    with renderer._lock:
+        entry = renderer._rays.pop(_model_key(model), None)
+        if entry is not None:
+            renderer._rays[("previous camera",)] = entry
 
 
 def _image_file(directory, job, i):
@@ -139,6 +160,9 @@ def main(argv=None):
     ap.add_argument("--cameras", nargs="+", default=None)
     ap.add_argument("--families", nargs="+", default=None)
     ap.add_argument("--reps", type=int, default=2)
+    ap.add_argument("--evict", action="store_true",
+                    help="leave the cache as a job left it (the next camera evicts it, as in "
+                         "a campaign worker) instead of emptying it around every job")
     ap.add_argument("--save", default=None)
     ap.add_argument("--compare", default=None)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "raycast_paper.json"))
@@ -164,7 +188,7 @@ def main(argv=None):
         runs = []
         for rep in range(args.reps):
             keep = rep == 0 and bool(args.save or args.compare)
-            runs.append(_job_once(job, keep))
+            runs.append(_job_once(job, keep, args.evict))
         if len({tuple(r["sha256"]) for r in runs}) != 1:
             raise SystemExit(f"{job.key}: repeats gave different images")
         images = runs[0]["images"]
@@ -207,6 +231,10 @@ def main(argv=None):
     total_render = sum(sum(r["render_cpu_s"]) for r in rows)
     print(f"total over {len(rows)} jobs: cpu {total:.2f} s (ray cache {total_cache:.2f} s, "
           f"renders {total_render:.2f} s)")
+    for family in sorted({r["family"] for r in rows}):
+        fam = [r for r in rows if r["family"] == family]
+        print(f"  {family:8s} ray cache {sum(r['cache_cpu_s'] for r in fam):6.2f} s, renders "
+              f"{sum(sum(r['render_cpu_s']) for r in fam):6.2f} s")
     if args.compare:
         print(f"against {args.compare}: {ndiff_all} pixels differ, max |difference| "
               f"{maxdiff_all:.3g}")
@@ -220,6 +248,7 @@ def main(argv=None):
         "campaign": str(CAMPAIGN.relative_to(ROOT)),
         "numba_threads": numba.get_num_threads(),
         "reps": args.reps,
+        "evict": args.evict,
         "jobs": rows,
         "total_cpu_s": total,
         "total_cache_cpu_s": total_cache,

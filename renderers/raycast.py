@@ -62,6 +62,7 @@ the slack of the bounds above; no pixel's value is read from them. The cache is 
 '''
 
 import math
+import sys
 import threading
 import time
 from collections import OrderedDict
@@ -390,12 +391,32 @@ numba's thread count (default: all).
                 return entry + (False,)
             cam = kern.pack_model(model)
             noncentral = not model.is_central
-            dirs, shift = kern.build_ray_cache(cam, model.width, model.height, noncentral)
+            W, H = model.width, model.height
+            nbytes = (H + 2) * (W + 2) * (32 if noncentral else 24) + (0 if noncentral else 8)
+            out = self._evict_for(nbytes, (H + 2, W + 2, 3),
+                                  (H + 2, W + 2) if noncentral else (1, 1))
+            dirs, shift = kern.build_ray_cache(cam, W, H, noncentral, out=out)
             entry = (cam, dirs, shift, noncentral)
             self._rays[key] = entry
-            while len(self._rays) > 1 and self._cache_size() > self.cache_bytes:
-                self._rays.popitem(last=False)
             return entry + (True,)
+
+    def _evict_for(self, nbytes, dshape, sshape):
+        r'''Drop the least recently used cameras until nbytes more fit in cache_bytes (the
+new camera is always kept); the (dirs, shift) of a dropped camera of the shapes
+given that nothing else holds, to be overwritten, or None
+
+The cameras dropped are those that adding the new one would drop; dropping
+them first keeps one cache in memory instead of two while it is built.'''
+        out = None
+        while self._rays and self._cache_size() + nbytes > self.cache_bytes:
+            _, entry = self._rays.popitem(last=False)
+            dirs, shift = entry[1], entry[2]
+            del entry
+            # 2 = the name dirs + getrefcount's argument: no render is reading it
+            if (out is None and dirs.shape == dshape and shift.shape == sshape
+                    and sys.getrefcount(dirs) == 2 and sys.getrefcount(shift) == 2):
+                out = (dirs, shift)
+        return out
 
     def _cache_size(self):
         return sum(e[1].nbytes + e[2].nbytes for e in self._rays.values())

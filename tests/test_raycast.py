@@ -320,6 +320,36 @@ def test_ray_cache_is_reused_and_bounded():
                     RenderSettings(spp=1)).metadata["ray_cache"] == "cold"
 
 
+def test_a_dropped_ray_cache_is_overwritten_by_the_next_camera_of_its_shapes():
+    r'''The arrays of the camera that a new one evicts are reused when nothing holds them;
+the rays written over them equal a fresh cache, and a render's arrays are never reused'''
+    models = small_models()
+    r = RaycastRenderer(cache_bytes=0, shared_cache=False)
+    pointer = r.rays(models["cahv"])[1].ctypes.data
+    held = r.rays(models["cahvor"])          # reuses the CAHV arrays (same shapes)
+    assert held[1].ctypes.data == pointer and len(r._rays) == 1
+    for name in ("cahv", "cahvor"):          # held by us: not overwritten
+        m = models[name]
+        entry = r.rays(m)
+        assert entry[1].ctypes.data != held[1].ctypes.data
+        fresh = kern.build_ray_cache(kern.pack_model(m), m.width, m.height, False)
+        assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
+        held = entry
+    fresh = kern.build_ray_cache(kern.pack_model(models["cahvor"]), 200, 150, False)
+    assert np.array_equal(held[1], fresh[0])  # still the CAHVOR rays it was given
+    pointer = held[1].ctypes.data
+    del held, entry
+    m = models["cahv"]
+    entry = r.rays(m)
+    assert entry[1].ctypes.data == pointer
+    fresh = kern.build_ray_cache(kern.pack_model(m), m.width, m.height, False)
+    assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
+    assert entry[2].shape == (1, 1) and entry[2][0, 0] == 0.0
+    # a noncentral camera of the same size has a shift array: new arrays
+    nc = models["cahvore-noncentral"]
+    assert r.rays(nc)[2].shape == (152, 202)
+
+
 def test_renderers_share_the_ray_cache_by_default():
     model = small_models()["cahvore-fisheye"].replace(width=97, height=61)
     Rt = board_pose(model, 1.0)
