@@ -194,3 +194,34 @@ def test_cahvore_types(model_type, linearity):
     d = projection_difference(truth, r.model, mode="world", step=32)
     assert d["max"] <= 1e-6
     np.testing.assert_allclose(r.model.E, truth.E, atol=1e-7)
+
+
+def test_forward_difference_is_scipys_2_point_bit_for_bit():
+    from scipy.optimize._numdiff import approx_derivative
+
+    def f(x):
+        return np.array([np.sin(x[0]) * x[1], x[1] ** 3 - x[2], np.exp(1e-6 * x[2] * x[0]),
+                         x[0] * x[1] * x[2]])
+    for x in (np.array([0.0, -1e-9, 3.7]), np.array([1e5, -2.5, 0.3]),
+              np.array([-0.0, 7.0, -123.25])):
+        expected = approx_derivative(f, x, method="2-point")
+        got = jpl_fit.forward_difference(f, x, f(x))
+        assert got.shape == (4, 3) and np.array_equal(got, expected)
+
+
+def test_callable_jacobian_follows_the_2_point_path(monkeypatch):
+    truth, obs = _navcam_obs()
+    noise = 0.05 * np.sin(np.arange(obs.q.size)).reshape(obs.q.shape)
+    obs = obs.replace(q=obs.q + noise)
+    fitted = calibrate("jpl", obs, TARGET, "CAHVOR", truth=truth)
+    import scipy.optimize
+    least_squares = scipy.optimize.least_squares
+
+    def two_point(*args, **kw):
+        kw["jac"] = "2-point"
+        return least_squares(*args, **kw)
+    monkeypatch.setattr(scipy.optimize, "least_squares", two_point)
+    reference = calibrate("jpl", obs, TARGET, "CAHVOR", truth=truth)
+    assert fitted.status == "ok" and fitted.iterations == reference.iterations
+    for name in ("C", "A", "H", "V", "O", "R"):
+        assert np.array_equal(getattr(fitted.model, name), getattr(reference.model, name))

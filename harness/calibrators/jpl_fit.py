@@ -241,22 +241,74 @@ def _promote(m, family, model_type, linearity, R0):
                    linearity=linearity, **kw)
 
 
+# scipy's default relative step of a forward difference: sqrt(float64 eps)
+FORWARD_STEP = np.finfo(np.float64).eps ** 0.5
+
+
+def forward_difference(f, x, f0):
+    r'''The Jacobian (M,N) of f at x by forward differences, as scipy's '2-point' computes it
+
+SYNOPSIS
+
+    J = forward_difference(residuals, x, residuals(x))
+
+scipy.optimize.least_squares(jac="2-point") differences, bit for bit
+(scipy.optimize._numdiff.approx_derivative without bounds): the step of x_i
+is sqrt(eps) max(1, |x_i|), signed as x_i (+ for 0), and column i is
+(f(x + h_i e_i) - f0) / ((x_i + h_i) - x_i).
+'''
+    sign = (x >= 0).astype(x.dtype) * 2 - 1
+    h = (FORWARD_STEP * sign * np.maximum(1.0, np.abs(x))).astype(x.dtype)
+    J_T = np.empty((x.size, f0.size))
+    for i in range(x.size):
+        x1 = np.copy(x)
+        x1[i] = x[i] + h[i]
+        J_T[i] = (f(x1) - f0) / ((x[i] + h[i]) - x[i])
+    return J_T.T
+
+
 def _lm(family, m0, p, q, model_type, linearity, R0, max_nfev=None):
-    r'''Levenberg-Marquardt of model family `family` from m0 on world points p (N,3), pixels q'''
+    r'''Levenberg-Marquardt of model family `family` from m0 on world points p (N,3), pixels q
+
+The Jacobian is scipy's forward difference (forward_difference, bit for bit),
+given as a callable so that the last point's residuals and Jacobian are
+remembered: scipy asks for the Jacobian at the solution once more when
+MINPACK returns, and the residuals at a point MINPACK evaluated are not
+computed again. The solver's path, nfev and solution are those of
+jac="2-point".
+'''
     chart = _Chart(family, m0, model_type, linearity, R0)
     bad = np.full(2 * len(p), UNPROJECTABLE_RESIDUAL)
     p = np.ascontiguousarray(p, dtype=np.float64)
     q = np.ascontiguousarray(q, dtype=np.float64)
 
-    def residuals(x):
+    def evaluate(x):
         cam = chart.packed(x)
         if cam is None:
             return bad
         return residuals_packed(cam, p, q, UNPROJECTABLE_RESIDUAL)
 
+    last_f, last_J = {}, {}
+
+    def residuals(x):
+        f = evaluate(x)
+        last_f.clear()
+        last_f[x.tobytes()] = f
+        return f
+
+    def jacobian(x):
+        key = x.tobytes()
+        J = last_J.get(key)
+        if J is None:
+            f0 = last_f.get(key)
+            J = forward_difference(evaluate, x, evaluate(x) if f0 is None else f0)
+            last_J.clear()
+            last_J[key] = J
+        return J
+
     with np.errstate(all="ignore"):
-        sol = scipy.optimize.least_squares(residuals, chart.x0(), method="lm", x_scale="jac",
-                                           ftol=1e-15, xtol=1e-15, gtol=1e-15,
+        sol = scipy.optimize.least_squares(residuals, chart.x0(), jac=jacobian, method="lm",
+                                           x_scale="jac", ftol=1e-15, xtol=1e-15, gtol=1e-15,
                                            max_nfev=max_nfev)
     return chart.model(sol.x), sol
 
