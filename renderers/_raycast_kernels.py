@@ -341,10 +341,11 @@ SYNOPSIS
     dirs, shift = build_ray_cache(cam, W, H, noncentral, out=(dirs0, shift0))
     # the same rays, written over the arrays of an earlier cache of the same shapes
 
-out (optional): (dirs, shift) float64 C-contiguous arrays of the shapes above,
-overwritten (the memory of a dropped cache reused: a fresh 0.5 GB array costs
-0.1-0.6 s CPU of page faults on first touch). Every element is written, so
-the rays do not depend on what the arrays held.
+out (optional): (dirs, shift) float64 C-contiguous arrays of the shapes above
+(either may be None: a new array), overwritten: the memory of a dropped cache
+reused (a fresh 0.5 GB array costs 0.1-0.6 s CPU of page faults on first
+touch). Every element is written, so the rays do not depend on what the
+arrays held.
 
 The rays are ray_warm()'s: exact to the floating-point level (Newton stopped
 by the WARM_TOLERANCE bound; CAHVORE's cos(theta) from sin(theta), within
@@ -358,17 +359,18 @@ pixel's value always comes from rays traced in the render.
 '''
     dshape = (height + 2, width + 2, 3)
     sshape = (height + 2, width + 2) if noncentral else (1, 1)
-    if out is None:
+    dirs, shift = (None, None) if out is None else out
+    for a, shape in ((dirs, dshape), (shift, sshape)):
+        if a is not None and (a.shape != shape or a.dtype != np.float64
+                              or not a.flags.c_contiguous):
+            raise ValueError(f"build_ray_cache: out array {a.shape} {a.dtype}; "
+                             f"expected C-contiguous float64 {shape}")
+    if dirs is None:
         dirs = np.empty(dshape, dtype=np.float64)
+    if shift is None:
         shift = np.zeros(sshape, dtype=np.float64)
-    else:
-        dirs, shift = out
-        for a, shape in ((dirs, dshape), (shift, sshape)):
-            if a.shape != shape or a.dtype != np.float64 or not a.flags.c_contiguous:
-                raise ValueError(f"build_ray_cache: out array {a.shape} {a.dtype}; "
-                                 f"expected C-contiguous float64 {shape}")
-        if not noncentral:
-            shift[...] = 0.0   # _fill_ray_cache writes every element of a noncentral shift
+    elif not noncentral:
+        shift[...] = 0.0   # _fill_ray_cache writes every element of a noncentral shift
     _fill_ray_cache(cam, dirs, shift, noncentral)
     return dirs, shift
 

@@ -402,21 +402,24 @@ numba's thread count (default: all).
 
     def _evict_for(self, nbytes, dshape, sshape):
         r'''Drop the least recently used cameras until nbytes more fit in cache_bytes (the
-new camera is always kept); the (dirs, shift) of a dropped camera of the shapes
-given that nothing else holds, to be overwritten, or None
+new camera is always kept); (dirs, shift): arrays of the shapes given of the
+dropped cameras that nothing else holds, to be overwritten (None where there
+is none)
 
 The cameras dropped are those that adding the new one would drop; dropping
 them first keeps one cache in memory instead of two while it is built.'''
-        out = None
+        out = [None, None]
         while self._rays and self._cache_size() + nbytes > self.cache_bytes:
             _, entry = self._rays.popitem(last=False)
-            dirs, shift = entry[1], entry[2]
+            arrays = [entry[1], entry[2]]
             del entry
-            # 2 = the name dirs + getrefcount's argument: no render is reading it
-            if (out is None and dirs.shape == dshape and shift.shape == sshape
-                    and sys.getrefcount(dirs) == 2 and sys.getrefcount(shift) == 2):
-                out = (dirs, shift)
-        return out
+            for i, shape in enumerate((dshape, sshape)):
+                a = arrays[i]
+                arrays[i] = None
+                # 2 = the name a + getrefcount's argument: no render is reading it
+                if out[i] is None and a.shape == shape and sys.getrefcount(a) == 2:
+                    out[i] = a
+        return tuple(out)
 
     def _cache_size(self):
         return sum(e[1].nbytes + e[2].nbytes for e in self._rays.values())

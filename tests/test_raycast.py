@@ -345,9 +345,19 @@ the rays written over them equal a fresh cache, and a render's arrays are never 
     fresh = kern.build_ray_cache(kern.pack_model(m), m.width, m.height, False)
     assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
     assert entry[2].shape == (1, 1) and entry[2][0, 0] == 0.0
-    # a noncentral camera of the same size has a shift array: new arrays
+    # a noncentral camera of the same size reuses the directions, not the (1,1) shift
     nc = models["cahvore-noncentral"]
-    assert r.rays(nc)[2].shape == (152, 202)
+    pointer = entry[1].ctypes.data
+    del entry
+    entry = r.rays(nc)
+    assert entry[1].ctypes.data == pointer and entry[2].shape == (152, 202)
+    fresh = kern.build_ray_cache(kern.pack_model(nc), nc.width, nc.height, True)
+    assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
+    del entry
+    entry = r.rays(m)
+    assert entry[1].ctypes.data == pointer and entry[2].shape == (1, 1)
+    assert entry[2][0, 0] == 0.0 and np.array_equal(entry[1], kern.build_ray_cache(
+        kern.pack_model(m), m.width, m.height, False)[0])
 
 
 def test_renderers_share_the_ray_cache_by_default():
