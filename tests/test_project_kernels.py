@@ -201,3 +201,31 @@ def test_residuals_replace_unprojectable_points():
     expected = (m.project(p) - q).ravel()
     np.testing.assert_allclose(r[[0, 1, 5]], expected[[0, 1, 5]], rtol=0, atol=1e-9)
     np.testing.assert_array_equal(r[[2, 3, 4]], [1e4, 1e4, 1e4])
+
+
+@pytest.mark.parametrize("family", ["CAHV", "CAHVOR", "CAHVORE"])
+def test_jacobian_chart_is_the_forward_difference_bit_for_bit(family):
+    from harness.calibrators import jpl_fit
+    m = next(m for k, m in MODELS if m.family == family)
+    chart = jpl_fit._Chart(family, m, getattr(m, "model_type", None),
+                           getattr(m, "linearity", None), R0=0.0)
+    p = np.ascontiguousarray(_points(m, np.random.default_rng(5), n=200))
+    with np.errstate(all="ignore"):
+        p = p[np.isfinite(m.project(p)).all(axis=-1)]
+    q = np.ascontiguousarray(m.project(p) + 0.01)
+
+    def residuals(x):
+        cam = chart.packed(x)
+        return np.full(2 * len(p), 1e4) if cam is None else pk.residuals_packed(cam, p, q, 1e4)
+    x = chart.x0() + 1e-4
+    expected = jpl_fit.forward_difference(residuals, x, residuals(x))
+    got = chart.forward_difference(residuals, x, residuals(x), p, q)
+    assert got.shape == (2 * len(p), len(x)) and np.array_equal(got, expected)
+    assert np.abs(expected).max() > 1.0
+    # a column whose trial is at the model's limits goes through residuals()
+    x[8:11] = x[5:8] + 1e-9
+    J_T, ok = pk.jacobian_chart(x, jpl_fit.forward_steps(x), *chart._chart_args(), p, q,
+                                1e4, residuals(x))
+    assert not ok.all()
+    assert np.array_equal(chart.forward_difference(residuals, x, residuals(x), p, q),
+                          jpl_fit.forward_difference(residuals, x, residuals(x)))

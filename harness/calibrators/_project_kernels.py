@@ -12,6 +12,7 @@ SYNOPSIS
     mc = CompiledProjection(model)   # the model, with project() compiled
     r = residuals_packed(cam, p, q, 1e4)   # (project - q).ravel(), 1e4 where not finite
     cam = pack_chart(x, ...)     # the jpl calibrator's trial model (None: build it instead)
+    J_T, ok = jacobian_chart(x, h, ...)   # its forward differences, every column in one call
 
 The projection of reference_models.cahvore (the equations of its module
 docstring) ported point by point: d = p - C; for CAHVOR the bend about O by
@@ -295,6 +296,53 @@ eA0, eA1 (they are not used).
                        float(R0), KINDS[family], float(linearity or 0.0), float(min_hs),
                        float(max_cos), float(min_oa), cam)
     return cam if ok else None
+
+
+@njit(cache=True, error_model="numpy")
+def _jacobian_kernel(x, h, A0, eA0, eA1, O0, eO0, eO1, R0, kind, linearity, min_hs, max_cos,
+                     min_oa, p, q, unprojectable, f0, J_T, ok):
+    x1 = x.copy()
+    cam = np.empty(NCAM, dtype=np.float64)
+    pix = np.empty((p.shape[0], 2), dtype=np.float64)
+    for i in range(x.shape[0]):
+        x1[i] = x[i] + h[i]
+        cam[:] = 0.0
+        ok[i] = _chart_kernel(x1, A0, eA0, eA1, O0, eO0, eO1, R0, kind, linearity, min_hs,
+                              max_cos, min_oa, cam)
+        x1[i] = x[i]
+        if not ok[i]:
+            continue
+        _project_kernel(cam, p, pix)
+        dx = (x[i] + h[i]) - x[i]
+        for j in range(p.shape[0]):
+            for k in range(2):
+                r = pix[j, k] - q[j, k]
+                if not math.isfinite(r):
+                    r = unprojectable
+                J_T[i, 2 * j + k] = (r - f0[2 * j + k]) / dx
+
+
+def jacobian_chart(x, h, A0, eA0, eA1, O0, eO0, eO1, R0, family, linearity, min_hs, max_cos,
+                   min_oa, p, q, unprojectable, f0):
+    r'''Forward differences of residuals_packed(pack_chart(x, ...), p, q) at x, steps h
+
+SYNOPSIS
+
+    J_T, ok = jacobian_chart(x, h, A0, ..., min_oa, p, q, 1e4, f0)
+    # J_T (len(x), 2N): row i = (residuals at x + h_i e_i - f0) / ((x_i + h_i) - x_i)
+
+The jpl calibrator's Jacobian in one call, the same numbers as residuals_packed
+and pack_chart column by column. ok[i] is False where pack_chart would give None
+for x + h_i e_i (row i is then not computed: the caller builds that model).
+'''
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    J_T = np.empty((x.shape[0], 2 * p.shape[0]), dtype=np.float64)
+    ok = np.zeros(x.shape[0], dtype=np.bool_)
+    _jacobian_kernel(x, np.ascontiguousarray(h, dtype=np.float64), A0, eA0, eA1, O0, eO0, eO1,
+                     float(R0), KINDS[family], float(linearity or 0.0), float(min_hs),
+                     float(max_cos), float(min_oa), p, q, float(unprojectable),
+                     np.ascontiguousarray(f0, dtype=np.float64), J_T, ok)
+    return J_T, ok
 
 
 class CompiledProjection:

@@ -64,7 +64,14 @@ import scipy.optimize
 from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
 from reference_models.errors import ModelError
 
-from ._project_kernels import CompiledProjection, pack_chart, pack_model, project, residuals_packed
+from ._project_kernels import (
+    CompiledProjection,
+    jacobian_chart,
+    pack_chart,
+    pack_model,
+    project,
+    residuals_packed,
+)
 from .base import CalibrationFailed, CalibrationResult
 from .bias import bias_step
 
@@ -215,17 +222,32 @@ The solver's residuals call this: the model is not built unless a trial comes
 near the model's limits (FAST_CHECK_*) or is not finite; then the model decides.
 A and O may differ from the model's by an ulp (their norms are summed in another order).
 '''
-        m = self.m0
-        eO = self.eO if self.family != "CAHV" else self.eA
-        cam = pack_chart(x, self._A0, self.eA[0], self.eA[1], self._O0, eO[0], eO[1], self.R0,
-                         self.family, getattr(m, "linearity", None), FAST_CHECK_HS,
-                         FAST_CHECK_COS_THETA, FAST_CHECK_OA)
+        cam = pack_chart(x, *self._chart_args())
         if cam is not None:
             return cam
         try:
             return pack_model(self.model(x))
         except ModelError:
             return None
+
+    def _chart_args(self):
+        eO = self.eO if self.family != "CAHV" else self.eA
+        return (self._A0, self.eA[0], self.eA[1], self._O0, eO[0], eO[1], self.R0, self.family,
+                getattr(self.m0, "linearity", None), FAST_CHECK_HS, FAST_CHECK_COS_THETA,
+                FAST_CHECK_OA)
+
+    def forward_difference(self, residuals, x, f0, p, q):
+        r'''forward_difference(residuals, x, f0) of residuals(x) = the residuals of
+packed(x) on p, q: the columns whose trial is packed by the compiled chart in
+one call (_project_kernels.jacobian_chart), the others (near the model's
+limits) through residuals(); bit for bit the same'''
+        h = forward_steps(x)
+        J_T, ok = jacobian_chart(x, h, *self._chart_args(), p, q, UNPROJECTABLE_RESIDUAL, f0)
+        for i in np.flatnonzero(~ok):
+            x1 = np.copy(x)
+            x1[i] = x[i] + h[i]
+            J_T[i] = (residuals(x1) - f0) / ((x[i] + h[i]) - x[i])
+        return J_T.T
 
 
 def _promote(m, family, model_type, linearity, R0):
@@ -245,6 +267,12 @@ def _promote(m, family, model_type, linearity, R0):
 FORWARD_STEP = np.finfo(np.float64).eps ** 0.5
 
 
+def forward_steps(x):
+    r'''The steps of forward_difference: sqrt(eps) max(1, |x_i|), signed as x_i (+ for 0)'''
+    sign = (x >= 0).astype(x.dtype) * 2 - 1
+    return (FORWARD_STEP * sign * np.maximum(1.0, np.abs(x))).astype(x.dtype)
+
+
 def forward_difference(f, x, f0):
     r'''The Jacobian (M,N) of f at x by forward differences, as scipy's '2-point' computes it
 
@@ -257,8 +285,7 @@ scipy.optimize.least_squares(jac="2-point") differences, bit for bit
 is sqrt(eps) max(1, |x_i|), signed as x_i (+ for 0), and column i is
 (f(x + h_i e_i) - f0) / ((x_i + h_i) - x_i).
 '''
-    sign = (x >= 0).astype(x.dtype) * 2 - 1
-    h = (FORWARD_STEP * sign * np.maximum(1.0, np.abs(x))).astype(x.dtype)
+    h = forward_steps(x)
     J_T = np.empty((x.size, f0.size))
     for i in range(x.size):
         x1 = np.copy(x)
@@ -301,7 +328,7 @@ jac="2-point".
         J = last_J.get(key)
         if J is None:
             f0 = last_f.get(key)
-            J = forward_difference(evaluate, x, evaluate(x) if f0 is None else f0)
+            J = chart.forward_difference(evaluate, x, evaluate(x) if f0 is None else f0, p, q)
             last_J.clear()
             last_J[key] = J
         return J
