@@ -139,7 +139,7 @@ def main():
     print(f"total CPU per fit set: {total:.3f} s")
     from harness.calibrators import _project_kernels as pk
     sigs = {k.__name__: len(k.signatures) for k in (pk._project_kernel, pk._residuals_kernel,
-                                                     pk._chart_kernel)}
+                                                     pk._chart_kernel, pk._jacobian_kernel)}
     print(f"compiled signatures: {sigs}")
     doc = {"benchmark": "jpl", "date": datetime.now(UTC).isoformat(timespec="seconds"),
            "commit": git_commit()["commit"], "python": platform.python_version(),
