@@ -187,3 +187,24 @@ def test_compiled_projection_plans_the_same_poses(monkeypatch, key, family):
     monkeypatch.setattr(targets.poses, "_compiled_projection", lambda model: model.project)
     reference = plan_poses(m, t, n=7, seed=3)
     assert all(np.array_equal(a, b) for a, b in zip(compiled, reference, strict=True))
+
+
+@pytest.mark.parametrize("key", CATALOGUE_KEYS)
+def test_unprojector_is_the_models_unproject_bit_for_bit(key):
+    from targets.poses import _unprojector
+    rng = np.random.default_rng(7)
+    for family in ("CAHV", "CAHVOR", "CAHVORE"):
+        try:
+            m = truncate(load_catalogue().get(key).model, family)
+        except CamvalError:
+            continue
+        unproject = _unprojector(m)
+        W, H = m.width, m.height
+        qs = np.vstack((np.column_stack((rng.uniform(-0.5, W - 0.5, 40),
+                                         rng.uniform(-0.5, H - 0.5, 40))),
+                        [[(W - 1) / 2, (H - 1) / 2], [-0.5, -0.5], [W - 0.5, H - 0.5]]))
+        for x, y in qs.tolist():
+            o, v = m.unproject(np.array([x, y]))
+            got = unproject(x, y)
+            assert got is not None
+            assert o.tobytes() == got[0].tobytes() and v.tobytes() == got[1].tobytes()
