@@ -28,7 +28,9 @@ board (its outline, sampled densely) inside the image with a margin
 tilt (angle between its normal and the line of sight to its centre) is at
 most MAX_TILT_DEG. Viewing directions come from model.unproject() and every
 check uses model.project(), so this works for any CAHV/CAHVOR/CAHVORE model,
-central or not, mirrored or not.
+central or not, mirrored or not. (For speed the planner uses equivalents of
+the two: _unprojector, bit for bit the model's rays, and _compiled_projection;
+the poses are bit for bit those planned with the model's own methods.)
 
 Poses are Rt_cam_board (4,3) in the camera frame of model.Rt_ref_cam().
 
