@@ -29,7 +29,7 @@ tilt (angle between its normal and the line of sight to its centre) is at
 most MAX_TILT_DEG. Viewing directions come from model.unproject() and every
 check uses model.project(), so this works for any CAHV/CAHVOR/CAHVORE model,
 central or not, mirrored or not. (For speed the planner uses equivalents of
-the two: _unprojector, bit for bit the model's rays, and _compiled_projection;
+the two: _unprojector, bit for bit the model's rays, and a compiled test (_packed);
 the poses are bit for bit those planned with the model's own methods.)
 
 Poses are Rt_cam_board (4,3) in the camera frame of model.Rt_ref_cam().
@@ -88,31 +88,27 @@ def _rotation(axis, angle):
 _EYE3 = np.eye(3)
 
 
-def _compiled_projection(model):
-    r'''model.project, compiled (harness.calibrators._project_kernels) for a JPL model
+def _packed(model):
+    r'''The packed model (harness.calibrators._project_kernels.pack_model) of a JPL model
 
 SYNOPSIS
 
-    project = _compiled_projection(model)
-    q = project(p)                  # as model.project(p), p (N,3) C-contiguous
+    cam = _packed(model)       # None for any other model
 
-The planner projects the board outline ~350 times per plan; the numpy
-projection of a CAHVORE costs ~80 us per call on 128 points, the compiled one
-a few. They agree to < 1e-10 px, and only whether the outline fits the image
-is used: the planned poses of every paper camera and family are bit for bit
-those of model.project (checked on all 62 plannable paper jobs;
-tests/test_poses.py). Any other model keeps its own project().
+With it _Planner.fits() tests the board outline by one compiled call
+(_project_kernels.outline_fits: in front, facing the camera, in the image): the
+planner tests ~350 outlines per plan, and numpy's projection of a CAHVORE
+costs ~80 us per call on 128 points. The compiled projection agrees with
+model.project to < 1e-10 px and its sums are in another order than numpy's
+matmul, which could only matter for a point on a limit to the last bit: the
+planned poses of all 62 plannable paper jobs are bit for bit those of the
+numpy test (tests/test_poses.py checks a few). Any other model is tested with
+its own project().
 '''
-    from harness.calibrators._project_kernels import KINDS, _project_kernel, pack_model
+    from harness.calibrators._project_kernels import KINDS, pack_model
     if getattr(model, "family", None) not in KINDS:
-        return model.project
-    cam = pack_model(model)
-
-    def project(p):
-        out = np.empty((p.shape[0], 2))
-        _project_kernel(cam, p, out)
-        return out
-    return project
+        return None
+    return pack_model(model)
 
 
 _EX = np.array([1.0, 0.0, 0.0])
@@ -219,7 +215,12 @@ class _Planner:
         self.size = math.hypot(*target.size())
         self.cos_view_max = math.cos(math.radians(MAX_VIEW_ANGLE_DEG))
         self._rays = {}
-        self._project = _compiled_projection(model)
+        self._cam = _packed(model)
+        if self._cam is not None:
+            from harness.calibrators._project_kernels import outline_fits
+            self._outline_fits = outline_fits
+            self._R_ref_cam = np.ascontiguousarray(self.R_ref_cam)
+            self._t_ref_cam = np.ascontiguousarray(self.t_ref_cam)
         self._unproject = _unprojector(model)
 
     def ray_cam(self, q):
@@ -277,6 +278,11 @@ outline_cam: self.outline @ Rt[:3].T, when the caller has it already.
             return False
         if outline_cam is None:
             outline_cam = self.outline @ Rt[:3].T
+        if self._cam is not None:
+            m = self.margin
+            return self._outline_fits(outline_cam, Rt, self.cos_view_max, self._R_ref_cam,
+                                      self._t_ref_cam, self._cam, (m - 0.5, m - 0.5),
+                                      (self.W - 0.5 - m, self.H - 0.5 - m))
         p_cam = outline_cam + Rt[3]
         if not (p_cam[:, 2] > 0).all():
             return False
@@ -285,7 +291,7 @@ outline_cam: self.outline @ Rt[:3].T, when the caller has it already.
         u = p_cam / np.linalg.norm(p_cam, axis=-1, keepdims=True)
         if not (u @ n).min() >= self.cos_view_max:
             return False
-        q = self._project(p_cam @ self.R_ref_cam.T + self.t_ref_cam)
+        q = self.model.project(p_cam @ self.R_ref_cam.T + self.t_ref_cam)
         # the bounds are NaN when any q is (min and max propagate NaN): the board does not fit
         (xmin, ymin), (xmax, ymax) = q.min(axis=0).tolist(), q.max(axis=0).tolist()
         m = self.margin

@@ -172,21 +172,29 @@ def test_pose_is_the_plain_formula_bit_for_bit():
 
 @pytest.mark.parametrize("key,family", [(8, "CAHVORE"), (17, "CAHVORE"), (15, "CAHVOR"),
                                         (3, "CAHV")])
-def test_compiled_projection_plans_the_same_poses(monkeypatch, key, family):
+def test_compiled_test_plans_the_same_poses(monkeypatch, key, family):
     import targets.poses
     m = truncate(load_catalogue().get(key).model, family)
     t = load_target("dots")
-    planner = _Planner(m, t, 20.0, 100.0)
-    Rt = planner.pose(np.array([(m.width - 1) / 2, (m.height - 1) / 2]), 1.0, 30.0, 40.0, 2.0)
-    p = t.outline(32) @ Rt[:3].T + Rt[3]
-    q = planner._project(np.ascontiguousarray(p @ planner.R_ref_cam.T + planner.t_ref_cam))
-    q_ref = m.project(p @ planner.R_ref_cam.T + planner.t_ref_cam)
-    assert np.isfinite(q).all()
-    np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-10)
     compiled = plan_poses(m, t, n=7, seed=3)
-    monkeypatch.setattr(targets.poses, "_compiled_projection", lambda model: model.project)
+    # the planner on the model's own project() and unproject()
+    monkeypatch.setattr(targets.poses, "_packed", lambda model: None)
+    monkeypatch.setattr(targets.poses, "_unprojector", lambda model: None)
     reference = plan_poses(m, t, n=7, seed=3)
     assert all(np.array_equal(a, b) for a, b in zip(compiled, reference, strict=True))
+    # and the compiled test decides as the numpy one, also off the planner's path
+    planner = _Planner(m, t, 20.0, 100.0)
+    monkeypatch.undo()
+    fast = _Planner(m, t, 20.0, 100.0)
+    assert fast._cam is not None and planner._cam is None
+    q_c = np.array([(m.width - 1) / 2, (m.height - 1) / 2])
+    decisions = []
+    for d in np.geomspace(0.05, 20.0, 40):
+        for tilt in (0.0, 50.0, 80.0):
+            Rt = planner.pose(q_c, d, tilt, 30.0, 0.0)
+            decisions.append(planner.fits(Rt))
+            assert fast.fits(Rt) == decisions[-1]
+    assert any(decisions) and not all(decisions)
 
 
 @pytest.mark.parametrize("key", CATALOGUE_KEYS)

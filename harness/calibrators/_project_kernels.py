@@ -345,6 +345,58 @@ for x + h_i e_i (row i is then not computed: the caller builds that model).
     return J_T, ok
 
 
+@njit(cache=True, error_model="numpy")
+def _outline_fits_kernel(outline_cam, Rt, cos_min, R_ref_cam, t_ref_cam, cam, lo_x, hi_x,
+                         lo_y, hi_y):
+    m = outline_cam.shape[0]
+    t = Rt[3]
+    n = np.empty(3, dtype=np.float64)
+    for k in range(3):
+        n[k] = Rt[k, 2]
+    p = np.empty((m, 3), dtype=np.float64)
+    for i in range(m):
+        for k in range(3):
+            p[i, k] = outline_cam[i, k] + t[k]
+        if not p[i, 2] > 0:
+            return False
+    for i in range(m):
+        r = math.sqrt(p[i, 0] * p[i, 0] + p[i, 1] * p[i, 1] + p[i, 2] * p[i, 2])
+        if not ((p[i, 0] / r) * n[0] + (p[i, 1] / r) * n[1] + (p[i, 2] / r) * n[2] >= cos_min):
+            return False
+    p_ref = np.empty((m, 3), dtype=np.float64)
+    for i in range(m):
+        for k in range(3):
+            p_ref[i, k] = (p[i, 0] * R_ref_cam[k, 0] + p[i, 1] * R_ref_cam[k, 1]
+                           + p[i, 2] * R_ref_cam[k, 2]) + t_ref_cam[k]
+    q = np.empty((m, 2), dtype=np.float64)
+    _project_kernel(cam, p_ref, q)
+    for i in range(m):
+        if not (q[i, 0] >= lo_x and q[i, 0] <= hi_x and q[i, 1] >= lo_y and q[i, 1] <= hi_y):
+            return False
+    return True
+
+
+def outline_fits(outline_cam, Rt, cos_min, R_ref_cam, t_ref_cam, cam, lo, hi):
+    r'''Whether a board outline at translation t lies in front, faces the camera and
+projects into the image (the pose planner's test, targets.poses._Planner.fits)
+
+SYNOPSIS
+
+    ok = outline_fits(outline_cam, Rt, cos_min, R_ref_cam, t_ref_cam, cam,
+                      (x_lo, y_lo), (x_hi, y_hi))
+
+outline_cam (M,3): the outline rotated into the camera frame; Rt (4,3) the board
+pose: p = outline_cam + Rt[3], the board normal n = Rt[:3, 2].
+True when every p has z > 0, <p/|p|, n> >= cos_min, and the packed model cam
+projects p_ref = R_ref_cam p + t_ref_cam within [lo, hi] (NaN: False). All
+arrays float64, C contiguous. The sums are in another order than numpy's
+matmul (< 1 ulp apart): only a point on a limit to the last bit can decide
+differently.
+'''
+    return _outline_fits_kernel(outline_cam, Rt, float(cos_min), R_ref_cam, t_ref_cam, cam,
+                                float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
+
+
 class CompiledProjection:
     r'''A model whose project() is the compiled one; every other attribute is the model's
 
