@@ -3,7 +3,8 @@ r'''Pose planning and comparison with the truth: CPU seconds of two small campai
 SYNOPSIS
 
     uv run python benchmarks/bench_stages.py [--campaign campaigns/paper.toml]
-        [--compare-jobs 3/CAHVORE,8/CAHVORE,15/CAHVOR,15/CAHV] [--repeats 3]
+        [--compare-jobs 3/CAHVORE,8/CAHVORE,15/CAHVOR,15/CAHV | --pickles '/tmp/prof/*.pkl']
+        [--repeats 3]
         [--ref dd2ca39] [--out benchmarks/results/stages.json]
 
 poses: harness.runner.poses_stage (targets.poses.plan_poses) for every job of
@@ -13,7 +14,9 @@ skipped, as the campaign does), timed per job; the total per repetition.
 compare: the chosen jobs (camera/family) are rendered, detected and
 calibrated once by every calibrator of the campaign, as harness.runner.run_job
 does; then harness.runner.compare_stage runs on each successful record, job
-by job in the campaign's order, timed per record. The truth-points memo of
+by job in the campaign's order, timed per record. --pickles: instead, pickled
+paper jobs (dicts with obs, truth, target_name; files CAMERA_FAMILY.pkl) are
+calibrated by their job's calibrators, nothing rendered. The truth-points memo of
 harness.compare is emptied before each repetition, so a repetition costs what
 a worker's first pass over these jobs costs.
 
@@ -131,6 +134,29 @@ def calibrated_records(campaign, jobs, wanted):
     return out
 
 
+def pickled_records(jobs, paths):
+    r'''calibrated_records() of pickled paper jobs (dicts with obs, truth, target_name,
+named CAMERA_FAMILY.pkl): calibrated by every calibrator of the job, nothing rendered'''
+    import pickle
+
+    from harness.runner import _target, calibrate_stage
+    by_key = {f"{j.camera_key}_{j.family}": j for j in jobs}
+    out = []
+    for path in sorted(paths):
+        job = by_key.get(Path(path).stem)
+        if job is None:
+            continue
+        with open(path, "rb") as f:
+            d = pickle.load(f)
+        target = _target(d["target_name"])
+        for cal, model, options in job.calibrators:
+            res = calibrate_stage(cal, d["obs"], target, model, d["truth"], options)
+            print(f"  calibrated {job.key} {cal}/{model}: {res.status}", flush=True)
+            if res.status == "ok":
+                out.append((job.key, f"{cal}/{model}", d["truth"], res))
+    return out
+
+
 def time_compare(records, repeats):
     r'''(per-repetition CPU and wall totals and CPU per record, the figures of each record)'''
     import harness.compare
@@ -193,6 +219,9 @@ def main():
     ap.add_argument("--campaign", default="campaigns/paper.toml")
     ap.add_argument("--compare-jobs", default="3/CAHVORE,8/CAHVORE,15/CAHVOR,15/CAHV",
                     help="camera/family of the jobs whose records are compared")
+    ap.add_argument("--pickles", default=None,
+                    help="glob of pickled paper jobs (e.g. '/tmp/prof/*.pkl'): compare their "
+                         "records instead of rendering --compare-jobs")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--ref", default=None,
                     help="git revision whose poses.py and compare.py are measured too")
@@ -209,9 +238,16 @@ def main():
             setups.append((job, camera_stage(job)[1], _target(job.target)))
         except StageFailed:
             pass
-    wanted = set(args.compare_jobs.split(","))
-    print(f"calibrating the records to compare ({', '.join(sorted(wanted))})", flush=True)
-    records = calibrated_records(campaign, jobs, wanted)
+    if args.pickles:
+        import glob
+        paths = glob.glob(args.pickles)
+        wanted = {Path(p).stem.replace("_", "/") for p in paths}
+        print(f"calibrating the records of {len(paths)} pickled jobs", flush=True)
+        records = pickled_records(jobs, paths)
+    else:
+        wanted = set(args.compare_jobs.split(","))
+        print(f"calibrating the records to compare ({', '.join(sorted(wanted))})", flush=True)
+        records = calibrated_records(campaign, jobs, wanted)
     # warm: imports (scipy.optimize) and first calls out of the timings
     time_poses(setups[:1], 1)
     time_compare(records[:1], 1)
