@@ -1024,6 +1024,18 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
     stats[2] = nboard
     stats[3] = nblocks
     stats[4] = ntested
+    stats[5] = _count_nonfinite(out, r0, r1)
+
+
+@njit(cache=True, error_model="numpy")
+def _count_nonfinite(out, r0, r1):
+    r"""The number of non-finite pixels of rows r0..r1-1 (read while the band is in cache)"""
+    n = 0
+    for iy in range(r0, r1):
+        for ix in range(out.shape[1]):
+            v = out[iy, ix]
+            n += not (v - v == 0.0)
+    return n
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -1031,8 +1043,9 @@ def render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive, T, values, out,
                   qbox, nthreads):
     r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
 
-stats (Nbands,5) receives per band: rays traced, supersampled pixels, pixels
-whose centre ray sees the board, blocks of pixels tested, pixels tested.
+stats (Nbands,6) receives per band: rays traced, supersampled pixels, pixels
+whose centre ray sees the board, blocks of pixels tested, pixels tested,
+non-finite pixels (a bug).
 qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
 not known); adaptive mode fills the pixels outside with the background.
 nthreads: numba's thread count (bands are dealt out round-robin among them)."""

@@ -497,14 +497,15 @@ ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
         xf = np.concatenate((R.ravel(), R @ model.C + t, R @ O))
         H, W = model.height, model.width
         out = np.empty((H, W), dtype=np.float32)
-        stats = np.zeros((-(-H // TILE), 5), dtype=np.int64)
+        stats = np.zeros((-(-H // TILE), 6), dtype=np.int64)
         qbox = board_image_box(model, Rt_cam_board, cp.f[:4])
         kern.render_kernel(cam, dirs, shift, noncentral, xf, K, bool(settings.adaptive), TILE,
                            cp.values, out, stats, cp.kernel_args(), qbox,
                            numba.get_num_threads())
-        if not np.all(np.isfinite(out)):
-            raise RendererError("the ray-cast renderer produced non-finite pixels (a bug)")
         total = stats.sum(axis=0)
+        if total[5] != 0:
+            raise RendererError(f"the ray-cast renderer produced {int(total[5])} non-finite "
+                                "pixels (a bug)")
         seconds = time.perf_counter() - t0
         metadata = {
             "renderer": self.name,

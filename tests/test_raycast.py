@@ -443,3 +443,17 @@ image, part of the board recedes to grazing angles (footprints far from affine)'
     # the horizon: some pixel rows see the plane, the top ones do not
     sees = np.any(a.image != np.float32(0.25), axis=1)
     assert sees.any() and not sees.all()
+
+
+def test_non_finite_pixels_are_counted_per_band():
+    r'''render() raises on non-finite pixels from the kernel's per-band count'''
+    out = np.zeros((6, 5), dtype=np.float32)
+    out[0, 0] = np.float32(np.finfo(np.float32).max)
+    out[1, 4] = np.nan
+    out[4, 2] = np.inf
+    out[5, 0] = -np.inf
+    out[5, 1] = np.float32(np.finfo(np.float32).tiny) / 2   # subnormal: finite
+    assert kern._count_nonfinite(out, 0, 1) == 0
+    assert kern._count_nonfinite(out, 0, 3) == 1
+    assert kern._count_nonfinite(out, 3, 6) == 2
+    assert kern._count_nonfinite(out, 0, 6) == 3
