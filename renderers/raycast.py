@@ -58,7 +58,10 @@ model: 24 bytes per pixel, 32 for a noncentral CAHVORE (0.63 GB for a
 (renderers._raycast_kernels.build_ray_cache: exact to the floating-point
 level, directions not normalised) only decide where to look closer, within
 the slack of the bounds above; no pixel's value is read from them. The cache is bounded
-(cache_bytes, least recently used models are dropped).
+(cache_bytes, least recently used models are dropped). The models a new one
+displaces are dropped before its rays are traced, and their arrays, when of
+its shapes and held by no render, are overwritten with its rays (no second
+0.5 GB cache in memory, no fresh pages to fault in).
 '''
 
 import math
