@@ -217,24 +217,8 @@ def _fit_rotation(fit, p_cam, q, nmax=2000):
 
     # scipy's 2-point Jacobian, bit for bit, remembering the last point's residuals and
     # Jacobian (scipy asks for the Jacobian at the solution again when MINPACK returns)
-    from harness.calibrators.jpl_fit import forward_difference
-    last_f, last_J = {}, {}
-
-    def fun(r):
-        f = res(r)
-        last_f.clear()
-        last_f[r.tobytes()] = f
-        return f
-
-    def jac(r):
-        key = r.tobytes()
-        J = last_J.get(key)
-        if J is None:
-            f0 = last_f.get(key)
-            J = forward_difference(res, r, res(r) if f0 is None else f0)
-            last_J.clear()
-            last_J[key] = J
-        return J
+    from harness.calibrators.jpl_fit import forward_difference, remembering
+    fun, jac = remembering(res, lambda r, f0: forward_difference(res, r, f0))
 
     with np.errstate(all="ignore"):
         sol = scipy.optimize.least_squares(fun, np.zeros(3), jac=jac, method="lm",

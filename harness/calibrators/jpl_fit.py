@@ -294,6 +294,40 @@ is sqrt(eps) max(1, |x_i|), signed as x_i (+ for 0), and column i is
     return J_T.T
 
 
+def remembering(evaluate, jacobian_at):
+    r'''(fun, jac) for scipy.optimize.least_squares that remember the last point
+
+SYNOPSIS
+
+    fun, jac = remembering(residuals, lambda x, f0: forward_difference(residuals, x, f0))
+    scipy.optimize.least_squares(fun, x0, jac=jac, method="lm")
+
+fun(x) = evaluate(x); jac(x) = jacobian_at(x, evaluate(x)), reusing the
+residuals of the last point fun was called at and the Jacobian of the last
+point jac was called at (scipy asks for the Jacobian at the solution again
+when MINPACK returns).
+'''
+    last_f, last_J = {}, {}
+
+    def fun(x):
+        f = evaluate(x)
+        last_f.clear()
+        last_f[x.tobytes()] = f
+        return f
+
+    def jac(x):
+        key = x.tobytes()
+        J = last_J.get(key)
+        if J is None:
+            f0 = last_f.get(key)
+            J = jacobian_at(x, evaluate(x) if f0 is None else f0)
+            last_J.clear()
+            last_J[key] = J
+        return J
+
+    return fun, jac
+
+
 def _lm(family, m0, p, q, model_type, linearity, R0, max_nfev=None):
     r'''Levenberg-Marquardt of model family `family` from m0 on world points p (N,3), pixels q
 
@@ -315,23 +349,8 @@ jac="2-point".
             return bad
         return residuals_packed(cam, p, q, UNPROJECTABLE_RESIDUAL)
 
-    last_f, last_J = {}, {}
-
-    def residuals(x):
-        f = evaluate(x)
-        last_f.clear()
-        last_f[x.tobytes()] = f
-        return f
-
-    def jacobian(x):
-        key = x.tobytes()
-        J = last_J.get(key)
-        if J is None:
-            f0 = last_f.get(key)
-            J = chart.forward_difference(evaluate, x, evaluate(x) if f0 is None else f0, p, q)
-            last_J.clear()
-            last_J[key] = J
-        return J
+    residuals, jacobian = remembering(
+        evaluate, lambda x, f0: chart.forward_difference(evaluate, x, f0, p, q))
 
     with np.errstate(all="ignore"):
         sol = scipy.optimize.least_squares(residuals, chart.x0(), jac=jacobian, method="lm",
