@@ -13,7 +13,7 @@ new camera does. Reported per job: CPU seconds (time.process_time, all
 threads) and wall seconds of the 6 renders, the ray-cache seconds of each
 render (metadata ray_cache_seconds), the bytes the cache holds afterwards,
 and the sha256 of each image (to check that a change of the renderer leaves
-every pixel as it was). numba is warmed first by rendering a small camera.
+every pixel as it was). numba is warmed first (harness.runner.warm_up on the jobs).
 The machine is shared: each job is run --reps times and the minimum is
 reported next to every repeat; the load average is recorded. --threads sets
 numba's thread count (default: all): with another process busy on a core,
@@ -39,24 +39,6 @@ sys.path.insert(0, str(ROOT))
 from harness.records import git_commit  # noqa: E402
 
 CAMPAIGN = ROOT / "campaigns" / "paper.toml"
-
-
-def _warm_numba():
-    r'''Compile (or load) the kernels by rendering a small camera of every family'''
-    from harness.runner import _renderer, _target
-    from reference_models.cahvore import truncate
-    from reference_models.catalogue import load_catalogue
-    from renderers.base import RenderSettings
-    from targets.poses import plan_poses
-
-    model = load_catalogue().get(12).model
-    target = _target("dots")
-    renderer = _renderer("raycast")
-    for family in ("CAHV", "CAHVOR", "CAHVORE"):
-        m = truncate(model, family)
-        Rt = plan_poses(m, target, n=1, seed=0)[0]
-        renderer.render(m, target.pattern(), Rt, RenderSettings(spp=16, adaptive=True))
-    renderer.clear_cache()
 
 
 def _job_once(job):
@@ -96,7 +78,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     from harness.campaign import load_campaign
-    from harness.runner import expand_jobs
+    from harness.runner import expand_jobs, warm_up
 
     if args.threads is not None:
         import numba
@@ -108,7 +90,7 @@ def main(argv=None):
         raise SystemExit(f"no raycast job of cameras {args.cameras} in {CAMPAIGN}")
 
     t0 = time.perf_counter()
-    _warm_numba()
+    warm_up(jobs, force=True)   # compile or load the kernels in this process
     print(f"numba warm-up: {time.perf_counter() - t0:.2f} s wall")
 
     rows = []

@@ -55,24 +55,6 @@ CAMPAIGN = ROOT / "campaigns" / "paper.toml"
 SIZE = (5120, 3840)
 
 
-def _warm_numba():
-    r'''Compile (or load) the kernels by rendering a small camera of every family'''
-    from harness.runner import _renderer, _target
-    from reference_models.cahvore import truncate
-    from reference_models.catalogue import load_catalogue
-    from renderers.base import RenderSettings
-    from targets.poses import plan_poses
-
-    model = load_catalogue().get(12).model
-    target = _target("dots")
-    renderer = _renderer("raycast")
-    for family in ("CAHV", "CAHVOR", "CAHVORE"):
-        m = truncate(model, family)
-        Rt = plan_poses(m, target, n=1, seed=0)[0]
-        renderer.render(m, target.pattern(), Rt, RenderSettings(spp=16, adaptive=True))
-    renderer.clear_cache()
-
-
 def paper_jobs(cameras=None, families=None):
     r'''The raycast jobs of the paper campaign whose camera is 5120x3840'''
     from harness.campaign import load_campaign
@@ -170,6 +152,8 @@ def main(argv=None):
 
     import numba
 
+    from harness.runner import warm_up
+
     jobs = paper_jobs(args.cameras, args.families)
     if not jobs:
         raise SystemExit("no 5120x3840 raycast job matches")
@@ -177,7 +161,7 @@ def main(argv=None):
         Path(args.save).mkdir(parents=True, exist_ok=True)
 
     t0 = time.perf_counter()
-    _warm_numba()
+    warm_up(jobs, force=True)   # compile or load the kernels in this process
     print(f"numba warm-up: {time.perf_counter() - t0:.2f} s wall; "
           f"numba threads {numba.get_num_threads()}")
 
