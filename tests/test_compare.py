@@ -155,10 +155,21 @@ def test_projection_difference_figures_are_pinned(key):
         for mode, (rms, mx, rot) in PINNED[key].items():
             d = projection_difference(truth, fit, mode=mode, step=32)
             assert d["n"] == 33 * 33 and d["n_invalid"] == 0
-            assert d["rms"] == pytest.approx(rms, rel=1e-12, abs=0)
-            assert d["max"] == pytest.approx(mx, rel=1e-12, abs=0)
+            # Tolerances (the figures are 4-9 px, the faults camval hunts are >= 1e-3 px):
+            # "intrinsics"/"world" only evaluate the models: 1e-10 relative (<= 1e-9 px) is
+            # the level at which two floating-point paths (numpy/BLAS vs the compiled
+            # projection, another CPU's SIMD) agree, see the 1e-9 px test below.
+            # "rotation" fits a rotation by least squares with a forward-difference
+            # Jacobian (relative truncation ~sqrt(eps) = 1.5e-8), so its solution is fixed
+            # only to ~1e-8 relative: its max (first order in the rotation) moved by 4e-10
+            # to 8e-10 relative between AMD EPYC machines; its rms is stationary at the
+            # optimum (second order). 1e-7 relative keeps a 10x margin on the Jacobian's
+            # error and still catches any change of the figures' definition.
+            tol = 1e-7 if mode == "rotation" else 1e-10
+            assert d["rms"] == pytest.approx(rms, rel=tol, abs=0)
+            assert d["max"] == pytest.approx(mx, rel=tol, abs=0)
             assert d.get("rotation_deg") == (None if rot is None
-                                             else pytest.approx(rot, rel=1e-9, abs=1e-15))
+                                             else pytest.approx(rot, rel=1e-7, abs=1e-15))
 
 
 def test_truth_points_memo_is_keyed_on_every_parameter():

@@ -136,10 +136,12 @@ def test_poses_are_pinned(key, family):
     m = truncate(load_catalogue().get(key).model, family)
     poses = plan_poses(m, load_target("dots"), n=6, seed=0)
     for i, (t, normal) in PINNED[(key, family)].items():
-        # bit for bit on the machine they were recorded on; 1e-13 leaves room for another
-        # BLAS, while a search that went another way moves a pose by far more
-        np.testing.assert_allclose(poses[i][3], t, rtol=0, atol=1e-13)
-        np.testing.assert_allclose(poses[i][2], normal, rtol=0, atol=1e-13)
+        # bit for bit on the machine they were recorded on; 1e-9 (m, and unit-vector
+        # components) leaves room for another CPU's or BLAS's rounding carried through the
+        # search's refinements, while a search that went another way moves a pose by
+        # millimetres at least
+        np.testing.assert_allclose(poses[i][3], t, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(poses[i][2], normal, rtol=0, atol=1e-9)
 
 
 def _rotation_plain(axis, angle):
