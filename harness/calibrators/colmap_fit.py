@@ -35,7 +35,6 @@ Models: "OPENCV" (fx fy cx cy k1 k2 p1 p2), "FULL_OPENCV" (+ k3..k6),
 "OPENCV_FISHEYE" (fx fy cx cy k1..k4).
 '''
 
-import math
 import time
 
 import numpy as np
@@ -46,7 +45,7 @@ from .base import (
     check_homography_conditioning,
     check_pose_diversity,
 )
-from .bias import bias_step
+from .skeleton import board_residuals, fitted_result, iterate_bias
 
 NAME = "colmap"
 LIBRARY = "pycolmap"
@@ -211,10 +210,6 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
             Rts[i] = _Rt_from_rigid(poses[i])
         return Rts
 
-    def residuals_of(model, Rts, q):
-        p = np.einsum("fij,fnj->fni", Rts[:, :3], obs.p_board) + Rts[:, None, 3]
-        return q - model.project(p)
-
     check_pose_diversity(Rts_of(poses))
     model, poses = adjust(obs.q, model, poses)
     # once more from the adjusted start: the first adjustment starts from zero distortion
@@ -222,34 +217,22 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     if not np.all(np.isfinite(model.params)):
         raise CalibrationFailed("diverged: COLMAP returned non-finite intrinsics")
     Rts = Rts_of(poses)
-    q_used = obs.q
     passes = [{"pass": 1}]
-    bias_applied = False
-    if bias_correction and target is not None:
-        b_prev = None
-        for ipass in range(bias_passes):
-            b, change = bias_step(model, target, Rts, obs.p_board, b_prev, views)
-            if b is None:
-                break
-            if b_prev is not None and change < bias_tolerance:
-                break
-            b_prev = b
-            q_used = obs.q - b
-            bias_applied = True
-            model, poses = adjust(q_used, model, poses)
-            Rts = Rts_of(poses)
-            passes.append({"pass": ipass + 2, "bias_change_max": change})
-    residuals = residuals_of(model, Rts, q_used)
-    residuals[~found] = np.nan
-    rn = np.linalg.norm(residuals, axis=-1)
-    rms = float(np.sqrt(np.nanmean(rn ** 2)))
-    if not math.isfinite(rms) or rms > max_rms:
-        raise CalibrationFailed(f"diverged: RMS residual {rms:.4g} px > {max_rms:g} px")
-    return CalibrationResult(
-        calibrator=NAME, model_name=model_name, status="ok", model=model, residuals=residuals,
-        Rt_cam_board=Rts, iterations=iterations, seconds=time.perf_counter() - t0,
-        library=LIBRARY, library_version=library_version(),
+
+    def refit(q_used, change):
+        nonlocal model, poses, Rts
+        model, poses = adjust(q_used, model, poses)
+        Rts = Rts_of(poses)
+        return {"bias_change_max": change}
+
+    q_used, bias_applied = iterate_bias(
+        obs, target, lambda: (model, Rts), refit, passes,
+        bias_passes=bias_passes if bias_correction and target is not None else 0,
+        bias_tolerance=bias_tolerance, views=views)
+    return fitted_result(
+        NAME, LIBRARY, library_version(), model_name, t0, model=model,
+        residuals=board_residuals(model, Rts, obs.p_board, q_used), found=found,
+        max_rms=max_rms, Rt_cam_board=Rts, iterations=iterations,
         info={"params_colmap_convention": model.params, "passes": passes,
               "bias_corrected": bias_applied, "world_frame": False, "known_poses": False,
               "points3D": "constant (surveyed board points)"})
-

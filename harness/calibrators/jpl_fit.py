@@ -72,8 +72,8 @@ from ._project_kernels import (
     project,
     residuals_packed,
 )
-from .base import CalibrationFailed, CalibrationResult
-from .bias import bias_step
+from .base import CalibrationFailed
+from .skeleton import fitted_result, iterate_bias
 
 NAME = "jpl"
 LIBRARY = "scipy"
@@ -416,8 +416,6 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4
         max_rms=1.0, model_type=None, linearity=None, R0=0.0):
     r'''The jpl calibrator (see the module docstring); returns a CalibrationResult'''
     t0 = time.perf_counter()
-    common = dict(calibrator=NAME, model_name=model_name, library=LIBRARY,
-                  library_version=library_version())
     if not obs.has_world_points:
         raise CalibrationFailed("the jpl calibrator needs the surveyed board poses "
                                 "(Observations.Rt_ref_board): it fits from known 3D points")
@@ -438,41 +436,29 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4
     r_first = np.linalg.norm(project(model, p) - q_obs[found], axis=-1)
     passes = [{"pass": 1, "rms": float(np.sqrt(np.mean(r_first ** 2))),
                "max": float(r_first.max()), **info}]
-    q_used = q_obs
-    bias_applied = False
-    if bias_correction and bias_passes > 0:
-        b_prev = None
-        for ipass in range(bias_passes):
-            Rts = Rt_cam_board_of(model, obs.Rt_ref_board)
-            b, change = bias_step(CompiledProjection(model), target, Rts, obs.p_board, b_prev)
-            if b is None:
-                passes.append({"pass": ipass + 2, "skipped": "the target has no dots: "
-                               "no centroid bias to correct"})
-                break
-            if b_prev is not None and change < bias_tolerance:
-                break
-            b_prev = b
-            q_used = q_obs - b
-            bias_applied = True
-            ok = found & np.all(np.isfinite(q_used), axis=-1)
-            model, info = fit_model(p_ref[ok], q_used[ok], model_name, W, H, mtype, lin,
-                                    m0=model, R0=R0)
-            r = np.linalg.norm(project(model, p_ref[ok]) - q_used[ok], axis=-1)
-            passes.append({"pass": ipass + 2, "bias_change_max": change,
-                           "rms": float(np.sqrt(np.mean(r * r))),
-                           "max": float(r.max()), **info})
-    residuals = q_used - model.project(p_ref)
-    residuals[~found] = np.nan
-    rn = np.linalg.norm(residuals, axis=-1)
-    rms = float(np.sqrt(np.nanmean(rn ** 2)))
-    if not math.isfinite(rms) or rms > max_rms:
-        raise CalibrationFailed(f"diverged: RMS residual {rms:.4g} px > {max_rms:g} px")
-    return CalibrationResult(
-        status="ok", model=model, residuals=residuals,
+
+    def current():
+        return CompiledProjection(model), Rt_cam_board_of(model, obs.Rt_ref_board)
+
+    def refit(q_used, change):
+        nonlocal model
+        ok = found & np.all(np.isfinite(q_used), axis=-1)
+        model, info = fit_model(p_ref[ok], q_used[ok], model_name, W, H, mtype, lin,
+                                m0=model, R0=R0)
+        r = np.linalg.norm(project(model, p_ref[ok]) - q_used[ok], axis=-1)
+        return {"bias_change_max": change, "rms": float(np.sqrt(np.mean(r * r))),
+                "max": float(r.max()), **info}
+
+    q_used, bias_applied = iterate_bias(
+        obs, target, current, refit, passes,
+        bias_passes=bias_passes if bias_correction else 0, bias_tolerance=bias_tolerance,
+        no_dots="the target has no dots: no centroid bias to correct")
+    return fitted_result(
+        NAME, LIBRARY, library_version(), model_name, t0, model=model,
+        residuals=q_used - model.project(p_ref), found=found, max_rms=max_rms,
         Rt_cam_board=Rt_cam_board_of(model, obs.Rt_ref_board),
         iterations=sum(x.get("nfev", 0) for x in passes),
-        seconds=time.perf_counter() - t0,
         info={"passes": passes, "bias_corrected": bias_applied,
               "world_points_known": True, "world_frame": True,
               "model_type": mtype, "linearity": lin,
-              "R0_held": R0 if model_name != "CAHV" else None}, **common)
+              "R0_held": R0 if model_name != "CAHV" else None})

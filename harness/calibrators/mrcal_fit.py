@@ -57,13 +57,8 @@ import time
 
 import numpy as np
 
-from .base import (
-    CalibrationFailed,
-    CalibrationResult,
-    check_homography_conditioning,
-    check_pose_diversity,
-)
-from .bias import bias_step
+from .base import CalibrationFailed, check_homography_conditioning, check_pose_diversity
+from .skeleton import fitted_result, iterate_bias
 
 NAME = "mrcal"
 LIBRARY = "mrcal"
@@ -432,53 +427,43 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
         polish()
         unpolished = False
     cm, model, Rt_cam_board = current()
-    q_used = obs.q
-    passes = [{"pass": 1, **_rms(model, obs, Rt_cam_board, q_used, found)}]
-    bias_applied = False
-    if bias_runs:
-        b_prev = None
-        for ipass in range(bias_passes):
-            b, change = bias_step(model, target, Rt_cam_board, obs.p_board, b_prev)
-            if b is None:
-                passes.append({"pass": ipass + 2, "skipped": "no dots: no centroid bias"})
-                break
-            if b_prev is not None and change < max(bias_tolerance,
-                                                   BIAS_RELATIVE * passes[-1]["rms"]):
-                if not unpolished:
-                    break
-                # the bias has settled on coarse polishes: polish on the full grid, then
-                # check that the bias in use still holds for that model
-                polish()
-                unpolished = False
-                cm, model, Rt_cam_board = current()
-                passes.append({"pass": ipass + 2, "bias_change_max": change,
-                               "full_grid": True,
-                               **_rms(model, obs, Rt_cam_board, q_used, found)})
-                continue
-            b_prev = b
-            q_used = obs.q - b
-            bias_applied = True
-            problem["observations_board"] = board_obs(q_used)
-            # the next bias needs the model only roughly: the coarse grid's restarts
-            polish(full=False)
-            unpolished = coarse > 1
-            cm, model, Rt_cam_board = current()
-            passes.append({"pass": ipass + 2, "bias_change_max": change,
-                           **_rms(model, obs, Rt_cam_board, q_used, found)})
+    passes = [{"pass": 1, **_rms(model, obs, Rt_cam_board, obs.q, found)}]
+
+    def refit(q_used, change):
+        nonlocal cm, model, Rt_cam_board, unpolished
+        problem["observations_board"] = board_obs(q_used)
+        # the next bias needs the model only roughly: the coarse grid's restarts
+        polish(full=False)
+        unpolished = coarse > 1
+        cm, model, Rt_cam_board = current()
+        return {"bias_change_max": change, **_rms(model, obs, Rt_cam_board, q_used, found)}
+
+    def settled(change, q_used):
+        nonlocal cm, model, Rt_cam_board, unpolished
+        if not unpolished:
+            return None
+        # the bias has settled on coarse polishes: polish on the full grid, then
+        # check that the bias in use still holds for that model
+        polish()
+        unpolished = False
+        cm, model, Rt_cam_board = current()
+        return {"bias_change_max": change, "full_grid": True,
+                **_rms(model, obs, Rt_cam_board, q_used, found)}
+
+    q_used, bias_applied = iterate_bias(
+        obs, target, lambda: (model, Rt_cam_board), refit, passes,
+        bias_passes=bias_passes if bias_runs else 0, bias_tolerance=bias_tolerance,
+        no_dots="no dots: no centroid bias",
+        tolerance=lambda passes: max(bias_tolerance, BIAS_RELATIVE * passes[-1]["rms"]),
+        settled=settled)
 
     if unpolished:   # no bias pass ran (no dots), or they ran out before the bias settled
         polish()
         cm, model, Rt_cam_board = current()
-    residuals = _residuals(model, obs, Rt_cam_board, q_used)
-    residuals[~found] = np.nan
-    rn = np.linalg.norm(residuals, axis=-1)
-    rms = float(np.sqrt(np.nanmean(rn ** 2)))
-    if not math.isfinite(rms) or rms > max_rms:
-        raise CalibrationFailed(f"diverged: RMS residual {rms:.4g} px > {max_rms:g} px")
-    return CalibrationResult(
-        calibrator=NAME, model_name=model_name, status="ok", model=model,
-        residuals=residuals, Rt_cam_board=Rt_cam_board, iterations=iterations,
-        seconds=time.perf_counter() - t0, library=LIBRARY, library_version=library_version(),
+    return fitted_result(
+        NAME, LIBRARY, library_version(), model_name, t0, model=model,
+        residuals=_residuals(model, obs, Rt_cam_board, q_used), found=found, max_rms=max_rms,
+        Rt_cam_board=Rt_cam_board, iterations=iterations,
         info={"lensmodel": lensmodel, "known_poses": bool(known_poses),
               "world_frame": bool(known_poses), "regularization": bool(regularization),
               "bias_corrected": bias_applied, "passes": passes, "seed_pinhole": seed,

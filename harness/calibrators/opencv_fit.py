@@ -29,7 +29,6 @@ repeated (at most bias_passes times, until the bias changes by less than
 bias_tolerance px).
 '''
 
-import math
 import time
 
 import numpy as np
@@ -40,7 +39,7 @@ from .base import (
     check_homography_conditioning,
     check_pose_diversity,
 )
-from .bias import bias_step
+from .skeleton import board_residuals, fitted_result, iterate_bias
 
 NAME = "opencv"
 LIBRARY = "opencv"
@@ -214,43 +213,27 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
             Rts[i] = _Rt(rvecs[j], tvecs[j])
         return model, Rts
 
-    def residuals_of(model, Rts, q):
-        p = np.einsum("fij,fnj->fni", Rts[:, :3], obs.p_board) + Rts[:, None, 3]
-        return q - model.project(p)
-
     rms, K, D, rvecs, tvecs = run(obs.q)
     if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D))):
         raise CalibrationFailed("diverged: OpenCV returned non-finite intrinsics")
     model, Rts = state(K, D, rvecs, tvecs)
     check_pose_diversity(Rts)
-    q_used = obs.q
     passes = [{"pass": 1, "opencv_rms": float(rms)}]
-    bias_applied = False
-    if bias_correction and target is not None:
-        b_prev = None
-        for ipass in range(bias_passes):
-            b, change = bias_step(model, target, Rts, obs.p_board, b_prev, views)
-            if b is None:
-                break
-            if b_prev is not None and change < bias_tolerance:
-                break
-            b_prev = b
-            q_used = obs.q - b
-            bias_applied = True
-            rms, K, D, rvecs, tvecs = run(q_used, K, D)
-            model, Rts = state(K, D, rvecs, tvecs)
-            passes.append({"pass": ipass + 2, "opencv_rms": float(rms),
-                           "bias_change_max": change})
-    residuals = residuals_of(model, Rts, q_used)
-    residuals[~found] = np.nan
-    rn = np.linalg.norm(residuals, axis=-1)
-    r_rms = float(np.sqrt(np.nanmean(rn ** 2)))
-    if not math.isfinite(r_rms) or r_rms > max_rms:
-        raise CalibrationFailed(f"diverged: RMS residual {r_rms:.4g} px > {max_rms:g} px")
-    return CalibrationResult(
-        calibrator=NAME, model_name=model_name, status="ok", model=model, residuals=residuals,
-        Rt_cam_board=Rts, iterations=len(passes), seconds=time.perf_counter() - t0,
-        library=LIBRARY, library_version=library_version(),
+
+    def refit(q_used, change):
+        nonlocal K, D, model, Rts
+        rms, K, D, rvecs, tvecs = run(q_used, K, D)
+        model, Rts = state(K, D, rvecs, tvecs)
+        return {"opencv_rms": float(rms), "bias_change_max": change}
+
+    q_used, bias_applied = iterate_bias(
+        obs, target, lambda: (model, Rts), refit, passes,
+        bias_passes=bias_passes if bias_correction and target is not None else 0,
+        bias_tolerance=bias_tolerance, views=views)
+    return fitted_result(
+        NAME, LIBRARY, library_version(), model_name, t0, model=model,
+        residuals=board_residuals(model, Rts, obs.p_board, q_used), found=found,
+        max_rms=max_rms, Rt_cam_board=Rts, iterations=len(passes),
         info={"K": K, "dist": D, "max_abs_coefficient": float(np.max(np.abs(D))),
               "passes": passes, "bias_corrected": bias_applied, "world_frame": False,
               "known_poses": False})
