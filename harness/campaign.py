@@ -316,47 +316,32 @@ Returns {camera spec: CatalogueEntry}.
             if r.name not in known:
                 raise CampaignError(f"{_where(src, f'renderer[{i}].name')}: unknown renderer "
                                     f"{r.name!r}; known renderers: {', '.join(sorted(known))}")
+        from harness.calibrators import CalibratorError, calibrator_module, known_calibrators
         cal_known = known_calibrators()
         for i, c in enumerate(self.calibrators):
-            if cal_known is not None and c.name not in cal_known:
+            if c.name not in cal_known:
                 raise CampaignError(f"{_where(src, f'calibrator[{i}].name')}: unknown "
                                     f"calibrator {c.name!r}; known calibrators: "
                                     f"{', '.join(sorted(cal_known))}")
-            mod = (cal_known or {}).get(c.name)
+            try:
+                cal = calibrator_module(c.name)
+            except ImportError:
+                # not installed here: its models are not checked; running it gives failed
+                # records with the reason
+                continue
+            except CalibratorError as e:   # a plugin that is not a calibrator
+                raise CampaignError(f"{_where(src, f'calibrator[{i}].name')}: {e}") from None
             for m in c.models:
-                if m != JOB_FAMILY and mod is not None and not _calibrator_has_model(mod, m):
+                if m != JOB_FAMILY and not _calibrator_has_model(cal, m):
                     raise CampaignError(f"{_where(src, f'calibrator[{i}].models')}: calibrator "
                                         f"{c.name!r} has no model {m!r}; its models: "
-                                        f"{', '.join((JOB_FAMILY,) + tuple(mod.MODELS))}")
+                                        f"{', '.join((JOB_FAMILY,) + tuple(cal.MODELS))}")
         return entries
 
 
-def known_calibrators():
-    r'''{name: (model names...) or None} of the calibrators, or None when there is no registry
-
-A calibrator whose module cannot be imported here maps to None (its models are
-not checked; running it gives failed records with the reason).
-'''
-    try:
-        import harness.calibrators as hc
-    except ModuleNotFoundError as e:
-        if e.name and e.name.startswith("harness.calibrators"):
-            return None
-        raise
-    out = {}
-    for name in hc.known_calibrators():
-        try:
-            mod = hc.calibrator_module(name)
-        except ImportError:
-            out[name] = None
-            continue
-        out[name] = mod
-    return out
-
-
-def _calibrator_has_model(mod, model):
-    canonical = mod.canonical_model(model) if hasattr(mod, "canonical_model") else model
-    return canonical in tuple(getattr(mod, "MODELS", ()))
+def _calibrator_has_model(cal, model):
+    canonical = cal.canonical_model(model) if hasattr(cal, "canonical_model") else model
+    return canonical in tuple(cal.MODELS)
 
 
 def parse_responses(source, doc):

@@ -1,15 +1,15 @@
 '''The COLMAP calibrator: bundle adjustment with constant 3D target points; failures'''
 
 import numpy as np
-
-from harness.calibrators import calibrate, opencv_fit
-from harness.calibrators.colmap_fit import ColmapModel
-from harness.calibrators.synthetic import (
+from synthetic import (
     catalogue_models,
     default_target,
     exact_observations,
     synthetic_poses,
 )
+
+from harness.calibrators import calibrate, opencv_fit
+from harness.calibrators.colmap_fit import ColmapModel
 from harness.compare import compare
 
 TARGET = default_target()

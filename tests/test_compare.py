@@ -4,9 +4,9 @@ import math
 
 import numpy as np
 import pytest
+from synthetic import catalogue_models
 
 from harness.calibrators.base import CalibrationResult, residual_stats
-from harness.calibrators.synthetic import catalogue_models
 from harness.compare import (
     compare,
     image_grid,
@@ -112,8 +112,9 @@ def test_projection_difference_agrees_with_mrcal():
 
 
 def test_observations_from_camera_poses_match_the_survey():
+    from synthetic import default_target, exact_observations, synthetic_poses
+
     from harness.calibrators.base import Observations
-    from harness.calibrators.synthetic import default_target, exact_observations, synthetic_poses
     t = default_target()
     Rts = synthetic_poses(NAVCAM, t)
     obs = exact_observations(NAVCAM, t, Rts)

@@ -2,15 +2,15 @@
 
 import numpy as np
 import pytest
-
-from harness.calibrators import calibrate, jpl_fit
-from harness.calibrators.base import Observations
-from harness.calibrators.synthetic import (
+from synthetic import (
     catalogue_models,
     default_target,
     exact_observations,
     synthetic_poses,
 )
+
+from harness.calibrators import calibrate, jpl_fit
+from harness.calibrators.base import Observations
 from harness.compare import compare, projection_difference, with_R0
 
 TARGET = default_target()
@@ -165,7 +165,8 @@ def test_an_exception_inside_the_solver_is_a_failed_result(monkeypatch):
 @pytest.mark.slow
 @pytest.mark.parametrize("key,family", [("15", "CAHV"), ("15", "CAHVOR"), ("8", "CAHVOR")])
 def test_rendered_images_meet_the_bars(key, family):
-    from harness.calibrators.synthetic import rendered_observations
+    from synthetic import rendered_observations
+
     from reference_models.cahvore import truncate
     truth = truncate(dict(MODELS)[key], family)
     obs, info = rendered_observations(truth, TARGET, spp=16)

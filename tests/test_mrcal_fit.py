@@ -4,14 +4,14 @@ import dataclasses
 
 import numpy as np
 import pytest
-
-from harness.calibrators import calibrate, mrcal_fit
-from harness.calibrators.synthetic import (
+from synthetic import (
     catalogue_models,
     default_target,
     exact_observations,
     synthetic_poses,
 )
+
+from harness.calibrators import calibrate, mrcal_fit
 from harness.compare import compare, projection_difference
 
 TARGET = default_target()

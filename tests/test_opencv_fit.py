@@ -2,15 +2,15 @@
 
 import numpy as np
 import pytest
-
-from harness.calibrators import calibrate
-from harness.calibrators.opencv_fit import OpenCVModel
-from harness.calibrators.synthetic import (
+from synthetic import (
     catalogue_models,
     default_target,
     exact_observations,
     synthetic_poses,
 )
+
+from harness.calibrators import calibrate
+from harness.calibrators.opencv_fit import OpenCVModel
 from harness.compare import compare
 
 TARGET = default_target()

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from synthetic import exact_observations
 
 from harness.calibrators import calibrate
-from harness.calibrators.synthetic import exact_observations
 from harness.records import Record, RunStore, make_fullname
 from harness.runner import _downsample, compare_stage
 from reference_models.cahvore import truncate

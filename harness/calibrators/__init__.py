@@ -7,12 +7,16 @@ SYNOPSIS
     result = calibrate("jpl", observations, target, "CAHVOR", truth=truth_model)
     # result: harness.calibrators.base.CalibrationResult
 
-Calibrators are modules named in CALIBRATORS (a plain dict of lazy specs: the
-library behind one is imported only when it is chosen). Each module has NAME,
-MODELS (the model names it can fit), library_version() and
+The registry is a plain dict of lazy specs, name -> "module" (or
+"module:attribute"): the library behind a calibrator is imported only when it
+is chosen. Python packages add calibrators under the entry-point group
+"camval.calibrators" (an entry point names a module or an object). A
+calibrator is anything with the shape of base.Calibrator (a typing.Protocol:
+NAME, LIBRARY, MODELS (the model names it can fit), library_version() and
 fit(observations, target, model_name, truth=None, **options) returning a
-CalibrationResult; fit() may raise base.CalibrationFailed to end with a
-failed result.
+CalibrationResult; optionally canonical_model(name) and
+uses_world_frame(**options)); fit() may raise base.CalibrationFailed to end
+with a failed result.
 
 calibrate() never raises for a failure of the method: a model the calibrator
 cannot fit gives status "not-applicable", a failure or an exception inside
@@ -26,16 +30,20 @@ import time
 from .base import (
     CalibrationFailed,
     CalibrationResult,
+    Calibrator,
     CalibratorError,
     Observations,
     UnknownCalibratorError,
 )
 
 __all__ = ["calibrate", "known_calibrators", "calibrator_module", "models_of",
-           "uses_world_frame",
-           "CalibrationResult", "Observations", "CalibratorError"]
+           "uses_world_frame", "ENTRY_POINT_GROUP", "BUILTIN_CALIBRATORS",
+           "Calibrator", "CalibrationResult", "Observations", "CalibratorError"]
 
-CALIBRATORS = {
+ENTRY_POINT_GROUP = "camval.calibrators"
+
+# name -> "module" (or "module:attribute")
+BUILTIN_CALIBRATORS = {
     "jpl": "harness.calibrators.jpl_fit",
     "mrcal": "harness.calibrators.mrcal_fit",
     "opencv": "harness.calibrators.opencv_fit",
@@ -43,15 +51,48 @@ CALIBRATORS = {
 }
 
 
+def _entry_point_calibrators():
+    from importlib.metadata import entry_points
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
 def known_calibrators():
-    return tuple(CALIBRATORS)
+    r'''{name: source} of every calibrator: the built-in ones, then entry-point plugins
+
+SYNOPSIS
+
+    known_calibrators()["jpl"]   # "built-in (harness.calibrators.jpl_fit)"
+    "jpl" in known_calibrators() # nothing is imported to answer this
+'''
+    out = {name: f"built-in ({spec})" for name, spec in BUILTIN_CALIBRATORS.items()}
+    for name, ep in _entry_point_calibrators().items():
+        out.setdefault(name, f"plugin ({ep.value}, package {ep.dist.name if ep.dist else '?'})")
+    return out
 
 
 def calibrator_module(name):
-    if name not in CALIBRATORS:
+    r'''The calibrator called `name`: its module, or the object a plugin names
+
+Raises UnknownCalibratorError (listing the known calibrators) for an unknown
+name, CalibratorError for a plugin that is not a Calibrator, and ImportError
+when the calibrator's library is missing here.
+'''
+    if name in BUILTIN_CALIBRATORS:
+        modname, _, attr = BUILTIN_CALIBRATORS[name].partition(":")
+        mod = importlib.import_module(modname)
+        return getattr(mod, attr) if attr else mod
+    plugins = _entry_point_calibrators()
+    if name not in plugins:
         raise UnknownCalibratorError(
-            f"unknown calibrator {name!r}; known calibrators: {', '.join(CALIBRATORS)}")
-    return importlib.import_module(CALIBRATORS[name])
+            f"unknown calibrator {name!r}; known calibrators: "
+            f"{', '.join(sorted(known_calibrators()))}")
+    cal = plugins[name].load()
+    if not isinstance(cal, Calibrator):
+        missing = [a for a in ("NAME", "LIBRARY", "MODELS", "library_version", "fit")
+                   if not hasattr(cal, a)]
+        raise CalibratorError(f"calibrator {name!r} ({plugins[name].value}) is not a "
+                              f"calibrator: it has no {', '.join(missing)}")
+    return cal
 
 
 def uses_world_frame(name, options):
@@ -87,7 +128,7 @@ SYNOPSIS
 
 ARGUMENTS
 
-- name: "jpl" | "mrcal" | "opencv" | "colmap"
+- name: a name from known_calibrators(): "jpl" | "mrcal" | "opencv" | "colmap" or a plugin
 - observations: base.Observations
 - target: targets.boards.Target (or anything with points() and pattern()), or
   None (no dot-centroid bias correction then)

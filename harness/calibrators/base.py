@@ -370,7 +370,11 @@ class Calibrator(Protocol):
 
 NAME (registry name), LIBRARY (the library doing the fit), MODELS (model names
 it fits), library_version(), fit(...) -> CalibrationResult (may raise
-CalibrationFailed); optionally canonical_model(name) to accept aliases.
+CalibrationFailed); optionally canonical_model(name) to accept aliases and
+uses_world_frame(**options) -> bool (taken as True when missing: see
+harness.calibrators.uses_world_frame). The registry (harness.calibrators) holds
+the built-in modules and the plugins of the entry-point group
+"camval.calibrators".
 '''
 
     NAME: str

@@ -2,7 +2,7 @@ r'''Exact synthetic correspondences for testing calibrators (no rendering)
 
 SYNOPSIS
 
-    from harness.calibrators.synthetic import default_target, synthetic_poses, exact_observations
+    from synthetic import default_target, synthetic_poses, exact_observations   # in tests/
 
     target = default_target()                     # the 10x10 dot grid
     Rts = synthetic_poses(model, target, n=6)          # list of Rt_cam_board (4,3)
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Observations
+from harness.calibrators.base import Observations
 
 
 @dataclass(frozen=True)
@@ -115,7 +115,7 @@ With centroids=True q are the expected centroids of the dots' outlines (what
 a perfect detector sees), i.e. the data carry the centroid bias. Points that
 project outside the image are NaN.
 '''
-    from .bias import centroid_bias
+    from harness.calibrators.bias import centroid_bias
     p = np.asarray(target.points(), dtype=np.float64)
     Rt_ref_cam = model.Rt_ref_cam()
     Rt_ref_board = np.array([compose(Rt_ref_cam, Rt) for Rt in Rt_cam_board])
