@@ -21,7 +21,7 @@ A campaign is a TOML file (tomllib):
     keep_images = false      # keep the rendered images (images/ in the run dir)
     keep_maps = true         # keep downsampled projection-difference maps (maps/)
     share_identical_cameras = true   # render once the cameras that are one camera
-                                     # (harness.runner.group_twins)
+                                     # (harness.jobs.group_twins)
     catalogue = "overlay.toml"   # optional catalogue overlay (user models in slots)
 
     seed = 0                 # the campaign's noise seed (camera-response stages)

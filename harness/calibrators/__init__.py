@@ -107,7 +107,7 @@ SYNOPSIS
 A calibrator that does not (it estimates the board poses and fits the camera
 in its own frame) gives the same result for two cameras that see the same
 images, wherever they are: a campaign computes it once for both
-(harness.runner.group_twins). A calibrator module that does not say is taken
+(harness.jobs.group_twins). A calibrator module that does not say is taken
 to read it.
 '''
     f = getattr(calibrator_module(name), "uses_world_frame", None)
