@@ -107,7 +107,8 @@ with the shared options, its function's docstring as its --help, and
         return ap
     sub = ap.add_subparsers(dest="part", required=True, metavar="PART")
     for name, (fn, add_arguments) in parts.items():
-        p = sub.add_parser(name, help=fn.__doc__.splitlines()[0], description=fn.__doc__,
+        p = sub.add_parser(name, help=fn.__doc__.splitlines()[0].replace("%", "%%"),
+                           description=fn.__doc__,
                            formatter_class=_HelpFormatter)
         add_common(p, *getattr(fn, "repeats_warmup", (repeats, warmup)))
         if add_arguments:
