@@ -4,7 +4,7 @@ SYNOPSIS
 
     uv run python benchmarks/bench_stages.py poses [--campaign paper] [--repeats 3]
     uv run python benchmarks/bench_stages.py compare [--jobs 3/CAHVORE,8/CAHVORE,15/CAHVOR,15/CAHV]
-    uv run python benchmarks/bench_stages.py detect [--cameras 3,21,5] [--repeats 5]
+    uv run python benchmarks/bench_stages.py detect [--cameras 3,21,5] [--repeats 5] [--check F.npz]
     OPENBLAS_NUM_THREADS=1 uv run python benchmarks/bench_stages.py jpl [--jobs 5/CAHV,...]
     uv run python benchmarks/bench_stages.py calibrators [--cameras 5,8,15] [--skip-exact]
     uv run python benchmarks/bench_stages.py targets [--cameras 5,15,17,1] [--spp 16]
@@ -23,6 +23,7 @@ targets      pose-planner time over the catalogue, detector time and accuracy pe
 stereo       the stereo range check at 5 m (1% bars), what each matching step buys, its cost
 '''
 
+import json
 import pickle
 import sys
 import time
@@ -208,6 +209,11 @@ Each image is detected --repeats times after --warmup untimed calls;
 time.process_time() (CPU) and time.perf_counter() (wall) are reported per
 image (min, median), and per image size the median over its images of the
 minima. Records: detect/<image>, detect/<width>x<height>.
+
+--save FILE writes every detection (q, found, status, info) to an .npz;
+--check FILE compares with such a file and fails (exit status 1) unless q
+(NaN positions included), the found masks, statuses and infos are identical: a
+faster detector must give the same detections bit for bit.
 '''
     from targets.boards import load_target
     from targets.detect import detect
@@ -215,12 +221,12 @@ minima. Records: detect/<image>, detect/<width>x<height>.
     render_images(args.images, args.cameras, args.campaign)
     target = load_target("dots")
     paths = sorted(p for cam in args.cameras for p in args.images.glob(f"cam{cam}_*.npy"))
-    sizes = {}
+    sizes, dets = {}, {}
     for p in paths:
         img = np.load(p)
         t = common.timed(lambda img=img: detect(img, target), repeats=args.repeats,
                          warmup=args.warmup)
-        det = t["result"]
+        det = dets[p.stem] = t["result"]
         size = f"{img.shape[1]}x{img.shape[0]}"
         out.add(f"detect/{p.stem}", image=p.stem, shape=list(img.shape), detection=det.status,
                 n_found=int(det.n_found), cpu_s=t["cpu_s"], wall_s=t["wall_s"])
@@ -233,6 +239,24 @@ minima. Records: detect/<image>, detect/<width>x<height>.
                       wall_s_median=float(np.median([t["wall_s"]["min"] for t in ts])))
         print(f"{size:10s} {len(ts)} images: median cpu {rec['cpu_s_median']:.4f} s, "
               f"wall {rec['wall_s_median']:.4f} s per image")
+    if args.save:
+        np.savez(args.save, **{f"q_{k}": d.q for k, d in dets.items()},
+                 **{f"found_{k}": d.found for k, d in dets.items()},
+                 **{f"status_{k}": np.array(d.status) for k, d in dets.items()},
+                 **{f"info_{k}": np.array(json.dumps(d.info, sort_keys=True, default=str))
+                    for k, d in dets.items()})
+    if args.check:
+        ref = np.load(args.check)
+        bad = [k for k, d in dets.items()
+               if not (np.array_equal(ref[f"q_{k}"], d.q, equal_nan=True)
+                       and np.array_equal(np.isnan(ref[f"q_{k}"]), np.isnan(d.q))
+                       and np.array_equal(ref[f"found_{k}"], d.found)
+                       and str(ref[f"status_{k}"]) == d.status
+                       and str(ref[f"info_{k}"]) == json.dumps(d.info, sort_keys=True,
+                                                               default=str))]
+        out.add("detect/check", identical=not bad, against=str(args.check), differ=bad)
+        print("detections identical to", args.check if not bad else f"{args.check}: NO, {bad}")
+        return 1 if bad else 0
 
 
 def _detect_arguments(p):
@@ -240,6 +264,8 @@ def _detect_arguments(p):
     p.add_argument("--images", type=Path, default=Path("/tmp/detbench"),
                    help="where the rendered images are kept between runs")
     p.add_argument("--cameras", type=common.ids, default=["3", "21", "5"])
+    p.add_argument("--save", type=Path, help="write the detections to this .npz")
+    p.add_argument("--check", type=Path, help="fail unless the detections equal this .npz's")
 
 
 part_detect.repeats_warmup = (5, 0)

@@ -88,6 +88,10 @@ def __getattr__(name):
     return getattr(importlib.import_module(home), name)
 
 
+def _stage(name):
+    return __getattr__(name)
+
+
 # ---------------------------------------------------------------- the parser
 
 _HelpFormatter = argparse.RawDescriptionHelpFormatter
@@ -202,8 +206,7 @@ def campaign_jobs(name="paper", cameras=None, families=None, sizes=None, targets
 cameras: catalogue slots ("15"); families: "CAHVOR"...; sizes: (width, height) pairs of
 the camera. The jobs are harness Job values, as the campaign's runner builds them.
 '''
-    from harness.campaign import load_campaign
-    from harness.runner import expand_jobs
+    load_campaign, expand_jobs = _stage("load_campaign"), _stage("expand_jobs")
     path = Path(name)
     if not path.suffix:
         path = CAMPAIGNS / f"{name}.toml"
@@ -227,7 +230,7 @@ the camera. The jobs are harness Job values, as the campaign's runner builds the
 
 def job_inputs(job):
     r'''(truth model, target, poses) of a job, as the campaign makes them (or StageFailed)'''
-    from harness.runner import _target, camera_stage, poses_stage
+    _target, camera_stage, poses_stage = map(_stage, ("_target", "camera_stage", "poses_stage"))
     _, truth = camera_stage(job)
     target = _target(job.target)
     return truth, target, poses_stage(truth, target, job.poses_n, job.poses_seed)
