@@ -58,34 +58,22 @@ KIND = "camval-benchmark"
 CAMPAIGNS = ROOT / "campaigns"
 FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
 
-# Every harness name a benchmark uses -> the module it lives in (imported on first use).
-STAGES = {
-    "expand_jobs": "harness.runner",
-    "camera_stage": "harness.runner",
-    "poses_stage": "harness.runner",
-    "render_stage": "harness.runner",
-    "detect_stage": "harness.runner",
-    "observations_from": "harness.runner",
-    "calibrate_stage": "harness.runner",
-    "compare_stage": "harness.runner",
-    "run_job": "harness.runner",
-    "run_campaign": "harness.runner",
-    "stage_seconds": "harness.runner",
-    "warm_up": "harness.runner",
-    "StageFailed": "harness.runner",
-    "_target": "harness.runner",
-    "_renderer": "harness.runner",
-    "load_campaign": "harness.campaign",
-    "parse_campaign": "harness.campaign",
-}
+# Every harness name a benchmark uses -> (module, attribute), imported on first use. When a
+# stage moves or is renamed, only its entry here changes.
+STAGES = {name: ("harness.runner", name) for name in (
+    "expand_jobs", "camera_stage", "poses_stage", "render_stage", "detect_stage",
+    "observations_from", "calibrate_stage", "compare_stage", "run_job", "run_campaign",
+    "stage_seconds", "warm_up", "StageFailed", "_target", "_renderer")}
+STAGES.update({name: ("harness.campaign", name) for name in ("load_campaign",
+                                                             "parse_campaign")})
 
 
 def __getattr__(name):
     r'''`from common import camera_stage`: the harness's function, imported only now'''
-    home = STAGES.get(name)
-    if home is None:
+    if name not in STAGES:
         raise AttributeError(f"module 'common' has no attribute {name!r}")
-    return getattr(importlib.import_module(home), name)
+    module, attribute = STAGES[name]
+    return getattr(importlib.import_module(module), attribute)
 
 
 def _stage(name):

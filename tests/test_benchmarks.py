@@ -198,3 +198,9 @@ def test_speed_campaign_and_gate_parse():
     spec = load_gate_spec(REPO / "campaigns" / "gate-speed.toml")
     assert [(g.field, g.relative) for g in spec.regressions] == [
         ("seconds.render_per_image", True)]
+
+
+def test_every_harness_name_resolves(common):
+    # the one place where the benchmarks import the harness's stages from
+    for name in common.STAGES:
+        assert getattr(common, name) is not None, name
