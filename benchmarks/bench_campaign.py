@@ -1,111 +1,149 @@
-r'''Campaign wall time: the quick and the full paper campaign, with per-stage time
+r'''Campaign wall time: the quick and the paper campaign, first and repeated runs, per-stage CPU
 
 SYNOPSIS
 
-    uv run python benchmarks/bench_campaign.py [--only quick|paper] [-j 2]
-        [--out benchmarks/results/campaign.json] [--keep DIR]
+    uv run python benchmarks/bench_campaign.py [--campaigns quick paper] [-j 2]
+        [--repeats 1] [--first] [--keep DIR]
 
-Runs campaigns/quick.toml (target <= 20 s) and campaigns/paper.toml (22
-cameras x CAHV/CAHVOR/CAHVORE x 6 poses, jpl/mrcal/opencv; target <= 90 s)
-with the local process executor, each into a fresh run directory (a temporary
-one unless --keep), without the report. First one small job runs in this
-process (unless --cold) so that the renderer's compiled kernels are cached
-and the workers load them instead of compiling. Prints the wall time against the
-target, the time summed per stage (poses, render, detect, calibrate per
-calibrator, compare; these are CPU-side seconds summed over the workers, so
-they can exceed the wall time), the number of images rendered (twin cameras
-share their images), and the record counts.
-Writes one JSON document. Not a test: the machine is shared, so the figures
-depend on its load (the load average is recorded).
+Runs each campaign (campaigns/quick.toml: target <= 20 s; campaigns/paper.toml:
+22 cameras x CAHV/CAHVOR/CAHVORE x 6 poses, jpl/mrcal/opencv, target <= 90 s;
+or any campaign TOML) with the local process executor, each run in a fresh
+child process and a fresh run directory (a temporary one unless --keep),
+without the report.
+
+Repeated runs (--repeats, default 1): the renderer's numba kernels are first
+compiled (or found up to date) in this process (the harness's warm_up on the
+campaign's jobs), so the timed runs load them, as every run after the first
+one does. --first adds the first run after a kernel change: a child with an
+empty NUMBA_CACHE_DIR, whose parent compiles every kernel before the workers
+start.
+
+Per run: the wall time against the target, the seconds summed per stage
+(poses, render, detect, calibrate per calibrator, compare; CPU-side seconds
+summed over the workers, so they can exceed the wall time), the number of
+images rendered (twin cameras share their images), the record counts, and
+the peak resident memory of the campaign's process and of its largest worker.
+Records: campaign/<name>/first, campaign/<name>/repeat-<i>, and
+campaign/<name>/repeated (wall seconds: min and median over the repeats).
+Not a test: the machine is shared, so the figures depend on its load (the
+load average is recorded).
 '''
 
-import argparse
 import json
 import os
-import platform
+import subprocess
 import sys
 import tempfile
-import time
-from datetime import UTC, datetime
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import common
 
+SCRIPT = "bench_campaign"
 TARGETS = {"quick": 20.0, "paper": 90.0}
 
 
-def warm_up():
-    r'''Run the quick campaign's 640x480 jobs (CAHV, CAHVOR, CAHVORE) once in this process:
-compiles (and caches) the renderer's numba kernels for every model family and imports every
-stage, so the timed runs measure the work, not the JIT'''
-    from harness.campaign import load_campaign
-    from harness.runner import expand_jobs, run_job
-    campaign = load_campaign(ROOT / "campaigns" / "quick.toml")
-    jobs = [j for j in expand_jobs(campaign) if j.camera_key == "17"]
-    t0 = time.perf_counter()
-    statuses = [r["status"] for j in jobs for r in run_job(j)["records"]]
-    return {"jobs": [j.key for j in jobs], "seconds": time.perf_counter() - t0,
-            "statuses": statuses}
+def child(campaign_path, run_dir, workers):
+    r'''Run one campaign in this (fresh) process; print its figures as JSON'''
+    from common import load_campaign, run_campaign, stage_seconds
 
-
-def bench(name, workers, keep=None):
-    from harness.campaign import load_campaign
-    from harness.runner import run_campaign, stage_seconds
-    campaign = load_campaign(ROOT / "campaigns" / f"{name}.toml")
+    campaign = load_campaign(campaign_path)
     entries = campaign.validate()
-    with tempfile.TemporaryDirectory() as tmp:
-        run_dir = Path(keep) / name if keep else Path(tmp) / name
-        t0 = time.perf_counter()
-        doc = run_campaign(campaign, run_dir, workers=workers, progress=True, entries=entries)
-        wall = time.perf_counter() - t0
+    with common.Stopwatch() as sw:
+        doc = run_campaign(campaign, run_dir, workers=workers, progress=False, entries=entries)
     stages, images = stage_seconds(doc["records"])
     counts = {}
     for r in doc["records"].values():
         counts[r["status"]] = counts.get(r["status"], 0) + 1
-    return {"campaign": name, "wall_seconds": wall, "target_seconds": TARGETS[name],
-            "meets_target": wall <= TARGETS[name], "workers": workers,
-            "jobs": doc["execution"]["jobs"], "images": images,
-            "twin_jobs": sum(len(v) for v in (doc["execution"].get("twins") or {}).values()),
-            "records": len(doc["records"]), "statuses": counts, "stage_seconds": stages,
-            "load_average": os.getloadavg()}
+    print(json.dumps({
+        "wall_s": sw.wall_s, "workers": workers, "jobs": doc["execution"]["jobs"],
+        "images": images,
+        "twin_jobs": sum(len(v) for v in (doc["execution"].get("twins") or {}).values()),
+        "records": len(doc["records"]), "statuses": counts, "stage_seconds": stages,
+        "warm_up": doc["execution"].get("warm_up"),
+        "peak_rss_bytes": common.peak_rss_bytes(),
+        "peak_rss_worker_bytes": common.peak_rss_children_bytes()}))
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=("quick", "paper"))
-    ap.add_argument("-j", "--jobs", type=int, default=os.cpu_count())
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "campaign.json"))
+def one_run(path, workers, run_dir, env=None):
+    cmd = [sys.executable, __file__, "--child", str(path), str(run_dir), "-j", str(workers)]
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=common.ROOT,
+                       env=dict(os.environ, **(env or {})))
+    if r.returncode != 0:
+        return {"status": "failed", "reason": " ".join(r.stderr.strip().splitlines()[-3:])}
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def _campaign_path(name):
+    path = Path(name)
+    return path if path.suffix else common.CAMPAIGNS / f"{name}.toml"
+
+
+def run(args, out):
+    if args.child:
+        campaign, run_dir = args.child
+        child(campaign, run_dir, args.jobs)
+        sys.exit(0)
+    from common import warm_up
+
+    for name in args.campaigns:
+        path = _campaign_path(name)
+        label = path.stem
+        with tempfile.TemporaryDirectory(prefix="camval-bench-") as tmp:
+            base = Path(args.keep) if args.keep else Path(tmp)
+            runs = []
+            if args.first:
+                with tempfile.TemporaryDirectory(prefix="numba-cache-") as cache:
+                    runs.append(("first", one_run(path, args.jobs, base / f"{label}-first",
+                                                  {"NUMBA_CACHE_DIR": cache})))
+            if args.repeats:
+                with common.Stopwatch() as sw:
+                    info = warm_up(common.campaign_jobs(path), force=True)
+                print(f"{label}: numba warm-up in this process {sw.wall_s:.1f} s "
+                      f"({info.get('renders')})", flush=True)
+            for i in range(args.repeats):
+                runs.append((f"repeat-{i + 1}", one_run(path, args.jobs,
+                                                        base / f"{label}-{i + 1}")))
+        walls = []
+        for kind, r in runs:
+            rec = out.add(f"campaign/{label}/{kind}", r, campaign=str(path),
+                          target_s=TARGETS.get(label), load_average=list(os.getloadavg()))
+            if rec["status"] != "ok":
+                print(f"{label} {kind}: {rec['status']}: {rec['reason']}")
+                continue
+            if kind != "first":
+                walls.append(rec["wall_s"])
+            target = rec["target_s"]
+            if target is not None:
+                rec["meets_target"] = bool(rec["wall_s"] <= target)
+            print(f"\n{label} {kind}: {rec['wall_s']:.1f} s wall"
+                  + (f" (target <= {target:.0f} s: {'met' if rec['meets_target'] else 'NOT met'})"
+                     if target is not None else "")
+                  + f", {rec['jobs']} jobs ({rec['twin_jobs']} of them twins rendered with "
+                  f"another camera), {rec['images']} images, {rec['records']} records "
+                  f"{rec['statuses']}, {rec['workers']} workers, peak RSS "
+                  f"{rec['peak_rss_bytes'] / 2**20:.0f} MiB (largest worker "
+                  f"{rec['peak_rss_worker_bytes'] / 2**20:.0f} MiB), load average "
+                  f"{rec['load_average'][0]:.1f}", flush=True)
+            for stage, t in rec["stage_seconds"].items():
+                print(f"  {stage:20s} {t:8.1f} s")
+        if walls:
+            out.add(f"campaign/{label}/repeated", campaign=str(path), wall_s=common.summary(walls),
+                    target_s=TARGETS.get(label))
+
+
+def make_parser():
+    ap = common.parser(__doc__, repeats=1, warmup=0)
+    ap.add_argument("--campaigns", nargs="+", default=["quick", "paper"],
+                    help="campaign names (campaigns/NAME.toml) or TOML paths")
+    ap.add_argument("-j", "--jobs", type=int, default=os.cpu_count(), help="local workers")
+    ap.add_argument("--first", action="store_true",
+                    help="also the first run after a kernel change (empty numba cache)")
     ap.add_argument("--keep", metavar="DIR", help="keep the run directories under DIR")
-    ap.add_argument("--cold", action="store_true",
-                    help="no warm-up job: include the numba compilation in the times")
-    args = ap.parse_args(argv)
-    names = [args.only] if args.only else ["quick", "paper"]
-    warm = None
-    if not args.cold:
-        warm = warm_up()
-        print(f"warm-up: {len(warm['jobs'])} jobs in {warm['seconds']:.1f} s "
-              f"({warm['statuses']})")
-    results = []
-    for name in names:
-        r = bench(name, args.jobs, args.keep)
-        results.append(r)
-        print(f"\n{name}: {r['wall_seconds']:.1f} s wall (target <= {r['target_seconds']:.0f} s: "
-              f"{'met' if r['meets_target'] else 'NOT met'}), {r['jobs']} jobs "
-              f"({r['twin_jobs']} of them twins rendered with another camera), "
-              f"{r['images']} images, {r['records']} records {r['statuses']}, "
-              f"{r['workers']} workers, load average {r['load_average'][0]:.1f}")
-        for stage, t in r["stage_seconds"].items():
-            print(f"  {stage:20s} {t:8.1f} s")
-    doc = {"benchmark": "bench_campaign", "utc": datetime.now(UTC).isoformat(),
-           "machine": {"node": platform.node(), "cpus": os.cpu_count(),
-                       "python": platform.python_version()},
-           "warm_up": warm, "results": results}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(doc, indent=1) + "\n")
-    print(f"\nwrote {args.out}")
-    return 0
+    ap.add_argument("--child", nargs=2, metavar=("CAMPAIGN", "RUN_DIR"),
+                    help=__import__("argparse").SUPPRESS)
+    ap.set_defaults(run=run)
+    return ap
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(common.main(SCRIPT, make_parser()))

@@ -4,7 +4,6 @@ SYNOPSIS
 
     uv run python benchmarks/legacy_signature.py [--campaign campaigns/legacy.toml]
         [--cameras 15 13 8 17] [--spp 16] [-j 2] [--run-dir DIR]
-        [--out benchmarks/results/legacy_signature.json]
 
 Runs the legacy campaign (campaigns/legacy.toml: the ray caster carrying the
 paper's ROAMS defects, renderers.legacy: (Hc, Vc) rounded to the half pixel,
@@ -14,38 +13,27 @@ board), writes its report (with the Figs. 4-5 section) and prints, from the
 report's own rows (reports.tables.legacy_signature_rows), the recovered Hc,
 Vc errors against the true values (Figure 4: spread over +-0.25 px) and
 against the true values rounded to the nearest half pixel (Figure 5: near
-zero). --cameras and --spp override the campaign's.
+zero). --cameras and --spp override the campaign's. Writes one JSON document,
+benchmarks/results/<UTC stamp>-legacy_signature.json: one record per row of
+the figure (legacy_signature/<mode>/<camera>/<model>) and
+legacy_signature/summary.
 '''
 
-import argparse
 import json
-import os
 import sys
 import tempfile
-import time
-from datetime import UTC, datetime
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import common
+
+SCRIPT = "legacy_signature"
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--campaign", default=str(ROOT / "campaigns" / "legacy.toml"))
-    ap.add_argument("--cameras", nargs="+", default=None)
-    ap.add_argument("--spp", type=int, default=None)
-    ap.add_argument("-j", "--jobs", type=int, default=2)
-    ap.add_argument("--run-dir", default=None, help="where the run goes (default: a temp dir)")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
-                                         "legacy_signature.json"))
-    args = ap.parse_args()
-
+def run(args, out):
     import tomllib
 
-    from harness.campaign import parse_campaign
+    from common import parse_campaign, run_campaign
+
     from harness.records import load_run
-    from harness.runner import run_campaign
     from reports.build import build_report
 
     with open(args.campaign, "rb") as f:
@@ -56,14 +44,14 @@ def main():
         for r in doc.get("renderer", []):
             r["spp"] = args.spp
     run_dir = args.run_dir or tempfile.mkdtemp(prefix="camval-legacy-")
-    t0 = time.perf_counter()
-    run_campaign(parse_campaign(doc, source=args.campaign), run_dir, progress=False,
-                 workers=args.jobs)
-    wall = time.perf_counter() - t0
+    with common.Stopwatch() as sw:
+        run_campaign(parse_campaign(doc, source=args.campaign), run_dir, progress=False,
+                     workers=args.jobs)
     run = load_run(run_dir)
     paths = build_report(run_dir)
     rows = paths["legacy_rows"]
     for r in rows:
+        out.add(f"legacy_signature/{r['mode']}/{r['camera']}/{r['model']}", r)
         print(f"{r['mode']:6s} camera {r['camera']:>3s} {r['model']:6s}  "
               f"Hc {r['Hc_error']:+.4f} Vc {r['Vc_error']:+.4f} px   "
               f"vs rounded: Hc {r['Hc_error_vs_rounded']:+.4f} "
@@ -80,16 +68,22 @@ def main():
         "clean_max_abs_error_px": max(abs(r[k]) for r in rows if r["mode"] == "clean"
                                       for k in ("Hc_error", "Vc_error")),
     }
+    out.add("legacy_signature/summary", summary, campaign=args.campaign,
+            cameras=doc["cameras"], wall_s=sw.wall_s, workers=args.jobs, run_dir=str(run_dir))
     print(json.dumps(summary, indent=1))
-    print(f"campaign {wall:.1f} s wall with {args.jobs} workers; report {paths['html']}")
-    out = dict(schema=2, benchmark="legacy_signature", utc=datetime.now(UTC).isoformat(),
-               campaign=args.campaign, cameras=doc["cameras"], wall_seconds=wall,
-               summary=summary, rows=rows)
-    os.makedirs(os.path.dirname(args.out), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(out, f, indent=1, allow_nan=False)
-    print(f"wrote {args.out}")
+    print(f"campaign {sw.wall_s:.1f} s wall with {args.jobs} workers; report {paths['html']}")
+
+
+def make_parser():
+    ap = common.parser(__doc__, repeats=1, warmup=0)
+    ap.add_argument("--campaign", default=str(common.CAMPAIGNS / "legacy.toml"))
+    ap.add_argument("--cameras", type=common.ids, default=None)
+    ap.add_argument("--spp", type=int, default=None)
+    ap.add_argument("-j", "--jobs", type=int, default=2)
+    ap.add_argument("--run-dir", default=None, help="where the run goes (default: a temp dir)")
+    ap.set_defaults(run=run)
+    return ap
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(common.main(SCRIPT, make_parser()))

@@ -2,27 +2,23 @@ r'''Accuracy and speed of the exact camera models over all 33 catalogue models
 
 SYNOPSIS
 
-    uv run python benchmarks/reference_models_accuracy.py [--step 8]
+    uv run python benchmarks/accuracy.py [--step 8] [--cameras 15,17]
 
-For every catalogue model: project(unproject(q)) - q over every STEP-th pixel
-of the whole image (ray points at 0.5, 2 and 50 m), and mrcal.project of the
-theta = 90 version against it; the time per point of project and unproject.
-Prints a table and writes benchmarks/results/reference_models_accuracy.json.
+For every catalogue model (or those of --cameras): project(unproject(q)) - q
+over every STEP-th pixel of the whole image (ray points at 0.5, 2 and 50 m),
+and mrcal.project of the theta = 90 version against it; the time per point of
+project and unproject. Prints a table and writes one JSON document,
+benchmarks/results/<UTC stamp>-accuracy.json: one record per model
+(accuracy/<catalogue key>) and accuracy/all (the worst of each figure).
 '''
 
-import argparse
-import json
-import platform
+import sys
 import time
-from datetime import UTC, datetime
-from pathlib import Path
 
-import mrcal
+import common
 import numpy as np
 
-from reference_models.catalogue import load_catalogue
-from reference_models.mrcal_convert import to_mrcal
-
+SCRIPT = "accuracy"
 RANGES = (0.5, 2.0, 50.0)
 
 
@@ -33,6 +29,10 @@ def grid(m, step):
 
 
 def measure(e, step):
+    import mrcal
+
+    from reference_models.mrcal_convert import to_mrcal
+
     m = e.model
     q = grid(m, step)
     t0 = time.perf_counter()
@@ -59,30 +59,35 @@ def measure(e, step):
                 project_us_per_point=t_project * 1e6)
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--step", type=int, default=8, help="pixel step of the grid (default 8)")
-    args = ap.parse_args()
-    rows = [measure(e, args.step) for e in load_catalogue()]
+def run(args, out):
+    from reference_models.catalogue import load_catalogue
+
+    entries = [e for e in load_catalogue() if not args.cameras or e.key in args.cameras]
+    if not entries:
+        raise SystemExit(f"no catalogue model matches {args.cameras}")
+    rows = [measure(e, args.step) for e in entries]
     print(f"{'camera':<18} {'model':<8} {'points':>8} {'theta':>9} {'round trip':>11} "
           f"{'vs mrcal':>10} {'unproj us':>9} {'proj us':>8}")
     for r in rows:
+        out.add(f"accuracy/{r['key']}", r, step=args.step)
         print(f"{r['key']:<18} {r['family']:<8} {r['npoints']:>8} {r['theta_deg']:>9.4f} "
               f"{r['round_trip_max_px']:>11.2e} {r['mrcal_theta90_max_px']:>10.2e} "
               f"{r['unproject_us_per_point']:>9.3f} {r['project_us_per_point']:>8.3f}")
     worst_rt = max(r["round_trip_max_px"] for r in rows)
     worst_mr = max(r["mrcal_theta90_max_px"] for r in rows)
+    out.add("accuracy/all", models=len(rows), step=args.step, round_trip_max_px=worst_rt,
+            mrcal_theta90_max_px=worst_mr)
     print(f"worst round trip {worst_rt:.2e} px; worst mrcal difference {worst_mr:.2e} px")
-    out = Path(__file__).parent / "results" / "reference_models_accuracy.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(dict(
-        schema=1, utc=datetime.now(UTC).isoformat(), machine=platform.node(),
-        numpy=np.__version__, mrcal=getattr(mrcal, "__version__", "unknown"), step=args.step,
-        worst_round_trip_px=worst_rt, worst_mrcal_px=worst_mr, models=rows),
-        indent=1, allow_nan=False))
-    print(f"wrote {out}")
+
+
+def make_parser():
+    ap = common.parser(__doc__)
+    ap.add_argument("--step", type=int, default=8, help="pixel step of the grid (default 8)")
+    ap.add_argument("--cameras", type=common.ids, default=None,
+                    help="catalogue keys (default: every model)")
+    ap.set_defaults(run=run)
+    return ap
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(common.main(SCRIPT, make_parser()))

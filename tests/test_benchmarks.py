@@ -1,0 +1,206 @@
+r'''The benchmark scripts: --help, one tiny case each, the shape of their JSON document
+
+Each script runs in a subprocess as a user runs it (python benchmarks/X.py), on
+one core (NUMBA_NUM_THREADS=1), writing into a temporary --out-dir. The figures
+themselves are not checked: they depend on the machine and its load.
+'''
+
+import importlib
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+BENCH = REPO / "benchmarks"
+SCRIPTS = ("accuracy", "bench_render", "bench_stages", "bench_campaign", "legacy_signature")
+ENV = dict(os.environ, NUMBA_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+
+TINY_CAMPAIGN = '''
+name = "tiny"
+cameras = [17]
+models = ["CAHV"]
+targets = ["dots"]
+[poses]
+n = 6
+seed = 0
+[[renderer]]
+name = "raycast"
+spp = 1
+adaptive = true
+[[calibrator]]
+name = "jpl"
+'''
+
+
+def run(script, *args, check=True):
+    r = subprocess.run([sys.executable, str(BENCH / f"{script}.py"), *map(str, args)],
+                       capture_output=True, text=True, cwd=REPO, env=ENV, timeout=600)
+    if check:
+        assert r.returncode == 0, r.stderr[-3000:]
+    return r
+
+
+def documents(out_dir):
+    return sorted(Path(out_dir).glob("*.json"))
+
+
+def check_document(path, script, part=None):
+    doc = json.loads(Path(path).read_text())
+    assert doc["schema"] == 1 and doc["kind"] == "camval-benchmark"
+    assert doc["script"] == script and doc["part"] == part
+    name = f"{script}-{part}" if part else script
+    assert re.fullmatch(rf"\d{{8}}T\d{{6}}Z-{name}(-\d+)?\.json", Path(path).name), path
+    assert set(doc["commit"]) == {"commit", "dirty"}
+    assert {"hostname", "cpus", "python"} <= set(doc["machine"])
+    assert doc["environment"]["numba_threads"] == 1
+    assert doc["environment"]["peak_rss_bytes"] > 0
+    assert doc["records"]
+    for name, rec in doc["records"].items():
+        assert rec["fullname"] == name
+        assert rec["status"] in ("ok", "failed", "not-applicable", "unavailable",
+                                 "not-visible"), (name, rec)
+    return doc
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_help_is_the_docstring(script):
+    r = run(script, "--help")
+    first = (BENCH / f"{script}.py").read_text().split("'''")[1].splitlines()[0]
+    assert first in r.stdout
+
+
+@pytest.fixture(scope="module")
+def common():
+    sys.path.insert(0, str(BENCH))
+    try:
+        yield importlib.import_module("common")
+    finally:
+        sys.path.remove(str(BENCH))
+
+
+@pytest.mark.parametrize("script", ("bench_render", "bench_stages"))
+def test_every_part_has_help(common, script):
+    mod = importlib.import_module(script)
+    for name, (fn, _) in mod.PARTS.items():
+        ap = common.parser(mod.__doc__, mod.PARTS)
+        with pytest.raises(SystemExit) as e:
+            ap.parse_args([name, "--help"])
+        assert e.value.code == 0, name
+        assert fn.__doc__.splitlines()[0]
+
+
+def test_help_imports_nothing_heavy(common):
+    # --help must be instant: the scripts import numba, the renderers and the
+    # harness's stages only once the arguments are parsed
+    code = ("import os, runpy, sys\n"
+            "sys.argv = [sys.argv[1], '--help']\n"
+            "sys.path.insert(0, os.path.dirname(sys.argv[0]))\n"
+            "try:\n    runpy.run_path(sys.argv[0], run_name='__main__')\n"
+            "except SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('numba', 'harness.runner', 'renderers', 'mrcal')"
+            " if m in sys.modules))")
+    r = subprocess.run([sys.executable, "-c", code, str(BENCH / "bench_render.py")],
+                       capture_output=True, text=True, cwd=REPO, env=ENV, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_accuracy_twice_never_overwrites(tmp_path):
+    for _ in range(2):
+        run("accuracy", "--cameras", "17", "--step", "64", "--out-dir", tmp_path)
+    paths = documents(tmp_path)
+    assert len(paths) == 2
+    for p in paths:
+        doc = check_document(p, "accuracy")
+        assert set(doc["records"]) == {"accuracy/17", "accuracy/all"}
+        assert doc["records"]["accuracy/17"]["round_trip_max_px"] < 1e-9
+
+
+def test_same_stamp_gets_a_new_name(common, tmp_path, monkeypatch):
+    monkeypatch.setattr(common, "utc_stamp", lambda: "20260101T000000Z")
+    names = []
+    for _ in range(3):
+        out = common.Results("demo", out_dir=tmp_path)
+        out.add("a/b", x=1.0)
+        names.append(out.write().name)
+    assert names == ["20260101T000000Z-demo.json", "20260101T000000Z-demo-2.json",
+                     "20260101T000000Z-demo-3.json"]
+    with pytest.raises(ValueError, match="added twice"):
+        out.add("a/b")
+
+
+def test_timed(common):
+    calls = []
+    t = common.timed(lambda: calls.append(1) or len(calls), repeats=3, warmup=2)
+    assert len(calls) == 5 and t["result"] == 5
+    for k in ("cpu_s", "wall_s"):
+        assert len(t[k]["values"]) == 3
+        assert t[k]["min"] <= t[k]["median"] <= max(t[k]["values"])
+
+
+def test_bench_render_raycast_tiny(tmp_path):
+    run("bench_render", "raycast", "--cameras", "17", "--K", "1", "--speed-cameras", "17",
+        "--repeats", "1", "--skip-large", "--out-dir", tmp_path)
+    [path] = documents(tmp_path)
+    doc = check_document(path, "bench_render", "raycast")
+    assert set(doc["records"]) == {"raycast/accuracy/17/K=1", "raycast/accuracy/all/K=1",
+                                   "raycast/speed/17/K=16"}
+    speed = doc["records"]["raycast/speed/17/K=16"]
+    assert len(speed["wall_s"]["values"]) == 6 and speed["cpu_s"]["min"] > 0
+
+
+def test_bench_stages_poses_tiny(tmp_path):
+    run("bench_stages", "poses", "--campaign", "quick", "--repeats", "1", "--warmup", "0",
+        "--out-dir", tmp_path)
+    [path] = documents(tmp_path)
+    doc = check_document(path, "bench_stages", "poses")
+    assert doc["records"]["poses/all"]["jobs"] == len(doc["records"]) - 1
+
+
+def test_bench_campaign_tiny(tmp_path):
+    campaign = tmp_path / "tiny.toml"
+    campaign.write_text(TINY_CAMPAIGN)
+    out = tmp_path / "results"
+    run("bench_campaign", "--campaigns", campaign, "-j", "1", "--repeats", "1",
+        "--out-dir", out)
+    [path] = documents(out)
+    doc = check_document(path, "bench_campaign")
+    rec = doc["records"]["campaign/tiny/repeat-1"]
+    assert rec["status"] == "ok", rec
+    assert rec["records"] == 1 and rec["images"] == 6 and rec["statuses"] == {"ok": 1}
+    assert {"poses", "render", "detect", "compare", "calibrate:jpl"} == set(rec["stage_seconds"])
+    assert rec["peak_rss_bytes"] > 0
+    assert len(doc["records"]["campaign/tiny/repeated"]["wall_s"]["values"]) == 1
+
+
+@pytest.mark.slow
+def test_legacy_signature_tiny(tmp_path):
+    run("legacy_signature", "--cameras", "17", "--spp", "1", "-j", "1",
+        "--run-dir", tmp_path / "run", "--out-dir", tmp_path / "results")
+    [path] = documents(tmp_path / "results")
+    doc = check_document(path, "legacy_signature")
+    assert "legacy_signature/summary" in doc["records"]
+    assert {r["mode"] for n, r in doc["records"].items() if n != "legacy_signature/summary"} \
+        == {"legacy", "clean"}
+
+
+def test_speed_campaign_and_gate_parse():
+    from harness.campaign import load_campaign
+    from harness.gate import load_gate_spec
+
+    campaign = load_campaign(REPO / "campaigns" / "speed.toml")
+    assert [r.name for r in campaign.renderers] == ["raycast"]
+    spec = load_gate_spec(REPO / "campaigns" / "gate-speed.toml")
+    assert [(g.field, g.relative) for g in spec.regressions] == [
+        ("seconds.render_per_image", True)]
+
+
+def test_every_harness_name_resolves(common):
+    # the one place where the benchmarks import the harness's stages from
+    for name in common.STAGES:
+        assert getattr(common, name) is not None, name
