@@ -240,10 +240,10 @@ def _raycast_arguments(p):
 def _job_once(job):
     import hashlib
 
-    from common import _renderer, render_stage
+    from common import cached_renderer, render_stage
 
     truth, target, poses = common.job_inputs(job)
-    renderer = _renderer(job.renderer)
+    renderer = cached_renderer(job.renderer)
     renderer.clear_cache()
     with common.Stopwatch() as sw:
         results, _, _ = render_stage(job.renderer, truth, target, poses, job.settings)

@@ -64,12 +64,12 @@ campaign does), --repeats times after --warmup untimed passes over the first
 job. Records: poses/all (the total per repetition: CPU and wall seconds, min
 and median) and poses/<job key> (CPU seconds of each job, min over repeats).
 '''
-    from common import StageFailed, _target, camera_stage, poses_stage
+    from common import StageFailed, cached_target, camera_stage, poses_stage
 
     setups = []
     for job in common.campaign_jobs(args.campaign):
         try:
-            setups.append((job, camera_stage(job)[1], _target(job.target)))
+            setups.append((job, camera_stage(job)[1], cached_target(job.target)))
         except StageFailed:
             pass
     per_job = {job.key: [] for job, _, _ in setups}
@@ -358,7 +358,7 @@ def _fmt(v, f="{:.2e}"):
 
 def calibrators_exact(out):
     from harness.calibrators import calibrate
-    from harness.calibrators.synthetic import (
+    from synthetic import (
         catalogue_models,
         default_target,
         exact_observations,
@@ -398,7 +398,7 @@ def calibrators_exact(out):
 
 def calibrators_rendered(out, cameras):
     from harness.calibrators import calibrate
-    from harness.calibrators.synthetic import (
+    from synthetic import (
         catalogue_models,
         default_target,
         rendered_observations,
@@ -457,7 +457,7 @@ def part_calibrators(args, out):
     r'''Calibrator accuracy: exact correspondences over the catalogue, and rendered images
 
 Part 1 (exact): for every catalogue model, the dot centres projected exactly at
-6 synthetic poses (harness.calibrators.synthetic); jpl fits the model's own
+6 synthetic poses (tests/synthetic.py); jpl fits the model's own
 family (bar: projection difference <= 1e-6 px, theta <= 1e-7 deg, theta
 compared in the fit's R0 gauge); mrcal fits CAHVOR/CAHVORE to the theta = 90
 version (bar: projection difference, fitted rotation, <= 1e-6 px).

@@ -43,6 +43,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+# the synthetic-observation fixtures live with the tests (tests/synthetic.py)
+if str(ROOT / "tests") not in sys.path:
+    sys.path.append(str(ROOT / "tests"))
 
 from harness.records import (  # noqa: E402  (light: no numba, no renderer)
     SCHEMA_VERSION,
@@ -60,10 +63,13 @@ FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
 
 # Every harness name a benchmark uses -> (module, attribute), imported on first use. When a
 # stage moves or is renamed, only its entry here changes.
-STAGES = {name: ("harness.runner", name) for name in (
-    "expand_jobs", "camera_stage", "poses_stage", "render_stage", "detect_stage",
-    "observations_from", "calibrate_stage", "compare_stage", "run_job", "run_campaign",
-    "stage_seconds", "warm_up", "StageFailed", "_target", "_renderer")}
+STAGES = {name: ("harness.stages", name) for name in (
+    "camera_stage", "poses_stage", "render_stage", "detect_stage", "observations_from",
+    "calibrate_stage", "compare_stage", "StageFailed", "cached_target", "cached_renderer")}
+STAGES.update({name: ("harness.runner", name) for name in ("run_job", "run_campaign",
+                                                           "stage_seconds")})
+STAGES.update({"expand_jobs": ("harness.jobs", "expand_jobs"),
+               "warm_up": ("harness.warmup", "warm_up")})
 STAGES.update({name: ("harness.campaign", name) for name in ("load_campaign",
                                                              "parse_campaign")})
 
@@ -218,9 +224,10 @@ the camera. The jobs are harness Job values, as the campaign's runner builds the
 
 def job_inputs(job):
     r'''(truth model, target, poses) of a job, as the campaign makes them (or StageFailed)'''
-    _target, camera_stage, poses_stage = map(_stage, ("_target", "camera_stage", "poses_stage"))
+    cached_target, camera_stage, poses_stage = map(_stage, ("cached_target", "camera_stage",
+                                                           "poses_stage"))
     _, truth = camera_stage(job)
-    target = _target(job.target)
+    target = cached_target(job.target)
     return truth, target, poses_stage(truth, target, job.poses_n, job.poses_seed)
 
 
