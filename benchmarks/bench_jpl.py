@@ -137,9 +137,10 @@ def main():
         records.append(rec)
     total = sum(r["cpu_s"] for r in records)
     print(f"total CPU per fit set: {total:.3f} s")
-    from harness.calibrators import _project_kernels as pk
-    sigs = {k.__name__: len(k.signatures) for k in (pk._project_kernel, pk._residuals_kernel,
-                                                     pk._chart_kernel, pk._jacobian_kernel)}
+    from harness.calibrators import _jpl_kernels as jk
+    from reference_models import kernels as rk
+    sigs = {k.__name__: len(k.signatures) for k in (rk.project_points, rk._residuals_kernel,
+                                                     jk._chart_kernel, jk._jacobian_kernel)}
     print(f"compiled signatures: {sigs}")
     doc = {"benchmark": "jpl", "date": datetime.now(UTC).isoformat(timespec="seconds"),
            "commit": git_commit()["commit"], "python": platform.python_version(),

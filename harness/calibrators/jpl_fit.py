@@ -61,23 +61,18 @@ import numpy as np
 import scipy
 import scipy.optimize
 
-from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
+from reference_models.cahvore import CAHV, CAHVOR, CAHVORE, FAMILIES
 from reference_models.errors import ModelError
+from reference_models.kernels import CompiledProjection, pack_model, project, residuals_packed
+from reference_models.poseutils import compose_Rt, invert_Rt
 
-from ._project_kernels import (
-    CompiledProjection,
-    jacobian_chart,
-    pack_chart,
-    pack_model,
-    project,
-    residuals_packed,
-)
+from ._jpl_kernels import jacobian_chart, pack_chart
 from .base import CalibrationFailed, CalibrationResult
 from .bias import bias_step
 
 NAME = "jpl"
 LIBRARY = "scipy"
-MODELS = ("CAHV", "CAHVOR", "CAHVORE")
+MODELS = FAMILIES
 STAGES = {"CAHV": ("CAHV",), "CAHVOR": ("CAHV", "CAHVOR"),
           "CAHVORE": ("CAHV", "CAHVOR", "CAHVORE")}
 # residual given to the solver for a point the trial model cannot project
@@ -389,19 +384,10 @@ initialisation (the second pass starts from the first pass's result).
     return m, {"nfev": nfev, "stages": stages}
 
 
-def _inverse_Rt(Rt):
-    R = Rt[:3]
-    return np.vstack((R.T, -R.T @ Rt[3]))
-
-
-def _compose(Rt_a_b, Rt_b_c):
-    return np.vstack((Rt_a_b[:3] @ Rt_b_c[:3], Rt_a_b[:3] @ Rt_b_c[3] + Rt_a_b[3]))
-
-
 def Rt_cam_board_of(model, Rt_ref_board):
     r'''Board poses in the camera frame of `model` (model.Rt_ref_cam())'''
-    Rt_cam_ref = _inverse_Rt(model.Rt_ref_cam())
-    return np.array([_compose(Rt_cam_ref, Rt) for Rt in Rt_ref_board])
+    Rt_cam_ref = invert_Rt(model.Rt_ref_cam())
+    return np.array([compose_Rt(Rt_cam_ref, Rt) for Rt in Rt_ref_board])
 
 
 def _cahvore_type(truth, options):
