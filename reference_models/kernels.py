@@ -50,12 +50,15 @@ is stored as (s, v) and the noncentral part costs one float. The rays agree
 with model.unproject to ~1e-15.
 
 One compiled signature per kernel: float64 arrays, C contiguous. numba's
-on-disk cache stamps only the source file of the function it compiles: a
-kernel of another module that calls these (render_kernel) is not recompiled
-by numba when this file changes; clear the cache (or touch that module) then.
+on-disk cache stamps only the source file of the function it compiles
+(numba issue 1833): a kernel of another module that calls these
+(render_kernel, the jpl chart's Jacobian, the pose planner's outline test)
+would be loaded from the cache with the old code of this file after a change
+here; drop_stale_caches() forgets those caches (a warm-up calls it first).
 '''
 
 import math
+import os
 
 import numpy as np
 from numba import njit, prange
@@ -628,3 +631,34 @@ For a warm-up or a cache check (harness.runner): the kernels numba compiles
 when a projection, unprojection or ray cache is first asked for.
 '''
     return (project_points, _residuals_kernel, unproject_points, fill_ray_cache)
+
+
+def drop_stale_caches(dispatchers):
+    r'''Forget numba's on-disk cache of kernels compiled before this file last changed
+
+SYNOPSIS
+
+    dropped = drop_stale_caches(renderers._raycast_kernels.compiled_entry_points())
+    # ["render_kernel"] after an edit of reference_models/kernels.py, else []
+
+numba checks a cached kernel against its own source file only, so a kernel of
+another module that calls the functions here (and carries their compiled code)
+is not recompiled when this file changes. This drops the cache index of each
+of `dispatchers` older than this file, so that numba compiles them again on
+their next call (and caches the new code). Call it in one process before
+others load the kernels (as a warm-up does), not while other processes
+compile them. A dispatcher without an on-disk cache is passed over.
+
+RETURNED VALUE
+
+The names of the kernels whose cache was dropped.
+'''
+    source = os.path.getmtime(__file__)
+    dropped = []
+    for kernel in dispatchers:
+        cache = getattr(kernel, "_cache", None)
+        path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+        if path and os.path.exists(path) and os.path.getmtime(path) < source:
+            cache.flush()
+            dropped.append(kernel.__name__)
+    return dropped

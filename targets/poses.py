@@ -145,6 +145,12 @@ differently.
     return True
 
 
+def compiled_entry_points():
+    r'''The planner's compiled kernels (numba dispatchers), for a warm-up or
+reference_models.kernels.drop_stale_caches (they carry its projection)'''
+    return (_outline_fits,)
+
+
 _EX = np.array([1.0, 0.0, 0.0])
 
 

@@ -177,3 +177,9 @@ for x + h_i e_i (row i is then not computed: the caller builds that model).
                      float(max_cos), float(min_oa), p, q, float(unprojectable),
                      np.ascontiguousarray(f0, dtype=np.float64), J_T, ok)
     return J_T, ok
+
+
+def compiled_entry_points():
+    r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
+warm-up or reference_models.kernels.drop_stale_caches (they carry its projection)'''
+    return (_chart_kernel, _jacobian_kernel)
