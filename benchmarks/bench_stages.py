@@ -357,13 +357,14 @@ def _fmt(v, f="{:.2e}"):
 
 
 def calibrators_exact(out):
-    from harness.calibrators import calibrate
     from synthetic import (
         catalogue_models,
         default_target,
         exact_observations,
         synthetic_poses,
     )
+
+    from harness.calibrators import calibrate
     from harness.compare import projection_difference, with_R0
     target = default_target()
     print("\n== exact correspondences (no rendering) ==")
@@ -397,12 +398,13 @@ def calibrators_exact(out):
 
 
 def calibrators_rendered(out, cameras):
-    from harness.calibrators import calibrate
     from synthetic import (
         catalogue_models,
         default_target,
         rendered_observations,
     )
+
+    from harness.calibrators import calibrate
     from harness.compare import compare
     from reference_models.cahvore import truncate
     target = default_target()

@@ -80,9 +80,9 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from reference_models.cahvore import FAMILIES
 from reference_models.errors import CamvalError
 
-FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
 JOB_FAMILY = "family"
 
 TOP_KEYS = ("name", "description", "cameras", "models", "targets", "keep_images", "keep_maps",

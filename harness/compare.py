@@ -47,31 +47,11 @@ import threading
 
 import numpy as np
 
-JPL_FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
+from reference_models.cahvore import FAMILIES, with_R0
+from reference_models.poseutils import R_from_r, transform_point_Rt
+
 DEFAULT_RANGE_M = 2.0
 DEFAULT_GRID_STEP = 16
-
-
-def with_R0(model, R0=0.0):
-    r'''The exactly equivalent CAHVOR/CAHVORE model with radial term R0 set to `R0`
-
-SYNOPSIS
-
-    m0 = with_R0(m)            # projects every point as m does; m0.R[0] == 0
-
-With k = (1 + R0_old)/(1 + R0) and T = k I - (k - 1) O O^T:
-A' = T A / |T A|, H' = T H / |T A|, V' = T V / |T A|,
-R' = (R0, R1 (1+R0)/(1+R0_old), R2 (1+R0)/(1+R0_old)); C, O, E unchanged.
-'''
-    if model.family not in ("CAHVOR", "CAHVORE"):
-        return model
-    k = (1.0 + model.R[0]) / (1.0 + R0)
-    T = k * np.eye(3) - (k - 1.0) * np.outer(model.O, model.O)
-    TA = T @ model.A
-    n = np.linalg.norm(TA)
-    s = (1.0 + R0) / (1.0 + model.R[0])
-    return model.replace(A=TA / n, H=T @ model.H / n, V=T @ model.V / n,
-                         R=np.array([R0, model.R[1] * s, model.R[2] * s]))
 
 
 def _angle_deg(u, v):
@@ -83,7 +63,7 @@ def _angle_deg(u, v):
 
 def _intrinsics(model):
     r'''(Hc, Vc, Hs, Vs) of any fitted model'''
-    if getattr(model, "family", None) in JPL_FAMILIES:
+    if getattr(model, "family", None) in FAMILIES:
         ph = model.photogrammetric()
         return ph.Hc, ph.Vc, ph.Hs, ph.Vs
     return model.cx, model.cy, model.fx, model.fy
@@ -109,7 +89,7 @@ theta_estimated defaults to True for JPL-family fits; world_frame (the fit's
 C and A are in the truth's world frame) defaults to False.
 '''
     fam = getattr(fit, "family", None)
-    jpl = fam in JPL_FAMILIES
+    jpl = fam in FAMILIES
     if theta_estimated is None:
         theta_estimated = jpl
     world_frame = bool(world_frame)
@@ -163,19 +143,6 @@ SYNOPSIS
     return np.stack(np.meshgrid(x, y), axis=-1)
 
 
-def _transform(Rt, p):
-    return p @ Rt[:3].T + Rt[3]
-
-
-def _R_from_r(r):
-    th = np.linalg.norm(r)
-    if th < 1e-300:
-        return np.eye(3)
-    k = r / th
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * K @ K
-
-
 def _projector(fit):
     r'''fit.project, compiled for a JPL-family fit
 
@@ -185,7 +152,7 @@ SYNOPSIS
     q = project(p)          # as fit.project(p)
 
 A CAHV, CAHVOR or CAHVORE fit projects with
-harness.calibrators._project_kernels (the equations of reference_models.cahvore
+reference_models.kernels (the equations of reference_models.cahvore
 point by point, within 1e-10 px of fit.project; the maps of 42 jpl/mrcal
 records of paper jobs within 1.1e-10 px, their rms and max within 1e-11 px);
 any other fit (OpenCV, COLMAP) with its own project(). projection_difference
@@ -194,7 +161,7 @@ is sensitive to the last bits of the residuals (the compiled projection there
 moved the maps by up to 8e-8 px), so it keeps fit.project and the fitted
 rotation is unchanged.
 '''
-    from harness.calibrators._project_kernels import KINDS, pack_model, project_packed
+    from reference_models.kernels import KINDS, pack_model, project_packed
     if getattr(fit, "family", None) not in KINDS:
         return fit.project
     cam = pack_model(fit)
@@ -212,7 +179,7 @@ def _fit_rotation(fit, p_cam, q, nmax=2000):
     Rt_ref_cam = fit.Rt_ref_cam()
 
     def res(r):
-        d = fit.project(_transform(Rt_ref_cam, P @ _R_from_r(r).T)) - Q
+        d = fit.project(transform_point_Rt(Rt_ref_cam, P @ R_from_r(r).T)) - Q
         return np.where(np.isfinite(d), d, 1e3).ravel()
 
     # scipy's 2-point Jacobian, bit for bit, remembering the last point's residuals and
@@ -223,7 +190,7 @@ def _fit_rotation(fit, p_cam, q, nmax=2000):
     with np.errstate(all="ignore"):
         sol = scipy.optimize.least_squares(fun, np.zeros(3), jac=jac, method="lm",
                                            ftol=1e-15, xtol=1e-15, gtol=1e-15)
-    return _R_from_r(sol.x)
+    return R_from_r(sol.x)
 
 
 # the truth's side of projection_difference(), for the few truths compared last: the
@@ -304,7 +271,7 @@ mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
         R = np.eye(3)
         if mode == "rotation":
             R = _fit_rotation(fit, p_cam.reshape(-1, 3), q.reshape(-1, 2))
-        qf = project(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
+        qf = project(transform_point_Rt(fit.Rt_ref_cam(), p_cam @ R.T))
     d = np.linalg.norm(qf - q, axis=-1)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "q": q, "map": d,

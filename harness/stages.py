@@ -57,11 +57,12 @@ import hashlib
 import math
 import time
 
+from reference_models.cahvore import FAMILIES
 from reference_models.errors import CamvalError
 
 from .records import jsonable
 
-FAMILY_ORDER = ("CAHV", "CAHVOR", "CAHVORE")
+FAMILY_ORDER = FAMILIES
 MAP_SIZE = 96            # longest side of a stored projection-difference map
 
 

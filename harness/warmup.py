@@ -17,12 +17,19 @@ import time
 from .stages import cached_target, camera_stage, failure_reason, poses_stage
 
 # --- what names kernels: the only place here that knows them --------------------------
-# LEAD (issue 13): the compiled kernels move to reference_models/kernels.py; point this
-# table (and, if numba's cache layout differs there, _numba_cache_index) at their new home.
-# renderers whose kernels numba compiles (and caches on disk) on first use, and the
-# kernels a render calls from Python (module, names)
-NUMBA_RENDERERS = {"raycast": ("renderers._raycast_kernels", ("render_kernel",
-                                                               "_fill_ray_cache"))}
+# renderers whose kernels numba compiles (and caches on disk) on first use -> the module
+# whose compiled_entry_points() are the kernels a render calls from Python
+NUMBA_RENDERERS = {"raycast": "renderers._raycast_kernels"}
+# every module with @njit(cache=True) kernels that call reference_models.kernels: numba
+# checks a cached kernel against its own source file only (reference_models.kernels.
+# drop_stale_caches says why), so a warm-up drops their stale caches first
+COMPILED_MODULES = ("reference_models.kernels", "renderers._raycast_kernels", "targets.poses",
+                    "harness.calibrators._jpl_kernels")
+
+
+def _entry_points(modname):
+    import importlib
+    return importlib.import_module(modname).compiled_entry_points()
 
 
 def _numba_cache_index(kernel):
@@ -31,20 +38,32 @@ API: empty when no entry matches the kernel's current source)'''
     return kernel._cache._cache_file._load_index()
 
 
+def drop_stale_caches():
+    r'''Drop numba's cached kernels compiled before reference_models/kernels.py last changed
+
+Run in one process before workers start (warm_up does); returns the dropped names.
+'''
+    from reference_models.kernels import drop_stale_caches as drop
+    dropped = []
+    for modname in COMPILED_MODULES:
+        dropped += drop(_entry_points(modname))
+    return dropped
+
+
 def kernels_cached(renderer):
     r'''True when numba's on-disk cache holds the renderer's kernels for their current source
 
 Reads only numba's cache index (its stamp of the source file), loads no code:
-False after a kernel change, for a new cache directory, or when numba's
-internals cannot be read (then warming is the safe choice).
+False after a kernel change (of the renderer's module or of reference_models.kernels,
+whose stale caches it drops), for a new cache directory, or when numba's internals
+cannot be read (then warming is the safe choice).
 '''
-    import importlib
     if renderer not in NUMBA_RENDERERS:
         return True
-    modname, names = NUMBA_RENDERERS[renderer]
     try:
-        mod = importlib.import_module(modname)
-        return all(bool(_numba_cache_index(getattr(mod, n))) for n in names)
+        if drop_stale_caches():
+            return False
+        return all(bool(_numba_cache_index(k)) for k in _entry_points(NUMBA_RENDERERS[renderer]))
     except Exception:
         return False
 
@@ -71,6 +90,11 @@ fails later, in its own record.
     t0 = time.perf_counter()
     done, failed, cached = [], [], []
     seen = set()
+    if force and any(j.renderer in NUMBA_RENDERERS for j in jobs):
+        try:
+            drop_stale_caches()
+        except Exception:  # numba's internals changed: compile anyway
+            pass
     for name in sorted({j.renderer for j in jobs if j.renderer in NUMBA_RENDERERS}):
         if not force and kernels_cached(name):
             cached.append(name)

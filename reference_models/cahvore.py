@@ -55,6 +55,8 @@ NEWTON_MAX_ITERATIONS = 100
 NEWTON_TOLERANCE = 1e-15
 
 CAHVORE_TYPES = {1: "perspective", 2: "fisheye", 3: "general"}
+# the JPL model families, each a truncation of the next
+FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
 
 
 def _vec3(name, value):
@@ -469,7 +471,7 @@ def family_of(model):
 def truncate(model, family):
     r'''The model truncated as the paper did: CAHVORE -> CAHVOR drops E;
 -> CAHV drops O and R. Asking for a richer family than the model has is an error.'''
-    order = ("CAHV", "CAHVOR", "CAHVORE")
+    order = FAMILIES
     if family not in order:
         raise ModelError(f"unknown model family {family!r}; known: {', '.join(order)}")
     if order.index(family) > order.index(model.family):
@@ -480,3 +482,25 @@ def truncate(model, family):
     if family == "CAHVOR":
         return model.to_cahvor()
     return model
+
+
+def with_R0(model, R0=0.0):
+    r'''The exactly equivalent CAHVOR/CAHVORE model with radial term R0 set to `R0`
+
+SYNOPSIS
+
+    m0 = with_R0(m)            # projects every point as m does; m0.R[0] == 0
+
+With k = (1 + R0_old)/(1 + R0) and T = k I - (k - 1) O O^T:
+A' = T A / |T A|, H' = T H / |T A|, V' = T V / |T A|,
+R' = (R0, R1 (1+R0)/(1+R0_old), R2 (1+R0)/(1+R0_old)); C, O, E unchanged.
+'''
+    if model.family not in ("CAHVOR", "CAHVORE"):
+        return model
+    k = (1.0 + model.R[0]) / (1.0 + R0)
+    T = k * np.eye(3) - (k - 1.0) * np.outer(model.O, model.O)
+    TA = T @ model.A
+    n = np.linalg.norm(TA)
+    s = (1.0 + R0) / (1.0 + model.R[0])
+    return model.replace(A=TA / n, H=T @ model.H / n, V=T @ model.V / n,
+                         R=np.array([R0, model.R[1] * s, model.R[2] * s]))

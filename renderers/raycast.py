@@ -55,7 +55,7 @@ targets and poses (including noncentral CAHVOREs at K = 16).
 The rays of the pixel centres (and a one-pixel ring) are cached per camera
 model: 24 bytes per pixel, 32 for a noncentral CAHVORE (0.63 GB for a
 5120x3840 camera); subsample rays are traced on the fly. The cached rays
-(renderers._raycast_kernels.build_ray_cache: exact to the floating-point
+(reference_models.kernels.build_ray_cache: exact to the floating-point
 level, directions not normalised) only decide where to look closer, within
 the slack of the bounds above; no pixel's value is read from them. The cache is bounded
 (cache_bytes, least recently used models are dropped). The models a new one
@@ -385,20 +385,20 @@ numba's thread count (default: all).
     # --- the per-camera ray cache --------------------------------------------
     def rays(self, model):
         r'''(cam, dirs, shift, noncentral, cold) of a model, from the cache or traced now'''
-        from renderers import _raycast_kernels as kern
+        from reference_models import kernels
         key = _model_key(model)
         with self._lock:
             entry = self._rays.get(key)
             if entry is not None:
                 self._rays.move_to_end(key)
                 return entry + (False,)
-            cam = kern.pack_model(model)
+            cam = kernels.pack_model(model)
             noncentral = not model.is_central
             W, H = model.width, model.height
             nbytes = (H + 2) * (W + 2) * (32 if noncentral else 24) + (0 if noncentral else 8)
             out = self._evict_for(nbytes, (H + 2, W + 2, 3),
                                   (H + 2, W + 2) if noncentral else (1, 1))
-            dirs, shift = kern.build_ray_cache(cam, W, H, noncentral, out=out)
+            dirs, shift = kernels.build_ray_cache(cam, W, H, noncentral, out=out)
             entry = (cam, dirs, shift, noncentral)
             self._rays[key] = entry
             return entry + (True,)

@@ -42,7 +42,7 @@ the terrain are sky (value `sky`, range NaN).
 Pixel rays come from the camera model's own unproject (any CAHV, CAHVOR,
 CAHVORE, including CAHVORE's moving entrance pupil), at K x K subpixel points
 per pixel (spp = K); they are computed once per (model, K) and cached (with
-the compiled unprojection of renderers._raycast_kernels when available). The
+the compiled unprojection of reference_models.kernels when available). The
 image is the mean over the subpixels; range and shadow are those of the
 pixel-centre ray.
 
@@ -666,10 +666,10 @@ def _check_Rt(Rt):
 # ---------------------------------------------------------------------------
 # camera rays
 def _unproject(model, q):
-    r'''model.unproject, by the board ray caster's compiled port when it is there
-(renderers._raycast_kernels: the same Newton solves, agreeing to ~1e-15)'''
+    r'''model.unproject, by the compiled port when it is there
+(reference_models.kernels: the same Newton solves, agreeing to ~1e-15)'''
     try:
-        from renderers._raycast_kernels import pack_model, unproject_grid
+        from reference_models.kernels import pack_model, unproject_grid
     except ImportError:
         return model.unproject(q)
     return unproject_grid(pack_model(model), q)

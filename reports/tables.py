@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
+from reference_models.cahvore import FAMILIES
 
 # (label, getter key, statistic, unit, paper's figure)
 SUMMARY_ROWS = (

@@ -36,6 +36,8 @@ NaN if any point of its outline does).
 
 import numpy as np
 
+from reference_models.poseutils import compose_Rt, transform_point_Rt
+
 from .boards import TargetError
 
 NOUTLINE_DEFAULT = 1440
@@ -61,11 +63,8 @@ SYNOPSIS
 
 Rt_ref_board = compose(model.Rt_ref_cam(), Rt_cam_board), as renderers use it.
 '''
-    Rt = _check_Rt(Rt_cam_board)
-    Rt_ref_cam = model.Rt_ref_cam()
-    R = Rt_ref_cam[:3] @ Rt[:3]
-    t = Rt_ref_cam[:3] @ Rt[3] + Rt_ref_cam[3]
-    return np.asarray(p_board, dtype=np.float64) @ R.T + t
+    Rt_ref_board = compose_Rt(model.Rt_ref_cam(), _check_Rt(Rt_cam_board))
+    return transform_point_Rt(Rt_ref_board, np.asarray(p_board, dtype=np.float64))
 
 
 def board_to_cam(Rt_cam_board, p_board):

@@ -28,9 +28,9 @@ board (its outline, sampled densely) inside the image with a margin
 tilt (angle between its normal and the line of sight to its centre) is at
 most MAX_TILT_DEG. Viewing directions come from model.unproject() and every
 check uses model.project(), so this works for any CAHV/CAHVOR/CAHVORE model,
-central or not, mirrored or not. (For speed the planner uses equivalents of
-the two: _unprojector, bit for bit the model's rays, and a compiled test (_packed);
-the poses are bit for bit those planned with the model's own methods.)
+central or not, mirrored or not. (For speed the planner uses the compiled
+equivalents of the two, reference_models.kernels (_packed): the poses are
+within 1e-12 m of those planned with the model's own methods.)
 
 Poses are Rt_cam_board (4,3) in the camera frame of model.Rt_ref_cam().
 
@@ -50,9 +50,11 @@ SuperCam six poses at 74-107 m.
 import math
 
 import numpy as np
+from numba import njit
 
-from reference_models.cahvore import CAHV, CAHVOR, CAHVORE, NEWTON_MAX_ITERATIONS, NEWTON_TOLERANCE
+from reference_models import kernels
 from reference_models.errors import CamvalError
+from reference_models.poseutils import R_from_axis_angle
 
 MAX_TILT_DEG = 45.0
 MAX_VIEW_ANGLE_DEG = 78.0      # largest angle between the board normal and a ray to the board
@@ -76,128 +78,80 @@ class NotVisibleError(CamvalError):
     '''A camera that cannot see the target in a usable calibration pose (the message says why).'''
 
 
-def _rotation(axis, angle):
-    r'''Rodrigues: rotation matrix about a unit axis by angle (rad)'''
-    axis = np.asarray(axis, dtype=np.float64)
-    # axis / np.linalg.norm(axis), bit for bit, without norm's overhead
-    a0, a1, a2 = (axis / math.sqrt(axis.dot(axis))).tolist()
-    K = np.array([[0.0, -a2, a1], [a2, 0.0, -a0], [-a1, a0, 0.0]])
-    return _EYE3 + math.sin(angle) * K + (1 - math.cos(angle)) * (K @ K)
-
-
-_EYE3 = np.eye(3)
-
-
 def _packed(model):
-    r'''The packed model (harness.calibrators._project_kernels.pack_model) of a JPL model
+    r'''The packed model (reference_models.kernels.pack_model) of a JPL model
 
 SYNOPSIS
 
     cam = _packed(model)       # None for any other model
 
-With it _Planner.fits() tests the board outline by one compiled call
-(_project_kernels.outline_fits: in front, facing the camera, in the image): the
-planner tests ~350 outlines per plan, and numpy's projection of a CAHVORE
-costs ~80 us per call on 128 points. The compiled projection agrees with
-model.project to < 1e-10 px and its sums are in another order than numpy's
-matmul, which could only matter for a point on a limit to the last bit: the
-planned poses of all 62 plannable paper jobs are bit for bit those of the
-numpy test (tests/test_poses.py checks a few). Any other model is tested with
-its own project().
+With it the planner unprojects by the compiled ray (reference_models.kernels.ray,
+~1e-15 from model.unproject) and _Planner.fits() tests the board outline by one
+compiled call (_outline_fits: in front, facing the camera, in the image): the
+planner unprojects ~240 pixels and tests ~350 outlines per plan, and numpy's
+projection of a CAHVORE costs ~80 us per call on 128 points. The compiled
+projection agrees with model.project to < 1e-10 px and its sums are in another
+order than numpy's matmul, which could only matter for a point on a limit to
+the last bit. Any other model is planned with its own unproject() and project().
 '''
-    from harness.calibrators._project_kernels import KINDS, pack_model
-    if getattr(model, "family", None) not in KINDS:
+    if getattr(model, "family", None) not in kernels.KINDS:
         return None
-    return pack_model(model)
+    return kernels.pack_model(model)
 
 
-_EX = np.array([1.0, 0.0, 0.0])
-
-
-def _unprojector(model):
-    r'''model.unproject of one pixel, without numpy's per-call overhead on 3-vectors
+@njit(cache=True, error_model="numpy")
+def _outline_fits(outline_cam, Rt, cos_min, R_ref_cam, t_ref_cam, cam, lo_x, hi_x, lo_y, hi_y):
+    r'''Whether a board outline at translation t lies in front, faces the camera and
+projects into the image (the compiled _Planner.fits)
 
 SYNOPSIS
 
-    unproject = _unprojector(model)
-    o, v = unproject(x, y)          # as model.unproject(np.array([x, y])), (3,) each
+    ok = _outline_fits(outline_cam, Rt, cos_min, R_ref_cam, t_ref_cam, cam,
+                       x_lo, x_hi, y_lo, y_hi)
 
-reference_models.cahvore's unproject of a single pixel, operation for
-operation in Python floats (the same products, sums and order, so the same
-bits); the dot products numpy computes by matmul are still numpy's, and so
-are the transcendental functions. ~8x cheaper than the numpy version on one
-pixel; the planner unprojects ~240 pixels per plan. Any other model keeps
-its own unproject(). None where a ray's side of the camera is in doubt
-(the caller then asks the model).
+outline_cam (M,3): the outline rotated into the camera frame; Rt (4,3) the board
+pose: p = outline_cam + Rt[3], the board normal n = Rt[:3, 2].
+True when every p has z > 0, <p/|p|, n> >= cos_min, and the packed model cam
+projects p_ref = R_ref_cam p + t_ref_cam within [lo, hi] (NaN: False). All
+arrays float64, C contiguous. The sums are in another order than numpy's
+matmul (< 1 ulp apart): only a point on a limit to the last bit can decide
+differently.
 '''
-    if type(model) not in (CAHV, CAHVOR, CAHVORE):
-        return None
-    family = model.family
-    A = model.A.tolist()
-    H = model.H.tolist()
-    V = model.V.tolist()
-    C = model.C.tolist()
-    if family != "CAHV":
-        O_arr = model.O
-        O = O_arr.tolist()
-        r0, r1, r2 = model.R
-    if family == "CAHVORE":
-        L = model.linearity
-        e0, e1, e2 = model.E
+    m = outline_cam.shape[0]
+    t = Rt[3]
+    n = np.empty(3, dtype=np.float64)
+    for k in range(3):
+        n[k] = Rt[k, 2]
+    p = np.empty((m, 3), dtype=np.float64)
+    for i in range(m):
+        for k in range(3):
+            p[i, k] = outline_cam[i, k] + t[k]
+        if not p[i, 2] > 0:
+            return False
+    for i in range(m):
+        r = math.sqrt(p[i, 0] * p[i, 0] + p[i, 1] * p[i, 1] + p[i, 2] * p[i, 2])
+        if not ((p[i, 0] / r) * n[0] + (p[i, 1] / r) * n[1] + (p[i, 2] / r) * n[2] >= cos_min):
+            return False
+    p_ref = np.empty((m, 3), dtype=np.float64)
+    for i in range(m):
+        for k in range(3):
+            p_ref[i, k] = (p[i, 0] * R_ref_cam[k, 0] + p[i, 1] * R_ref_cam[k, 1]
+                           + p[i, 2] * R_ref_cam[k, 2]) + t_ref_cam[k]
+    q = np.empty((m, 2), dtype=np.float64)
+    kernels.project_points(cam, p_ref, q)
+    for i in range(m):
+        if not (q[i, 0] >= lo_x and q[i, 0] <= hi_x and q[i, 1] >= lo_y and q[i, 1] <= hi_y):
+            return False
+    return True
 
-    def unproject(x, y):
-        a0, a1, a2 = V[0] - y * A[0], V[1] - y * A[1], V[2] - y * A[2]
-        b0, b1, b2 = H[0] - x * A[0], H[1] - x * A[1], H[2] - x * A[2]
-        w0, w1, w2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-        wa = w0 * A[0] + w1 * A[1] + w2 * A[2]
-        if not abs(wa) > 1e-9 * math.sqrt(w0 * w0 + w1 * w1 + w2 * w2):
-            return None
-        if wa < 0:
-            w0, w1, w2 = -w0, -w1, -w2
-        n = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-        w0, w1, w2 = w0 / n, w1 / n, w2 / n
-        if family == "CAHV":
-            return np.array(C), np.array([w0, w1, w2])
-        zeta = np.array([w0, w1, w2]) @ O_arr
-        p0, p1, p2 = w0 - zeta * O[0], w1 - zeta * O[1], w2 - zeta * O[2]
-        lp = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-        if lp > 0:
-            u0, u1, u2 = p0 / lp, p1 / lp, p2 / lp
-        else:
-            u0 = u1 = u2 = 0.0
-        u = lp / zeta
-        chi = u / (1.0 + r0)
-        for _ in range(NEWTON_MAX_ITERATIONS):
-            chi2 = chi * chi
-            g = chi * (1.0 + r0 + chi2 * (r1 + r2 * chi2)) - u
-            dg = 1.0 + r0 + chi2 * (3.0 * r1 + 5.0 * r2 * chi2)
-            step = g / dg
-            chi = chi - step
-            if not (abs(step) > NEWTON_TOLERANCE * max(1.0, abs(chi))):
-                break
-        if family == "CAHVOR":
-            v0, v1, v2 = O[0] + chi * u0, O[1] + chi * u1, O[2] + chi * u2
-            n = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-            return np.array(C), np.array([v0 / n, v1 / n, v2 / n])
-        if L > 1e-15:
-            theta = np.arctan(L * chi) / L
-        elif L < -1e-15:
-            with np.errstate(invalid="ignore"):
-                theta = np.arcsin(L * chi) / L
-        else:
-            theta = chi
-        s = np.sin(theta)
-        c = np.cos(theta)
-        t2 = theta * theta
-        if theta < 1e-4:
-            k = t2 / 6.0 + 7.0 * t2 * t2 / 360.0
-        else:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                k = theta / s - 1.0
-        ke = k * (e0 + t2 * (e1 + t2 * e2))
-        return (np.array([C[0] + ke * O[0], C[1] + ke * O[1], C[2] + ke * O[2]]),
-                np.array([c * O[0] + s * u0, c * O[1] + s * u1, c * O[2] + s * u2]))
-    return unproject
+
+def compiled_entry_points():
+    r'''The planner's compiled kernels (numba dispatchers), for a warm-up or
+reference_models.kernels.drop_stale_caches (they carry its projection)'''
+    return (_outline_fits,)
+
+
+_EX = np.array([1.0, 0.0, 0.0])
 
 
 class _Planner:
@@ -217,18 +171,21 @@ class _Planner:
         self._rays = {}
         self._cam = _packed(model)
         if self._cam is not None:
-            from harness.calibrators._project_kernels import outline_fits
-            self._outline_fits = outline_fits
             self._R_ref_cam = np.ascontiguousarray(self.R_ref_cam)
             self._t_ref_cam = np.ascontiguousarray(self.t_ref_cam)
-        self._unproject = _unprojector(model)
+            self._C = self._cam[kernels._C:kernels._C + 3]
+            self._O = self._cam[kernels._O:kernels._O + 3]
 
     def ray_cam(self, q):
         key = (float(q[0]), float(q[1]))
         ray = self._rays.get(key)
         if ray is None:
-            ov = None if self._unproject is None else self._unproject(*key)
-            o, v = self.model.unproject(np.asarray(key, dtype=np.float64)) if ov is None else ov
+            if self._cam is None:
+                o, v = self.model.unproject(np.asarray(key, dtype=np.float64))
+            else:
+                # kernels.unproject_grid's ray of one pixel, without its per-call overhead
+                s, vx, vy, vz = kernels.ray(self._cam, *key)
+                o, v = self._C + s * self._O, np.array([vx, vy, vz])
             ray = ((o - self.t_ref_cam) @ self.R_ref_cam, v @ self.R_ref_cam)
             self._rays[key] = ray
         return ray
@@ -256,7 +213,8 @@ range search computes this once and moves the board with place().
         R[:, 0], R[:, 1], R[:, 2] = x, y, v
         a = math.radians(azimuth)
         axis = math.cos(a) * x + math.sin(a) * y
-        R = _rotation(v, math.radians(roll)) @ _rotation(axis, math.radians(tilt)) @ R
+        R = (R_from_axis_angle(v, math.radians(roll))
+             @ R_from_axis_angle(axis, math.radians(tilt)) @ R)
         return o, v, R, R @ self.centre_board
 
     def place(self, orientation, d):
@@ -280,9 +238,9 @@ outline_cam: self.outline @ Rt[:3].T, when the caller has it already.
             outline_cam = self.outline @ Rt[:3].T
         if self._cam is not None:
             m = self.margin
-            return self._outline_fits(outline_cam, Rt, self.cos_view_max, self._R_ref_cam,
-                                      self._t_ref_cam, self._cam, (m - 0.5, m - 0.5),
-                                      (self.W - 0.5 - m, self.H - 0.5 - m))
+            return _outline_fits(outline_cam, Rt, self.cos_view_max, self._R_ref_cam,
+                                 self._t_ref_cam, self._cam, m - 0.5, self.W - 0.5 - m,
+                                 m - 0.5, self.H - 0.5 - m)
         p_cam = outline_cam + Rt[3]
         if not (p_cam[:, 2] > 0).all():
             return False

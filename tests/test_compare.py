@@ -13,8 +13,8 @@ from harness.compare import (
     parameter_errors,
     projection_difference,
     truth_points,
-    with_R0,
 )
+from reference_models.cahvore import with_R0
 
 MODELS = dict(catalogue_models())
 NAVCAM = MODELS["15"]

@@ -11,7 +11,8 @@ from synthetic import (
 
 from harness.calibrators import calibrate, jpl_fit
 from harness.calibrators.base import Observations
-from harness.compare import compare, projection_difference, with_R0
+from harness.compare import compare, projection_difference
+from reference_models.cahvore import with_R0
 
 TARGET = default_target()
 MODELS = catalogue_models()

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from reference_models import kernels
 from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
 from reference_models.catalogue import load_catalogue
 from reference_models.errors import CamvalError
@@ -77,8 +78,8 @@ def test_rays_equal_model_unproject(name):
     W, H = model.width, model.height
     q = np.concatenate((rng.uniform([-0.5, -0.5], [W - 0.5, H - 0.5], (4000, 2)),
                         [[-0.5, -0.5], [W - 0.5, H - 0.5], [-0.5, H - 0.5], [W / 2, H / 2]]))
-    cam = kern.pack_model(model)
-    origin, v = kern.unproject_grid(cam, q)
+    cam = kernels.pack_model(model)
+    origin, v = kernels.unproject_grid(cam, q)
     origin_ref, v_ref = model.unproject(q)
     assert np.all(np.isfinite(v)) and np.all(np.isfinite(v_ref))
     np.testing.assert_allclose(v, v_ref, rtol=0, atol=1e-12)
@@ -96,8 +97,8 @@ same rays as model.unproject'''
     @njit
     def trace(cam, q, out_s, out_v):
         for i in range(q.shape[0]):
-            warm = kern.warm_start(cam, math.floor(q[i, 0] + 0.5), math.floor(q[i, 1] + 0.5))
-            s, vx, vy, vz = kern.ray_warm(cam, q[i, 0], q[i, 1], warm)
+            warm = kernels.warm_start(cam, math.floor(q[i, 0] + 0.5), math.floor(q[i, 1] + 0.5))
+            s, vx, vy, vz = kernels.ray_warm(cam, q[i, 0], q[i, 1], warm)
             out_s[i] = s
             out_v[i, 0] = vx
             out_v[i, 1] = vy
@@ -106,7 +107,7 @@ same rays as model.unproject'''
     model = (small_models() | catalogue_models())[name]
     q = np.random.default_rng(5).uniform([-0.5, -0.5],
                                          [model.width - 0.5, model.height - 0.5], (4000, 2))
-    cam = kern.pack_model(model)
+    cam = kernels.pack_model(model)
     s = np.empty(len(q))
     v = np.empty((len(q), 3))
     trace(cam, q, s, v)
@@ -123,7 +124,7 @@ def test_ray_cache_equals_model_unproject(name):
 not normalised) of pixels -1..W, -1..H'''
     model = small_models()[name]
     W, H = model.width, model.height
-    dirs, shift = kern.build_ray_cache(kern.pack_model(model), W, H, not model.is_central)
+    dirs, shift = kernels.build_ray_cache(kernels.pack_model(model), W, H, not model.is_central)
     assert dirs.shape == (H + 2, W + 2, 3)
     q = np.stack(np.meshgrid(np.arange(-1.0, W + 1), np.arange(-1.0, H + 1)), axis=-1)
     origin, v = model.unproject(q)
@@ -332,17 +333,17 @@ the rays written over them equal a fresh cache, and a render's arrays are never 
         m = models[name]
         entry = r.rays(m)
         assert entry[1].ctypes.data != held[1].ctypes.data
-        fresh = kern.build_ray_cache(kern.pack_model(m), m.width, m.height, False)
+        fresh = kernels.build_ray_cache(kernels.pack_model(m), m.width, m.height, False)
         assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
         held = entry
-    fresh = kern.build_ray_cache(kern.pack_model(models["cahvor"]), 200, 150, False)
+    fresh = kernels.build_ray_cache(kernels.pack_model(models["cahvor"]), 200, 150, False)
     assert np.array_equal(held[1], fresh[0])  # still the CAHVOR rays it was given
     pointer = held[1].ctypes.data
     del held, entry
     m = models["cahv"]
     entry = r.rays(m)
     assert entry[1].ctypes.data == pointer
-    fresh = kern.build_ray_cache(kern.pack_model(m), m.width, m.height, False)
+    fresh = kernels.build_ray_cache(kernels.pack_model(m), m.width, m.height, False)
     assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
     assert entry[2].shape == (1, 1) and entry[2][0, 0] == 0.0
     # a noncentral camera of the same size reuses the directions, not the (1,1) shift
@@ -351,13 +352,13 @@ the rays written over them equal a fresh cache, and a render's arrays are never 
     del entry
     entry = r.rays(nc)
     assert entry[1].ctypes.data == pointer and entry[2].shape == (152, 202)
-    fresh = kern.build_ray_cache(kern.pack_model(nc), nc.width, nc.height, True)
+    fresh = kernels.build_ray_cache(kernels.pack_model(nc), nc.width, nc.height, True)
     assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
     del entry
     entry = r.rays(m)
     assert entry[1].ctypes.data == pointer and entry[2].shape == (1, 1)
-    assert entry[2][0, 0] == 0.0 and np.array_equal(entry[1], kern.build_ray_cache(
-        kern.pack_model(m), m.width, m.height, False)[0])
+    assert entry[2][0, 0] == 0.0 and np.array_equal(entry[1], kernels.build_ray_cache(
+        kernels.pack_model(m), m.width, m.height, False)[0])
 
 
 def test_renderers_share_the_ray_cache_by_default():

@@ -23,6 +23,8 @@ with project(p) and Rt_ref_cam() works (JPL, OpenCV, COLMAP and mrcal fits).
 
 import numpy as np
 
+from reference_models.poseutils import transform_point_Rt
+
 NOUTLINE = 1440
 # outline points per dot for the bias of a JPL model (targets.centroids.expected_centroids):
 # its Richardson-extrapolated polygon centroid converges as 1/N^4, and 192 points are within
@@ -55,13 +57,9 @@ SYNOPSIS
     return circles[i, 2]
 
 
-def _transform(Rt, p):
-    return p @ Rt[:3].T + Rt[3]
-
-
 def project_from_cam(model, p_cam):
     r'''Project points given in the model's camera frame (model.Rt_ref_cam())'''
-    return model.project(_transform(model.Rt_ref_cam(), p_cam))
+    return model.project(transform_point_Rt(model.Rt_ref_cam(), p_cam))
 
 
 def outline_centroids(model, p_board, radii, Rt_cam_board, noutline=NOUTLINE):
@@ -76,7 +74,7 @@ SYNOPSIS
     phi = np.linspace(0.0, 2.0 * np.pi, noutline, endpoint=False)
     ring = np.stack((np.cos(phi), np.sin(phi), np.zeros_like(phi)), axis=-1)
     outline = p_board[:, None, :] + radii[:, None, None] * ring[None]
-    q = project_from_cam(model, _transform(Rt_cam_board, outline))
+    q = project_from_cam(model, transform_point_Rt(Rt_cam_board, outline))
     x, y = q[..., 0], q[..., 1]
     x1, y1 = np.roll(x, -1, axis=-1), np.roll(y, -1, axis=-1)
     cross = x * y1 - x1 * y
@@ -98,7 +96,7 @@ SYNOPSIS
     radii = dot_radii(target, p_board)
     if radii is None:
         return None
-    centres = project_from_cam(model, _transform(Rt_cam_board, p_board))
+    centres = project_from_cam(model, transform_point_Rt(Rt_cam_board, p_board))
     expected = None
     if len(p_board) == len(target.points()):
         try:

@@ -29,7 +29,7 @@ The procedure:
    freedom: A is a unit vector, moved in its tangent plane and renormalised).
    H and V are independent 3-vectors, so theta is free: this is the only
    calibrator that can recover theta. The residuals project with the compiled
-   projection of harness.calibrators._project_kernels (model.project to < 1e-10 px).
+   projection of reference_models.kernels (model.project to < 1e-10 px).
 3. CAHVOR from the CAHV fit with O = A, R = 0 (O a unit vector like A), then
    CAHVORE from the CAHVOR fit with E = 0, type and linearity fixed.
 4. Second pass (bias_correction=True): each detection is corrected by the
@@ -61,23 +61,18 @@ import numpy as np
 import scipy
 import scipy.optimize
 
-from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
+from reference_models.cahvore import CAHV, CAHVOR, CAHVORE, FAMILIES
 from reference_models.errors import ModelError
+from reference_models.kernels import CompiledProjection, pack_model, project, residuals_packed
+from reference_models.poseutils import compose_Rt, invert_Rt
 
-from ._project_kernels import (
-    CompiledProjection,
-    jacobian_chart,
-    pack_chart,
-    pack_model,
-    project,
-    residuals_packed,
-)
+from ._jpl_kernels import jacobian_chart, pack_chart
 from .base import CalibrationFailed
 from .skeleton import fitted_result, iterate_bias
 
 NAME = "jpl"
 LIBRARY = "scipy"
-MODELS = ("CAHV", "CAHVOR", "CAHVORE")
+MODELS = FAMILIES
 STAGES = {"CAHV": ("CAHV",), "CAHVOR": ("CAHV", "CAHVOR"),
           "CAHVORE": ("CAHV", "CAHVOR", "CAHVORE")}
 # residual given to the solver for a point the trial model cannot project
@@ -216,7 +211,7 @@ C (3), A (2, tangent plane), H (3), V (3) [, O (2), R1, R2 [, E (3)]]; R0 is hel
         return CAHVORE(E=x[15:18], model_type=self.model_type, linearity=self.linearity, **kw)
 
     def packed(self, x):
-        r'''_project_kernels.pack_model(self.model(x)), or None where that raises ModelError
+        r'''reference_models.kernels.pack_model(self.model(x)), or None where that raises ModelError
 
 The solver's residuals call this: the model is not built unless a trial comes
 near the model's limits (FAST_CHECK_*) or is not finite; then the model decides.
@@ -239,7 +234,7 @@ A and O may differ from the model's by an ulp (their norms are summed in another
     def forward_difference(self, residuals, x, f0, p, q):
         r'''forward_difference(residuals, x, f0) of residuals(x) = the residuals of
 packed(x) on p, q: the columns whose trial is packed by the compiled chart in
-one call (_project_kernels.jacobian_chart), the others (near the model's
+one call (_jpl_kernels.jacobian_chart), the others (near the model's
 limits) through residuals(); bit for bit the same'''
         h = forward_steps(x)
         J_T, ok = jacobian_chart(x, h, *self._chart_args(), p, q, UNPROJECTABLE_RESIDUAL, f0)
@@ -389,19 +384,10 @@ initialisation (the second pass starts from the first pass's result).
     return m, {"nfev": nfev, "stages": stages}
 
 
-def _inverse_Rt(Rt):
-    R = Rt[:3]
-    return np.vstack((R.T, -R.T @ Rt[3]))
-
-
-def _compose(Rt_a_b, Rt_b_c):
-    return np.vstack((Rt_a_b[:3] @ Rt_b_c[:3], Rt_a_b[:3] @ Rt_b_c[3] + Rt_a_b[3]))
-
-
 def Rt_cam_board_of(model, Rt_ref_board):
     r'''Board poses in the camera frame of `model` (model.Rt_ref_cam())'''
-    Rt_cam_ref = _inverse_Rt(model.Rt_ref_cam())
-    return np.array([_compose(Rt_cam_ref, Rt) for Rt in Rt_ref_board])
+    Rt_cam_ref = invert_Rt(model.Rt_ref_cam())
+    return np.array([compose_Rt(Rt_cam_ref, Rt) for Rt in Rt_ref_board])
 
 
 def _cahvore_type(truth, options):

@@ -1,4 +1,4 @@
-'''The compiled projection of harness.calibrators._project_kernels against model.project'''
+'''The compiled camera models of reference_models.kernels against model.project'''
 
 import math
 import zlib
@@ -6,7 +6,8 @@ import zlib
 import numpy as np
 import pytest
 
-from harness.calibrators import _project_kernels as pk
+from harness.calibrators import _jpl_kernels as jk
+from reference_models import kernels
 from reference_models.cahvore import CAHVORE, truncate
 from reference_models.catalogue import load_catalogue
 
@@ -95,7 +96,7 @@ def _compare(m, p):
     p = p[_well_posed(m, p)]
     with np.errstate(all="ignore"):
         q_ref = m.project(p)
-    q = pk.project(m, p)
+    q = kernels.project(m, p)
     assert q.shape == q_ref.shape
     # the same invalid points, NaN in both coordinates
     np.testing.assert_array_equal(np.isnan(q), np.isnan(q_ref))
@@ -128,7 +129,7 @@ def test_max_difference_over_the_catalogue():
         for m in [model] + (_variants(model) if model.family == "CAHVORE" else []):
             p = _points(m, rng, n=1000)
             worst = max(worst, _compare(m, p))
-            n_invalid += int(np.isnan(pk.project(m, p)[:, 0]).sum())
+            n_invalid += int(np.isnan(kernels.project(m, p)[:, 0]).sum())
     print(f"max |q - q_ref| over the catalogue: {worst:.3g} px; {n_invalid} invalid points")
     assert worst <= TOLERANCE_PX
     assert n_invalid > 0   # the points reached beyond every domain
@@ -137,7 +138,7 @@ def test_max_difference_over_the_catalogue():
 def test_invalid_points_are_nan():
     m = next(m for k, m in MODELS if m.family == "CAHVORE")
     behind = m.C - 3.0 * m.A
-    q = pk.project(m, np.array([behind, m.C + 2.0 * m.A]))
+    q = kernels.project(m, np.array([behind, m.C + 2.0 * m.A]))
     assert np.all(np.isnan(q[0]))
     assert np.all(np.isfinite(q[1]))
     np.testing.assert_allclose(q[1], m.project(m.C + 2.0 * m.A), rtol=0, atol=1e-9)
@@ -148,22 +149,22 @@ def test_cahv_is_the_pinhole():
     p = m.C + np.array([[0.3, -0.2, 4.0], [1.0, 2.0, 3.0]]) @ m.Rt_ref_cam()[:3].T
     d = p - m.C
     expected = np.stack((d @ m.H / (d @ m.A), d @ m.V / (d @ m.A)), axis=-1)
-    np.testing.assert_allclose(pk.project(m, p), expected, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(kernels.project(m, p), expected, rtol=0, atol=1e-10)
 
 
 def test_bad_input_is_refused():
     m = MODELS[0][1]
     with pytest.raises(ValueError, match="shape"):
-        pk.project(m, np.zeros((4, 2)))
+        kernels.project(m, np.zeros((4, 2)))
 
 
 def test_any_leading_shape_and_the_compiled_model():
     m = next(m for k, m in MODELS if m.family == "CAHVORE")
     p = m.C + 3.0 * m.A + np.random.default_rng(2).uniform(-1, 1, (4, 5, 3))
-    q = pk.project(m, p)
+    q = kernels.project(m, p)
     assert q.shape == (4, 5, 2)
     np.testing.assert_allclose(q, m.project(p), rtol=0, atol=1e-9)
-    mc = pk.CompiledProjection(m)
+    mc = kernels.CompiledProjection(m)
     assert mc.family == "CAHVORE"
     np.testing.assert_array_equal(mc.Rt_ref_cam(), m.Rt_ref_cam())
     np.testing.assert_array_equal(mc.project(p), q)
@@ -181,7 +182,7 @@ def test_jpl_chart_packs_exactly_what_its_model_packs(family):
     for _ in range(50):
         x = x0 + rng.normal(0.0, 1e-3, x0.shape) * np.maximum(1.0, np.abs(x0))
         # A and O may be an ulp off the model's (their norm is summed in another order)
-        np.testing.assert_allclose(chart.packed(x), pk.pack_model(chart.model(x)),
+        np.testing.assert_allclose(chart.packed(x), kernels.pack_model(chart.model(x)),
                                    rtol=1e-13, atol=1e-13)  # a few ulps of sums in another order
     # a trial outside the model's limits (V along H: theta = 0) is refused as model() is
     x = x0.copy()
@@ -197,7 +198,7 @@ def test_residuals_replace_unprojectable_points():
     m = next(m for k, m in MODELS if m.family == "CAHVORE")
     p = np.array([m.C + 2.0 * m.A, m.C - 3.0 * m.A, m.C + 4.0 * m.A + 0.1 * m.O])
     q = np.array([[1.0, 2.0], [3.0, 4.0], [np.inf, 5.0]])
-    r = pk.residuals_packed(pk.pack_model(m), p, q, 1e4)
+    r = kernels.residuals_packed(kernels.pack_model(m), p, q, 1e4)
     expected = (m.project(p) - q).ravel()
     np.testing.assert_allclose(r[[0, 1, 5]], expected[[0, 1, 5]], rtol=0, atol=1e-9)
     np.testing.assert_array_equal(r[[2, 3, 4]], [1e4, 1e4, 1e4])
@@ -216,7 +217,7 @@ def test_jacobian_chart_is_the_forward_difference_bit_for_bit(family):
 
     def residuals(x):
         cam = chart.packed(x)
-        return np.full(2 * len(p), 1e4) if cam is None else pk.residuals_packed(cam, p, q, 1e4)
+        return np.full(2 * len(p), 1e4) if cam is None else kernels.residuals_packed(cam, p, q, 1e4)
     x = chart.x0() + 1e-4
     expected = jpl_fit.forward_difference(residuals, x, residuals(x))
     got = chart.forward_difference(residuals, x, residuals(x), p, q)
@@ -224,7 +225,7 @@ def test_jacobian_chart_is_the_forward_difference_bit_for_bit(family):
     assert np.abs(expected).max() > 1.0
     # a column whose trial is at the model's limits goes through residuals()
     x[8:11] = x[5:8] + 1e-9
-    J_T, ok = pk.jacobian_chart(x, jpl_fit.forward_steps(x), *chart._chart_args(), p, q,
+    J_T, ok = jk.jacobian_chart(x, jpl_fit.forward_steps(x), *chart._chart_args(), p, q,
                                 1e4, residuals(x))
     assert not ok.all()
     assert np.array_equal(chart.forward_difference(residuals, x, residuals(x), p, q),
