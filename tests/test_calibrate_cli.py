@@ -4,8 +4,8 @@ import json
 
 import pytest
 
+from camval.cli import main
 from harness.calibrators.synthetic import catalogue_models
-from harness.cli import main
 from reference_models.cahvore import truncate
 from reference_models.jpl_files import read_model
 
