@@ -2,7 +2,7 @@ r'''Stability sweeps: vary one difficulty at a time and find where each method b
 
 SYNOPSIS
 
-    from harness.sweep import run_sweep, breakdowns, stability_chart
+    from harness.sweep import run_sweep, breakdowns
 
     sw = run_sweep(camera=15, family="CAHVOR", target="dots", difficulty="noise",
                    calibrators=(("jpl", "CAHVOR"), ("mrcal", "CAHVOR"), ("opencv", "OPENCV5")))
@@ -11,7 +11,9 @@ SYNOPSIS
                         # projection difference RMS/max (px), residual RMS, the scene
                         # of the level (mean range m, mean tilt deg, median dot px)
     sw["breakdown"]     # {calibrator/model: first level where it breaks, or None}
-    stability_chart(sw, "sweep_noise.png")
+
+The stability chart of such a document is drawn in reports/figures.py
+(stability_chart).
 
 A sweep is one camera x model x target x renderer job of the campaign runner
 (harness/stages.py: poses, render, detect, calibrate,
@@ -451,86 +453,3 @@ def breakdowns(records, levels):
                 why = "; ".join(parts) or "broken"
                 out[key] = {"level": lv, "reason": why}
     return out
-
-
-def tick_labels(sweep):
-    r'''The x tick label of every level: the level, with the camera's field of view (fov)
-or the mean board range in metres (range)'''
-    levels = sweep["levels"]
-    labels = list(sweep.get("level_labels") or [level_text(v) for v in levels])
-    if sweep["difficulty"] == "range":
-        for i, lv in enumerate(levels):
-            sc = next((r.get("scene") for r in sweep["records"]
-                       if r["level"] == lv and r.get("scene")), None)
-            if sc and sc.get("range_m") is not None:
-                labels[i] = f"{lv:g}\n{sc['range_m']:.2g} m"
-    return labels
-
-
-def stability_chart(sweep, path):
-    r'''One stability chart: projection difference per method against the level,
-breakdown points marked (X and a dotted line), detection rate on a second axis,
-levels that could not be set up shaded'''
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 5.6))
-    ax2 = ax.twinx()
-    levels = sweep["levels"]
-    xs = np.arange(len(levels))
-    keys = sorted({f"{r['calibrator']}/{r['model']}" for r in sweep["records"]})
-    floor = None
-    for k, key in enumerate(keys):
-        ys = []
-        for lv in levels:
-            r = next((r for r in sweep["records"] if r["level"] == lv
-                      and f"{r['calibrator']}/{r['model']}" == key), None)
-            v = r.get("projection_rms_px") if r else None
-            ys.append(np.nan if v is None else max(v, 1e-6))
-        finite = [y for y in ys if np.isfinite(y)]
-        if finite:
-            floor = min(finite) if floor is None else min(floor, min(finite))
-        b = sweep["breakdown"].get(key, {}).get("level")
-        label = key + (f" (breaks at {level_text(b)})" if b is not None else " (never broke)")
-        ax.plot(xs, ys, "o-", color=f"C{k}", label=label)
-        if b is not None:
-            ib = levels.index(b)
-            ax.axvline(ib, color=f"C{k}", ls=":", alpha=0.7)
-            ax.plot([ib], [ys[ib] if np.isfinite(ys[ib]) else sweep["bar_px"]], "X",
-                    color=f"C{k}", ms=14, mec="k")
-    for i, lv in enumerate(levels):
-        recs = [r for r in sweep["records"] if r["level"] == lv]
-        if recs and all(r.get("status") == "not-applicable" for r in recs):
-            ax.axvspan(i - 0.5, i + 0.5, color="0.85", zorder=0)
-            ax.text(i, sweep["bar_px"], "n/a", ha="center", va="bottom", fontsize=7,
-                    color="0.4")
-    rates = []
-    for lv in levels:
-        rs = [r["detection_rate"] for r in sweep["records"]
-              if r["level"] == lv and r.get("detection_rate") is not None]
-        rates.append(max(rs) if rs else np.nan)
-    ax2.plot(xs, 100 * np.asarray(rates, float), "s--", color="0.5", label="detection rate")
-    ax2.set_ylabel("detection rate, %")
-    ax2.set_ylim(0, 105)
-    ax.axhline(sweep["bar_px"], color="k", lw=0.8, ls="--", label=f"bar {sweep['bar_px']:g} px")
-    ax.set_yscale("log")
-    top = max([sweep["bar_px"]] + [r["projection_rms_px"] for r in sweep["records"]
-                                   if r.get("projection_rms_px") is not None])
-    ax.set_ylim(min(floor or sweep["bar_px"], sweep["bar_px"]) / 2, top * 3)
-    ax.set_xticks(xs, tick_labels(sweep), fontsize=8)
-    ax.set_xlim(-0.5, len(levels) - 0.5)
-    ax.set_xlabel(sweep["unit"])
-    ax.set_ylabel("projection difference, px RMS (rotation mode)")
-    where = ("cameras of the catalogue" if sweep["difficulty"] == "fov" else
-             f"camera {sweep['camera']} ({sweep['camera_label']})")
-    ax.set_title(f"stability: {sweep['difficulty']} - {where}, {sweep['family']}, "
-                 f"{sweep['target']}, {sweep['renderer']} K={sweep['spp']}; X = breakdown",
-                 fontsize=9)
-    h1, l1 = ax.get_legend_handles_labels()
-    h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=3,
-              fontsize=7, frameon=False)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)

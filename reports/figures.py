@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.sweep import level_text
+
 from .tables import render_variant, render_variants
 
 FAMILY_COLOURS = {"CAHV": "tab:blue", "CAHVOR": "tab:orange", "CAHVORE": "tab:green"}
@@ -502,9 +504,88 @@ reports.tables.legacy_signature_rows'''
                   "corrected it.", str(path))
 
 
+def sweep_tick_labels(sweep):
+    r'''The x tick label of every level: the level, with the camera's field of view (fov)
+or the mean board range in metres (range)'''
+    levels = sweep["levels"]
+    labels = list(sweep.get("level_labels") or [level_text(v) for v in levels])
+    if sweep["difficulty"] == "range":
+        for i, lv in enumerate(levels):
+            sc = next((r.get("scene") for r in sweep["records"]
+                       if r["level"] == lv and r.get("scene")), None)
+            if sc and sc.get("range_m") is not None:
+                labels[i] = f"{lv:g}\n{sc['range_m']:.2g} m"
+    return labels
+
+
+def stability_chart(sweep, path):
+    r'''One stability chart: projection difference per method against the level,
+breakdown points marked (X and a dotted line), detection rate on a second axis,
+levels that could not be set up shaded (a harness.sweep.run_sweep document)'''
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 5.6))
+    ax2 = ax.twinx()
+    levels = sweep["levels"]
+    xs = np.arange(len(levels))
+    keys = sorted({f"{r['calibrator']}/{r['model']}" for r in sweep["records"]})
+    floor = None
+    for k, key in enumerate(keys):
+        ys = []
+        for lv in levels:
+            r = next((r for r in sweep["records"] if r["level"] == lv
+                      and f"{r['calibrator']}/{r['model']}" == key), None)
+            v = r.get("projection_rms_px") if r else None
+            ys.append(np.nan if v is None else max(v, 1e-6))
+        finite = [y for y in ys if np.isfinite(y)]
+        if finite:
+            floor = min(finite) if floor is None else min(floor, min(finite))
+        b = sweep["breakdown"].get(key, {}).get("level")
+        label = key + (f" (breaks at {level_text(b)})" if b is not None else " (never broke)")
+        ax.plot(xs, ys, "o-", color=f"C{k}", label=label)
+        if b is not None:
+            ib = levels.index(b)
+            ax.axvline(ib, color=f"C{k}", ls=":", alpha=0.7)
+            ax.plot([ib], [ys[ib] if np.isfinite(ys[ib]) else sweep["bar_px"]], "X",
+                    color=f"C{k}", ms=14, mec="k")
+    for i, lv in enumerate(levels):
+        recs = [r for r in sweep["records"] if r["level"] == lv]
+        if recs and all(r.get("status") == "not-applicable" for r in recs):
+            ax.axvspan(i - 0.5, i + 0.5, color="0.85", zorder=0)
+            ax.text(i, sweep["bar_px"], "n/a", ha="center", va="bottom", fontsize=7,
+                    color="0.4")
+    rates = []
+    for lv in levels:
+        rs = [r["detection_rate"] for r in sweep["records"]
+              if r["level"] == lv and r.get("detection_rate") is not None]
+        rates.append(max(rs) if rs else np.nan)
+    ax2.plot(xs, 100 * np.asarray(rates, float), "s--", color="0.5", label="detection rate")
+    ax2.set_ylabel("detection rate, %")
+    ax2.set_ylim(0, 105)
+    ax.axhline(sweep["bar_px"], color="k", lw=0.8, ls="--", label=f"bar {sweep['bar_px']:g} px")
+    ax.set_yscale("log")
+    top = max([sweep["bar_px"]] + [r["projection_rms_px"] for r in sweep["records"]
+                                   if r.get("projection_rms_px") is not None])
+    ax.set_ylim(min(floor or sweep["bar_px"], sweep["bar_px"]) / 2, top * 3)
+    ax.set_xticks(xs, sweep_tick_labels(sweep), fontsize=8)
+    ax.set_xlim(-0.5, len(levels) - 0.5)
+    ax.set_xlabel(sweep["unit"])
+    ax.set_ylabel("projection difference, px RMS (rotation mode)")
+    where = ("cameras of the catalogue" if sweep["difficulty"] == "fov" else
+             f"camera {sweep['camera']} ({sweep['camera_label']})")
+    ax.set_title(f"stability: {sweep['difficulty']} - {where}, {sweep['family']}, "
+                 f"{sweep['target']}, {sweep['renderer']} K={sweep['spp']}; X = breakdown",
+                 fontsize=9)
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = ax2.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=3,
+              fontsize=7, frameon=False)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def fig_sweeps(sweeps, out):
-    r'''One stability chart per sweep document (harness.sweep.stability_chart) -> [Figure]'''
-    from harness.sweep import level_text, stability_chart
+    r'''One stability chart per sweep document (stability_chart) -> [Figure]'''
     figs = []
     used = set()
     for sw in sweeps:
@@ -548,3 +629,72 @@ def make_figures(records, run_dir, out):
     if sp is not None:
         figs.append(sp)
     return figs
+
+
+def stereo_figure(result, path, variant="clean"):
+    r'''The paper's Fig. 12 made quantitative: range- and elevation-coloured stereo
+views, the true range, and the range-error map (harness.stereo.run_stereo_check's result)'''
+    plt = _plt()
+    v = result.variants[variant]
+    rng, truth = v.range, result.true_range
+    # elevation of the stereo points: the rectified ray scaled by the stereo range
+    import mrcal
+    mr = result.models_rectified[0]
+    W, Hh = mr.imagersize()
+    q = np.stack(np.meshgrid(np.arange(W, dtype=float), np.arange(Hh, dtype=float)), axis=-1)
+    vc = mrcal.unproject(np.ascontiguousarray(q), *mr.intrinsics(), normalize=True)
+    Rt = mr.Rt_ref_cam()
+    p_ref = Rt[3] + (vc @ Rt[:3].T) * rng[..., None]
+    R, T = result.setup.Rt_ref_terrain[:3], result.setup.Rt_ref_terrain[3]
+    elev = ((p_ref - T) @ R)[..., 2]
+    rel = (rng - truth) / truth
+    # the sky has no truth; SGBM still "matches" its flat black: hide it in the views
+    sky = ~np.isfinite(truth)
+    rng = np.where(sky, np.nan, rng)
+    elev = np.where(sky, np.nan, elev)
+
+    finite = np.isfinite(truth)
+    rmax = float(np.nanpercentile(truth[finite], 98)) if finite.any() else 10.0
+    fig, ax = plt.subplots(2, 3, figsize=(16, 9.5))
+    ax[0, 0].imshow(result.rectified[0], cmap="gray", vmin=0, vmax=1)
+    ax[0, 0].set_title(f"rectified left ({result.setup.names[0]})")
+    im = ax[0, 1].imshow(rng, cmap="turbo", vmin=0, vmax=rmax)
+    ax[0, 1].set_title(f"stereo range, coloured by distance ({variant}; sky masked)")
+    fig.colorbar(im, ax=ax[0, 1], label="m")
+    et = result.elevation_true
+    e_lo, e_hi = (np.nanpercentile(et, [1, 99]) if np.isfinite(et).any() else (0, 1))
+    im = ax[0, 2].imshow(elev, cmap="terrain", vmin=e_lo, vmax=e_hi)
+    ax[0, 2].set_title("stereo points, coloured by elevation")
+    fig.colorbar(im, ax=ax[0, 2], label="m above the datum")
+    im = ax[1, 0].imshow(truth, cmap="turbo", vmin=0, vmax=rmax)
+    ax[1, 0].set_title("true range (exact ray cast)")
+    fig.colorbar(im, ax=ax[1, 0], label="m")
+    im = ax[1, 1].imshow(100 * rel, cmap="RdBu_r", vmin=-5, vmax=5)
+    ax[1, 1].set_title("range error (stereo - truth) / truth")
+    fig.colorbar(im, ax=ax[1, 1], label="%")
+    band = v.stats["band"]
+    ok = np.isfinite(rel)
+    ax[1, 2].hist(np.clip(100 * rel[ok], -10, 10), bins=200, color="0.3")
+    lo, hi = band["range_m"]
+    inb = ok & (truth >= lo) & (truth <= hi)
+    ax[1, 2].hist(np.clip(100 * rel[inb], -10, 10), bins=200, color="C3", alpha=0.8,
+                  label=f"true range {lo:g}-{hi:g} m")
+    ax[1, 2].set_yscale("log")
+    ax[1, 2].set_xlabel("range error, % (clipped to +-10)")
+    ax[1, 2].legend()
+    s = v.stats
+    txt = (f"valid {100 * s['valid_fraction']:.1f}%; median |err| "
+           f"{100 * s['all'].get('median_abs_rel_error', float('nan')):.2f}%; "
+           f"at {lo:g}-{hi:g} m: median {100 * band.get('median_rel_error', float('nan')):+.2f}%"
+           f", median |err| {100 * band.get('median_abs_rel_error', float('nan')):.2f}%, "
+           f"p95 {100 * band.get('p95_abs_rel_error', float('nan')):.2f}%")
+    ax[1, 2].set_title(txt, fontsize=8)
+    for a in ax.ravel()[:5]:
+        a.set_xticks([])
+        a.set_yticks([])
+    fig.suptitle(f"stereo range check: {result.setup.names[0]} / {result.setup.names[1]}"
+                 f" (scale {result.setup.scale:g}, K={result.meta['spp']}, "
+                 f"render model: {result.meta['render_model']})")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -5,7 +5,7 @@ import json
 import pytest
 from synthetic import catalogue_models
 
-from harness.cli import main
+from camval.cli import main
 from reference_models.cahvore import truncate
 from reference_models.jpl_files import read_model
 

@@ -113,7 +113,7 @@ def test_missing_file_and_non_table():
 
 def test_cli_bad_campaign_is_one_line_exit_2(tmp_path):
     p = _write(tmp_path, 'cameras = [15]\n[[renderer]]\nname = "blender"\n')
-    out = subprocess.run([sys.executable, "-m", "harness.cli", "verify", str(p), "--out",
+    out = subprocess.run([sys.executable, "-m", "camval.cli", "verify", str(p), "--out",
                           str(tmp_path / "run")], capture_output=True, text=True, cwd=ROOT,
                          timeout=120)
     assert out.returncode == 2
@@ -232,7 +232,7 @@ def test_response_errors_name_the_key(tmp_path, text, message):
 
 def test_cli_bad_response_stage_is_one_line_exit_2(tmp_path):
     p = _write(tmp_path, 'cameras = [15]\n[response.noisy]\nshot_noise = {}\nblur = {}\n')
-    out = subprocess.run([sys.executable, "-m", "harness.cli", "verify", str(p), "--out",
+    out = subprocess.run([sys.executable, "-m", "camval.cli", "verify", str(p), "--out",
                           str(tmp_path / "run")], capture_output=True, text=True, cwd=ROOT,
                          timeout=120)
     assert out.returncode == 2

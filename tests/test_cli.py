@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.cli import main
+from camval.cli import main
 from reference_models.jpl_files import read_model
 
 REPO = Path(__file__).resolve().parent.parent
@@ -16,7 +16,7 @@ REPO = Path(__file__).resolve().parent.parent
 def camval(*args):
     r'''Run camval in a subprocess: (returncode, stdout, stderr)'''
     exe = Path(sys.executable).with_name("camval")
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "harness.cli"]
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "camval.cli"]
     r = subprocess.run(cmd + list(args), capture_output=True, text=True, cwd=REPO,
                        timeout=120)
     return r.returncode, r.stdout, r.stderr
@@ -31,7 +31,7 @@ def test_help_is_instant():
 
 def test_help_imports_nothing_heavy():
     # the proxy for "instant": no numpy/mrcal import before the arguments are parsed
-    code = ("import sys\nfrom harness.cli import main\n"
+    code = ("import sys\nfrom camval.cli import main\n"
             "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
             "heavy = [m for m in ('numpy', 'mrcal', 'cv2', 'scipy') if m in sys.modules]\n"
             "print('HEAVY', heavy)\n")

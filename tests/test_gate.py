@@ -134,7 +134,7 @@ def test_shipped_gate_spec_parses():
 
 
 def _cli(*args, cwd=ROOT):
-    return subprocess.run([sys.executable, "-m", "harness.cli", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "camval.cli", *map(str, args)],
                           capture_output=True, text=True, cwd=cwd, timeout=120)
 
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from harness.cli import main
+from camval.cli import main
 from reference_models.catalogue import load_catalogue, model_from_fields
 from reference_models.jpl_files import write_model
 from renderers.base import RenderSettings, get_renderer
@@ -85,7 +85,7 @@ def test_never_overwrites_without_force(tmp_path, capsys):
 
 
 def test_poses_writes_six_pairs_that_calibrate_reads(tmp_path, model):
-    from harness.commands.calibrate import (
+    from camval.commands.calibrate import (
         _model_from_sidecar,
         _pose_files,
         _Rt_from_sidecar,

@@ -220,13 +220,13 @@ def test_html_in_headless_chromium(which, request):
 def test_cli_report(run_dir, tmp_path):
     import sys
     root = Path(__file__).resolve().parent.parent
-    out = subprocess.run([sys.executable, "-m", "harness.cli", "report", str(run_dir), "--out",
+    out = subprocess.run([sys.executable, "-m", "camval.cli", "report", str(run_dir), "--out",
                           str(tmp_path / "rep")], capture_output=True, text=True, cwd=root,
                          timeout=300)
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "rep" / "report.html").is_file()
     assert "figures in" in out.stdout
-    out = subprocess.run([sys.executable, "-m", "harness.cli", "report", str(tmp_path)],
+    out = subprocess.run([sys.executable, "-m", "camval.cli", "report", str(tmp_path)],
                          capture_output=True, text=True, cwd=root, timeout=120)
     assert out.returncode == 2 and "not a camval run directory" in out.stderr
 

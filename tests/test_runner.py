@@ -165,7 +165,7 @@ def test_executor_usage_errors(tmp_path):
     (["--resume", "/nonexistent/run"], "not a camval run directory"),
 ])
 def test_verify_usage_errors_exit_2(args, message):
-    out = subprocess.run([sys.executable, "-m", "harness.cli", "verify", *args],
+    out = subprocess.run([sys.executable, "-m", "camval.cli", "verify", *args],
                          capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert out.returncode == 2, out.stderr
     assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1
@@ -417,7 +417,7 @@ def test_cli_dask_executor_with_a_scheduler_address(first_run, tmp_path):
                     '[[calibrator]]\nname = "jpl"\n')
     with patient_local_cluster(protocol="tcp") as cluster:
         assert cluster.scheduler_address.startswith("tcp://")
-        out = subprocess.run([sys.executable, "-m", "harness.cli", "verify", str(camp),
+        out = subprocess.run([sys.executable, "-m", "camval.cli", "verify", str(camp),
                               "--executor", "dask", "--scheduler", cluster.scheduler_address,
                               "--out", str(tmp_path / "run"), "--no-report", "--quiet"],
                              capture_output=True, text=True, cwd=ROOT, timeout=1800,

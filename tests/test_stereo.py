@@ -153,7 +153,7 @@ def test_refinement_needs_texture_and_valid_input():
 
 
 def test_every_response_stage_has_a_variant():
-    from harness.commands.stereo import STAGE_VARIANTS, VARIANTS
+    from camval.commands.stereo import STAGE_VARIANTS, VARIANTS
     from renderers.response import STAGES, ResponseChain
     covered = set()
     for name in STAGE_VARIANTS:
@@ -166,7 +166,7 @@ def test_every_response_stage_has_a_variant():
 
 
 def test_stage_table_and_markdown():
-    from harness.commands.stereo import markdown_table, stage_table
+    from camval.commands.stereo import markdown_table, stage_table
 
     def stats(med, medabs, valid):
         return {"valid_fraction": valid, "all": {"median_abs_rel_error": medabs / 10,
@@ -195,7 +195,7 @@ def test_stage_table_and_markdown():
 
 
 def test_unknown_variant_is_refused(tmp_path):
-    from harness.commands import stereo as cmd
+    from camval.commands import stereo as cmd
     p = argparse.ArgumentParser()
     cmd.add_arguments(p)
     with pytest.raises(StereoError, match="known: clean, vignetting, psf"):
@@ -205,7 +205,7 @@ def test_unknown_variant_is_refused(tmp_path):
 def test_hazcam_quarter_scale_command(tmp_path):
     r"""MER B front hazcams at quarter scale (256x256) through camval stereo: the files,
 the table and the refinement's gain over SGBM, with measured values"""
-    from harness.commands import stereo as cmd
+    from camval.commands import stereo as cmd
     p = argparse.ArgumentParser()
     cmd.add_arguments(p)
     args = p.parse_args(["12", "11", "-o", str(tmp_path), "--scale", "0.25",
@@ -255,7 +255,7 @@ images (measured 0.79%, signed -0.16%, valid 82%; SGBM alone 1.75%)"""
 def test_navcam_pair_meets_the_bar():
     r"""Slots 21, 22 at quarter scale (1280x960): median |range error| at 4.5-5.5 m within
 1% on clean images (measured 0.076%, valid 86%), and noise makes it worse"""
-    from harness.commands.stereo import VARIANTS
+    from camval.commands.stereo import VARIANTS
     from harness.stereo import run_stereo_check
     setup = StereoSetup.from_catalogue(21, 22, scale=0.25)
     r = run_stereo_check(setup, variants={"clean": {}, "noise": VARIANTS["noise"]}, spp=2)

@@ -131,7 +131,7 @@ def test_tilt_sweep_degrades_and_breaks():
 
 @pytest.mark.slow
 def test_cli_dot_size_sweep_writes_its_report(tmp_path, capsys):
-    from harness.cli import main
+    from camval.cli import main
     assert main(["sweep", "--camera", "17", "--difficulty", "dots", "--levels", "12,2",
                  "--calibrators", "jpl:CAHVOR", "--spp", "2", "--poses", "4",
                  "-o", str(tmp_path)]) == 0

@@ -24,7 +24,7 @@ pytestmark = pytest.mark.slow
 
 
 def _camval(*args, **kw):
-    return subprocess.run([sys.executable, "-m", "harness.cli", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "camval.cli", *map(str, args)],
                           capture_output=True, text=True, cwd=ROOT, **kw)
 
 
@@ -84,7 +84,7 @@ def test_interrupted_run_resumes_and_dask_agrees(tmp_path):
                     '[[renderer]]\nname = "raycast"\nspp = 4\n'
                     '[[calibrator]]\nname = "jpl"\n')
     run = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "harness.cli", "verify", str(camp), "--out",
+    proc = subprocess.Popen([sys.executable, "-m", "camval.cli", "verify", str(camp), "--out",
                              str(run), "-j", "1", "--quiet", "--no-report"],
                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)

@@ -9,26 +9,26 @@ unknown cameras, bad options) print one line and exit with status 2.
 '''
 
 # Arguments are parsed before any heavy import: every subcommand lives in a
-# module of its own (harness/commands/*.py) that imports numpy, mrcal, ... only
+# module of its own (camval/commands/*.py) that imports numpy, mrcal, ... only
 # inside its run() function, so `camval --help` is instant.
 
 import argparse
 import importlib
 import sys
 
-# subcommand name -> module in harness.commands providing add_arguments(parser)
+# subcommand name -> module in camval.commands providing add_arguments(parser)
 # and run(args) -> exit status. Later work adds entries here.
 COMMANDS = {
-    "catalogue": "harness.commands.catalogue",
-    "render": "harness.commands.render",
-    "calibrate": "harness.commands.calibrate",
-    "verify": "harness.commands.verify",
-    "report": "harness.commands.report",
-    "gate": "harness.commands.gate",
-    "baseline": "harness.commands.baseline",
-    "renderers": "harness.commands.renderers",
-    "stereo": "harness.commands.stereo",
-    "sweep": "harness.commands.sweep",
+    "catalogue": "camval.commands.catalogue",
+    "render": "camval.commands.render",
+    "calibrate": "camval.commands.calibrate",
+    "verify": "camval.commands.verify",
+    "report": "camval.commands.report",
+    "gate": "camval.commands.gate",
+    "baseline": "camval.commands.baseline",
+    "renderers": "camval.commands.renderers",
+    "stereo": "camval.commands.stereo",
+    "sweep": "camval.commands.sweep",
 }
 
 

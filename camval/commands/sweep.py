@@ -70,8 +70,9 @@ def run(args):
     import json
     from pathlib import Path
 
-    from harness.sweep import DEFAULT_BAR_PX, DIFFICULTIES, SweepError, run_sweep, stability_chart
+    from harness.sweep import DEFAULT_BAR_PX, DIFFICULTIES, SweepError, run_sweep
     from reports.build import build_sweep_report
+    from reports.figures import stability_chart
 
     diffs = [d.strip() for d in args.difficulty.split(",") if d.strip()]
     if diffs == ["all"]:

@@ -102,79 +102,6 @@ def add_arguments(p):
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
 
 
-def write_figure(result, path, variant="clean"):
-    r'''The paper's Fig. 12 made quantitative: range- and elevation-coloured stereo
-views, the true range, and the range-error map'''
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    v = result.variants[variant]
-    rng, truth = v.range, result.true_range
-    # elevation of the stereo points: the rectified ray scaled by the stereo range
-    import mrcal
-    mr = result.models_rectified[0]
-    W, Hh = mr.imagersize()
-    q = np.stack(np.meshgrid(np.arange(W, dtype=float), np.arange(Hh, dtype=float)), axis=-1)
-    vc = mrcal.unproject(np.ascontiguousarray(q), *mr.intrinsics(), normalize=True)
-    Rt = mr.Rt_ref_cam()
-    p_ref = Rt[3] + (vc @ Rt[:3].T) * rng[..., None]
-    R, T = result.setup.Rt_ref_terrain[:3], result.setup.Rt_ref_terrain[3]
-    elev = ((p_ref - T) @ R)[..., 2]
-    rel = (rng - truth) / truth
-    # the sky has no truth; SGBM still "matches" its flat black: hide it in the views
-    sky = ~np.isfinite(truth)
-    rng = np.where(sky, np.nan, rng)
-    elev = np.where(sky, np.nan, elev)
-
-    finite = np.isfinite(truth)
-    rmax = float(np.nanpercentile(truth[finite], 98)) if finite.any() else 10.0
-    fig, ax = plt.subplots(2, 3, figsize=(16, 9.5))
-    ax[0, 0].imshow(result.rectified[0], cmap="gray", vmin=0, vmax=1)
-    ax[0, 0].set_title(f"rectified left ({result.setup.names[0]})")
-    im = ax[0, 1].imshow(rng, cmap="turbo", vmin=0, vmax=rmax)
-    ax[0, 1].set_title(f"stereo range, coloured by distance ({variant}; sky masked)")
-    fig.colorbar(im, ax=ax[0, 1], label="m")
-    et = result.elevation_true
-    e_lo, e_hi = (np.nanpercentile(et, [1, 99]) if np.isfinite(et).any() else (0, 1))
-    im = ax[0, 2].imshow(elev, cmap="terrain", vmin=e_lo, vmax=e_hi)
-    ax[0, 2].set_title("stereo points, coloured by elevation")
-    fig.colorbar(im, ax=ax[0, 2], label="m above the datum")
-    im = ax[1, 0].imshow(truth, cmap="turbo", vmin=0, vmax=rmax)
-    ax[1, 0].set_title("true range (exact ray cast)")
-    fig.colorbar(im, ax=ax[1, 0], label="m")
-    im = ax[1, 1].imshow(100 * rel, cmap="RdBu_r", vmin=-5, vmax=5)
-    ax[1, 1].set_title("range error (stereo - truth) / truth")
-    fig.colorbar(im, ax=ax[1, 1], label="%")
-    band = v.stats["band"]
-    ok = np.isfinite(rel)
-    ax[1, 2].hist(np.clip(100 * rel[ok], -10, 10), bins=200, color="0.3")
-    lo, hi = band["range_m"]
-    inb = ok & (truth >= lo) & (truth <= hi)
-    ax[1, 2].hist(np.clip(100 * rel[inb], -10, 10), bins=200, color="C3", alpha=0.8,
-                  label=f"true range {lo:g}-{hi:g} m")
-    ax[1, 2].set_yscale("log")
-    ax[1, 2].set_xlabel("range error, % (clipped to +-10)")
-    ax[1, 2].legend()
-    s = v.stats
-    txt = (f"valid {100 * s['valid_fraction']:.1f}%; median |err| "
-           f"{100 * s['all'].get('median_abs_rel_error', float('nan')):.2f}%; "
-           f"at {lo:g}-{hi:g} m: median {100 * band.get('median_rel_error', float('nan')):+.2f}%"
-           f", median |err| {100 * band.get('median_abs_rel_error', float('nan')):.2f}%, "
-           f"p95 {100 * band.get('p95_abs_rel_error', float('nan')):.2f}%")
-    ax[1, 2].set_title(txt, fontsize=8)
-    for a in ax.ravel()[:5]:
-        a.set_xticks([])
-        a.set_yticks([])
-    fig.suptitle(f"stereo range check: {result.setup.names[0]} / {result.setup.names[1]}"
-                 f" (scale {result.setup.scale:g}, K={result.meta['spp']}, "
-                 f"render model: {result.meta['render_model']})")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
 def stage_table(doc):
     r'''Rows of the per-variant table: band and all-pixel range errors, change against clean
 
@@ -252,6 +179,7 @@ def run(args):
     from pathlib import Path
 
     from harness.stereo import StereoError, StereoSetup, run_stereo_check
+    from reports.figures import stereo_figure
 
     if args.stages:
         names = list(STAGE_VARIANTS)
@@ -293,7 +221,7 @@ def run(args):
                      for k, v in r.items()} for r in rows]
     paths[0].write_text(json.dumps(doc, indent=1, allow_nan=False, default=_plain))
     paths[1].write_text(markdown_table(doc, rows))
-    write_figure(result, paths[2], variant=names[0])
+    stereo_figure(result, paths[2], variant=names[0])
     lo, hi = next(iter(doc["variants"].values()))["stats"]["band"]["range_m"]
     print(f"{'variant':13s} | at {lo:g}-{hi:g} m: valid  median  med|err|  p95|err| "
           f"(SGBM alone med|err|) | all: valid  med|err|")
@@ -314,19 +242,3 @@ def _plain(o):
         return o.tolist()
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
-
-if __name__ == "__main__":
-    # `camval stereo` once harness/cli.py lists this module; until then:
-    # uv run python -m harness.commands.stereo 21 22 --scale 0.25 -o out/
-    import argparse
-    import sys
-
-    from reference_models.errors import CamvalError
-    ap = argparse.ArgumentParser(prog="camval stereo", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(ap)
-    try:
-        sys.exit(run(ap.parse_args()))
-    except CamvalError as e:
-        print(f"camval stereo: error: {e}", file=sys.stderr)
-        sys.exit(2)
