@@ -53,7 +53,7 @@ resampling of the two raw images into the rectified grid differs near the
 Nyquist frequency (the right image warped by the true disparities differed
 from the left by 1.4x the rms horizontal gradient, at K = 2 and K = 4
 alike); on images rendered directly in the rectified geometry the same
-refinement reached 0.39%. benchmarks/bench_stereo.py --ablation measures
+refinement reached 0.39%. benchmarks/bench_stages.py stereo --ablation measures
 each piece: all of them 0.79%; rectified at 1 px per raw px 0.91%; without
 the low-pass 1.95%; window radius 3 instead of 4 0.85%; SGBM alone at 1 px
 per raw px 1.42% (the old pipeline). Hence the oversampled

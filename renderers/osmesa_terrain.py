@@ -34,7 +34,7 @@ shadowing itself between the texel centres where its depth was stored: for a
 plane tilted by angle i from the sun, depth changes by tan i per metre across
 the map, so bias = BIAS_CONSTANT + slope_bias * tan(i) * (texel diagonal),
 tan i clamped at MAX_TAN; the default slope_bias = 0.5 covers the half-texel
-offset of a plane (benchmarks/bench_shadows.py: 0.5 disagreed with the exact
+offset of a plane (benchmarks/bench_render.py shadows: 0.5 disagreed with the exact
 shadows less than 1.0 or 2.0 at every sun elevation on a 5 cm grid).
 
 Shading: lit colour = exposure * albedo * (ambient + max(cos i, 0)) as

@@ -49,7 +49,7 @@ the compiled unprojection of reference_models.kernels when available). The
 image is the mean over the subpixels; range and shadow are those of the
 pixel-centre ray.
 
-Speed (benchmarks/bench_terrain.py): a warm 1024x1024 render with shadows,
+Speed (benchmarks/bench_render.py terrain): a warm 1024x1024 render with shadows,
 MER hazcam over a 21 x 24 m terrain of 5 cm cells, costs ~0.17 CPU s (0.09 s
 wall on 2 free cores); a new process pays the pixel rays once per (model, K)
 (~0.45 s for CAHVORE) and the pyramid and sun bound once per terrain (~0.07 s);

@@ -609,7 +609,7 @@ OpenCV runs on one thread meanwhile (its previous thread count is restored after
 its thread pool costs CPU time in these calls on small images and boxes (5120x3840:
 about 10 ms of 130 ms per image) and gains no wall time when the campaign's workers
 already use every core. The labels, statistics and pixels are those of the threaded
-calls (bench_detect --check).'''
+calls (benchmarks/bench_stages.py detect --check).'''
     import cv2
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
