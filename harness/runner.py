@@ -15,20 +15,10 @@ SYNOPSIS
     out = run_job(jobs[0])                      # {"job": key, "records": [dict, ...]}
 
 A Job (harness.jobs) is camera x model family x target x renderer setting.
-run_job() runs the stages (harness.stages), each a plain function on plain
-values:
-
-    camera_stage     catalogue entry -> truth model (truncated to the family)
-    poses_stage      truth, target -> [Rt_cam_board] (targets.poses.plan_poses)
-    render_stage     truth, pattern, poses -> [RenderResult]
-    response_stage   images -> images through the job's camera-response profile
-                     (renderers/response.py; skipped for a clean job)
-    detect_stage     images, target -> [Detection]
-    calibrate_stage  detections -> CalibrationResult, once per calibrator model
-    compare_stage    truth, CalibrationResult -> parameter errors, projection difference
-
-and returns one record per calibrator model (harness.job_records). A stage
-that fails (the camera cannot see the target, the renderer raises, nothing is
+run_job() runs the stages of harness.stages (camera, poses, render, response,
+detect, calibrate, compare; its docstring lists them), each a plain function on
+plain values, and returns one record per calibrator model (harness.job_records).
+A stage that fails (the camera cannot see the target, the renderer raises, nothing is
 detected, the calibrator diverges) ends the job's records with status
 "failed", the stage and the reason; it never raises. Jobs are independent;
 the executor (harness.executors) runs them in local processes or on a Dask
