@@ -265,3 +265,19 @@ def test_navcam_pair_meets_the_bar():
     assert b["valid_fraction"] > 0.8
     bn = r.variants["noise"].stats["band"]
     assert bn["median_abs_rel_error"] > b["median_abs_rel_error"]
+
+
+def test_images_come_from_the_named_terrain_renderer():
+    r"""The images are the registry's terrain renderer's (default raycast_terrain, exactly
+its module's render); a board renderer is refused before anything is rendered"""
+    from harness.stereo import DEFAULT_TERRAIN_RENDERER, run_stereo_check
+    from renderers.base import RendererError
+    from renderers.raycast_terrain import render_terrain
+    setup = StereoSetup.from_catalogue(12, 11, scale=0.125)     # 128x128
+    with pytest.raises(RendererError, match="'raycast' does not render terrain scenes"):
+        run_stereo_check(setup, renderer="raycast")
+    assert DEFAULT_TERRAIN_RENDERER == "raycast_terrain"
+    r = run_stereo_check(setup, spp=1)
+    for image, model in zip(r.images, (setup.left, setup.right), strict=True):
+        want = render_terrain(model, setup.terrain, setup.Rt_ref_terrain, spp=1).image
+        assert np.array_equal(image, want)
