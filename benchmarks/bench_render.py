@@ -637,7 +637,7 @@ SUN_STEPS_DEG = (0.1, 0.25, 0.5, 1.0)
 def _marginal(terrain, exact, diff):
     r'''Of the differing triangles, the fraction whose exact state flips when the sun
 moves by each step (elevation or azimuth, either way)'''
-    from renderers.terrain_shadows import raycast_cell_shadows
+    from renderers.raycast_terrain import cell_shadows as raycast_cell_shadows
     from targets.terrain import Sun
 
     s = exact != 0
@@ -726,7 +726,8 @@ render and the per-pixel shadow agreement.
 Records: shadows/sun=<elevation>/<a>~<b>, shadows/camera/<renderer>.
 '''
     from renderers import osmesa_terrain, povray_terrain
-    from renderers.terrain_shadows import compare, raycast_cell_shadows
+    from renderers.raycast_terrain import cell_shadows as raycast_cell_shadows
+    from renderers.terrain_shadows import compare
     from targets.terrain import Sun, make_terrain
 
     elevations = [float(v) for v in args.elevations.split(",")]

@@ -309,12 +309,20 @@ Returns {camera spec: CatalogueEntry}.
                 entries[spec] = catalogue.get(spec)
             except CamvalError as e:
                 raise CampaignError(f"{_where(src, f'cameras[{i}]')}: {e}") from None
-        from renderers.base import known_renderers
+        from renderers.base import known_renderers, renderer_scenes
         known = known_renderers()
         for i, r in enumerate(self.renderers):
             if r.name not in known:
                 raise CampaignError(f"{_where(src, f'renderer[{i}].name')}: unknown renderer "
                                     f"{r.name!r}; known renderers: {', '.join(sorted(known))}")
+            try:
+                scenes = renderer_scenes(r.name)
+            except Exception:   # an unavailable backend fails in its own records
+                scenes = ("board",)
+            if "board" not in scenes:
+                raise CampaignError(f"{_where(src, f'renderer[{i}].name')}: renderer {r.name!r} "
+                                    f"renders {', '.join(scenes)} scenes, not the boards of a "
+                                    f"campaign")
         from harness.calibrators import CalibratorError, calibrator_module, known_calibrators
         cal_known = known_calibrators()
         for i, c in enumerate(self.calibrators):

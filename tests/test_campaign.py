@@ -241,3 +241,10 @@ def test_cli_bad_response_stage_is_one_line_exit_2(tmp_path):
     assert "response.noisy.blur: unknown key; known keys: seed, full_well_e, vignetting" \
         in lines[0]
     assert not (tmp_path / "run").exists()
+
+
+def test_a_terrain_only_renderer_is_refused_with_the_scene_kinds(tmp_path):
+    doc = {"name": "t", "cameras": [15], "models": ["CAHV"],
+           "renderer": [{"name": "raycast_terrain"}], "calibrator": [{"name": "jpl"}]}
+    with pytest.raises(CampaignError, match="renders terrain scenes, not the boards"):
+        parse_campaign(doc).validate()

@@ -99,6 +99,9 @@ def add_arguments(p):
     p.add_argument("--prefilter", type=float, default=0.8,
                    help="Gaussian low-pass before the refinement, std in raw px (default 0.8)")
     p.add_argument("--seed", type=int, default=0, help="terrain and noise seed")
+    p.add_argument("--renderer", default="raycast_terrain",
+                   help="terrain renderer, a registry name (camval renderers list; default "
+                        "raycast_terrain)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
 
 
@@ -214,7 +217,8 @@ def run(args):
                               photometric={"auto": "auto", "on": True,
                                            "off": False}[args.photometric],
                               flat_field=args.flat_field,
-                              seed=args.seed, progress=lambda s: print(f"  {s}", flush=True))
+                              seed=args.seed, renderer=args.renderer,
+                              progress=lambda s: print(f"  {s}", flush=True))
     doc = result.as_dict()
     rows = stage_table(doc)
     doc["table"] = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v)
