@@ -184,7 +184,7 @@ def _fit_rotation(fit, p_cam, q, nmax=2000):
 
     # scipy's 2-point Jacobian, bit for bit, remembering the last point's residuals and
     # Jacobian (scipy asks for the Jacobian at the solution again when MINPACK returns)
-    from harness.calibrators.jpl_fit import forward_difference, remembering
+    from harness.least_squares import forward_difference, remembering
     fun, jac = remembering(res, lambda r, f0: forward_difference(res, r, f0))
 
     with np.errstate(all="ignore"):
