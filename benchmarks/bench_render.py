@@ -535,7 +535,7 @@ def part_terrain(args, out):
 Renders the generated terrain (targets.terrain.make_terrain, 21 x 24 m, 5 cm
 cells, 1 cm texels, rocks) through the MER B front-left hazcam (catalogue slot
 12, CAHVORE, 1024x1024, 0.30 m above the ground) and through the Mars 2020
-navcam (slot 21) scaled by 0.2 to 1024x768 (harness.stereo.scale_model), on a
+navcam (slot 21) scaled by 0.2 to 1024x768 (harness.studies.stereo.scale_model), on a
 mast 1.9 m high pitched 20 deg down, with shadows on and off, K = 1; and the
 hazcam again with the sun 10 deg high (long shadows, a larger sun bound).
 
@@ -555,7 +555,7 @@ Records: terrain/<case>/shadows=<on|off>, terrain/cold-start.
 '''
     import numba
 
-    from harness.stereo import scale_model
+    from harness.studies.stereo import scale_model
     from reference_models.catalogue import load_catalogue
     from renderers.raycast_terrain import pixel_rays, render_terrain
     from targets.terrain import Sun, ground_pose, make_terrain
@@ -655,7 +655,7 @@ moves by each step (elevation or azimuth, either way)'''
 
 
 def _camera_renders(out, terrain):
-    from harness.stereo import scale_model
+    from harness.studies.stereo import scale_model
     from reference_models.catalogue import load_catalogue
     from renderers import osmesa_terrain, povray_terrain, raycast_terrain
     from targets.terrain import ground_pose

@@ -616,7 +616,7 @@ def _band(stats):
 
 
 def stereo_case(out, key, name, left, right, scale, **kw):
-    from harness.stereo import StereoSetup, run_stereo_check
+    from harness.studies.stereo import StereoSetup, run_stereo_check
     setup = StereoSetup.from_catalogue(left, right, scale=scale)
     with common.Stopwatch() as sw:
         r = run_stereo_check(setup, variants={"clean": {}}, spp=2, **kw)
@@ -642,7 +642,7 @@ def stereo_case(out, key, name, left, right, scale, **kw):
 def part_stereo(args, out):
     r'''Stereo range check: the 1% bars at 5 m, what each matching step buys, and its cost
 
-Runs harness.stereo.run_stereo_check on clean images (K = 2) for the two pairs
+Runs harness.studies.stereo.run_stereo_check on clean images (K = 2) for the two pairs
 of the bar: the MER B front hazcams (slots 12, 11) at full resolution
 (1024x1024) and the Mars 2020 navcams (slots 21, 22) at quarter scale
 (1280x960). For each it reports, in the band of true ranges 4.5-5.5 m, the

@@ -132,7 +132,7 @@ def _md_figure(f, out):
 
 
 def is_sweep(doc):
-    r'''Whether a JSON document is a harness.sweep.run_sweep result'''
+    r'''Whether a JSON document is a harness.studies.sweep.run_sweep result'''
     return (isinstance(doc, dict) and isinstance(doc.get("records"), list)
             and isinstance(doc.get("breakdown"), dict) and "difficulty" in doc
             and "levels" in doc)
@@ -140,7 +140,7 @@ def is_sweep(doc):
 
 def find_sweeps(directory):
     r'''[sweep document] from DIR/sweep_*.json and DIR/sweeps/**/sweep_*.json, in the order
-of harness.sweep.DIFFICULTIES'''
+of harness.studies.sweep.DIFFICULTIES'''
     d = Path(directory)
     paths = sorted(set(d.glob("sweep_*.json")) | set(d.glob("sweeps/**/sweep_*.json")))
     out = []
@@ -152,7 +152,7 @@ of harness.sweep.DIFFICULTIES'''
         if is_sweep(doc):
             doc["_path"] = str(p.relative_to(d))
             out.append(doc)
-    from harness.sweep import DIFFICULTIES
+    from harness.studies.sweep import DIFFICULTIES
     order = {k: i for i, k in enumerate(DIFFICULTIES)}
     return sorted(out, key=lambda sw: (order.get(sw["difficulty"], len(order)), sw["_path"]))
 
@@ -192,12 +192,12 @@ def truth_resolver(doc, run_dir):
 def _sweep_sections(sweeps, figs, out):
     r'''(html lines, markdown lines) of the stability-sweep section'''
     h = ["<h2 id=\"sweeps\">Stability sweeps</h2>",
-         "<p>One difficulty varied at a time (harness/sweep.py), everything else fixed. A "
+         "<p>One difficulty varied at a time (harness/studies/sweep.py), everything else fixed. A "
          "method breaks at the first level where the target is not found in every point of "
          "every image, the calibration fails, or the projection difference exceeds the "
          "bar.</p>"]
     m = ["## Stability sweeps", "",
-         "One difficulty varied at a time (harness/sweep.py), everything else fixed. A method "
+         "One difficulty varied at a time (harness/studies/sweep.py), everything else fixed. A method "
          "breaks at the first level where the target is not found in every point of every "
          "image, the calibration fails, or the projection difference exceeds the bar.", ""]
     for sw, f in zip(sweeps, figs, strict=True):

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.sweep import level_text
+from harness.studies.sweep import level_text
 
 from .tables import render_variant, render_variants
 
@@ -521,7 +521,7 @@ or the mean board range in metres (range)'''
 def stability_chart(sweep, path):
     r'''One stability chart: projection difference per method against the level,
 breakdown points marked (X and a dotted line), detection rate on a second axis,
-levels that could not be set up shaded (a harness.sweep.run_sweep document)'''
+levels that could not be set up shaded (a harness.studies.sweep.run_sweep document)'''
     plt = _plt()
     fig, ax = plt.subplots(figsize=(8, 5.6))
     ax2 = ax.twinx()
@@ -633,7 +633,7 @@ def make_figures(records, run_dir, out):
 
 def stereo_figure(result, path, variant="clean"):
     r'''The paper's Fig. 12 made quantitative: range- and elevation-coloured stereo
-views, the true range, and the range-error map (harness.stereo.run_stereo_check's result)'''
+views, the true range, and the range-error map (harness.studies.stereo.run_stereo_check's result)'''
     plt = _plt()
     v = result.variants[variant]
     rng, truth = v.range, result.true_range

@@ -306,7 +306,7 @@ def legacy_signature_note(rows):
 
 
 # ---------------------------------------------------------------------------------------------
-# stability sweeps (harness/sweep.py documents)
+# stability sweeps (harness/studies/sweep.py documents)
 def _lv(v):
     return f"{v:g}" if isinstance(v, float) else str(v)
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from harness.colmap_selfcal import _pose_sequence, closest_colmap_model
+from harness.studies.colmap_selfcal import _pose_sequence, closest_colmap_model
 
 
 def test_closest_colmap_model(catalogue):
@@ -22,7 +22,7 @@ def test_pose_sequence_drives_forward_at_constant_height(catalogue):
 
 @pytest.mark.slow
 def test_selfcal_recovers_the_focal_length(tmp_path):
-    from harness.colmap_selfcal import run_selfcal
+    from harness.studies.colmap_selfcal import run_selfcal
     r = run_selfcal(15, n_images=8, scale=0.5, workdir=tmp_path, with_target=False)
     sc = r["selfcal"]
     assert sc["status"] == "ok", sc.get("reason")

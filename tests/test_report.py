@@ -266,7 +266,7 @@ in the legacy renderer's images) and of the truth, compared with the truth'''
 
 
 def _sweep_doc():
-    from harness.sweep import breakdowns
+    from harness.studies.sweep import breakdowns
     levels = [0.0, 30.0, 60.0]
     recs = [{"level": lv, "calibrator": "jpl", "model": "CAHVOR", "status": st,
              "detection_rate": rate, "projection_rms_px": rms, "broken": broken,

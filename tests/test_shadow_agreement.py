@@ -219,7 +219,7 @@ def test_povray_shades_like_the_exact_renderer():
 @pytest.mark.slow
 @needs_povray
 def test_camera_renders_of_the_three_agree():
-    from harness.stereo import scale_model
+    from harness.studies.stereo import scale_model
     from reference_models.catalogue import load_catalogue
     from renderers.povray_terrain import render_terrain as povray_render
     from renderers.raycast_terrain import render_terrain as raycast_render
@@ -259,7 +259,7 @@ def test_camera_renders_of_the_three_agree():
 @pytest.mark.slow
 @needs_povray
 def test_povray_mesh_camera_render_equals_the_exact_one_for_a_fisheye():
-    from harness.stereo import scale_model
+    from harness.studies.stereo import scale_model
     from reference_models.catalogue import load_catalogue
     from renderers.povray_terrain import render_terrain as povray_render
     from renderers.raycast_terrain import render_terrain as raycast_render

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from harness.stereo import (
+from harness.studies.stereo import (
     REFINE_FLAT,
     REFINE_NO_MATCH,
     REFINE_OK,
@@ -239,7 +239,7 @@ the table and the refinement's gain over SGBM, with measured values"""
 def test_hazcam_pair_meets_the_bar_at_full_resolution():
     r"""Slots 12, 11 (1024x1024): median |range error| at 4.5-5.5 m within 1% on clean
 images (measured 0.79%, signed -0.16%, valid 82%; SGBM alone 1.75%)"""
-    from harness.stereo import run_stereo_check
+    from harness.studies.stereo import run_stereo_check
     setup = StereoSetup.from_catalogue(12, 11)
     r = run_stereo_check(setup, variants={"clean": {}}, spp=2)
     b = r.variants["clean"].stats["band"]
@@ -256,7 +256,7 @@ def test_navcam_pair_meets_the_bar():
     r"""Slots 21, 22 at quarter scale (1280x960): median |range error| at 4.5-5.5 m within
 1% on clean images (measured 0.076%, valid 86%), and noise makes it worse"""
     from camval.commands.stereo import VARIANTS
-    from harness.stereo import run_stereo_check
+    from harness.studies.stereo import run_stereo_check
     setup = StereoSetup.from_catalogue(21, 22, scale=0.25)
     r = run_stereo_check(setup, variants={"clean": {}, "noise": VARIANTS["noise"]}, spp=2)
     b = r.variants["clean"].stats["band"]
@@ -270,7 +270,7 @@ def test_navcam_pair_meets_the_bar():
 def test_images_come_from_the_named_terrain_renderer():
     r"""The images are the registry's terrain renderer's (default raycast_terrain, exactly
 its module's render); a board renderer is refused before anything is rendered"""
-    from harness.stereo import DEFAULT_TERRAIN_RENDERER, run_stereo_check
+    from harness.studies.stereo import DEFAULT_TERRAIN_RENDERER, run_stereo_check
     from renderers.base import RendererError
     from renderers.raycast_terrain import render_terrain
     setup = StereoSetup.from_catalogue(12, 11, scale=0.125)     # 128x128

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from harness.sweep import (
+from harness.studies.sweep import (
     DIFFICULTIES,
     LevelNotApplicable,
     SweepError,

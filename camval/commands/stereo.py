@@ -6,7 +6,7 @@ Renders a generated terrain through both cameras of a catalogue stereo pair
 (same frame), rectifies with mrcal (theta = 90, E = 0 versions of the models,
 LENSMODEL_LATLON, 1.5 rectified px per raw px at the centre), matches with
 OpenCV StereoSGBM, refines the disparities to subpixel precision
-(harness.stereo.refine_disparity), triangulates with mrcal.stereo_range and
+(harness.studies.stereo.refine_disparity), triangulates with mrcal.stereo_range and
 compares with the exact range along the same rectified rays. Writes
 DIR/stereo_<L>_<R>.json (statistics per response variant: valid-pixel
 fraction, median and 95th-percentile range errors, over all pixels and in a
@@ -181,7 +181,7 @@ def run(args):
     import math
     from pathlib import Path
 
-    from harness.stereo import StereoError, StereoSetup, run_stereo_check
+    from harness.studies.stereo import StereoError, StereoSetup, run_stereo_check
     from reports.figures import stereo_figure
 
     if args.stages:

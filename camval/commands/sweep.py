@@ -4,7 +4,7 @@ camval sweep [--camera 15] [--model CAHVOR] [--target dots] [--difficulty noise,
              [--levels 0,100,1000] [--calibrators jpl:CAHVOR,mrcal:CAHVOR,opencv:OPENCV5]
              [--spp 8] [--poses 6] [--bar 0.05] [-o DIR] [--force]
 
-Difficulties (harness/sweep.py; "all" runs every one):
+Difficulties (harness/studies/sweep.py; "all" runs every one):
 
   noise   read noise, e- (shot noise, 20000 e- well, 12 bit)   rendered once
   blur    Gaussian PSF sigma, px                               rendered once
@@ -54,7 +54,7 @@ def add_arguments(p):
 
 def parse_levels(text, difficulty):
     r'''"0,100,1e3" -> [0, 100, 1000.0]; camera names stay strings for fov'''
-    from harness.sweep import SweepError
+    from harness.studies.sweep import SweepError
     items = [v.strip() for v in text.split(",") if v.strip()]
     if not items:
         raise SweepError("--levels is empty")
@@ -70,7 +70,7 @@ def run(args):
     import json
     from pathlib import Path
 
-    from harness.sweep import DEFAULT_BAR_PX, DIFFICULTIES, SweepError, run_sweep
+    from harness.studies.sweep import DEFAULT_BAR_PX, DIFFICULTIES, SweepError, run_sweep
     from reports.build import build_sweep_report
     from reports.figures import stability_chart
 

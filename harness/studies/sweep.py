@@ -2,7 +2,7 @@ r'''Stability sweeps: vary one difficulty at a time and find where each method b
 
 SYNOPSIS
 
-    from harness.sweep import run_sweep, breakdowns
+    from harness.studies.sweep import run_sweep, breakdowns
 
     sw = run_sweep(camera=15, family="CAHVOR", target="dots", difficulty="noise",
                    calibrators=(("jpl", "CAHVOR"), ("mrcal", "CAHVOR"), ("opencv", "OPENCV5")))

@@ -2,13 +2,13 @@ r'''COLMAP without a target: self-calibration from a rover's terrain image seque
 
 SYNOPSIS
 
-    from harness.colmap_selfcal import run_selfcal
+    from harness.studies.colmap_selfcal import run_selfcal
 
     r = run_selfcal(camera=15, colmap_model="OPENCV", n_images=10, workdir="out/selfcal")
     r["selfcal"]["projection_rms_px"]      # target-free: COLMAP SfM intrinsics vs the truth
     r["target"]["projection_rms_px"]       # the same camera calibrated on the dot board
 
-    uv run python -m harness.colmap_selfcal --camera 15 -o out/selfcal
+    uv run python -m harness.studies.colmap_selfcal --camera 15 -o out/selfcal
 
 A rover drives over a generated terrain (targets.terrain) in n_images steps
 of `step_m` metres, turning and tilting its mast a little between images; the
@@ -39,7 +39,7 @@ import numpy as np
 def _pose_sequence(model, n, step_m, camera_height_m, look_range_m, yaw_deg, pitch_deg):
     r'''Rt_ref_terrain for each image: the rover moves forward along terrain x,
 yawing and pitching its mast by a few degrees'''
-    from harness.stereo import terrain_pose_for
+    from harness.studies.stereo import terrain_pose_for
     from targets.terrain import ground_pose
     _, pitch0 = terrain_pose_for(model, camera_height_m, look_range_m)
     out = []
@@ -178,7 +178,7 @@ def run_selfcal(camera=15, colmap_model=None, n_images=10, step_m=0.25, spp=2,
     r'''Render the sequence, self-calibrate with COLMAP, compare (see the module docstring)'''
     import cv2
 
-    from harness.stereo import default_geometry
+    from harness.studies.stereo import default_geometry
     from reference_models.catalogue import load_catalogue
     from renderers.raycast_terrain import render_terrain
     from targets.terrain import Sun, make_terrain
@@ -186,7 +186,7 @@ def run_selfcal(camera=15, colmap_model=None, n_images=10, step_m=0.25, spp=2,
     entry = load_catalogue().get(camera)
     truth = entry.model
     if scale != 1.0:
-        from harness.stereo import scale_model
+        from harness.studies.stereo import scale_model
         truth = scale_model(truth, scale)
     colmap_model = colmap_model or closest_colmap_model(truth)
     h = camera_height_m if camera_height_m is not None else default_geometry(entry.role)[0]

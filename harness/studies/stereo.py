@@ -2,7 +2,7 @@ r'''The stereo range check: render terrain through a stereo pair, rectify, match
 
 SYNOPSIS
 
-    from harness.stereo import StereoSetup, run_stereo_check
+    from harness.studies.stereo import StereoSetup, run_stereo_check
 
     setup = StereoSetup.from_catalogue(21, 22, scale=0.25)   # Mars 2020 navcam pair
     noise = {"shot_noise": {}, "read_noise": {"sigma_e": 15}}
