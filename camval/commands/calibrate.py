@@ -201,7 +201,8 @@ def _write_model(result, out, force):
         return None
     m = result.model
     fam = getattr(m, "family", "")
-    if fam in ("CAHV", "CAHVOR", "CAHVORE"):
+    from reference_models.cahvore import FAMILIES
+    if fam in FAMILIES:
         from reference_models.jpl_files import write_model
         path = out / f"fitted.{fam.lower()}"
         write_model(m, path, overwrite=force,

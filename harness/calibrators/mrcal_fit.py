@@ -57,6 +57,8 @@ import time
 
 import numpy as np
 
+from reference_models.cahvore import FAMILIES
+
 from .base import CalibrationFailed, check_homography_conditioning, check_pose_diversity
 from .skeleton import fitted_result, iterate_bias
 
@@ -480,7 +482,7 @@ def _restore(problem, state):
 
 
 def _to_model(cm, model_name):
-    if model_name in ("CAHV", "CAHVOR", "CAHVORE"):
+    if model_name in FAMILIES:
         from reference_models.mrcal_convert import from_mrcal
         return from_mrcal(cm)
     return MrcalModel(cm, model_name)
