@@ -71,7 +71,7 @@ from .protocol import (  # noqa: F401  (re-exported: the protocol's names, as be
 # never part of a record's fullname (harness.records.settings_label reads only "options")
 SETUP_KEYS = ("command", "timeout", "output_format", "version_command", "env",
               "keep_requests", "persistent", "mode", "pinhole_scale", "pinhole_samples",
-              "pinhole_interpolation")
+              "pinhole_interpolation", "pinhole_measure_warp", "max_rays")
 
 
 def _split(command, what="command"):
