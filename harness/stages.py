@@ -376,7 +376,9 @@ are the rotation-mode values: the headline projection difference.
 
 
 # renderer metadata that depends only on the job (not on caches, threads or timing)
-DETERMINISTIC_METADATA = ("samples", "adaptive_fraction", "board_fraction")
+DETERMINISTIC_METADATA = ("samples", "adaptive_fraction", "board_fraction",
+                          # the command renderer's pinhole mode: the warp's own share
+                          "warp_rms", "warp_max")
 
 
 def render_summary(metadatas):
