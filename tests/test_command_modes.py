@@ -159,3 +159,26 @@ def test_c_renderer_records_equal_the_ray_casters(c_renderer, tmp_path):
     for field in ("rms", "max"):
         assert c["projection"][field] == pytest.approx(ref["projection"][field], abs=1e-4)
         assert c["residuals"][field] == pytest.approx(ref["residuals"][field], abs=1e-4)
+
+
+def test_the_warps_share_reaches_the_record():
+    from harness.stages import render_summary
+    s = render_summary([{"samples": 4, "warp_rms": 0.01, "warp_max": 0.2},
+                        {"samples": 4, "warp_rms": 0.03, "warp_max": 0.4}])
+    assert s == {"images": 2, "samples": 8, "warp_rms": pytest.approx(0.02),
+                 "warp_max": pytest.approx(0.3)}
+
+
+@pytest.mark.slow
+def test_camval_render_runs_a_command(tmp_path):
+    out = tmp_path / "x.png"
+    cmd = " ".join(EXAMPLE)
+    p = subprocess.run([sys.executable, "-m", "harness.cli", "render", "17", "-o", str(out),
+                        "--spp", "1", "--renderer", "command", "--command", cmd,
+                        "--setup", "output_format=npy", "--setup", "timeout=300"],
+                       capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert p.returncode == 0, p.stderr
+    assert "command K=1" in p.stdout and out.is_file()
+    import json
+    meta = json.loads(out.with_suffix(".json").read_text())["render"]
+    assert meta["command"] == EXAMPLE and meta["output_format"] == "npy"
