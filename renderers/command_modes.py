@@ -10,7 +10,9 @@ pinhole: camval chooses an ideal pinhole covering the model's field of view
 setup pinhole_scale, default 2), asks the program for its image (K x K
 supersampled, request "pinhole" = {fx, fy, cx, cy, width, height}), and warps
 it to the model with the area-sampled warp (pinhole_samples x pinhole_samples
-remaps per model pixel, default 2; pinhole_interpolation, default bilinear).
+remaps per model pixel; default "auto": area_samples(), enough to integrate
+each model pixel's footprint in the pinhole; pinhole_interpolation, default
+bilinear).
 The warp's own share of the error is measured on every image (setup
 pinhole_measure_warp, default true): the ray caster renders the same pinhole
 and the model exactly, in this process, and metadata warp_rms / warp_max are
@@ -29,15 +31,17 @@ fastest). An image of more than protocol.MAX_RAYS_PER_REQUEST rays is asked
 for in bands of whole rows, one request per band.
 '''
 
+import math
 import os
 
 import numpy as np
 
-from .base import RendererError, RendererNotApplicable
+from .base import RendererError
 from .protocol import MAX_RAYS_PER_REQUEST, check_values, read_image, write_request
 
-PINHOLE_DEFAULTS = {"pinhole_scale": 2.0, "pinhole_samples": 2,
+PINHOLE_DEFAULTS = {"pinhole_scale": 2.0, "pinhole_samples": "auto",
                     "pinhole_interpolation": "bilinear", "pinhole_measure_warp": True}
+MAX_WARP_SAMPLES = 8     # renderers.warp.PinholeWarp's limit
 RAYS_ORDER = ("row iy, column ix, sub-row j, sub-column i (i fastest); sample (i, j) of "
               "pixel (ix, iy) at q = (ix + (i+0.5)/K - 0.5, iy + (j+0.5)/K - 0.5)")
 
@@ -61,11 +65,14 @@ def _pinhole(renderer, setup, model, scene, Rt_cam_board, settings):
     from .warp import PinholeWarp
 
     o = _pinhole_options(setup)
-    try:
-        warp = PinholeWarp.for_model(model, scale=float(o["pinhole_scale"]),
-                                     samples=int(o["pinhole_samples"]))
-    except RendererNotApplicable:
-        raise
+    scale = float(o["pinhole_scale"])
+    samples = o["pinhole_samples"]
+    if samples == "auto":
+        samples = area_samples(PinholeWarp.for_model(model, scale=scale, samples=1))
+    elif isinstance(samples, bool) or not isinstance(samples, int):
+        raise RendererError(f"command renderer: pinhole_samples {samples!r}; expected "
+                            f"\"auto\" or an integer in [1, {MAX_WARP_SAMPLES}]")
+    warp = PinholeWarp.for_model(model, scale=scale, samples=samples)
     pin = warp.pinhole
     extra = {"pinhole": {k: float(v) if k in ("fx", "fy", "cx", "cy") else int(v)
                          for k, v in pin.as_dict().items()}}
@@ -78,12 +85,36 @@ def _pinhole(renderer, setup, model, scene, Rt_cam_board, settings):
         lambda d: read_image(os.path.join(d, OUTPUT_FORMATS[fmt]), pin.width, pin.height))
     interp = o["pinhole_interpolation"]
     image = warp.apply(img_pin, interpolation=interp, Rt_cam_board=Rt_cam_board)
-    meta = {"warp": {"pinhole": extra["pinhole"], "scale": float(o["pinhole_scale"]),
-                     "samples": int(o["pinhole_samples"]), "interpolation": interp}}
+    meta = {"warp": {"pinhole": extra["pinhole"], "scale": scale, "samples": samples,
+                     "interpolation": interp}}
     if o["pinhole_measure_warp"]:
         rms, mx = warp_share(warp, model, scene, Rt_cam_board, settings, interp)
         meta.update(warp_rms=rms, warp_max=mx)
     return image.astype(np.float64), workdir, meta
+
+
+def area_samples(warp):
+    r'''The warp samples per model pixel side that integrate its footprint in the pinhole:
+ceil(the largest stretch, pinhole px per model px, over the image), at most 8
+
+A model pixel covers up to that many pinhole pixels along its widest
+direction (the Jacobian's larger singular value; a fisheye's edge pixels
+cover several times more than its centre's); with fewer samples per side the
+warp skips pinhole pixels and aliases. The finite-difference Jacobian is of
+the warp's own map (pixel centres, no pose).'''
+    mx, my = warp.map()
+    mx = mx.astype(np.float64)
+    my = my.astype(np.float64)
+    a, b = np.gradient(mx, axis=1), np.gradient(mx, axis=0)
+    c, d = np.gradient(my, axis=1), np.gradient(my, axis=0)
+    s1 = a * a + b * b + c * c + d * d
+    det = np.abs(a * d - b * c)
+    smax = np.sqrt(0.5 * (s1 + np.sqrt(np.maximum(s1 * s1 - 4 * det * det, 0.0))))
+    # the float32 map is rounded to half an ulp of its largest coordinate; a difference of
+    # two such values must not add a sample to an exact integer stretch
+    rounding = float(np.finfo(np.float32).eps) * max(float(np.max(np.abs(mx))),
+                                                     float(np.max(np.abs(my))), 1.0)
+    return int(min(MAX_WARP_SAMPLES, max(1, math.ceil(float(np.max(smax)) - rounding))))
 
 
 def warp_share(warp, model, scene, Rt_cam_board, settings, interpolation="bilinear"):

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from render_checks import board_pose, grid_board, small_model
 
-from reference_models.cahvore import CAHVORE
+from reference_models.cahvore import CAHV, CAHVORE
 from renderers.base import RendererError, RendererNotApplicable, RenderSettings, get_renderer
-from renderers.command_modes import bands, read_values, sample_rays
+from renderers.command_modes import area_samples, bands, read_values, sample_rays
+from renderers.warp import PinholeWarp
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 EXAMPLE = [sys.executable, os.path.join(ROOT, "examples", "external_renderer.py")]
@@ -116,13 +117,29 @@ def test_pinhole_mode_records_the_warps_share():
     finally:
         r.close()
     pin = a.metadata["warp"]["pinhole"]
-    assert pin["width"] > 96 * 2 - 1 and a.metadata["warp"]["samples"] == 2
+    assert pin["width"] > 96 * 2 - 1
+    assert a.metadata["warp"]["samples"] == area_samples(PinholeWarp.for_model(m, scale=2.0))
     # the program renders the pinhole exactly, so the whole difference from the exact
     # image is the warp's, and the recorded share is all of it
     d = a.image.astype(np.float64) - _full(m, pat, Rt, 4)
     assert a.metadata["warp_rms"] == pytest.approx(np.sqrt(np.mean(d * d)), rel=1e-6)
     assert a.metadata["warp_max"] == pytest.approx(np.abs(d).max(), rel=1e-6)
     assert 0 < a.metadata["warp_rms"] < 0.05
+
+
+def test_area_samples_cover_each_pixels_footprint_in_the_pinhole():
+    # a CAHV with square pixels is a pinhole: the warp's pinhole is exactly `scale` times
+    # finer everywhere, so scale x scale samples integrate a model pixel
+    m = small_model("CAHV", W=96, H=64, f=90.0)
+    assert [area_samples(PinholeWarp.for_model(m, scale=s)) for s in (1.0, 2.0, 3.0)] == [1, 2, 3]
+    # non-square pixels (Vs = 1.5 Hs): the pinhole follows the finer axis, the other is
+    # 1.5 times coarser, so a model pixel spans 1.5 x scale pinhole pixels along it
+    A = np.array([0.0, 0.0, 1.0])
+    m = CAHV(C=[0, 0, 0], A=A, H=[90, 0, 48], V=[0, 135, 32], width=96, height=64)
+    assert area_samples(PinholeWarp.for_model(m, scale=2.0)) == 3
+    # a fisheye: the edge pixels cover many more pinhole pixels than the centre ones
+    assert area_samples(PinholeWarp.for_model(small_model("CAHVORE", W=96, H=64, f=40.0),
+                                              scale=2.0)) > 2
 
 
 def test_pinhole_mode_declines_a_field_of_view_no_pinhole_covers():
