@@ -365,6 +365,11 @@ would name the records: a CampaignError that says to move it to setup"""
         keys = tuple(getattr(renderer_class(spec.name), "SETUP_KEYS", ()))
     except (ImportError, RendererError):
         return
+    unknown = sorted(set(spec.setup) - set(keys))
+    if unknown:
+        raise CampaignError(f"{_where(src, f'renderer[{i}].setup')}: {', '.join(unknown)} "
+                            f"unknown to {spec.name!r}; its setup: "
+                            f"{', '.join(keys) or '(none)'}")
     misplaced = sorted(set(spec.options) & set(keys))
     if misplaced:
         raise CampaignError(f"{_where(src, f'renderer[{i}].options')}: "

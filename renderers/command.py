@@ -133,6 +133,17 @@ class _Persistent:
             self.stderr.append(line.decode("utf-8", "replace").rstrip("\n"))
 
     def stderr_tail(self):
+        r'''The tail of what the program wrote to stderr, once the drain has caught up with
+what is already in the pipe (the program logs before it answers; this must not lose it)'''
+        deadline = time.monotonic() + 1.0
+        with selectors.DefaultSelector() as sel:
+            try:
+                sel.register(self.proc.stderr.fileno(), selectors.EVENT_READ)
+            except (ValueError, OSError):     # closed: the drain has read everything
+                return tail("\n".join(self.stderr))
+            while self._thread.is_alive() and sel.select(0) and time.monotonic() < deadline:
+                time.sleep(0.005)
+        time.sleep(0.005)    # the line the drain has just read, being appended
         return tail("\n".join(self.stderr))
 
     def ask(self, request_path, timeout):

@@ -199,3 +199,22 @@ def test_camval_render_runs_a_command(tmp_path):
     import json
     meta = json.loads(out.with_suffix(".json").read_text())["render"]
     assert meta["command"] == EXAMPLE and meta["output_format"] == "npy"
+
+
+@pytest.mark.slow
+def test_a_pinhole_only_renderer_passes_the_default_gate_on_the_fisheye(tmp_path):
+    # issue 17's bar: a pinhole-only renderer (the example's pinhole mode) + camval's
+    # area-sampled warp on the Rocky8 CAHVORE fisheye (slot 17), K = 16, the shipped gate
+    from harness.campaign import parse_campaign
+    from harness.gate import check, load_gate_spec
+    from harness.runner import run_campaign
+
+    doc = {"name": "pinhole-17", "cameras": [17], "models": ["CAHVORE"], "targets": ["dots"],
+           "renderer": [{"name": "command", "label": "pinhole-example", "spp": 16,
+                         "setup": {"command": EXAMPLE, "mode": "pinhole", "persistent": True,
+                                   "output_format": "npy", "pinhole_measure_warp": False}}],
+           "calibrator": [{"name": "jpl"}]}
+    run = run_campaign(parse_campaign(doc), tmp_path / "run", progress=False, workers=1)
+    (rec,) = run["records"].values()
+    assert rec["status"] == "ok", rec["reason"]
+    assert check(run, load_gate_spec(os.path.join(ROOT, "campaigns", "gate.toml"))) == []

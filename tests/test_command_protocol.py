@@ -120,6 +120,12 @@ def test_setup_never_names_records_and_label_does():
 def test_campaign_mistakes_about_setup_and_labels():
     with pytest.raises(CampaignError, match=r"command, timeout say how to run 'command'.*setup"):
         _campaign({}, options={"command": ["x"], "timeout": 3}).validate()
+    with pytest.raises(CampaignError, match=r"setup: timout unknown to 'command'; its setup: "
+                                            r"command, timeout"):
+        _campaign({"command": ["x"], "timout": 3}).validate()
+    with pytest.raises(CampaignError, match=r"setup: command unknown to 'raycast'"):
+        parse_campaign({"cameras": [17], "renderer": [
+            {"name": "raycast", "setup": {"command": ["a"]}}]}).validate()
     with pytest.raises(CampaignError, match="label: expected a name"):
         _campaign({}, label="a/b")
     with pytest.raises(CampaignError, match="distinct labels"):
