@@ -154,12 +154,17 @@ RETURNED VALUE
 (origins, directions): float64 (N, 3), N = (y1 - y0) * width * K * K, in the
 order of RAYS_ORDER; origins (1, 3) zeros for a central model.
 '''
+    from . import _raycast_kernels as kern
+
     W = model.width
     d = (np.arange(K) + 0.5) / K - 0.5
-    iy, ix, j, i = np.meshgrid(np.arange(y0, y1), np.arange(W), np.arange(K), np.arange(K),
-                               indexing="ij")
-    q = np.stack((ix + d[i], iy + d[j]), axis=-1).reshape(-1, 2).astype(np.float64)
-    origin, v = model.unproject(q)
+    q = np.empty((y1 - y0, W, K, K, 2))
+    q[..., 0] = np.arange(W)[None, :, None, None] + d[None, None, None, :]
+    q[..., 1] = np.arange(y0, y1)[:, None, None, None] + d[None, None, :, None]
+    # the ray caster's compiled unprojection (the rays it traces; model.unproject's
+    # equations, numba-parallel)
+    origin, v = kern.unproject_grid(kern.pack_model(model), q.reshape(-1, 2))
+    del q
     Rt = model.Rt_ref_cam()
     R, C = Rt[:3], Rt[3]
     v_cam = v @ R

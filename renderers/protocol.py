@@ -68,7 +68,7 @@ PERSISTENT_ENV = ("CAMVAL_PROTOCOL", "persistent")
 ANSWER_STATUSES = ("ok", "not-applicable", "failed")
 # rays mode: the ray files of one request hold at most this many rays (float32 directions:
 # 12 bytes a ray, 4.2 M rays = 50 MB; building them here peaks near 0.5 GB); camval asks for
-# a larger image in bands of whole rows (5120x3840 at K=4: 315 M rays, 75 requests)
+# a larger image in bands of whole rows (5120x3840 at K=4: 315 M rays, 76 requests)
 MAX_RAYS_PER_REQUEST = 1 << 22
 
 

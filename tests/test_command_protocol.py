@@ -219,3 +219,18 @@ def test_setup_from_the_command_line():
         setup_from_cli(None, ["speed=1"])
     with pytest.raises(RendererError, match="expected KEY=VALUE"):
         setup_from_cli(None, ["timeout"])
+
+
+def test_env_and_kept_requests(tmp_path):
+    cmd = _script(tmp_path, "assert os.environ['MYSIM_QUALITY'] == 'draft'\n"
+                            "np.save(out, np.full((req['height'], req['width']), 0.75, "
+                            "np.float32))\n")
+    keep = tmp_path / "kept"
+    r = get_renderer("command", command=cmd, output_format="npy",
+                     env={"MYSIM_QUALITY": "draft"}, keep_requests=str(keep))
+    res = r.render(small_model("CAHV", W=32, H=24, f=30.0), grid_board()[0], board_pose(),
+                   RenderSettings(spp=1))
+    assert np.all(res.image == 0.75)
+    kept = res.metadata["request_dir"]
+    assert os.path.dirname(kept) == str(keep)
+    assert sorted(os.listdir(kept)) == ["camera.cahv", "image.npy", "request.json", "scene.json"]
