@@ -1,53 +1,95 @@
 #!/usr/bin/env python3
 r'''A worked example of an external renderer speaking camval's request protocol
 
-    python examples/external_renderer.py REQUEST.json
+    python examples/external_renderer.py REQUEST.json     # one-shot: one image, exit
+    python examples/external_renderer.py                  # persistent: requests on stdin
 
 camval's "command" renderer (renderers/command.py) writes a request directory
 (camera model as a JPL file, the board and its pose as scene.json, image size
 and sampling in request.json) and runs this program with the path of
-request.json. The program renders and writes the image where the request says
-(a 16-bit grey PNG, or .npy float32), then exits 0. Anything it prints to
-stderr is shown to the user when it fails.
+request.json; or, with setup persistent = true, starts it once and sends one
+JSON line {"request": PATH} per image on stdin, reading one JSON answer line
+per request on stdout. The program renders and writes its output where the
+request says. Anything it prints to stderr is recorded when it fails. The
+protocol: docs/README-renderers.md.
 
-This example renders with camval's own exact ray caster, so a campaign run
-through it must give the same records as the built-in "raycast" renderer:
+This example renders with camval's own exact ray caster (image mode), with a
+CAHV pinhole through the ray caster (pinhole mode) and by intersecting each
+ray with the board plane (rays mode), so a campaign run through it gives the
+same records as the built-in "raycast" renderer in image mode:
 
-    camval campaign ... --renderer command \
-        --renderer-option 'command=["python", "examples/external_renderer.py"]'
+    [[renderer]]
+    name = "command"
+    label = "example"
+    spp = [4]
+    setup = { command = ["python", "examples/external_renderer.py"], persistent = true }
 
-A simulator team replaces the middle of main() by a call into its renderer.
-Options (request.json "options"): "fail": exit 3 with a message (used by the
-tests of the failure paths); "wrong_size": write a 1x1 image.
+It imports camval's request reader from the installed camval
+(renderers.protocol); a program in another language reads the JSON and the
+JPL model file itself (examples/rays_renderer.c does, in C).
+
+A simulator team replaces render() by a call into its renderer.
+Options (request.json "options"): "fail": fail with a message (used by the
+tests of the failure paths); "wrong_size": write a 1x1 image; "not_applicable":
+decline the camera with this reason; "sleep": seconds to wait first.
 '''
 
-import os
 import sys
+import time
+
+import numpy as np
+
+from renderers.protocol import NotApplicable, serve
 
 
-def main(argv):
-    if len(argv) != 2 or argv[1] in ("-h", "--help"):
-        print(__doc__, file=sys.stderr)
-        return 2
-    # run from anywhere: camval's repository is this file's parent directory
-    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    import numpy as np
+def pinhole_as_cahv(ph):
+    r'''The ideal pinhole of a pinhole request as a CAHV model in the camera frame (C = 0,
+A = z): x = H', y = A x H', so board poses mean the same for it'''
+    from reference_models.cahvore import CAHV
+    A = np.array([0.0, 0.0, 1.0])
+    return CAHV(C=np.zeros(3), A=A, H=ph["fx"] * np.array([1.0, 0, 0]) + ph["cx"] * A,
+                V=ph["fy"] * np.array([0, 1.0, 0]) + ph["cy"] * A,
+                width=int(ph["width"]), height=int(ph["height"]))
 
-    from renderers.command import read_request, write_image
+
+def ray_values(req):
+    r'''rays mode: the albedo each ray sees (the board plane z = 0 of the board frame)'''
+    origins, dirs = req.rays()
+    Rt = req.Rt_cam_board
+    R, t = Rt[:3], Rt[3]
+    # board frame: p_board = R^T (p_cam - t)
+    o = (np.asarray(origins, dtype=np.float64) - t) @ R
+    d = np.asarray(dirs, dtype=np.float64) @ R
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -o[:, 2] / d[:, 2]
+    hit = np.isfinite(s) & (s > 0)
+    x = np.where(hit, o[:, 0] + s * d[:, 0], np.inf)
+    y = np.where(hit, o[:, 1] + s * d[:, 1], np.inf)
+    out = np.full(len(d), req.pattern.background_value, dtype=np.float64)
+    out[hit] = req.pattern.albedo(x[hit], y[hit])
+    return out
+
+
+def render(req):
+    opts = req.settings.options
+    if opts.get("sleep"):
+        time.sleep(float(opts["sleep"]))
+    if opts.get("fail"):
+        print("external_renderer: a log line before the failure", file=sys.stderr)
+        raise RuntimeError(f"asked to fail ({opts['fail']})")
+    if opts.get("not_applicable"):
+        raise NotApplicable(opts["not_applicable"])
+    if opts.get("wrong_size"):
+        return np.zeros((1, 1))
+    if req.mode == "rays":
+        return ray_values(req)
     from renderers.raycast import RaycastRenderer
-
-    req = read_request(argv[1])
-    if req.settings.options.get("fail"):
-        print(f"external_renderer: asked to fail ({req.settings.options['fail']})",
-              file=sys.stderr)
-        return 3
-    result = RaycastRenderer().render(req.model, req.pattern, req.Rt_cam_board, req.settings)
-    image = result.image
-    if req.settings.options.get("wrong_size"):
-        image = np.zeros((1, 1))
-    write_image(req.output, image)
-    return 0
+    model = pinhole_as_cahv(req.pinhole) if req.mode == "pinhole" else req.model
+    return RaycastRenderer().render(model, req.pattern, req.Rt_cam_board, req.settings).image
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv))
+    if len(sys.argv) > 1 and sys.argv[1] in ("-h", "--help"):
+        print(__doc__)
+        sys.exit(0)
+    sys.exit(serve(render))

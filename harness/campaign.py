@@ -34,7 +34,12 @@ A campaign is a TOML file (tomllib):
     name = "raycast"
     spp = [4, 16]            # an int or a list: one job per value
     adaptive = true          # a bool or a list
-    options = {}             # renderer-specific settings
+    options = {}             # renderer-specific settings (they name the records)
+    label = "mine"           # optional: the renderer's part of the records' fullnames
+                             # (default: name), mine[spp=4,adaptive]/...
+    setup = {}               # optional: how to run the renderer, not what it renders
+                             # (the command renderer's command, timeout, env, ...):
+                             # recorded in each record's settings, never in its fullname
     response = ["clean", "realistic"]   # optional: the [response.*] profiles to run
                                         # (default: every profile, in file order)
 
@@ -89,7 +94,8 @@ TOP_KEYS = ("name", "description", "cameras", "models", "targets", "keep_images"
             "share_identical_cameras", "catalogue", "seed", "poses", "renderer", "calibrator",
             "response")
 POSE_KEYS = ("n", "seed")
-RENDERER_KEYS = ("name", "spp", "adaptive", "options", "response")
+RENDERER_KEYS = ("name", "spp", "adaptive", "options", "response", "label", "setup")
+LABEL = re.compile(r"^[A-Za-z0-9_.-]+$")
 PROFILE_NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 CALIBRATOR_KEYS = ("name", "models", "options")
 
@@ -178,6 +184,8 @@ class RendererSpec:
     adaptive: tuple = (True,)
     options: dict = field(default_factory=dict)
     response: tuple = None     # profile names to run (None: every profile of the campaign)
+    label: str = None          # names the records (None: the renderer's name)
+    setup: dict = field(default_factory=dict)   # recorded, never in a fullname
 
     def settings(self, responses=()):
         r'''[{"spp", "adaptive", "options"[, "response"]}, ...]: one per job, in file order
@@ -193,6 +201,10 @@ profile that has stages carry "response": its name.
             for a in self.adaptive:
                 for prof in chosen or [None]:
                     s = {"spp": k, "adaptive": a, "options": dict(self.options)}
+                    if self.label is not None:
+                        s["label"] = self.label
+                    if self.setup:
+                        s["setup"] = _plain(self.setup)
                     if prof is not None and prof.label() is not None:
                         s["response"] = prof.label()
                     out.append(s)
@@ -210,6 +222,10 @@ profile that has stages carry "response": its name.
              "options": dict(self.options)}
         if self.response is not None:
             d["response"] = list(self.response)
+        if self.label is not None:
+            d["label"] = self.label
+        if self.setup:
+            d["setup"] = _plain(self.setup)
         return d
 
 
@@ -275,7 +291,8 @@ class Campaign:
                    renderers=tuple(RendererSpec(r["name"], tuple(r["spp"]),
                                                 tuple(r["adaptive"]), dict(r["options"]),
                                                 tuple(r["response"]) if "response" in r
-                                                else None)
+                                                else None, r.get("label"),
+                                                dict(r.get("setup") or {}))
                                    for r in d["renderers"]),
                    calibrators=tuple(CalibratorSpec(c["name"], tuple(c["models"]),
                                                     dict(c["options"]))
@@ -323,6 +340,7 @@ Returns {camera spec: CatalogueEntry}.
                 raise CampaignError(f"{_where(src, f'renderer[{i}].name')}: renderer {r.name!r} "
                                     f"renders {', '.join(scenes)} scenes, not the boards of a "
                                     f"campaign")
+            _check_setup_not_in_options(src, i, r)
         from harness.calibrators import CalibratorError, calibrator_module, known_calibrators
         cal_known = known_calibrators()
         for i, c in enumerate(self.calibrators):
@@ -344,6 +362,27 @@ Returns {camera spec: CatalogueEntry}.
                                         f"{c.name!r} has no model {m!r}; its models: "
                                         f"{', '.join((JOB_FAMILY,) + tuple(cal.MODELS))}")
         return entries
+
+
+def _check_setup_not_in_options(src, i, spec):
+    r"""A renderer's setup (its class's SETUP_KEYS: how to run it) given among its options
+would name the records: a CampaignError that says to move it to setup"""
+    from renderers.base import RendererError, renderer_class
+    try:
+        keys = tuple(getattr(renderer_class(spec.name), "SETUP_KEYS", ()))
+    except (ImportError, RendererError):
+        return
+    unknown = sorted(set(spec.setup) - set(keys))
+    if unknown:
+        raise CampaignError(f"{_where(src, f'renderer[{i}].setup')}: {', '.join(unknown)} "
+                            f"unknown to {spec.name!r}; its setup: "
+                            f"{', '.join(keys) or '(none)'}")
+    misplaced = sorted(set(spec.options) & set(keys))
+    if misplaced:
+        raise CampaignError(f"{_where(src, f'renderer[{i}].options')}: "
+                            f"{', '.join(misplaced)} say how to run {spec.name!r}, not what "
+                            f"it renders; move them to setup = {{ ... }} (options name the "
+                            f"records, setup does not)")
 
 
 def _calibrator_has_model(cal, model):
@@ -481,11 +520,20 @@ Relative model-file paths among the cameras are taken from base_dir.
                         f"{_where(source, key + '.response')}: unknown response profile "
                         f"{c!r}; known profiles: "
                         f"{', '.join(names_known) or '(none: add [response.NAME] tables)'}")
-        renderers.append(RendererSpec(r["name"], tuple(spp), tuple(ad), dict(opts), chosen))
-    names = [(r.name, r.spp, r.adaptive, tuple(sorted(r.options.items(), key=str)), r.response)
-             for r in renderers]
+        label = r.get("label")
+        if label is not None and not (isinstance(label, str) and LABEL.match(label)):
+            raise CampaignError(f"{_where(source, key + '.label')}: expected a name of "
+                                f"letters, digits, '_', '.' and '-'; got {label!r}")
+        setup = r.get("setup", {})
+        if not isinstance(setup, dict):
+            raise CampaignError(f"{_where(source, key + '.setup')}: expected a table")
+        renderers.append(RendererSpec(r["name"], tuple(spp), tuple(ad), dict(opts), chosen,
+                                      label, dict(setup)))
+    names = [(r.label or r.name, r.spp, r.adaptive, tuple(sorted(r.options.items(), key=str)),
+              r.response) for r in renderers]
     if len(set(map(repr, names))) != len(names):
-        raise CampaignError(f"{_where(source, 'renderer')}: two [[renderer]] tables are the same")
+        raise CampaignError(f"{_where(source, 'renderer')}: two [[renderer]] tables name the "
+                            f"same records; give them distinct labels (label = \"...\")")
 
     cal = doc.get("calibrator", [{"name": "jpl"}])
     if not isinstance(cal, list) or not cal:

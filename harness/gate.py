@@ -17,7 +17,7 @@ A gate spec is TOML:
     # absolute tolerances against the truth: |value| <= limit, records with status ok
     limits = ["projection.rms:0.002", "residuals.max:0.01"]     # field:abs
     [[limit]]
-    field = "params.theta.error"
+    field = "params.theta_deg"
     max = 0.001
     match = ["*/jpl[*]"]           # glob(s) on fullname; default "*"
 
@@ -25,11 +25,11 @@ A gate spec is TOML:
     # grow by at most `abs` or `N%` of the baseline's value
     regressions = ["projection.rms:0.0005", "residuals.rms:10%"]
     [[regression]]
-    field = "params.Hc.error"
+    field = "params.Hc"
     tolerance = "25%"
     match = "*"
 
-Fields are dotted paths into a record ("projection.rms", "params.Hc.error",
+Fields are dotted paths into a record ("projection.rms", "params.Hc",
 "seconds.render_per_image"). Errors are compared by magnitude. A field that
 is present and null is "not estimated" (theta by mrcal) and skipped; a field
 that is absent from an ok record fails. A spec with regressions and no

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from reference_models.errors import CamvalError
 
-from .records import make_fullname, settings_label
+from .records import make_fullname, renderer_key
 from .stages import StageFailed, camera_stage
 
 
@@ -117,7 +117,7 @@ entries: {camera spec: CatalogueEntry} from campaign.validate() (validated here 
                         cals = tuple((c.name, m, dict(c.options)) for c in campaign.calibrators
                                      for m in c.models_for(family))
                         jobs.append(Job(
-                            key=f"{key}/{family}/{target}/{r.name}[{settings_label(s)}]",
+                            key=f"{key}/{family}/{target}/{renderer_key(r.name, s)}",
                             camera=spec, camera_key=key, family=family, target=target,
                             renderer=r.name, settings=s, calibrators=cals,
                             poses_n=campaign.poses_n, poses_seed=campaign.poses_seed,
@@ -247,6 +247,7 @@ alone. The order of the remaining jobs is kept.
 
 
 def _twin_signature(job):
-    return (job.family, job.target, job.renderer, settings_label(job.settings),
+    return (job.family, job.target, job.renderer, renderer_key(job.renderer, job.settings),
+            repr(job.settings.get("setup")),
             repr(job.calibrators), job.poses_n, job.poses_seed, job.keep_images,
             job.keep_maps, job.catalogue, job.run_dir, job.seed)

@@ -102,9 +102,19 @@ always had, so clean records keep their fullnames.
     return ",".join(parts)
 
 
+def renderer_key(renderer, settings):
+    r'''The renderer's part of a fullname: "label[settings]" ("raycast[spp=16,adaptive]")
+
+The label is settings["label"] when the campaign gives one, else the
+renderer's name; settings["setup"] (how the renderer is run: a command, a
+timeout) never enters it, so a baseline joins whatever the setup.
+'''
+    return f"{settings.get('label') or renderer}[{settings_label(settings)}]"
+
+
 def make_fullname(camera, model, target, renderer, settings, calibrator, calibrator_model):
-    r'''The stable key of a record: camera/model/target/renderer[settings]/calibrator[model]'''
-    return (f"{camera}/{model}/{target}/{renderer}[{settings_label(settings)}]"
+    r'''The stable key of a record: camera/model/target/label[settings]/calibrator[model]'''
+    return (f"{camera}/{model}/{target}/{renderer_key(renderer, settings)}"
             f"/{calibrator}[{calibrator_model}]")
 
 
@@ -116,7 +126,9 @@ fullname:         camera/model/target/renderer[settings]/calibrator[model]
 camera:           catalogue key of the camera ("15", "supercam", a file name)
 camera_label:     human name ("MER B navcam left")
 model:            the model family the images were rendered with (CAHV, CAHVOR, CAHVORE)
-target, renderer: names; settings: {"spp", "adaptive", "options"[, "response": profile]}
+target, renderer: names; settings: {"spp", "adaptive", "options"[, "response": profile]
+                  [, "label": the campaign's name for the renderer][, "setup": how it was
+                  run (recorded, not in the fullname)]}
 calibrator, calibrator_model: e.g. "jpl", "CAHVOR"
 status:           "ok" | "failed" | "not-applicable"; reason: why not ok
 stage:            the stage that failed ("camera", "poses", "render", "response", "detect",
@@ -193,7 +205,7 @@ def without_timings(record_dict):
 
 
 def get_field(record_dict, path):
-    r'''The value at a dotted path ("projection.rms", "params.Hc.error"), or None'''
+    r'''The value at a dotted path ("projection.rms", "params.Hc"), or None'''
     v = record_dict
     for part in path.split("."):
         if not isinstance(v, dict) or part not in v:

@@ -38,7 +38,7 @@ The public names:
                      the catalogue, a target, a renderer: built once per process
                      (a worker runs many jobs)
     StageFailed      a stage that cannot go on
-    failure_reason   an exception -> the one-line reason of a record
+    failure_reason   an exception -> the reason of a record (bounded: first + last lines)
     camera_stage, camera_truth
                      the truth model of a job / of a camera spec and family
     poses_stage, render_stage, response_stage, detect_stage, calibrate_stage,
@@ -113,13 +113,43 @@ class StageFailed(Exception):
         self.status = status
 
 
+# a reason keeps at most this much of an exception's message: its first line (what
+# failed) and its last lines (an external program's stderr tail, a traceback's end)
+REASON_MAX_LINES = 40
+REASON_MAX_BYTES = 4096
+
+
 def failure_reason(e):
-    r'''The one-line reason a record gives for exception e: its message's first line, after
-the exception's class unless it is a CamvalError (whose messages say it all)'''
-    msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    r'''The reason a record gives for exception e: its message, after the exception's class
+unless it is a CamvalError (whose messages say it all)
+
+A message of many lines (an external renderer's stderr) keeps its first line
+and its last lines: at most REASON_MAX_LINES lines and REASON_MAX_BYTES bytes
+(UTF-8), with a note of what was cut.'''
+    msg = _bounded(str(e).strip())
     if isinstance(e, CamvalError):
         return msg or type(e).__name__
     return f"{type(e).__name__}: {msg}" if msg else type(e).__name__
+
+
+def _bounded(msg):
+    lines = msg.splitlines()
+    if len(lines) <= REASON_MAX_LINES and len(msg.encode("utf-8", "replace")) <= REASON_MAX_BYTES:
+        return msg
+    head, rest = lines[0], lines[1:]
+    budget = REASON_MAX_BYTES - len(head.encode("utf-8", "replace")) - 40
+    kept = []
+    for line in reversed(rest[-(REASON_MAX_LINES - 2):]):
+        n = len(line.encode("utf-8", "replace")) + 1
+        if n > budget:
+            break
+        kept.append(line)
+        budget -= n
+    kept.reverse()
+    if not kept and rest and budget > 0:     # one overlong last line: keep its end
+        kept = [rest[-1].encode("utf-8", "replace")[-budget:].decode("utf-8", "ignore")]
+    cut = len(rest) - len(kept)
+    return "\n".join([head, f"[... {cut} lines cut ...]"] + kept)
 
 
 def camera_stage(job):
@@ -167,7 +197,8 @@ field of view no pinhole warp covers) makes the job not-applicable.'''
     try:
         renderer = cached_renderer(renderer_name)
         rs = RenderSettings(spp=int(settings["spp"]), adaptive=bool(settings["adaptive"]),
-                            options=dict(settings.get("options") or {}))
+                            options=dict(settings.get("options") or {},
+                                         **(settings.get("setup") or {})))
         pattern = target.pattern()
         results, secs = [], []
         for Rt in poses:
@@ -346,7 +377,9 @@ are the rotation-mode values: the headline projection difference.
 
 
 # renderer metadata that depends only on the job (not on caches, threads or timing)
-DETERMINISTIC_METADATA = ("samples", "adaptive_fraction", "board_fraction")
+DETERMINISTIC_METADATA = ("samples", "adaptive_fraction", "board_fraction",
+                          # the command renderer's pinhole mode: the warp's own share
+                          "warp_rms", "warp_max")
 
 
 def render_summary(metadatas):

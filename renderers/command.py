@@ -1,4 +1,4 @@
-r'''Bring your own renderer: an external program driven through a request directory
+r'''Bring your own renderer: an external program driven through request directories
 
 SYNOPSIS
 
@@ -7,357 +7,424 @@ SYNOPSIS
     r = get_renderer("command", command=["python", "examples/external_renderer.py"])
     result = r.render(model, target.pattern(), Rt_cam_board, RenderSettings(spp=4))
 
-    # inside the external program (if it is written in Python):
-    from renderers.command import read_request, write_image
+    # inside the external program (if it is written in Python; camval installed):
+    from renderers.protocol import read_request, write_image, serve
     req = read_request(sys.argv[1])      # .model, .pattern, .Rt_cam_board, .settings, .output
     write_image(req.output, image)       # (height, width) in [0,1]: 16-bit PNG or .npy
 
-For each render camval writes a request directory and runs
+The protocol (request directory, exit codes, the persistent mode, the request
+modes image/pinhole/rays and the camera models' unprojection equations) is
+written down in docs/README-renderers.md; renderers.protocol reads and writes
+it (its names are re-exported here).
 
-    COMMAND... REQUEST_DIR/request.json
-
-(or substitutes the argument "{request}" if COMMAND contains it). The
-program must write the image to the output path named in the request, exit 0
-and leave the image there; camval reads it back. The directory holds:
-
-- request.json: {"protocol": "camval-render-request", "version": 1,
-  "camera_file", "scene_file", "width", "height", "spp", "adaptive",
-  "options", "output", "output_format" ("png16" or "npy"),
-  "pixel_convention"}. Paths are relative to the request directory.
-- camera.cahv / camera.cahvor / camera.cahvore: the camera model as a JPL
-  model file (reference_models.jpl_files.write_model, full precision).
-- scene.json: {"kind": "board", "pattern": {extent, board_value,
-  background_value, cells (rows of albedo, null = transparent), cell_origin,
-  cell_size, circles ([cx, cy, r] rows), circle_value}, "Rt_cam_board": 4
-  rows of 3 (R on top, t last, mrcal's convention), "Rt_ref_cam": the model's
-  camera frame in its world frame, "frames": a description}.
-
-The image: (height, width), row 0 at the top, pixel (ix, iy) centred at
-q = (ix, iy) (reference_models.conventions), the area average of the albedo
-over each pixel with spp x spp samples. As a 16-bit PNG: grey or RGB (the
-green channel is read), value / 65535; as .npy: float32 or float64 in [0,1].
+Setup: how camval runs the program. Given at construction, or per render as
+options of the same names (a campaign's [[renderer]] `setup` table, which
+harness.stages merges into the options): they are recorded in a record's
+settings but never name it, so a baseline still joins after the program moves
+or its timeout changes. Every other option is passed to the program in
+request.json (and names the records).
 
 Failures (non-zero exit, a missing, unreadable or mis-sized image, values out
-of [0,1] or NaN, a timeout) raise RendererError with the tail of the
-program's stderr.
+of [0,1] or NaN, a timeout, a persistent program that dies) raise
+RendererError with the tail of the program's stderr (the last
+protocol.STDERR_TAIL_LINES lines, at most protocol.STDERR_TAIL_BYTES bytes);
+exit status protocol.EXIT_NOT_APPLICABLE (or a persistent answer
+"not-applicable") raises RendererNotApplicable with the program's reason.
 '''
 
+import atexit
+import collections
 import dataclasses
 import json
-import math
 import os
+import selectors
 import shlex
 import shutil
 import subprocess
 import tempfile
+import threading
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
-from reference_models.errors import CamvalError
+from .base import RendererError, RendererNotApplicable, RenderResult, RenderSettings
+from .protocol import (  # noqa: F401  (re-exported: the protocol's names, as before)
+    EXIT_NOT_APPLICABLE,
+    MODES,
+    OUTPUT_FORMATS,
+    PERSISTENT_ENV,
+    PIXEL_CONVENTION,
+    PROTOCOL,
+    PROTOCOL_VERSION,
+    Request,
+    RequestError,
+    pattern_from_dict,
+    pattern_to_dict,
+    read_image,
+    read_request,
+    tail,
+    write_image,
+    write_request,
+)
 
-from .base import RendererError, RenderResult, RenderSettings
-
-PROTOCOL = "camval-render-request"
-PROTOCOL_VERSION = 1
-OUTPUT_FORMATS = {"png16": "image.png", "npy": "image.npy"}
-PIXEL_CONVENTION = ("row 0 at the top; the centre of the top-left pixel is q = (0, 0); "
-                    "x = column, y = row")
-STDERR_TAIL_LINES = 12
-
-
-class RequestError(CamvalError):
-    '''A render request directory that cannot be read (for external renderer programs)'''
-
-
-# --- the scene as JSON ---------------------------------------------------------------
-def pattern_to_dict(pattern):
-    cells = None
-    if pattern.cells is not None:
-        c = np.asarray(pattern.cells, dtype=np.float64)
-        cells = [[float(v) if math.isfinite(v) else None for v in row] for row in c]
-    circles = None
-    if pattern.circles is not None:
-        circles = np.asarray(pattern.circles, dtype=np.float64).reshape(-1, 3).tolist()
-    return dict(extent=[float(v) for v in pattern.extent],
-                board_value=float(pattern.board_value),
-                background_value=float(pattern.background_value),
-                cells=cells, cell_origin=[float(v) for v in pattern.cell_origin],
-                cell_size=float(pattern.cell_size), circles=circles,
-                circle_value=float(pattern.circle_value))
+# options that say how to run the program, not what it renders: never passed to it,
+# never part of a record's fullname (harness.records.settings_label reads only "options")
+SETUP_KEYS = ("command", "timeout", "output_format", "version_command", "env",
+              "keep_requests", "persistent", "mode", "pinhole_scale", "pinhole_samples",
+              "pinhole_interpolation", "pinhole_measure_warp", "max_rays")
 
 
-def pattern_from_dict(d):
-    from targets.pattern import Pattern
-
-    cells = d.get("cells")
-    if cells is not None:
-        cells = np.array([[np.nan if v is None else v for v in row] for row in cells],
-                         dtype=np.float64)
-    circles = d.get("circles")
-    if circles is not None:
-        circles = np.asarray(circles, dtype=np.float64).reshape(-1, 3)
-    return Pattern(extent=tuple(d["extent"]), board_value=d["board_value"],
-                   background_value=d["background_value"], cells=cells,
-                   cell_origin=tuple(d["cell_origin"]), cell_size=d["cell_size"],
-                   circles=circles, circle_value=d["circle_value"])
+def _split(command, what="command"):
+    if isinstance(command, str):
+        command = shlex.split(command)
+    if not isinstance(command, (list, tuple)) or not command:
+        raise RendererError(f"renderer 'command' needs {what}=[program, args...]; "
+                            f"got {command!r}")
+    return [str(c) for c in command]
 
 
-def _pattern_of(scene):
-    if hasattr(scene, "extent"):
-        return scene
-    if hasattr(scene, "pattern"):
-        return scene.pattern()
-    raise RendererError(f"command renderer: cannot describe a scene of type "
-                        f"{type(scene).__name__}; expected a targets.pattern.Pattern")
-
-
-# --- writing and reading requests ----------------------------------------------------
-def write_request(directory, model, scene, Rt_cam_board, settings, output_format="png16"):
-    r'''Write a render request into `directory`; returns the path of request.json'''
-    from reference_models.jpl_files import write_model
-
-    if output_format not in OUTPUT_FORMATS:
-        raise RendererError(f"command renderer: output format {output_format!r} is unknown; "
-                            f"known: {', '.join(OUTPUT_FORMATS)}")
-    Rt = np.asarray(Rt_cam_board, dtype=np.float64)
-    if Rt.shape != (4, 3) or not np.all(np.isfinite(Rt)):
-        raise RendererError(f"Rt_cam_board must be a finite (4,3) array; got shape {Rt.shape}")
-    os.makedirs(directory, exist_ok=True)
-    camera_file = "camera." + model.family.lower()
-    write_model(model, os.path.join(directory, camera_file), overwrite=True,
-                note="camval render request: the camera to render through")
-    scene_doc = dict(kind="board", pattern=pattern_to_dict(_pattern_of(scene)),
-                     Rt_cam_board=Rt.tolist(), Rt_ref_cam=model.Rt_ref_cam().tolist(),
-                     frames=("board frame: the board in z = 0, seen from z < 0; "
-                             "p_cam = R p_board + t with Rt_cam_board = [R; t]; camera frame: "
-                             "x = H', y = A x H', z = A, origin C; p_ref = R p_cam + t with "
-                             "Rt_ref_cam"))
-    with open(os.path.join(directory, "scene.json"), "w") as f:
-        json.dump(scene_doc, f, indent=1, allow_nan=False)
-    request = dict(protocol=PROTOCOL, version=PROTOCOL_VERSION, camera_file=camera_file,
-                   scene_file="scene.json", width=model.width, height=model.height,
-                   spp=settings.spp, adaptive=settings.adaptive, options=settings.options,
-                   output=OUTPUT_FORMATS[output_format], output_format=output_format,
-                   pixel_convention=PIXEL_CONVENTION)
-    path = os.path.join(directory, "request.json")
-    with open(path, "w") as f:
-        json.dump(request, f, indent=1, allow_nan=False)
-    return path
-
-
-@dataclass(frozen=True, eq=False)
-class Request:
-    model: object
-    pattern: object
-    Rt_cam_board: np.ndarray
-    settings: RenderSettings
-    output: str
-    output_format: str
-    raw: dict
-
-
-def read_request(path):
-    r'''Read a request written by write_request (for external renderers written in Python)
+def setup_from_cli(command=None, items=()):
+    r'''The setup given on a command line -> {key: value} for get_renderer("command", ...)
 
 SYNOPSIS
 
-    req = read_request("/tmp/camval-cmd-xyz/request.json")
-    # req.model, req.pattern, req.Rt_cam_board (4,3), req.settings, req.output (absolute)
+    setup_from_cli("my-renderer --fast", ["timeout=60", 'env={"GPU": "0"}'])
+    # {"command": ["my-renderer", "--fast"], "timeout": 60, "env": {"GPU": "0"}}
+
+command: the program and its arguments as one string (split as a shell would);
+items: KEY=VALUE, VALUE read as JSON when it parses (60, true, ["a", "b"],
+{...}), else as a string.
 '''
-    from reference_models.jpl_files import read_model
-
-    path = os.fspath(path)
-    if os.path.isdir(path):
-        path = os.path.join(path, "request.json")
-    try:
-        with open(path) as f:
-            raw = json.load(f)
-    except (OSError, json.JSONDecodeError) as e:
-        raise RequestError(f"'{path}': cannot read the render request: {e}") from None
-    if raw.get("protocol") != PROTOCOL or raw.get("version") != PROTOCOL_VERSION:
-        raise RequestError(f"'{path}': not a {PROTOCOL} version {PROTOCOL_VERSION} request "
-                           f"(protocol {raw.get('protocol')!r}, version {raw.get('version')!r})")
-    base = os.path.dirname(os.path.abspath(path))
-    model = read_model(os.path.join(base, raw["camera_file"]))
-    with open(os.path.join(base, raw["scene_file"])) as f:
-        scene = json.load(f)
-    if scene.get("kind") != "board":
-        raise RequestError(f"'{path}': scene kind {scene.get('kind')!r} is not supported; "
-                           "expected 'board'")
-    settings = RenderSettings(spp=raw["spp"], adaptive=raw["adaptive"],
-                              options=raw.get("options") or {})
-    return Request(model=model, pattern=pattern_from_dict(scene["pattern"]),
-                   Rt_cam_board=np.asarray(scene["Rt_cam_board"], dtype=np.float64),
-                   settings=settings, output=os.path.join(base, raw["output"]),
-                   output_format=raw["output_format"], raw=raw)
-
-
-def write_image(path, image):
-    r'''Write an image as the protocol wants it: 16-bit grey PNG, or .npy float32'''
-    img = np.asarray(image, dtype=np.float64)
-    if path.endswith(".npy"):
-        np.save(path, img.astype(np.float32))
-        return path
-    import cv2
-
-    q = np.round(np.clip(img, 0.0, 1.0) * 65535.0).astype(np.uint16)
-    if not cv2.imwrite(path, q):
-        raise RendererError(f"cannot write the image '{path}'")
-    return path
-
-
-def read_image(path, width, height):
-    r'''Read an external renderer's output: float64 (height, width) in [0,1], or raise'''
-    if not os.path.exists(path):
-        raise RendererError(f"the renderer wrote no image at '{path}'")
-    if path.endswith(".npy"):
+    setup = {}
+    if command:
+        setup["command"] = shlex.split(command)
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise RendererError(f"renderer setup {item!r}: expected KEY=VALUE")
+        if key not in SETUP_KEYS:
+            raise RendererError(f"renderer setup {key!r} is unknown; known: "
+                                f"{', '.join(SETUP_KEYS)}")
         try:
-            img = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as e:
-            raise RendererError(f"cannot read the image '{path}': {e}") from None
-        if img.dtype.kind != "f":
-            raise RendererError(f"'{path}' holds {img.dtype} values; expected float32 in [0,1]")
-        img = img.astype(np.float64)
-    else:
-        import cv2
-
-        raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-        if raw is None:
-            raise RendererError(f"cannot read the image '{path}' (expected a 16-bit PNG)")
-        if raw.ndim == 3:
-            raw = raw[..., 1]
-        if raw.dtype != np.uint16:
-            raise RendererError(f"'{path}' is a {raw.dtype} image; expected a 16-bit PNG")
-        img = raw.astype(np.float64) / 65535.0
-    if img.shape != (height, width):
-        raise RendererError(f"'{path}' has shape {img.shape}; expected (height, width) = "
-                            f"{(height, width)}")
-    if not np.all(np.isfinite(img)) or img.min() < 0.0 or img.max() > 1.0:
-        raise RendererError(f"'{path}' has values outside [0,1] or NaN "
-                            f"(min {np.nanmin(img):.6g}, max {np.nanmax(img):.6g})")
-    return img
+            setup[key] = json.loads(value)
+        except ValueError:
+            setup[key] = value
+    return setup
 
 
-def _tail(text, n=STDERR_TAIL_LINES):
-    lines = (text or "").strip().splitlines()
-    return "\n".join(lines[-n:]) if lines else "(no output)"
+class _Persistent:
+    r'''A program started once that answers requests line by line (see protocol)'''
+
+    def __init__(self, command, env):
+        self.command = command
+        try:
+            self.proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                         stderr=subprocess.PIPE, env=env)
+        except OSError as e:
+            raise RendererError(f"cannot start external renderer {command[0]!r}: {e}") from None
+        self.stderr = collections.deque(maxlen=4 * 40)
+        self._buf = b""
+        self._thread = threading.Thread(target=self._drain, daemon=True)
+        self._thread.start()
+        self.lock = threading.Lock()
+
+    def _drain(self):
+        for line in iter(self.proc.stderr.readline, b""):
+            self.stderr.append(line.decode("utf-8", "replace").rstrip("\n"))
+
+    def stderr_tail(self):
+        r'''The tail of what the program wrote to stderr, once the drain has caught up with
+what is already in the pipe (the program logs before it answers; this must not lose it)'''
+        deadline = time.monotonic() + 1.0
+        with selectors.DefaultSelector() as sel:
+            try:
+                sel.register(self.proc.stderr.fileno(), selectors.EVENT_READ)
+            except (ValueError, OSError):     # closed: the drain has read everything
+                return tail("\n".join(self.stderr))
+            while self._thread.is_alive() and sel.select(0) and time.monotonic() < deadline:
+                time.sleep(0.005)
+        time.sleep(0.005)    # the line the drain has just read, being appended
+        return tail("\n".join(self.stderr))
+
+    def ask(self, request_path, timeout):
+        r'''-> the answer dict; raises RendererError (the process is then stopped)'''
+        try:
+            self.proc.stdin.write((json.dumps({"request": request_path}) + "\n").encode())
+            self.proc.stdin.flush()
+        except (BrokenPipeError, OSError):
+            self.close()
+            raise RendererError(f"persistent renderer {self.command[0]!r} is not running "
+                                f"(exit {self.proc.returncode}); stderr:\n"
+                                f"{self.stderr_tail()}") from None
+        deadline = None if timeout is None else time.monotonic() + float(timeout)
+        fd = self.proc.stdout.fileno()
+        with selectors.DefaultSelector() as sel:
+            sel.register(fd, selectors.EVENT_READ)
+            while b"\n" not in self._buf:
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0 or not sel.select(left):
+                    self.close(kill=True)
+                    raise RendererError(f"persistent renderer {self.command[0]!r} gave no "
+                                        f"answer within {timeout} s (stopped); stderr:\n"
+                                        f"{self.stderr_tail()}")
+                chunk = os.read(fd, 65536)
+                if not chunk:
+                    self.close()
+                    raise RendererError(f"persistent renderer {self.command[0]!r} exited "
+                                        f"(exit {self.proc.returncode}) without answering; "
+                                        f"stderr:\n{self.stderr_tail()}")
+                self._buf += chunk
+        line, self._buf = self._buf.split(b"\n", 1)
+        try:
+            answer = json.loads(line)
+            if answer.get("status") not in ("ok", "not-applicable", "failed"):
+                raise ValueError(f"status {answer.get('status')!r}")
+        except (ValueError, AttributeError) as e:
+            self.close()
+            raise RendererError(f"persistent renderer {self.command[0]!r} answered "
+                                f"{line[:200]!r}, not a JSON answer line ({e}); stdout is for "
+                                f"answers only, log to stderr") from None
+        return answer
+
+    def close(self, kill=False):
+        if self.proc.poll() is None and kill:
+            self.proc.kill()
+            self.proc.wait()
+        if self.proc.poll() is None:
+            try:
+                self.proc.stdin.close()
+                self.proc.wait(timeout=5)
+            except (OSError, subprocess.TimeoutExpired):
+                self.proc.kill()
+                self.proc.wait()
+        self._thread.join(timeout=5)
+        for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
+            try:
+                f.close()
+            except OSError:
+                pass
 
 
 class CommandRenderer:
-    r'''An external renderer program (see the module docstring for the protocol)
+    r'''An external renderer program (see the module docstring and the protocol document)
 
-ARGUMENTS
+ARGUMENTS (the setup; each may instead be given per render as an option)
 
 - command: the program and its arguments, a list (or a string, split as a shell
-  would); "{request}" is replaced by the request path, else it is appended.
-  May instead be given per render as the option "command" (campaigns construct
-  renderers without arguments); options "output_format" and "timeout" too.
-  Other options are passed to the program in request.json.
+  would); one-shot: "{request}" is replaced by the request path, else it is
+  appended; persistent: run as given
 - output_format: "png16" (default) or "npy"
-- timeout: seconds before the program is killed (None: no limit)
-- keep_dir: write requests into this directory and keep them (default: a
+- timeout: seconds per image before the program is killed (None: no limit)
+- keep_requests: write requests into this directory and keep them (default: a
   temporary directory, removed after each render)
 - env: extra environment variables for the program
+- version_command: a command that prints the program's version (recorded in
+  the records' versions.renderer)
+- persistent: start the program once (per process and command) and send it
+  requests on stdin (default False: one process per image)
+- mode: "image" (default), "pinhole" or "rays" (the request mode)
 - name: the name recorded in metadata (default "command")
-- version_command: a command that prints the program's version (optional)
 '''
 
-    def __init__(self, command=None, output_format="png16", timeout=None, keep_dir=None,
-                 env=None, name="command", version_command=None):
-        self.command = None if command is None else self._check_command(command)
-        self.output_format = self._check_format(output_format)
-        self.timeout = timeout
-        self.keep_dir = keep_dir
-        self.env = dict(env or {})
+    name = "command"
+    SETUP_KEYS = SETUP_KEYS      # campaigns keep these out of options (harness.campaign)
+
+    def __init__(self, command=None, output_format="png16", timeout=None, keep_requests=None,
+                 env=None, name="command", version_command=None, persistent=False,
+                 mode="image", keep_dir=None, **more):
+        self.setup = dict(command=command, output_format=output_format, timeout=timeout,
+                          keep_requests=keep_requests or keep_dir, env=env,
+                          version_command=version_command, persistent=persistent, mode=mode,
+                          **more)
+        self._check_setup(self.setup)
+        self.command = None if command is None else _split(command)
         self.name = name
-        self.version_command = version_command
-        self._version = None
+        self._versions = {}
+        self._last_version = None
+        self._procs = {}
+        self._lock = threading.Lock()
+        atexit.register(self.close)
 
+    # --- setup ---------------------------------------------------------------------------
     @staticmethod
-    def _check_command(command):
-        if not isinstance(command, (str, list, tuple)) or not command:
-            raise RendererError("renderer 'command' needs command=[program, args...]: the "
-                                f"external renderer to run with the request path; got {command!r}")
-        cmd = shlex.split(command) if isinstance(command, str) else [str(c) for c in command]
-        if shutil.which(cmd[0]) is None and not os.path.exists(cmd[0]):
-            raise RendererError(f"renderer 'command': program {cmd[0]!r} not found "
-                                "(not on PATH and not a file)")
-        return cmd
+    def _check_setup(setup):
+        unknown = set(setup) - set(SETUP_KEYS)
+        if unknown:
+            raise RendererError(f"command renderer: unknown setup {', '.join(sorted(unknown))}; "
+                                f"known: {', '.join(SETUP_KEYS)}")
+        if setup.get("command") is not None:
+            cmd = _split(setup["command"])
+            if shutil.which(cmd[0]) is None and not os.path.exists(cmd[0]):
+                raise RendererError(f"renderer 'command': program {cmd[0]!r} not found "
+                                    "(not on PATH and not a file)")
+        if setup.get("output_format", "png16") not in OUTPUT_FORMATS:
+            raise RendererError(f"command renderer: output format {setup['output_format']!r} "
+                                f"is unknown; known: {', '.join(OUTPUT_FORMATS)}")
+        if setup.get("mode", "image") not in MODES:
+            raise RendererError(f"command renderer: mode {setup['mode']!r} is unknown; "
+                                f"known: {', '.join(MODES)}")
+        t = setup.get("timeout")
+        if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or t <= 0):
+            raise RendererError(f"command renderer: timeout {t!r}; expected seconds > 0")
+        env = setup.get("env")
+        if env is not None and not (isinstance(env, dict) and
+                                    all(isinstance(v, str) for v in env.values())):
+            raise RendererError(f"command renderer: env {env!r}; expected a table of strings")
 
-    @staticmethod
-    def _check_format(output_format):
-        if output_format not in OUTPUT_FORMATS:
-            raise RendererError(f"command renderer: output format {output_format!r} is "
-                                f"unknown; known: {', '.join(OUTPUT_FORMATS)}")
-        return output_format
+    def _resolve(self, settings):
+        r'''-> (setup dict, settings with the program's own options only)'''
+        opts = dict(settings.options)
+        setup = dict(self.setup)
+        for k in SETUP_KEYS:
+            if k in opts:
+                setup[k] = opts.pop(k)
+        self._check_setup(setup)
+        if setup["command"] is None:
+            raise RendererError("renderer 'command' needs a command: construct it with "
+                                "command=[program, args...] or, in a campaign, "
+                                "setup = { command = [...] }")
+        setup["command"] = _split(setup["command"])
+        return setup, dataclasses.replace(settings, options=opts)
 
     def version(self):
-        if self._version is None:
-            v = "external: " + (" ".join(shlex.quote(c) for c in self.command)
-                                if self.command else "(command given per render)")
-            if self.version_command:
-                vc = (shlex.split(self.version_command) if isinstance(self.version_command, str)
-                      else list(self.version_command))
+        r'''The version of the program of the last render (its version_command's output)'''
+        if self._last_version is None:
+            return self._version_of(self.setup)
+        return self._last_version
+
+    def _version_of(self, setup):
+        cmd = setup.get("command")
+        vc = setup.get("version_command")
+        key = (json.dumps(cmd), json.dumps(vc))
+        if key not in self._versions:
+            prog = " ".join(os.path.basename(c) for c in _split(cmd)[:2]) if cmd else "(none)"
+            v = f"external {prog}"
+            if vc:
                 try:
-                    out = subprocess.run(vc, capture_output=True, text=True, timeout=60)
-                    v += f" ({out.stdout.strip() or out.stderr.strip()})"
+                    out = subprocess.run(_split(vc, "version_command"), capture_output=True,
+                                         text=True, timeout=60)
+                    text = (out.stdout.strip() or out.stderr.strip()).splitlines()
+                    v += f": {text[0] if text else '(no output)'}"
+                    if out.returncode != 0:
+                        v += f" (version_command exit {out.returncode})"
                 except (OSError, subprocess.SubprocessError) as e:
                     v += f" (version query failed: {e})"
-            self._version = v
-        return self._version
+            else:
+                v += " (no version_command given)"
+            self._versions[key] = v
+        return self._versions[key]
+
+    # --- running the program ---------------------------------------------------------------
+    def _env(self, setup, persistent=False):
+        env = dict(os.environ, **(setup.get("env") or {}))
+        if persistent:
+            env[PERSISTENT_ENV[0]] = PERSISTENT_ENV[1]
+        return env
+
+    def _run_one_shot(self, setup, req):
+        command = setup["command"]
+        if any("{request}" in c for c in command):
+            cmd = [c.replace("{request}", req) for c in command]
+        else:
+            cmd = command + [req]
+        timeout = setup.get("timeout")
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
+                                  env=self._env(setup))
+        except subprocess.TimeoutExpired as e:
+            err = e.stderr.decode("utf-8", "replace") if isinstance(e.stderr, bytes) else e.stderr
+            raise RendererError(f"external renderer {cmd[0]!r} timed out after {timeout} s; "
+                                f"stderr:\n{tail(err)}") from None
+        except OSError as e:
+            raise RendererError(f"cannot run external renderer {cmd[0]!r}: {e}") from None
+        if proc.returncode == EXIT_NOT_APPLICABLE:
+            raise RendererNotApplicable(f"external renderer {cmd[0]!r}: not applicable: "
+                                        f"{tail(proc.stderr)}")
+        if proc.returncode != 0:
+            raise RendererError(f"external renderer {cmd[0]!r} failed (exit "
+                                f"{proc.returncode}); stderr:\n{tail(proc.stderr)}")
+        return lambda: tail(proc.stderr)
+
+    def _persistent(self, setup):
+        key = (tuple(setup["command"]), json.dumps(setup.get("env") or {}, sort_keys=True))
+        with self._lock:
+            p = self._procs.get(key)
+            if p is not None and p.proc.poll() is not None:
+                p.close()
+                p = None
+            if p is None:
+                p = self._procs[key] = _Persistent(list(key[0]), self._env(setup, True))
+            return p
+
+    def _run_persistent(self, setup, req):
+        p = self._persistent(setup)
+        with p.lock:
+            answer = p.ask(req, setup.get("timeout"))
+        name = setup["command"][0]
+        if answer["status"] == "not-applicable":
+            raise RendererNotApplicable(f"external renderer {name!r}: not applicable: "
+                                        f"{answer.get('reason') or '(no reason given)'}")
+        if answer["status"] == "failed":
+            raise RendererError(f"external renderer {name!r} failed: "
+                                f"{answer.get('reason') or '(no reason given)'}; stderr:\n"
+                                f"{p.stderr_tail()}")
+        return p.stderr_tail
+
+    def close(self):
+        r'''Stop the persistent programs this renderer started'''
+        with self._lock:
+            procs, self._procs = list(self._procs.values()), {}
+        for p in procs:
+            p.close()
+
+    def _workdir(self, setup):
+        keep = setup.get("keep_requests")
+        if keep:
+            os.makedirs(keep, exist_ok=True)
+            return tempfile.mkdtemp(prefix="request-", dir=keep)
+        return tempfile.mkdtemp(prefix="camval-command-")
+
+    def _exchange(self, setup, write, read):
+        r'''Write a request (write(workdir) -> request path), run the program, read the
+output (read(workdir) -> value) -> (value, workdir or None)'''
+        workdir = self._workdir(setup)
+        try:
+            req = write(workdir)
+            run = self._run_persistent if setup.get("persistent") else self._run_one_shot
+            stderr_tail = run(setup, req)
+            try:
+                value = read(workdir)
+            except RendererError as e:
+                raise RendererError(f"external renderer {setup['command'][0]!r}: {e}; "
+                                    f"stderr:\n{stderr_tail()}") from None
+        finally:
+            if not setup.get("keep_requests"):
+                shutil.rmtree(workdir, ignore_errors=True)
+        return value, (workdir if setup.get("keep_requests") else None)
 
     def render(self, model, scene, Rt_cam_board, settings=None):
         settings = RenderSettings() if settings is None else settings
-        opts = dict(settings.options)
-        command = (self._check_command(opts.pop("command")) if "command" in opts
-                   else self.command)
-        if command is None:
-            raise RendererError("renderer 'command' needs a command: construct it with "
-                                "command=[program, args...] or give the render option "
-                                "'command' (campaign: options = { command = [...] })")
-        output_format = self._check_format(opts.pop("output_format", self.output_format))
-        timeout = opts.pop("timeout", self.timeout)
-        # the program sees its own options only
-        settings = dataclasses.replace(settings, options=opts)
+        setup, settings = self._resolve(settings)
+        self._last_version = self._version_of(setup)
         t0 = time.perf_counter()
-        if self.keep_dir:
-            os.makedirs(self.keep_dir, exist_ok=True)
-            workdir = tempfile.mkdtemp(prefix="request-", dir=self.keep_dir)
+        mode = setup.get("mode", "image")
+        extra = {}
+        if mode == "image":
+            fmt = setup.get("output_format", "png16")
+            img, workdir = self._exchange(
+                setup,
+                lambda d: write_request(d, model, scene, Rt_cam_board, settings, fmt),
+                lambda d: read_image(os.path.join(d, OUTPUT_FORMATS[fmt]), model.width,
+                                     model.height))
         else:
-            workdir = tempfile.mkdtemp(prefix="camval-command-")
-        try:
-            req = write_request(workdir, model, scene, Rt_cam_board, settings, output_format)
-            if any("{request}" in c for c in command):
-                cmd = [c.replace("{request}", req) for c in command]
-            else:
-                cmd = command + [req]
-            env = dict(os.environ, **self.env)
-            try:
-                proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
-                                      env=env)
-            except subprocess.TimeoutExpired as e:
-                raise RendererError(
-                    f"external renderer {cmd[0]!r} timed out after {timeout} s; stderr: "
-                    f"{_tail(e.stderr if isinstance(e.stderr, str) else '')}") from None
-            except OSError as e:
-                raise RendererError(f"cannot run external renderer {cmd[0]!r}: {e}") from None
-            if proc.returncode != 0:
-                raise RendererError(f"external renderer {cmd[0]!r} failed (exit "
-                                    f"{proc.returncode}); stderr:\n{_tail(proc.stderr)}")
-            out = os.path.join(workdir, OUTPUT_FORMATS[output_format])
-            try:
-                img = read_image(out, model.width, model.height)
-            except RendererError as e:
-                raise RendererError(f"external renderer {cmd[0]!r}: {e}; stderr:\n"
-                                    f"{_tail(proc.stderr)}") from None
-        finally:
-            if not self.keep_dir:
-                shutil.rmtree(workdir, ignore_errors=True)
-        meta = dict(renderer=self.name, version=self.version(), settings=settings.as_dict(),
-                    seconds=time.perf_counter() - t0, samples=settings.spp ** 2,
-                    command=command, output_format=output_format)
-        if self.keep_dir:
+            from . import command_modes
+            img, workdir, extra = command_modes.render(self, mode, setup, model, scene,
+                                                        Rt_cam_board, settings)
+        meta = dict(renderer=self.name, version=self._last_version,
+                    settings=settings.as_dict(), seconds=time.perf_counter() - t0,
+                    samples=settings.spp ** 2, command=setup["command"],
+                    output_format=setup.get("output_format", "png16"), mode=mode,
+                    persistent=bool(setup.get("persistent")), **extra)
+        if workdir:
             meta["request_dir"] = workdir
-        return RenderResult(image=img.astype(np.float32), metadata=meta)
+        return RenderResult(image=np.asarray(img).astype(np.float32), metadata=meta)

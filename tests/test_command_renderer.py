@@ -51,7 +51,7 @@ def test_request_round_trip(tmp_path):
 
 def test_read_request_rejects_other_files(tmp_path):
     (tmp_path / "request.json").write_text('{"protocol": "something-else", "version": 1}')
-    with pytest.raises(RequestError, match="not a camval-render-request"):
+    with pytest.raises(RequestError, match="not a camval-render-request request"):
         read_request(tmp_path)
 
 
@@ -138,9 +138,11 @@ def test_external_example_gives_the_same_records_as_the_built_in_adapter(tmp_pat
         (r,) = run["records"].values()
         return r
 
-    ext = record({"name": "command", "options": {"command": EXAMPLE, "output_format": "npy"}},
+    ext = record({"name": "command", "setup": {"command": EXAMPLE, "output_format": "npy"}},
                  "command")
     ref = record({"name": "raycast"}, "raycast")
     assert ext["status"] == "ok", ext.get("reason")
+    assert ext["fullname"] == ref["fullname"].replace("/raycast[", "/command[")
+    assert ext["settings"]["setup"]["command"] == EXAMPLE
     for field in ("status", "params", "projection", "residuals", "detections"):
         assert ext[field] == ref[field], field

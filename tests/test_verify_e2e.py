@@ -146,6 +146,12 @@ def test_gate_fails_an_aliased_renderer(tmp_path):
     (rec,) = doc["records"].values()
     assert rec["status"] == "ok" and rec["residuals"]["rms"] > 0.003
     out = _camval("gate", run, "--spec", "campaigns/gate.toml", timeout=300)
+    # the shipped gate assumes K = 16: a K = 1 run matches none of its limits
+    assert out.returncode == 1 and "matched no record" in out.stdout
+    # its limits applied to the K = 1 records fail them
+    spec = tmp_path / "gate-k1.toml"
+    spec.write_text((ROOT / "campaigns" / "gate.toml").read_text().replace("[spp=16,", "[spp=1,"))
+    out = _camval("gate", run, "--spec", spec, timeout=300)
     assert out.returncode == 1
     assert "17/CAHV/dots/raycast[spp=1,full]/jpl[CAHV]" in out.stdout
     assert "residuals.rms" in out.stdout

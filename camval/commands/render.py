@@ -2,6 +2,8 @@ r'''Render a calibration target through a catalogue camera, with a JSON sidecar
 
     camval render CAMERA --target dots|apriltag|chessboard --pose N -o FILE.png
     camval render CAMERA --target dots --poses DIR
+    camval render CAMERA -o FILE.png --renderer command --command 'my-renderer --fast' \
+        [--setup timeout=60 --setup persistent=true ...]
 
 CAMERA is a catalogue slot id (1-22), an extra's name (e.g. MCAM_Z_LEFT-Z026)
 or a camera-model file (.cahv/.cahvor/.cahvore, PDS3 label, .cameramodel).
@@ -39,6 +41,12 @@ def add_arguments(parser):
     parser.add_argument("--poses", metavar="DIR", default=None,
                         help=f"write all {NPOSES} planned poses into DIR (pose0.png, ...)")
     parser.add_argument("--renderer", default="raycast", help="renderer (default raycast)")
+    parser.add_argument("--command", default=None, metavar="'PROGRAM ARGS...'",
+                        help="--renderer command: the external renderer to run (split as a "
+                             "shell would)")
+    parser.add_argument("--setup", action="append", default=[], metavar="KEY=VALUE",
+                        help="--renderer command: a setup value (timeout=60, persistent=true, "
+                             "output_format=npy, mode=rays, env={...}); repeatable")
     parser.add_argument("--spp", type=int, default=16, metavar="K",
                         help="K x K samples per pixel (default 16)")
     parser.add_argument("--no-adaptive", action="store_true",
@@ -138,7 +146,13 @@ def run(args):
     _check_free([p for o in outputs for p in (o, o.with_suffix(".json"))], args.force)
 
     poses = plan_poses(model, target, n=max(NPOSES, max(indices) + 1), seed=args.seed)
-    renderer = get_renderer(args.renderer)
+    if args.renderer == "command":
+        from renderers.command import setup_from_cli
+        renderer = get_renderer("command", **setup_from_cli(args.command, args.setup))
+    elif args.command or args.setup:
+        raise CamvalError("--command and --setup are for --renderer command")
+    else:
+        renderer = get_renderer(args.renderer)
     if args.poses is not None:
         outdir.mkdir(parents=True, exist_ok=True)
     for i, out in zip(indices, outputs, strict=True):
