@@ -197,9 +197,10 @@ def _sweep_sections(sweeps, figs, out):
          "every image, the calibration fails, or the projection difference exceeds the "
          "bar.</p>"]
     m = ["## Stability sweeps", "",
-         "One difficulty varied at a time (harness/studies/sweep.py), everything else fixed. A method "
-         "breaks at the first level where the target is not found in every point of every "
-         "image, the calibration fails, or the projection difference exceeds the bar.", ""]
+         "One difficulty varied at a time (harness/studies/sweep.py), everything else fixed. "
+         "A method breaks at the first level where the target is not found in every point of "
+         "every image, the calibration fails, or the projection difference exceeds the bar.",
+         ""]
     for sw, f in zip(sweeps, figs, strict=True):
         h.append(_html_figure(f))
         h.append(_html_table(SWEEP_HEADER, sweep_rows(sw)))

@@ -95,8 +95,8 @@ def _cal_label(r):
 def render_variant(r):
     r'''The renderer and its settings of a record, as its fullname writes them
 (e.g. "raycast[spp=16,adaptive,response=realistic]")'''
-    from harness.records import settings_label
-    return f"{r['renderer']}[{settings_label(r.get('settings') or {})}]"
+    from harness.records import renderer_key
+    return renderer_key(r["renderer"], r.get("settings") or {})
 
 
 def render_variants(records):
