@@ -129,6 +129,8 @@ def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, s
         res = calibrate_stage(cal, obs, target, model, truth, options)
     sec = dict(seconds, calibrate=0.0 if reused else float(res.seconds))
     info = {"iterations": int(res.iterations), "render": render_info}
+    if (res.info or {}).get("diagnostics"):   # library messages (harness.quiet)
+        info["diagnostics"] = res.info["diagnostics"]
     if shared is not None:
         info["shared"] = shared
     common = dict(residuals=res.residual_stats(), seconds=sec, detections=detections,
