@@ -29,6 +29,7 @@ COMMANDS = {
     "renderers": "harness.commands.renderers",
     "stereo": "harness.commands.stereo",
     "sweep": "harness.commands.sweep",
+    "models": "harness.commands.models",
 }
 
 
