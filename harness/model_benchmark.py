@@ -435,7 +435,7 @@ def _fit_one(c, truth, fit_pts, seeds):
         return project, info
     if c.kind in ("cv2", "cv2-fisheye") or _front_only_lensmodel(c.spec):
         front = _front(p_cam)
-        q, p_cam = q[front], p_cam[front]
+        q, p_ref, p_cam = q[front], p_ref[front], p_cam[front]
     if c.kind == "mrcal":
         lm = _mrcal_lensmodel(c, truth)
         seed = None
@@ -447,7 +447,10 @@ def _fit_one(c, truth, fit_pts, seeds):
         elif lm.startswith("LENSMODEL_SPLINED"):
             seed = seeds.get("LENSMODEL_PINHOLE")
         seed_r = None
-        jpl = seeds.get("jpl:" + lm.split("_")[1].split("_")[0].replace("PINHOLE", "CAHV"))
+        family = lm.split("_")[1].replace("PINHOLE", "CAHV")
+        jpl = seeds.get("jpl:" + family)
+        if jpl is None and lm.startswith("LENSMODEL_CAHVOR"):
+            jpl = _fit_jpl(family, truth, q, p_ref)[1]["model"]
         if jpl is not None and lm.startswith(("LENSMODEL_CAHVOR", "LENSMODEL_PINHOLE")):
             # from the jpl fit of the same family: mrcal's CAHVOR optimum lies along a flat
             # valley (R0 against the focal length) the pinhole seed does not reach
@@ -465,8 +468,17 @@ def _fit_one(c, truth, fit_pts, seeds):
     raise ValueError(f"unknown candidate kind {c.kind!r}")
 
 
+def _nparams(c, truth):
+    if c.kind == "jpl":
+        return JPL_NPARAMS[c.spec]
+    if c.kind == "mrcal":
+        import mrcal
+        return mrcal.lensmodel_num_params(_mrcal_lensmodel(c, truth))
+    return 4 + (4 if c.kind == "cv2-fisheye" else int(c.spec))
+
+
 def benchmark(truth, tolerance=DEFAULT_TOLERANCE, ranges_m=None, candidates=None,
-              criterion="max", fit_points=FIT_POINTS, eval_step=None):
+              criterion="max", fit_points=FIT_POINTS, eval_step=None, first_within=False):
     r'''Fit every candidate model to the truth's exact projections; the floors and the choice
 
 SYNOPSIS
@@ -487,6 +499,8 @@ ARGUMENTS
 - candidates: names from candidate_names() (default all)
 - fit_points: fit-grid points along the longer image side; eval_step: px between the
   evaluation grid's points (default harness.compare.DEFAULT_GRID_STEP)
+- first_within: try the candidates from the fewest parameters up and stop at the first
+  within tolerance (what best_model() needs: the splined model, slowest, comes last)
 
 A candidate whose fit raises is a row with status "failed" and the reason.
 '''
@@ -501,6 +515,8 @@ A candidate whose fit raises is a row with status "failed" and the reason.
     fit_pts = _points(truth, fit_step, ranges_m)
     q_e, p_ref_e, p_cam_e = _points(truth, eval_step, ranges_m)
     chosen = [c for c in CANDIDATES if candidates is None or c.name in candidates]
+    if first_within:
+        chosen.sort(key=lambda c: _nparams(c, truth))   # stable: CANDIDATES order in a tie
     rows, seeds = [], {}
     t_all = time.perf_counter()
     with capture() as cap:
@@ -525,6 +541,8 @@ A candidate whose fit raises is a row with status "failed" and the reason.
                            nparams=None, rms=None, max=None, corner=None, corner_px=None)
             row["seconds"] = time.perf_counter() - t0
             rows.append(row)
+            if first_within and _value(row, criterion) <= tolerance:
+                break
     out = {"camera": {"family": truth.family, "width": W, "height": H,
                       "linearity": getattr(truth, "linearity", None),
                       "central": bool(getattr(truth, "is_central", True))},
@@ -607,7 +625,8 @@ Benchmarks only the calibrator's own candidates; memoised per process.
     names = [c.name for c in CANDIDATES if calibrator in c.calibrators]
     key = (_model_key(truth), calibrator, float(tolerance), criterion)
     if key not in _MEMO:
-        b = benchmark(truth, tolerance=tolerance, candidates=names, criterion=criterion)
+        b = benchmark(truth, tolerance=tolerance, candidates=names, criterion=criterion,
+                      first_within=True)
         _MEMO[key] = choose(b, calibrator)
     c = _MEMO[key]
     return c["model"], c["why"]

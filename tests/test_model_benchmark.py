@@ -103,3 +103,55 @@ def test_every_catalogue_camera_has_a_model_within_tolerance(key):
     b = benchmark(CAT.get(key).model, candidates=["CAHV", "CAHVOR", "CAHVORE"])
     assert b["recommended"] is not None
     assert b["recommended"]["max"] <= 0.01
+
+
+CAMPAIGN = '''
+cameras = [15]
+models = ["CAHV"]
+[poses]
+n = 4
+[[renderer]]
+name = "raycast"
+spp = 1
+[[calibrator]]
+name = "jpl"
+models = ["best"]
+[[calibrator]]
+name = "opencv"
+models = ["best", "OPENCV5"]
+options = {best_tolerance = 0.5}
+'''
+
+
+def test_campaign_best_picks_per_camera_and_records_why(tmp_path):
+    from harness.campaign import MODEL_CHOICE, load_campaign
+    from harness.jobs import expand_jobs
+    p = tmp_path / "c.toml"
+    p.write_text(CAMPAIGN)
+    (job,) = expand_jobs(load_campaign(p))
+    cals = {(c, m): o for c, m, o in job.calibrators}
+    # the navcam's CAHV truncation is a CAHV: jpl's CAHV holds it exactly
+    assert "simplest jpl model" in cals[("jpl", "CAHV")][MODEL_CHOICE]
+    # OpenCV has no skew: its floors on the navcam's CAHV (theta != 90 deg) are ~0.16 px,
+    # within the campaign's 0.5 px; the fisheye (8 parameters) is the simplest. The
+    # tolerance option is not passed on to the fit
+    assert set(cals) == {("jpl", "CAHV"), ("opencv", "FISHEYE"), ("opencv", "OPENCV5")}
+    why = cals[("opencv", "FISHEYE")][MODEL_CHOICE]
+    assert "simplest opencv model" in why and "<= 0.5 px" in why
+    assert cals[("opencv", "FISHEYE")] == {MODEL_CHOICE: why}
+    assert cals[("opencv", "OPENCV5")] == {}
+
+
+@pytest.mark.slow
+def test_a_best_job_runs_and_its_records_say_why(tmp_path):
+    from harness.campaign import load_campaign
+    from harness.jobs import expand_jobs
+    from harness.runner import run_job
+    p = tmp_path / "c.toml"
+    p.write_text(CAMPAIGN.replace('models = ["best", "OPENCV5"]', 'models = ["best"]'))
+    (job,) = expand_jobs(load_campaign(p))
+    recs = run_job(job)["records"]
+    assert [r["status"] for r in recs] == ["ok", "ok"], [r.get("reason") for r in recs]
+    assert [r["calibrator_model"] for r in recs] == ["CAHV", "FISHEYE"]
+    assert all("simplest" in r["info"]["model_choice"] for r in recs)
+    assert recs[1]["info"]["diagnostics"]["n"] >= 0
