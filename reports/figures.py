@@ -79,6 +79,28 @@ def _param(r, name):
     return None if v is None else float(v)
 
 
+# A linear panel's y range ends at OFFSCALE x the upper quartile of its |values| (and the
+# paper's lines): a point beyond is drawn at the edge as a red arrow and listed in the caption,
+# so diverged fits (mrcal's 1.55e4 px Hc) cannot flatten every other point onto zero. The
+# quartile holds while fewer than a quarter of the points are outliers.
+OFFSCALE = 10.0
+OFFSCALE_LISTED = 12
+# decades of the maps' shared logarithmic colour scale
+MAP_DECADES = 3
+
+
+def robust_limit(values, keep=()):
+    r'''The half-range of a linear axis no outlier can swamp (see OFFSCALE); None: no clip'''
+    a = np.abs(np.asarray([v for v in values if math.isfinite(v)], dtype=np.float64))
+    if a.size < 4:
+        return None
+    lim = OFFSCALE * float(np.percentile(a, 75))
+    lim = max([lim] + [1.1 * abs(k) for k in keep])
+    if lim <= 0 or a.max() <= lim:
+        return None
+    return lim
+
+
 def _per_camera_figure(records, out, key, title, ylabel, series, caption, logy=False,
                        absolute=False, paper=()):
     r'''series: [(label, marker, getter(record) -> float or None), ...];
@@ -100,7 +122,7 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
                 if logy and v <= 0:
                     v = 1e-12
                 pts.append((xpos[r["camera"]] + FAMILY_OFFSET.get(r["model"], 0), v,
-                            r["model"], label, marker))
+                            r["model"], label, marker, r["camera"]))
         if pts:
             rows.append((_panel_title(cal, cm, variant), pts))
     if not rows:
@@ -108,9 +130,22 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
     plt = _plt()
     fig, axes = plt.subplots(len(rows), 1, figsize=(max(7.0, 0.38 * len(cams) + 3), 2.6 *
                                                     len(rows) + 0.6), squeeze=False)
+    offscale = []
     for ax, (panel_title, pts) in zip(axes[:, 0], rows, strict=True):
+        lim = None if logy else robust_limit([p[1] for p in pts],
+                                             keep=[v for v, _ in paper])
+        if lim is not None:
+            out_pts = [p for p in pts if abs(p[1]) > lim]
+            pts = [p for p in pts if abs(p[1]) <= lim]
+            for x, v, fam, label, _, cam in out_pts:
+                offscale.append(f"{panel_title}: {cam} {fam} {label} {v:.3g}")
+                ax.plot([x], [math.copysign(0.97 * lim, v)], "^" if v > 0 else "v",
+                        color="tab:red", ms=7)
+            ax.set_ylim(-lim if not absolute else -0.03 * lim, lim)
+            ax.text(0.995, 0.97, f"{len(out_pts)} off scale (red arrows)", fontsize=6,
+                    color="tab:red", ha="right", va="top", transform=ax.transAxes)
         groups = {}
-        for x, v, fam, label, marker in pts:
+        for x, v, fam, label, marker, _ in pts:
             groups.setdefault((fam, label, marker), []).append((x, v))
         for (fam, label, marker), xv in groups.items():
             xv = np.array(xv)
@@ -136,6 +171,12 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
     path = Path(out) / f"{key}.png"
     fig.savefig(path, dpi=90)
     plt.close(fig)
+    if offscale:
+        listed = "; ".join(offscale[:OFFSCALE_LISTED])
+        more = f"; and {len(offscale) - OFFSCALE_LISTED} more" if len(offscale) > \
+            OFFSCALE_LISTED else ""
+        caption += (f" Off scale (beyond {OFFSCALE:g}x the upper quartile of the panel's "
+                    f"values, red arrows at the edge): {listed}{more}.")
     return Figure(key, title, caption, str(path))
 
 
@@ -261,17 +302,30 @@ def fig_maps(records, run_dir, out, limit=72):
                                  squeeze=False)
         for ax in axes.ravel():
             ax.axis("off")
-        for ax, r in zip(axes.ravel(), shown, strict=False):
-            m = np.load(Path(run_dir) / r["artifacts"]["map"])
-            vmax = float(np.nanmax(m)) if np.isfinite(m).any() else 1.0
-            im = ax.imshow(m, cmap="viridis", vmin=0, vmax=vmax if vmax > 0 else 1.0)
+        maps = [np.load(Path(run_dir) / r["artifacts"]["map"]) for r in shown]
+        maxima = [float(np.nanmax(m)) if np.isfinite(m).any() else math.nan for m in maps]
+        # one colour scale for the figure; a panel beyond it saturates and says so
+        vmax = robust_limit([x for x in maxima if math.isfinite(x)]) or max(
+            [x for x in maxima if math.isfinite(x)] or [1.0])
+        vmax = vmax if vmax > 0 else 1.0
+        # logarithmic, MAP_DECADES decades: a 0.003 px map keeps its structure beside a
+        # 0.8 px one on the same scale
+        from matplotlib.colors import LogNorm
+        norm = LogNorm(vmin=vmax * 10.0 ** -MAP_DECADES, vmax=vmax, clip=True)
+        im = None
+        for ax, r, m, mx in zip(axes.ravel(), shown, maps, maxima, strict=False):
+            im = ax.imshow(np.maximum(m, norm.vmin), cmap="viridis", norm=norm)
             setting = f" {r['renderer']} K{r['settings'].get('spp')}" if several else ""
-            ax.set_title(f"{r['camera']} {r['model']}{setting}\nmax {vmax:.2g} px", fontsize=7)
-            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=5)
+            over = " (saturated)" if mx > vmax else ""
+            ax.set_title(f"{r['camera']} {r['model']}{setting}\nmax {mx:.2g} px{over}",
+                         fontsize=7, color="tab:red" if over else "black")
+        if im is not None:
+            fig.colorbar(im, ax=axes.ravel().tolist(), fraction=0.02, pad=0.01,
+                         extend="both" if max(maxima, default=0) > vmax else "min",
+                         label="px").ax.tick_params(labelsize=6)
         label = _panel_title(cal, cm, variant)
         more = f" (first {limit} of {len(recs)})" if len(recs) > limit else ""
         fig.suptitle(f"Projection difference |fit - truth| (px), {label}{more}", fontsize=9)
-        fig.tight_layout()
         key = f"maps_{cal}" + ("" if cm == "family" else f"_{cm}") + (
             "_" + "".join(c if c.isalnum() else "_" for c in variant) if variant else "")
         path = Path(out) / f"{key}.png"
@@ -279,7 +333,10 @@ def fig_maps(records, run_dir, out, limit=72):
         plt.close(fig)
         figs.append(Figure(key, f"Projection-difference maps, {label}",
                            "Per-pixel |fit - truth| in projection over the whole image "
-                           "(downsampled, maximum per block; own colour scale per camera).",
+                           "(downsampled, maximum per block); one logarithmic colour "
+                           f"scale for all panels, {vmax * 10.0 ** -MAP_DECADES:.2g} to "
+                           f"{vmax:.3g} px; a panel whose maximum (printed above it) is "
+                           "beyond it is marked saturated.",
                            str(path)))
     return figs
 
