@@ -56,6 +56,7 @@ KINDS = (
 
 _lock = threading.RLock()
 _state = {"depth": 0, "file": None, "saved": None, "streams": None}
+_retired = []   # the previous capture's Python stream wrappers (see _exit)
 
 
 def kind_of(line):
@@ -115,6 +116,11 @@ def _fd_of(stream):
 def _enter():
     with _lock:
         if _state["depth"] == 0:
+            while _retired:
+                try:
+                    _retired.pop().close()
+                except (ValueError, OSError):
+                    pass
             _flush_python()
             _flush_c()
             f = tempfile.TemporaryFile(mode="w+b")
@@ -156,10 +162,13 @@ def _exit(offset):
             for name, s in _state["streams"].items():
                 wrapper = getattr(sys, name)
                 setattr(sys, name, s)
+                # flushed, not closed: another thread may be inside its write(); closed at
+                # the next capture's start
                 try:
-                    wrapper.close()
+                    wrapper.flush()
                 except (ValueError, OSError):
                     pass
+                _retired.append(wrapper)
             _state["file"].close()
             _state.update(file=None, saved=None, streams=None)
         return data
