@@ -66,6 +66,9 @@ CRITERIA = ("max", "rms")
 # splined model of the MER navcam (slot 15) reaches 0.000680 px RMS in 5 steps, then crawls:
 # 0.000666 px after 200 (52 s on a loaded 2-core machine).
 STOP_GAIN = 1e-3
+# at most this many evaluations for the splined model: slot 15 reaches its floor in 5, hazcam
+# 9 in ~20; SuperCam (theta 75 deg, 1.1 deg field of view) crawls for 700 (241 s) to 2 px
+SPLINED_EVALUATIONS = 40
 
 
 @dataclass(frozen=True)
@@ -135,7 +138,7 @@ def _rotate(r, p):
     return mrcal.rotate_point_r(r, p, get_gradients=True)
 
 
-def _lm(residual_and_jacobian, x0, max_iterations=100):
+def _lm(residual_and_jacobian, x0, max_iterations=100, max_evaluations=300):
     r'''Levenberg-Marquardt (numpy): x minimising |f(x)|^2; (x, number of evaluations)
 
 The Jacobian's columns are scaled to unit norm and the damping is lambda I on
@@ -153,7 +156,7 @@ the field of view) stay where they are instead of making the step singular.
         A = Js.T @ Js
         g = Js.T @ f
         improved = False
-        while lam < 1e12:
+        while lam < 1e12 and nfev < max_evaluations:
             try:
                 dx = -np.linalg.solve(A + lam * np.eye(len(x)), g) / s
             except np.linalg.LinAlgError:
@@ -178,9 +181,33 @@ the field of view) stay where they are instead of making the step singular.
     return x, nfev
 
 
+def _center_start(truth):
+    r'''(r, [fx, fy, cx, cy]): a pinhole looking through the image centre, at its local scale
+
+The rotation r turns the truth's camera frame so that z is the ray through the image centre
+and x the direction of increasing column there; fx, fy are the focal lengths of the truth
+there. Every model is fitted from it: the truth's own frame can be far from any pinhole's
+(SuperCam: the axis A is 28 deg off its 1.1 deg field of view, theta 75 deg).
+'''
+    import mrcal
+    W, H = truth.width, truth.height
+    c = np.array([(W - 1) / 2.0, (H - 1) / 2.0])
+    _, v = truth.unproject(np.array([c, c + (1.0, 0.0), c + (0.0, 1.0)]))
+    R_ref_cam = truth.Rt_ref_cam()[:3]
+    v = v @ R_ref_cam           # directions in the truth's camera frame
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    z = v[0]
+    x = v[1] - (v[1] @ z) * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack((x, y, z))     # truth camera frame -> the start's frame
+    fx = 1.0 / math.tan(math.acos(min(1.0, float(v[0] @ v[1]))))
+    fy = 1.0 / math.tan(math.acos(min(1.0, float(v[0] @ v[2]))))
+    return mrcal.r_from_R(R), np.array([fx, fy, c[0], c[1]])
+
+
 def _seed(truth):
-    ph = truth.photogrammetric()
-    return np.array([ph.Hs, ph.Vs, ph.Hc, ph.Vc], dtype=np.float64)
+    return _center_start(truth)[1]
 
 
 def _splined_lensmodel(truth):
@@ -208,8 +235,7 @@ def _fit_mrcal(lensmodel, truth, q, p_cam, seed_intrinsics=None, seed_r=None):
     if seed_intrinsics is not None:
         n = min(len(seed_intrinsics), nint)
         x0[3:3 + n] = seed_intrinsics[:n]
-    if seed_r is not None:
-        x0[:3] = seed_r
+    x0[:3] = _center_start(truth)[0] if seed_r is None else seed_r
     qf = q.ravel()
 
     def rj(x):
@@ -221,12 +247,13 @@ def _fit_mrcal(lensmodel, truth, q, p_cam, seed_intrinsics=None, seed_r=None):
         J = np.where(np.isfinite(J), J, 0.0).reshape(-1, 3 + nint)
         return f, J
 
-    x, nfev = _lm(rj, x0)
+    # the splined model's evaluations cost ~0.3 s (388 parameters, dense): it gets fewer
+    x, nfev = _lm(rj, x0, max_evaluations=SPLINED_EVALUATIONS if nint > 40 else 300)
 
     def project(p):
         return mrcal.project(mrcal.rotate_point_r(x[:3], p), lensmodel, x[3:])
     return project, {"lensmodel": lensmodel, "nparams": nint, "nfev": nfev,
-                     "intrinsics": x[3:]}
+                     "intrinsics": x[3:], "r": x[:3]}
 
 
 def _radial_seed(truth, q, p_cam, ncoef):
@@ -234,7 +261,9 @@ def _radial_seed(truth, q, p_cam, ncoef):
 with no rotation: OpenCV's radial terms are linear in the coefficients once the core is
 held (the rational model after multiplying out its denominator). ncoef: 4, 5, 8 or
 "fisheye"; the tangential terms are 0.'''
-    core = _seed(truth)
+    import mrcal
+    r0, core = _center_start(truth)
+    p_cam = mrcal.rotate_point_r(r0, p_cam)
     ok = p_cam[:, 2] > 0
     x = p_cam[ok, :2] / p_cam[ok, 2:]
     xd = (q[ok] - core[2:]) / core[:2]
@@ -281,11 +310,13 @@ def _front_only(project):
     return wrapped
 
 
-def _fit_cv2(ncoef, truth, q, p_cam, seed_intrinsics=None):
+def _fit_cv2(ncoef, truth, q, p_cam, seed_intrinsics=None, seed_r=None):
     import cv2
     ncoef = int(ncoef)
     x0 = np.zeros(3 + 4 + ncoef)
-    x0[3:7] = _seed(truth)
+    x0[:3], x0[3:7] = _center_start(truth)
+    if seed_r is not None:
+        x0[:3] = seed_r
     if seed_intrinsics is not None:
         n = min(len(seed_intrinsics), 4 + ncoef)
         x0[3:3 + n] = seed_intrinsics[:n]
@@ -309,12 +340,13 @@ def _fit_cv2(ncoef, truth, q, p_cam, seed_intrinsics=None):
         qp, _ = cv2.projectPoints(np.ascontiguousarray(np.asarray(p).reshape(-1, 1, 3)),
                                   x[:3], zero, K_of(x), x[7:])
         return qp.reshape(np.shape(p)[:-1] + (2,))
-    return project, {"nparams": 4 + ncoef, "nfev": nfev, "intrinsics": x[3:]}
+    return project, {"nparams": 4 + ncoef, "nfev": nfev, "intrinsics": x[3:], "r": x[:3]}
 
 
 def _fit_fisheye(truth, q, p_cam):
     import cv2
     x0 = np.zeros(3 + 4 + 4)
+    x0[:3] = _center_start(truth)[0]
     x0[3:] = _radial_seed(truth, q, p_cam, "fisheye")
     P = np.ascontiguousarray(p_cam.reshape(-1, 1, 3))
     qf = q.ravel()
@@ -408,15 +440,15 @@ def _best_start(fit, n, truth, q, p_cam, seeds, simpler_key, key, front_only):
 cameras (slot 15's OPENCV8 from the radial seed: 3.0 px max, from OPENCV5's fit 0.25 px)'''
     starts = []
     if n in (4, 5, 8):
-        starts.append(_radial_seed(truth, q, p_cam, n))
+        starts.append((_radial_seed(truth, q, p_cam, n), None))
     prev = seeds.get(simpler_key)
     if prev is not None:
         pad = np.zeros(4 + n)
         pad[:len(prev)] = prev
-        starts.append(pad)
+        starts.append((pad, seeds.get(simpler_key + ":r")))
     best = None
-    for start in starts or [None]:
-        project, info = fit(start)
+    for start in starts or [(None, None)]:
+        project, info = fit(*start)
         with np.errstate(all="ignore"):
             d = np.linalg.norm(project(p_cam) - q, axis=-1)
         cost = float(np.mean(np.where(np.isfinite(d), d, 1e6) ** 2))
@@ -424,6 +456,7 @@ cameras (slot 15's OPENCV8 from the radial seed: 3.0 px max, from OPENCV5's fit 
             best = (cost, project, info)
     _, project, info = best
     seeds[key] = info["intrinsics"]
+    seeds[key + ":r"] = info["r"]
     return (_front_only(project) if front_only else project), info
 
 
@@ -441,26 +474,37 @@ def _fit_one(c, truth, fit_pts, seeds):
         seed = None
         if lm.startswith("LENSMODEL_OPENCV"):
             n = int(lm[16:])
-            return _best_start(lambda sd: _fit_mrcal(lm, truth, q, p_cam, sd), n, truth, q,
+            return _best_start(lambda sd, r: _fit_mrcal(lm, truth, q, p_cam, sd, r), n, truth, q,
                                p_cam, seeds, f"LENSMODEL_OPENCV{_SIMPLER.get(n)}", c.spec,
                                _front_only_lensmodel(lm))
-        elif lm.startswith("LENSMODEL_SPLINED"):
-            seed = seeds.get("LENSMODEL_PINHOLE")
         seed_r = None
+        if lm.startswith("LENSMODEL_SPLINED"):
+            seed = seeds.get("LENSMODEL_PINHOLE")
+            seed_r = seeds.get("LENSMODEL_PINHOLE:r")
         family = lm.split("_")[1].replace("PINHOLE", "CAHV")
         jpl = seeds.get("jpl:" + family)
         if jpl is None and lm.startswith("LENSMODEL_CAHVOR"):
             jpl = _fit_jpl(family, truth, q, p_ref)[1]["model"]
+        starts = [(seed, seed_r)]
         if jpl is not None and lm.startswith(("LENSMODEL_CAHVOR", "LENSMODEL_PINHOLE")):
-            # from the jpl fit of the same family: mrcal's CAHVOR optimum lies along a flat
-            # valley (R0 against the focal length) the pinhole seed does not reach
-            seed, seed_r = _mrcal_seed_from_jpl(jpl, truth)
-        project, info = _fit_mrcal(lm, truth, q, p_cam, seed, seed_r)
+            # also from the jpl fit of the same family: mrcal's CAHVOR optimum lies along a
+            # flat valley (R0 against the focal length) the centre start does not reach
+            starts.append(_mrcal_seed_from_jpl(jpl, truth))
+        best = None
+        for start in starts:
+            project, info = _fit_mrcal(lm, truth, q, p_cam, *start)
+            with np.errstate(all="ignore"):
+                d = np.linalg.norm(project(p_cam) - q, axis=-1)
+            cost = float(np.mean(np.where(np.isfinite(d), d, 1e6) ** 2))
+            if best is None or cost < best[0]:
+                best = (cost, project, info)
+        _, project, info = best
         seeds[c.spec] = info["intrinsics"]
+        seeds[c.spec + ":r"] = info["r"]
         return (_front_only(project) if _front_only_lensmodel(lm) else project), info
     if c.kind == "cv2":
         n = int(c.spec)
-        return _best_start(lambda sd: _fit_cv2(n, truth, q, p_cam, sd), n, truth, q, p_cam,
+        return _best_start(lambda sd, r: _fit_cv2(n, truth, q, p_cam, sd, r), n, truth, q, p_cam,
                            seeds, f"cv2:{_SIMPLER.get(n)}", f"cv2:{n}", True)
     if c.kind == "cv2-fisheye":
         project, info = _fit_fisheye(truth, q, p_cam)

@@ -605,3 +605,69 @@ def make_figures(records, run_dir, out):
     if sp is not None:
         figs.append(sp)
     return figs
+
+
+LIBRARY_MARKERS = {"jpl (scipy)": ("s", "tab:blue"), "mrcal": ("o", "tab:orange"),
+                   "opencv": ("^", "tab:green")}
+
+
+def fig_model_floors(benchmarks, out, key="model_floors"):
+    r'''Floor vs parameter count, one panel per camera (harness.model_benchmark results)
+
+SYNOPSIS
+
+    f = fig_model_floors({"15": bench15, "9": bench9}, out_dir)   # Figure or None
+
+Each candidate model is a point at (parameters, max floor px), log scales; the
+tolerance is a dashed line and the recommended model is circled. A model that
+cannot see the whole field of view is drawn hollow at its floor over the rest.
+'''
+    items = [(cam, b) for cam, b in benchmarks.items() if b.get("rows")]
+    if not items:
+        return None
+    plt = _plt()
+    ncol = min(4, len(items))
+    nrow = math.ceil(len(items) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 2.6 * nrow + 0.6),
+                             squeeze=False)
+    for ax in axes.ravel()[len(items):]:
+        ax.axis("off")
+    for ax, (cam, b) in zip(axes.ravel(), items, strict=False):
+        crit = b.get("criterion", "max")
+        for lib, (marker, colour) in LIBRARY_MARKERS.items():
+            rows = [r for r in b["rows"] if r["library"] == lib and r.get(crit) is not None
+                    and r.get("nparams")]
+            full = [r for r in rows if not r.get("n_invalid")]
+            part = [r for r in rows if r.get("n_invalid")]
+            for sel, mfc, lab in ((full, colour, lib), (part, "none", None)):
+                if sel:
+                    ax.plot([r["nparams"] for r in sel],
+                            [max(r[crit], 1e-13) for r in sel], marker, color=colour,
+                            mfc=mfc, ls="none", ms=5, label=lab)
+        ax.axhline(b["tolerance"], color="tab:red", ls="--", lw=0.8)
+        rec = b.get("recommended")
+        if rec:
+            ax.plot([rec["nparams"]], [max(rec[crit], 1e-13)], "o", ms=12, mfc="none",
+                    color="k")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        cam_txt = b.get("camera") or {}
+        ax.set_title(f"{cam} {cam_txt.get('family', '')} -> "
+                     f"{rec['name'] if rec else 'none'}", fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(fontsize=6, loc="lower left")
+    fig.supxlabel("parameters", fontsize=8)
+    fig.supylabel("floor (px, max over the image)", fontsize=8)
+    fig.suptitle("Camera-model floors: each candidate fitted to the camera's exact "
+                 "projections", fontsize=9)
+    fig.tight_layout()
+    path = Path(out) / f"{key}.png"
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return Figure(key, "Camera-model floors", "Each candidate lens model fitted to the "
+                  "camera's exact projections over the whole field of view (harness."
+                  "model_benchmark): its floor (max projection difference) against its "
+                  "parameter count; dashed: the tolerance; circled: the simplest model "
+                  "within it; hollow: the model cannot see the whole field of view (the "
+                  "floor is over the rest).", str(path))
