@@ -244,16 +244,23 @@ source tree has it). A spec needing a baseline, or none at all: "no verdict" and
         gate_spec = DEFAULT_GATE_SPEC if DEFAULT_GATE_SPEC.is_file() else None
     if gate_spec is None:
         return "no verdict: no gate spec", []
+    about = ""
     try:
-        spec = load_gate_spec(gate_spec) if isinstance(gate_spec, str | Path) else gate_spec
+        if isinstance(gate_spec, str | Path):
+            import tomllib
+            about = tomllib.loads(Path(gate_spec).read_text()).get("description", "")
+            spec = load_gate_spec(gate_spec)
+        else:
+            spec = gate_spec
         failures = check(doc, spec)
     except GateUsageError as e:
         return f"no verdict: {e}", []
     src = Path(spec.source).name if spec.source else "the gate spec"
+    src += f" ({about})" if about else ""
     n = len(doc["records"])
     rows = [(f.fullname, f.field, f.value, f.limit) for f in failures]
     if not failures:
-        return f"PASS: the {n} records meet every limit of {src}", rows
+        return f"PASS: no failure in the {n} records against {src}", rows
     names = len({f.fullname for f in failures})
     return (f"FAIL: {len(failures)} failure{'s' if len(failures) != 1 else ''} in {names} "
             f"of {n} records against {src}"), rows
