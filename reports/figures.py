@@ -677,7 +677,7 @@ cannot see the whole field of view is drawn hollow at its floor over the rest.
     fig.supylabel("floor (px, max over the image)", fontsize=8)
     fig.suptitle("Camera-model floors: each candidate fitted to the camera's exact "
                  "projections", fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.25 / fig.get_figheight()))
     path = Path(out) / f"{key}.png"
     save_png(fig, path, dpi=80)
     plt.close(fig)
