@@ -29,6 +29,7 @@ COMMANDS = {
     "renderers": "camval.commands.renderers",
     "stereo": "camval.commands.stereo",
     "sweep": "camval.commands.sweep",
+    "models": "camval.commands.models",
 }
 
 

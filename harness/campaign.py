@@ -45,7 +45,9 @@ A campaign is a TOML file (tomllib):
 
     [[calibrator]]
     name = "jpl"
-    models = ["family"]      # "family" = the job's model family; or named models
+    models = ["family"]      # "family" = the job's model family; "best" = per camera the
+                             # simplest model within options.best_tolerance px (0.01) of
+                             # the truth (harness.model_benchmark); or named models
     options = {}
 
     [response.clean]         # a profile with no stages: the rendered image as it is
@@ -236,8 +238,34 @@ class CalibratorSpec:
     options: dict = field(default_factory=dict)
 
     def models_for(self, family):
-        r'''The calibrator's models for a job of this family ("family" -> the family)'''
+        r'''The calibrator's models for a job of this family ("family" -> the family;
+"best" stays: models_and_options() resolves it per camera)'''
         return [family if m == JOB_FAMILY else m for m in self.models]
+
+    def models_and_options(self, family, camera_model=None):
+        r'''[(model, options)] for a job of this family on this camera
+
+SYNOPSIS
+
+    spec.models_and_options("CAHVORE", entry.model)
+    # [("SPLINED", {..., "model_choice": "simplest mrcal model with max floor ..."})]
+
+"best" becomes the calibrator's simplest model whose floor on the job's truth (the camera
+truncated to the family) is within the option best_tolerance px (default 0.01; see
+harness.model_benchmark); options[MODEL_CHOICE] says which and why (the record keeps it
+in info; the calibrator never sees it). A family richer than the camera, or no camera
+given: the family.
+'''
+        out = []
+        base = {k: v for k, v in self.options.items() if k != BEST_TOLERANCE}
+        for m in self.models_for(family):
+            if m != BEST:
+                out.append((m, dict(base)))
+                continue
+            name, why = _best_model(self.name, family, camera_model,
+                                    self.options.get(BEST_TOLERANCE))
+            out.append((name, dict(base, **{MODEL_CHOICE: why})))
+        return out
 
     def as_dict(self):
         return {"name": self.name, "models": list(self.models), "options": dict(self.options)}
@@ -357,10 +385,11 @@ Returns {camera spec: CatalogueEntry}.
             except CalibratorError as e:   # a plugin that is not a calibrator
                 raise CampaignError(f"{_where(src, f'calibrator[{i}].name')}: {e}") from None
             for m in c.models:
-                if m != JOB_FAMILY and not _calibrator_has_model(cal, m):
+                if m not in (JOB_FAMILY, BEST) and not _calibrator_has_model(cal, m):
                     raise CampaignError(f"{_where(src, f'calibrator[{i}].models')}: calibrator "
                                         f"{c.name!r} has no model {m!r}; its models: "
-                                        f"{', '.join((JOB_FAMILY,) + tuple(cal.MODELS))}")
+                                        f"{', '.join((JOB_FAMILY,) + tuple(cal.MODELS))} "
+                                        f"(or {BEST})")
         return entries
 
 
@@ -383,6 +412,29 @@ would name the records: a CampaignError that says to move it to setup"""
                             f"{', '.join(misplaced)} say how to run {spec.name!r}, not what "
                             f"it renders; move them to setup = {{ ... }} (options name the "
                             f"records, setup does not)")
+
+
+# "best": per camera, the calibrator's simplest model within tolerance (harness.model_benchmark)
+BEST = "best"
+BEST_TOLERANCE = "best_tolerance"
+MODEL_CHOICE = "model_choice"
+
+
+def _best_model(calibrator, family, camera_model, tolerance):
+    from reference_models.cahvore import truncate
+    from reference_models.errors import ModelError
+    if camera_model is None:
+        return family, f"no camera to benchmark: the job's family {family}"
+    try:
+        truth = truncate(camera_model, family)
+    except ModelError:
+        return family, f"the camera has no {family}: the job's family"
+    from harness.model_benchmark import DEFAULT_TOLERANCE, best_model
+    name, why = best_model(truth, calibrator,
+                           DEFAULT_TOLERANCE if tolerance is None else float(tolerance))
+    if name is None:
+        return family, f"{why}: the job's family {family}"
+    return name, why
 
 
 def _calibrator_has_model(cal, model):

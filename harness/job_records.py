@@ -90,8 +90,11 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
     import dataclasses
 
     from harness.calibrators import uses_world_frame
+    from harness.campaign import MODEL_CHOICE
     records = []
     for cal, model, options in job.calibrators:
+        choice = options.get(MODEL_CHOICE)   # why "best" chose this model: the record's, not
+        options = {k: v for k, v in options.items() if k != MODEL_CHOICE}   # the fit's
         res, info = None, shared
         try:
             if fits is not None and not uses_world_frame(cal, options):
@@ -106,7 +109,7 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
             if info is not None and "with" in info and "stages" not in info:
                 info = dict(info, stages=list(TWIN_STAGES))
             records.append(_calibrator_record(job, cal, model, options, res=res, shared=info,
-                                              **ctx))
+                                              choice=choice, **ctx))
         except Exception as e:  # a bug after the calibrator ran: this record only
             tb = traceback.extract_tb(e.__traceback__)[-1]
             records.append(_record(job, cal, model, ctx["entry"], status="failed",
@@ -120,7 +123,7 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
 
 def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, seconds,
                        detections, artifacts, rversion, render_info, features, res=None,
-                       shared=None):
+                       shared=None, choice=None):
     r'''Calibrate (unless res is given: a fit shared with a twin), compare, keep the map
 -> one record dict'''
     import numpy as np
@@ -129,6 +132,10 @@ def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, s
         res = calibrate_stage(cal, obs, target, model, truth, options)
     sec = dict(seconds, calibrate=0.0 if reused else float(res.seconds))
     info = {"iterations": int(res.iterations), "render": render_info}
+    if choice is not None:
+        info["model_choice"] = choice
+    if (res.info or {}).get("diagnostics"):   # library messages (harness.quiet)
+        info["diagnostics"] = res.info["diagnostics"]
     if shared is not None:
         info["shared"] = shared
     common = dict(residuals=res.residual_stats(), seconds=sec, detections=detections,

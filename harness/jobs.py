@@ -114,8 +114,8 @@ entries: {camera spec: CatalogueEntry} from campaign.validate() (validated here 
                 for r in campaign.renderers:
                     for s, prof in zip(r.settings(campaign.responses),
                                        r.profiles(campaign.responses), strict=True):
-                        cals = tuple((c.name, m, dict(c.options)) for c in campaign.calibrators
-                                     for m in c.models_for(family))
+                        cals = tuple((c.name, m, o) for c in campaign.calibrators
+                                     for m, o in c.models_and_options(family, entry.model))
                         jobs.append(Job(
                             key=f"{key}/{family}/{target}/{renderer_key(r.name, s)}",
                             camera=spec, camera_key=key, family=family, target=target,

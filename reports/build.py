@@ -70,7 +70,12 @@ figure { margin: 1em 0 2em; }
 figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { font-size: 0.85em; color: #444; }
 .status-failed { color: #a00; }
+.verdict { font-size: 1.2em; padding: 0.4em 0.6em; border-radius: 4px; }
+.verdict-pass { background: #e4f4e4; } .verdict-fail { background: #fbe3e3; }
+.verdict-none { background: #eee; }
 """
+# gate failures listed under the verdict (all of them are in `camval gate`'s output)
+VERDICT_ROWS = 20
 
 # Marks the page once every image has decoded (a headless browser test reads it).
 IMAGE_CHECK = """
@@ -219,8 +224,54 @@ def _page_head(title):
             f"<script>{IMAGE_CHECK}</script>", "</head><body>", f"<h1>{_e(title)}</h1>"]
 
 
-def build_report(run, out_dir=None):
-    r'''Write report.html, report.md and figures/*.png for a run -> {"html", "markdown", ...}'''
+# the project's default gate (campaigns/gate.toml): the report's verdict when none is given
+DEFAULT_GATE_SPEC = Path(__file__).resolve().parents[1] / "campaigns" / "gate.toml"
+
+
+def verdict(doc, gate_spec=None):
+    r'''The gate's result for a run in one line, and its failures
+
+SYNOPSIS
+
+    line, failures = verdict(doc)            # against campaigns/gate.toml
+    # "PASS: ..." | "FAIL: 3 failures ..." | "no verdict: ..."; failures [(name, field,
+    # value, limit)]
+
+gate_spec: a path, a parsed harness.gate spec, or None (the default gate spec if the
+source tree has it). A spec needing a baseline, or none at all: "no verdict" and why.
+'''
+    from harness.gate import GateUsageError, check, load_gate_spec
+    if gate_spec is None:
+        gate_spec = DEFAULT_GATE_SPEC if DEFAULT_GATE_SPEC.is_file() else None
+    if gate_spec is None:
+        return "no verdict: no gate spec", []
+    about = ""
+    try:
+        if isinstance(gate_spec, str | Path):
+            import tomllib
+            about = tomllib.loads(Path(gate_spec).read_text()).get("description", "")
+            spec = load_gate_spec(gate_spec)
+        else:
+            spec = gate_spec
+        failures = check(doc, spec)
+    except GateUsageError as e:
+        return f"no verdict: {e}", []
+    src = Path(spec.source).name if spec.source else "the gate spec"
+    src += f" ({about})" if about else ""
+    n = len(doc["records"])
+    rows = [(f.fullname, f.field, f.value, f.limit) for f in failures]
+    if not failures:
+        return f"PASS: no failure in the {n} records against {src}", rows
+    names = len({f.fullname for f in failures})
+    return (f"FAIL: {len(failures)} failure{'s' if len(failures) != 1 else ''} in {names} "
+            f"of {n} records against {src}"), rows
+
+
+def build_report(run, out_dir=None, gate_spec=None):
+    r'''Write report.html, report.md and figures/*.png for a run -> {"html", "markdown", ...}
+
+gate_spec: the gate whose result opens the report (see verdict()).
+'''
     run = Path(run)
     run_dir = run if run.is_dir() else run.parent
     doc = load_run(run)
@@ -239,8 +290,20 @@ def build_report(run, out_dir=None):
     name = (doc.get("campaign") or {}).get("name", "run")
     title = f"camval verification report: {name}"
 
+    verdict_line, verdict_rows = verdict(doc, gate_spec)
+    vclass = {"P": "pass", "F": "fail"}.get(verdict_line[0], "none")
+
     # --- HTML -------------------------------------------------------------------------
-    h = _page_head(title) + [_html_table(("", ""), facts)]
+    h = _page_head(title)
+    h.append(f"<p class=\"verdict verdict-{vclass}\" id=\"verdict\"><b>Verdict</b> "
+             f"{_e(verdict_line)}</p>")
+    if verdict_rows:
+        shown = verdict_rows[:VERDICT_ROWS]
+        more = (f" (first {VERDICT_ROWS} of {len(verdict_rows)})"
+                if len(verdict_rows) > VERDICT_ROWS else "")
+        h.append(f"<details><summary>gate failures{more}</summary>" +
+                 _html_table(("fullname", "field", "value", "limit"), shown) + "</details>")
+    h.append(_html_table(("", ""), facts))
     sections = [("summary", "Summary per calibrator"), ("figures", "Figures")]
     if legacy_fig:
         sections.append(("legacy", "Legacy signature (paper Figs. 4-5)"))
@@ -284,7 +347,11 @@ def build_report(run, out_dir=None):
     write_atomic(html_path, "\n".join(h) + "\n")
 
     # --- Markdown -----------------------------------------------------------------------
-    m = [f"# {title}", "", _md_table(("run", ""), facts), "",
+    m = [f"# {title}", "", f"**Verdict** {verdict_line}", ""]
+    if verdict_rows:
+        m += [_md_table(("fullname", "field", "value", "limit"), verdict_rows[:VERDICT_ROWS]),
+              ""]
+    m += [_md_table(("run", ""), facts), "",
          "## Summary per calibrator, beside the paper", ""]
     for t in tables:
         m += [f"### {t.title}", "", t.note, "", _md_table(t.header, t.rows), ""]
@@ -307,7 +374,7 @@ def build_report(run, out_dir=None):
     write_atomic(md_path, "\n".join(m))
     all_figs = figs + ([legacy_fig] if legacy_fig else []) + sweep_figs
     return {"html": str(html_path), "markdown": str(md_path), "figures_dir": str(fig_dir),
-            "figures": [f.path for f in all_figs],
+            "figures": [f.path for f in all_figs], "verdict": verdict_line,
             "legacy_rows": legacy_rows, "sweeps": [sw["_path"] for sw in sweeps]}
 
 

@@ -81,6 +81,42 @@ def _param(r, name):
     return None if v is None else float(v)
 
 
+# A linear panel's y range ends at OFFSCALE x the upper quartile of its |values| (and the
+# paper's lines): a point beyond is drawn at the edge as a red arrow and listed in the caption,
+# so diverged fits (mrcal's 1.55e4 px Hc) cannot flatten every other point onto zero. The
+# quartile holds while fewer than a quarter of the points are outliers.
+OFFSCALE = 10.0
+OFFSCALE_LISTED = 12
+# decades of the maps' shared logarithmic colour scale
+MAP_DECADES = 3
+
+
+def save_png(fig, path, dpi):
+    r'''Save a figure as a palette PNG (256 colours): a third of the RGB file's size for the
+report's plots and maps (the paper campaign's report: 2.83 -> 1.57 MB), no visible change'''
+    import io
+
+    from PIL import Image
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format="png")
+    buf.seek(0)
+    with Image.open(buf) as im:
+        im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(
+            path, optimize=True)
+
+
+def robust_limit(values, keep=()):
+    r'''The half-range of a linear axis no outlier can swamp (see OFFSCALE); None: no clip'''
+    a = np.abs(np.asarray([v for v in values if math.isfinite(v)], dtype=np.float64))
+    if a.size < 4:
+        return None
+    lim = OFFSCALE * float(np.percentile(a, 75))
+    lim = max([lim] + [1.1 * abs(k) for k in keep])
+    if lim <= 0 or a.max() <= lim:
+        return None
+    return lim
+
+
 def _per_camera_figure(records, out, key, title, ylabel, series, caption, logy=False,
                        absolute=False, paper=()):
     r'''series: [(label, marker, getter(record) -> float or None), ...];
@@ -102,7 +138,7 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
                 if logy and v <= 0:
                     v = 1e-12
                 pts.append((xpos[r["camera"]] + FAMILY_OFFSET.get(r["model"], 0), v,
-                            r["model"], label, marker))
+                            r["model"], label, marker, r["camera"]))
         if pts:
             rows.append((_panel_title(cal, cm, variant), pts))
     if not rows:
@@ -110,9 +146,22 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
     plt = _plt()
     fig, axes = plt.subplots(len(rows), 1, figsize=(max(7.0, 0.38 * len(cams) + 3), 2.6 *
                                                     len(rows) + 0.6), squeeze=False)
+    offscale = []
     for ax, (panel_title, pts) in zip(axes[:, 0], rows, strict=True):
+        lim = None if logy else robust_limit([p[1] for p in pts],
+                                             keep=[v for v, _ in paper])
+        if lim is not None:
+            out_pts = [p for p in pts if abs(p[1]) > lim]
+            pts = [p for p in pts if abs(p[1]) <= lim]
+            for x, v, fam, label, _, cam in out_pts:
+                offscale.append(f"{panel_title}: {cam} {fam} {label} {v:.3g}")
+                ax.plot([x], [math.copysign(0.97 * lim, v)], "^" if v > 0 else "v",
+                        color="tab:red", ms=7)
+            ax.set_ylim(-lim if not absolute else -0.03 * lim, lim)
+            ax.text(0.995, 0.97, f"{len(out_pts)} off scale (red arrows)", fontsize=6,
+                    color="tab:red", ha="right", va="top", transform=ax.transAxes)
         groups = {}
-        for x, v, fam, label, marker in pts:
+        for x, v, fam, label, marker, _ in pts:
             groups.setdefault((fam, label, marker), []).append((x, v))
         for (fam, label, marker), xv in groups.items():
             xv = np.array(xv)
@@ -136,8 +185,14 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     path = Path(out) / f"{key}.png"
-    fig.savefig(path, dpi=90)
+    save_png(fig, path, dpi=90)
     plt.close(fig)
+    if offscale:
+        listed = "; ".join(offscale[:OFFSCALE_LISTED])
+        more = f"; and {len(offscale) - OFFSCALE_LISTED} more" if len(offscale) > \
+            OFFSCALE_LISTED else ""
+        caption += (f" Off scale (beyond {OFFSCALE:g}x the upper quartile of the panel's "
+                    f"values, red arrows at the edge): {listed}{more}.")
     return Figure(key, title, caption, str(path))
 
 
@@ -259,29 +314,47 @@ def fig_maps(records, run_dir, out, limit=72):
         plt = _plt()
         ncol = min(6, len(shown))
         nrow = math.ceil(len(shown) / ncol)
-        fig, axes = plt.subplots(nrow, ncol, figsize=(2.1 * ncol, 2.0 * nrow + 0.5),
-                                 squeeze=False)
+        fig, axes = plt.subplots(nrow, ncol, figsize=(2.1 * ncol + 0.6, 2.0 * nrow + 0.5),
+                                 squeeze=False, layout="constrained")
         for ax in axes.ravel():
             ax.axis("off")
-        for ax, r in zip(axes.ravel(), shown, strict=False):
-            m = np.load(Path(run_dir) / r["artifacts"]["map"])
-            vmax = float(np.nanmax(m)) if np.isfinite(m).any() else 1.0
-            im = ax.imshow(m, cmap="viridis", vmin=0, vmax=vmax if vmax > 0 else 1.0)
+        maps = [np.load(Path(run_dir) / r["artifacts"]["map"]) for r in shown]
+        maxima = [float(np.nanmax(m)) if np.isfinite(m).any() else math.nan for m in maps]
+        # one colour scale for the figure; a panel beyond it saturates and says so
+        vmax = robust_limit([x for x in maxima if math.isfinite(x)]) or max(
+            [x for x in maxima if math.isfinite(x)] or [1.0])
+        vmax = vmax if vmax > 0 else 1.0
+        # logarithmic, MAP_DECADES decades: a 0.003 px map keeps its structure beside a
+        # 0.8 px one on the same scale
+        from matplotlib.colors import LogNorm
+        norm = LogNorm(vmin=vmax * 10.0 ** -MAP_DECADES, vmax=vmax, clip=True)
+        im = None
+        for ax, r, m, mx in zip(axes.ravel(), shown, maps, maxima, strict=False):
+            im = ax.imshow(np.maximum(m, norm.vmin), cmap="viridis", norm=norm)
             setting = f" {r['renderer']} K{r['settings'].get('spp')}" if several else ""
-            ax.set_title(f"{r['camera']} {r['model']}{setting}\nmax {vmax:.2g} px", fontsize=7)
-            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=5)
+            over = " (saturated)" if mx > vmax else ""
+            ax.set_title(f"{r['camera']} {r['model']}{setting}\nmax {mx:.2g} px{over}",
+                         fontsize=7, color="tab:red" if over else "black")
+        if im is not None:
+            fig.colorbar(im, ax=axes.ravel().tolist(), fraction=0.02, pad=0.01,
+                         extend="both" if max(maxima, default=0) > vmax else "min",
+                         label="px").ax.tick_params(labelsize=6)
         label = _panel_title(cal, cm, variant)
         more = f" (first {limit} of {len(recs)})" if len(recs) > limit else ""
         fig.suptitle(f"Projection difference |fit - truth| (px), {label}{more}", fontsize=9)
-        fig.tight_layout()
         key = f"maps_{cal}" + ("" if cm == "family" else f"_{cm}") + (
             "_" + "".join(c if c.isalnum() else "_" for c in variant) if variant else "")
         path = Path(out) / f"{key}.png"
-        fig.savefig(path, dpi=80)
+        # 68 dpi: ~140 px panels for the stored maps' 96 px (harness.stages.MAP_SIZE); the
+        # paper campaign's report: 1.40 MB (80 dpi: 1.57 MB)
+        save_png(fig, path, dpi=68)
         plt.close(fig)
         figs.append(Figure(key, f"Projection-difference maps, {label}",
                            "Per-pixel |fit - truth| in projection over the whole image "
-                           "(downsampled, maximum per block; own colour scale per camera).",
+                           "(downsampled, maximum per block); one logarithmic colour "
+                           f"scale for all panels, {vmax * 10.0 ** -MAP_DECADES:.2g} to "
+                           f"{vmax:.3g} px; a panel whose maximum (printed above it) is "
+                           "beyond it is marked saturated.",
                            str(path)))
     return figs
 
@@ -698,3 +771,69 @@ views, the true range, and the range-error map (harness.studies.stereo.run_stere
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+LIBRARY_MARKERS = {"jpl (scipy)": ("s", "tab:blue"), "mrcal": ("o", "tab:orange"),
+                   "opencv": ("^", "tab:green")}
+
+
+def fig_model_floors(benchmarks, out, key="model_floors"):
+    r'''Floor vs parameter count, one panel per camera (harness.model_benchmark results)
+
+SYNOPSIS
+
+    f = fig_model_floors({"15": bench15, "9": bench9}, out_dir)   # Figure or None
+
+Each candidate model is a point at (parameters, max floor px), log scales; the
+tolerance is a dashed line and the recommended model is circled. A model that
+cannot see the whole field of view is drawn hollow at its floor over the rest.
+'''
+    items = [(cam, b) for cam, b in benchmarks.items() if b.get("rows")]
+    if not items:
+        return None
+    plt = _plt()
+    ncol = min(4, len(items))
+    nrow = math.ceil(len(items) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 2.6 * nrow + 0.6),
+                             squeeze=False)
+    for ax in axes.ravel()[len(items):]:
+        ax.axis("off")
+    for ax, (cam, b) in zip(axes.ravel(), items, strict=False):
+        crit = b.get("criterion", "max")
+        for lib, (marker, colour) in LIBRARY_MARKERS.items():
+            rows = [r for r in b["rows"] if r["library"] == lib and r.get(crit) is not None
+                    and r.get("nparams")]
+            full = [r for r in rows if not r.get("n_invalid")]
+            part = [r for r in rows if r.get("n_invalid")]
+            for sel, mfc, lab in ((full, colour, lib), (part, "none", None)):
+                if sel:
+                    ax.plot([r["nparams"] for r in sel],
+                            [max(r[crit], 1e-13) for r in sel], marker, color=colour,
+                            mfc=mfc, ls="none", ms=5, label=lab)
+        ax.axhline(b["tolerance"], color="tab:red", ls="--", lw=0.8)
+        rec = b.get("recommended")
+        if rec:
+            ax.plot([rec["nparams"]], [max(rec[crit], 1e-13)], "o", ms=12, mfc="none",
+                    color="k")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        cam_txt = b.get("camera") or {}
+        ax.set_title(f"{cam} {cam_txt.get('family', '')} -> "
+                     f"{rec['name'] if rec else 'none'}", fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(fontsize=6, loc="lower left")
+    fig.supxlabel("parameters", fontsize=8)
+    fig.supylabel("floor (px, max over the image)", fontsize=8)
+    fig.suptitle("Camera-model floors: each candidate fitted to the camera's exact "
+                 "projections", fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.25 / fig.get_figheight()))
+    path = Path(out) / f"{key}.png"
+    save_png(fig, path, dpi=80)
+    plt.close(fig)
+    return Figure(key, "Camera-model floors", "Each candidate lens model fitted to the "
+                  "camera's exact projections over the whole field of view (harness."
+                  "model_benchmark): its floor (max projection difference) against its "
+                  "parameter count; dashed: the tolerance; circled: the simplest model "
+                  "within it; hollow: the model cannot see the whole field of view (the "
+                  "floor is over the rest).", str(path))

@@ -39,6 +39,8 @@ import time
 
 import numpy as np
 
+from harness.quiet import diagnostics_of
+
 from .base import (
     CalibrationFailed,
     CalibrationResult,
@@ -124,6 +126,7 @@ def _Rt_from_rigid(rigid):
     return np.vstack((M[:, :3], M[:, 3]))
 
 
+@diagnostics_of(LIBRARY)
 def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
         bias_passes=4, bias_tolerance=1e-5, max_rms=1.0):
     r'''The COLMAP calibrator (see the module docstring); returns a CalibrationResult'''

@@ -57,6 +57,7 @@ import time
 
 import numpy as np
 
+from harness.quiet import diagnostics_of
 from reference_models.cahvore import FAMILIES
 
 from .base import CalibrationFailed, check_homography_conditioning, check_pose_diversity
@@ -220,6 +221,7 @@ def _Rt_board_grid(origin):
     return np.vstack((np.eye(3), origin))
 
 
+@diagnostics_of(LIBRARY)
 def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
         bias_passes=4, bias_tolerance=1e-5, regularization=None, max_rms=1.0,
         linearity=None, max_restarts=25):

@@ -33,6 +33,8 @@ import time
 
 import numpy as np
 
+from harness.quiet import diagnostics_of
+
 from .base import (
     CalibrationFailed,
     CalibrationResult,
@@ -183,6 +185,7 @@ def _calibrate_threaded(model_name, objs, imgs, size, K0=None, dist0=None):
     return rms, K, D.ravel(), rvecs, tvecs
 
 
+@diagnostics_of(LIBRARY)
 def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
         bias_passes=4, bias_tolerance=1e-5, max_rms=1.0):
     r'''The OpenCV calibrator (see the module docstring); returns a CalibrationResult'''
