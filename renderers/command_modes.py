@@ -154,7 +154,7 @@ RETURNED VALUE
 (origins, directions): float64 (N, 3), N = (y1 - y0) * width * K * K, in the
 order of RAYS_ORDER; origins (1, 3) zeros for a central model.
 '''
-    from . import _raycast_kernels as kern
+    from reference_models import kernels as kern
 
     W = model.width
     d = (np.arange(K) + 0.5) / K - 0.5
