@@ -152,23 +152,19 @@ def _selfcal_colmap_here(image_dir, workdir, colmap_model, refine_principal_poin
 def target_based(camera, colmap_model, spp=8, n_poses=6):
     r'''The same COLMAP model calibrated on the dot board (campaign runner stages),
 at the camera's native size'''
-    from harness import runner
-    job = runner.Job(key="selfcal-target", camera=str(camera), camera_key=str(camera),
-                     family="CAHVORE", target="dots", renderer="raycast", settings={},
-                     calibrators=())
+    from harness import stages
     try:
-        entry = runner._catalogue(None).get(camera)
+        entry = stages.cached_catalogue(None).get(camera)
         truth = entry.model
-        target = runner._target("dots")
-        poses = runner.poses_stage(truth, target, n_poses, 0)
-        renders, _, _ = runner.render_stage("raycast", truth, target, poses,
+        target = stages.cached_target("dots")
+        poses = stages.poses_stage(truth, target, n_poses, 0)
+        renders, _, _ = stages.render_stage("raycast", truth, target, poses,
                                             {"spp": spp, "adaptive": True})
-        dets, _ = runner.detect_stage([r.image for r in renders], target)
-        obs = runner.observations_from(truth, target, poses, dets)
-    except runner.StageFailed as e:
+        dets, _ = stages.detect_stage([r.image for r in renders], target)
+        obs = stages.observations_from(truth, target, poses, dets)
+    except stages.StageFailed as e:
         return {"status": "failed", "stage": e.stage, "reason": e.reason}
-    del job
-    res = runner.calibrate_stage("colmap", obs, target, colmap_model, truth, {})
+    res = stages.calibrate_stage("colmap", obs, target, colmap_model, truth, {})
     if res.status != "ok":
         return {"status": res.status, "reason": res.reason}
     d = _compare(truth, colmap_model, res.model.params)

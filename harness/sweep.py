@@ -14,7 +14,7 @@ SYNOPSIS
     stability_chart(sw, "sweep_noise.png")
 
 A sweep is one camera x model x target x renderer job of the campaign runner
-(harness/runner.py stage functions: poses, render, detect, calibrate,
+(harness/stages.py: poses, render, detect, calibrate,
 compare) repeated over the levels of one difficulty, everything else fixed:
 
     noise   read noise sigma in electrons, with shot noise, a 20000 e- well and
@@ -241,11 +241,11 @@ def order_by_fov(cameras, catalogue=None):
 
 # ---------------------------------------------------------------------------------------------
 def _detect_and_calibrate(truth, target, poses, images, calibrators, level, bar_px, extra):
-    from harness import runner
+    from harness import stages
     recs = []
     try:
-        dets, t_det = runner.detect_stage(images, target)
-    except runner.StageFailed as e:
+        dets, t_det = stages.detect_stage(images, target)
+    except stages.StageFailed as e:
         for cal, model in calibrators:
             recs.append({"level": level, "calibrator": cal, "model": model, "status": "failed",
                          "stage": "detect", "reason": e.reason, "detection_rate": 0.0,
@@ -254,11 +254,11 @@ def _detect_and_calibrate(truth, target, poses, images, calibrators, level, bar_
     n_exp = sum(d.n_expected for d in dets)
     n_found = sum(d.n_found for d in dets)
     rate = n_found / max(n_exp, 1)
-    obs = runner.observations_from(truth, target, poses, dets)
+    obs = stages.observations_from(truth, target, poses, dets)
     for cal, model in calibrators:
         rec = {"level": level, "calibrator": cal, "model": model,
                "detection_rate": rate, "detect_seconds": t_det, **extra}
-        res = runner.calibrate_stage(cal, obs, target, model, truth, {})
+        res = stages.calibrate_stage(cal, obs, target, model, truth, {})
         rec["calibrate_seconds"] = float(res.seconds)
         if res.status != "ok":
             rec.update(status=res.status, stage="calibrate", reason=res.reason,
@@ -266,9 +266,10 @@ def _detect_and_calibrate(truth, target, poses, images, calibrators, level, bar_
             recs.append(rec)
             continue
         try:
-            _, proj, _ = runner.compare_stage(truth, res)
+            _, proj, _ = stages.compare_stage(truth, res)
         except Exception as e:   # a comparison that cannot be made: the method broke here
-            rec.update(status="failed", stage="compare", reason=runner._reason(e), broken=True)
+            rec.update(status="failed", stage="compare", reason=stages.failure_reason(e),
+                       broken=True)
             recs.append(rec)
             continue
         rs = res.residual_stats()
@@ -284,16 +285,14 @@ def _detect_and_calibrate(truth, target, poses, images, calibrators, level, bar_
 def _camera(spec, family):
     r'''(entry, truth, truth family): the family asked for, or the camera's own when it is
 less (the fov sweep crosses CAHV, CAHVOR and CAHVORE cameras)'''
-    from harness import runner
+    from harness import stages
     from reference_models.cahvore import truncate
-    job = runner.Job(key="sweep", camera=str(spec), camera_key=str(spec), family=family,
-                     target="", renderer="", settings={}, calibrators=())
     try:
-        return (*runner.camera_stage(job), family)
-    except runner.StageFailed as e:
+        return (*stages.camera_truth(str(spec), family), family)
+    except stages.StageFailed as e:
         if e.status != "not-applicable":
             raise
-    entry = runner._catalogue(None).get(str(spec))
+    entry = stages.cached_catalogue(None).get(str(spec))
     return entry, truncate(entry.model, entry.model.family), entry.model.family
 
 
@@ -322,7 +321,7 @@ RETURNED VALUE: a dict (JSON-ready) with the setting, levels, level_labels
 (tick labels: the level, and for fov the camera's field of view), records and
 breakdown. A stage failing at one level is a record, never an exception.
 '''
-    from harness import runner
+    from harness import stages
     from renderers.response import ResponseChain
     say = progress or (lambda s: None)
     if difficulty not in DIFFICULTIES:
@@ -342,7 +341,7 @@ breakdown. A stage failing at one level is a record, never an exception.
         except (TypeError, ValueError):
             raise SweepError(f"{difficulty} levels must be numbers; got {levels!r}") from None
     t_start = time.perf_counter()
-    tgt = runner._target(target)
+    tgt = stages.cached_target(target)
     if difficulty == "dots" and tgt.kind != "dots":
         raise SweepError(f"the dots difficulty scales the dots of a dot target; target "
                          f"{target!r} is {tgt.kind!r}")
@@ -350,7 +349,7 @@ breakdown. A stage failing at one level is a record, never an exception.
     if difficulty != "fov":
         try:
             entry, truth, truth_family = _camera(camera, family)
-        except runner.StageFailed as e:
+        except stages.StageFailed as e:
             raise SweepError(f"camera {camera}: {e.reason}") from None
     records = []
     settings = {"spp": int(spp), "adaptive": True}
@@ -365,7 +364,7 @@ breakdown. A stage failing at one level is a record, never an exception.
             if difficulty == "fov":
                 try:
                     entry, truth, truth_family = _camera(level, family)
-                except (runner.StageFailed, CamvalError) as e:
+                except (stages.StageFailed, CamvalError) as e:
                     raise LevelNotApplicable(getattr(e, "reason", None) or str(e)) from None
                 extra.update(camera=str(level), fov_deg=_finite(horizontal_fov_deg(truth)))
             extra["truth_family"] = truth_family
@@ -375,8 +374,8 @@ breakdown. A stage failing at one level is a record, never an exception.
             elif difficulty in ("poses", "fov") or fixed_poses is None:
                 n = int(level) if difficulty == "poses" else n_poses
                 try:
-                    poses = runner.poses_stage(truth, tgt, n, seed)
-                except runner.StageFailed as e:
+                    poses = stages.poses_stage(truth, tgt, n, seed)
+                except stages.StageFailed as e:
                     if difficulty == "fov":
                         raise LevelNotApplicable(e.reason) from None
                     raise
@@ -391,7 +390,7 @@ breakdown. A stage failing at one level is a record, never an exception.
             extra["scene"] = scene_of(truth, lv_target, poses)
             if spec["rerender"] or fixed_images is None:
                 st = dict(settings, spp=int(level)) if difficulty == "spp" else settings
-                renders, secs, _ = runner.render_stage(renderer, truth, lv_target, poses, st)
+                renders, secs, _ = stages.render_stage(renderer, truth, lv_target, poses, st)
                 images = [r.image for r in renders]
                 extra["render_seconds_per_image"] = float(np.mean(secs))
                 if not spec["rerender"]:
@@ -408,7 +407,7 @@ breakdown. A stage failing at one level is a record, never an exception.
                                 "status": "not-applicable", "stage": "setup",
                                 "reason": str(e), "broken": False, **extra})
             continue
-        except runner.StageFailed as e:
+        except stages.StageFailed as e:
             for cal, model in calibrators:
                 records.append({"level": level, "calibrator": cal, "model": model,
                                 "status": "failed", "stage": e.stage, "reason": e.reason,

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from harness.campaign import Campaign, CampaignError, load_campaign, parse_campaign
-from harness.runner import expand_jobs
+from harness.jobs import expand_jobs
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -22,7 +22,7 @@ from synthetic import exact_observations
 
 from harness.calibrators import calibrate
 from harness.records import Record, RunStore, make_fullname
-from harness.runner import _downsample, compare_stage
+from harness.stages import compare_stage, downsample_map
 from reference_models.cahvore import truncate
 from reference_models.catalogue import load_catalogue
 from renderers.legacy import legacy_model
@@ -60,7 +60,7 @@ def _records(run_dir, cameras=(15, 17), families=("CAHV", "CAHVOR")):
                 name = make_fullname(str(cam), fam, "dots", "raycast", settings, "jpl", fam)
                 rel = Path("maps") / (re.sub(r"[^A-Za-z0-9=.,_-]+", "_", name) + ".npy")
                 (run_dir / rel).parent.mkdir(parents=True, exist_ok=True)
-                np.save(run_dir / rel, _downsample(themap + noise).astype(np.float32))
+                np.save(run_dir / rel, downsample_map(themap + noise).astype(np.float32))
                 out.append(Record(
                     fullname=name, camera=str(cam), camera_label=entry.name, model=fam,
                     target="dots", renderer="raycast", settings=settings, calibrator="jpl",

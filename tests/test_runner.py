@@ -19,16 +19,11 @@ import numpy as np
 import pytest
 
 from harness.campaign import parse_campaign
+from harness.executors import run_jobs
+from harness.jobs import Job, RunnerError, expand_jobs
 from harness.records import RunStore, job_filename, without_timings
-from harness.runner import (
-    Job,
-    RunnerError,
-    expand_jobs,
-    render_summary,
-    run_campaign,
-    run_job,
-    run_jobs,
-)
+from harness.runner import run_campaign, run_job
+from harness.stages import render_summary
 
 ROOT = Path(__file__).resolve().parent.parent
 SMALL = {"name": "small", "cameras": [17, "SuperCam"], "models": ["CAHV"], "keep_images": True,
@@ -301,7 +296,7 @@ def test_noisy_job_is_reproducible_bit_for_bit(response_run, tmp_path):
 def test_response_stage_noise_depends_on_the_job_and_the_seeds(response_run):
     import dataclasses
 
-    from harness.runner import camera_stage, noise_seed, response_stage
+    from harness.stages import camera_stage, noise_seed, response_stage
     _, _, campaign = response_run
     (job,) = [j for j in expand_jobs(campaign) if j.key == NOISY_KEY]
     _, truth = camera_stage(job)
@@ -352,7 +347,7 @@ def test_a_renderer_that_cannot_render_the_camera_is_not_applicable():
 
 
 def test_warm_up_renders_each_family_once_unless_cached(tmp_path):
-    from harness.runner import kernels_cached, warm_up
+    from harness.warmup import kernels_cached, warm_up
     jobs = expand_jobs(parse_campaign({"cameras": ["SuperCam", 15, 17],
                                        "models": ["CAHV", "CAHVORE"],
                                        "renderer": [{"name": "raycast", "spp": [1, 4]}]}))
@@ -368,7 +363,7 @@ def test_warm_up_renders_each_family_once_unless_cached(tmp_path):
     assert again["cached"] == ["raycast"] and again["renders"] == []
     assert warm_up([])["renders"] == []
     # an empty cache directory (as after a kernel change): not cached
-    out = subprocess.run([sys.executable, "-c", "from harness.runner import kernels_cached; "
+    out = subprocess.run([sys.executable, "-c", "from harness.warmup import kernels_cached; "
                           "print(kernels_cached('raycast'))"], capture_output=True, text=True,
                          cwd=ROOT, timeout=300,
                          env=dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba")))
@@ -397,7 +392,7 @@ def test_dead_worker_is_reported_and_retried_on_resume(tmp_path):
 def test_rich_progress_bar_on_a_terminal():
     import io
 
-    from harness.runner import _Progress
+    from harness.executors import _Progress
 
     class Terminal(io.StringIO):
         def isatty(self):

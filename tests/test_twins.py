@@ -2,7 +2,7 @@ r'''Cameras that are one camera: found exactly, rendered once, each with its own
 
 The catalogue's derived slots (stereo partners and rear-facing copies: 5-7 of
 8, 9-11 of 12, 14 of 13, 18 of 17) image every camera-frame point at the same
-pixel as their source. A campaign renders them once (harness.runner.group_twins)
+pixel as their source. A campaign renders them once (harness.jobs.group_twins)
 and must give exactly the records it gives without sharing, apart from timings
 and info["shared"].
 '''
@@ -14,15 +14,9 @@ import pytest
 
 from harness.calibrators import uses_world_frame
 from harness.campaign import CampaignError, load_campaign, parse_campaign
+from harness.jobs import camera_frame_exact, expand_jobs, group_twins, same_camera
 from harness.records import RunStore, job_filename, without_timings
-from harness.runner import (
-    camera_frame_exact,
-    expand_jobs,
-    group_twins,
-    run_campaign,
-    same_camera,
-    stage_seconds,
-)
+from harness.runner import run_campaign, stage_seconds
 from reference_models.cahvore import truncate
 from reference_models.catalogue import load_catalogue
 from reports.tables import run_facts
@@ -166,8 +160,9 @@ def test_shared_records_equal_unshared_records(tmp_path):
 
 
 def test_a_job_function_that_forgets_a_twin_leaves_it_to_resume(tmp_path):
+    from harness.executors import run_jobs
     from harness.records import RunStore
-    from harness.runner import run_job, run_jobs
+    from harness.runner import run_job
     c = parse_campaign({"cameras": [17, 18], "models": ["CAHV"],
                         "renderer": [{"name": "raycast", "spp": 1}],
                         "calibrator": [{"name": "jpl"}]}, source="c.toml")

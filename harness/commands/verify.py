@@ -50,8 +50,9 @@ def run(args):
     from pathlib import Path
 
     from harness.campaign import Campaign, load_campaign
+    from harness.jobs import RunnerError
     from harness.records import utc_stamp
-    from harness.runner import RunnerError, run_campaign
+    from harness.runner import run_campaign
 
     if args.jobs is not None and args.jobs < 1:
         raise RunnerError(f"-j must be >= 1; got {args.jobs}")

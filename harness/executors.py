@@ -1,0 +1,214 @@
+r'''Executors: run jobs in local processes or on a Dask cluster, storing records as they end
+
+SYNOPSIS
+
+    from harness.executors import run_jobs
+
+    n_done = run_jobs(jobs, RunStore.open(run_dir), executor="local", workers=2)
+    n_done = run_jobs(jobs, store, executor="dask", scheduler="tcp://host:8786")
+
+Jobs are independent; the executor runs them in local processes
+(concurrent.futures, forkserver) or on a Dask cluster (--executor dask
+--scheduler ADDRESS). Each job's records are stored in the run directory as
+soon as the job ends, so an interrupted run resumes with only the missing
+jobs. A job travels pickled (harness.jobs.Job is a frozen dataclass) and the
+job function by reference (module and name), so it must be a module-level
+function (harness.runner.run_job).
+'''
+
+import os
+import pickle
+import sys
+import time
+import uuid
+
+from .job_records import failure_records
+from .jobs import RunnerError, slug
+from .stages import failure_reason
+from .warmup import warm_up
+
+EXECUTORS = ("local", "dask")
+
+
+def _local_results(fn, jobs, workers):
+    r'''Yield (job, result or exception) as jobs finish, in local processes'''
+    if workers <= 1:
+        for job in jobs:
+            try:
+                yield job, fn(job)
+            except Exception as e:
+                yield job, e
+        return
+    import concurrent.futures as cf
+    import multiprocessing
+    # forkserver, not fork: the parent may hold threads (the progress bar, BLAS)
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["harness.runner"])
+    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
+        futs = {ex.submit(fn, job): job for job in jobs}
+        try:
+            for fut in cf.as_completed(futs):
+                try:
+                    yield futs[fut], fut.result()
+                except Exception as e:
+                    yield futs[fut], e
+        except BaseException:
+            for f in futs:
+                f.cancel()
+            raise
+
+
+def _call_pickled(fn, blob):
+    return fn(pickle.loads(blob))
+
+
+def _dask_results(fn, jobs, scheduler):
+    r'''Yield (job, result or exception) as jobs finish on a Dask cluster'''
+    try:
+        from dask.distributed import Client, as_completed
+    except ImportError:
+        raise RunnerError("--executor dask needs dask.distributed; install camval's "
+                          "dependencies (uv sync)") from None
+    import dask.config
+    # dask's own connect timeout (30 s unless configured, e.g. by
+    # DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT): a loaded machine answers slowly
+    timeout = dask.config.get("distributed.comm.timeouts.connect")
+    try:
+        client = Client(scheduler, timeout=timeout)
+    except (OSError, TimeoutError) as e:
+        raise RunnerError(f"cannot reach the Dask scheduler at {scheduler!r} within "
+                          f"{timeout}: {e}") from None
+    try:
+        futs = {}
+        for i, job in enumerate(jobs):
+            # pickled: Dask must not take the Job dataclass apart and rebuild it
+            f = client.submit(_call_pickled, fn, pickle.dumps(job), pure=False,
+                              key=f"camval-{i}-{slug(job.key)}-{uuid.uuid4().hex[:8]}")
+            futs[f] = job
+        for fut in as_completed(list(futs)):
+            try:
+                yield futs[fut], fut.result()
+            except Exception as e:
+                yield futs[fut], e
+    finally:
+        _close_client(client)
+
+
+def _close_client(client):
+    r'''Close a Dask client; a slow or failed close (a loaded scheduler) is not an error:
+every job's records are stored by then'''
+    import dask.config
+    from dask.utils import parse_timedelta
+    timeout = 4 * parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), "s")
+    try:
+        client.close(timeout=timeout)
+    except (OSError, TimeoutError) as e:
+        print(f"camval: the Dask client did not close cleanly ({type(e).__name__}); the "
+              f"records are stored", file=sys.stderr)
+
+
+class _Progress:
+    r'''A rich progress bar with ETA on a terminal; one plain line per job otherwise'''
+
+    def __init__(self, total, enabled=True, stream=None):
+        self.total = total
+        self.done = 0
+        self.stream = stream or sys.stderr
+        self.t0 = time.monotonic()
+        self.enabled = enabled
+        self.bar = None
+        if enabled and total and getattr(self.stream, "isatty", lambda: False)():
+            from rich.console import Console
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+            self.bar = Progress(TextColumn("[bold]verify"), BarColumn(), MofNCompleteColumn(),
+                                TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+                                TextColumn("{task.description}"),
+                                console=Console(file=self.stream), transient=False)
+            self.task = self.bar.add_task("", total=total)
+            self.bar.start()
+
+    def advance(self, job_key, statuses):
+        self.done += 1
+        summary = ", ".join(f"{n} {s}" for s, n in sorted(statuses.items()))
+        if self.bar is not None:
+            self.bar.update(self.task, advance=1, description=f"{job_key} ({summary})")
+        elif self.enabled:
+            el = time.monotonic() - self.t0
+            eta = el / self.done * (self.total - self.done)
+            print(f"[{self.done}/{self.total}] {job_key}: {summary}  "
+                  f"(elapsed {el:.0f} s, ETA {eta:.0f} s)", file=self.stream, flush=True)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def run_jobs(jobs, store, fn=None, executor="local", workers=None, scheduler=None,
+             progress=True, warm=True, report=None):
+    r'''Run jobs, storing each job's records in `store` as it finishes
+
+SYNOPSIS
+
+    n_done = run_jobs(jobs, RunStore.open(run_dir), executor="local", workers=2)
+
+Jobs already stored are skipped (resume). A job whose worker crashed is
+stored as failed records (stage "worker") that resume runs again. Largest
+jobs are started first, so the slowest ones do not finish last. Returns the
+number of jobs run (a job with twins counts each of its cameras).
+
+fn: the function run on each job (None: harness.runner.run_job); in worker
+processes or on Dask, a module-level function (it travels by reference).
+warm: before starting local worker processes (workers > 1, fn = run_job),
+compile the renderer's kernels once here (warm_up) so that the workers load
+them from numba's cache. report: a dict that receives {"warm_up": {...}}.
+'''
+    from .runner import run_job  # the job function the runner hands to the executors
+    if fn is None:
+        fn = run_job
+    if executor not in EXECUTORS:
+        raise RunnerError(f"unknown executor {executor!r}; known: {', '.join(EXECUTORS)}")
+    if executor == "dask" and not scheduler:
+        raise RunnerError("--executor dask needs --scheduler ADDRESS (e.g. tcp://host:8786)")
+    done = store.done_jobs()
+    todo = sorted((j for j in jobs if j.key not in done), key=lambda j: (-j.cost, j.key))
+    if workers is None:
+        workers = min(len(todo), os.cpu_count() or 1)
+    if (warm and executor == "local" and workers > 1 and fn is run_job and todo):
+        info = warm_up(todo)
+        if report is not None:
+            report["warm_up"] = info
+    bar = _Progress(len(todo), enabled=progress)
+    try:
+        results = (_dask_results(fn, todo, scheduler) if executor == "dask"
+                   else _local_results(fn, todo, workers))
+        for job, out in results:
+            members = job.members()
+            if isinstance(out, BaseException):
+                # the worker died (killed, out of memory): reported, and retried on resume
+                recs = [r for m in members
+                        for r in failure_records(m, "worker", failure_reason(out))]
+            else:
+                recs = out["records"]
+            for m in members:   # each camera's records under its own job key
+                mine = [r for r in recs if r["fullname"].startswith(m.key + "/")]
+                final = not isinstance(out, BaseException)
+                if not mine:    # never silently done: reported, and run again on resume
+                    mine = failure_records(m, "internal", "the job returned no records for "
+                                                          f"camera {m.camera_key}")
+                    recs = recs + mine
+                    final = False
+                store.save_job(m.key, mine, final=final)
+            statuses = {}
+            for r in recs:
+                statuses[r["status"]] = statuses.get(r["status"], 0) + 1
+            bar.advance(job.key, statuses)
+    finally:
+        bar.close()
+    return sum(1 + len(j.twins) for j in todo)
