@@ -143,6 +143,11 @@ response:         the camera response applied after rendering: {"profile": name 
                   None in records written before camera response existed
 features:         what the renderer modelled beyond geometry: {"shading", "texture",
                   "shadows"} (bools); a board target is flat albedo: all false
+verdict:          how much of the error the images caused (harness.verdict.assess):
+                  {"floor", "renderer", "total"} each {"params", "projection"} (fit of
+                  the exact observations vs truth, image fit vs that fit, image fit vs
+                  truth), "exact_fit", "detection_noise", "floor_far", "floor_reason";
+                  None in records that are not ok and in records written before it
 '''
 
     fullname: str
@@ -168,6 +173,7 @@ features:         what the renderer modelled beyond geometry: {"shading", "textu
     info: dict = field(default_factory=dict)
     response: dict = None
     features: dict = None
+    verdict: dict = None
 
     def __post_init__(self):
         if self.status not in STATUSES:

@@ -1,0 +1,335 @@
+r'''How much of a record's error the images caused: floor, renderer and total
+
+SYNOPSIS
+
+    from harness import verdict
+
+    obs_x = verdict.exact_observations(obs, truth, target)   # what a perfect renderer
+                                                              # and detector give
+    noise = verdict.detection_noise(obs, obs_x)               # detected - exact, px
+    res_x = calibrate_stage(cal, obs_x, target, model, truth, options)
+    v = verdict.assess(truth, res, res_x, noise, total_params, total_projection)
+    v["floor"]["projection"]["rms"]      # exact-observation fit vs the truth, px
+    v["renderer"]["projection"]["rms"]   # image fit vs exact-observation fit, px
+    v["total"]["projection"]["rms"]      # image fit vs the truth (the record's headline)
+    v["floor_far"], v["floor_reason"]    # a floor the images cannot be judged through
+
+Three comparisons, each with parameter differences and projection differences:
+
+- floor:    the fit of the EXACT observations of the same poses vs the truth: what
+            this calibrator and model can do at all (representability, gauge
+            runoff, an unconstrained model). Exact observations are the exact
+            dot centroids (targets.centroids.expected_centroids of the truth at the
+            poses) or, for corner targets, the exact corner projections; only the
+            points the detector found are kept, so both fits see the same points.
+- renderer: the image fit vs the exact-observation fit: what the images cost. A
+            deterministic calibrator's runoff and misfit are the same in both
+            fits and cancel here: this is the renderer's verdict.
+- total:    the image fit vs the truth: the record's params and projection.
+
+Two fits of any model are compared by fit_parameter_differences() and
+fit_projection_difference(): the same quantities as harness.compare (Hc, Vc
+px; Hs, Vs fractional; the rest for JPL-family fits), the projection
+difference over the truth's image grid with a fitted rotation between the two
+fits' camera frames (mode "rotation", the headline), none ("intrinsics") or
+the world frames identified ("world", both fits in the world frame).
+
+A floor is "far" when it exceeds both what the images can show (the measured
+detection noise, detected minus exact positions) and FLOOR_TOLERANCE_PX: the
+record's total error is then the calibrator's, not the images'; floor_reason
+says so in words, with the cause where it can be named (mrcal's and OpenCV's
+model frames hold theta at 90 deg; residuals on exact observations = the
+model cannot represent the camera; small residuals = the observations leave
+the model unconstrained).
+'''
+
+import math
+
+import numpy as np
+
+from .compare import (
+    DEFAULT_GRID_STEP,
+    DEFAULT_RANGE_M,
+    JPL_FAMILIES,
+    _fit_rotation,
+    _frac,
+    _intrinsics,
+    _transform,
+    parameter_errors,
+    truth_points,
+    with_R0,
+)
+
+# A floor below this many px cannot mislead anyone: it is below the sampling error of
+# the image centroid of a 10 px dot (targets.centroids: 0.03 r^-1.5 px = 0.001 px) ten
+# times over, and a hundredth of the 0.5 px a navigation camera's error budget allows.
+FLOOR_TOLERANCE_PX = 0.01
+# theta differing from 90 deg by more than this (deg) is named as the cause of a far floor
+# for a calibrator whose model frame holds theta at 90 deg (mrcal, OpenCV, COLMAP): at
+# 1000 px from the centre 1e-4 deg moves a pixel by 1.7e-3 px * f/1000 px
+THETA_NAMED_DEG = 1e-4
+# the fit of exact observations "cannot represent" the camera when its residual RMS is
+# this many times the detection noise (and above FLOOR_TOLERANCE_PX / 10)
+MISFIT_FACTOR = 3.0
+
+
+def Rt_cam_board_from(obs, truth):
+    r'''The board poses (Nposes,4,3) in the truth's camera frame, from obs.Rt_ref_board'''
+    Rt_ref_cam = truth.Rt_ref_cam()
+    R, t = Rt_ref_cam[:3], Rt_ref_cam[3]
+    out = []
+    for Rt in obs.Rt_ref_board:
+        out.append(np.vstack((R.T @ Rt[:3], R.T @ (Rt[3] - t))))
+    return np.array(out)
+
+
+def exact_observations(obs, truth, target):
+    r'''The observations a perfect renderer and detector would give, at the same poses
+
+SYNOPSIS
+
+    obs_x = exact_observations(obs, truth, target)   # obs.q replaced; same mask
+
+obs must hold the surveyed board poses (Rt_ref_board, as observations_from
+gives). Exact dot centroids for a dot target, exact corner projections for
+the others; NaN where obs has NaN (the detector did not find the point) or
+the truth cannot image the point.
+'''
+    from targets.centroids import expected_centroids, projected_points
+    Rts = Rt_cam_board_from(obs, truth)
+    exact = expected_centroids if target.kind == "dots" else projected_points
+    q = np.stack([exact(truth, target, Rt) for Rt in Rts])
+    q = np.where(obs.found[..., None], q, np.nan)
+    return obs.replace(q=q)
+
+
+def detection_noise(obs, obs_exact):
+    r'''Detected minus exact positions: {"rms", "max", "n", "per_pose_rms", "mean"} px
+
+per_pose_rms[i] is the RMS of |detected - exact| over the points of image i
+(None for an image without points); mean is the mean offset (dx, dy) over all.
+'''
+    d = obs.q - obs_exact.q
+    ok = np.all(np.isfinite(d), axis=-1)
+    n2 = np.sum(d * d, axis=-1)
+    per = [float(math.sqrt(n2[i][ok[i]].mean())) if ok[i].any() else None
+           for i in range(d.shape[0])]
+    if not ok.any():
+        return {"n": 0, "rms": None, "max": None, "per_pose_rms": per, "mean": None}
+    return {"n": int(ok.sum()), "rms": float(math.sqrt(n2[ok].mean())),
+            "max": float(math.sqrt(n2[ok].max())), "per_pose_rms": per,
+            "mean": [float(x) for x in d[ok].mean(axis=0)]}
+
+
+def _is_jpl(m):
+    return getattr(m, "family", None) in JPL_FAMILIES
+
+
+def _distortion(m):
+    r'''The distortion coefficients of a non-JPL fit (OpenCV dist, mrcal intrinsics[4:])'''
+    if hasattr(m, "dist"):
+        return np.asarray(m.dist, dtype=np.float64).ravel()
+    if hasattr(m, "intrinsics"):
+        return np.asarray(m.intrinsics, dtype=np.float64).ravel()[4:]
+    return np.zeros(0)
+
+
+def fit_parameter_differences(ref, fit, theta_estimated=None, world_frame=None):
+    r'''fit - ref for two fits of one calibrator model (any model)
+
+SYNOPSIS
+
+    d = fit_parameter_differences(exact_fit, image_fit, theta_estimated=True,
+                                  world_frame=True)
+
+JPL-family fits: harness.compare.parameter_errors with ref as the truth (ref
+moved to fit's R0 first). Others: Hc, Vc (px), Hs, Vs (fractional) and D0,
+D1, ... the differences of the distortion coefficients.
+'''
+    if _is_jpl(ref) and _is_jpl(fit):
+        return parameter_errors(ref, fit, theta_estimated=theta_estimated,
+                                world_frame=world_frame)
+    Hc, Vc, Hs, Vs = _intrinsics(fit)
+    rHc, rVc, rHs, rVs = _intrinsics(ref)
+    out = {"Hc": float(Hc - rHc), "Vc": float(Vc - rVc), "Hs": _frac(Hs, rHs),
+           "Vs": _frac(Vs, rVs)}
+    da, db = _distortion(fit), _distortion(ref)
+    for i in range(min(len(da), len(db))):
+        out[f"D{i}"] = float(da[i] - db[i])
+    return {k: (None if v is None else float(v)) for k, v in out.items()}
+
+
+def fit_projection_difference(ref, fit, truth, mode="rotation", range_m=DEFAULT_RANGE_M,
+                              step=DEFAULT_GRID_STEP):
+    r'''|fit - ref| in projection over the truth's image grid, for two fits of any model
+
+SYNOPSIS
+
+    d = fit_projection_difference(exact_fit, image_fit, truth, mode="rotation")
+    d["rms"], d["max"], d["n"], d["n_invalid"]      # px; d["map"] (ny,nx)
+
+The sample points are the truth's: points at range_m along its rays through
+the image grid, in its camera frame (harness.compare.truth_points). ref
+projects them from its own camera frame; fit from its own, rotated by the
+rotation that best matches ref's pixels (mode "rotation"), not rotated
+("intrinsics"), or both fits project the world points ("world": both must
+live in the truth's world frame).
+'''
+    if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
+            getattr(ref, "family", None) in ("CAHVOR", "CAHVORE"):
+        ref = with_R0(ref, float(fit.R[0]))   # the same projection in fit's R0 gauge
+    _, p_ref, p_cam = truth_points(truth, range_m, step)
+    with np.errstate(all="ignore"):
+        if mode == "world":
+            qa = ref.project(p_ref)
+            qb = fit.project(p_ref)
+            R = None
+        else:
+            qa = ref.project(_transform(ref.Rt_ref_cam(), p_cam))
+            R = np.eye(3)
+            if mode == "rotation":
+                R = _fit_rotation(fit, p_cam.reshape(-1, 3), qa.reshape(-1, 2))
+            qb = fit.project(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
+        d = np.linalg.norm(qb - qa, axis=-1)
+    finite = np.isfinite(d)
+    out = {"mode": mode, "range_m": range_m, "step": step, "map": d,
+           "n": int(finite.sum()), "n_invalid": int((~finite).sum()),
+           "rms": float(np.sqrt(np.mean(d[finite] ** 2))) if finite.any() else None,
+           "max": float(d[finite].max()) if finite.any() else None}
+    if R is not None:
+        out["rotation_deg"] = math.degrees(math.acos(max(-1.0, min(1.0,
+                                                                   (np.trace(R) - 1) / 2))))
+    return out
+
+
+def _world(res):
+    return bool(res.info.get("world_frame", res.calibrator == "jpl"))
+
+
+def fit_comparison(ref, fit, truth, theta_estimated, world_frame):
+    r'''{"params": fit_parameter_differences, "projection": {"rms", "max", mode: {...}}}'''
+    params = fit_parameter_differences(ref, fit, theta_estimated=theta_estimated,
+                                       world_frame=world_frame)
+    proj = {}
+    for mode in ("rotation", "intrinsics") + (("world",) if world_frame else ()):
+        d = fit_projection_difference(ref, fit, truth, mode=mode)
+        proj[mode] = {k: v for k, v in d.items() if k != "map"}
+    proj["rms"] = proj["rotation"]["rms"]
+    proj["max"] = proj["rotation"]["max"]
+    return {"params": params, "projection": proj}
+
+
+def floor_comparison(truth, exact_res):
+    r'''The exact-observation fit vs the truth: harness.stages.compare_stage's figures'''
+    from .stages import compare_stage
+    params, projection, _ = compare_stage(truth, exact_res)
+    return {"params": params, "projection": projection}
+
+
+def _theta_deg(model):
+    if _is_jpl(model):
+        return float(model.photogrammetric().theta_deg)
+    return None
+
+
+def floor_judgement(truth, calibrator, model_name, floor_projection, exact_residuals, noise):
+    r'''(far, reason): is the floor beyond what the images can show, and why in words
+
+far: the floor's projection difference (rotation-mode RMS) exceeds both the
+measured detection noise RMS and FLOOR_TOLERANCE_PX. The reason names the
+cause where it can: theta (a model frame holding theta at 90 deg), a misfit
+of the exact observations (residual RMS above MISFIT_FACTOR x the noise: the
+model cannot represent the camera), or an unconstrained model (exact
+observations fitted, the model still far from the truth).
+'''
+    rms = (floor_projection or {}).get("rms")
+    if rms is None:
+        return False, ""
+    noise_rms = (noise or {}).get("rms") or 0.0
+    limit = max(FLOOR_TOLERANCE_PX, noise_rms)
+    if rms <= limit:
+        return False, ""
+    what = f"{calibrator} {model_name}"
+    fl = f"floor {rms:.3g} px"
+    causes = []
+    th = _theta_deg(truth)
+    if calibrator != "jpl" and th is not None and abs(th - 90.0) > THETA_NAMED_DEG:
+        causes.append(f"{calibrator}'s model frame cannot represent theta = {th:.6g} deg")
+    res_rms = (exact_residuals or {}).get("rms")
+    if res_rms is not None and res_rms > max(MISFIT_FACTOR * noise_rms,
+                                             FLOOR_TOLERANCE_PX / 10):
+        causes.append(f"{what} cannot fit the exact observations (residual RMS "
+                      f"{res_rms:.3g} px)")
+    elif not causes:
+        causes.append(f"the exact observations leave {what} unconstrained (residual RMS "
+                      f"{res_rms if res_rms is None else format(res_rms, '.3g')} px, yet far "
+                      f"from the truth)")
+    return True, (f"{'; '.join(causes)}: {fl} (exact-observation fit vs truth; detection "
+                  f"noise {noise_rms:.3g} px, tolerance {FLOOR_TOLERANCE_PX:g} px): the total "
+                  f"error is the calibrator's, judge the renderer by verdict.renderer")
+
+
+def assess(truth, res, exact_res, noise, total_params, total_projection, seconds=None):
+    r'''The record's "verdict": floor, renderer, total, the exact fit and the noise
+
+res: the image fit (ok); exact_res: the fit of exact_observations() (any status);
+noise: detection_noise(); total_params, total_projection: the record's params
+and projection (compare_stage). Returns a JSON-able dict:
+
+    {"floor": {"params", "projection"} | None, "renderer": {...} | None,
+     "total": {"params", "projection": {"rms", "max"}},
+     "exact_fit": {"status", "reason", "residuals", "seconds"},
+     "detection_noise": noise, "floor_far": bool, "floor_reason": str}
+
+A failed exact fit leaves floor and renderer None with exact_fit saying why.
+'''
+    from .records import jsonable
+    theta = res.calibrator == "jpl"
+    world = _world(res)
+    out = {"total": {"params": total_params,
+                     "projection": {k: (total_projection or {}).get(k)
+                                    for k in ("rms", "max")}},
+           "exact_fit": {"status": exact_res.status, "reason": exact_res.reason,
+                         "residuals": exact_res.residual_stats(),
+                         "seconds": float(exact_res.seconds)},
+           "detection_noise": noise, "floor": None, "renderer": None,
+           "floor_far": False, "floor_reason": ""}
+    if seconds is not None:
+        out["seconds"] = seconds
+    if exact_res.status != "ok" or exact_res.model is None:
+        return jsonable(out)
+    out["floor"] = floor_comparison(truth, exact_res)
+    out["renderer"] = fit_comparison(exact_res.model, res.model, truth, theta,
+                                     world and _world(exact_res))
+    far, why = floor_judgement(truth, res.calibrator, res.model_name,
+                               out["floor"]["projection"], exact_res.residual_stats(), noise)
+    out["floor_far"], out["floor_reason"] = far, why
+    return jsonable(out)
+
+
+def exact_fit(cal, model, options, obs, target, truth, cache, fits=None):
+    r'''The calibrator's fit of the exact observations -> (CalibrationResult, noise, reused)
+
+obs: the job's observations (with the surveyed poses); cache: a dict kept for
+one camera's records (the exact observations and the detection noise are
+computed once per camera). fits: the twin group's shared fits (as
+harness.job_records.calibrator_records shares the image fits): a calibrator
+that does not read the world frame fits the exact observations once per
+group, on observations without the surveyed poses, and the twins reuse it
+(reused True).
+'''
+    from harness.calibrators import uses_world_frame
+
+    from .stages import calibrate_stage
+    if "obs" not in cache:
+        cache["obs"] = exact_observations(obs, truth, target)
+        cache["noise"] = detection_noise(obs, cache["obs"])
+    obs_x, noise = cache["obs"], cache["noise"]
+    if fits is not None and not uses_world_frame(cal, options):
+        k = ("exact", cal, model, repr(sorted(options.items())))
+        if k in fits:
+            return fits[k], noise, True
+        fits[k] = calibrate_stage(cal, obs_x.replace(Rt_ref_board=None), target, model,
+                                  truth, options)
+        return fits[k], noise, False
+    return calibrate_stage(cal, obs_x, target, model, truth, options), noise, False

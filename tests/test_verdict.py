@@ -1,0 +1,149 @@
+r'''harness.verdict: the fit of exact observations, floor / renderer / total
+
+No rendering: the "images" are the exact observations plus a known
+disturbance (a constant shift of every detection, or seeded noise), so what
+the renderer comparison must find is known.
+'''
+
+import numpy as np
+import pytest
+
+from harness import stages, verdict
+from harness.records import Record
+
+
+@pytest.fixture(scope="module")
+def navcam():
+    _, truth = stages.camera_truth("15", "CAHVOR")
+    target = stages.cached_target("dots")
+    poses = stages.poses_stage(truth, target, 6, 0)
+    # "detections" = exact centroids: observations_from wants Detection-like objects
+    from targets.centroids import expected_centroids
+
+    class D:
+        def __init__(self, q):
+            self.q = q
+    dets = [D(expected_centroids(truth, target, Rt)) for Rt in poses]
+    obs = stages.observations_from(truth, target, poses, dets)
+    return truth, target, poses, obs
+
+
+def test_exact_observations_are_the_exact_centroids_with_the_detected_mask(navcam):
+    truth, target, poses, obs = navcam
+    q = obs.q.copy()
+    q[0, :5] = np.nan                      # five points the detector missed
+    obs_missing = obs.replace(q=q)
+    x = verdict.exact_observations(obs_missing, truth, target)
+    assert np.array_equal(np.isnan(x.q), np.isnan(q))
+    # the same centroids, recomputed from the surveyed poses (one rigid transform and
+    # back: a few ulps of the ~1000 px coordinates)
+    ok = np.isfinite(q)
+    assert np.max(np.abs(x.q[ok] - q[ok])) < 1e-9
+    n = verdict.detection_noise(obs_missing, x)
+    assert n["n"] == int(ok[..., 0].sum())
+    assert n["rms"] < 1e-9
+
+
+def test_detection_noise_per_pose(navcam):
+    truth, target, poses, obs = navcam
+    x = verdict.exact_observations(obs, truth, target)
+    shifted = obs.replace(q=obs.q + np.array([0.003, -0.004]))
+    n = verdict.detection_noise(shifted, x)
+    assert n["rms"] == pytest.approx(0.005, rel=1e-6)
+    assert n["per_pose_rms"] == pytest.approx([0.005] * 6, rel=1e-6)
+    assert n["mean"] == pytest.approx([0.003, -0.004], rel=1e-6)
+
+
+def test_two_fits_of_any_model_compare(navcam):
+    truth = navcam[0]
+    moved = truth.replace(H=truth.H + 0.01 * truth.A)      # Hc + 0.01 px
+    d = verdict.fit_parameter_differences(truth, moved, theta_estimated=True,
+                                          world_frame=True)
+    assert d["Hc"] == pytest.approx(0.01, rel=1e-6)
+    assert abs(d["Vc"]) < 1e-9
+    same = verdict.fit_projection_difference(truth, truth, truth, mode="intrinsics")
+    assert same["max"] < 1e-9
+    # intrinsics mode: 0.01 px everywhere (a shift of Hc is a shift of every pixel)
+    sh = verdict.fit_projection_difference(truth, moved, truth, mode="intrinsics")
+    assert sh["rms"] == pytest.approx(0.01, rel=1e-3)
+    # a rotation absorbs most of a centre shift: what is left is far smaller
+    rot = verdict.fit_projection_difference(truth, moved, truth, mode="rotation")
+    assert rot["rms"] < 0.2 * sh["rms"]
+
+
+def test_opencv_fits_compare_with_each_other():
+    from harness.calibrators.opencv_fit import OpenCVModel
+    K = np.array([[1000.0, 0, 511.5], [0, 1000.0, 511.5], [0, 0, 1]])
+    a = OpenCVModel("OPENCV5", K, [0.01, 0, 0, 0, 0], 1024, 1024)
+    K2 = K.copy()
+    K2[0, 2] += 0.02
+    b = OpenCVModel("OPENCV5", K2, [0.01, 0.001, 0, 0, 0], 1024, 1024)
+    d = verdict.fit_parameter_differences(a, b)
+    assert d["Hc"] == pytest.approx(0.02, rel=1e-9)
+    assert d["D1"] == pytest.approx(0.001, rel=1e-9)
+    _, truth = stages.camera_truth("15", "CAHV")
+    p = verdict.fit_projection_difference(a, b, truth, mode="intrinsics")
+    assert 0.02 <= p["max"] < 1.0
+
+
+@pytest.mark.parametrize("cal", ["jpl", "mrcal"])
+def test_assess_a_shift_of_every_detection(navcam, cal):
+    r'''A renderer that draws everything 0.01 px to the right: the image fit moves by that
+much from the exact fit (Hc + 0.01 px in intrinsics), the floor stays at the
+calibrator's own level (jpl: exact to ~1e-6 px), and total = floor + renderer'''
+    truth, target, poses, obs = navcam
+    img = obs.replace(q=obs.q + np.array([0.01, 0.0]))
+    cache = {}
+    exact, noise, reused = verdict.exact_fit(cal, "CAHVOR", {}, img, target, truth, cache)
+    assert not reused and exact.ok
+    assert noise["rms"] == pytest.approx(0.01, rel=1e-6)
+    res = stages.calibrate_stage(cal, img, target, "CAHVOR", truth, {})
+    params, proj, _ = stages.compare_stage(truth, res)
+    v = verdict.assess(truth, res, exact, noise, params, proj)
+    assert v["floor"]["projection"]["rms"] < 1e-4
+    assert not v["floor_far"] and v["floor_reason"] == ""
+    r = v["renderer"]["projection"]
+    assert r["intrinsics"]["rms"] == pytest.approx(0.01, rel=0.05)
+    if cal == "jpl":   # world frame: the centre moves, nothing else does
+        assert v["renderer"]["params"]["Hc"] == pytest.approx(0.01, rel=0.02)
+        assert r["world"]["rms"] == pytest.approx(0.01, rel=0.05)
+    assert v["total"]["projection"]["rms"] == proj["rms"]
+    Record(fullname="x", camera="15", camera_label="", model="CAHVOR", target="dots",
+           renderer="raycast", settings={}, calibrator=cal, calibrator_model="CAHVOR",
+           status="ok", verdict=v).as_dict()
+
+
+def test_twins_share_the_exact_fit(navcam):
+    truth, target, poses, obs = navcam
+    fits = {}
+    a, _, reused_a = verdict.exact_fit("mrcal", "CAHVOR", {}, obs, target, truth, {}, fits)
+    b, _, reused_b = verdict.exact_fit("mrcal", "CAHVOR", {}, obs, target, truth, {}, fits)
+    assert (reused_a, reused_b) == (False, True) and a is b
+    c, _, reused_c = verdict.exact_fit("jpl", "CAHVOR", {}, obs, target, truth, {}, fits)
+    assert not reused_c        # jpl reads the world frame: each twin fits its own
+
+
+def test_far_floor_says_why_in_words(navcam):
+    truth = navcam[0]
+    th = truth.photogrammetric().theta_deg
+    far, why = verdict.floor_judgement(truth, "mrcal", "CAHVOR", {"rms": 1.3},
+                                       {"rms": 1e-7}, {"rms": 0.001})
+    if abs(th - 90) > verdict.THETA_NAMED_DEG:
+        assert "cannot represent theta" in why
+    assert far and "floor 1.3 px" in why
+    far, why = verdict.floor_judgement(truth, "opencv", "OPENCV5", {"rms": 0.2},
+                                       {"rms": 0.02}, {"rms": 0.001})
+    assert far and "cannot fit the exact observations" in why
+    # below the stated tolerance, or below what the images show: not far
+    assert verdict.floor_judgement(truth, "jpl", "CAHVOR", {"rms": 0.005}, {"rms": 0.0},
+                                   {"rms": 0.001}) == (False, "")
+    assert verdict.floor_judgement(truth, "jpl", "CAHVOR", {"rms": 0.05}, {"rms": 0.0},
+                                   {"rms": 0.1}) == (False, "")
+
+
+def test_old_records_load_without_a_verdict():
+    d = Record(fullname="x", camera="15", camera_label="", model="CAHVOR", target="dots",
+               renderer="raycast", settings={}, calibrator="jpl", calibrator_model="CAHVOR",
+               status="ok").as_dict()
+    del d["verdict"]
+    assert Record.from_dict(d).verdict is None
