@@ -147,3 +147,22 @@ def test_old_records_load_without_a_verdict():
                status="ok").as_dict()
     del d["verdict"]
     assert Record.from_dict(d).verdict is None
+
+
+def test_report_rows_show_floor_renderer_total_side_by_side():
+    from reports.tables import summary_tables, verdict_rows
+    base = dict(camera="15", camera_label="", model="CAHVOR", target="dots",
+                renderer="raycast", settings={}, calibrator="mrcal", calibrator_model="CAHVOR",
+                status="ok", projection={"rms": 1.3, "max": 2.0})
+    far = {"floor": {"projection": {"rms": 1.29}}, "renderer": {"projection": {"rms": 0.001}},
+           "total": {"projection": {"rms": 1.3}}, "floor_far": True,
+           "floor_reason": "mrcal's model frame cannot represent theta = 90.076 deg"}
+    recs = {"a": Record(fullname="a", verdict=far, **base).as_dict(),
+            "b": Record(fullname="b", **base).as_dict()}      # an old record: no verdict
+    rows = verdict_rows(recs)
+    assert rows == [("a", "1.29", "1.00e-03", "—", "1.3",
+                     "mrcal's model frame cannot represent theta = 90.076 deg")]
+    (t,) = summary_tables(recs)
+    cells = {row[0]: row[3] for row in t.rows}
+    assert cells["floor: exact-observation fit vs truth, projection RMS, worst"] == "1.29"
+    assert "1 ok with a floor far from the truth" in t.note
