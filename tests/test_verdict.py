@@ -160,7 +160,7 @@ def test_report_rows_show_floor_renderer_total_side_by_side():
     recs = {"a": Record(fullname="a", verdict=far, **base).as_dict(),
             "b": Record(fullname="b", **base).as_dict()}      # an old record: no verdict
     rows = verdict_rows(recs)
-    assert rows == [("a", "1.29", "1.00e-03", "—", "1.3",
+    assert rows == [("a", "1.29", "0.001", "—", "1.3",
                      "mrcal's model frame cannot represent theta = 90.076 deg")]
     (t,) = summary_tables(recs)
     cells = {row[0]: row[3] for row in t.rows}
