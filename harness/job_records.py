@@ -175,7 +175,7 @@ be computed says why in verdict["error"] and leaves the record ok.'''
                                             fits)
         sec["exact_fit"] = 0.0 if reused else float(exact.seconds)
         t1 = time.perf_counter()
-        v = vd.assess(truth, res, exact, noise, params, projection)
+        v = vd.assess(truth, res, exact, noise, params, projection, obs=obs)
         sec["verdict"] = time.perf_counter() - t1
     except Exception as e:  # the record's own figures stand; its verdict says why not
         tb = traceback.extract_tb(e.__traceback__)[-1]

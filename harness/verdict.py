@@ -269,12 +269,16 @@ observations fitted, the model still far from the truth).
                   f"error is the calibrator's, judge the renderer by verdict.renderer")
 
 
-def assess(truth, res, exact_res, noise, total_params, total_projection, seconds=None):
+def assess(truth, res, exact_res, noise, total_params, total_projection, seconds=None,
+           obs=None):
     r'''The record's "verdict": floor, renderer, total, the exact fit and the noise
 
 res: the image fit (ok); exact_res: the fit of exact_observations() (any status);
 noise: detection_noise(); total_params, total_projection: the record's params
-and projection (compare_stage). Returns a JSON-able dict:
+and projection (compare_stage); obs: the observations of the image fit (with
+the surveyed poses): given, the renderer comparison gets "sigma" (scatter())
+and "z" (z_scores()), and the verdict "scatter" (the noise per image, the
+numbers fitted) or its "error". Returns a JSON-able dict:
 
     {"floor": {"params", "projection"} | None, "renderer": {...} | None,
      "total": {"params", "projection": {"rms", "max"}},
@@ -304,6 +308,19 @@ A failed exact fit leaves floor and renderer None with exact_fit saying why.
     far, why = floor_judgement(truth, res.calibrator, res.model_name,
                                out["floor"]["projection"], exact_res.residual_stats(), noise)
     out["floor_far"], out["floor_reason"] = far, why
+    if obs is not None:
+        from .stages import failure_reason
+        try:
+            sc = scatter(res, exact_res, obs, truth)
+        except Exception as e:  # the verdict stands without its sigma; say why
+            sc = {"error": failure_reason(e)}
+        if sc is None:
+            sc = {"error": f"no linearisation of a {res.calibrator} {res.model_name} fit "
+                           f"(known poses, regularised or another calibrator)"}
+        if "sigma" in sc:
+            out["renderer"]["sigma"] = sc.pop("sigma")
+            out["renderer"]["z"] = z_scores(out["renderer"], out["renderer"]["sigma"])
+        out["scatter"] = sc
     return jsonable(out)
 
 
@@ -333,3 +350,282 @@ group, on observations without the surveyed poses, and the twins reuse it
                                   truth, options)
         return fits[k], noise, False
     return calibrate_stage(cal, obs_x, target, model, truth, options), noise, False
+
+
+# --- expected scatter: the covariance of a fit from its Jacobian at the solution ---------
+#
+# Where this noise model stops holding (the z-scores are only as good as these):
+# - The detection errors are taken as independent between points, isotropic, with one
+#   variance per image. A renderer's sampling error on a dot centroid is a deterministic
+#   function of the dot's sub-pixel phase and size: nearly independent between dots of
+#   a board, not exactly; neighbouring dots of nearly the same phase err alike.
+# - The variance of image i is the RMS over its points of (image-fit residual -
+#   exact-fit residual), scaled by sqrt(2N / (2N - n)) for the n fitted numbers: the
+#   detection error left once the model has absorbed what it can. A fault the model
+#   absorbs (a shift of the centre, a focal scale) does not inflate it, which is the
+#   point; a fault it cannot absorb (jitter, a wrong distortion) counts as noise and
+#   lowers the z-scores of the rest. The detected-minus-exact RMS per image is recorded
+#   beside it (verdict.detection_noise).
+# - Linear: the fit moves linearly with the observations. It stops holding for a
+#   parameter whose sigma is a sizeable fraction of its own range (an unconstrained
+#   model: a huge sigma says so) or near a model's singularity (theta -> 0 or 180 deg).
+# - The dot-centroid bias correction is held fixed (it depends on the model to second
+#   order); regularised fits (mrcal SPLINED) are not linearised (their sigma is None).
+# - Pose-estimating calibrators (mrcal, OpenCV without known poses) are linearised in
+#   the intrinsics and every board pose; the jpl calibrator in its own chart (C, A, H,
+#   V, O, R1, R2, E; R0 held, as the fit holds it: harness.calibrators.jpl_fit).
+
+# parameters whose differences are magnitudes: their sigma is that of the vector
+VECTOR_PARAMS = ("C_mm", "A_deg", "O_deg")
+PROJECTION_SAMPLES = 1200      # grid points the projection sigma is evaluated on
+
+
+class Linearisation:
+    r'''A fit as a function of its parameters: x0, residual pixels and the model
+
+x0:        (n,) the fit's parameters at the solution
+project:   x -> (2N,) the projections of the fit's observed points (pose-major)
+model:     x -> the fitted model (a JPL model, OpenCVModel, MrcalModel)
+pose:      (N,) the image of each observed point
+'''
+
+    def __init__(self, x0, project, model, pose, steps):
+        self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
+
+
+def _central_jacobian(f, x0, h):
+    cols = []
+    for i in range(len(x0)):
+        xp, xm = x0.copy(), x0.copy()
+        xp[i] += h[i]
+        xm[i] -= h[i]
+        cols.append((np.asarray(f(xp), dtype=np.float64).ravel()
+                     - np.asarray(f(xm), dtype=np.float64).ravel()) / (xp[i] - xm[i]))
+    return np.stack(cols, axis=-1)
+
+
+def jpl_linearisation(res, obs):
+    r'''The jpl fit in its own chart (harness.calibrators.jpl_fit; R0 held) -> Linearisation'''
+    from harness.calibrators._project_kernels import project
+    from harness.calibrators.jpl_fit import _Chart
+    m = res.model
+    R0 = float(m.R[0]) if m.family != "CAHV" else 0.0
+    chart = _Chart(m.family, m, getattr(m, "model_type", None), getattr(m, "linearity", None),
+                   R0)
+    found = obs.found
+    p = np.ascontiguousarray(obs.p_ref()[found])
+    pose = np.nonzero(found)[0]
+    x0 = chart.x0()
+    h = 1e-6 * np.maximum(np.abs(x0), 1.0)
+    return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h)
+
+
+def _rodrigues(r):
+    from .compare import _R_from_r
+    return _R_from_r(r)
+
+
+def posed_linearisation(res, obs):
+    r'''A pose-estimating fit (mrcal, OpenCV): intrinsics + 6 numbers per board pose
+
+-> Linearisation, or None for a fit this cannot parametrise (known poses,
+regularised, an unknown model type).'''
+    from harness.calibrators.opencv_fit import OpenCVModel
+    m = res.model
+    if res.Rt_cam_board is None or _world(res) or res.info.get("regularization"):
+        return None
+    cm = res.info.get("cameramodel")
+    if cm is not None:
+        import mrcal
+        lensmodel, intr0 = cm.intrinsics()
+        intr0 = np.asarray(intr0, dtype=np.float64)
+        W, H = (int(v) for v in cm.imagersize())
+        jpl = _is_jpl(m)
+
+        def model_of(theta):
+            from harness.calibrators.mrcal_fit import MrcalModel
+            c = mrcal.cameramodel(intrinsics=(lensmodel, np.asarray(theta)),
+                                  imagersize=np.array((W, H)),
+                                  Rt_ref_cam=np.vstack((np.eye(3), np.zeros(3))))
+            if jpl:
+                from reference_models.mrcal_convert import from_mrcal
+                return from_mrcal(c)
+            return MrcalModel(c, m.family)
+
+        def project_cam(theta, p_cam):
+            return mrcal.project(np.ascontiguousarray(p_cam), lensmodel, np.asarray(theta))
+    elif isinstance(m, OpenCVModel):
+        intr0 = np.concatenate(([m.fx, m.fy, m.cx, m.cy], m.dist))
+
+        def model_of(theta):
+            K = np.array([[theta[0], 0, theta[2]], [0, theta[1], theta[3]], [0, 0, 1.0]])
+            return OpenCVModel(m.family, K, theta[4:], m.width, m.height)
+
+        def project_cam(theta, p_cam):
+            return model_of(theta).project(p_cam)
+    else:
+        return None
+    found = obs.found
+    pose = np.nonzero(found)[0]
+    Rts = np.asarray(res.Rt_cam_board, dtype=np.float64)
+    nth = len(intr0)
+    Np = obs.Nposes
+    x0 = np.concatenate((intr0, np.zeros(6 * Np)))
+    pb = [obs.p_board[i][found[i]] for i in range(Np)]
+
+    def project(x):
+        theta = x[:nth]
+        out = []
+        for i in range(Np):
+            if not len(pb[i]):
+                continue
+            d = x[nth + 6 * i: nth + 6 * i + 6]
+            R = _rodrigues(d[:3]) @ Rts[i][:3]
+            out.append(project_cam(theta, pb[i] @ R.T + Rts[i][3] + d[3:]))
+        return np.concatenate(out, axis=0)
+
+    h = np.concatenate((1e-6 * np.maximum(np.abs(intr0), 1.0), np.full(6 * Np, 1e-6)))
+    return Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h)
+
+
+def linearisation(res, obs):
+    r'''The Linearisation of a fit (jpl, or a pose-estimating mrcal/OpenCV fit), or None'''
+    if res.calibrator == "jpl" and _is_jpl(res.model) and obs.has_world_points:
+        return jpl_linearisation(res, obs)
+    if res.calibrator in ("mrcal", "opencv"):
+        return posed_linearisation(res, obs)
+    return None
+
+
+def _signed_quantities(ref, m, theta, world):
+    r'''The reported parameter differences m - ref as signed numbers (vectors by component)'''
+    d = fit_parameter_differences(ref, m, theta_estimated=theta, world_frame=world)
+    out = {k: v for k, v in d.items() if v is not None and k not in VECTOR_PARAMS}
+    if _is_jpl(ref) and _is_jpl(m):
+        from .compare import _in_cam
+        if d.get("C_mm") is not None:
+            for i, v in enumerate(1e3 * (m.C - ref.C)):
+                out[f"C_mm[{i}]"] = float(v)
+        if d.get("A_deg") is not None:
+            for i, v in enumerate(np.degrees(m.A - ref.A)):
+                out[f"A_deg[{i}]"] = float(v)
+        if d.get("O_deg") is not None:
+            rt = with_R0(ref, float(m.R[0])) if ref.family != "CAHV" else ref
+            dv = _in_cam(m, m.O) - _in_cam(rt, rt.O)
+            for i, v in enumerate(np.degrees(dv)):
+                out[f"O_deg[{i}]"] = float(v)
+    return out
+
+
+def noise_per_pose(res, exact_res, Nposes, n_params):
+    r'''(Nposes,) sigma px of the detection error per image (see the notes above), NaN
+where an image has no point'''
+    d = np.asarray(res.residuals, dtype=np.float64) - np.asarray(exact_res.residuals,
+                                                                   dtype=np.float64)
+    ok = np.all(np.isfinite(d), axis=-1)
+    N = int(ok.sum())
+    dof = math.sqrt(2 * N / max(2 * N - n_params, 1))
+    out = np.full(Nposes, np.nan)
+    for i in range(Nposes):
+        if ok[i].any():
+            out[i] = dof * math.sqrt(np.mean(np.sum(d[i][ok[i]] ** 2, axis=-1)))
+    return out
+
+
+def scatter(res, exact_res, obs, truth):
+    r'''Expected scatter of the image fit about the exact fit, from its Jacobian
+
+SYNOPSIS
+
+    s = scatter(res, exact_res, obs, truth)
+    s["sigma"]["Hc"], s["sigma"]["theta_deg"], s["sigma"]["projection_rms"]
+    s["noise_per_pose"]     # sigma px per image (the model's input)
+
+None when the fit cannot be linearised here (see linearisation()). Sigma of a
+vector parameter (C_mm, A_deg, O_deg) is that of its length: sqrt of the trace.
+projection_rms is the expected RMS over the image grid of the rotation-mode
+projection difference (the rotation's own freedom projected out).
+'''
+    lin = linearisation(res, obs)
+    if lin is None:
+        return None
+    theta = res.calibrator == "jpl"
+    world = _world(res)
+    n = len(lin.x0)
+    J = _central_jacobian(lin.project, lin.x0, lin.steps)          # (2N, n)
+    sig_pose = noise_per_pose(res, exact_res, obs.Nposes, n)
+    # per coordinate: sigma_image^2 / 2 (sigma is the RMS of the 2-d error)
+    var_row = np.repeat(sig_pose[lin.pose] ** 2 / 2.0, 2)
+    if not np.all(np.isfinite(var_row)):
+        return None
+    # A = (J^T J)^-1 J^T through the SVD of the column-scaled J (narrow lenses make
+    # J^T J ill-conditioned)
+    s_col = np.linalg.norm(J, axis=0)
+    s_col[s_col == 0] = 1.0
+    U, S, Vt = np.linalg.svd(J / s_col, full_matrices=False)
+    keep = S > S[0] * 1e-12
+    A = ((Vt[keep].T / S[keep]) @ U[:, keep].T) / s_col[:, None]    # (n, 2N)
+    m0 = lin.model(lin.x0)
+    q0 = _signed_quantities(m0, m0, theta, world)
+    names = list(q0)
+
+    def qvec(x):
+        q = _signed_quantities(m0, lin.model(x), theta, world)
+        return np.array([q.get(k, 0.0) for k in names])
+    G = _central_jacobian(qvec, lin.x0, lin.steps)                  # (m, n)
+    B = G @ A
+    var = (B * B) @ var_row
+    sigma = {}
+    for k, v in zip(names, var, strict=True):
+        base = k.split("[")[0]
+        if base in VECTOR_PARAMS:
+            sigma[base] = sigma.get(base, 0.0) + float(v)
+        else:
+            sigma[k] = float(math.sqrt(v))
+    for k in VECTOR_PARAMS:
+        if k in sigma:
+            sigma[k] = math.sqrt(sigma[k])
+    sigma["projection_rms"] = _projection_sigma(lin, A, var_row, truth)
+    return {"sigma": sigma, "noise_per_pose": [None if not np.isfinite(s) else float(s)
+                                               for s in sig_pose],
+            "n_params": n, "n_points": int(len(lin.pose))}
+
+
+def _projection_sigma(lin, A, var_row, truth):
+    _, _, p_cam = truth_points(truth)
+    P = p_cam.reshape(-1, 3)
+    if len(P) > PROJECTION_SAMPLES:
+        P = P[np.linspace(0, len(P) - 1, PROJECTION_SAMPLES).astype(int)]
+    m0 = lin.model(lin.x0)
+
+    def grid(x):
+        m = lin.model(x)
+        return m.project(_transform(m.Rt_ref_cam(), P))
+
+    def rotated(w):
+        return m0.project(_transform(m0.Rt_ref_cam(), P @ _rodrigues(w).T))
+    with np.errstate(all="ignore"):
+        Jg = _central_jacobian(grid, lin.x0, lin.steps)             # (2M, n)
+        Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
+    ok = np.all(np.isfinite(Jg), axis=1) & np.all(np.isfinite(Jw), axis=1)
+    Jg, Jw = Jg[ok], Jw[ok]
+    M = ok.sum() / 2
+    if M < 1:
+        return None
+    Qw, _ = np.linalg.qr(Jw)
+    Bg = Jg @ A
+    Bg = Bg - Qw @ (Qw.T @ Bg)          # the rotation fitted between the two fits
+    return float(math.sqrt(((Bg * Bg) @ var_row).sum() / M))
+
+
+def z_scores(renderer, sigma):
+    r'''{quantity: renderer difference / sigma} (projection_rms: RMS / its sigma)'''
+    out = {}
+    params = renderer.get("params") or {}
+    for k, s in sigma.items():
+        v = (renderer.get("projection") or {}).get("rms") if k == "projection_rms" \
+            else params.get(k)
+        if v is None or s is None or not s > 0:
+            continue
+        out[k] = float(abs(v) / s)
+    return out
