@@ -21,6 +21,16 @@ A gate spec is TOML:
     max = 0.001
     match = ["*/jpl[*]"]           # glob(s) on fullname; default "*"
 
+    # against the record's own expected scatter (harness.verdict): |value| <= z * sigma
+    # (sigma read from the record), never below floor, never above cap (absolute)
+    [[scatter]]
+    field = "verdict.renderer.projection.rms"
+    sigma = "verdict.renderer.sigma.projection_rms"
+    z = 5
+    floor = 0.0005
+    cap = 0.005
+    match = "*"
+
     # regressions against a stored baseline (joined on fullname): the value may
     # grow by at most `abs` or `N%` of the baseline's value
     regressions = ["projection.rms:0.0005", "residuals.rms:10%"]
@@ -48,7 +58,8 @@ from reference_models.errors import CamvalError
 from .records import STATUSES
 
 SPEC_KEYS = ("statuses", "status_match", "limits", "limit", "regressions", "regression",
-             "description")
+             "description", "scatter")
+SCATTER_KEYS = ("field", "sigma", "z", "floor", "cap", "match")
 LIMIT_KEYS = ("field", "max", "match")
 REGRESSION_KEYS = ("field", "tolerance", "match")
 
@@ -62,6 +73,29 @@ class Limit:
     field: str
     max: float
     match: tuple = ("*",)
+
+
+@dataclass(frozen=True)
+class ScatterLimit:
+    r'''|field| <= min(cap, max(floor, z * sigma)), sigma read from the record
+
+A record without the sigma (a calibrator the scatter cannot be linearised for,
+a record written before verdicts) is judged by cap alone.'''
+    field: str
+    sigma: str
+    z: float
+    floor: float = 0.0
+    cap: float = float("inf")
+    match: tuple = ("*",)
+
+    def allowed(self, sigma):
+        r'''(limit, its description) for this sigma (None: none in the record)'''
+        if sigma is None:
+            return self.cap, f"<= cap {self.cap:g} (no sigma in the record)"
+        lim = min(self.cap, max(self.floor, self.z * sigma))
+        how = ("cap" if lim == self.cap else "floor" if lim == self.floor and
+               self.z * sigma < self.floor else f"{self.z:g} sigma")
+        return lim, f"<= {lim:.4g} ({how}; floor {self.floor:g}, cap {self.cap:g})"
 
 
 @dataclass(frozen=True)
@@ -83,6 +117,7 @@ class GateSpec:
     limits: tuple = ()
     regressions: tuple = ()
     source: str = ""
+    scatter: tuple = ()
 
     @property
     def needs_baseline(self):
@@ -210,7 +245,32 @@ def parse_gate_spec(doc, source="gate spec"):
                                                         t.get("match"))))
     return GateSpec(statuses=tuple(statuses),
                     status_match=_match(source, "status_match", doc.get("status_match")),
-                    limits=tuple(limits), regressions=tuple(regressions), source=source)
+                    limits=tuple(limits), regressions=tuple(regressions), source=source,
+                    scatter=_parse_scatter(doc.get("scatter", []), source))
+
+
+def _parse_scatter(tables, source):
+    if not isinstance(tables, list):
+        raise GateUsageError(f"{source}: scatter: expected [[scatter]] tables")
+    out = []
+    for i, t in enumerate(tables):
+        key = f"scatter[{i}]"
+        if not isinstance(t, dict):
+            raise GateUsageError(f"{source}: {key}: expected a table")
+        for k in t:
+            if k not in SCATTER_KEYS:
+                raise GateUsageError(f"{source}: {key}.{k}: unknown key; known keys: "
+                                     f"{', '.join(SCATTER_KEYS)}")
+        if not isinstance(t.get("field"), str) or not isinstance(t.get("sigma"), str) \
+                or "z" not in t:
+            raise GateUsageError(f"{source}: {key}: needs field = \"...\", sigma = \"...\" "
+                                 f"(dotted paths into a record) and z = number")
+        out.append(ScatterLimit(
+            t["field"], t["sigma"], _number(source, key + ".z", t["z"]),
+            _number(source, key + ".floor", t.get("floor", 0.0)),
+            _number(source, key + ".cap", t.get("cap", float("inf"))),
+            _match(source, key + ".match", t.get("match"))))
+    return tuple(out)
 
 
 def load_gate_spec(path):
@@ -271,7 +331,7 @@ GateUsageError when the spec has regressions and baseline is None.
     records = run["records"]
     failures = []
     # a limit whose globs select no record would pass silently: that is a failure
-    for lim in spec.limits:
+    for lim in spec.limits + spec.scatter:
         if not any(_matches(name, lim.match) for name in records):
             failures.append(Failure("(gate spec)", lim.field, "matched no record",
                                     "match " + " or ".join(lim.match), "unmatched"))
@@ -294,9 +354,32 @@ GateUsageError when the spec has regressions and baseline is None.
             m = _magnitude(v)
             if m is None or not m <= lim.max:
                 failures.append(Failure(name, lim.field, _fmt(v), f"<= {lim.max:g}", "limit"))
+        failures += _scatter_failures(name, r, spec.scatter)
     if baseline is not None and spec.regressions:
         failures += _regressions(records, baseline["records"], spec)
     return failures
+
+
+def _scatter_failures(name, r, limits):
+    r'''The [[scatter]] failures of one ok record: "value (sigma s, z)" against the limit'''
+    out = []
+    for lim in limits:
+        if not _matches(name, lim.match):
+            continue
+        v = _lookup(r, lim.field)
+        if v is _ABSENT:
+            out.append(Failure(name, lim.field, "missing", f"<= {lim.z:g} sigma", "missing"))
+            continue
+        if v is None:     # not estimated by this calibrator
+            continue
+        s = _magnitude(_lookup(r, lim.sigma))
+        allowed, text = lim.allowed(s if s else None)
+        m = _magnitude(v)
+        if m is None or not m <= allowed:
+            z = f", z {m / s:.3g}" if s and m is not None else ""
+            sig = f"sigma {s:.3g}" if s else "no sigma"
+            out.append(Failure(name, lim.field, f"{_fmt(v)} ({sig}{z})", text, "scatter"))
+    return out
 
 
 def _regressions(records, base, spec):

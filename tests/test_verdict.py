@@ -190,3 +190,13 @@ z-scores of one draw are of order one (a z above 6 has probability 2e-9 per quan
     assert max(v["renderer"]["z"].values()) < 6
     if cal == "jpl":
         assert sigma["Hc"] == pytest.approx(0.00106, rel=0.2)
+
+
+def test_an_off_axis_camera_is_not_applicable_with_its_reason():
+    r'''SuperCam's optical centre lies far outside its image: the planner's refusal is a
+not-applicable record with the reason, not a failure'''
+    _, truth = stages.camera_truth("SuperCam", "CAHV")
+    with pytest.raises(stages.StageFailed) as e:
+        stages.poses_stage(truth, stages.cached_target("dots"), 6, 0)
+    assert e.value.status == "not-applicable"
+    assert "far outside" in e.value.reason and "deg off its axis" in e.value.reason
