@@ -22,7 +22,10 @@ A gate spec is TOML:
     match = ["*/jpl[*]"]           # glob(s) on fullname; default "*"
 
     # against the record's own expected scatter (harness.verdict): |value| <= z * sigma
-    # (sigma read from the record), never below floor, never above cap (absolute)
+    # (sigma read from the record), never below floor, never above cap (absolute).
+    # A record whose floor is far from the truth (verdict.floor_far: the calibrator
+    # cannot represent the camera; its reason says why) is not judged by these unless
+    # judge_far_floor = true: its renderer difference mixes the images with the misfit.
     [[scatter]]
     field = "verdict.renderer.projection.rms"
     sigma = "verdict.renderer.sigma.projection_rms"
@@ -58,7 +61,7 @@ from reference_models.errors import CamvalError
 from .records import STATUSES
 
 SPEC_KEYS = ("statuses", "status_match", "limits", "limit", "regressions", "regression",
-             "description", "scatter")
+             "description", "scatter", "judge_far_floor")
 SCATTER_KEYS = ("field", "sigma", "z", "floor", "cap", "match")
 LIMIT_KEYS = ("field", "max", "match")
 REGRESSION_KEYS = ("field", "tolerance", "match")
@@ -118,6 +121,7 @@ class GateSpec:
     regressions: tuple = ()
     source: str = ""
     scatter: tuple = ()
+    judge_far_floor: bool = False
 
     @property
     def needs_baseline(self):
@@ -246,7 +250,15 @@ def parse_gate_spec(doc, source="gate spec"):
     return GateSpec(statuses=tuple(statuses),
                     status_match=_match(source, "status_match", doc.get("status_match")),
                     limits=tuple(limits), regressions=tuple(regressions), source=source,
-                    scatter=_parse_scatter(doc.get("scatter", []), source))
+                    scatter=_parse_scatter(doc.get("scatter", []), source),
+                    judge_far_floor=_bool(source, "judge_far_floor",
+                                          doc.get("judge_far_floor", False)))
+
+
+def _bool(source, key, v):
+    if not isinstance(v, bool):
+        raise GateUsageError(f"{source}: {key}: expected true or false; got {v!r}")
+    return v
 
 
 def _parse_scatter(tables, source):
@@ -354,7 +366,8 @@ GateUsageError when the spec has regressions and baseline is None.
             m = _magnitude(v)
             if m is None or not m <= lim.max:
                 failures.append(Failure(name, lim.field, _fmt(v), f"<= {lim.max:g}", "limit"))
-        failures += _scatter_failures(name, r, spec.scatter)
+        if spec.judge_far_floor or _lookup(r, "verdict.floor_far") is not True:
+            failures += _scatter_failures(name, r, spec.scatter)
     if baseline is not None and spec.regressions:
         failures += _regressions(records, baseline["records"], spec)
     return failures
@@ -442,3 +455,74 @@ def make_baseline(run_doc):
     doc["kind"] = BASELINE_KIND
     doc["baseline_of"] = {"created": run_doc.get("created"), "source": run_doc.get("source")}
     return doc
+
+
+# --- minimum detectable fault --------------------------------------------------------
+DEFAULT_SPEC = Path(__file__).resolve().parents[1] / "campaigns" / "gate-renderer.toml"
+# (fault, the parameter it moves, unit of the fault): a fault of size d moves the image
+# fit's parameter by d (to first order) and nothing else
+MDF_FAULTS = (("Hc shift", "Hc", "px"), ("Vc shift", "Vc", "px"),
+              ("focal scale", "Hs", "fractional"), ("theta change", "theta_deg", "deg"),
+              ("R1 scale", "R1_frac", "fractional"))
+
+
+def minimum_detectable_faults(run, spec):
+    r'''{camera: {fault: {"value", "unit", "record", "sigma", "limit"}}}: the smallest fault
+of each kind the spec's [[scatter]] limits flag, from each record's sigma
+
+For a fault that moves one parameter p by d (an Hc shift moves Hc by d, a focal
+scale Hs by d, an R1 scale R1_frac by d, to first order), the record flags it when
+d exceeds its limit on verdict.renderer.params.p: min(cap, max(floor, z * sigma)).
+The camera's figure is the smallest over its ok records (the calibrator and model
+that see the fault best). A fault no limit of the spec judges, or no record has the
+sigma of, is left out.
+'''
+    out = {}
+    for name, r in run["records"].items():
+        if r.get("status") != "ok" or (_lookup(r, "verdict.floor_far") is True
+                                       and not spec.judge_far_floor):
+            continue
+        sigma = _lookup(r, "verdict.renderer.sigma")
+        if not isinstance(sigma, dict):
+            continue
+        cam = out.setdefault(str(r.get("camera", name.split("/")[0])), {})
+        for fault, p, unit in MDF_FAULTS:
+            s = _magnitude(sigma.get(p))
+            if s is None:
+                continue
+            for lim in spec.scatter:
+                if lim.field != f"verdict.renderer.params.{p}" or not _matches(name, lim.match):
+                    continue
+                allowed, text = lim.allowed(s if s else None)
+                best = cam.get(fault)
+                if best is None or allowed < best["value"]:
+                    cam[fault] = {"value": allowed, "unit": unit, "record": name,
+                                  "sigma": s, "limit": text}
+    return dict(sorted(out.items()))
+
+
+def explain(run, spec):
+    r'''The lines `camval gate RUN --explain` prints: what the spec judges, and the minimum
+detectable fault of each camera (minimum_detectable_faults)'''
+    lines = [f"gate spec {spec.source or '(given)'}:"]
+    for lim in spec.limits:
+        lines.append(f"  |{lim.field}| <= {lim.max:g}  on {' or '.join(lim.match)}")
+    for lim in spec.scatter:
+        lines.append(f"  |{lim.field}| <= min(cap {lim.cap:g}, max(floor {lim.floor:g}, "
+                     f"{lim.z:g} x {lim.sigma}))  on {' or '.join(lim.match)}")
+    mdf = minimum_detectable_faults(run, spec)
+    if not mdf:
+        lines.append("minimum detectable faults: none (no record has a verdict with sigma)")
+        return lines
+    lines.append("minimum detectable fault per camera (smallest over its records):")
+    for cam, faults in mdf.items():
+        lines.append(f"  camera {cam}:")
+        for fault, _, _ in MDF_FAULTS:
+            f = faults.get(fault)
+            if f is None:
+                lines.append(f"    {fault:13s} not judged")
+                continue
+            rec = f["record"].split("/")[-1]
+            lines.append(f"    {fault:13s} {f['value']:.3g} {f['unit']}  ({rec}: sigma "
+                         f"{f['sigma']:.3g}, {f['limit']})")
+    return lines

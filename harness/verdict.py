@@ -68,6 +68,9 @@ FLOOR_TOLERANCE_PX = 0.01
 # for a calibrator whose model frame holds theta at 90 deg (mrcal, OpenCV, COLMAP): at
 # 1000 px from the centre 1e-4 deg moves a pixel by 1.7e-3 px * f/1000 px
 THETA_NAMED_DEG = 1e-4
+# parameter_errors' names a non-JPL fit does not estimate (None: "not estimated")
+JPL_ONLY_PARAMS = ("Hs*(1+R0)", "Vs*(1+R0)", "theta_deg", "C_mm", "A_deg", "O_deg", "R0",
+                   "R0_frac", "R1", "R1_frac", "R2", "R2_frac", "E0", "E1", "E2")
 # the fit of exact observations "cannot represent" the camera when its residual RMS is
 # this many times the detection noise (and above FLOOR_TOLERANCE_PX / 10)
 MISFIT_FACTOR = 3.0
@@ -156,6 +159,8 @@ D1, ... the differences of the distortion coefficients.
     da, db = _distortion(fit), _distortion(ref)
     for i in range(min(len(da), len(db))):
         out[f"D{i}"] = float(da[i] - db[i])
+    for k in JPL_ONLY_PARAMS:     # not estimated by this model (as parameter_errors says)
+        out.setdefault(k, None)
     return {k: (None if v is None else float(v)) for k, v in out.items()}
 
 
@@ -387,10 +392,18 @@ x0:        (n,) the fit's parameters at the solution
 project:   x -> (2N,) the projections of the fit's observed points (pose-major)
 model:     x -> the fitted model (a JPL model, OpenCVModel, MrcalModel)
 pose:      (N,) the image of each observed point
+n_model:   the model depends on x[:n_model] only (the rest: board poses)
 '''
 
-    def __init__(self, x0, project, model, pose, steps):
+    def __init__(self, x0, project, model, pose, steps, n_model=None):
         self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
+        self.n_model = len(x0) if n_model is None else n_model
+
+    def model_part(self, f):
+        r'''(g, x0, steps) of f(model(x)) as a function of x[:n_model] only'''
+        rest = self.x0[self.n_model:]
+        return (lambda y: f(self.model(np.concatenate((y, rest)))),
+                self.x0[:self.n_model], self.steps[:self.n_model])
 
 
 def _central_jacobian(f, x0, h):
@@ -485,7 +498,7 @@ regularised, an unknown model type).'''
         return np.concatenate(out, axis=0)
 
     h = np.concatenate((1e-6 * np.maximum(np.abs(intr0), 1.0), np.full(6 * Np, 1e-6)))
-    return Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h)
+    return Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h, n_model=nth)
 
 
 def linearisation(res, obs):
@@ -558,23 +571,27 @@ projection difference (the rotation's own freedom projected out).
     var_row = np.repeat(sig_pose[lin.pose] ** 2 / 2.0, 2)
     if not np.all(np.isfinite(var_row)):
         return None
-    # A = (J^T J)^-1 J^T through the SVD of the column-scaled J (narrow lenses make
-    # J^T J ill-conditioned)
+    # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
+    # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
+    # not determine at all; then the block of the parameters the model depends on (the
+    # board poses marginalised)
     s_col = np.linalg.norm(J, axis=0)
     s_col[s_col == 0] = 1.0
-    U, S, Vt = np.linalg.svd(J / s_col, full_matrices=False)
-    keep = S > S[0] * 1e-12
-    A = ((Vt[keep].T / S[keep]) @ U[:, keep].T) / s_col[:, None]    # (n, 2N)
+    Js = J / s_col
+    w, V = np.linalg.eigh(Js.T @ Js)
+    keep = w > w[-1] * 1e-15
+    Ninv = (V[:, keep] / w[keep]) @ V[:, keep].T
+    cov = Ninv @ (Js.T @ (Js * var_row[:, None])) @ Ninv / np.outer(s_col, s_col)
+    cov = cov[:lin.n_model, :lin.n_model]
     m0 = lin.model(lin.x0)
     q0 = _signed_quantities(m0, m0, theta, world)
     names = list(q0)
 
-    def qvec(x):
-        q = _signed_quantities(m0, lin.model(x), theta, world)
+    def qvec(m):
+        q = _signed_quantities(m0, m, theta, world)
         return np.array([q.get(k, 0.0) for k in names])
-    G = _central_jacobian(qvec, lin.x0, lin.steps)                  # (m, n)
-    B = G @ A
-    var = (B * B) @ var_row
+    G = _central_jacobian(*lin.model_part(qvec))                    # (m, n_model)
+    var = np.einsum("ij,jk,ik->i", G, cov, G)
     sigma = {}
     for k, v in zip(names, var, strict=True):
         base = k.split("[")[0]
@@ -585,27 +602,26 @@ projection difference (the rotation's own freedom projected out).
     for k in VECTOR_PARAMS:
         if k in sigma:
             sigma[k] = math.sqrt(sigma[k])
-    sigma["projection_rms"] = _projection_sigma(lin, A, var_row, truth)
+    sigma["projection_rms"] = _projection_sigma(lin, cov, truth)
     return {"sigma": sigma, "noise_per_pose": [None if not np.isfinite(s) else float(s)
                                                for s in sig_pose],
             "n_params": n, "n_points": int(len(lin.pose))}
 
 
-def _projection_sigma(lin, A, var_row, truth):
+def _projection_sigma(lin, cov, truth):
     _, _, p_cam = truth_points(truth)
     P = p_cam.reshape(-1, 3)
     if len(P) > PROJECTION_SAMPLES:
         P = P[np.linspace(0, len(P) - 1, PROJECTION_SAMPLES).astype(int)]
     m0 = lin.model(lin.x0)
 
-    def grid(x):
-        m = lin.model(x)
+    def grid(m):
         return m.project(_transform(m.Rt_ref_cam(), P))
 
     def rotated(w):
         return m0.project(_transform(m0.Rt_ref_cam(), P @ _rodrigues(w).T))
     with np.errstate(all="ignore"):
-        Jg = _central_jacobian(grid, lin.x0, lin.steps)             # (2M, n)
+        Jg = _central_jacobian(*lin.model_part(grid))               # (2M, n_model)
         Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
     ok = np.all(np.isfinite(Jg), axis=1) & np.all(np.isfinite(Jw), axis=1)
     Jg, Jw = Jg[ok], Jw[ok]
@@ -613,9 +629,8 @@ def _projection_sigma(lin, A, var_row, truth):
     if M < 1:
         return None
     Qw, _ = np.linalg.qr(Jw)
-    Bg = Jg @ A
-    Bg = Bg - Qw @ (Qw.T @ Bg)          # the rotation fitted between the two fits
-    return float(math.sqrt(((Bg * Bg) @ var_row).sum() / M))
+    Jg = Jg - Qw @ (Qw.T @ Jg)          # the rotation fitted between the two fits
+    return float(math.sqrt(max(0.0, np.einsum("ij,jk,ik->", Jg, cov, Jg)) / M))
 
 
 def z_scores(renderer, sigma):
