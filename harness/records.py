@@ -364,10 +364,22 @@ not run (a worker died); they are reported, but resume runs the job again.'''
             "campaign": self.campaign(),
             "records": self.records(),
         }
+        doc["minimum_detectable_faults"] = _minimum_detectable_faults(doc)
         if extra:
             doc.update(extra)
         write_json_atomic(self.dir / RUN_DOCUMENT, doc)
         return doc
+
+
+def _minimum_detectable_faults(doc):
+    r'''run.json's "minimum_detectable_faults": {"spec": path, "cameras": {camera: {fault:
+{...}}}} under the renderer gate (harness.gate.minimum_detectable_faults), or {"error"}'''
+    try:
+        from .gate import DEFAULT_SPEC, load_gate_spec, minimum_detectable_faults
+        spec = load_gate_spec(DEFAULT_SPEC)
+        return {"spec": DEFAULT_SPEC.name, "cameras": minimum_detectable_faults(doc, spec)}
+    except Exception as e:  # the run document is written whatever happens here
+        return {"error": f"{type(e).__name__}: {e}"}
 
 
 def _read_json(path):

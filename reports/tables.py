@@ -388,3 +388,16 @@ def sweep_level_rows(sweep):
                         _fmt(r.get("projection_rms_px")), _fmt(r.get("residual_rms_px")),
                         scene if r["status"] != "not-applicable" else r.get("reason", "")))
     return out
+
+
+DETECTABLE_HEADER = ("camera", "Hc shift px", "Vc shift px", "focal scale", "theta change deg",
+                     "R1 scale")
+
+
+def detectable_fault_rows(doc):
+    r'''[(camera, Hc, Vc, focal scale, theta, R1 scale)]: run.json's minimum detectable faults
+(harness.gate.minimum_detectable_faults under the renderer gate), "—" where not judged'''
+    cams = ((doc.get("minimum_detectable_faults") or {}).get("cameras") or {})
+    faults = ("Hc shift", "Vc shift", "focal scale", "theta change", "R1 scale")
+    return [(cam,) + tuple(_fmt((f.get(k) or {}).get("value")) for k in faults)
+            for cam, f in cams.items()]

@@ -80,3 +80,15 @@ def test_renderer_spec_and_minimum_detectable_faults():
     assert mdf["15"]["focal scale"]["value"] == pytest.approx(2.5e-6)
     text = "\n".join(explain(run, spec))
     assert "camera 15:" in text and "Hc shift" in text and "theta change  not judged" in text
+
+
+def test_run_document_and_report_carry_the_minimum_detectable_faults(tmp_path):
+    from harness.records import RunStore
+    from reports.tables import detectable_fault_rows
+    store = RunStore.create(tmp_path / "run", {"name": "t"})
+    store.save_job("j", [_rec(0.0)])
+    doc = store.assemble()
+    assert doc["minimum_detectable_faults"]["cameras"]["15"]["Hc shift"]["value"] == \
+        pytest.approx(0.005)
+    (row,) = detectable_fault_rows(doc)
+    assert row[:2] == ("15", "0.005") and row[4] == "—"
