@@ -591,7 +591,8 @@ projection difference (the rotation's own freedom projected out).
         q = _signed_quantities(m0, m, theta, world)
         return np.array([q.get(k, 0.0) for k in names])
     G = _central_jacobian(*lin.model_part(qvec))                    # (m, n_model)
-    var = np.einsum("ij,jk,ik->i", G, cov, G)
+    # a variance below zero is rounding in a direction the fit barely determines
+    var = np.maximum(np.einsum("ij,jk,ik->i", G, cov, G), 0.0)
     sigma = {}
     for k, v in zip(names, var, strict=True):
         base = k.split("[")[0]
