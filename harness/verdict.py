@@ -287,7 +287,7 @@ numbers fitted) or its "error". Returns a JSON-able dict:
 
     {"floor": {"params", "projection"} | None, "renderer": {...} | None,
      "total": {"params", "projection": {"rms", "max"}},
-     "exact_fit": {"status", "reason", "residuals", "seconds"},
+     "exact_fit": {"status", "reason", "residuals"},   (its seconds: record seconds)
      "detection_noise": noise, "floor_far": bool, "floor_reason": str}
 
 A failed exact fit leaves floor and renderer None with exact_fit saying why.
@@ -299,8 +299,7 @@ A failed exact fit leaves floor and renderer None with exact_fit saying why.
                      "projection": {k: (total_projection or {}).get(k)
                                     for k in ("rms", "max")}},
            "exact_fit": {"status": exact_res.status, "reason": exact_res.reason,
-                         "residuals": exact_res.residual_stats(),
-                         "seconds": float(exact_res.seconds)},
+                         "residuals": exact_res.residual_stats()},
            "detection_noise": noise, "floor": None, "renderer": None,
            "floor_far": False, "floor_reason": ""}
     if seconds is not None:
