@@ -200,3 +200,34 @@ not-applicable record with the reason, not a failure'''
         stages.poses_stage(truth, stages.cached_target("dots"), 6, 0)
     assert e.value.status == "not-applicable"
     assert "far outside" in e.value.reason and "deg off its axis" in e.value.reason
+
+
+@pytest.mark.slow
+def test_renderer_gate_passes_the_exact_renderer_and_flags_a_half_pixel_shift(tmp_path):
+    from harness.campaign import parse_campaign
+    from harness.gate import DEFAULT_SPEC, check, load_gate_spec
+    from harness.mutation import campaign_doc
+    from harness.runner import run_campaign
+    spec = load_gate_spec(DEFAULT_SPEC)
+    cals = [{"name": "jpl"}, {"name": "mrcal"}, {"name": "opencv", "models": ["OPENCV5"]}]
+    out = {}
+    for fault in (None, "half_pixel"):
+        doc = dict(campaign_doc(15, "CAHVOR", fault), calibrator=cals)
+        run = run_campaign(parse_campaign(doc), tmp_path / str(fault), progress=False,
+                           workers=1)
+        out[fault] = (run, check(run, spec))
+    run, failures = out[None]
+    assert failures == []
+    recs = run["records"]
+    assert all(r["status"] == "ok" and r["verdict"]["renderer"]["z"] for r in recs.values())
+    jpl = next(r for k, r in recs.items() if "/jpl[" in k)
+    assert jpl["verdict"]["floor"]["projection"]["rms"] < 1e-5     # jpl is exact on exact data
+    assert jpl["seconds"]["exact_fit"] > 0
+    assert run["minimum_detectable_faults"]["cameras"]["15"]["Hc shift"]["value"] < 0.01
+    opencv = next(r for k, r in recs.items() if "/opencv[" in k)
+    assert opencv["verdict"]["floor_far"] and "floor" in opencv["reason"]
+    _, failures = out["half_pixel"]
+    flagged = {f.fullname.rsplit("/", 1)[-1] for f in failures}
+    assert {"jpl[CAHVOR]", "opencv[OPENCV5]"} <= flagged
+    assert any(f.field == "verdict.renderer.params.Hc" and "sigma" in f.value
+               for f in failures)
