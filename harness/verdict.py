@@ -394,9 +394,16 @@ pose:      (N,) the image of each observed point
 n_model:   the model depends on x[:n_model] only (the rest: board poses)
 '''
 
-    def __init__(self, x0, project, model, pose, steps, n_model=None):
+    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None):
         self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
         self.n_model = len(x0) if n_model is None else n_model
+        self._jacobian = jacobian
+
+    def jacobian(self):
+        r'''(2N, n) d project / d x at x0 (central differences)'''
+        if self._jacobian is not None:
+            return self._jacobian()
+        return _central_jacobian(self.project, self.x0, self.steps)
 
     def model_part(self, f):
         r'''(g, x0, steps) of f(model(x)) as a function of x[:n_model] only'''
@@ -485,19 +492,35 @@ regularised, an unknown model type).'''
     x0 = np.concatenate((intr0, np.zeros(6 * Np)))
     pb = [obs.p_board[i][found[i]] for i in range(Np)]
 
+    def project_pose(theta, i, d):
+        R = _rodrigues(d[:3]) @ Rts[i][:3]
+        return project_cam(theta, pb[i] @ R.T + Rts[i][3] + d[3:])
+
     def project(x):
-        theta = x[:nth]
-        out = []
-        for i in range(Np):
-            if not len(pb[i]):
-                continue
-            d = x[nth + 6 * i: nth + 6 * i + 6]
-            R = _rodrigues(d[:3]) @ Rts[i][:3]
-            out.append(project_cam(theta, pb[i] @ R.T + Rts[i][3] + d[3:]))
-        return np.concatenate(out, axis=0)
+        return np.concatenate([project_pose(x[:nth], i, x[nth + 6 * i: nth + 6 * i + 6])
+                               for i in range(Np) if len(pb[i])], axis=0)
 
     h = np.concatenate((1e-6 * np.maximum(np.abs(intr0), 1.0), np.full(6 * Np, 1e-6)))
-    return Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h, n_model=nth)
+
+    def jacobian():
+        # a pose's six numbers move its own points only: its columns are differenced on
+        # those rows (the same numbers as differencing everything, at a sixth of the cost)
+        J = np.zeros((2 * len(pose), len(x0)))
+        J[:, :nth] = \
+            _central_jacobian(lambda t: project(np.concatenate((t, x0[nth:]))), intr0, h[:nth])
+        row = 0
+        for i in range(Np):
+            n = len(pb[i])
+            if not n:
+                continue
+            cols = slice(nth + 6 * i, nth + 6 * i + 6)
+            J[2 * row: 2 * (row + n), cols] = _central_jacobian(
+                lambda d, i=i: project_pose(intr0, i, d), x0[cols], h[cols])
+            row += n
+        return J
+
+    return Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h, n_model=nth,
+                         jacobian=jacobian)
 
 
 def linearisation(res, obs):
@@ -564,7 +587,7 @@ projection difference (the rotation's own freedom projected out).
     theta = res.calibrator == "jpl"
     world = _world(res)
     n = len(lin.x0)
-    J = _central_jacobian(lin.project, lin.x0, lin.steps)          # (2N, n)
+    J = lin.jacobian()                                              # (2N, n)
     sig_pose = noise_per_pose(res, exact_res, obs.Nposes, n)
     # per coordinate: sigma_image^2 / 2 (sigma is the RMS of the 2-d error)
     var_row = np.repeat(sig_pose[lin.pose] ** 2 / 2.0, 2)

@@ -231,3 +231,17 @@ def test_renderer_gate_passes_the_exact_renderer_and_flags_a_half_pixel_shift(tm
     assert {"jpl[CAHVOR]", "opencv[OPENCV5]"} <= flagged
     assert any(f.field == "verdict.renderer.params.Hc" and "sigma" in f.value
                for f in failures)
+
+
+@pytest.mark.parametrize("cal, model", [("opencv", "OPENCV5"), ("mrcal", "CAHVOR")])
+def test_blockwise_pose_jacobian_is_the_full_one(navcam, cal, model):
+    r'''A board pose's columns are differenced on its own rows only: the same numbers
+(bit for bit: every other row's difference is exactly zero)'''
+    truth, target, poses, obs = navcam
+    q = obs.q.copy()
+    q[2, :10] = np.nan                       # an image with points missing
+    obs = obs.replace(q=q)
+    res = stages.calibrate_stage(cal, obs, target, model, truth, {})
+    lin = verdict.linearisation(res, obs)
+    full = verdict._central_jacobian(lin.project, lin.x0, lin.steps)
+    assert np.array_equal(lin.jacobian(), full)
