@@ -34,6 +34,17 @@ difference over the truth's image grid with a fitted rotation between the two
 fits' camera frames (mode "rotation", the headline), none ("intrinsics") or
 the world frames identified ("world", both fits in the world frame).
 
+Expected scatter (scatter()): the covariance of the image fit from its
+Jacobian at the solution, under the detection noise of each image, gives a
+sigma for every reported parameter and for the projection RMS over the image;
+verdict.renderer.z holds each renderer difference over its sigma. The notes
+above scatter() say where that noise model stops holding.
+
+The exact fit is computed per camera, also for twins (harness.jobs): their
+exact observations agree to ~1e-12 px, not bit for bit, and an ill-conditioned
+fit lands far apart from such differences (mrcal CAHVOR of camera 17: px),
+which would make a twin's shared record differ from its unshared one.
+
 A floor is "far" when it exceeds both what the images can show (the measured
 detection noise, detected minus exact positions) and FLOOR_TOLERANCE_PX: the
 record's total error is then the calibrator's, not the images'; floor_reason
@@ -333,11 +344,11 @@ def exact_fit(cal, model, options, obs, target, truth, cache, fits=None):
 
 obs: the job's observations (with the surveyed poses); cache: a dict kept for
 one camera's records (the exact observations and the detection noise are
-computed once per camera). fits: the twin group's shared fits (as
-harness.job_records.calibrator_records shares the image fits): a calibrator
-that does not read the world frame fits the exact observations once per
-group, on observations without the surveyed poses, and the twins reuse it
-(reused True).
+computed once per camera). fits: None (what harness.job_records passes: see
+the module docstring on twins), or a dict shared by cameras known to give
+bit-identical exact observations: a calibrator that does not read the world
+frame then fits them once, on observations without the surveyed poses, and
+the others reuse it (reused True).
 '''
     from harness.calibrators import uses_world_frame
 
