@@ -282,7 +282,7 @@ observations fitted, the model still far from the truth).
                       f"from the truth)")
     return True, (f"{'; '.join(causes)}: {fl} (exact-observation fit vs truth; detection "
                   f"noise {noise_rms:.3g} px, tolerance {FLOOR_TOLERANCE_PX:g} px): the total "
-                  f"error is the calibrator's, judge the renderer by verdict.renderer")
+                  f"error is the calibrator's, not the images'")
 
 
 def assess(truth, res, exact_res, noise, total_params, total_projection, seconds=None,
