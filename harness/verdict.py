@@ -55,6 +55,7 @@ the model unconstrained).
 '''
 
 import math
+import threading
 
 import numpy as np
 
@@ -348,7 +349,9 @@ computed once per camera). fits: None (what harness.job_records passes: see
 the module docstring on twins), or a dict shared by cameras known to give
 bit-identical exact observations: a calibrator that does not read the world
 frame then fits them once, on observations without the surveyed poses, and
-the others reuse it (reused True).
+the others reuse it (reused True). Otherwise a fit of bit-identical inputs made
+earlier in this process (another renderer of the same camera and poses) is
+reused (reused True; see _exact_key).
 '''
     from harness.calibrators import uses_world_frame
 
@@ -364,7 +367,40 @@ the others reuse it (reused True).
         fits[k] = calibrate_stage(cal, obs_x.replace(Rt_ref_board=None), target, model,
                                   truth, options)
         return fits[k], noise, False
-    return calibrate_stage(cal, obs_x, target, model, truth, options), noise, False
+    key = _exact_key(cal, model, options, obs_x, target, truth)
+    with _EXACT_LOCK:
+        hit = _EXACT_FITS.get(key)
+    if hit is not None:
+        return hit, noise, True
+    res = calibrate_stage(cal, obs_x, target, model, truth, options)
+    with _EXACT_LOCK:
+        _EXACT_FITS[key] = res
+        while len(_EXACT_FITS) > EXACT_FITS_MEMO:
+            del _EXACT_FITS[next(iter(_EXACT_FITS))]
+    return res, noise, False
+
+
+# The exact fit depends on the calibrator, its model and options, the exact observations
+# (truth, poses, the detected mask), the target and what the calibrator reads of the truth;
+# not on the renderer: the jobs of one camera and pose set under several renderers or
+# settings (a renderer comparison, the mutation suite) fit it once per process. Keyed on
+# every bit of those inputs; the calibrators are deterministic, so a hit is the same fit.
+EXACT_FITS_MEMO = 64
+_EXACT_FITS = {}
+_EXACT_LOCK = threading.Lock()
+
+
+def _exact_key(cal, model, options, obs_x, target, truth):
+    import hashlib
+
+    from .compare import _model_key
+    h = hashlib.sha256()
+    for a in (obs_x.q, obs_x.p_board, obs_x.Rt_ref_board):
+        h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
+    h.update(repr((cal, model, sorted(options.items()), obs_x.imagersize,
+                   getattr(target, "name", None), getattr(target, "source", None),
+                   _model_key(truth))).encode())
+    return h.hexdigest()
 
 
 # --- expected scatter: the covariance of a fit from its Jacobian at the solution ---------

@@ -119,8 +119,24 @@ def test_twins_share_the_exact_fit(navcam):
     a, _, reused_a = verdict.exact_fit("mrcal", "CAHVOR", {}, obs, target, truth, {}, fits)
     b, _, reused_b = verdict.exact_fit("mrcal", "CAHVOR", {}, obs, target, truth, {}, fits)
     assert (reused_a, reused_b) == (False, True) and a is b
+    verdict._EXACT_FITS.clear()
     c, _, reused_c = verdict.exact_fit("jpl", "CAHVOR", {}, obs, target, truth, {}, fits)
     assert not reused_c        # jpl reads the world frame: each twin fits its own
+
+
+def test_an_exact_fit_of_the_same_inputs_is_made_once_per_process(navcam):
+    r'''The exact fit does not depend on the renderer: the same camera, poses and mask
+under another renderer reuse it; another detected mask does not'''
+    truth, target, poses, obs = navcam
+    verdict._EXACT_FITS.clear()
+    a, _, ra = verdict.exact_fit("jpl", "CAHV", {}, obs, target, truth, {})
+    noisy = obs.replace(q=obs.q + 0.001)            # other "images", same points found
+    b, _, rb = verdict.exact_fit("jpl", "CAHV", {}, noisy, target, truth, {})
+    assert (ra, rb) == (False, True) and a is b
+    q = obs.q.copy()
+    q[0, 0] = np.nan
+    c, _, rc = verdict.exact_fit("jpl", "CAHV", {}, obs.replace(q=q), target, truth, {})
+    assert not rc and c is not a
 
 
 def test_far_floor_says_why_in_words(navcam):
