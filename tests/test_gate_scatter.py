@@ -76,8 +76,8 @@ def test_renderer_spec_and_minimum_detectable_faults():
                                                                       name="15/x/mrcal")}}
     mdf = minimum_detectable_faults(run, spec)
     hc = mdf["15"]["Hc shift"]
-    assert hc["value"] == pytest.approx(0.005) and hc["record"] == NAME   # 5 x 0.001 px
-    assert mdf["15"]["focal scale"]["value"] == pytest.approx(2.5e-6)
+    assert hc["value"] == pytest.approx(0.006) and hc["record"] == NAME   # 6 x 0.001 px
+    assert mdf["15"]["focal scale"]["value"] == pytest.approx(3e-6)
     text = "\n".join(explain(run, spec))
     assert "camera 15:" in text and "Hc shift" in text and "theta change  not judged" in text
 
@@ -89,6 +89,6 @@ def test_run_document_and_report_carry_the_minimum_detectable_faults(tmp_path):
     store.save_job("j", [_rec(0.0)])
     doc = store.assemble()
     assert doc["minimum_detectable_faults"]["cameras"]["15"]["Hc shift"]["value"] == \
-        pytest.approx(0.005)
+        pytest.approx(0.006)
     (row,) = detectable_fault_rows(doc)
-    assert row[:2] == ("15", "0.005") and row[4] == "—"
+    assert row[:2] == ("15", "0.006") and row[4] == "—"
