@@ -24,8 +24,9 @@ A gate spec is TOML:
     # against the record's own expected scatter (harness.verdict): |value| <= z * sigma
     # (sigma read from the record), never below floor, never above cap (absolute).
     # A record whose floor is far from the truth (verdict.floor_far: the calibrator
-    # cannot represent the camera; its reason says why) is not judged by these unless
-    # judge_far_floor = true: its renderer difference mixes the images with the misfit.
+    # cannot represent the camera; its reason says why) or whose two fits stopped in
+    # different minima (verdict.fits_disagree) is not judged by these unless
+    # judge_far_floor = true: its renderer difference is the calibrator's.
     [[scatter]]
     field = "verdict.renderer.projection.rms"
     sigma = "verdict.renderer.sigma.projection_rms"
@@ -366,11 +367,18 @@ GateUsageError when the spec has regressions and baseline is None.
             m = _magnitude(v)
             if m is None or not m <= lim.max:
                 failures.append(Failure(name, lim.field, _fmt(v), f"<= {lim.max:g}", "limit"))
-        if spec.judge_far_floor or _lookup(r, "verdict.floor_far") is not True:
+        if spec.judge_far_floor or not _unjudged(r):
             failures += _scatter_failures(name, r, spec.scatter)
     if baseline is not None and spec.regressions:
         failures += _regressions(records, baseline["records"], spec)
     return failures
+
+
+def _unjudged(r):
+    r'''A record whose renderer difference is the calibrator's: a floor far from the truth
+(verdict.floor_far) or fits in different minima (verdict.fits_disagree)'''
+    return (_lookup(r, "verdict.floor_far") is True
+            or _lookup(r, "verdict.fits_disagree") is True)
 
 
 def _scatter_failures(name, r, limits):
@@ -479,8 +487,7 @@ sigma of, is left out.
 '''
     out = {}
     for name, r in run["records"].items():
-        if r.get("status") != "ok" or (_lookup(r, "verdict.floor_far") is True
-                                       and not spec.judge_far_floor):
+        if r.get("status") != "ok" or (_unjudged(r) and not spec.judge_far_floor):
             continue
         sigma = _lookup(r, "verdict.renderer.sigma")
         if not isinstance(sigma, dict):

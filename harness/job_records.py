@@ -184,7 +184,7 @@ be computed says why in verdict["error"] and leaves the record ok.'''
         tb = traceback.extract_tb(e.__traceback__)[-1]
         sec["verdict"] = time.perf_counter() - t0
         return {"error": f"{failure_reason(e)} ({Path(tb.filename).name}:{tb.lineno})"}, ""
-    return v, v.get("floor_reason", "")
+    return v, "; ".join(x for x in (v.get("floor_reason"), v.get("disagree_reason")) if x)
 
 
 def save_images(job, images):

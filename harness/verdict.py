@@ -286,6 +286,32 @@ observations fitted, the model still far from the truth).
                   f"error is the calibrator's, not the images'")
 
 
+def minima_judgement(res, exact_res, noise):
+    r'''(disagree, reason): did the two fits land in different minima?
+
+The image fit could take the exact fit's parameters: its residuals would then
+be at most the detection errors plus the exact fit's residuals, so its RMS
+residual cannot exceed noise RMS + exact RMS unless it stopped short of the
+best fit of its detections (and symmetrically for the exact fit). Beyond
+MISFIT_FACTOR times that bound (and FLOOR_TOLERANCE_PX / 10) the two fits sit
+in different minima of the calibrator's problem (mrcal CAHVOR of camera 5:
+image fit 0.023 px, exact fit 4e-9 px, detection errors 0.0012 px): their
+difference is the calibrator's, not the images'.
+'''
+    a = (res.residual_stats() or {}).get("rms")
+    b = (exact_res.residual_stats() or {}).get("rms")
+    n = (noise or {}).get("rms") or 0.0
+    if a is None or b is None:
+        return False, ""
+    for x, y, what in ((a, b, "image fit"), (b, a, "exact-observation fit")):
+        if x > max(MISFIT_FACTOR * (y + n), FLOOR_TOLERANCE_PX / 10):
+            return True, (f"the {what} stopped in another minimum: residual RMS "
+                          f"{x:.3g} px against {y:.3g} px of the other fit, with detections "
+                          f"{n:.3g} px RMS from the exact positions: the difference between "
+                          f"the fits is the calibrator's, not the images'")
+    return False, ""
+
+
 def assess(truth, res, exact_res, noise, total_params, total_projection, seconds=None,
            obs=None):
     r'''The record's "verdict": floor, renderer, total, the exact fit and the noise
@@ -300,7 +326,8 @@ numbers fitted) or its "error". Returns a JSON-able dict:
     {"floor": {"params", "projection"} | None, "renderer": {...} | None,
      "total": {"params", "projection": {"rms", "max"}},
      "exact_fit": {"status", "reason", "residuals"},   (its seconds: record seconds)
-     "detection_noise": noise, "floor_far": bool, "floor_reason": str}
+     "detection_noise": noise, "floor_far": bool, "floor_reason": str,
+     "fits_disagree": bool, "disagree_reason": str}   (minima_judgement)
 
 A failed exact fit leaves floor and renderer None with exact_fit saying why.
 '''
@@ -313,7 +340,8 @@ A failed exact fit leaves floor and renderer None with exact_fit saying why.
            "exact_fit": {"status": exact_res.status, "reason": exact_res.reason,
                          "residuals": exact_res.residual_stats()},
            "detection_noise": noise, "floor": None, "renderer": None,
-           "floor_far": False, "floor_reason": ""}
+           "floor_far": False, "floor_reason": "", "fits_disagree": False,
+           "disagree_reason": ""}
     if seconds is not None:
         out["seconds"] = seconds
     if exact_res.status != "ok" or exact_res.model is None:
@@ -324,6 +352,7 @@ A failed exact fit leaves floor and renderer None with exact_fit saying why.
     far, why = floor_judgement(truth, res.calibrator, res.model_name,
                                out["floor"]["projection"], exact_res.residual_stats(), noise)
     out["floor_far"], out["floor_reason"] = far, why
+    out["fits_disagree"], out["disagree_reason"] = minima_judgement(res, exact_res, noise)
     if obs is not None:
         from .stages import failure_reason
         try:

@@ -92,3 +92,9 @@ def test_run_document_and_report_carry_the_minimum_detectable_faults(tmp_path):
         pytest.approx(0.006)
     (row,) = detectable_fault_rows(doc)
     assert row[:2] == ("15", "0.006") and row[4] == "—"
+
+
+def test_records_whose_fits_disagree_are_not_judged():
+    r = _rec(0.05)
+    r["verdict"]["fits_disagree"] = True
+    assert check({"records": {NAME: r}}, parse_gate_spec(SPEC)) == []

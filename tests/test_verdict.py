@@ -263,3 +263,21 @@ def test_blockwise_pose_jacobian_is_the_full_one(navcam, cal, model):
     lin = verdict.linearisation(res, obs)
     full = verdict._central_jacobian(lin.project, lin.x0, lin.steps)
     assert np.array_equal(lin.jacobian(), full)
+
+
+def test_fits_in_different_minima_are_named():
+    r'''The image fit could take the exact fit's parameters: a residual RMS far above
+noise + the exact fit's residual means it stopped in another minimum (the numbers of
+mrcal CAHVOR on camera 5, K=16)'''
+    from harness.calibrators.base import CalibrationResult
+
+    def fit(rms):
+        r = np.zeros((1, 2, 2))
+        r[0, :, 0] = rms
+        return CalibrationResult(calibrator="mrcal", model_name="CAHVOR", status="ok",
+                                 residuals=r)
+    dis, why = verdict.minima_judgement(fit(0.0229), fit(3.7e-9), {"rms": 0.00124})
+    assert dis and "image fit stopped in another minimum" in why
+    assert verdict.minima_judgement(fit(0.0011), fit(1e-8), {"rms": 0.00124}) == (False, "")
+    # a fault the model cannot absorb shows in the detections too: not a disagreement
+    assert verdict.minima_judgement(fit(0.3), fit(1e-8), {"rms": 0.35}) == (False, "")
