@@ -14,8 +14,9 @@ minimum detectable faults; exits 1 if a fault is missed or a clean run fails.
 
 Measured (2026-11-25, 2 shared cores, K=16, 6 poses):
 - clean, all 22 slots + 11 extras, CAHV + CAHVOR, jpl/mrcal/OPENCV5: pose seed 3, 198
-  records, PASS (SuperCam not-applicable); seeds 0-2 on 13, 15, 17, 21, 1, 8, the narrow
-  extras and the rest of the slots (seed 0): PASS after the rules of f318e33.
+  records, PASS (SuperCam not-applicable); also seeds 0-2 on 15, 17, MCAM_Z_LEFT-Z026/
+  Z100, MCAM_Z_RIGHT-Z110, seeds 0-1 on 1, 8, 13, 21, seed 0 on the other 23 cameras:
+  PASS once re-judged under the rules of f318e33 (they ran before it).
 - faults on cameras 13, 15, 17, 21: focal_scale, half_pixel, r1_sign, round_centre,
   rounded_aspect flagged on all four; shift_001 on 15, 17, 21 (pancam 13: minimum
   detectable Hc shift 0.03-0.09 px); theta90 on 13, 15, 21 (camera 17's theta is 90).
