@@ -21,6 +21,20 @@ A gate spec is TOML:
     max = 0.001
     match = ["*/jpl[*]"]           # glob(s) on fullname; default "*"
 
+    # against the record's own expected scatter (harness.verdict): |value| <= z * sigma
+    # (sigma read from the record), never below floor, never above cap (absolute).
+    # A record whose floor is far from the truth (verdict.floor_far: the calibrator
+    # cannot represent the camera; its reason says why) or whose two fits stopped in
+    # different minima (verdict.fits_disagree) is not judged by these unless
+    # judge_far_floor = true: its renderer difference is the calibrator's.
+    [[scatter]]
+    field = "verdict.renderer.projection.rms"
+    sigma = "verdict.renderer.sigma.projection_rms"
+    z = 5
+    floor = 0.0005
+    cap = 0.005
+    match = "*"
+
     # regressions against a stored baseline (joined on fullname): the value may
     # grow by at most `abs` or `N%` of the baseline's value
     regressions = ["projection.rms:0.0005", "residuals.rms:10%"]
@@ -48,7 +62,8 @@ from reference_models.errors import CamvalError
 from .records import STATUSES
 
 SPEC_KEYS = ("statuses", "status_match", "limits", "limit", "regressions", "regression",
-             "description")
+             "description", "scatter", "judge_far_floor")
+SCATTER_KEYS = ("field", "sigma", "z", "floor", "cap", "match")
 LIMIT_KEYS = ("field", "max", "match")
 REGRESSION_KEYS = ("field", "tolerance", "match")
 
@@ -62,6 +77,29 @@ class Limit:
     field: str
     max: float
     match: tuple = ("*",)
+
+
+@dataclass(frozen=True)
+class ScatterLimit:
+    r'''|field| <= min(cap, max(floor, z * sigma)), sigma read from the record
+
+A record without the sigma (a calibrator the scatter cannot be linearised for,
+a record written before verdicts) is judged by cap alone.'''
+    field: str
+    sigma: str
+    z: float
+    floor: float = 0.0
+    cap: float = float("inf")
+    match: tuple = ("*",)
+
+    def allowed(self, sigma):
+        r'''(limit, its description) for this sigma (None: none in the record)'''
+        if sigma is None:
+            return self.cap, f"<= cap {self.cap:g} (no sigma in the record)"
+        lim = min(self.cap, max(self.floor, self.z * sigma))
+        how = ("cap" if lim == self.cap else "floor" if lim == self.floor and
+               self.z * sigma < self.floor else f"{self.z:g} sigma")
+        return lim, f"<= {lim:.4g} ({how}; floor {self.floor:g}, cap {self.cap:g})"
 
 
 @dataclass(frozen=True)
@@ -83,6 +121,8 @@ class GateSpec:
     limits: tuple = ()
     regressions: tuple = ()
     source: str = ""
+    scatter: tuple = ()
+    judge_far_floor: bool = False
 
     @property
     def needs_baseline(self):
@@ -210,7 +250,40 @@ def parse_gate_spec(doc, source="gate spec"):
                                                         t.get("match"))))
     return GateSpec(statuses=tuple(statuses),
                     status_match=_match(source, "status_match", doc.get("status_match")),
-                    limits=tuple(limits), regressions=tuple(regressions), source=source)
+                    limits=tuple(limits), regressions=tuple(regressions), source=source,
+                    scatter=_parse_scatter(doc.get("scatter", []), source),
+                    judge_far_floor=_bool(source, "judge_far_floor",
+                                          doc.get("judge_far_floor", False)))
+
+
+def _bool(source, key, v):
+    if not isinstance(v, bool):
+        raise GateUsageError(f"{source}: {key}: expected true or false; got {v!r}")
+    return v
+
+
+def _parse_scatter(tables, source):
+    if not isinstance(tables, list):
+        raise GateUsageError(f"{source}: scatter: expected [[scatter]] tables")
+    out = []
+    for i, t in enumerate(tables):
+        key = f"scatter[{i}]"
+        if not isinstance(t, dict):
+            raise GateUsageError(f"{source}: {key}: expected a table")
+        for k in t:
+            if k not in SCATTER_KEYS:
+                raise GateUsageError(f"{source}: {key}.{k}: unknown key; known keys: "
+                                     f"{', '.join(SCATTER_KEYS)}")
+        if not isinstance(t.get("field"), str) or not isinstance(t.get("sigma"), str) \
+                or "z" not in t:
+            raise GateUsageError(f"{source}: {key}: needs field = \"...\", sigma = \"...\" "
+                                 f"(dotted paths into a record) and z = number")
+        out.append(ScatterLimit(
+            t["field"], t["sigma"], _number(source, key + ".z", t["z"]),
+            _number(source, key + ".floor", t.get("floor", 0.0)),
+            _number(source, key + ".cap", t.get("cap", float("inf"))),
+            _match(source, key + ".match", t.get("match"))))
+    return tuple(out)
 
 
 def load_gate_spec(path):
@@ -271,7 +344,7 @@ GateUsageError when the spec has regressions and baseline is None.
     records = run["records"]
     failures = []
     # a limit whose globs select no record would pass silently: that is a failure
-    for lim in spec.limits:
+    for lim in spec.limits + spec.scatter:
         if not any(_matches(name, lim.match) for name in records):
             failures.append(Failure("(gate spec)", lim.field, "matched no record",
                                     "match " + " or ".join(lim.match), "unmatched"))
@@ -294,9 +367,40 @@ GateUsageError when the spec has regressions and baseline is None.
             m = _magnitude(v)
             if m is None or not m <= lim.max:
                 failures.append(Failure(name, lim.field, _fmt(v), f"<= {lim.max:g}", "limit"))
+        if spec.judge_far_floor or not _unjudged(r):
+            failures += _scatter_failures(name, r, spec.scatter)
     if baseline is not None and spec.regressions:
         failures += _regressions(records, baseline["records"], spec)
     return failures
+
+
+def _unjudged(r):
+    r'''A record whose renderer difference is the calibrator's: a floor far from the truth
+(verdict.floor_far) or fits in different minima (verdict.fits_disagree)'''
+    return (_lookup(r, "verdict.floor_far") is True
+            or _lookup(r, "verdict.fits_disagree") is True)
+
+
+def _scatter_failures(name, r, limits):
+    r'''The [[scatter]] failures of one ok record: "value (sigma s, z)" against the limit'''
+    out = []
+    for lim in limits:
+        if not _matches(name, lim.match):
+            continue
+        v = _lookup(r, lim.field)
+        if v is _ABSENT:
+            out.append(Failure(name, lim.field, "missing", f"<= {lim.z:g} sigma", "missing"))
+            continue
+        if v is None:     # not estimated by this calibrator
+            continue
+        s = _magnitude(_lookup(r, lim.sigma))
+        allowed, text = lim.allowed(s if s else None)
+        m = _magnitude(v)
+        if m is None or not m <= allowed:
+            z = f", z {m / s:.3g}" if s and m is not None else ""
+            sig = f"sigma {s:.3g}" if s else "no sigma"
+            out.append(Failure(name, lim.field, f"{_fmt(v)} ({sig}{z})", text, "scatter"))
+    return out
 
 
 def _regressions(records, base, spec):
@@ -359,3 +463,73 @@ def make_baseline(run_doc):
     doc["kind"] = BASELINE_KIND
     doc["baseline_of"] = {"created": run_doc.get("created"), "source": run_doc.get("source")}
     return doc
+
+
+# --- minimum detectable fault --------------------------------------------------------
+DEFAULT_SPEC = Path(__file__).resolve().parents[1] / "campaigns" / "gate-renderer.toml"
+# (fault, the parameter it moves, unit of the fault): a fault of size d moves the image
+# fit's parameter by d (to first order) and nothing else
+MDF_FAULTS = (("Hc shift", "Hc", "px"), ("Vc shift", "Vc", "px"),
+              ("focal scale", "Hs", "fractional"), ("theta change", "theta_deg", "deg"),
+              ("R1 scale", "R1_frac", "fractional"))
+
+
+def minimum_detectable_faults(run, spec):
+    r'''{camera: {fault: {"value", "unit", "record", "sigma", "limit"}}}: the smallest fault
+of each kind the spec's [[scatter]] limits flag, from each record's sigma
+
+For a fault that moves one parameter p by d (an Hc shift moves Hc by d, a focal
+scale Hs by d, an R1 scale R1_frac by d, to first order), the record flags it when
+d exceeds its limit on verdict.renderer.params.p: min(cap, max(floor, z * sigma)).
+The camera's figure is the smallest over its ok records (the calibrator and model
+that see the fault best). A fault no limit of the spec judges, or no record has the
+sigma of, is left out.
+'''
+    out = {}
+    for name, r in run["records"].items():
+        if r.get("status") != "ok" or (_unjudged(r) and not spec.judge_far_floor):
+            continue
+        sigma = _lookup(r, "verdict.renderer.sigma")
+        if not isinstance(sigma, dict):
+            continue
+        cam = out.setdefault(str(r.get("camera", name.split("/")[0])), {})
+        for fault, p, unit in MDF_FAULTS:
+            s = _magnitude(sigma.get(p))
+            if s is None:
+                continue
+            for lim in spec.scatter:
+                if lim.field != f"verdict.renderer.params.{p}" or not _matches(name, lim.match):
+                    continue
+                allowed, text = lim.allowed(s if s else None)
+                best = cam.get(fault)
+                if best is None or allowed < best["value"]:
+                    cam[fault] = {"value": allowed, "unit": unit, "record": name,
+                                  "sigma": s, "limit": text}
+    return dict(sorted(out.items()))
+
+
+def explain(run, spec):
+    r'''The lines `camval gate RUN --explain` prints: what the spec judges, and the minimum
+detectable fault of each camera (minimum_detectable_faults)'''
+    lines = [f"gate spec {spec.source or '(given)'}:"]
+    for lim in spec.limits:
+        lines.append(f"  |{lim.field}| <= {lim.max:g}  on {' or '.join(lim.match)}")
+    for lim in spec.scatter:
+        lines.append(f"  |{lim.field}| <= min(cap {lim.cap:g}, max(floor {lim.floor:g}, "
+                     f"{lim.z:g} x {lim.sigma}))  on {' or '.join(lim.match)}")
+    mdf = minimum_detectable_faults(run, spec)
+    if not mdf:
+        lines.append("minimum detectable faults: none (no record has a verdict with sigma)")
+        return lines
+    lines.append("minimum detectable fault per camera (smallest over its records):")
+    for cam, faults in mdf.items():
+        lines.append(f"  camera {cam}:")
+        for fault, _, _ in MDF_FAULTS:
+            f = faults.get(fault)
+            if f is None:
+                lines.append(f"    {fault:13s} not judged")
+                continue
+            rec = f["record"].split("/")[-1]
+            lines.append(f"    {fault:13s} {f['value']:.3g} {f['unit']}  ({rec}: sigma "
+                         f"{f['sigma']:.3g}, {f['limit']})")
+    return lines

@@ -92,6 +92,7 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
     from harness.calibrators import uses_world_frame
     from harness.campaign import MODEL_CHOICE
     records = []
+    exact_cache = {}    # this camera's exact observations and detection noise (verdict)
     for cal, model, options in job.calibrators:
         choice = options.get(MODEL_CHOICE)   # why "best" chose this model: the record's, not
         options = {k: v for k, v in options.items() if k != MODEL_CHOICE}   # the fit's
@@ -109,7 +110,8 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
             if info is not None and "with" in info and "stages" not in info:
                 info = dict(info, stages=list(TWIN_STAGES))
             records.append(_calibrator_record(job, cal, model, options, res=res, shared=info,
-                                              choice=choice, **ctx))
+                                              choice=choice, fits=fits,
+                                              exact_cache=exact_cache, **ctx))
         except Exception as e:  # a bug after the calibrator ran: this record only
             tb = traceback.extract_tb(e.__traceback__)[-1]
             records.append(_record(job, cal, model, ctx["entry"], status="failed",
@@ -123,7 +125,7 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
 
 def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, seconds,
                        detections, artifacts, rversion, render_info, features, res=None,
-                       shared=None, choice=None):
+                       shared=None, choice=None, fits=None, exact_cache=None):
     r'''Calibrate (unless res is given: a fit shared with a twin), compare, keep the map
 -> one record dict'''
     import numpy as np
@@ -154,6 +156,8 @@ def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, s
         return _record(job, cal, model, entry, status="failed", stage="compare",
                        reason=failure_reason(e), artifacts=artifacts, **common)
     sec["compare"] = time.perf_counter() - t0
+    verdict, reason = _verdict(cal, model, options, obs, target, truth, res, params,
+                               projection, fits, {} if exact_cache is None else exact_cache, sec)
     arts = dict(artifacts)
     if job.keep_maps and job.run_dir and themap is not None:
         rel = Path("maps") / (slug(job.fullname(cal, model)) + ".npy")
@@ -162,7 +166,33 @@ def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, s
         np.save(path, downsample_map(themap).astype(np.float32))
         arts["map"] = str(rel)
     return _record(job, cal, model, entry, status="ok", params=params, projection=projection,
-                   artifacts=arts, **common)
+                   artifacts=arts, verdict=verdict, reason=reason, **common)
+
+
+def _verdict(cal, model, options, obs, target, truth, res, params, projection, fits, cache,
+             sec):
+    r'''(record's verdict, reason) of an ok record (harness.verdict): the fit of the exact
+observations (shared by twins like the image fits), floor / renderer / total; sec gets
+"exact_fit" (the extra fit, 0 when reused) and "verdict" (its comparisons). The reason
+is the floor's, in words, when the floor is far from the truth; a verdict that cannot
+be computed says why in verdict["error"] and leaves the record ok.'''
+    from . import verdict as vd
+    t0 = time.perf_counter()
+    try:
+        # not shared with twins (fits=None): their exact observations agree to ~1e-12 px,
+        # not bit for bit, and an ill-conditioned fit (mrcal CAHVOR of camera 17) lands
+        # px apart from such differences: shared records must equal unshared ones
+        exact, noise, reused = vd.exact_fit(cal, model, options, obs, target, truth, cache,
+                                            None)
+        sec["exact_fit"] = 0.0 if reused else float(exact.seconds)
+        t1 = time.perf_counter()
+        v = vd.assess(truth, res, exact, noise, params, projection, obs=obs)
+        sec["verdict"] = time.perf_counter() - t1
+    except Exception as e:  # the record's own figures stand; its verdict says why not
+        tb = traceback.extract_tb(e.__traceback__)[-1]
+        sec["verdict"] = time.perf_counter() - t0
+        return {"error": f"{failure_reason(e)} ({Path(tb.filename).name}:{tb.lineno})"}, ""
+    return v, "; ".join(x for x in (v.get("floor_reason"), v.get("disagree_reason")) if x)
 
 
 def save_images(job, images):

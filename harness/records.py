@@ -155,6 +155,11 @@ response:         the camera response applied after rendering: {"profile": name 
                   None in records written before camera response existed
 features:         what the renderer modelled beyond geometry: {"shading", "texture",
                   "shadows"} (bools); a board target is flat albedo: all false
+verdict:          how much of the error the images caused (harness.verdict.assess):
+                  {"floor", "renderer", "total"} each {"params", "projection"} (fit of
+                  the exact observations vs truth, image fit vs that fit, image fit vs
+                  truth), "exact_fit", "detection_noise", "floor_far", "floor_reason";
+                  None in records that are not ok and in records written before it
 '''
 
     fullname: str
@@ -180,6 +185,7 @@ features:         what the renderer modelled beyond geometry: {"shading", "textu
     info: dict = field(default_factory=dict)
     response: dict = None
     features: dict = None
+    verdict: dict = None
 
     def __post_init__(self):
         if self.status not in STATUSES:
@@ -370,10 +376,22 @@ not run (a worker died); they are reported, but resume runs the job again.'''
             "campaign": self.campaign(),
             "records": self.records(),
         }
+        doc["minimum_detectable_faults"] = _minimum_detectable_faults(doc)
         if extra:
             doc.update(extra)
         write_json_atomic(self.dir / RUN_DOCUMENT, doc)
         return doc
+
+
+def _minimum_detectable_faults(doc):
+    r'''run.json's "minimum_detectable_faults": {"spec": path, "cameras": {camera: {fault:
+{...}}}} under the renderer gate (harness.gate.minimum_detectable_faults), or {"error"}'''
+    try:
+        from .gate import DEFAULT_SPEC, load_gate_spec, minimum_detectable_faults
+        spec = load_gate_spec(DEFAULT_SPEC)
+        return {"spec": DEFAULT_SPEC.name, "cameras": minimum_detectable_faults(doc, spec)}
+    except Exception as e:  # the run document is written whatever happens here
+        return {"error": f"{type(e).__name__}: {e}"}
 
 
 def _read_json(path):

@@ -185,7 +185,10 @@ def poses_stage(truth, target, n, seed):
     try:
         return plan_poses(truth, target, n=n, seed=seed)
     except Exception as e:  # NotVisibleError and any planner bug alike end this job only
-        raise StageFailed("poses", failure_reason(e)) from None
+        # a camera the procedure does not apply to (targets.poses.OffAxisError) is
+        # not-applicable, not a failure
+        status = "not-applicable" if getattr(e, "not_applicable", False) else "failed"
+        raise StageFailed("poses", failure_reason(e), status=status) from None
 
 
 def render_stage(renderer_name, truth, target, poses, settings):

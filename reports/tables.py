@@ -43,6 +43,20 @@ SUMMARY_ROWS = (
      "well below 0.01 (not 13-16)"),
     ("projection difference RMS, median", ("projection", "rms"), "median", "px", "—"),
     ("projection difference, worst", ("projection", "max"), "max", "px", "—"),
+    # harness.verdict: floor (exact-observation fit vs truth) + renderer (image fit vs
+    # exact-observation fit) side by side with total (the two rows above)
+    ("floor: exact-observation fit vs truth, projection RMS, worst",
+     ("verdict", "floor", "projection", "rms"), "max", "px", "—"),
+    ("renderer: image fit vs exact fit, projection RMS, median",
+     ("verdict", "renderer", "projection", "rms"), "median", "px", "—"),
+    ("renderer: image fit vs exact fit, projection RMS, worst",
+     ("verdict", "renderer", "projection", "rms"), "max", "px", "—"),
+    ("renderer: |Hc| difference, worst", ("verdict", "renderer", "params", "Hc"), "absmax",
+     "px", "—"),
+    ("renderer: |Vc| difference, worst", ("verdict", "renderer", "params", "Vc"), "absmax",
+     "px", "—"),
+    ("renderer: projection RMS / its sigma, worst",
+     ("verdict", "renderer", "z", "projection_rms"), "max", "", "—"),
 )
 
 
@@ -70,7 +84,9 @@ def _fmt(v):
 def _values(recs, key):
     out = []
     for r in recs:
-        v = (r.get(key[0]) or {}).get(key[1])
+        v = r
+        for k in key:
+            v = v.get(k) if isinstance(v, dict) else None
         if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
             out.append(float(v))
     return out
@@ -132,8 +148,35 @@ per calibrator and variant: their statistics are not pooled.'''
         for r in recs:
             counts[r["status"]] = counts.get(r["status"], 0) + 1
         note = ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
+        far = sum(1 for r in recs if r["status"] == "ok"
+                  and ((r.get("verdict") or {}).get("floor_far")))
+        if far:
+            note += (f"; {far} ok with a floor far from the truth (the calibrator's own "
+                     f"error: see verdict_rows)")
         tables.append(Table(f"Calibrator {cal}", header, tuple(rows), note))
     return tables
+
+
+VERDICT_HEADER = ("record", "floor RMS px", "renderer RMS px", "renderer sigma px",
+                  "total RMS px", "floor")
+
+
+def verdict_rows(records, only_far=False):
+    r'''[(fullname, floor, renderer, renderer sigma, total, floor flag)] of the ok records
+with a verdict (harness.verdict): the projection-difference RMS of each comparison,
+side by side; the flag is the floor's reason in words, or "" (only_far: only those)'''
+    rows = []
+    for r in records.values():
+        v = r.get("verdict") or {}
+        if r["status"] != "ok" or not v or (only_far and not v.get("floor_far")):
+            continue
+
+        def rms(part, v=v):
+            return ((v.get(part) or {}).get("projection") or {}).get("rms")
+        sigma = ((v.get("renderer") or {}).get("sigma") or {}).get("projection_rms")
+        rows.append((r["fullname"], _fmt(rms("floor")), _fmt(rms("renderer")), _fmt(sigma),
+                     _fmt(rms("total")), v.get("floor_reason") or v.get("error") or ""))
+    return rows
 
 
 def failure_rows(records, statuses=("failed",)):
@@ -345,3 +388,16 @@ def sweep_level_rows(sweep):
                         _fmt(r.get("projection_rms_px")), _fmt(r.get("residual_rms_px")),
                         scene if r["status"] != "not-applicable" else r.get("reason", "")))
     return out
+
+
+DETECTABLE_HEADER = ("camera", "Hc shift px", "Vc shift px", "focal scale", "theta change deg",
+                     "R1 scale")
+
+
+def detectable_fault_rows(doc):
+    r'''[(camera, Hc, Vc, focal scale, theta, R1 scale)]: run.json's minimum detectable faults
+(harness.gate.minimum_detectable_faults under the renderer gate), "—" where not judged'''
+    cams = ((doc.get("minimum_detectable_faults") or {}).get("cameras") or {})
+    faults = ("Hc shift", "Vc shift", "focal scale", "theta change", "R1 scale")
+    return [(cam,) + tuple(_fmt((f.get(k) or {}).get("value")) for k in faults)
+            for cam, f in cams.items()]

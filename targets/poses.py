@@ -78,6 +78,15 @@ class NotVisibleError(CamvalError):
     '''A camera that cannot see the target in a usable calibration pose (the message says why).'''
 
 
+class OffAxisError(NotVisibleError):
+    r'''The optical centre lies far outside the image: the JPL procedure does not apply
+
+A property of the camera, not a failure: a campaign records it as
+not-applicable (not_applicable = True), with this reason.'''
+
+    not_applicable = True
+
+
 def _packed(model):
     r'''The packed model (reference_models.kernels.pack_model) of a JPL model
 
@@ -336,7 +345,7 @@ target in a usable calibration pose, CamvalError for a bad n.
     if not allow_offaxis and (abs(ph.Hc - (W - 1) / 2) > W or abs(ph.Vc - (H - 1) / 2) > H):
         off = float(np.degrees(np.arccos(np.clip(
             model.unproject(np.array([(W - 1) / 2, (H - 1) / 2]))[1] @ model.A, -1, 1))))
-        raise NotVisibleError(
+        raise OffAxisError(
             f"the optical centre ({ph.Hc:.0f}, {ph.Vc:.0f}) px lies far outside the {W}x{H} "
             f"image: the camera looks {off:.1f} deg off its axis A, so a board facing it cannot "
             "constrain focal length and centre (pass allow_offaxis=True to plan anyway)")

@@ -80,7 +80,7 @@ def test_records_have_real_numbers(first_run):
     dets = np.load(d / r["artifacts"]["detections"])
     assert dets["q"].shape == (6, 100, 2) and dets["Rt_cam_board"].shape == (6, 4, 3)
     f = doc["records"][NOT_VISIBLE]
-    assert f["status"] == "failed" and f["stage"] == "poses"
+    assert f["status"] == "not-applicable" and f["stage"] == "poses"   # off-axis: not a failure
     assert "outside the 2048x2048 image" in f["reason"]
     assert doc["adapters"]["renderers"]["raycast"].startswith("raycast")
     assert doc["adapters"]["libraries"]["numpy"]
@@ -139,7 +139,7 @@ def test_progress_lines_when_not_a_tty(tmp_path, capsys):
     store = RunStore.create(tmp_path / "r", c.as_dict())
     assert run_jobs(expand_jobs(c), store, workers=1, progress=True) == 1
     err = capsys.readouterr().err
-    assert "[1/1] SuperCam/CAHV/dots/raycast[spp=4,adaptive]: 1 failed" in err
+    assert "[1/1] SuperCam/CAHV/dots/raycast[spp=4,adaptive]: 1 not-applicable" in err
     assert "ETA 0 s" in err
 
 

@@ -1,0 +1,745 @@
+r'''How much of a record's error the images caused: floor, renderer and total
+
+SYNOPSIS
+
+    from harness import verdict
+
+    obs_x = verdict.exact_observations(obs, truth, target)   # what a perfect renderer
+                                                              # and detector give
+    noise = verdict.detection_noise(obs, obs_x)               # detected - exact, px
+    res_x = calibrate_stage(cal, obs_x, target, model, truth, options)
+    v = verdict.assess(truth, res, res_x, noise, total_params, total_projection)
+    v["floor"]["projection"]["rms"]      # exact-observation fit vs the truth, px
+    v["renderer"]["projection"]["rms"]   # image fit vs exact-observation fit, px
+    v["total"]["projection"]["rms"]      # image fit vs the truth (the record's headline)
+    v["floor_far"], v["floor_reason"]    # a floor the images cannot be judged through
+
+Three comparisons, each with parameter differences and projection differences:
+
+- floor:    the fit of the EXACT observations of the same poses vs the truth: what
+            this calibrator and model can do at all (representability, gauge
+            runoff, an unconstrained model). Exact observations are the exact
+            dot centroids (targets.centroids.expected_centroids of the truth at the
+            poses) or, for corner targets, the exact corner projections; only the
+            points the detector found are kept, so both fits see the same points.
+- renderer: the image fit vs the exact-observation fit: what the images cost. A
+            deterministic calibrator's runoff and misfit are the same in both
+            fits and cancel here: this is the renderer's verdict.
+- total:    the image fit vs the truth: the record's params and projection.
+
+Two fits of any model are compared by fit_parameter_differences() and
+fit_projection_difference(): the same quantities as harness.compare (Hc, Vc
+px; Hs, Vs fractional; the rest for JPL-family fits), the projection
+difference over the truth's image grid with a fitted rotation between the two
+fits' camera frames (mode "rotation", the headline), none ("intrinsics") or
+the world frames identified ("world", both fits in the world frame).
+
+Expected scatter (scatter()): the covariance of the image fit from its
+Jacobian at the solution, under the detection noise of each image, gives a
+sigma for every reported parameter and for the projection RMS over the image;
+verdict.renderer.z holds each renderer difference over its sigma. The notes
+above scatter() say where that noise model stops holding.
+
+The exact fit is computed per camera, also for twins (harness.jobs): their
+exact observations agree to ~1e-12 px, not bit for bit, and an ill-conditioned
+fit lands far apart from such differences (mrcal CAHVOR of camera 17: px),
+which would make a twin's shared record differ from its unshared one.
+
+A floor is "far" when it exceeds both what the images can show (the measured
+detection noise, detected minus exact positions) and FLOOR_TOLERANCE_PX: the
+record's total error is then the calibrator's, not the images'; floor_reason
+says so in words, with the cause where it can be named (mrcal's and OpenCV's
+model frames hold theta at 90 deg; residuals on exact observations = the
+model cannot represent the camera; small residuals = the observations leave
+the model unconstrained).
+'''
+
+import math
+import threading
+
+import numpy as np
+
+from .compare import (
+    DEFAULT_GRID_STEP,
+    DEFAULT_RANGE_M,
+    JPL_FAMILIES,
+    _fit_rotation,
+    _frac,
+    _intrinsics,
+    _transform,
+    parameter_errors,
+    truth_points,
+    with_R0,
+)
+
+# A floor below this many px cannot mislead anyone: it is below the sampling error of
+# the image centroid of a 10 px dot (targets.centroids: 0.03 r^-1.5 px = 0.001 px) ten
+# times over, and a hundredth of the 0.5 px a navigation camera's error budget allows.
+FLOOR_TOLERANCE_PX = 0.01
+# theta differing from 90 deg by more than this (deg) is named as the cause of a far floor
+# for a calibrator whose model frame holds theta at 90 deg (mrcal, OpenCV, COLMAP): at
+# 1000 px from the centre 1e-4 deg moves a pixel by 1.7e-3 px * f/1000 px
+THETA_NAMED_DEG = 1e-4
+# parameter_errors' names a non-JPL fit does not estimate (None: "not estimated")
+JPL_ONLY_PARAMS = ("Hs*(1+R0)", "Vs*(1+R0)", "theta_deg", "C_mm", "A_deg", "O_deg", "R0",
+                   "R0_frac", "R1", "R1_frac", "R2", "R2_frac", "E0", "E1", "E2")
+# the fit of exact observations "cannot represent" the camera when its residual RMS is
+# this many times the detection noise (and above FLOOR_TOLERANCE_PX / 10)
+MISFIT_FACTOR = 3.0
+
+
+def Rt_cam_board_from(obs, truth):
+    r'''The board poses (Nposes,4,3) in the truth's camera frame, from obs.Rt_ref_board'''
+    Rt_ref_cam = truth.Rt_ref_cam()
+    R, t = Rt_ref_cam[:3], Rt_ref_cam[3]
+    out = []
+    for Rt in obs.Rt_ref_board:
+        out.append(np.vstack((R.T @ Rt[:3], R.T @ (Rt[3] - t))))
+    return np.array(out)
+
+
+def exact_observations(obs, truth, target):
+    r'''The observations a perfect renderer and detector would give, at the same poses
+
+SYNOPSIS
+
+    obs_x = exact_observations(obs, truth, target)   # obs.q replaced; same mask
+
+obs must hold the surveyed board poses (Rt_ref_board, as observations_from
+gives). Exact dot centroids for a dot target, exact corner projections for
+the others; NaN where obs has NaN (the detector did not find the point) or
+the truth cannot image the point.
+'''
+    from targets.centroids import expected_centroids, projected_points
+    Rts = Rt_cam_board_from(obs, truth)
+    exact = expected_centroids if target.kind == "dots" else projected_points
+    q = np.stack([exact(truth, target, Rt) for Rt in Rts])
+    q = np.where(obs.found[..., None], q, np.nan)
+    return obs.replace(q=q)
+
+
+def detection_noise(obs, obs_exact):
+    r'''Detected minus exact positions: {"rms", "max", "n", "per_pose_rms", "mean"} px
+
+per_pose_rms[i] is the RMS of |detected - exact| over the points of image i
+(None for an image without points); mean is the mean offset (dx, dy) over all.
+'''
+    d = obs.q - obs_exact.q
+    ok = np.all(np.isfinite(d), axis=-1)
+    n2 = np.sum(d * d, axis=-1)
+    per = [float(math.sqrt(n2[i][ok[i]].mean())) if ok[i].any() else None
+           for i in range(d.shape[0])]
+    if not ok.any():
+        return {"n": 0, "rms": None, "max": None, "per_pose_rms": per, "mean": None}
+    return {"n": int(ok.sum()), "rms": float(math.sqrt(n2[ok].mean())),
+            "max": float(math.sqrt(n2[ok].max())), "per_pose_rms": per,
+            "mean": [float(x) for x in d[ok].mean(axis=0)]}
+
+
+def _is_jpl(m):
+    return getattr(m, "family", None) in JPL_FAMILIES
+
+
+def _distortion(m):
+    r'''The distortion coefficients of a non-JPL fit (OpenCV dist, mrcal intrinsics[4:])'''
+    if hasattr(m, "dist"):
+        return np.asarray(m.dist, dtype=np.float64).ravel()
+    if hasattr(m, "intrinsics"):
+        return np.asarray(m.intrinsics, dtype=np.float64).ravel()[4:]
+    return np.zeros(0)
+
+
+def fit_parameter_differences(ref, fit, theta_estimated=None, world_frame=None):
+    r'''fit - ref for two fits of one calibrator model (any model)
+
+SYNOPSIS
+
+    d = fit_parameter_differences(exact_fit, image_fit, theta_estimated=True,
+                                  world_frame=True)
+
+JPL-family fits: harness.compare.parameter_errors with ref as the truth (ref
+moved to fit's R0 first). Others: Hc, Vc (px), Hs, Vs (fractional) and D0,
+D1, ... the differences of the distortion coefficients.
+'''
+    if _is_jpl(ref) and _is_jpl(fit):
+        return parameter_errors(ref, fit, theta_estimated=theta_estimated,
+                                world_frame=world_frame)
+    Hc, Vc, Hs, Vs = _intrinsics(fit)
+    rHc, rVc, rHs, rVs = _intrinsics(ref)
+    out = {"Hc": float(Hc - rHc), "Vc": float(Vc - rVc), "Hs": _frac(Hs, rHs),
+           "Vs": _frac(Vs, rVs)}
+    da, db = _distortion(fit), _distortion(ref)
+    for i in range(min(len(da), len(db))):
+        out[f"D{i}"] = float(da[i] - db[i])
+    for k in JPL_ONLY_PARAMS:     # not estimated by this model (as parameter_errors says)
+        out.setdefault(k, None)
+    return {k: (None if v is None else float(v)) for k, v in out.items()}
+
+
+def fit_projection_difference(ref, fit, truth, mode="rotation", range_m=DEFAULT_RANGE_M,
+                              step=DEFAULT_GRID_STEP):
+    r'''|fit - ref| in projection over the truth's image grid, for two fits of any model
+
+SYNOPSIS
+
+    d = fit_projection_difference(exact_fit, image_fit, truth, mode="rotation")
+    d["rms"], d["max"], d["n"], d["n_invalid"]      # px; d["map"] (ny,nx)
+
+The sample points are the truth's: points at range_m along its rays through
+the image grid, in its camera frame (harness.compare.truth_points). ref
+projects them from its own camera frame; fit from its own, rotated by the
+rotation that best matches ref's pixels (mode "rotation"), not rotated
+("intrinsics"), or both fits project the world points ("world": both must
+live in the truth's world frame).
+'''
+    if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
+            getattr(ref, "family", None) in ("CAHVOR", "CAHVORE"):
+        ref = with_R0(ref, float(fit.R[0]))   # the same projection in fit's R0 gauge
+    _, p_ref, p_cam = truth_points(truth, range_m, step)
+    with np.errstate(all="ignore"):
+        if mode == "world":
+            qa = ref.project(p_ref)
+            qb = fit.project(p_ref)
+            R = None
+        else:
+            qa = ref.project(_transform(ref.Rt_ref_cam(), p_cam))
+            R = np.eye(3)
+            if mode == "rotation":
+                R = _fit_rotation(fit, p_cam.reshape(-1, 3), qa.reshape(-1, 2))
+            qb = fit.project(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
+        d = np.linalg.norm(qb - qa, axis=-1)
+    finite = np.isfinite(d)
+    out = {"mode": mode, "range_m": range_m, "step": step, "map": d,
+           "n": int(finite.sum()), "n_invalid": int((~finite).sum()),
+           "rms": float(np.sqrt(np.mean(d[finite] ** 2))) if finite.any() else None,
+           "max": float(d[finite].max()) if finite.any() else None}
+    if R is not None:
+        out["rotation_deg"] = math.degrees(math.acos(max(-1.0, min(1.0,
+                                                                   (np.trace(R) - 1) / 2))))
+    return out
+
+
+def _world(res):
+    return bool(res.info.get("world_frame", res.calibrator == "jpl"))
+
+
+def fit_comparison(ref, fit, truth, theta_estimated, world_frame):
+    r'''{"params": fit_parameter_differences, "projection": {"rms", "max", mode: {...}}}'''
+    params = fit_parameter_differences(ref, fit, theta_estimated=theta_estimated,
+                                       world_frame=world_frame)
+    proj = {}
+    for mode in ("rotation", "intrinsics") + (("world",) if world_frame else ()):
+        d = fit_projection_difference(ref, fit, truth, mode=mode)
+        proj[mode] = {k: v for k, v in d.items() if k != "map"}
+    proj["rms"] = proj["rotation"]["rms"]
+    proj["max"] = proj["rotation"]["max"]
+    return {"params": params, "projection": proj}
+
+
+def floor_comparison(truth, exact_res):
+    r'''The exact-observation fit vs the truth: harness.stages.compare_stage's figures'''
+    from .stages import compare_stage
+    params, projection, _ = compare_stage(truth, exact_res)
+    return {"params": params, "projection": projection}
+
+
+def _theta_deg(model):
+    if _is_jpl(model):
+        return float(model.photogrammetric().theta_deg)
+    return None
+
+
+def floor_judgement(truth, calibrator, model_name, floor_projection, exact_residuals, noise):
+    r'''(far, reason): is the floor beyond what the images can show, and why in words
+
+far: the floor's projection difference (rotation-mode RMS) exceeds both the
+measured detection noise RMS and FLOOR_TOLERANCE_PX. The reason names the
+cause where it can: theta (a model frame holding theta at 90 deg), a misfit
+of the exact observations (residual RMS above MISFIT_FACTOR x the noise: the
+model cannot represent the camera), or an unconstrained model (exact
+observations fitted, the model still far from the truth).
+'''
+    rms = (floor_projection or {}).get("rms")
+    if rms is None:
+        return False, ""
+    noise_rms = (noise or {}).get("rms") or 0.0
+    limit = max(FLOOR_TOLERANCE_PX, noise_rms)
+    if rms <= limit:
+        return False, ""
+    what = f"{calibrator} {model_name}"
+    fl = f"floor {rms:.3g} px"
+    causes = []
+    th = _theta_deg(truth)
+    if calibrator != "jpl" and th is not None and abs(th - 90.0) > THETA_NAMED_DEG:
+        causes.append(f"{calibrator}'s model frame cannot represent theta = {th:.6g} deg")
+    res_rms = (exact_residuals or {}).get("rms")
+    if res_rms is not None and res_rms > max(MISFIT_FACTOR * noise_rms,
+                                             FLOOR_TOLERANCE_PX / 10):
+        causes.append(f"{what} cannot fit the exact observations (residual RMS "
+                      f"{res_rms:.3g} px)")
+    elif not causes:
+        causes.append(f"the exact observations leave {what} unconstrained (residual RMS "
+                      f"{res_rms if res_rms is None else format(res_rms, '.3g')} px, yet far "
+                      f"from the truth)")
+    return True, (f"{'; '.join(causes)}: {fl} (exact-observation fit vs truth; detection "
+                  f"noise {noise_rms:.3g} px, tolerance {FLOOR_TOLERANCE_PX:g} px): the total "
+                  f"error is the calibrator's, not the images'")
+
+
+def minima_judgement(res, exact_res, noise):
+    r'''(disagree, reason): did the two fits land in different minima?
+
+The image fit could take the exact fit's parameters: its residuals would then
+be at most the detection errors plus the exact fit's residuals, so its RMS
+residual cannot exceed noise RMS + exact RMS unless it stopped short of the
+best fit of its detections (and symmetrically for the exact fit). Beyond
+MISFIT_FACTOR times that bound (and FLOOR_TOLERANCE_PX / 10) the two fits sit
+in different minima of the calibrator's problem (mrcal CAHVOR of camera 5:
+image fit 0.023 px, exact fit 4e-9 px, detection errors 0.0012 px): their
+difference is the calibrator's, not the images'.
+'''
+    a = (res.residual_stats() or {}).get("rms")
+    b = (exact_res.residual_stats() or {}).get("rms")
+    n = (noise or {}).get("rms") or 0.0
+    if a is None or b is None:
+        return False, ""
+    for x, y, what in ((a, b, "image fit"), (b, a, "exact-observation fit")):
+        if x > max(MISFIT_FACTOR * (y + n), FLOOR_TOLERANCE_PX / 10):
+            return True, (f"the {what} stopped in another minimum: residual RMS "
+                          f"{x:.3g} px against {y:.3g} px of the other fit, with detections "
+                          f"{n:.3g} px RMS from the exact positions: the difference between "
+                          f"the fits is the calibrator's, not the images'")
+    return False, ""
+
+
+def assess(truth, res, exact_res, noise, total_params, total_projection, seconds=None,
+           obs=None):
+    r'''The record's "verdict": floor, renderer, total, the exact fit and the noise
+
+res: the image fit (ok); exact_res: the fit of exact_observations() (any status);
+noise: detection_noise(); total_params, total_projection: the record's params
+and projection (compare_stage); obs: the observations of the image fit (with
+the surveyed poses): given, the renderer comparison gets "sigma" (scatter())
+and "z" (z_scores()), and the verdict "scatter" (the noise per image, the
+numbers fitted) or its "error". Returns a JSON-able dict:
+
+    {"floor": {"params", "projection"} | None, "renderer": {...} | None,
+     "total": {"params", "projection": {"rms", "max"}},
+     "exact_fit": {"status", "reason", "residuals"},   (its seconds: record seconds)
+     "detection_noise": noise, "floor_far": bool, "floor_reason": str,
+     "fits_disagree": bool, "disagree_reason": str}   (minima_judgement)
+
+A failed exact fit leaves floor and renderer None with exact_fit saying why.
+'''
+    from .records import jsonable
+    theta = res.calibrator == "jpl"
+    world = _world(res)
+    out = {"total": {"params": total_params,
+                     "projection": {k: (total_projection or {}).get(k)
+                                    for k in ("rms", "max")}},
+           "exact_fit": {"status": exact_res.status, "reason": exact_res.reason,
+                         "residuals": exact_res.residual_stats()},
+           "detection_noise": noise, "floor": None, "renderer": None,
+           "floor_far": False, "floor_reason": "", "fits_disagree": False,
+           "disagree_reason": ""}
+    if seconds is not None:
+        out["seconds"] = seconds
+    if exact_res.status != "ok" or exact_res.model is None:
+        return jsonable(out)
+    out["floor"] = floor_comparison(truth, exact_res)
+    out["renderer"] = fit_comparison(exact_res.model, res.model, truth, theta,
+                                     world and _world(exact_res))
+    far, why = floor_judgement(truth, res.calibrator, res.model_name,
+                               out["floor"]["projection"], exact_res.residual_stats(), noise)
+    out["floor_far"], out["floor_reason"] = far, why
+    out["fits_disagree"], out["disagree_reason"] = minima_judgement(res, exact_res, noise)
+    if obs is not None:
+        from .stages import failure_reason
+        try:
+            sc = scatter(res, exact_res, obs, truth)
+        except Exception as e:  # the verdict stands without its sigma; say why
+            sc = {"error": failure_reason(e)}
+        if sc is None:
+            sc = {"error": f"no linearisation of a {res.calibrator} {res.model_name} fit "
+                           f"(known poses, regularised or another calibrator)"}
+        if "sigma" in sc:
+            out["renderer"]["sigma"] = sc.pop("sigma")
+            out["renderer"]["z"] = z_scores(out["renderer"], out["renderer"]["sigma"])
+        out["scatter"] = sc
+    return jsonable(out)
+
+
+def exact_fit(cal, model, options, obs, target, truth, cache, fits=None):
+    r'''The calibrator's fit of the exact observations -> (CalibrationResult, noise, reused)
+
+obs: the job's observations (with the surveyed poses); cache: a dict kept for
+one camera's records (the exact observations and the detection noise are
+computed once per camera). fits: None (what harness.job_records passes: see
+the module docstring on twins), or a dict shared by cameras known to give
+bit-identical exact observations: a calibrator that does not read the world
+frame then fits them once, on observations without the surveyed poses, and
+the others reuse it (reused True). Otherwise a fit of bit-identical inputs made
+earlier in this process (another renderer of the same camera and poses) is
+reused (reused True; see _exact_key).
+'''
+    from harness.calibrators import uses_world_frame
+
+    from .stages import calibrate_stage
+    if "obs" not in cache:
+        cache["obs"] = exact_observations(obs, truth, target)
+        cache["noise"] = detection_noise(obs, cache["obs"])
+    obs_x, noise = cache["obs"], cache["noise"]
+    if fits is not None and not uses_world_frame(cal, options):
+        k = ("exact", cal, model, repr(sorted(options.items())))
+        if k in fits:
+            return fits[k], noise, True
+        fits[k] = calibrate_stage(cal, obs_x.replace(Rt_ref_board=None), target, model,
+                                  truth, options)
+        return fits[k], noise, False
+    key = _exact_key(cal, model, options, obs_x, target, truth)
+    with _EXACT_LOCK:
+        hit = _EXACT_FITS.get(key)
+    if hit is not None:
+        return hit, noise, True
+    res = calibrate_stage(cal, obs_x, target, model, truth, options)
+    with _EXACT_LOCK:
+        _EXACT_FITS[key] = res
+        while len(_EXACT_FITS) > EXACT_FITS_MEMO:
+            del _EXACT_FITS[next(iter(_EXACT_FITS))]
+    return res, noise, False
+
+
+# The exact fit depends on the calibrator, its model and options, the exact observations
+# (truth, poses, the detected mask), the target and what the calibrator reads of the truth;
+# not on the renderer: the jobs of one camera and pose set under several renderers or
+# settings (a renderer comparison, the mutation suite) fit it once per process. Keyed on
+# every bit of those inputs; the calibrators are deterministic, so a hit is the same fit.
+EXACT_FITS_MEMO = 64
+_EXACT_FITS = {}
+_EXACT_LOCK = threading.Lock()
+
+
+def _exact_key(cal, model, options, obs_x, target, truth):
+    import hashlib
+
+    from .compare import _model_key
+    h = hashlib.sha256()
+    for a in (obs_x.q, obs_x.p_board, obs_x.Rt_ref_board):
+        h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
+    h.update(repr((cal, model, sorted(options.items()), obs_x.imagersize,
+                   getattr(target, "name", None), getattr(target, "source", None),
+                   _model_key(truth))).encode())
+    return h.hexdigest()
+
+
+# --- expected scatter: the covariance of a fit from its Jacobian at the solution ---------
+#
+# Where this noise model stops holding (the z-scores are only as good as these):
+# - The detection errors are taken as independent between points, isotropic, with one
+#   variance per image. A renderer's sampling error on a dot centroid is a deterministic
+#   function of the dot's sub-pixel phase and size: nearly independent between dots of
+#   a board, not exactly; neighbouring dots of nearly the same phase err alike.
+# - The variance of image i is the RMS over its points of (image-fit residual -
+#   exact-fit residual), scaled by sqrt(2N / (2N - n)) for the n fitted numbers: the
+#   detection error left once the model has absorbed what it can. A fault the model
+#   absorbs (a shift of the centre, a focal scale) does not inflate it, which is the
+#   point; a fault it cannot absorb (jitter, a wrong distortion) counts as noise and
+#   lowers the z-scores of the rest. The detected-minus-exact RMS per image is recorded
+#   beside it (verdict.detection_noise).
+# - Linear: the fit moves linearly with the observations. It stops holding for a
+#   parameter whose sigma is a sizeable fraction of its own range (an unconstrained
+#   model: a huge sigma says so) or near a model's singularity (theta -> 0 or 180 deg).
+# - The dot-centroid bias correction is held fixed (it depends on the model to second
+#   order); regularised fits (mrcal SPLINED) are not linearised (their sigma is None).
+# - Pose-estimating calibrators (mrcal, OpenCV without known poses) are linearised in
+#   the intrinsics and every board pose; the jpl calibrator in its own chart (C, A, H,
+#   V, O, R1, R2, E; R0 held, as the fit holds it: harness.calibrators.jpl_fit).
+
+# parameters whose differences are magnitudes: their sigma is that of the vector
+VECTOR_PARAMS = ("C_mm", "A_deg", "O_deg")
+PROJECTION_SAMPLES = 1200      # grid points the projection sigma is evaluated on
+
+
+class Linearisation:
+    r'''A fit as a function of its parameters: x0, residual pixels and the model
+
+x0:        (n,) the fit's parameters at the solution
+project:   x -> (2N,) the projections of the fit's observed points (pose-major)
+model:     x -> the fitted model (a JPL model, OpenCVModel, MrcalModel)
+pose:      (N,) the image of each observed point
+n_model:   the model depends on x[:n_model] only (the rest: board poses)
+'''
+
+    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None):
+        self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
+        self.n_model = len(x0) if n_model is None else n_model
+        self._jacobian = jacobian
+
+    def jacobian(self):
+        r'''(2N, n) d project / d x at x0 (central differences)'''
+        if self._jacobian is not None:
+            return self._jacobian()
+        return _central_jacobian(self.project, self.x0, self.steps)
+
+    def model_part(self, f):
+        r'''(g, x0, steps) of f(model(x)) as a function of x[:n_model] only'''
+        rest = self.x0[self.n_model:]
+        return (lambda y: f(self.model(np.concatenate((y, rest)))),
+                self.x0[:self.n_model], self.steps[:self.n_model])
+
+
+def _central_jacobian(f, x0, h):
+    cols = []
+    for i in range(len(x0)):
+        xp, xm = x0.copy(), x0.copy()
+        xp[i] += h[i]
+        xm[i] -= h[i]
+        cols.append((np.asarray(f(xp), dtype=np.float64).ravel()
+                     - np.asarray(f(xm), dtype=np.float64).ravel()) / (xp[i] - xm[i]))
+    return np.stack(cols, axis=-1)
+
+
+def jpl_linearisation(res, obs):
+    r'''The jpl fit in its own chart (harness.calibrators.jpl_fit; R0 held) -> Linearisation'''
+    from harness.calibrators._project_kernels import project
+    from harness.calibrators.jpl_fit import _Chart
+    m = res.model
+    R0 = float(m.R[0]) if m.family != "CAHV" else 0.0
+    chart = _Chart(m.family, m, getattr(m, "model_type", None), getattr(m, "linearity", None),
+                   R0)
+    found = obs.found
+    p = np.ascontiguousarray(obs.p_ref()[found])
+    pose = np.nonzero(found)[0]
+    x0 = chart.x0()
+    h = 1e-6 * np.maximum(np.abs(x0), 1.0)
+    return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h)
+
+
+def _rodrigues(r):
+    from .compare import _R_from_r
+    return _R_from_r(r)
+
+
+def posed_linearisation(res, obs):
+    r'''A pose-estimating fit (mrcal, OpenCV): intrinsics + 6 numbers per board pose
+
+-> Linearisation, or None for a fit this cannot parametrise (known poses,
+regularised, an unknown model type).'''
+    from harness.calibrators.opencv_fit import OpenCVModel
+    m = res.model
+    if res.Rt_cam_board is None or _world(res) or res.info.get("regularization"):
+        return None
+    cm = res.info.get("cameramodel")
+    if cm is not None:
+        import mrcal
+        lensmodel, intr0 = cm.intrinsics()
+        intr0 = np.asarray(intr0, dtype=np.float64)
+        W, H = (int(v) for v in cm.imagersize())
+        jpl = _is_jpl(m)
+
+        def model_of(theta):
+            from harness.calibrators.mrcal_fit import MrcalModel
+            c = mrcal.cameramodel(intrinsics=(lensmodel, np.asarray(theta)),
+                                  imagersize=np.array((W, H)),
+                                  Rt_ref_cam=np.vstack((np.eye(3), np.zeros(3))))
+            if jpl:
+                from reference_models.mrcal_convert import from_mrcal
+                return from_mrcal(c)
+            return MrcalModel(c, m.family)
+
+        def project_cam(theta, p_cam):
+            return mrcal.project(np.ascontiguousarray(p_cam), lensmodel, np.asarray(theta))
+    elif isinstance(m, OpenCVModel):
+        intr0 = np.concatenate(([m.fx, m.fy, m.cx, m.cy], m.dist))
+
+        def model_of(theta):
+            K = np.array([[theta[0], 0, theta[2]], [0, theta[1], theta[3]], [0, 0, 1.0]])
+            return OpenCVModel(m.family, K, theta[4:], m.width, m.height)
+
+        def project_cam(theta, p_cam):
+            return model_of(theta).project(p_cam)
+    else:
+        return None
+    found = obs.found
+    pose = np.nonzero(found)[0]
+    Rts = np.asarray(res.Rt_cam_board, dtype=np.float64)
+    nth = len(intr0)
+    Np = obs.Nposes
+    x0 = np.concatenate((intr0, np.zeros(6 * Np)))
+    pb = [obs.p_board[i][found[i]] for i in range(Np)]
+
+    def project_pose(theta, i, d):
+        R = _rodrigues(d[:3]) @ Rts[i][:3]
+        return project_cam(theta, pb[i] @ R.T + Rts[i][3] + d[3:])
+
+    def project(x):
+        return np.concatenate([project_pose(x[:nth], i, x[nth + 6 * i: nth + 6 * i + 6])
+                               for i in range(Np) if len(pb[i])], axis=0)
+
+    h = np.concatenate((1e-6 * np.maximum(np.abs(intr0), 1.0), np.full(6 * Np, 1e-6)))
+
+    def jacobian():
+        # a pose's six numbers move its own points only: its columns are differenced on
+        # those rows (the same numbers as differencing everything, at a sixth of the cost)
+        J = np.zeros((2 * len(pose), len(x0)))
+        J[:, :nth] = \
+            _central_jacobian(lambda t: project(np.concatenate((t, x0[nth:]))), intr0, h[:nth])
+        row = 0
+        for i in range(Np):
+            n = len(pb[i])
+            if not n:
+                continue
+            cols = slice(nth + 6 * i, nth + 6 * i + 6)
+            J[2 * row: 2 * (row + n), cols] = _central_jacobian(
+                lambda d, i=i: project_pose(intr0, i, d), x0[cols], h[cols])
+            row += n
+        return J
+
+    return Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h, n_model=nth,
+                         jacobian=jacobian)
+
+
+def linearisation(res, obs):
+    r'''The Linearisation of a fit (jpl, or a pose-estimating mrcal/OpenCV fit), or None'''
+    if res.calibrator == "jpl" and _is_jpl(res.model) and obs.has_world_points:
+        return jpl_linearisation(res, obs)
+    if res.calibrator in ("mrcal", "opencv"):
+        return posed_linearisation(res, obs)
+    return None
+
+
+def _signed_quantities(ref, m, theta, world):
+    r'''The reported parameter differences m - ref as signed numbers (vectors by component)'''
+    d = fit_parameter_differences(ref, m, theta_estimated=theta, world_frame=world)
+    out = {k: v for k, v in d.items() if v is not None and k not in VECTOR_PARAMS}
+    if _is_jpl(ref) and _is_jpl(m):
+        from .compare import _in_cam
+        if d.get("C_mm") is not None:
+            for i, v in enumerate(1e3 * (m.C - ref.C)):
+                out[f"C_mm[{i}]"] = float(v)
+        if d.get("A_deg") is not None:
+            for i, v in enumerate(np.degrees(m.A - ref.A)):
+                out[f"A_deg[{i}]"] = float(v)
+        if d.get("O_deg") is not None:
+            rt = with_R0(ref, float(m.R[0])) if ref.family != "CAHV" else ref
+            dv = _in_cam(m, m.O) - _in_cam(rt, rt.O)
+            for i, v in enumerate(np.degrees(dv)):
+                out[f"O_deg[{i}]"] = float(v)
+    return out
+
+
+def noise_per_pose(res, exact_res, Nposes, n_params):
+    r'''(Nposes,) sigma px of the detection error per image (see the notes above), NaN
+where an image has no point'''
+    d = np.asarray(res.residuals, dtype=np.float64) - np.asarray(exact_res.residuals,
+                                                                   dtype=np.float64)
+    ok = np.all(np.isfinite(d), axis=-1)
+    N = int(ok.sum())
+    dof = math.sqrt(2 * N / max(2 * N - n_params, 1))
+    out = np.full(Nposes, np.nan)
+    for i in range(Nposes):
+        if ok[i].any():
+            out[i] = dof * math.sqrt(np.mean(np.sum(d[i][ok[i]] ** 2, axis=-1)))
+    return out
+
+
+def scatter(res, exact_res, obs, truth):
+    r'''Expected scatter of the image fit about the exact fit, from its Jacobian
+
+SYNOPSIS
+
+    s = scatter(res, exact_res, obs, truth)
+    s["sigma"]["Hc"], s["sigma"]["theta_deg"], s["sigma"]["projection_rms"]
+    s["noise_per_pose"]     # sigma px per image (the model's input)
+
+None when the fit cannot be linearised here (see linearisation()). Sigma of a
+vector parameter (C_mm, A_deg, O_deg) is that of its length: sqrt of the trace.
+projection_rms is the expected RMS over the image grid of the rotation-mode
+projection difference (the rotation's own freedom projected out).
+'''
+    lin = linearisation(res, obs)
+    if lin is None:
+        return None
+    theta = res.calibrator == "jpl"
+    world = _world(res)
+    n = len(lin.x0)
+    J = lin.jacobian()                                              # (2N, n)
+    sig_pose = noise_per_pose(res, exact_res, obs.Nposes, n)
+    # per coordinate: sigma_image^2 / 2 (sigma is the RMS of the 2-d error)
+    var_row = np.repeat(sig_pose[lin.pose] ** 2 / 2.0, 2)
+    if not np.all(np.isfinite(var_row)):
+        return None
+    # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
+    # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
+    # not determine at all; then the block of the parameters the model depends on (the
+    # board poses marginalised)
+    s_col = np.linalg.norm(J, axis=0)
+    s_col[s_col == 0] = 1.0
+    Js = J / s_col
+    w, V = np.linalg.eigh(Js.T @ Js)
+    keep = w > w[-1] * 1e-15
+    Ninv = (V[:, keep] / w[keep]) @ V[:, keep].T
+    cov = Ninv @ (Js.T @ (Js * var_row[:, None])) @ Ninv / np.outer(s_col, s_col)
+    cov = cov[:lin.n_model, :lin.n_model]
+    m0 = lin.model(lin.x0)
+    q0 = _signed_quantities(m0, m0, theta, world)
+    names = list(q0)
+
+    def qvec(m):
+        q = _signed_quantities(m0, m, theta, world)
+        return np.array([q.get(k, 0.0) for k in names])
+    G = _central_jacobian(*lin.model_part(qvec))                    # (m, n_model)
+    # a variance below zero is rounding in a direction the fit barely determines
+    var = np.maximum(np.einsum("ij,jk,ik->i", G, cov, G), 0.0)
+    sigma = {}
+    for k, v in zip(names, var, strict=True):
+        base = k.split("[")[0]
+        if base in VECTOR_PARAMS:
+            sigma[base] = sigma.get(base, 0.0) + float(v)
+        else:
+            sigma[k] = float(math.sqrt(v))
+    for k in VECTOR_PARAMS:
+        if k in sigma:
+            sigma[k] = math.sqrt(sigma[k])
+    sigma["projection_rms"] = _projection_sigma(lin, cov, truth)
+    return {"sigma": sigma, "noise_per_pose": [None if not np.isfinite(s) else float(s)
+                                               for s in sig_pose],
+            "n_params": n, "n_points": int(len(lin.pose))}
+
+
+def _projection_sigma(lin, cov, truth):
+    _, _, p_cam = truth_points(truth)
+    P = p_cam.reshape(-1, 3)
+    if len(P) > PROJECTION_SAMPLES:
+        P = P[np.linspace(0, len(P) - 1, PROJECTION_SAMPLES).astype(int)]
+    m0 = lin.model(lin.x0)
+
+    def grid(m):
+        return m.project(_transform(m.Rt_ref_cam(), P))
+
+    def rotated(w):
+        return m0.project(_transform(m0.Rt_ref_cam(), P @ _rodrigues(w).T))
+    with np.errstate(all="ignore"):
+        Jg = _central_jacobian(*lin.model_part(grid))               # (2M, n_model)
+        Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
+    ok = np.all(np.isfinite(Jg), axis=1) & np.all(np.isfinite(Jw), axis=1)
+    Jg, Jw = Jg[ok], Jw[ok]
+    M = ok.sum() / 2
+    if M < 1:
+        return None
+    Qw, _ = np.linalg.qr(Jw)
+    Jg = Jg - Qw @ (Qw.T @ Jg)          # the rotation fitted between the two fits
+    return float(math.sqrt(max(0.0, np.einsum("ij,jk,ik->", Jg, cov, Jg)) / M))
+
+
+def z_scores(renderer, sigma):
+    r'''{quantity: renderer difference / sigma} (projection_rms: RMS / its sigma)'''
+    out = {}
+    params = renderer.get("params") or {}
+    for k, s in sigma.items():
+        v = (renderer.get("projection") or {}).get("rms") if k == "projection_rms" \
+            else params.get(k)
+        if v is None or s is None or not s > 0:
+            continue
+        out[k] = float(abs(v) / s)
+    return out

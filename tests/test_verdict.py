@@ -1,0 +1,283 @@
+r'''harness.verdict: the fit of exact observations, floor / renderer / total
+
+No rendering: the "images" are the exact observations plus a known
+disturbance (a constant shift of every detection, or seeded noise), so what
+the renderer comparison must find is known.
+'''
+
+import numpy as np
+import pytest
+
+from harness import stages, verdict
+from harness.records import Record
+
+
+@pytest.fixture(scope="module")
+def navcam():
+    _, truth = stages.camera_truth("15", "CAHVOR")
+    target = stages.cached_target("dots")
+    poses = stages.poses_stage(truth, target, 6, 0)
+    # "detections" = exact centroids: observations_from wants Detection-like objects
+    from targets.centroids import expected_centroids
+
+    class D:
+        def __init__(self, q):
+            self.q = q
+    dets = [D(expected_centroids(truth, target, Rt)) for Rt in poses]
+    obs = stages.observations_from(truth, target, poses, dets)
+    return truth, target, poses, obs
+
+
+def test_exact_observations_are_the_exact_centroids_with_the_detected_mask(navcam):
+    truth, target, poses, obs = navcam
+    q = obs.q.copy()
+    q[0, :5] = np.nan                      # five points the detector missed
+    obs_missing = obs.replace(q=q)
+    x = verdict.exact_observations(obs_missing, truth, target)
+    assert np.array_equal(np.isnan(x.q), np.isnan(q))
+    # the same centroids, recomputed from the surveyed poses (one rigid transform and
+    # back: a few ulps of the ~1000 px coordinates)
+    ok = np.isfinite(q)
+    assert np.max(np.abs(x.q[ok] - q[ok])) < 1e-9
+    n = verdict.detection_noise(obs_missing, x)
+    assert n["n"] == int(ok[..., 0].sum())
+    assert n["rms"] < 1e-9
+
+
+def test_detection_noise_per_pose(navcam):
+    truth, target, poses, obs = navcam
+    x = verdict.exact_observations(obs, truth, target)
+    shifted = obs.replace(q=obs.q + np.array([0.003, -0.004]))
+    n = verdict.detection_noise(shifted, x)
+    assert n["rms"] == pytest.approx(0.005, rel=1e-6)
+    assert n["per_pose_rms"] == pytest.approx([0.005] * 6, rel=1e-6)
+    assert n["mean"] == pytest.approx([0.003, -0.004], rel=1e-6)
+
+
+def test_two_fits_of_any_model_compare(navcam):
+    truth = navcam[0]
+    moved = truth.replace(H=truth.H + 0.01 * truth.A)      # Hc + 0.01 px
+    d = verdict.fit_parameter_differences(truth, moved, theta_estimated=True,
+                                          world_frame=True)
+    assert d["Hc"] == pytest.approx(0.01, rel=1e-6)
+    assert abs(d["Vc"]) < 1e-9
+    same = verdict.fit_projection_difference(truth, truth, truth, mode="intrinsics")
+    assert same["max"] < 1e-9
+    # intrinsics mode: 0.01 px everywhere (a shift of Hc is a shift of every pixel)
+    sh = verdict.fit_projection_difference(truth, moved, truth, mode="intrinsics")
+    assert sh["rms"] == pytest.approx(0.01, rel=1e-3)
+    # a rotation absorbs most of a centre shift: what is left is far smaller
+    rot = verdict.fit_projection_difference(truth, moved, truth, mode="rotation")
+    assert rot["rms"] < 0.2 * sh["rms"]
+
+
+def test_opencv_fits_compare_with_each_other():
+    from harness.calibrators.opencv_fit import OpenCVModel
+    K = np.array([[1000.0, 0, 511.5], [0, 1000.0, 511.5], [0, 0, 1]])
+    a = OpenCVModel("OPENCV5", K, [0.01, 0, 0, 0, 0], 1024, 1024)
+    K2 = K.copy()
+    K2[0, 2] += 0.02
+    b = OpenCVModel("OPENCV5", K2, [0.01, 0.001, 0, 0, 0], 1024, 1024)
+    d = verdict.fit_parameter_differences(a, b)
+    assert d["Hc"] == pytest.approx(0.02, rel=1e-9)
+    assert d["D1"] == pytest.approx(0.001, rel=1e-9)
+    _, truth = stages.camera_truth("15", "CAHV")
+    p = verdict.fit_projection_difference(a, b, truth, mode="intrinsics")
+    assert 0.02 <= p["max"] < 1.0
+
+
+@pytest.mark.parametrize("cal", ["jpl", "mrcal"])
+def test_assess_a_shift_of_every_detection(navcam, cal):
+    r'''A renderer that draws everything 0.01 px to the right: the image fit moves by that
+much from the exact fit (Hc + 0.01 px in intrinsics), the floor stays at the
+calibrator's own level (jpl: exact to ~1e-6 px), and total = floor + renderer'''
+    truth, target, poses, obs = navcam
+    img = obs.replace(q=obs.q + np.array([0.01, 0.0]))
+    cache = {}
+    exact, noise, reused = verdict.exact_fit(cal, "CAHVOR", {}, img, target, truth, cache)
+    assert not reused and exact.ok
+    assert noise["rms"] == pytest.approx(0.01, rel=1e-6)
+    res = stages.calibrate_stage(cal, img, target, "CAHVOR", truth, {})
+    params, proj, _ = stages.compare_stage(truth, res)
+    v = verdict.assess(truth, res, exact, noise, params, proj)
+    assert v["floor"]["projection"]["rms"] < 1e-4
+    assert not v["floor_far"] and v["floor_reason"] == ""
+    r = v["renderer"]["projection"]
+    assert r["intrinsics"]["rms"] == pytest.approx(0.01, rel=0.05)
+    if cal == "jpl":   # world frame: the centre moves, nothing else does
+        assert v["renderer"]["params"]["Hc"] == pytest.approx(0.01, rel=0.02)
+        assert r["world"]["rms"] == pytest.approx(0.01, rel=0.05)
+    assert v["total"]["projection"]["rms"] == proj["rms"]
+    Record(fullname="x", camera="15", camera_label="", model="CAHVOR", target="dots",
+           renderer="raycast", settings={}, calibrator=cal, calibrator_model="CAHVOR",
+           status="ok", verdict=v).as_dict()
+
+
+def test_twins_share_the_exact_fit(navcam):
+    truth, target, poses, obs = navcam
+    fits = {}
+    a, _, reused_a = verdict.exact_fit("mrcal", "CAHVOR", {}, obs, target, truth, {}, fits)
+    b, _, reused_b = verdict.exact_fit("mrcal", "CAHVOR", {}, obs, target, truth, {}, fits)
+    assert (reused_a, reused_b) == (False, True) and a is b
+    verdict._EXACT_FITS.clear()
+    c, _, reused_c = verdict.exact_fit("jpl", "CAHVOR", {}, obs, target, truth, {}, fits)
+    assert not reused_c        # jpl reads the world frame: each twin fits its own
+
+
+def test_an_exact_fit_of_the_same_inputs_is_made_once_per_process(navcam):
+    r'''The exact fit does not depend on the renderer: the same camera, poses and mask
+under another renderer reuse it; another detected mask does not'''
+    truth, target, poses, obs = navcam
+    verdict._EXACT_FITS.clear()
+    a, _, ra = verdict.exact_fit("jpl", "CAHV", {}, obs, target, truth, {})
+    noisy = obs.replace(q=obs.q + 0.001)            # other "images", same points found
+    b, _, rb = verdict.exact_fit("jpl", "CAHV", {}, noisy, target, truth, {})
+    assert (ra, rb) == (False, True) and a is b
+    q = obs.q.copy()
+    q[0, 0] = np.nan
+    c, _, rc = verdict.exact_fit("jpl", "CAHV", {}, obs.replace(q=q), target, truth, {})
+    assert not rc and c is not a
+
+
+def test_far_floor_says_why_in_words(navcam):
+    truth = navcam[0]
+    th = truth.photogrammetric().theta_deg
+    far, why = verdict.floor_judgement(truth, "mrcal", "CAHVOR", {"rms": 1.3},
+                                       {"rms": 1e-7}, {"rms": 0.001})
+    if abs(th - 90) > verdict.THETA_NAMED_DEG:
+        assert "cannot represent theta" in why
+    assert far and "floor 1.3 px" in why
+    far, why = verdict.floor_judgement(truth, "opencv", "OPENCV5", {"rms": 0.2},
+                                       {"rms": 0.02}, {"rms": 0.001})
+    assert far and "cannot fit the exact observations" in why
+    # below the stated tolerance, or below what the images show: not far
+    assert verdict.floor_judgement(truth, "jpl", "CAHVOR", {"rms": 0.005}, {"rms": 0.0},
+                                   {"rms": 0.001}) == (False, "")
+    assert verdict.floor_judgement(truth, "jpl", "CAHVOR", {"rms": 0.05}, {"rms": 0.0},
+                                   {"rms": 0.1}) == (False, "")
+
+
+def test_old_records_load_without_a_verdict():
+    d = Record(fullname="x", camera="15", camera_label="", model="CAHVOR", target="dots",
+               renderer="raycast", settings={}, calibrator="jpl", calibrator_model="CAHVOR",
+               status="ok").as_dict()
+    del d["verdict"]
+    assert Record.from_dict(d).verdict is None
+
+
+def test_report_rows_show_floor_renderer_total_side_by_side():
+    from reports.tables import summary_tables, verdict_rows
+    base = dict(camera="15", camera_label="", model="CAHVOR", target="dots",
+                renderer="raycast", settings={}, calibrator="mrcal", calibrator_model="CAHVOR",
+                status="ok", projection={"rms": 1.3, "max": 2.0})
+    far = {"floor": {"projection": {"rms": 1.29}}, "renderer": {"projection": {"rms": 0.001}},
+           "total": {"projection": {"rms": 1.3}}, "floor_far": True,
+           "floor_reason": "mrcal's model frame cannot represent theta = 90.076 deg"}
+    recs = {"a": Record(fullname="a", verdict=far, **base).as_dict(),
+            "b": Record(fullname="b", **base).as_dict()}      # an old record: no verdict
+    rows = verdict_rows(recs)
+    assert rows == [("a", "1.29", "0.001", "—", "1.3",
+                     "mrcal's model frame cannot represent theta = 90.076 deg")]
+    (t,) = summary_tables(recs)
+    cells = {row[0]: row[3] for row in t.rows}
+    assert cells["floor: exact-observation fit vs truth, projection RMS, worst"] == "1.29"
+    assert "1 ok with a floor far from the truth" in t.note
+
+
+@pytest.mark.parametrize("cal, model", [("jpl", "CAHVOR"), ("mrcal", "CAHVOR"),
+                                        ("opencv", "OPENCV5")])
+def test_scatter_of_seeded_noise(navcam, cal, model):
+    r'''0.001 px of isotropic Gaussian detection noise: the noise per image is measured
+back (within 15%: 100 points per image), every sigma is positive and finite and the
+z-scores of one draw are of order one (a z above 6 has probability 2e-9 per quantity;
+8 draws of each gave mean-square z 0.1-1.3 for navcam 15)'''
+    truth, target, poses, obs = navcam
+    rng = np.random.default_rng(7)
+    img = obs.replace(q=obs.q + rng.normal(0, 0.001 / np.sqrt(2), obs.q.shape))
+    exact, noise, _ = verdict.exact_fit(cal, model, {}, img, target, truth, {})
+    res = stages.calibrate_stage(cal, img, target, model, truth, {})
+    params, proj, _ = stages.compare_stage(truth, res)
+    v = verdict.assess(truth, res, exact, noise, params, proj, obs=img)
+    assert v["scatter"]["noise_per_pose"] == pytest.approx([0.001] * 6, rel=0.15)
+    sigma = v["renderer"]["sigma"]
+    assert {"Hc", "Vc", "Hs", "Vs", "projection_rms"} <= set(sigma)
+    assert all(s >= 0 and np.isfinite(s) for s in sigma.values())
+    assert 1e-4 < sigma["projection_rms"] < 0.01
+    assert max(v["renderer"]["z"].values()) < 6
+    if cal == "jpl":
+        assert sigma["Hc"] == pytest.approx(0.00106, rel=0.2)
+
+
+def test_an_off_axis_camera_is_not_applicable_with_its_reason():
+    r'''SuperCam's optical centre lies far outside its image: the planner's refusal is a
+not-applicable record with the reason, not a failure'''
+    _, truth = stages.camera_truth("SuperCam", "CAHV")
+    with pytest.raises(stages.StageFailed) as e:
+        stages.poses_stage(truth, stages.cached_target("dots"), 6, 0)
+    assert e.value.status == "not-applicable"
+    assert "far outside" in e.value.reason and "deg off its axis" in e.value.reason
+
+
+@pytest.mark.slow
+def test_renderer_gate_passes_the_exact_renderer_and_flags_a_half_pixel_shift(tmp_path):
+    from harness.campaign import parse_campaign
+    from harness.gate import DEFAULT_SPEC, check, load_gate_spec
+    from harness.mutation import campaign_doc
+    from harness.runner import run_campaign
+    spec = load_gate_spec(DEFAULT_SPEC)
+    verdict._EXACT_FITS.clear()        # the module's other tests fit these exact observations
+    cals = [{"name": "jpl"}, {"name": "mrcal"}, {"name": "opencv", "models": ["OPENCV5"]}]
+    out = {}
+    for fault in (None, "half_pixel"):
+        doc = dict(campaign_doc(15, "CAHVOR", fault), calibrator=cals)
+        run = run_campaign(parse_campaign(doc), tmp_path / str(fault), progress=False,
+                           workers=1)
+        out[fault] = (run, check(run, spec))
+    run, failures = out[None]
+    assert failures == []
+    recs = run["records"]
+    assert all(r["status"] == "ok" and r["verdict"]["renderer"]["z"] for r in recs.values())
+    jpl = next(r for k, r in recs.items() if "/jpl[" in k)
+    assert jpl["verdict"]["floor"]["projection"]["rms"] < 1e-5     # jpl is exact on exact data
+    assert jpl["seconds"]["exact_fit"] > 0
+    # the faulty renderer's jobs reuse the clean jobs' exact fits (same camera, poses, mask)
+    assert run["minimum_detectable_faults"]["cameras"]["15"]["Hc shift"]["value"] < 0.01
+    opencv = next(r for k, r in recs.items() if "/opencv[" in k)
+    assert opencv["verdict"]["floor_far"] and "floor" in opencv["reason"]
+    _, failures = out["half_pixel"]
+    flagged = {f.fullname.rsplit("/", 1)[-1] for f in failures}
+    assert {"jpl[CAHVOR]", "opencv[OPENCV5]"} <= flagged
+    assert any(f.field == "verdict.renderer.params.Hc" and "sigma" in f.value
+               for f in failures)
+
+
+@pytest.mark.parametrize("cal, model", [("opencv", "OPENCV5"), ("mrcal", "CAHVOR")])
+def test_blockwise_pose_jacobian_is_the_full_one(navcam, cal, model):
+    r'''A board pose's columns are differenced on its own rows only: the same numbers
+(bit for bit: every other row's difference is exactly zero)'''
+    truth, target, poses, obs = navcam
+    q = obs.q.copy()
+    q[2, :10] = np.nan                       # an image with points missing
+    obs = obs.replace(q=q)
+    res = stages.calibrate_stage(cal, obs, target, model, truth, {})
+    lin = verdict.linearisation(res, obs)
+    full = verdict._central_jacobian(lin.project, lin.x0, lin.steps)
+    assert np.array_equal(lin.jacobian(), full)
+
+
+def test_fits_in_different_minima_are_named():
+    r'''The image fit could take the exact fit's parameters: a residual RMS far above
+noise + the exact fit's residual means it stopped in another minimum (the numbers of
+mrcal CAHVOR on camera 5, K=16)'''
+    from harness.calibrators.base import CalibrationResult
+
+    def fit(rms):
+        r = np.zeros((1, 2, 2))
+        r[0, :, 0] = rms
+        return CalibrationResult(calibrator="mrcal", model_name="CAHVOR", status="ok",
+                                 residuals=r)
+    dis, why = verdict.minima_judgement(fit(0.0229), fit(3.7e-9), {"rms": 0.00124})
+    assert dis and "image fit stopped in another minimum" in why
+    assert verdict.minima_judgement(fit(0.0011), fit(1e-8), {"rms": 0.00124}) == (False, "")
+    # a fault the model cannot absorb shows in the detections too: not a disagreement
+    assert verdict.minima_judgement(fit(0.3), fit(1e-8), {"rms": 0.35}) == (False, "")
