@@ -92,7 +92,6 @@ POSE_KEYS = ("n", "seed")
 RENDERER_KEYS = ("name", "spp", "adaptive", "options", "response")
 PROFILE_NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 CALIBRATOR_KEYS = ("name", "models", "options")
-KNOWN_TARGETS = ("dots", "apriltag", "chessboard")
 
 
 class CampaignError(CamvalError):
@@ -427,10 +426,12 @@ Relative model-file paths among the cameras are taken from base_dir.
                                 f"known: {', '.join(FAMILIES)}")
     targets = tuple(_list_of(source, "targets", doc.get("targets", ["dots"]), (str,),
                              "target names"))
+    from targets.detect import known_detectors
+    known_targets = known_detectors()
     for t in targets:
-        if t not in KNOWN_TARGETS and not Path(t).suffix == ".toml":
+        if t not in known_targets and not Path(t).suffix == ".toml":
             raise CampaignError(f"{_where(source, 'targets')}: unknown target {t!r}; known: "
-                                f"{', '.join(KNOWN_TARGETS)} or a target .toml file")
+                                f"{', '.join(known_targets)} or a target .toml file")
     poses = doc.get("poses", {})
     if not isinstance(poses, dict):
         raise CampaignError(f"{_where(source, 'poses')}: expected a table with n and seed")

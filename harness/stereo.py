@@ -16,9 +16,11 @@ looks at a generated terrain placed in that frame (targets.terrain.ground_pose:
 the frames are JPL's, z DOWN; the ground lies `camera_height_m` below the left
 camera and, when the left camera's axis points above the ground at
 `look_range_m`, the frame is pitched down, as a mast would, until it meets it
-there). The two images are rendered by the exact terrain ray caster through
-the TRUE models (renderers/raycast_terrain.py, K x K supersampled), optionally
-passed through camera-response stages (renderers/response.py), then:
+there). The two images are rendered through the TRUE models by a terrain
+renderer of the registry (renderers.base.get_terrain_renderer; by default
+DEFAULT_TERRAIN_RENDERER, the exact terrain ray caster of
+renderers/raycast_terrain.py, K x K supersampled), optionally passed through
+camera-response stages (renderers/response.py), then:
 
 1. rectified with mrcal (mrcal.rectified_system, LENSMODEL_LATLON, and
    mrcal.rectification_maps) from the models converted by
@@ -89,6 +91,8 @@ class StereoError(CamvalError):
 # two models of one stereo head: near-parallel axes, a short baseline
 MAX_AXIS_ANGLE_DEG = 15.0
 MAX_BASELINE_M = 1.5
+# the terrain renderer of the images (renderers.base registry name)
+DEFAULT_TERRAIN_RENDERER = "raycast_terrain"
 
 
 # ---------------------------------------------------------------------------
@@ -573,7 +577,8 @@ two cameras near the Nyquist frequency).
 
 def run_stereo_check(setup, variants=None, spp=2, render_model="true", block_size=5,
                      oversample=1.5, refine=True, refine_radius=4, prefilter_px=0.8,
-                     photometric="auto", flat_field=False, seed=0, progress=None):
+                     photometric="auto", flat_field=False, seed=0, progress=None,
+                     renderer=DEFAULT_TERRAIN_RENDERER):
     r'''Render, rectify, match, triangulate and compare, for each response variant
 
 SYNOPSIS
@@ -585,6 +590,8 @@ SYNOPSIS
 variants: {name: response config (renderers.response.ResponseChain.from_config)};
           default {"clean": {}}
 spp:      K, K x K rays per pixel for the rendered images
+renderer: the terrain renderer's registry name (renderers.base.get_terrain_renderer:
+          raycast_terrain, povray_terrain, osmesa_terrain or a plugin)
 oversample: rectified pixels per degree, relative to the left camera's focal
           length (Hs). 1.5 by default: at 1 the rectified grid is coarser than
           the raw one along the rows over much of a wide lens's field (1.1 raw
@@ -612,7 +619,7 @@ them and in the band of true ranges within +-10% of setup.look_range_m.
     import cv2
     import mrcal
 
-    from renderers.raycast_terrain import render_terrain
+    from renderers.base import RenderSettings, get_terrain_renderer
     from renderers.response import ResponseChain
 
     say = progress or (lambda s: None)
@@ -630,8 +637,10 @@ them and in the band of true ranges within +-10% of setup.look_range_m.
     if render_model == "rectifiable":
         mL, mR = rectifiable(mL), rectifiable(mR)
     say(f"rendering {mL.width}x{mL.height} x2, K={spp}")
-    rL = render_terrain(mL, setup.terrain, setup.Rt_ref_terrain, spp=spp)
-    rR = render_terrain(mR, setup.terrain, setup.Rt_ref_terrain, spp=spp)
+    terrain_renderer = get_terrain_renderer(renderer)
+    settings = RenderSettings(spp=spp)
+    rL = terrain_renderer.render_terrain(mL, setup.terrain, setup.Rt_ref_terrain, settings)
+    rR = terrain_renderer.render_terrain(mR, setup.terrain, setup.Rt_ref_terrain, settings)
     tm["render"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

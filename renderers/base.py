@@ -2,24 +2,39 @@ r'''The renderer adapter interface shared by every renderer, and its registry
 
 SYNOPSIS
 
-    from renderers.base import get_renderer, RenderSettings
+    from renderers.base import get_renderer, get_terrain_renderer, RenderSettings
 
     r = get_renderer("raycast")
     result = r.render(model, target.pattern(), Rt_cam_board, RenderSettings(spp=16))
     # result.image has shape (height,width), float32 in [0,1]
     # result.metadata: renderer, version, settings, seconds, samples
 
-A renderer is anything with this shape (typing.Protocol: subclassing is
-optional). `model` is a reference_models camera model; the scene is a plain
-value (targets.pattern.Pattern for boards; terrain scenes later);
-Rt_cam_board (4,3) places the board in the model's camera frame
-(model.Rt_ref_cam()), so board points map to the model's world frame by
-Rt_ref_board = compose(model.Rt_ref_cam(), Rt_cam_board).
+    t = get_terrain_renderer("raycast_terrain")      # or povray_terrain, osmesa_terrain
+    r = t.render_terrain(model, terrain, Rt_ref_terrain, RenderSettings(spp=2))
+    # r.image (H,W) float32 in [0,1]; r.range, r.shadow (H,W) or None; r.metadata
 
-The registry is a dict of lazy specs "module:Class": a backend (POV-Ray,
-OSMesa) is imported only when chosen. Python packages add renderers under the
-entry-point group "camval.renderers". A backend that cannot work on this
-machine raises RendererUnavailableError at construction, with the fix.
+A renderer declares the scene kinds it renders in its class attribute
+`scenes` (SCENE_KINDS; a renderer without one renders boards), and has the
+shape of the protocol of each kind (typing.Protocol: subclassing is
+optional). `model` is a reference_models camera model.
+
+- "board" (Renderer): the scene is a targets.pattern.Pattern; Rt_cam_board
+  (4,3) places the board in the model's camera frame (model.Rt_ref_cam()), so
+  board points map to the model's world frame by
+  Rt_ref_board = compose(model.Rt_ref_cam(), Rt_cam_board).
+- "terrain" (TerrainRenderer): the scene is a targets.terrain.Terrain;
+  Rt_ref_terrain (4,3) places the terrain (z up) in the model's frame
+  (targets.terrain.ground_pose; identity if None). The result is a
+  TerrainRender.
+
+Both take RenderSettings: spp = K (K x K samples per pixel) and options that
+override the renderer's constructor defaults (merged_options).
+
+The registry is a dict of lazy specs "module:Class", one for boards and
+terrain alike: a backend (POV-Ray, OSMesa) is imported only when chosen.
+Python packages add renderers under the entry-point group "camval.renderers".
+A backend that cannot work on this machine raises RendererUnavailableError at
+construction, with the fix.
 '''
 
 import dataclasses
@@ -38,7 +53,13 @@ BUILTIN_RENDERERS = {
     "osmesa": "renderers.osmesa:OSMesaRenderer",
     "command": "renderers.command:CommandRenderer",
     "faulty": "renderers.legacy:FaultyRenderer",
+    "raycast_terrain": "renderers.raycast_terrain:RaycastTerrainRenderer",
+    "povray_terrain": "renderers.povray_terrain:PovrayTerrainRenderer",
+    "osmesa_terrain": "renderers.osmesa_terrain:OSMesaTerrainRenderer",
 }
+# the scenes a renderer can declare in its class attribute `scenes`; without one: boards
+SCENE_KINDS = ("board", "terrain")
+DEFAULT_SCENES = ("board",)
 
 
 class RendererError(CamvalError):
@@ -85,13 +106,44 @@ class RenderResult:
     metadata: dict
 
 
+@dataclass(frozen=True, eq=False)
+class TerrainRender:
+    r'''What a terrain renderer returns
+
+image:    (H,W) float32 in [0,1]
+range:    (H,W) float64, metres along the pixel-centre ray from its origin, NaN for
+          sky; None when the renderer gives none
+shadow:   (H,W) uint8: 0 lit, 1 self-shadowed (facing away from the sun), 2 cast
+          shadow, 255 sky; None when the renderer gives none
+metadata: renderer, version, settings, timings (JSON-able)
+'''
+
+    image: Any
+    range: Any
+    shadow: Any
+    metadata: dict
+
+
 @runtime_checkable
 class Renderer(Protocol):
+    r'''A renderer of boards (scene kind "board")'''
     name: str
 
     def version(self) -> str: ...
 
     def render(self, model, scene, Rt_cam_board, settings: RenderSettings) -> RenderResult: ...
+
+
+@runtime_checkable
+class TerrainRenderer(Protocol):
+    r'''A renderer of terrain scenes (scenes = ("terrain",))'''
+    name: str
+    scenes: tuple
+
+    def version(self) -> str: ...
+
+    def render_terrain(self, model, terrain, Rt_ref_terrain,
+                       settings: RenderSettings) -> TerrainRender: ...
 
 
 def _entry_point_renderers():
@@ -129,6 +181,31 @@ def get_renderer(name, **options):
     r'''Construct the renderer called `name` (raises RendererUnavailableError with the fix
 when its backend is missing here)'''
     return renderer_class(name)(**options)
+
+
+def renderer_scenes(name):
+    r'''The scene kinds (SCENE_KINDS) the renderer called `name` renders'''
+    return tuple(getattr(renderer_class(name), "scenes", DEFAULT_SCENES))
+
+
+def get_terrain_renderer(name, **options):
+    r'''Construct the renderer called `name` for terrain scenes
+
+A renderer that does not render terrain is a RendererError naming the ones
+that do (as get_renderer otherwise).
+'''
+    if "terrain" not in renderer_scenes(name):
+        terrain = [n for n in sorted(known_renderers()) if _renders(n, "terrain")]
+        raise RendererError(f"renderer {name!r} does not render terrain scenes; terrain "
+                            f"renderers: {', '.join(terrain)}")
+    return get_renderer(name, **options)
+
+
+def _renders(name, scene):
+    try:
+        return scene in renderer_scenes(name)
+    except Exception:   # a broken or unavailable backend must not hide the others
+        return False
 
 
 def merged_options(renderer_name, defaults, settings):

@@ -13,6 +13,10 @@ SYNOPSIS
 
     code = cell_shadows(terrain, map_size=4096)   # (Ny-1, Nx-1, 2) uint8 (terrain_shadows)
 
+    r = OSMesaTerrainRenderer(map_size=4096).render_terrain(model, terrain, pose,
+                                                            RenderSettings(spp=2))
+    # the same through the registry: renderers.base.get_terrain_renderer("osmesa_terrain")
+
 The paper's shadowing (section 3.5, the "Z-buffer shadowing algorithm [8]"
 of ROAMS's Dspace): render the scene from the light and keep its z-buffer;
 render it from the camera, transform every camera-view fragment into the
@@ -57,9 +61,14 @@ import time
 
 import numpy as np
 
-from renderers.base import RendererError, RendererUnavailableError
+from renderers.base import (
+    RendererError,
+    RendererUnavailableError,
+    RenderSettings,
+    TerrainRender,
+    merged_options,
+)
 from renderers.osmesa import projection_matrix
-from renderers.raycast_terrain import TerrainRender
 from renderers.terrain_shadows import centroid_pixels, top_down_size
 
 NAME = "osmesa_terrain"
@@ -550,3 +559,45 @@ warp_scale.
                   "seconds_warp": t3 - t2, "pinhole": warp.pinhole.as_dict(),
                   "interpolation": interpolation,
                   "surface": "triangle pair per cell", "terrain": terrain.as_dict()})
+
+
+class OSMesaTerrainRenderer:
+    r'''OpenGL (OSMesa) with the two-pass shadow map as a renderer of terrain scenes
+(renderers.base.TerrainRenderer)
+
+SYNOPSIS
+
+    r = OSMesaTerrainRenderer(map_size=4096, slope_bias=0.5)
+    result = r.render_terrain(model, terrain, Rt_ref_terrain, RenderSettings(spp=2))
+    code = r.cell_shadows(terrain)
+
+ARGUMENTS (defaults for every render; RenderSettings.options override them):
+render_terrain's shadows, exposure, sky, shadow_factor, map_size,
+slope_bias, interpolation and warp_scale. OpenGL is loaded here
+(RendererUnavailableError with the fix). settings.spp is K (settings None:
+K = 1); RenderSettings.adaptive does not apply.
+'''
+
+    name = NAME
+    scenes = ("terrain",)
+
+    def __init__(self, shadows=True, exposure=1.0, sky=0.0, shadow_factor=None,
+                 map_size=DEFAULT_MAP_SIZE, slope_bias=0.5, interpolation="bilinear",
+                 warp_scale=1.0):
+        _gl()
+        self.defaults = dict(shadows=shadows, exposure=exposure, sky=sky,
+                             shadow_factor=shadow_factor, map_size=map_size,
+                             slope_bias=slope_bias, interpolation=interpolation,
+                             warp_scale=warp_scale)
+
+    def version(self):
+        return gl_version()
+
+    def render_terrain(self, model, terrain, Rt_ref_terrain=None, settings=None):
+        settings = settings or RenderSettings(spp=1)
+        return render_terrain(model, terrain, Rt_ref_terrain, spp=settings.spp,
+                              **merged_options(self.name, self.defaults, settings))
+
+    def cell_shadows(self, terrain):
+        return cell_shadows(terrain, map_size=self.defaults["map_size"],
+                            slope_bias=self.defaults["slope_bias"])

@@ -15,6 +15,10 @@ SYNOPSIS
     code = cell_shadows(terrain)   # (Ny-1, Nx-1, 2) uint8 per triangle centroid (terrain_shadows)
     albedo, code = shadow_texture(terrain)   # (Ty,Tx): the albedo darkened where cast-shadowed
 
+    r = PovrayTerrainRenderer(camera="mesh").render_terrain(model, terrain, pose,
+                                                            RenderSettings(spp=2))
+    # the same through the registry: renderers.base.get_terrain_renderer("povray_terrain")
+
 The terrain is a `mesh2` with one vertex per grid node (%.17g, full
 precision) and the same two triangles per cell as targets/terrain.py: node
 (i, j), (i+1, j), (i+1, j+1) (u >= v) and (i, j), (i+1, j+1), (i, j+1). The
@@ -71,8 +75,13 @@ import time
 
 import numpy as np
 
-from renderers.base import RendererError, RendererUnavailableError
-from renderers.raycast_terrain import TerrainRender
+from renderers.base import (
+    RendererError,
+    RendererUnavailableError,
+    RenderSettings,
+    TerrainRender,
+    merged_options,
+)
 from renderers.terrain_shadows import centroid_pixels, top_down_size
 
 NAME = "povray_terrain"
@@ -510,3 +519,47 @@ Arguments as renderers.raycast_terrain.render_terrain, plus:
                   "spp": spp, "shadows": bool(shadows), "exposure": exposure,
                   "seconds": t1 - t0, "povray_seconds": pov_seconds, **meta,
                   "surface": "triangle pair per cell (mesh2)", "terrain": terrain.as_dict()})
+
+
+class PovrayTerrainRenderer:
+    r'''POV-Ray as a renderer of terrain scenes (renderers.base.TerrainRenderer)
+
+SYNOPSIS
+
+    r = PovrayTerrainRenderer(camera="perspective", binary="povray")
+    result = r.render_terrain(model, terrain, Rt_ref_terrain, RenderSettings(spp=2))
+    code = r.cell_shadows(terrain)
+
+ARGUMENTS (defaults for every render; RenderSettings.options override them):
+render_terrain's shadows, exposure, sky, camera, interpolation, warp_scale,
+threads, keep_dir, shadow_codes and max_mesh_rays; binary, the POV-Ray
+executable, is checked here (RendererUnavailableError with the fix).
+settings.spp is K (settings None: K = 1); RenderSettings.adaptive does not
+apply.
+'''
+
+    name = NAME
+    scenes = ("terrain",)
+
+    def __init__(self, shadows=True, exposure=1.0, sky=0.0, camera="perspective",
+                 interpolation="bilinear", warp_scale=1.0, binary="povray", threads=None,
+                 keep_dir=None, shadow_codes=False, max_mesh_rays=None):
+        find_povray(binary)
+        self.binary = binary
+        self.defaults = dict(shadows=shadows, exposure=exposure, sky=sky, camera=camera,
+                             interpolation=interpolation, warp_scale=warp_scale,
+                             threads=threads, keep_dir=keep_dir, shadow_codes=shadow_codes,
+                             max_mesh_rays=max_mesh_rays)
+
+    def version(self):
+        return povray_version(self.binary)
+
+    def render_terrain(self, model, terrain, Rt_ref_terrain=None, settings=None):
+        settings = settings or RenderSettings(spp=1)
+        return render_terrain(model, terrain, Rt_ref_terrain, spp=settings.spp,
+                              binary=self.binary,
+                              **merged_options(self.name, self.defaults, settings))
+
+    def cell_shadows(self, terrain):
+        return cell_shadows(terrain, binary=self.binary, threads=self.defaults["threads"],
+                            keep_dir=self.defaults["keep_dir"])

@@ -2,17 +2,20 @@ r'''Exact ray casting of terrain height fields, with exact shadow rays (numba)
 
 SYNOPSIS
 
-    from renderers.raycast_terrain import render_terrain, trace_rays
+    from renderers.raycast_terrain import render_terrain, trace_rays, cell_shadows
     from targets.terrain import make_terrain, ground_pose
 
     terrain = make_terrain(seed=0)
     r = render_terrain(model, terrain, Rt_ref_terrain=ground_pose(0.5), spp=1)
+    # or through the registry: renderers.base.get_terrain_renderer("raycast_terrain")
+    #     .render_terrain(model, terrain, ground_pose(0.5), RenderSettings(spp=1))
     r.image       # (H,W) float32 in [0,1]: Lambertian shading with the sun
     r.range       # (H,W) float64: distance along each pixel-centre ray to the surface (m); NaN: sky
     r.shadow      # (H,W) uint8: 0 lit, 1 facing away from the sun, 2 in a cast shadow, 255 sky
     r.metadata    # timings, rays, settings
 
     hit = trace_rays(terrain, origins, directions)   # any rays (...,3) in the terrain frame
+    code = cell_shadows(terrain)    # (Ny-1, Nx-1, 2) uint8 per triangle centroid (terrain_shadows)
 
 The surface is the triangle pair of each grid cell described in
 targets/terrain.py, and a ray's intersection with it is exact (the nearest
@@ -55,13 +58,14 @@ the kernels load from numba's cache.
 
 import math
 import time
-from dataclasses import dataclass
 
 import numba
 import numpy as np
 from numba import njit, prange
 
 from reference_models.errors import CamvalError
+from renderers.base import RenderSettings, TerrainRender, merged_options
+from renderers.terrain_shadows import ShadowCompareError, sample_points
 
 NAME = "raycast_terrain"
 SKY = 255
@@ -74,14 +78,6 @@ SUN_BOUND_COLUMNS = 48
 
 class TerrainRenderError(CamvalError):
     pass
-
-
-@dataclass(frozen=True, eq=False)
-class TerrainRender:
-    image: np.ndarray     # (H,W) float32 in [0,1]
-    range: np.ndarray     # (H,W) float64, NaN for sky
-    shadow: np.ndarray    # (H,W) uint8: 0 lit, 1 self-shadowed, 2 cast shadow, 255 sky
-    metadata: dict
 
 
 # ---------------------------------------------------------------------------
@@ -762,3 +758,56 @@ sky is the value of rays that miss the terrain. Values are clipped to [0,1].
                   "seconds_prepare": t_prep - t_rays, "seconds_trace": t_end - t_prep,
                   "surface": "triangle pair per cell",
                   "terrain": terrain.as_dict()})
+
+
+def cell_shadows(terrain):
+    r'''Exact shadow codes at the triangle centroids (renderers.terrain_shadows)
+
+SYNOPSIS
+
+    code = cell_shadows(terrain)    # (Ny-1, Nx-1, 2) uint8: 0 lit, 1 facing away, 2 cast
+
+A vertical ray from above each centroid meets the surface at the centroid;
+the exact shadow ray is traced from there.
+'''
+    x, y = sample_points(terrain)
+    top = float(terrain.heights.max()) + 1.0
+    origins = np.stack((x, y, np.full_like(x, top)), axis=-1)
+    _, t, code = trace_rays(terrain, origins, np.array([0.0, 0.0, -1.0]))
+    if np.any(code == 255):
+        raise ShadowCompareError("a vertical ray from above a cell centroid missed the terrain "
+                                 "(raycast_terrain's intersection failed)")
+    return code
+
+
+class RaycastTerrainRenderer:
+    r'''The exact terrain ray caster as a renderer of terrain scenes
+(renderers.base.TerrainRenderer)
+
+SYNOPSIS
+
+    r = RaycastTerrainRenderer(shadows=True, exposure=1.0, sky=0.0)
+    result = r.render_terrain(model, terrain, Rt_ref_terrain, RenderSettings(spp=2))
+    code = r.cell_shadows(terrain)
+
+ARGUMENTS (defaults for every render; RenderSettings.options override them):
+render_terrain's shadows, exposure and sky. settings.spp is K (settings None:
+K = 1); RenderSettings.adaptive does not apply (every pixel gets K x K rays).
+'''
+
+    name = NAME
+    scenes = ("terrain",)
+
+    def __init__(self, shadows=True, exposure=1.0, sky=0.0):
+        self.defaults = dict(shadows=shadows, exposure=exposure, sky=sky)
+
+    def version(self):
+        return f"numba {numba.__version__}"
+
+    def render_terrain(self, model, terrain, Rt_ref_terrain=None, settings=None):
+        settings = settings or RenderSettings(spp=1)
+        return render_terrain(model, terrain, Rt_ref_terrain, spp=settings.spp,
+                              **merged_options(self.name, self.defaults, settings))
+
+    def cell_shadows(self, terrain):
+        return cell_shadows(terrain)

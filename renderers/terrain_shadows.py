@@ -2,7 +2,8 @@ r'''Which terrain cells each renderer puts in shadow, and how far renderers disa
 
 SYNOPSIS
 
-    from renderers.terrain_shadows import sample_points, raycast_cell_shadows, compare
+    from renderers.terrain_shadows import sample_points, compare
+    from renderers.raycast_terrain import cell_shadows as raycast_cell_shadows
     from renderers.povray_terrain import cell_shadows as povray_cell_shadows
     from renderers.osmesa_terrain import cell_shadows as osmesa_cell_shadows
 
@@ -98,28 +99,6 @@ def top_down_size(terrain):
 x0 + a cell/3, y0 + b cell/3)'''
     ny, nx = terrain.heights.shape
     return 3 * (nx - 1), 3 * (ny - 1)
-
-
-def raycast_cell_shadows(terrain):
-    r'''Exact shadow codes at the triangle centroids by renderers.raycast_terrain
-
-SYNOPSIS
-
-    code = raycast_cell_shadows(terrain)    # (Ny-1, Nx-1, 2) uint8: 0 lit, 1 facing away, 2 cast
-
-A vertical ray from above each centroid meets the surface at the centroid;
-raycast_terrain traces the exact shadow ray from there.
-'''
-    from renderers.raycast_terrain import trace_rays
-
-    x, y = sample_points(terrain)
-    top = float(terrain.heights.max()) + 1.0
-    origins = np.stack((x, y, np.full_like(x, top)), axis=-1)
-    _, t, code = trace_rays(terrain, origins, np.array([0.0, 0.0, -1.0]))
-    if np.any(code == 255):
-        raise ShadowCompareError("a vertical ray from above a cell centroid missed the terrain "
-                                 "(raycast_terrain's intersection failed)")
-    return code
 
 
 def compare(code_a, code_b, terrain=None, grazing_cos=0.1):

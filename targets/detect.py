@@ -1,116 +1,83 @@
-r'''Find a target's points in an image: the dispatcher and the Detection result
+r'''Find a target's points in an image: the detector registry
 
 SYNOPSIS
 
-    from targets.detect import detect
+    from targets.detect import detect, get_detector, known_detectors
 
     det = detect(image, target)     # image (H,W) float in [0,1] (or uint8/uint16)
+    det = detect(image, target, window_dilation_px=3)   # options of the kind's detector
     det.status                      # "ok" | "failed"
     det.q[det.found]                # (Nfound,2) pixel positions, camval's pixel convention
     det.n_found, det.n_expected, det.reason
 
-One detector per target kind: targets.detect_dots (intensity-weighted dot
-centroids, ordered with the orientation mark), targets.detect_apriltag
-(pupil_apriltags), targets.detect_chessboard (OpenCV). q[i] belongs to
-target.point_ids()[i]; NaN where a point was not found.
+    detector = get_detector("dots")            # the detector of a target kind
+    known_detectors()               # {kind: source}: built-in ones and entry-point plugins
+
+One detector per target kind, chosen by target.kind: targets.detect_dots
+(intensity-weighted dot centroids, ordered with the orientation mark),
+targets.detect_apriltag (pupil_apriltags), targets.detect_chessboard
+(OpenCV). The result is a targets.detection.Detection; q[i] belongs to
+target.point_ids()[i], NaN where a point was not found.
+
+A detector is anything with this shape (typing.Protocol `Detector`:
+detector(image, target, **options) -> Detection); a plain function is one.
+The registry is a dict of lazy specs "module:function": a detector's module
+(OpenCV, pupil_apriltags) is imported only when its kind is detected. Python
+packages add detectors under the entry-point group "camval.detectors", named
+by the target kind they detect; a built-in kind keeps its built-in detector.
 
 A detector never raises because the target was not found: it returns status
 "failed" with the reason. Only input that is not an image at all (wrong
-dimensions, unknown target kind) raises a CamvalError.
+dimensions, a target kind without a detector) raises a DetectionInputError.
 '''
 
-import dataclasses
-from dataclasses import dataclass
+import importlib
+from typing import Protocol, runtime_checkable
 
-import numpy as np
+from .detection import Detection, DetectionInputError
 
-from reference_models.errors import CamvalError
+ENTRY_POINT_GROUP = "camval.detectors"
 
-
-class DetectionInputError(CamvalError):
-    '''An image or option a detector cannot work on (not a "target not found").'''
-
-
-@dataclass(frozen=True, eq=False)
-class Detection:
-    r'''What a detector found
-
-q:          (N,2) float64 pixel positions, NaN for points not found
-found:      (N,) bool
-status:     "ok" (at least the detector's min_found points found; n_found says how many)
-            | "failed" (target not found or too few points; reason says why)
-reason:     "" when ok, else why not
-n_expected: N, the number of points of the target
-n_found:    number of points found
-point_ids:  (N,) ids of the points (target.point_ids())
-detector:   name of the detector
-info:       detector-specific figures (JSON-able)
-'''
-
-    q: np.ndarray
-    found: np.ndarray
-    status: str
-    reason: str
-    n_expected: int
-    n_found: int
-    point_ids: np.ndarray = None
-    detector: str = ""
-    info: dict = dataclasses.field(default_factory=dict)
-
-    def as_dict(self):
-        return {"status": self.status, "reason": self.reason, "n_expected": self.n_expected,
-                "n_found": self.n_found, "detector": self.detector,
-                "q": [[float(v) if np.isfinite(v) else None for v in row] for row in self.q],
-                "found": self.found.tolist(),
-                "point_ids": None if self.point_ids is None else self.point_ids.tolist(),
-                "info": self.info}
+# target kind -> "module:function"
+BUILTIN_DETECTORS = {
+    "dots": "targets.detect_dots:detect_dots",
+    "apriltag": "targets.detect_apriltag:detect_apriltags",
+    "chessboard": "targets.detect_chessboard:detect_chessboard",
+}
 
 
-def failed(target, reason, detector, info=None):
-    r'''A Detection of nothing, with the reason'''
-    n = target.Npoints
-    return Detection(q=np.full((n, 2), np.nan), found=np.zeros(n, bool), status="failed",
-                     reason=reason, n_expected=n, n_found=0, point_ids=target.point_ids(),
-                     detector=detector, info=info or {})
+class UnknownDetectorError(DetectionInputError):
+    '''A target kind that no built-in or plugin detector finds.'''
 
 
-def result(target, q, detector, min_found=None, info=None):
-    r'''A Detection from (N,2) positions with NaN for missing points'''
-    q = np.asarray(q, dtype=np.float64)
-    found = np.all(np.isfinite(q), axis=-1)
-    n = int(found.sum())
-    need = target.Npoints if min_found is None else min_found
-    if n < need:
-        return Detection(q=q, found=found, status="failed",
-                         reason=f"found {n} of {target.Npoints} points; need {need}",
-                         n_expected=target.Npoints, n_found=n, point_ids=target.point_ids(),
-                         detector=detector, info=info or {})
-    return Detection(q=q, found=found, status="ok", reason="", n_expected=target.Npoints,
-                     n_found=n, point_ids=target.point_ids(), detector=detector,
-                     info=info or {})
+@runtime_checkable
+class Detector(Protocol):
+    def __call__(self, image, target, **options) -> Detection: ...
 
 
-def as_float_image(image, dtype=np.float64):
-    r'''An image as float (H,W) in [0,1]: uint8/uint16 scaled, colour averaged
+def _entry_point_detectors():
+    from importlib.metadata import entry_points
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
-dtype float32 halves the memory and time of the conversion of a large image; a
-float32 image is then not copied at all.'''
-    a = np.asarray(image)
-    if a.ndim == 3 and a.shape[2] in (3, 4):
-        a = a[..., :3].astype(np.float64).mean(axis=-1) if a.dtype.kind == "f" else \
-            np.round(a[..., :3].astype(np.float64).mean(axis=-1)).astype(a.dtype)
-    if a.ndim != 2 or min(a.shape) < 2:
-        raise DetectionInputError(f"expected a 2-D grey image (H,W); got an array of shape "
-                                  f"{a.shape}")
-    if a.dtype == np.uint8:
-        return a.astype(dtype) / dtype(255.0)
-    if a.dtype == np.uint16:
-        return a.astype(dtype) / dtype(65535.0)
-    if a.dtype.kind == "b":
-        return a.astype(dtype)
-    if a.dtype.kind in "iu":
-        raise DetectionInputError(f"integer images must be uint8 or uint16; got {a.dtype}")
-    return a.astype(dtype, copy=False) if a.dtype == dtype else a.astype(dtype)
+
+def known_detectors():
+    r'''{target kind: source} of every detector: built-in ones, then entry-point plugins'''
+    out = {kind: f"built-in ({spec})" for kind, spec in BUILTIN_DETECTORS.items()}
+    for kind, ep in _entry_point_detectors().items():
+        out.setdefault(kind, f"plugin ({ep.value}, package {ep.dist.name if ep.dist else '?'})")
+    return out
+
+
+def get_detector(kind):
+    r'''The detector of target kind `kind` (UnknownDetectorError naming the known kinds)'''
+    if kind in BUILTIN_DETECTORS:
+        modname, funcname = BUILTIN_DETECTORS[kind].split(":")
+        return getattr(importlib.import_module(modname), funcname)
+    plugins = _entry_point_detectors()
+    if isinstance(kind, str) and kind in plugins:
+        return plugins[kind].load()
+    raise UnknownDetectorError(f"no detector for target kind {kind!r}; "
+                               f"known kinds: {', '.join(known_detectors())}")
 
 
 def detect(image, target, **options):
@@ -121,18 +88,6 @@ SYNOPSIS
     det = detect(image, target)          # Detection
     det = detect(image, target, window_dilation_px=3)   # options of the kind's detector
 
-Dispatches on target.kind to detect_dots.detect_dots,
-detect_apriltag.detect_apriltags or detect_chessboard.detect_chessboard.
+Calls the detector registered for target.kind (get_detector).
 '''
-    kind = getattr(target, "kind", None)
-    if kind == "dots":
-        from .detect_dots import detect_dots
-        return detect_dots(image, target, **options)
-    if kind == "apriltag":
-        from .detect_apriltag import detect_apriltags
-        return detect_apriltags(image, target, **options)
-    if kind == "chessboard":
-        from .detect_chessboard import detect_chessboard
-        return detect_chessboard(image, target, **options)
-    raise DetectionInputError(f"no detector for target kind {kind!r}; "
-                              "known kinds: dots, apriltag, chessboard")
+    return get_detector(getattr(target, "kind", None))(image, target, **options)

@@ -4,7 +4,7 @@ SYNOPSIS
 
     from targets.detect_apriltag import detect_apriltags
 
-    det = detect_apriltags(image, target)   # targets.detect.Detection
+    det = detect_apriltags(image, target)   # targets.detection.Detection
     det.q                                   # (4*Ntags,2): point 4*tag_id + corner
 
 Each decoded tag of the target's family whose id is on the board gives its 4
@@ -35,7 +35,7 @@ import functools
 
 import numpy as np
 
-from .detect import as_float_image, failed, result
+from .detection import as_float_image, failed, result
 
 DETECTOR = "apriltag"
 # AprilTag pixel coordinates minus camval's for the same point

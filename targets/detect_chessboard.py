@@ -4,7 +4,7 @@ SYNOPSIS
 
     from targets.detect_chessboard import detect_chessboard
 
-    det = detect_chessboard(image, target)   # targets.detect.Detection
+    det = detect_chessboard(image, target)   # targets.detection.Detection
     det.q                                    # (nx*ny,2): corner iy*nx + ix
 
 OpenCV's findChessboardCornersSB (sector-based) finds the nx x ny inner
@@ -23,7 +23,7 @@ OpenCV's pixel convention is camval's (pixel centres at integers).
 
 import numpy as np
 
-from .detect import as_float_image, failed, result
+from .detection import as_float_image, failed, result
 
 DETECTOR = "chessboard"
 # images larger than twice this (smaller side) are searched at a reduced size first

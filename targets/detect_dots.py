@@ -4,7 +4,7 @@ SYNOPSIS
 
     from targets.detect_dots import detect_dots
 
-    det = detect_dots(image, target)    # targets.detect.Detection
+    det = detect_dots(image, target)    # targets.detection.Detection
     det.q                               # (nx*ny,2): centroid of dot iy*nx + ix, NaN if not found
 
 Steps:
@@ -44,7 +44,7 @@ from collections import deque
 import numpy as np
 
 from .boards import apply_grid_transform, grid_transforms
-from .detect import as_float_image, failed, result
+from .detection import as_float_image, failed, result
 
 DETECTOR = "dots"
 NEIGHBOUR_TOLERANCE = 0.3      # of the local spacing

@@ -14,7 +14,8 @@ from targets_render import pinhole, render
 from reference_models.cahvore import CAHV
 from targets.boards import load_target, target_from_dict
 from targets.centroids import expected_centroids, projected_points
-from targets.detect import DetectionInputError, detect
+from targets.detect import detect
+from targets.detection import DetectionInputError
 from targets.poses import plan_poses
 
 # a distorted wide-ish camera small enough to render in numpy

@@ -14,12 +14,8 @@ import pytest
 
 from reference_models.cahvore import CAHV
 from renderers.base import RendererError, RendererUnavailableError
-from renderers.terrain_shadows import (
-    ShadowCompareError,
-    compare,
-    raycast_cell_shadows,
-    sample_points,
-)
+from renderers.raycast_terrain import cell_shadows as raycast_cell_shadows
+from renderers.terrain_shadows import ShadowCompareError, compare, sample_points
 from targets.terrain import Sun, Terrain, ground_pose, make_terrain
 
 HAVE_POVRAY = shutil.which("povray") is not None
@@ -284,6 +280,30 @@ def test_povray_mesh_camera_render_equals_the_exact_one_for_a_fisheye():
     assert 0.05 < np.mean(exact.shadow[exact.shadow != 255] != 0) < 0.6
 
 
+def test_osmesa_and_povray_through_the_registry_render_as_their_modules():
+    from renderers.base import RenderSettings, TerrainRenderer, get_terrain_renderer
+
+    osm = _osmesa()
+    t = wall_terrain(ambient=0.15)
+    m = top_down_camera(W=48, H=32)
+    settings = RenderSettings(spp=2, options={"shadows": False})
+    backends = {"osmesa_terrain": osm.render_terrain}
+    if HAVE_POVRAY:
+        from renderers import povray_terrain
+        backends["povray_terrain"] = povray_terrain.render_terrain
+    for name, render in backends.items():
+        r = get_terrain_renderer(name)
+        assert isinstance(r, TerrainRenderer) and r.version(), name
+        a = r.render_terrain(m, t, None, settings)
+        b = render(m, t, None, spp=2, shadows=False)
+        assert a.metadata["renderer"] == name
+        assert np.array_equal(a.image, b.image), name
+        for x, y in ((a.shadow, b.shadow), (a.range, b.range)):
+            assert (x is None and y is None) or np.array_equal(x, y), name
+    assert np.array_equal(get_terrain_renderer("osmesa_terrain", map_size=1024).cell_shadows(t),
+                          osm.cell_shadows(t, map_size=1024))
+
+
 # ---------------------------------------------------------------------------
 def test_bad_input_is_refused_with_a_reason():
     osm = _osmesa()
@@ -302,6 +322,9 @@ def test_bad_input_is_refused_with_a_reason():
         cell_shadows(t, binary="no-such-povray-binary")
     with pytest.raises(RendererUnavailableError, match="apt-get install povray"):
         render_terrain(m, t, binary="no-such-povray-binary")
+    from renderers.base import get_terrain_renderer
+    with pytest.raises(RendererUnavailableError, match="apt-get install povray"):
+        get_terrain_renderer("povray_terrain", binary="no-such-povray-binary")
     with pytest.raises(RendererError, match="known: perspective, mesh"):
         render_terrain(m, t, camera="fisheye")
     with pytest.raises(RendererError, match="max_mesh_rays"):

@@ -354,3 +354,41 @@ def test_pixel_rays_are_cached_within_a_byte_budget(monkeypatch):
     monkeypatch.setattr(raycast_terrain, "_RAY_CACHE_BYTES", ra[0].nbytes + ra[1].nbytes)
     pixel_rays(b, 2)
     assert len(raycast_terrain._RAY_CACHE) == 1 and pixel_rays(a, 2)[0] is not ra[0]
+
+
+# ---------------------------------------------------------------------------
+def test_the_registry_renders_terrain_as_the_module_does():
+    from renderers.base import (
+        RendererError,
+        RenderSettings,
+        TerrainRenderer,
+        get_renderer,
+        get_terrain_renderer,
+        renderer_scenes,
+    )
+    from renderers.raycast_terrain import cell_shadows
+
+    m = forward_camera(25.0, 40.0, 60, 50)
+    ter = small_terrain(1)
+    pose = ground_pose(0.0)
+    r = get_terrain_renderer("raycast_terrain")
+    assert isinstance(r, TerrainRenderer) and renderer_scenes("raycast_terrain") == ("terrain",)
+    for settings, kw in ((RenderSettings(spp=2), {}),
+                         (RenderSettings(spp=1, options={"shadows": False, "exposure": 0.7}),
+                          {"shadows": False, "exposure": 0.7})):
+        a = r.render_terrain(m, ter, pose, settings)
+        b = render_terrain(m, ter, pose, spp=settings.spp, **kw)
+        assert np.array_equal(a.image, b.image)
+        assert np.array_equal(a.range, b.range, equal_nan=True)
+        assert np.array_equal(a.shadow, b.shadow)
+        assert a.metadata["renderer"] == "raycast_terrain"
+    # settings None: K = 1, as the module's default
+    assert np.array_equal(r.render_terrain(m, ter, pose).image, render_terrain(m, ter, pose).image)
+    assert np.array_equal(r.cell_shadows(ter), cell_shadows(ter))
+    with pytest.raises(RendererError, match="unknown option.*known: exposure, shadows, sky"):
+        r.render_terrain(m, ter, pose, RenderSettings(spp=1, options={"sun": 3}))
+    # a board renderer is not a terrain renderer, and the board path is unchanged
+    with pytest.raises(RendererError, match="'raycast' does not render terrain scenes; terrain "
+                                            "renderers: .*raycast_terrain"):
+        get_terrain_renderer("raycast")
+    assert renderer_scenes("raycast") == ("board",) and get_renderer("raycast").name == "raycast"

@@ -1,0 +1,113 @@
+r'''What a detector returns, and the helpers every detector builds it with
+
+SYNOPSIS
+
+    from targets.detection import Detection, as_float_image, failed, result
+
+    img = as_float_image(image)              # (H,W) float64 in [0,1] (uint8/uint16 scaled)
+    det = result(target, q, "mydetector")    # q (N,2), NaN where a point was not found
+    det = failed(target, "no blobs", "mydetector")
+    det.status                               # "ok" | "failed"
+    det.q[det.found]                         # (Nfound,2) pixel positions, camval's convention
+
+A detector (targets.detect: the registry) never raises because the target was
+not found: it returns status "failed" with the reason. Only input that is not
+an image at all raises DetectionInputError. q[i] belongs to
+target.point_ids()[i].
+
+Kept apart from targets.detect so that the detectors import it and the
+registry imports the detectors (lazily) without a cycle.
+'''
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from reference_models.errors import CamvalError
+
+
+class DetectionInputError(CamvalError):
+    '''An image or option a detector cannot work on (not a "target not found").'''
+
+
+@dataclass(frozen=True, eq=False)
+class Detection:
+    r'''What a detector found
+
+q:          (N,2) float64 pixel positions, NaN for points not found
+found:      (N,) bool
+status:     "ok" (at least the detector's min_found points found; n_found says how many)
+            | "failed" (target not found or too few points; reason says why)
+reason:     "" when ok, else why not
+n_expected: N, the number of points of the target
+n_found:    number of points found
+point_ids:  (N,) ids of the points (target.point_ids())
+detector:   name of the detector
+info:       detector-specific figures (JSON-able)
+'''
+
+    q: np.ndarray
+    found: np.ndarray
+    status: str
+    reason: str
+    n_expected: int
+    n_found: int
+    point_ids: np.ndarray = None
+    detector: str = ""
+    info: dict = dataclasses.field(default_factory=dict)
+
+    def as_dict(self):
+        return {"status": self.status, "reason": self.reason, "n_expected": self.n_expected,
+                "n_found": self.n_found, "detector": self.detector,
+                "q": [[float(v) if np.isfinite(v) else None for v in row] for row in self.q],
+                "found": self.found.tolist(),
+                "point_ids": None if self.point_ids is None else self.point_ids.tolist(),
+                "info": self.info}
+
+
+def failed(target, reason, detector, info=None):
+    r'''A Detection of nothing, with the reason'''
+    n = target.Npoints
+    return Detection(q=np.full((n, 2), np.nan), found=np.zeros(n, bool), status="failed",
+                     reason=reason, n_expected=n, n_found=0, point_ids=target.point_ids(),
+                     detector=detector, info=info or {})
+
+
+def result(target, q, detector, min_found=None, info=None):
+    r'''A Detection from (N,2) positions with NaN for missing points'''
+    q = np.asarray(q, dtype=np.float64)
+    found = np.all(np.isfinite(q), axis=-1)
+    n = int(found.sum())
+    need = target.Npoints if min_found is None else min_found
+    if n < need:
+        return Detection(q=q, found=found, status="failed",
+                         reason=f"found {n} of {target.Npoints} points; need {need}",
+                         n_expected=target.Npoints, n_found=n, point_ids=target.point_ids(),
+                         detector=detector, info=info or {})
+    return Detection(q=q, found=found, status="ok", reason="", n_expected=target.Npoints,
+                     n_found=n, point_ids=target.point_ids(), detector=detector,
+                     info=info or {})
+
+
+def as_float_image(image, dtype=np.float64):
+    r'''An image as float (H,W) in [0,1]: uint8/uint16 scaled, colour averaged
+
+dtype float32 halves the memory and time of the conversion of a large image; a
+float32 image is then not copied at all.'''
+    a = np.asarray(image)
+    if a.ndim == 3 and a.shape[2] in (3, 4):
+        a = a[..., :3].astype(np.float64).mean(axis=-1) if a.dtype.kind == "f" else \
+            np.round(a[..., :3].astype(np.float64).mean(axis=-1)).astype(a.dtype)
+    if a.ndim != 2 or min(a.shape) < 2:
+        raise DetectionInputError(f"expected a 2-D grey image (H,W); got an array of shape "
+                                  f"{a.shape}")
+    if a.dtype == np.uint8:
+        return a.astype(dtype) / dtype(255.0)
+    if a.dtype == np.uint16:
+        return a.astype(dtype) / dtype(65535.0)
+    if a.dtype.kind == "b":
+        return a.astype(dtype)
+    if a.dtype.kind in "iu":
+        raise DetectionInputError(f"integer images must be uint8 or uint16; got {a.dtype}")
+    return a.astype(dtype, copy=False) if a.dtype == dtype else a.astype(dtype)
