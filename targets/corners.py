@@ -1,0 +1,436 @@
+r'''Sub-pixel corners: fit the area-sampled image of the edges meeting at each corner
+
+SYNOPSIS
+
+    from targets.corners import refine_corners, wedge_area
+
+    fit = refine_corners(img, q0, directions, wedges, steps, half_box)
+    # img (H,W) float; q0 (N,2) coarse corners; directions (N,R,2) the image directions
+    # of the R edges leaving each corner; wedges (W,2) ray indices (i, j): the dark
+    # region is the union of the wedges from ray i to ray j; steps (N,2,2) the image
+    # displacement of one board unit along the two board axes at the corner;
+    # half_box: the window, |board offset| <= half_box along both axes
+    fit.q          # (N,2) refined corners, NaN where dropped
+    fit.reasons    # (N,) "" or why the corner was dropped
+
+What a renderer draws around a corner of a chessboard or of an AprilTag's black
+border is a few straight board edges meeting at one point, seen through the
+camera: within a window much smaller than the distance to the next feature,
+the edges are rays from the corner (a homography keeps lines straight; lens
+distortion bends them by (curvature x window^2), see below), the dark region
+is a union of wedges between those rays (a chessboard: two opposite wedges;
+an AprilTag's outer corner: one), and each pixel records the area average of
+the albedo over its square [x-0.5, x+0.5] x [y-0.5, y+0.5]
+(reference_models.conventions). So the model of pixel k is
+
+    v_k = a + b * D_k(c, theta),   D_k = area of (pixel k) inside the dark wedges
+
+with the corner c (2), the ray angles theta (R), the light level a and the
+contrast b. D_k is exact: the area of a square inside a wedge of apex c is,
+by Green's theorem with coordinates relative to c (the wedge's own rays add
+nothing since they pass through c), half the sum over the square's edges of
+cross(P - c, Q - c) times the fraction of the edge inside the wedge
+(wedge_area). Its derivatives are exact too: moving the apex by dc changes
+the area by the length of each ray inside the square times the ray's outward
+normal, turning a ray by dtheta by (s1^2 - s0^2)/2 over the ray's stretch
+[s0, s1] inside the square. refine_corners fits all corners at once by
+Gauss-Newton (Levenberg-Marquardt damping) over (c, theta, a, b), in a window
+of the pixels whose whole square lies within half_box board units of the
+coarse corner along both board axes (the local affine map `steps`), and at
+most MAX_WINDOW_PX pixels from it.
+
+The model has no lens distortion: an edge of curvature kappa (1/px) crossing
+a window of half-width w px is fitted by a straight ray, which moves the
+corner by about kappa w^2 / 10. On the exact ray-cast renders of
+benchmarks/bench_corners.py (MER navcam CAHVOR, hazcam CAHVORE fisheyes)
+that stays within the renders' own sampling error (see the benchmark); a
+calibrator that wants it removed computes it from its current model
+(harness.calibrators.bias).
+
+A corner is dropped, never kept at its coarse position, with its reason:
+its window leaves the image or holds fewer than MIN_WINDOW_PIXELS pixels,
+the fit did not converge in MAX_ITERATIONS, the corner moved out of its
+window, the contrast is below MIN_CONTRAST of the image's range, or the
+model misses the pixels by more than MAX_MISFIT of the contrast (RMS: a
+blurred, occluded or misplaced corner).
+'''
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# the window's half-width cap (px): the fit's cost grows as its square, and the bias of
+# edge curvature (kappa w^2 / 10) with it; 8 px is 200+ edge pixels per corner
+MAX_WINDOW_PX = 8
+# fewest pixels of a window: 6 parameters (chessboard) need several edge pixels per ray
+MIN_WINDOW_PIXELS = 16
+MAX_ITERATIONS = 30
+# converged when the corner moves by less than this (px) and the rays turn by less than
+# this over the window (rad x window px)
+CONVERGED_PX = 1e-6
+# the model misfit (RMS / contrast) above which a window is not a sharp corner: a sharp
+# exact render fits to its sampling error (1/K^2 of the contrast, K x K subsamples), sensor
+# noise adds sigma/contrast (under 0.05 for any usable image); a blurred edge over a few px,
+# an occluding object or a corner on the wrong feature misfits by 0.1 or more
+MAX_MISFIT = 0.1
+# contrast below this fraction of the image's range is no corner
+MIN_CONTRAST = 0.2
+
+
+@dataclass(frozen=True, eq=False)
+class CornerFit:
+    r'''Refined corners
+
+q:        (N,2) float64 refined corners, NaN where dropped
+reasons:  (N,) str: "" for a refined corner, else why it was dropped
+misfit:   (N,) RMS model misfit / contrast (NaN if not fitted)
+npixels:  (N,) pixels in each window
+iterations: Gauss-Newton iterations run
+'''
+
+    q: np.ndarray
+    reasons: np.ndarray
+    misfit: np.ndarray
+    npixels: np.ndarray
+    iterations: int = 0
+    info: dict = field(default_factory=dict)
+
+    def dropped(self):
+        r'''{reason: count} of the dropped corners'''
+        out = {}
+        for r in self.reasons:
+            if r:
+                key = r.split(":")[0]
+                out[key] = out.get(key, 0) + 1
+        return out
+
+
+def _cross(a, b):
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+# the pixel square's corners relative to its centre, counter-clockwise in (x, y)
+_SQUARE = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+
+
+def _ray_stretch(d, u):
+    r'''[s0, s1]: the stretch of the ray s u (s >= 0, from the apex) inside a pixel square
+
+d (...,2): pixel centre - apex; u (...,2) unit ray. s1 >= s0 >= 0, equal when the ray misses
+the square (Liang-Barsky clipping).'''
+    lo = np.zeros(d.shape[:-1])
+    hi = np.full(d.shape[:-1], np.inf)
+    for k in range(2):
+        uk = u[..., k]
+        a = d[..., k] - 0.5
+        b = d[..., k] + 0.5
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0 = np.where(uk > 0, a / uk, b / uk)
+            t1 = np.where(uk > 0, b / uk, a / uk)
+        par = uk == 0
+        inside = (a <= 0) & (b >= 0)
+        t0 = np.where(par, np.where(inside, -np.inf, np.inf), t0)
+        t1 = np.where(par, np.where(inside, np.inf, -np.inf), t1)
+        lo = np.maximum(lo, t0)
+        hi = np.minimum(hi, t1)
+    hi = np.maximum(hi, lo)
+    return lo, hi
+
+
+def wedge_area(d, u1, u2, derivatives=False):
+    r'''Area of a unit pixel square inside the wedge from ray u1 counter-clockwise to u2
+
+SYNOPSIS
+
+    A = wedge_area(d, u1, u2)                  # d (...,2) pixel centre - apex; A (...)
+    A, dA_dc, dA_dt1, dA_dt2 = wedge_area(d, u1, u2, derivatives=True)
+    # dA_dc (...,2) per apex move, dA_dt1, dA_dt2 (...) per ray turn (rad, counter-clockwise)
+
+The wedge is {p : cross(u1, p) >= 0 and cross(p, u2) >= 0} (apex at the origin), an
+angle below pi; u1, u2 unit vectors. Exact (Green's theorem, module docstring).
+'''
+    d = np.asarray(d, dtype=np.float64)
+    P = d[..., None, :] + _SQUARE                  # (...,4,2) square corners - apex
+    Q = np.roll(P, -1, axis=-2)
+    e = Q - P
+    t0 = np.zeros(P.shape[:-1])
+    t1 = np.ones(P.shape[:-1])
+    # clip each edge P + t e to cross(u1, p) >= 0 and to cross(p, u2) = cross(-u2, p) >= 0
+    for u in (u1[..., None, :], -u2[..., None, :]):
+        f0 = _cross(u, P)
+        g = _cross(u, e)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = -f0 / g
+        t0 = np.where(g > 0, np.maximum(t0, t), t0)
+        t1 = np.where(g < 0, np.minimum(t1, t), t1)
+        out = (g == 0) & (f0 < 0)
+        t1 = np.where(out, t0, t1)
+    frac = np.maximum(t1 - t0, 0.0)
+    A = 0.5 * (frac * _cross(P, Q)).sum(axis=-1)
+    if not derivatives:
+        return A
+    # the apex moves by dc: the square moves by -dc relative to it
+    s0a, s1a = _ray_stretch(d, u1)
+    s0b, s1b = _ray_stretch(d, u2)
+    perp1 = np.stack((-u1[..., 1], u1[..., 0]), axis=-1)
+    perp2 = np.stack((-u2[..., 1], u2[..., 0]), axis=-1)
+    dA_dc = -(s1a - s0a)[..., None] * perp1 + (s1b - s0b)[..., None] * perp2
+    dA_dt1 = -0.5 * (s1a ** 2 - s0a ** 2)
+    dA_dt2 = 0.5 * (s1b ** 2 - s0b ** 2)
+    return A, dA_dc, dA_dt1, dA_dt2
+
+
+def _window(q0, steps, half_box, shape, max_px):
+    r'''(N,P) pixel indices ix, iy and mask of each corner's window'''
+    H, W = shape
+    r = int(max_px)
+    off = np.arange(-r, r + 1)
+    oy, ox = np.meshgrid(off, off, indexing="ij")
+    ox, oy = ox.ravel(), oy.ravel()
+    c0 = np.round(q0).astype(np.int64)
+    ix = c0[:, 0:1] + ox
+    iy = c0[:, 1:2] + oy
+    # board offsets of the pixel squares' corners (local affine map)
+    Ainv = np.linalg.inv(steps)                                      # (N,2,2)
+    corners = np.stack((ix, iy), axis=-1)[:, :, None, :] + _SQUARE   # (N,P,4,2)
+    rel = corners - q0[:, None, None, :]
+    b = np.einsum("nij,npkj->npki", Ainv, rel)
+    inside = np.all(np.abs(b) <= half_box, axis=(-1, -2))
+    inside &= (np.abs(ix - q0[:, 0:1]) <= max_px) & (np.abs(iy - q0[:, 1:2]) <= max_px)
+    on_image = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
+    return ix, iy, inside, on_image
+
+
+def refine_corners(image, q0, directions, wedges, steps, half_box, *,
+                   max_window_px=MAX_WINDOW_PX, max_misfit=MAX_MISFIT,
+                   min_contrast=MIN_CONTRAST):
+    r'''Refine corners by fitting the area-sampled wedge model; see the module docstring
+
+SYNOPSIS
+
+    fit = refine_corners(img, q0, directions, wedges, steps, half_box)
+
+ARGUMENTS
+
+- image: (H,W) float image (linear in albedo, any scale)
+- q0: (N,2) coarse corners (NaN: not detected, reason "not detected")
+- directions: (N,R,2) image directions of the R edges leaving each corner
+- wedges: sequence of (i, j): the dark region is the union of the wedges between rays i and
+  j (whichever way round is below pi; it must stay so for every corner)
+- steps: (N,2,2) columns: image displacement of one board unit along the two board axes
+- half_box: the window is the pixels whose square lies within half_box board units of the
+  coarse corner along both axes (and within max_window_px px)
+
+RETURNED VALUE
+
+A CornerFit.
+'''
+    img = np.asarray(image, dtype=np.float64)
+    q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
+    N = len(q0)
+    dirs = np.asarray(directions, dtype=np.float64).reshape(N, -1, 2)
+    steps = np.asarray(steps, dtype=np.float64).reshape(N, 2, 2)
+    reasons = np.full(N, "", dtype=object)
+    q = np.full((N, 2), np.nan)
+    misfit = np.full(N, np.nan)
+    npix = np.zeros(N, np.int64)
+    ok = np.all(np.isfinite(q0), axis=-1) & np.all(np.isfinite(dirs), axis=(-1, -2)) \
+        & np.all(np.isfinite(steps), axis=(-1, -2))
+    ok[ok] &= np.abs(np.linalg.det(steps[ok])) > 1e-12
+    reasons[~ok] = "not detected"
+    if not ok.any():
+        return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix)
+    idx = np.flatnonzero(ok)
+    ix, iy, inside, on_image = _window(q0[idx], steps[idx], half_box, img.shape,
+                                       max_window_px)
+    off = (inside & ~on_image).any(axis=-1)
+    n_in = (inside & on_image).sum(axis=-1)
+    npix[idx] = n_in
+    few = ~off & (n_in < MIN_WINDOW_PIXELS)
+    reasons[idx[off]] = "window off the image"
+    reasons[idx[few]] = "window too small"
+    keep = ~off & ~few
+    idx, ix, iy, mask = idx[keep], ix[keep], iy[keep], inside[keep]
+    if not len(idx):
+        return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix)
+    H, W = img.shape
+    v = img[np.clip(iy, 0, H - 1), np.clip(ix, 0, W - 1)]
+    w = mask.astype(np.float64)
+    centres = np.stack((ix, iy), axis=-1).astype(np.float64)
+
+    # the rays' angles; each wedge (i, j) oriented per corner so that its angle is below pi
+    u = dirs[idx]
+    theta = np.arctan2(u[..., 1], u[..., 0])                 # (n,R)
+    wedges = np.asarray(wedges, dtype=np.int64).reshape(-1, 2)
+    ui = u[:, wedges[:, 0]]
+    uj = u[:, wedges[:, 1]]
+    flip = _cross(ui, uj) < 0                                # (n,Nw)
+    first = np.where(flip, wedges[None, :, 1], wedges[None, :, 0])
+    second = np.where(flip, wedges[None, :, 0], wedges[None, :, 1])
+    c = q0[idx].copy()
+    n, R = theta.shape
+
+    def model(s, c, theta):
+        # D (m,P) dark area of each window pixel and its derivatives, for the corners s
+        uu = np.stack((np.cos(theta), np.sin(theta)), axis=-1)     # (m,R,2)
+        d = centres[s] - c[:, None, :]
+        m = len(s)
+        D = np.zeros(d.shape[:-1])
+        dD_dc = np.zeros(d.shape)
+        dD_dt = np.zeros(d.shape[:-1] + (R,))
+        for k in range(first.shape[1]):
+            i1, i2 = first[s, k], second[s, k]
+            u1 = uu[np.arange(m), i1][:, None, :]
+            u2 = uu[np.arange(m), i2][:, None, :]
+            A, dA_dc, dA_dt1, dA_dt2 = wedge_area(d, np.broadcast_to(u1, d.shape),
+                                                  np.broadcast_to(u2, d.shape), True)
+            D += A
+            dD_dc += dA_dc
+            dD_dt += (dA_dt1[..., None] * (np.arange(R) == i1[:, None])[:, None, :]
+                      + dA_dt2[..., None] * (np.arange(R) == i2[:, None])[:, None, :])
+        return D, dD_dc, dD_dt
+
+    def linear(s, D):
+        # light level a and contrast b for the current geometry (weighted least squares)
+        ws, vs = w[s], v[s]
+        sw = ws.sum(-1)
+        sd = (ws * D).sum(-1)
+        sdd = (ws * D * D).sum(-1)
+        sv = (ws * vs).sum(-1)
+        sdv = (ws * D * vs).sum(-1)
+        det = sw * sdd - sd * sd
+        with np.errstate(divide="ignore", invalid="ignore"):
+            b = (sw * sdv - sd * sv) / det
+            a = (sv - b * sd) / sw
+        r = vs - a[:, None] - b[:, None] * D
+        return a, b, (ws * r * r).sum(-1), r
+
+    alls = np.arange(n)
+    D, dD_dc, dD_dt = model(alls, c, theta)
+    a, b, S, r = linear(alls, D)
+    lam = np.full(n, 1e-3)
+    converged = np.zeros(n, bool)
+    it = 0
+    eye = np.eye(4 + R)
+    for it in range(1, MAX_ITERATIONS + 1):
+        s = np.flatnonzero(~converged)
+        if not len(s):
+            break
+        # Jacobian of the model in (a, b, cx, cy, theta...) for the corners still fitting
+        J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
+                            b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]), axis=-1)
+        ws = w[s]
+        JtJ = np.einsum("np,npi,npj->nij", ws, J, J)
+        Jtr = np.einsum("np,npi,np->ni", ws, J, r[s])
+        diag = np.einsum("nii->ni", JtJ)
+        step = np.linalg.solve(JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye,
+                               Jtr[..., None])[..., 0]
+        c1 = c[s] + step[:, 2:4]
+        t1 = theta[s] + step[:, 4:]
+        D1, dD_dc1, dD_dt1 = model(s, c1, t1)
+        a1, b1, S1, r1 = linear(s, D1)
+        better = S1 <= S[s]
+        sb = s[better]
+        c[sb], theta[sb] = c1[better], t1[better]
+        D[sb], dD_dc[sb], dD_dt[sb] = D1[better], dD_dc1[better], dD_dt1[better]
+        a[sb], b[sb], S[sb], r[sb] = a1[better], b1[better], S1[better], r1[better]
+        lam[s] = np.where(better, lam[s] * 0.3, lam[s] * 10.0)
+        dc = np.abs(step[:, 2:4]).max(-1)
+        small = (dc < CONVERGED_PX) & (np.abs(step[:, 4:]).max(-1) * max_window_px < CONVERGED_PX)
+        # a damping this large moves nothing: the fit is at its minimum to rounding
+        converged[s] = (better & small) | ((lam[s] > 1e6) & (dc < 1e-4))
+    rng = float(np.nanmax(img) - np.nanmin(img)) if img.size else 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mis = np.sqrt(S / w.sum(-1)) / np.abs(b)
+    misfit[idx] = mis
+    # the corner must stay inside its window: its board offset from the coarse corner
+    rel = np.einsum("nij,nj->ni", np.linalg.inv(steps[idx]), c - q0[idx])
+    moved = np.abs(rel).max(-1) > half_box
+    why = np.full(len(idx), "", dtype=object)
+    why[~converged] = f"fit not converged in {MAX_ITERATIONS} iterations"
+    why[converged & moved] = "corner moved out of its window"
+    low = converged & ~moved & ~(np.abs(b) >= min_contrast * rng)
+    why[low] = "no contrast"
+    bad = converged & ~moved & ~low & ~(mis <= max_misfit)
+    why[bad] = [f"misfit: {m:.3g} of the contrast (blurred or occluded)" for m in mis[bad]]
+    good = why == ""
+    q[idx[good]] = c[good]
+    reasons[idx] = why
+    return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix, iterations=it)
+
+
+# ---------------------------------------------------------------------------------------------
+# the two corner targets
+# an AprilTag's outer corner: within 1 bit of it along both tag axes the tag is its black
+# border; the window keeps to 0.8 bit, leaving 0.2 bit for the coarse corner's error and for
+# the local affine map's error (the tag's edges are 8 bits long, distortion bends them)
+TAG_HALF_BOX_BITS = 0.8
+# a chessboard corner: the next grid lines are a square away; keep to 0.45 square
+CHESSBOARD_HALF_BOX = 0.45
+
+
+def refine_tag_corners(image, Q, half_box=TAG_HALF_BOX_BITS, **options):
+    r'''Refine the outer corners of AprilTags
+
+SYNOPSIS
+
+    fit = refine_tag_corners(img, Q)   # Q (Ntags,4,2) corners in order round each tag
+    fit.q                              # (Ntags*4,2), NaN where dropped
+
+Corner k of a tag is the apex of the tag's black border between the edges to corners
+k-1 and k+1; one bit of a tag is its side / 8 (tag36h11: 6x6 data bits in a 1-bit border).
+'''
+    Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
+    nxt = np.roll(Q, -1, axis=1) - Q
+    prv = np.roll(Q, 1, axis=1) - Q
+    dirs = np.stack((nxt, prv), axis=2).reshape(-1, 2, 2)
+    steps = np.stack((nxt, prv), axis=-1).reshape(-1, 2, 2) / 8.0
+    return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box, **options)
+
+
+def chessboard_half_box(target):
+    r'''The window half-width (squares) of a chessboard: clear of its orientation-mark dots
+
+A mark dot of radius r squares sits in the middle of a square: it comes within
+sqrt(2)/2 - r of the corner along the diagonal, where the box reaches sqrt(2) half_box.
+'''
+    mark = target.spec.get("orientation_mark")
+    if mark is None:
+        return CHESSBOARD_HALF_BOX
+    r = 0.5 * float(mark["dot_diameter"]) / float(target.spec["square"])
+    return min(CHESSBOARD_HALF_BOX, 0.9 * (0.5 - r / np.sqrt(2.0)))
+
+
+def refine_chessboard_corners(image, G, half_box=CHESSBOARD_HALF_BOX, **options):
+    r'''Refine the inner corners of a chessboard
+
+SYNOPSIS
+
+    fit = refine_chessboard_corners(img, G, chessboard_half_box(target))
+    # G (ny,nx,2) coarse corners of the grid, NaN where missing; fit.q (ny*nx,2)
+
+The four edges at a corner run along the grid lines towards the neighbouring corners
+(differences along the grid; central where both neighbours are found).
+'''
+    G = np.asarray(G, dtype=np.float64)
+    ex = _grid_step(G, axis=1)
+    ey = _grid_step(G, axis=0)
+    dirs = np.stack((ex, ey, -ex, -ey), axis=2).reshape(-1, 4, 2)
+    steps = np.stack((ex, ey), axis=-1).reshape(-1, 2, 2)
+    return refine_corners(image, G.reshape(-1, 2), dirs, [(0, 1), (2, 3)], steps, half_box,
+                          **options)
+
+
+def _grid_step(G, axis):
+    r'''(ny,nx,2) image step to the next corner along an axis: central difference where both
+neighbours are found, else one-sided, NaN for a corner with neither'''
+    fwd = np.full(G.shape, np.nan)
+    bwd = np.full(G.shape, np.nan)
+    if axis == 1:
+        fwd[:, :-1] = G[:, 1:] - G[:, :-1]
+        bwd[:, 1:] = G[:, 1:] - G[:, :-1]
+    else:
+        fwd[:-1] = G[1:] - G[:-1]
+        bwd[1:] = G[1:] - G[:-1]
+    both = 0.5 * (fwd + bwd)
+    return np.where(np.isfinite(both), both, np.where(np.isfinite(fwd), fwd, bwd))
