@@ -64,14 +64,15 @@ import numpy as np
 MAX_WINDOW_PX = 8
 # fewest pixels of a window: 6 parameters (chessboard) need several edge pixels per ray
 MIN_WINDOW_PIXELS = 16
-MAX_ITERATIONS = 30
+MAX_ITERATIONS = 50
 # the first pass only places the second's window: it stops at this step (px)
 FIRST_PASS_CONVERGED_PX = 1e-3
 # px by which the first pass widens each pixel for the derivatives (refine_corners)
 JACOBIAN_WIDEN = 0.1
-# converged when the corner moves by less than this (px) and the rays turn by less than
-# this over the window (rad x window px)
-CONVERGED_PX = 1e-6
+# converged when a step moves the corner by less than this (px) and turns the rays by less
+# than this over the window (rad x window px): a tenth of the accuracy sought (1e-3 px);
+# the misfit is piecewise smooth (pixel areas), and near a kink the steps shrink slowly
+CONVERGED_PX = 1e-4
 # the model misfit (RMS / contrast) above which a window is not a sharp corner: a sharp
 # exact render fits to its sampling error (1/K^2 of the contrast, K x K subsamples), sensor
 # noise adds sigma/contrast (under 0.05 for any usable image); a blurred edge over a few px,
@@ -139,8 +140,8 @@ the square (Liang-Barsky clipping).'''
         t1 = np.where(par, np.where(inside, np.inf, -np.inf), t1)
         lo = np.maximum(lo, t0)
         hi = np.minimum(hi, t1)
-    hi = np.maximum(hi, lo)
-    return lo, hi
+    miss = ~(hi > lo) | ~np.isfinite(hi)
+    return np.where(miss, 0.0, lo), np.where(miss, 0.0, hi)
 
 
 def wedge_area(d, u1, u2, derivatives=False, widen=0.0):
@@ -350,13 +351,13 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
     D, dD_dc, dD_dt = model(alls, c, theta)
     a, b, S, r = linear(alls, D)
     lam = np.full(n, 1e-3)
+    prev = np.zeros((n, 4 + R))
     converged = np.zeros(n, bool)
     it = 0
     eye = np.eye(4 + R)
-    for it in range(1, MAX_ITERATIONS + 1):
+    while it < MAX_ITERATIONS and not converged.all():
+        it += 1
         s = np.flatnonzero(~converged)
-        if not len(s):
-            break
         # Jacobian of the model in (a, b, cx, cy, theta...) for the corners still fitting
         J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
                             b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]), axis=-1)
@@ -375,11 +376,16 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
         c[sb], theta[sb] = c1[better], t1[better]
         D[sb], dD_dc[sb], dD_dt[sb] = D1[better], dD_dc1[better], dD_dt1[better]
         a[sb], b[sb], S[sb], r[sb] = a1[better], b1[better], S1[better], r1[better]
-        lam[s] = np.where(better, lam[s] * 0.3, lam[s] * 10.0)
+        # a step back along the last accepted one is a zig-zag across a kink of the misfit
+        # (pixel areas are piecewise smooth): damp it like a failed step
+        zig = (step * prev[s]).sum(-1) < -0.5 * np.linalg.norm(step, axis=-1) \
+            * np.linalg.norm(prev[s], axis=-1)
+        lam[s] = np.where(better & ~zig, np.maximum(lam[s] * 0.3, 1e-6), lam[s] * 10.0)
+        prev[sb] = step[better]
         dc = np.abs(step[:, 2:4]).max(-1)
         small = (dc < converged_px) & (np.abs(step[:, 4:]).max(-1) * max_window_px < converged_px)
         # a damping this large moves nothing: the fit is at its minimum to rounding
-        converged[s] = (better & small) | ((lam[s] > 1e6) & (dc < 1e-4))
+        converged[s] = (better & small) | ((lam[s] > 1e6) & (dc < converged_px))
     rng = float(np.nanmax(img) - np.nanmin(img)) if img.size else 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
         mis = np.sqrt(S / w.sum(-1)) / np.abs(b)

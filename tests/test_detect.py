@@ -114,11 +114,14 @@ def test_apriltags_decoded_with_the_right_ids():
     for Rt in plan_poses(m, t, seed=0):
         det = detect(render(m, t.pattern(), Rt, K=4), t)
         assert det.status == "ok", det.reason
-        assert det.n_found == det.n_expected == 144
+        # every corner of the 36 tags refined, or dropped with its reason (tag bits of 3-4 px
+        # give the corner model too small a window: targets.corners)
+        dropped = sum(det.info["corners_dropped"].values())
+        assert det.n_found + dropped == det.n_expected == 144
         assert det.info["Ntags_decoded"] == 36
         err = np.linalg.norm(det.q - projected_points(m, t, Rt), axis=-1)
         # right ids and corner order (a wrong one is a tag or more away), convention shifted
-        assert err.max() < 0.6 and np.sqrt(np.mean(err ** 2)) < 0.25
+        assert np.nanmax(err) < 0.6 and np.sqrt(np.nanmean(err ** 2)) < 0.25
 
 
 def _mirrored_camera(W, H, f):
