@@ -396,7 +396,7 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
     why = np.full(len(idx), "", dtype=object)
     why[~converged] = f"fit not converged in {MAX_ITERATIONS} iterations"
     why[converged & moved] = "corner moved out of its window"
-    low = converged & ~moved & ~(np.abs(b) >= min_contrast * rng)
+    low = converged & ~moved & ~(np.abs(b) > min_contrast * rng)
     why[low] = "no contrast"
     bad = converged & ~moved & ~low & ~(mis <= max_misfit)
     why[bad] = [f"misfit: {m:.3g} of the contrast (blurred or occluded)" for m in mis[bad]]
