@@ -295,6 +295,9 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
     idx, ix, iy, mask = idx[keep], ix[keep], iy[keep], inside[keep]
     if not len(idx):
         return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix)
+    # each window's pixels first, then only as many columns as the largest window has
+    order = np.argsort(~mask, axis=-1, kind="stable")[:, :int(mask.sum(-1).max())]
+    ix, iy, mask = (np.take_along_axis(x, order, axis=-1) for x in (ix, iy, mask))
     H, W = img.shape
     v = img[np.clip(iy, 0, H - 1), np.clip(ix, 0, W - 1)]
     w = mask.astype(np.float64)
@@ -362,8 +365,9 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
         J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
                             b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]), axis=-1)
         ws = w[s]
-        JtJ = np.einsum("np,npi,npj->nij", ws, J, J)
-        Jtr = np.einsum("np,npi,np->ni", ws, J, r[s])
+        Jw = J * ws[..., None]
+        JtJ = Jw.transpose(0, 2, 1) @ J
+        Jtr = (Jw.transpose(0, 2, 1) @ r[s][..., None])[..., 0]
         diag = np.einsum("nii->ni", JtJ)
         step = np.linalg.solve(JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye,
                                Jtr[..., None])[..., 0]
