@@ -488,3 +488,97 @@ neighbours are found, else one-sided, NaN for a corner with neither'''
         bwd[1:] = G[1:] - G[:-1]
     both = 0.5 * (fwd + bwd)
     return np.where(np.isfinite(both), both, np.where(np.isfinite(fwd), fwd, bwd))
+
+
+# ---------------------------------------------------------------------------------------------
+# the bias of straight rays on curved edges
+def corner_rays(target):
+    r'''The board-frame rays of every corner of a corner target
+
+SYNOPSIS
+
+    rays, unit, wedges, half_box = corner_rays(target)
+    # rays (N,R,3) unit board directions of the edges leaving each of target.points();
+    # unit: board length of one window unit (a square, a tag bit); wedges, half_box as
+    # refine_chessboard_corners / refine_tag_corners use them
+'''
+    p = target.points()
+    if target.kind == "chessboard":
+        ex, ey = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+        rays = np.broadcast_to(np.stack((ex, ey, -ex, -ey)), (len(p), 4, 3)).copy()
+        return rays, float(target.spec["square"]), [(0, 1), (2, 3)], chessboard_half_box(target)
+    if target.kind == "apriltag":
+        Q = p.reshape(-1, 4, 3)
+        nxt = np.roll(Q, -1, axis=1) - Q
+        prv = np.roll(Q, 1, axis=1) - Q
+        rays = np.stack((nxt, prv), axis=2).reshape(-1, 2, 3)
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+        return rays, float(target.spec["tag_size"]) / 8.0, [(0, 1)], TAG_HALF_BOX_BITS
+    raise ValueError(f"corner_rays() needs a chessboard or apriltag target; got {target.kind!r}")
+
+
+def curvature_bias(q, tangents, curvatures, wedges, steps, half_box,
+                   max_window_px=MAX_WINDOW_PX):
+    r'''Where refine_corners puts a corner whose edges are curved, minus the corner: px
+
+SYNOPSIS
+
+    b = curvature_bias(q, tangents, curvatures, wedges, steps, half_box)
+    # q (N,2) true corners; tangents (N,R,2) unit tangents of the R edges at the corner;
+    # curvatures (N,R): edge i passes through q + s t + (k s^2 / 2) perp(t), perp(t) =
+    # (-t_y, t_x); b (N,2); q_refined - b estimates the corner
+
+The model fits straight rays; an edge bent by k moves each pixel's dark area by
+the area between the curve and its tangent inside the pixel, k (s1^3 - s0^3) / 6
+over the tangent's stretch [s0, s1] in it (to first order in k). The fit's
+response to that change is its linearised least-squares step, (J^T J)^-1 J^T dv,
+in the window the refiner would use about the true corner. First order in k:
+the neglected terms are k^2 w^3 (1e-6 px for k = 1e-3/px, w = 8 px).
+'''
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    N = len(q)
+    t = np.asarray(tangents, dtype=np.float64).reshape(N, -1, 2)
+    k = np.asarray(curvatures, dtype=np.float64).reshape(N, -1)
+    steps = np.asarray(steps, dtype=np.float64).reshape(N, 2, 2)
+    out = np.full((N, 2), np.nan)
+    ok = np.all(np.isfinite(q), -1) & np.all(np.isfinite(t), (-1, -2)) \
+        & np.all(np.isfinite(k), -1) & np.all(np.isfinite(steps), (-1, -2))
+    ok[ok] &= np.abs(np.linalg.det(steps[ok])) > 1e-12
+    if not ok.any():
+        return out
+    idx = np.flatnonzero(ok)
+    big = (1 << 40, 1 << 40)
+    ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px)
+    centres = np.stack((ix, iy), axis=-1).astype(np.float64)
+    d = centres - q[idx, None, :]
+    w = inside.astype(np.float64)
+    n, R = k[idx].shape
+    wedges = np.asarray(wedges, dtype=np.int64).reshape(-1, 2)
+    u = t[idx]
+    D = np.zeros(d.shape[:-1])
+    dD_dc = np.zeros(d.shape)
+    dD_dt = np.zeros(d.shape[:-1] + (R,))
+    dv = np.zeros(d.shape[:-1])
+    rows = np.arange(n)
+    for i, j in wedges:
+        flip = _cross(u[:, i], u[:, j]) < 0
+        i1 = np.where(flip, j, i)
+        i2 = np.where(flip, i, j)
+        u1 = np.broadcast_to(u[rows, i1][:, None, :], d.shape)
+        u2 = np.broadcast_to(u[rows, i2][:, None, :], d.shape)
+        A, dA_dc, dA_dt1, dA_dt2 = wedge_area(d, u1, u2, True)
+        D += A
+        dD_dc += dA_dc
+        dD_dt += (dA_dt1[..., None] * (np.arange(R) == i1[:, None])[:, None, :]
+                  + dA_dt2[..., None] * (np.arange(R) == i2[:, None])[:, None, :])
+        # a ray bent towards the outside of the dark wedge adds dark area: the outward
+        # normal is -perp(u1) on the first ray and +perp(u2) on the second
+        for uu, ii, sign in ((u1, i1, -1.0), (u2, i2, 1.0)):
+            s0, s1 = _ray_stretch(d, uu)
+            dv += sign * k[idx][rows, ii][:, None] * (s1 ** 3 - s0 ** 3) / 6.0
+    J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], dD_dc, dD_dt), axis=-1)
+    Jw = J * w[..., None]
+    JtJ = Jw.transpose(0, 2, 1) @ J + 1e-12 * np.eye(J.shape[-1])
+    step = np.linalg.solve(JtJ, (Jw.transpose(0, 2, 1) @ dv[..., None]))[..., 0]
+    out[idx] = step[:, 2:4]
+    return out
