@@ -41,11 +41,16 @@ most MAX_WINDOW_PX pixels from it.
 
 The model has no lens distortion: an edge of curvature kappa (1/px) crossing
 a window of half-width w px is fitted by a straight ray, which moves the
-corner by about kappa w^2 / 10. On the exact ray-cast renders of
-benchmarks/bench_corners.py (MER navcam CAHVOR, hazcam CAHVORE fisheyes)
-that stays within the renders' own sampling error (see the benchmark); a
-calibrator that wants it removed computes it from its current model
-(harness.calibrators.bias).
+corner by about kappa w^2 / 10: 0.004-0.007 px RMS on a MER hazcam fisheye
+(catalogue slot 8), 2e-5 px on a navcam (15). curvature_bias predicts it from
+a camera model and pose (first order in kappa), and the calibrators' bias
+loop removes it (harness.calibrators.bias.corner_bias): 0.0005-0.0012 px RMS
+left on K=64 ray-cast renders of slot 8 (benchmarks/bench_corners.py).
+
+A renderer that samples each pixel at K x K points sees an edge parallel to
+the pixel grid only to 1/(2K) px; the corners of a board posed without roll
+(edges within 0.1 deg of the grid) inherit that: 0.006-0.013 px RMS, 0.03-0.05
+px max at K = 16, 0.0003-0.002 at K = 64 (the same poses and cameras).
 
 A corner is dropped, never kept at its coarse position, with its reason:
 its window leaves the image or holds fewer than MIN_WINDOW_PIXELS pixels,
