@@ -67,8 +67,12 @@ import numpy as np
 # the window's half-width cap (px): the fit's cost grows as its square, and the bias of
 # edge curvature (kappa w^2 / 10) with it; 8 px is 200+ edge pixels per corner
 MAX_WINDOW_PX = 8
-# fewest pixels of a window: 6 parameters (chessboard) need several edge pixels per ray
-MIN_WINDOW_PIXELS = 16
+# fewest pixels of a window. A window of n pixels spans ~sqrt(n) px along each ray; the
+# fit needs several edge pixels per geometric parameter (2 + R) to average the image's
+# sampling error rather than follow it: with 16-25 pixels (4-5 px across, AprilTag bits of
+# 3-4 px) corners were off by up to 0.38 px at a misfit below the image's median, with 30
+# or more by 0.07 at most (benchmarks/bench_corners.py, hazcam 17)
+MIN_WINDOW_PIXELS = 30
 MAX_ITERATIONS = 50
 # the first pass only places the second's window: it stops at this step (px)
 FIRST_PASS_CONVERGED_PX = 1e-3

@@ -160,6 +160,10 @@ ARGUMENTS
     if refine is True and used:
         info["corners_dropped"] = fit.dropped()
     if not np.isfinite(q).any():
+        if used:
+            return failed(target, f"every corner of the {len(used)} tags of the board decoded was "
+                          f"dropped by the corner refinement: {info.get('corners_dropped')}",
+                          DETECTOR, info)
         return failed(target, f"no tag of the board decoded ({len(tags)} tags decoded in all)",
                       DETECTOR, info)
     return result(target, q, DETECTOR, min_found=min_found, info=info)
