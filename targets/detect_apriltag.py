@@ -22,6 +22,15 @@ Pixel convention: the AprilTag library puts the centre of pixel (0,0) at
 measured in tests/test_detect.py), camval at (0,0): corners are shifted by
 APRILTAG_PIXEL_OFFSET.
 
+refine=True (default) fits each corner with targets.corners.refine_tag_corners:
+the exact area-sampled image of the two border edges meeting there, in a
+window of 0.8 tag bit (0.06-1.06 px RMS -> 0.004-0.017 px on exact K=16
+ray-cast renders of MER navcam and hazcam fisheyes, the renders' own sampling
+error; benchmarks/bench_corners.py). A corner the fit cannot refine (a tag bit
+of a few px gives too small a window) is dropped, never kept at the coarse
+position (info["corners_dropped"]: {reason: count}). refine="subpix" is the
+older polish described next, kept for comparison.
+
 The AprilTag corners come from straight-line fits to each tag edge
 (refine_edges): under strong lens distortion the edges are curved and the
 corners are biased by a fraction of a pixel; they are not subpixel-exact like
@@ -91,7 +100,8 @@ ARGUMENTS
 - max_hamming: largest number of corrected bit errors accepted
 - min_found: fewest corners for status "ok" (default 4: one tag)
 - quad_decimate, quad_sigma, refine_edges, decode_sharpening: pupil_apriltags' options
-- refine: polish each corner with cv2.cornerSubPix in a window of half a tag bit
+- refine: True: fit the corner model (targets.corners); "subpix": polish each corner with
+  cv2.cornerSubPix in a window of half a tag bit; False: pupil_apriltags' corners
 '''
     img = as_float_image(image)
     if target.kind != "apriltag":
@@ -128,18 +138,32 @@ ARGUMENTS
         if mirrored:
             c[:, 0] = W - 1 - c[:, 0]
         seen.setdefault(tag.tag_id, []).append(c)
+    used = []
     for tag_id, corners in seen.items():
         if len(corners) > 1:
             rejected["duplicate"] += len(corners)
             continue
         c = corners[0]
-        if refine:
+        if refine == "subpix":
             c = _refine(img32, c)
+        used.append((tag_id, c))
+    if refine is True and used:
+        from .corners import refine_tag_corners
+        fit = refine_tag_corners(img, np.array([c for _, c in used]))
+        refined = fit.q.reshape(-1, 4, 2)
+        used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
+    for tag_id, c in used:
         for k in range(4):
             q[index[4 * tag_id + k]] = c[k]
     info = {"Ntags_decoded": len(tags), "Ntags_used": int(np.isfinite(q[:, 0]).sum() // 4),
             "rejected": rejected, "mirrored": mirrored}
+    if refine is True and used:
+        info["corners_dropped"] = fit.dropped()
     if not np.isfinite(q).any():
+        if used:
+            return failed(target, f"every corner of the {len(used)} tags of the board decoded was "
+                          f"dropped by the corner refinement: {info.get('corners_dropped')}",
+                          DETECTOR, info)
         return failed(target, f"no tag of the board decoded ({len(tags)} tags decoded in all)",
                       DETECTOR, info)
     return result(target, q, DETECTOR, min_found=min_found, info=info)

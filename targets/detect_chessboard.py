@@ -9,7 +9,12 @@ SYNOPSIS
 
 OpenCV's findChessboardCornersSB (sector-based) finds the nx x ny inner
 corners (if it fails, findChessboardCorners); cornerSubPix then polishes them
-(about 0.2 px RMS -> 0.1 px on distorted, tilted boards). OpenCV numbers the
+(about 0.2 px RMS -> 0.1 px on distorted, tilted boards), and
+targets.corners.refine_chessboard_corners fits the exact area-sampled image of
+the four square edges at each corner (0.06-0.1 px -> 0.002-0.01 px RMS on exact
+K=16 ray-cast renders, whose own sampling error that is; see
+benchmarks/bench_corners.py). A corner the fit cannot refine is dropped
+(info["corners_dropped"]: {reason: count}), never kept at OpenCV's position. OpenCV numbers the
 corners in one of the 8 rotations/flips of the grid (any of them for a square
 grid). The numbering is fixed by the squares: for
 each candidate numbering, every interior square's centre (the crossing of its
@@ -100,7 +105,8 @@ ARGUMENTS
 - image: (H,W) float in [0,1], or uint8/uint16 (OpenCV gets 8 bits)
 - target: a "chessboard" targets.boards.Target
 - min_found: fewest corners for status "ok" (default: all)
-- refine: polish the corners with cv2.cornerSubPix (window 0.15 of the smallest square)
+- refine: True: polish the corners with cv2.cornerSubPix, then fit the corner model
+  (targets.corners); "subpix": cornerSubPix only; False: OpenCV's corners as found
 - reduced_search: on large images, search at reduced size first (falls back to full
   size when a corner wanders off its refinement window)
 '''
@@ -199,5 +205,10 @@ ARGUMENTS
                                      reduced_search=False)
         info["rejected_corners"] = int(not_saddle.sum())
         G[not_saddle] = np.nan
+    if refine is True:
+        from .corners import chessboard_half_box, refine_chessboard_corners
+        fit = refine_chessboard_corners(img, G, chessboard_half_box(target))
+        info["corners_dropped"] = fit.dropped()
+        G = fit.q.reshape(ny, nx, 2)
     return result(target, G.reshape(-1, 2), DETECTOR,
                   min_found=min_found, info=info)

@@ -1,0 +1,150 @@
+r'''Corner accuracy of the AprilTag and chessboard detectors against the exact projections
+
+SYNOPSIS
+
+    uv run --frozen python benchmarks/bench_corners.py [--cameras 15,17,8] [--spp 16]
+        [--poses 6] [--images /tmp/cornerbench] [--out benchmarks/results]
+
+For each camera (its catalogue model in its own family), target (apriltag,
+chessboard) and planned pose, the ray-cast renderer draws the board with --spp x
+--spp subsamples per pixel (images kept as .npy in --images and reused). Each image
+goes through every method:
+
+- apriltag: pupil_apriltags' corners (refine=False); those polished by cv2.cornerSubPix
+  (refine="subpix"); camval's refined corners (targets.corners, refine=True)
+- chessboard: cv2.findChessboardCornersSB (+ the orientation by the mark, refine=False);
+  polished by cv2.cornerSubPix (refine="subpix"); camval's refined corners
+
+The truth is targets.centroids.projected_points: the board's corner points projected
+through the camera. Prints the table method x camera (corner error RMS / max px,
+corners found, median seconds per image) and writes one JSON document to
+--out/<UTC stamp>-corners.json (never overwriting).
+'''
+
+import argparse
+import json
+import platform
+import sys
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+METHODS = {
+    "apriltag": [("pupil_apriltags", False), ("pupil_apriltags+cornerSubPix", "subpix"),
+                 ("camval", True)],
+    "chessboard": [("findChessboardCornersSB", False),
+                   ("findChessboardCornersSB+cornerSubPix", "subpix"), ("camval", True)],
+}
+FAMILY_ORDER = ("CAHV", "CAHVOR", "CAHVORE")
+
+
+def render_images(directory, camera, tname, spp, nposes):
+    r'''[(image, truth (N,2))] of one camera and target, rendered once into directory'''
+    from harness.campaign import load_campaign
+    from harness.runner import (
+        StageFailed,
+        _target,
+        camera_stage,
+        expand_jobs,
+        poses_stage,
+        render_stage,
+    )
+    from targets.centroids import projected_points
+
+    jobs = [j for j in expand_jobs(load_campaign(ROOT / "campaigns" / "quick.toml"))
+            if j.camera == str(camera)]
+    if not jobs:
+        jobs = [j for j in expand_jobs(load_campaign(ROOT / "campaigns" / "paper.toml"))
+                if j.camera == str(camera)]
+    # the camera's own model: the richest family it can be taken as
+    for job in sorted(jobs, key=lambda j: -FAMILY_ORDER.index(j.family)):
+        try:
+            _, truth = camera_stage(job)
+            break
+        except StageFailed:
+            continue
+    target = _target(tname)
+    poses = poses_stage(truth, target, nposes, 0)
+    out = []
+    directory.mkdir(parents=True, exist_ok=True)
+    missing = [i for i in range(len(poses))
+               if not (directory / f"cam{camera}_{tname}_k{spp}_{i}.npy").exists()]
+    if missing:
+        settings = dict(job.settings, spp=spp)
+        results, _, _ = render_stage(job.renderer, truth, target,
+                                     [poses[i] for i in missing], settings)
+        for i, r in zip(missing, results, strict=True):
+            np.save(directory / f"cam{camera}_{tname}_k{spp}_{i}.npy", np.asarray(r.image))
+    for i, Rt in enumerate(poses):
+        img = np.load(directory / f"cam{camera}_{tname}_k{spp}_{i}.npy")
+        out.append((img, projected_points(truth, target, Rt)))
+    return job.family, target, out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cameras", default="15,17,8")
+    ap.add_argument("--targets", default="apriltag,chessboard")
+    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--poses", type=int, default=6)
+    ap.add_argument("--images", type=Path, default=Path("/tmp/cornerbench"))
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    args = ap.parse_args()
+
+    from harness.records import git_commit
+    from targets.detect import detect
+
+    rows = []
+    for cam in args.cameras.split(","):
+        for tname in args.targets.split(","):
+            family, target, images = render_images(args.images, cam, tname, args.spp,
+                                                   args.poses)
+            for method, refine in METHODS[tname]:
+                errs, secs, found, dropped = [], [], 0, {}
+                for img, truth in images:
+                    t0 = time.perf_counter()
+                    det = detect(img, target, refine=refine, min_found=4)
+                    secs.append(time.perf_counter() - t0)
+                    e = np.linalg.norm(det.q - truth, axis=-1)
+                    errs.append(e[np.isfinite(e)])
+                    found += int(det.n_found)
+                    for k, v in det.info.get("corners_dropped", {}).items():
+                        dropped[k] = dropped.get(k, 0) + v
+                e = np.concatenate(errs)
+                row = {"fullname": f"{cam}/{family}/{tname}/{method}", "camera": cam,
+                       "family": family, "target": tname, "method": method,
+                       "spp": args.spp, "images": len(images),
+                       "shape": list(images[0][0].shape),
+                       "corners_expected": int(target.Npoints * len(images)),
+                       "corners_found": found, "corners_dropped": dropped,
+                       "error_rms_px": float(np.sqrt(np.mean(e ** 2))) if len(e) else None,
+                       "error_max_px": float(e.max()) if len(e) else None,
+                       "seconds_median": float(np.median(secs))}
+                rows.append(row)
+                print(f"{cam:>3s} {family:8s} {tname:10s} {method:38s} "
+                      f"rms {row['error_rms_px']:.4f} max {row['error_max_px']:.4f} px  "
+                      f"{found:4d}/{row['corners_expected']} found  "
+                      f"{row['seconds_median']:.3f} s/image"
+                      + (f"  dropped {dropped}" if dropped else ""), flush=True)
+    doc = {"schema": 1, "date": datetime.now(UTC).isoformat(timespec="seconds"),
+           "commit": git_commit()["commit"], "python": platform.python_version(),
+           "machine": platform.machine(), "renderer": "raycast", "spp": args.spp,
+           "truth": "targets.centroids.projected_points", "records": rows}
+    args.out.mkdir(parents=True, exist_ok=True)
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    path = args.out / f"{stamp}-corners.json"
+    k = 1
+    while path.exists():
+        path = args.out / f"{stamp}-{k}-corners.json"
+        k += 1
+    path.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    print("wrote", path)
+
+
+if __name__ == "__main__":
+    main()

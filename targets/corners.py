@@ -1,0 +1,593 @@
+r'''Sub-pixel corners: fit the area-sampled image of the edges meeting at each corner
+
+SYNOPSIS
+
+    from targets.corners import refine_corners, wedge_area
+
+    fit = refine_corners(img, q0, directions, wedges, steps, half_box)
+    # img (H,W) float; q0 (N,2) coarse corners; directions (N,R,2) the image directions
+    # of the R edges leaving each corner; wedges (W,2) ray indices (i, j): the dark
+    # region is the union of the wedges from ray i to ray j; steps (N,2,2) the image
+    # displacement of one board unit along the two board axes at the corner;
+    # half_box: the window, |board offset| <= half_box along both axes
+    fit.q          # (N,2) refined corners, NaN where dropped
+    fit.reasons    # (N,) "" or why the corner was dropped
+
+What a renderer draws around a corner of a chessboard or of an AprilTag's black
+border is a few straight board edges meeting at one point, seen through the
+camera: within a window much smaller than the distance to the next feature,
+the edges are rays from the corner (a homography keeps lines straight; lens
+distortion bends them by (curvature x window^2), see below), the dark region
+is a union of wedges between those rays (a chessboard: two opposite wedges;
+an AprilTag's outer corner: one), and each pixel records the area average of
+the albedo over its square [x-0.5, x+0.5] x [y-0.5, y+0.5]
+(reference_models.conventions). So the model of pixel k is
+
+    v_k = a + b * D_k(c, theta),   D_k = area of (pixel k) inside the dark wedges
+
+with the corner c (2), the ray angles theta (R), the light level a and the
+contrast b. D_k is exact: the area of a square inside a wedge of apex c is,
+by Green's theorem with coordinates relative to c (the wedge's own rays add
+nothing since they pass through c), half the sum over the square's edges of
+cross(P - c, Q - c) times the fraction of the edge inside the wedge
+(wedge_area). Its derivatives are exact too: moving the apex by dc changes
+the area by the length of each ray inside the square times the ray's outward
+normal, turning a ray by dtheta by (s1^2 - s0^2)/2 over the ray's stretch
+[s0, s1] inside the square. refine_corners fits all corners at once by
+Gauss-Newton (Levenberg-Marquardt damping) over (c, theta, a, b), in a window
+of the pixels whose whole square lies within half_box board units of the
+coarse corner along both board axes (the local affine map `steps`), and at
+most MAX_WINDOW_PX pixels from it.
+
+The model has no lens distortion: an edge of curvature kappa (1/px) crossing
+a window of half-width w px is fitted by a straight ray, which moves the
+corner by about kappa w^2 / 10: 0.004-0.007 px RMS on a MER hazcam fisheye
+(catalogue slot 8), 2e-5 px on a navcam (15). curvature_bias predicts it from
+a camera model and pose (first order in kappa), and the calibrators' bias
+loop removes it (harness.calibrators.bias.corner_bias): 0.0005-0.0012 px RMS
+left on K=64 ray-cast renders of slot 8 (benchmarks/bench_corners.py).
+
+A renderer that samples each pixel at K x K points sees an edge parallel to
+the pixel grid only to 1/(2K) px; the corners of a board posed without roll
+(edges within 0.1 deg of the grid) inherit that: 0.006-0.013 px RMS, 0.03-0.05
+px max at K = 16, 0.0003-0.002 at K = 64 (the same poses and cameras).
+
+A corner is dropped, never kept at its coarse position, with its reason:
+its window leaves the image or holds fewer than MIN_WINDOW_PIXELS pixels,
+the fit did not converge in MAX_ITERATIONS, the corner moved out of its
+window, the contrast is below MIN_CONTRAST of the image's range, or the
+model misses the pixels by more than MAX_MISFIT of the contrast (RMS: a
+blurred, occluded or misplaced corner).
+'''
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# the window's half-width cap (px): the fit's cost grows as its square, and the bias of
+# edge curvature (kappa w^2 / 10) with it; 8 px is 200+ edge pixels per corner
+MAX_WINDOW_PX = 8
+# fewest pixels of a window. A window of n pixels spans ~sqrt(n) px along each ray; the
+# fit needs several edge pixels per geometric parameter (2 + R) to average the image's
+# sampling error rather than follow it: with 16-25 pixels (4-5 px across, AprilTag bits of
+# 3-4 px) corners were off by up to 0.38 px at a misfit below the image's median, with 30
+# or more by 0.07 at most (benchmarks/bench_corners.py, hazcam 17)
+MIN_WINDOW_PIXELS = 30
+MAX_ITERATIONS = 50
+# the first pass only places the second's window: it stops at this step (px)
+FIRST_PASS_CONVERGED_PX = 1e-3
+# px by which the first pass widens each pixel for the derivatives (refine_corners)
+JACOBIAN_WIDEN = 0.1
+# converged when a step moves the corner by less than this (px) and turns the rays by less
+# than this over the window (rad x window px): a tenth of the accuracy sought (1e-3 px);
+# the misfit is piecewise smooth (pixel areas), and near a kink the steps shrink slowly
+CONVERGED_PX = 1e-4
+# the model misfit (RMS / contrast) above which a window is not a sharp corner: a sharp
+# exact render fits to its sampling error (1/K^2 of the contrast, K x K subsamples), sensor
+# noise adds sigma/contrast (under 0.05 for any usable image); a blurred edge over a few px,
+# an occluding object or a corner on the wrong feature misfits by 0.1 or more
+MAX_MISFIT = 0.1
+# contrast below this fraction of the image's range is no corner
+MIN_CONTRAST = 0.2
+
+
+@dataclass(frozen=True, eq=False)
+class CornerFit:
+    r'''Refined corners
+
+q:        (N,2) float64 refined corners, NaN where dropped
+reasons:  (N,) str: "" for a refined corner, else why it was dropped
+misfit:   (N,) RMS model misfit / contrast (NaN if not fitted)
+npixels:  (N,) pixels in each window
+iterations: Gauss-Newton iterations run (the most of any corner, summed over the passes)
+directions: (N,R,2) the fitted unit directions of the rays (NaN where not fitted)
+'''
+
+    q: np.ndarray
+    reasons: np.ndarray
+    misfit: np.ndarray
+    npixels: np.ndarray
+    iterations: int = 0
+    directions: np.ndarray = None
+    info: dict = field(default_factory=dict)
+
+    def dropped(self):
+        r'''{reason: count} of the dropped corners'''
+        out = {}
+        for r in self.reasons:
+            if r:
+                key = r.split(":")[0]
+                out[key] = out.get(key, 0) + 1
+        return out
+
+
+def _cross(a, b):
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+# the pixel square's corners relative to its centre, counter-clockwise in (x, y)
+_SQUARE = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+
+
+def _ray_stretch(d, u, half=0.5):
+    r'''[s0, s1]: the stretch of the ray s u (s >= 0, from the apex) inside a pixel square
+
+d (...,2): pixel centre - apex; u (...,2) unit ray. s1 >= s0 >= 0, equal when the ray misses
+the square (Liang-Barsky clipping).'''
+    lo = np.zeros(d.shape[:-1])
+    hi = np.full(d.shape[:-1], np.inf)
+    for k in range(2):
+        uk = u[..., k]
+        a = d[..., k] - half
+        b = d[..., k] + half
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0 = np.where(uk > 0, a / uk, b / uk)
+            t1 = np.where(uk > 0, b / uk, a / uk)
+        par = uk == 0
+        inside = (a <= 0) & (b >= 0)
+        t0 = np.where(par, np.where(inside, -np.inf, np.inf), t0)
+        t1 = np.where(par, np.where(inside, np.inf, -np.inf), t1)
+        lo = np.maximum(lo, t0)
+        hi = np.minimum(hi, t1)
+    miss = ~(hi > lo) | ~np.isfinite(hi)
+    return np.where(miss, 0.0, lo), np.where(miss, 0.0, hi)
+
+
+def wedge_area(d, u1, u2, derivatives=False, widen=0.0):
+    r'''Area of a unit pixel square inside the wedge from ray u1 counter-clockwise to u2
+
+SYNOPSIS
+
+    A = wedge_area(d, u1, u2)                  # d (...,2) pixel centre - apex; A (...)
+    A, dA_dc, dA_dt1, dA_dt2 = wedge_area(d, u1, u2, derivatives=True)
+    # dA_dc (...,2) per apex move, dA_dt1, dA_dt2 (...) per ray turn (rad, counter-clockwise)
+
+The wedge is {p : cross(u1, p) >= 0 and cross(p, u2) >= 0} (apex at the origin), an
+angle below pi; u1, u2 unit vectors. Exact (Green's theorem, module docstring).
+
+widen > 0 computes the derivatives on the square widened by that much on each side: the
+area of a pixel that a ray is about to enter then already depends on the ray (see
+refine_corners: a ray parallel to a pixel edge otherwise creeps up to it and stops).
+'''
+    d = np.asarray(d, dtype=np.float64)
+    P = d[..., None, :] + _SQUARE                  # (...,4,2) square corners - apex
+    Q = np.roll(P, -1, axis=-2)
+    e = Q - P
+    t0 = np.zeros(P.shape[:-1])
+    t1 = np.ones(P.shape[:-1])
+    # clip each edge P + t e to cross(u1, p) >= 0 and to cross(p, u2) = cross(-u2, p) >= 0
+    for u in (u1[..., None, :], -u2[..., None, :]):
+        f0 = _cross(u, P)
+        g = _cross(u, e)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = -f0 / g
+        t0 = np.where(g > 0, np.maximum(t0, t), t0)
+        t1 = np.where(g < 0, np.minimum(t1, t), t1)
+        out = (g == 0) & (f0 < 0)
+        t1 = np.where(out, t0, t1)
+    frac = np.maximum(t1 - t0, 0.0)
+    A = 0.5 * (frac * _cross(P, Q)).sum(axis=-1)
+    if not derivatives:
+        return A
+    # the apex moves by dc: the square moves by -dc relative to it
+    s0a, s1a = _ray_stretch(d, u1, 0.5 + widen)
+    s0b, s1b = _ray_stretch(d, u2, 0.5 + widen)
+    perp1 = np.stack((-u1[..., 1], u1[..., 0]), axis=-1)
+    perp2 = np.stack((-u2[..., 1], u2[..., 0]), axis=-1)
+    dA_dc = -(s1a - s0a)[..., None] * perp1 + (s1b - s0b)[..., None] * perp2
+    dA_dt1 = -0.5 * (s1a ** 2 - s0a ** 2)
+    dA_dt2 = 0.5 * (s1b ** 2 - s0b ** 2)
+    return A, dA_dc, dA_dt1, dA_dt2
+
+
+def _window(q0, steps, half_box, shape, max_px):
+    r'''(N,P) pixel indices ix, iy and mask of each corner's window'''
+    H, W = shape
+    r = int(max_px)
+    off = np.arange(-r, r + 1)
+    oy, ox = np.meshgrid(off, off, indexing="ij")
+    ox, oy = ox.ravel(), oy.ravel()
+    c0 = np.round(q0).astype(np.int64)
+    ix = c0[:, 0:1] + ox
+    iy = c0[:, 1:2] + oy
+    # board offsets of the pixel squares' corners (local affine map)
+    Ainv = np.linalg.inv(steps)                                      # (N,2,2)
+    corners = np.stack((ix, iy), axis=-1)[:, :, None, :] + _SQUARE   # (N,P,4,2)
+    rel = corners - q0[:, None, None, :]
+    b = np.einsum("nij,npkj->npki", Ainv, rel)
+    inside = np.all(np.abs(b) <= half_box, axis=(-1, -2))
+    inside &= (np.abs(ix - q0[:, 0:1]) <= max_px) & (np.abs(iy - q0[:, 1:2]) <= max_px)
+    on_image = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
+    return ix, iy, inside, on_image
+
+
+def refine_corners(image, q0, directions, wedges, steps, half_box, **options):
+    r'''Refine corners by fitting the area-sampled wedge model; see the module docstring
+
+SYNOPSIS
+
+    fit = refine_corners(img, q0, directions, wedges, steps, half_box)
+
+ARGUMENTS
+
+- image: (H,W) float image (linear in albedo, any scale)
+- q0: (N,2) coarse corners (NaN: not detected, reason "not detected")
+- directions: (N,R,2) image directions of the R edges leaving each corner
+- wedges: sequence of (i, j): the dark region is the union of the wedges between rays i and
+  j (whichever way round is below pi; it must stay so for every corner)
+- steps: (N,2,2) columns: image displacement of one board unit along the two board axes
+- half_box: the window is the pixels whose square lies within half_box board units of the
+  coarse corner along both axes (and within max_window_px px)
+- options: max_window_px, max_misfit, min_contrast (module constants by default)
+
+RETURNED VALUE
+
+A CornerFit. Two passes: the second centres each window on the first pass's corner and
+aligns it with the fitted rays (a coarse corner half a pixel off, or edge directions a few
+degrees off under distortion, put the first window's box partly over the next feature).
+The area of a pixel is piecewise smooth in the corner: a ray nearly parallel to a pixel
+edge (a board seen without roll) moves the model of one pixel column only until it
+crosses into the next, and Gauss-Newton with the exact derivatives creeps towards the
+column's edge in ever smaller steps and stops there (0.25 px off, measured). The first
+pass takes the derivatives over pixels widened by JACOBIAN_WIDEN px (an approximate
+Jacobian: Levenberg-Marquardt still only accepts steps that lower the exact misfit); the
+second polishes with the exact ones.
+'''
+    fit = _fit(image, q0, directions, wedges, steps, half_box, widen=JACOBIAN_WIDEN,
+               converged_px=FIRST_PASS_CONVERGED_PX, **options)
+    ok = np.all(np.isfinite(fit.q), axis=-1)
+    if not ok.any():
+        return fit
+    steps = np.asarray(steps, dtype=np.float64).reshape(len(ok), 2, 2)
+    dirs = fit.directions[ok]
+    # the box's axes along rays 0 and 1 (the helpers below put the board axes there)
+    steps2 = np.stack((dirs[:, 0] * np.linalg.norm(steps[ok, :, 0], axis=-1)[:, None],
+                       dirs[:, 1] * np.linalg.norm(steps[ok, :, 1], axis=-1)[:, None]), axis=-1)
+    fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, half_box, **options)
+    q, reasons = fit.q.copy(), fit.reasons.copy()
+    misfit, npix, directions = fit.misfit.copy(), fit.npixels.copy(), fit.directions.copy()
+    q[ok], reasons[ok], misfit[ok] = fit2.q, fit2.reasons, fit2.misfit
+    npix[ok], directions[ok] = fit2.npixels, fit2.directions
+    return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix,
+                     iterations=fit.iterations + fit2.iterations, directions=directions)
+
+
+def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WINDOW_PX,
+         max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
+         converged_px=CONVERGED_PX):
+    r'''One pass of refine_corners (the window about q0; widen: see wedge_area)'''
+    img = np.asarray(image, dtype=np.float64)
+    q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
+    N = len(q0)
+    dirs = np.asarray(directions, dtype=np.float64).reshape(N, -1, 2)
+    steps = np.asarray(steps, dtype=np.float64).reshape(N, 2, 2)
+    reasons = np.full(N, "", dtype=object)
+    q = np.full((N, 2), np.nan)
+    misfit = np.full(N, np.nan)
+    npix = np.zeros(N, np.int64)
+    ok = np.all(np.isfinite(q0), axis=-1) & np.all(np.isfinite(dirs), axis=(-1, -2)) \
+        & np.all(np.isfinite(steps), axis=(-1, -2))
+    ok[ok] &= np.abs(np.linalg.det(steps[ok])) > 1e-12
+    reasons[~ok] = "not detected"
+    if not ok.any():
+        return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix)
+    idx = np.flatnonzero(ok)
+    ix, iy, inside, on_image = _window(q0[idx], steps[idx], half_box, img.shape,
+                                       max_window_px)
+    off = (inside & ~on_image).any(axis=-1)
+    n_in = (inside & on_image).sum(axis=-1)
+    npix[idx] = n_in
+    few = ~off & (n_in < MIN_WINDOW_PIXELS)
+    reasons[idx[off]] = "window off the image"
+    reasons[idx[few]] = "window too small"
+    keep = ~off & ~few
+    idx, ix, iy, mask = idx[keep], ix[keep], iy[keep], inside[keep]
+    if not len(idx):
+        return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix)
+    # each window's pixels first, then only as many columns as the largest window has
+    order = np.argsort(~mask, axis=-1, kind="stable")[:, :int(mask.sum(-1).max())]
+    ix, iy, mask = (np.take_along_axis(x, order, axis=-1) for x in (ix, iy, mask))
+    H, W = img.shape
+    v = img[np.clip(iy, 0, H - 1), np.clip(ix, 0, W - 1)]
+    w = mask.astype(np.float64)
+    centres = np.stack((ix, iy), axis=-1).astype(np.float64)
+
+    # the rays' angles; each wedge (i, j) oriented per corner so that its angle is below pi
+    u = dirs[idx]
+    theta = np.arctan2(u[..., 1], u[..., 0])                 # (n,R)
+    wedges = np.asarray(wedges, dtype=np.int64).reshape(-1, 2)
+    ui = u[:, wedges[:, 0]]
+    uj = u[:, wedges[:, 1]]
+    flip = _cross(ui, uj) < 0                                # (n,Nw)
+    first = np.where(flip, wedges[None, :, 1], wedges[None, :, 0])
+    second = np.where(flip, wedges[None, :, 0], wedges[None, :, 1])
+    c = q0[idx].copy()
+    n, R = theta.shape
+
+    def model(s, c, theta):
+        # D (m,P) dark area of each window pixel and its derivatives, for the corners s
+        uu = np.stack((np.cos(theta), np.sin(theta)), axis=-1)     # (m,R,2)
+        d = centres[s] - c[:, None, :]
+        m = len(s)
+        D = np.zeros(d.shape[:-1])
+        dD_dc = np.zeros(d.shape)
+        dD_dt = np.zeros(d.shape[:-1] + (R,))
+        for k in range(first.shape[1]):
+            i1, i2 = first[s, k], second[s, k]
+            u1 = uu[np.arange(m), i1][:, None, :]
+            u2 = uu[np.arange(m), i2][:, None, :]
+            A, dA_dc, dA_dt1, dA_dt2 = wedge_area(d, np.broadcast_to(u1, d.shape),
+                                                  np.broadcast_to(u2, d.shape), True, widen)
+            D += A
+            dD_dc += dA_dc
+            dD_dt += (dA_dt1[..., None] * (np.arange(R) == i1[:, None])[:, None, :]
+                      + dA_dt2[..., None] * (np.arange(R) == i2[:, None])[:, None, :])
+        return D, dD_dc, dD_dt
+
+    def linear(s, D):
+        # light level a and contrast b for the current geometry (weighted least squares)
+        ws, vs = w[s], v[s]
+        sw = ws.sum(-1)
+        sd = (ws * D).sum(-1)
+        sdd = (ws * D * D).sum(-1)
+        sv = (ws * vs).sum(-1)
+        sdv = (ws * D * vs).sum(-1)
+        det = sw * sdd - sd * sd
+        with np.errstate(divide="ignore", invalid="ignore"):
+            b = (sw * sdv - sd * sv) / det
+            a = (sv - b * sd) / sw
+        r = vs - a[:, None] - b[:, None] * D
+        return a, b, (ws * r * r).sum(-1), r
+
+    alls = np.arange(n)
+    D, dD_dc, dD_dt = model(alls, c, theta)
+    a, b, S, r = linear(alls, D)
+    lam = np.full(n, 1e-3)
+    prev = np.zeros((n, 4 + R))
+    converged = np.zeros(n, bool)
+    it = 0
+    eye = np.eye(4 + R)
+    while it < MAX_ITERATIONS and not converged.all():
+        it += 1
+        s = np.flatnonzero(~converged)
+        # Jacobian of the model in (a, b, cx, cy, theta...) for the corners still fitting
+        J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
+                            b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]), axis=-1)
+        ws = w[s]
+        Jw = J * ws[..., None]
+        JtJ = Jw.transpose(0, 2, 1) @ J
+        Jtr = (Jw.transpose(0, 2, 1) @ r[s][..., None])[..., 0]
+        diag = np.einsum("nii->ni", JtJ)
+        step = np.linalg.solve(JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye,
+                               Jtr[..., None])[..., 0]
+        c1 = c[s] + step[:, 2:4]
+        t1 = theta[s] + step[:, 4:]
+        D1, dD_dc1, dD_dt1 = model(s, c1, t1)
+        a1, b1, S1, r1 = linear(s, D1)
+        better = S1 <= S[s]
+        sb = s[better]
+        c[sb], theta[sb] = c1[better], t1[better]
+        D[sb], dD_dc[sb], dD_dt[sb] = D1[better], dD_dc1[better], dD_dt1[better]
+        a[sb], b[sb], S[sb], r[sb] = a1[better], b1[better], S1[better], r1[better]
+        # a step back along the last accepted one is a zig-zag across a kink of the misfit
+        # (pixel areas are piecewise smooth): damp it like a failed step
+        zig = (step * prev[s]).sum(-1) < -0.5 * np.linalg.norm(step, axis=-1) \
+            * np.linalg.norm(prev[s], axis=-1)
+        lam[s] = np.where(better & ~zig, np.maximum(lam[s] * 0.3, 1e-6), lam[s] * 10.0)
+        prev[sb] = step[better]
+        dc = np.abs(step[:, 2:4]).max(-1)
+        small = (dc < converged_px) & (np.abs(step[:, 4:]).max(-1) * max_window_px < converged_px)
+        # a damping this large moves nothing: the fit is at its minimum to rounding
+        converged[s] = (better & small) | ((lam[s] > 1e6) & (dc < converged_px))
+    rng = float(np.nanmax(img) - np.nanmin(img)) if img.size else 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mis = np.sqrt(S / w.sum(-1)) / np.abs(b)
+    misfit[idx] = mis
+    # the corner must stay inside its window: its board offset from the coarse corner
+    rel = np.einsum("nij,nj->ni", np.linalg.inv(steps[idx]), c - q0[idx])
+    moved = np.abs(rel).max(-1) > half_box
+    why = np.full(len(idx), "", dtype=object)
+    why[~converged] = f"fit not converged in {MAX_ITERATIONS} iterations"
+    why[converged & moved] = "corner moved out of its window"
+    low = converged & ~moved & ~(np.abs(b) > min_contrast * rng)
+    why[low] = "no contrast"
+    bad = converged & ~moved & ~low & ~(mis <= max_misfit)
+    why[bad] = [f"misfit: {m:.3g} of the contrast (blurred or occluded)" for m in mis[bad]]
+    good = why == ""
+    q[idx[good]] = c[good]
+    reasons[idx] = why
+    directions = np.full(dirs.shape, np.nan)
+    directions[idx] = np.stack((np.cos(theta), np.sin(theta)), axis=-1)
+    return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix, iterations=it,
+                     directions=directions)
+
+
+# ---------------------------------------------------------------------------------------------
+# the two corner targets
+# an AprilTag's outer corner: within 1 bit of it along both tag axes the tag is its black
+# border; the window keeps to 0.8 bit, leaving 0.2 bit for the coarse corner's error and for
+# the local affine map's error (the tag's edges are 8 bits long, distortion bends them)
+TAG_HALF_BOX_BITS = 0.8
+# a chessboard corner: the next grid lines are a square away; keep to 0.45 square
+CHESSBOARD_HALF_BOX = 0.45
+
+
+def refine_tag_corners(image, Q, half_box=TAG_HALF_BOX_BITS, **options):
+    r'''Refine the outer corners of AprilTags
+
+SYNOPSIS
+
+    fit = refine_tag_corners(img, Q)   # Q (Ntags,4,2) corners in order round each tag
+    fit.q                              # (Ntags*4,2), NaN where dropped
+
+Corner k of a tag is the apex of the tag's black border between the edges to corners
+k-1 and k+1; one bit of a tag is its side / 8 (tag36h11: 6x6 data bits in a 1-bit border).
+'''
+    Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
+    nxt = np.roll(Q, -1, axis=1) - Q
+    prv = np.roll(Q, 1, axis=1) - Q
+    dirs = np.stack((nxt, prv), axis=2).reshape(-1, 2, 2)
+    steps = np.stack((nxt, prv), axis=-1).reshape(-1, 2, 2) / 8.0
+    return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box, **options)
+
+
+def chessboard_half_box(target):
+    r'''The window half-width (squares) of a chessboard: clear of its orientation-mark dots
+
+A mark dot of radius r squares sits in the middle of a square: it comes within
+sqrt(2)/2 - r of the corner along the diagonal, where the box reaches sqrt(2) half_box.
+'''
+    mark = target.spec.get("orientation_mark")
+    if mark is None:
+        return CHESSBOARD_HALF_BOX
+    r = 0.5 * float(mark["dot_diameter"]) / float(target.spec["square"])
+    return min(CHESSBOARD_HALF_BOX, 0.9 * (0.5 - r / np.sqrt(2.0)))
+
+
+def refine_chessboard_corners(image, G, half_box=CHESSBOARD_HALF_BOX, **options):
+    r'''Refine the inner corners of a chessboard
+
+SYNOPSIS
+
+    fit = refine_chessboard_corners(img, G, chessboard_half_box(target))
+    # G (ny,nx,2) coarse corners of the grid, NaN where missing; fit.q (ny*nx,2)
+
+The four edges at a corner run along the grid lines towards the neighbouring corners
+(differences along the grid; central where both neighbours are found).
+'''
+    G = np.asarray(G, dtype=np.float64)
+    ex = _grid_step(G, axis=1)
+    ey = _grid_step(G, axis=0)
+    dirs = np.stack((ex, ey, -ex, -ey), axis=2).reshape(-1, 4, 2)
+    steps = np.stack((ex, ey), axis=-1).reshape(-1, 2, 2)
+    return refine_corners(image, G.reshape(-1, 2), dirs, [(0, 1), (2, 3)], steps, half_box,
+                          **options)
+
+
+def _grid_step(G, axis):
+    r'''(ny,nx,2) image step to the next corner along an axis: central difference where both
+neighbours are found, else one-sided, NaN for a corner with neither'''
+    fwd = np.full(G.shape, np.nan)
+    bwd = np.full(G.shape, np.nan)
+    if axis == 1:
+        fwd[:, :-1] = G[:, 1:] - G[:, :-1]
+        bwd[:, 1:] = G[:, 1:] - G[:, :-1]
+    else:
+        fwd[:-1] = G[1:] - G[:-1]
+        bwd[1:] = G[1:] - G[:-1]
+    both = 0.5 * (fwd + bwd)
+    return np.where(np.isfinite(both), both, np.where(np.isfinite(fwd), fwd, bwd))
+
+
+# ---------------------------------------------------------------------------------------------
+# the bias of straight rays on curved edges
+def corner_rays(target):
+    r'''The board-frame rays of every corner of a corner target
+
+SYNOPSIS
+
+    rays, unit, wedges, half_box = corner_rays(target)
+    # rays (N,R,3) unit board directions of the edges leaving each of target.points();
+    # unit: board length of one window unit (a square, a tag bit); wedges, half_box as
+    # refine_chessboard_corners / refine_tag_corners use them
+'''
+    p = target.points()
+    if target.kind == "chessboard":
+        ex, ey = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+        rays = np.broadcast_to(np.stack((ex, ey, -ex, -ey)), (len(p), 4, 3)).copy()
+        return rays, float(target.spec["square"]), [(0, 1), (2, 3)], chessboard_half_box(target)
+    if target.kind == "apriltag":
+        Q = p.reshape(-1, 4, 3)
+        nxt = np.roll(Q, -1, axis=1) - Q
+        prv = np.roll(Q, 1, axis=1) - Q
+        rays = np.stack((nxt, prv), axis=2).reshape(-1, 2, 3)
+        rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+        return rays, float(target.spec["tag_size"]) / 8.0, [(0, 1)], TAG_HALF_BOX_BITS
+    raise ValueError(f"corner_rays() needs a chessboard or apriltag target; got {target.kind!r}")
+
+
+def curvature_bias(q, tangents, curvatures, wedges, steps, half_box,
+                   max_window_px=MAX_WINDOW_PX):
+    r'''Where refine_corners puts a corner whose edges are curved, minus the corner: px
+
+SYNOPSIS
+
+    b = curvature_bias(q, tangents, curvatures, wedges, steps, half_box)
+    # q (N,2) true corners; tangents (N,R,2) unit tangents of the R edges at the corner;
+    # curvatures (N,R): edge i passes through q + s t + (k s^2 / 2) perp(t), perp(t) =
+    # (-t_y, t_x); b (N,2); q_refined - b estimates the corner
+
+The model fits straight rays; an edge bent by k moves each pixel's dark area by
+the area between the curve and its tangent inside the pixel, k (s1^3 - s0^3) / 6
+over the tangent's stretch [s0, s1] in it (to first order in k). The fit's
+response to that change is its linearised least-squares step, (J^T J)^-1 J^T dv,
+in the window the refiner would use about the true corner. First order in k:
+the neglected terms are k^2 w^3 (1e-6 px for k = 1e-3/px, w = 8 px).
+'''
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    N = len(q)
+    t = np.asarray(tangents, dtype=np.float64).reshape(N, -1, 2)
+    k = np.asarray(curvatures, dtype=np.float64).reshape(N, -1)
+    steps = np.asarray(steps, dtype=np.float64).reshape(N, 2, 2)
+    out = np.full((N, 2), np.nan)
+    ok = np.all(np.isfinite(q), -1) & np.all(np.isfinite(t), (-1, -2)) \
+        & np.all(np.isfinite(k), -1) & np.all(np.isfinite(steps), (-1, -2))
+    ok[ok] &= np.abs(np.linalg.det(steps[ok])) > 1e-12
+    if not ok.any():
+        return out
+    idx = np.flatnonzero(ok)
+    big = (1 << 40, 1 << 40)
+    ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px)
+    centres = np.stack((ix, iy), axis=-1).astype(np.float64)
+    d = centres - q[idx, None, :]
+    w = inside.astype(np.float64)
+    n, R = k[idx].shape
+    wedges = np.asarray(wedges, dtype=np.int64).reshape(-1, 2)
+    u = t[idx]
+    D = np.zeros(d.shape[:-1])
+    dD_dc = np.zeros(d.shape)
+    dD_dt = np.zeros(d.shape[:-1] + (R,))
+    dv = np.zeros(d.shape[:-1])
+    rows = np.arange(n)
+    for i, j in wedges:
+        flip = _cross(u[:, i], u[:, j]) < 0
+        i1 = np.where(flip, j, i)
+        i2 = np.where(flip, i, j)
+        u1 = np.broadcast_to(u[rows, i1][:, None, :], d.shape)
+        u2 = np.broadcast_to(u[rows, i2][:, None, :], d.shape)
+        A, dA_dc, dA_dt1, dA_dt2 = wedge_area(d, u1, u2, True)
+        D += A
+        dD_dc += dA_dc
+        dD_dt += (dA_dt1[..., None] * (np.arange(R) == i1[:, None])[:, None, :]
+                  + dA_dt2[..., None] * (np.arange(R) == i2[:, None])[:, None, :])
+        # a ray bent towards the outside of the dark wedge adds dark area: the outward
+        # normal is -perp(u1) on the first ray and +perp(u2) on the second
+        for uu, ii, sign in ((u1, i1, -1.0), (u2, i2, 1.0)):
+            s0, s1 = _ray_stretch(d, uu)
+            dv += sign * k[idx][rows, ii][:, None] * (s1 ** 3 - s0 ** 3) / 6.0
+    J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], dD_dc, dD_dt), axis=-1)
+    Jw = J * w[..., None]
+    JtJ = Jw.transpose(0, 2, 1) @ J + 1e-12 * np.eye(J.shape[-1])
+    step = np.linalg.solve(JtJ, (Jw.transpose(0, 2, 1) @ dv[..., None]))[..., 0]
+    out[idx] = step[:, 2:4]
+    return out
