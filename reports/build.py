@@ -39,6 +39,9 @@ from reference_models.errors import CamvalError
 
 from .figures import fig_legacy_signature, fig_sweeps, make_figures
 from .tables import (
+    DETECTABLE_HEADER,
+    VERDICT_HEADER,
+    detectable_fault_rows,
     failure_rows,
     legacy_signature_rows,
     legacy_signature_table,
@@ -47,6 +50,7 @@ from .tables import (
     sweep_level_rows,
     sweep_rows,
 )
+from .tables import verdict_rows as tables_verdict_rows
 
 
 class ReportError(CamvalError):
@@ -224,8 +228,8 @@ def _page_head(title):
             f"<script>{IMAGE_CHECK}</script>", "</head><body>", f"<h1>{_e(title)}</h1>"]
 
 
-# the project's default gate (campaigns/gate.toml): the report's verdict when none is given
-DEFAULT_GATE_SPEC = Path(__file__).resolve().parents[1] / "campaigns" / "gate.toml"
+# the report's verdict when none is given: the renderer gate (campaigns/gate-renderer.toml)
+DEFAULT_GATE_SPEC = Path(__file__).resolve().parents[1] / "campaigns" / "gate-renderer.toml"
 
 
 def verdict(doc, gate_spec=None):
@@ -233,7 +237,7 @@ def verdict(doc, gate_spec=None):
 
 SYNOPSIS
 
-    line, failures = verdict(doc)            # against campaigns/gate.toml
+    line, failures = verdict(doc)            # against campaigns/gate-renderer.toml
     # "PASS: ..." | "FAIL: 3 failures ..." | "no verdict: ..."; failures [(name, field,
     # value, limit)]
 
@@ -267,6 +271,19 @@ source tree has it). A spec needing a baseline, or none at all: "no verdict" and
             f"of {n} records against {src}"), rows
 
 
+VERDICT_NOTE = ("Each ok record fits the exact observations of its poses too (the positions a "
+                "perfect renderer and detector give). floor = that exact fit against the "
+                "truth: what the calibrator and model can do at all; renderer = the image "
+                "fit against the exact fit: what the images cost, the renderer's verdict, "
+                "beside its expected scatter (sigma); total = the image fit against the "
+                "truth. Projection-difference RMS in px. A flag says why a floor is far "
+                "from the truth.")
+DETECTABLE_NOTE = ("The smallest fault of each kind the renderer gate would flag on each "
+                   "camera, from the expected scatter of its records (the smallest over "
+                   "them): an Hc/Vc shift in px, a focal scale and an R1 scale as fractions, a "
+                   "theta change in deg.")
+
+
 def build_report(run, out_dir=None, gate_spec=None):
     r'''Write report.html, report.md and figures/*.png for a run -> {"html", "markdown", ...}
 
@@ -291,6 +308,8 @@ gate_spec: the gate whose result opens the report (see verdict()).
     title = f"camval verification report: {name}"
 
     verdict_line, verdict_rows = verdict(doc, gate_spec)
+    vrows = tables_verdict_rows(records)
+    detectable = detectable_fault_rows(doc)
     vclass = {"P": "pass", "F": "fail"}.get(verdict_line[0], "none")
 
     # --- HTML -------------------------------------------------------------------------
@@ -304,7 +323,9 @@ gate_spec: the gate whose result opens the report (see verdict()).
         h.append(f"<details><summary>gate failures{more}</summary>" +
                  _html_table(("fullname", "field", "value", "limit"), shown) + "</details>")
     h.append(_html_table(("", ""), facts))
-    sections = [("summary", "Summary per calibrator"), ("figures", "Figures")]
+    sections = [("renderer-verdict", "Renderer verdict per record"),
+                ("detectable", "Minimum detectable faults"),
+                ("summary", "Summary per calibrator"), ("figures", "Figures")]
     if legacy_fig:
         sections.append(("legacy", "Legacy signature (paper Figs. 4-5)"))
     if sweep_figs:
@@ -312,6 +333,12 @@ gate_spec: the gate whose result opens the report (see verdict()).
     sections += [("failures", "Failures"), ("not-applicable", "Not applicable")]
     h.append("<p>" + " | ".join(f"<a href=\"#{k}\">{_e(t)}</a>" for k, t in sections) +
              "</p>")
+    h.append("<h2 id=\"detectable\">Minimum detectable faults</h2>")
+    h.append(f"<p>{_e(DETECTABLE_NOTE)}</p>")
+    h.append(_html_table(DETECTABLE_HEADER, detectable) if detectable else "<p>None judged.</p>")
+    h.append("<h2 id=\"renderer-verdict\">Renderer verdict per record</h2>")
+    h.append(f"<p>{_e(VERDICT_NOTE)}</p>")
+    h.append(_html_table(VERDICT_HEADER, vrows) if vrows else "<p>No record has a verdict.</p>")
     h.append("<h2 id=\"summary\">Summary per calibrator, beside the paper</h2>")
     h.append("<p>Statistics over each calibrator's successful records, per model family the "
              "images were rendered with. The paper's column is what ROAMS achieved "
@@ -352,7 +379,11 @@ gate_spec: the gate whose result opens the report (see verdict()).
         m += [_md_table(("fullname", "field", "value", "limit"), verdict_rows[:VERDICT_ROWS]),
               ""]
     m += [_md_table(("run", ""), facts), "",
-         "## Summary per calibrator, beside the paper", ""]
+          "## Minimum detectable faults", "", DETECTABLE_NOTE, "",
+          _md_table(DETECTABLE_HEADER, detectable) if detectable else "None judged.", "",
+          "## Renderer verdict per record", "", VERDICT_NOTE, "",
+          _md_table(VERDICT_HEADER, vrows) if vrows else "No record has a verdict.", "",
+          "## Summary per calibrator, beside the paper", ""]
     for t in tables:
         m += [f"### {t.title}", "", t.note, "", _md_table(t.header, t.rows), ""]
     m += ["## Figures", ""]

@@ -147,7 +147,7 @@ refiner's fit. NaN where a point does not project.
     h = CORNER_DIFF_STEP * unit
     p = np.asarray(p_board, dtype=np.float64)[:, None, :]
     pts = np.concatenate((p, p + h * rays, p - h * rays), axis=1)      # (N,1+2R,3)
-    q = project_from_cam(model, _transform(Rt_cam_board, pts))
+    q = project_from_cam(model, transform_point_Rt(Rt_cam_board, pts))
     R = rays.shape[1]
     q0, qp, qm = q[:, :1], q[:, 1:1 + R], q[:, 1 + R:]
     d1 = (qp - qm) / (2 * h)                       # dq/ds, px per metre along each ray
