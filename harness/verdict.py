@@ -59,17 +59,18 @@ import threading
 
 import numpy as np
 
+from reference_models.cahvore import FAMILIES as JPL_FAMILIES
+from reference_models.cahvore import with_R0
+from reference_models.poseutils import transform_point_Rt as _transform
+
 from .compare import (
     DEFAULT_GRID_STEP,
     DEFAULT_RANGE_M,
-    JPL_FAMILIES,
     _fit_rotation,
     _frac,
     _intrinsics,
-    _transform,
     parameter_errors,
     truth_points,
-    with_R0,
 )
 
 # A floor below this many px cannot mislead anyone: it is below the sampling error of
@@ -501,8 +502,8 @@ def _central_jacobian(f, x0, h):
 
 def jpl_linearisation(res, obs):
     r'''The jpl fit in its own chart (harness.calibrators.jpl_fit; R0 held) -> Linearisation'''
-    from harness.calibrators._project_kernels import project
     from harness.calibrators.jpl_fit import _Chart
+    from reference_models.kernels import project
     m = res.model
     R0 = float(m.R[0]) if m.family != "CAHV" else 0.0
     chart = _Chart(m.family, m, getattr(m, "model_type", None), getattr(m, "linearity", None),
@@ -516,7 +517,7 @@ def jpl_linearisation(res, obs):
 
 
 def _rodrigues(r):
-    from .compare import _R_from_r
+    from reference_models.poseutils import R_from_r as _R_from_r
     return _R_from_r(r)
 
 

@@ -192,7 +192,7 @@ def test_the_warps_share_reaches_the_record():
 def test_camval_render_runs_a_command(tmp_path):
     out = tmp_path / "x.png"
     cmd = " ".join(EXAMPLE)
-    p = subprocess.run([sys.executable, "-m", "harness.cli", "render", "17", "-o", str(out),
+    p = subprocess.run([sys.executable, "-m", "camval.cli", "render", "17", "-o", str(out),
                         "--spp", "1", "--renderer", "command", "--command", cmd,
                         "--setup", "output_format=npy", "--setup", "timeout=300"],
                        capture_output=True, text=True, cwd=ROOT, timeout=600)

@@ -53,10 +53,17 @@ def test_maps_share_one_colour_scale_and_name_the_saturated_panel(tmp_path):
 
 
 def test_verdict_line():
+    from pathlib import Path
     rec = _rec(15, "jpl", 0.0)
     rec.update(residuals={"rms": 0.001, "max": 0.004}, projection={"rms": 0.001})
+    # the default gate judges the renderer: a record without a verdict cannot pass it
     line, rows = verdict({"records": {rec["fullname"]: rec}})
+    assert line.startswith("FAIL") and "gate-renderer.toml" in line, line
+    assert {r[2] for r in rows} == {"missing"}
+    # the absolute limits of campaigns/gate.toml, given explicitly
+    absolute = Path(__file__).resolve().parents[1] / "campaigns" / "gate.toml"
+    line, rows = verdict({"records": {rec["fullname"]: rec}}, absolute)
     assert line.startswith(("PASS", "FAIL")), line
     bad = dict(rec, residuals={"rms": 5.0, "max": 9.0})
-    line, rows = verdict({"records": {rec["fullname"]: bad}})
+    line, rows = verdict({"records": {rec["fullname"]: bad}}, absolute)
     assert line.startswith("FAIL") and any(r[1] == "residuals.rms" for r in rows)
