@@ -445,11 +445,12 @@ subsamples closer than e to an edge are traced."""
 # integrated exactly (arcs and segments, Green's theorem: area and first moments).
 #
 # Error: the true preimage's sides bow away from the straight sides of the polygon
-# by at most the sagitta |d2P/du2| / 8 (per side of length |dP/du|); material
-# inside those slivers may be misassigned: at most
-#     e = (|P_uu| |P_u| + |P_vv| |P_v|) / (6 |det J|) / n^2
-# of the pixel's area (the straight sides inside the pixel are shared by two
-# quadrilaterals and cancel). n is the smallest of 1, 2, 4, 8 with e <= tolerance;
+# by the sagitta |P_u x P_uu| / (8 |P_u|) (per side of length |P_u|; zero for a
+# pinhole, whose lines stay lines); material inside those slivers may be
+# misassigned: at most (|P_u x P_uu| + |P_v x P_vv|) / (6 |det J|) / n^2 of the
+# pixel's area (the straight sides inside the pixel are shared by two
+# quadrilaterals and cancel); the density's second-order part adds
+# kappa^2 / 4 / n^2 (kappa: its relative change across the pixel) (_area_error). n is the smallest of 1, 2, 4, 8 with e <= tolerance;
 # where none is, or where the neighbourhood is not one this handles (circles over
 # cells, overlapping circles, a ray missing the plane), the pixel is point sampled.
 AREA_MAX_SUBDIVISION = 8
@@ -689,10 +690,18 @@ w0 + g . (p - o); NaN when its cells are too many"""
     ap, mxp, myp = _poly_moments(poly[0], poly[1], n, ox, oy)
     wp = w0 * ap + gx * mxp + gy * myp
     total = values[ii[0]] * (wq - wp)
-    rest = wp
+    if base != ii[1]:
+        # the polygon lies inside a circle
+        return (total + values[base] * wp) / wq
+    # the circles over the polygon
+    wdisc = 0.0
+    for k in range(ncand):
+        wdisc += _disc_weight(poly[0], poly[1], n, w0, gx, gy, ox, oy, cand[k], f)
+    rest = wp - wdisc
+    total += values[ii[2]] * wdisc
     cs = f[F_CELLS + 2]
-    if cs > 0.0 and ncand == 0:
-        # the cells under the polygon, each clipped out of it
+    if cs > 0.0:
+        # the cells under the polygon, each clipped out of it (less the circles on them)
         xlo = poly[0, 0]
         xhi = xlo
         ylo = poly[1, 0]
@@ -712,6 +721,9 @@ w0 + g . (p - o); NaN when its cells are too many"""
             return math.nan
         for cy in range(cy0, cy1 + 1):
             for cx in range(cx0, cx1 + 1):
+                mat = ii[ii[I_OFFSETS] + (cy + 1) * (nx + 2) + cx + 1]
+                if mat == ii[1]:
+                    continue
                 for k in range(n):
                     poly[4, k] = poly[0, k]
                     poly[5, k] = poly[1, k]
@@ -725,17 +737,20 @@ w0 + g . (p - o); NaN when its cells are too many"""
                     continue
                 ac, mxc, myc = _poly_moments(poly[4], poly[5], m, ox, oy)
                 wc = w0 * ac + gx * mxc + gy * myc
-                total += values[ii[ii[I_OFFSETS] + (cy + 1) * (nx + 2) + cx + 1]] * wc
+                for k in range(ncand):
+                    wc -= _disc_weight(poly[4], poly[5], m, w0, gx, gy, ox, oy, cand[k], f)
+                total += values[mat] * wc
                 rest -= wc
-    else:
-        for k in range(ncand):
-            c = F_CIRCLES + 3 * cand[k]
-            a, mx, my = _disc_poly_moments(poly[0], poly[1], n, f[c], f[c + 1], f[c + 2])
-            wd = (w0 + gx * (f[c] - ox) + gy * (f[c + 1] - oy)) * a + gx * mx + gy * my
-            total += values[ii[2]] * wd
-            rest -= wd
-    total += values[base] * rest
+    total += values[ii[1]] * rest
     return total / wq
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _disc_weight(xs, ys, n, w0, gx, gy, ox, oy, k, f):
+    r"""The integral of the density w0 + g . (p - o) over circle k x the polygon"""
+    c = F_CIRCLES + 3 * k
+    a, mx, my = _disc_poly_moments(xs, ys, n, f[c], f[c + 1], f[c + 2])
+    return (w0 + gx * (f[c] - ox) + gy * (f[c + 1] - oy)) * a + gx * mx + gy * my
 
 
 @njit(cache=True, error_model="numpy")
@@ -798,6 +813,23 @@ neighbouring pixel centres, for the density."""
     return acc * inv * inv, nrays
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _area_error(jac, hess):
+    r"""The bound on the error of a pixel's area coverage (fraction of its area) at n = 1:
+the slivers between the polygon's straight sides and the bowed preimage of the
+pixel's sides (sagitta |P_u x P_uu| / (8 |P_u|) over a side of length |P_u|, area
+2/3 sagitta x length, two sides each way), plus the second-order part of the
+density left out of its linear model (kappa^2 / 4, kappa = the density's relative
+change across the pixel); both fall as 1/n^2 with n x n quadrilaterals"""
+    D = abs(jac[0] * jac[3] - jac[1] * jac[2])
+    cu = abs(jac[0] * hess[1] - jac[1] * hess[0])
+    cv = abs(jac[2] * hess[5] - jac[3] * hess[4])
+    dDu = (hess[0] * jac[3] - hess[1] * jac[2]) + (jac[0] * hess[3] - jac[1] * hess[2])
+    dDv = (hess[2] * jac[3] - hess[3] * jac[2]) + (jac[0] * hess[5] - jac[1] * hess[4])
+    kappa = (abs(dDu) + abs(dDv)) / D
+    return ((cu + cv) / (6.0 * D) + 0.25 * kappa * kappa) * (1.0 + FOOTPRINT_SAFETY)
+
+
 @njit(cache=True, error_model="numpy")
 def _area_value(cam, xf, ix, iy, px, py, R, tol, jac, hess, cand, values, grid, poly, pat):
     r"""The area coverage value of an edge pixel (board point (px, py) of its centre,
@@ -805,14 +837,9 @@ footprint radius R): the subdivision n from the error bound, then _area_pixel;
 (NaN, rays) where it is not computed (the pixel is then point sampled)"""
     f, ii = pat
     ncand, base = _area_circles(px, py, R, cand, pat)
-    if ncand < 0 or (f[F_CELLS + 2] > 0.0 and ncand > 0):
+    if ncand < 0:
         return math.nan, 0
-    D = abs(jac[0] * jac[3] - jac[1] * jac[2])
-    gu = math.sqrt(jac[0] * jac[0] + jac[1] * jac[1])
-    gv = math.sqrt(jac[2] * jac[2] + jac[3] * jac[3])
-    huu = math.sqrt(hess[0] * hess[0] + hess[1] * hess[1])
-    hvv = math.sqrt(hess[4] * hess[4] + hess[5] * hess[5])
-    e = (huu * gu + hvv * gv) / (6.0 * D) * (1.0 + FOOTPRINT_SAFETY)
+    e = _area_error(jac, hess)
     n = 1
     while e > tol * n * n:
         n *= 2
