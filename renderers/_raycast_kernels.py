@@ -754,27 +754,46 @@ def _disc_weight(xs, ys, n, w0, gx, gy, ox, oy, k, f):
 
 
 @njit(cache=True, error_model="numpy")
-def _area_pixel(cam, xf, ix, iy, n, jac, hess, cand, ncand, base, values, grid, poly, pat):
+def _area_pixel(cam, xf, ix, iy, n, jac, hess, cand, ncand, base, values, grid, poly, pat,
+                corners, r0):
     r"""The area coverage value of pixel (ix, iy) from an (n+1) x (n+1) grid of exact rays
 (see above); returns (value, rays), value NaN where it cannot be computed
 
 jac[0:4] = (dx/dqx, dy/dqx, dx/dqy, dy/dqy) at the pixel centre, hess[0:6] =
 (P_uu, P_uv, P_vv) (x, y each): the quadratic model of the board points of the
-neighbouring pixel centres, for the density."""
-    warm = warm_start(cam, ix, iy)
+neighbouring pixel centres, for the density.
+corners[0:2, k, c]: the board points of the pixel corners (c - 0.5, r0 + k - 0.5)
+traced so far in this band (NaN: not yet), shared between neighbouring pixels
+at n = 1."""
+    warm = (math.nan, 0.0, 0.0, 0.0)
+    have_warm = False
+    nrays = 0
     inv = 1.0 / n
     for j in range(n + 1):
         y = iy - 0.5 + j * inv
         for i in range(n + 1):
+            if n == 1:
+                bx = corners[0, iy - r0 + j, ix + i]
+                if bx == bx:
+                    grid[0, j, i] = bx
+                    grid[1, j, i] = corners[1, iy - r0 + j, ix + i]
+                    continue
+            if not have_warm:
+                warm = warm_start(cam, ix, iy)
+                have_warm = True
+                nrays += 1
             s, vx, vy, vz = ray_warm(cam, ix - 0.5 + i * inv, y, warm)
+            nrays += 1
             ok, bx, by = _hit(xf, s, vx, vy, vz)
             if not ok:
-                return math.nan, 1 + (j * (n + 1) + i + 1)
+                return math.nan, nrays
             grid[0, j, i] = bx
             grid[1, j, i] = by
-    nrays = 1 + (n + 1) * (n + 1)
-    qx = np.empty(4)
-    qy = np.empty(4)
+            if n == 1:
+                corners[0, iy - r0 + j, ix + i] = bx
+                corners[1, iy - r0 + j, ix + i] = by
+    qx = poly[6]
+    qy = poly[7]
     acc = 0.0
     for j in range(n):
         dv = (j + 0.5) * inv - 0.5
@@ -831,7 +850,8 @@ change across the pixel); both fall as 1/n^2 with n x n quadrilaterals"""
 
 
 @njit(cache=True, error_model="numpy")
-def _area_value(cam, xf, ix, iy, px, py, R, tol, jac, hess, cand, values, grid, poly, pat):
+def _area_value(cam, xf, ix, iy, px, py, R, tol, jac, hess, cand, values, grid, poly, pat,
+                corners, r0):
     r"""The area coverage value of an edge pixel (board point (px, py) of its centre,
 footprint radius R): the subdivision n from the error bound, then _area_pixel;
 (NaN, rays) where it is not computed (the pixel is then point sampled)"""
@@ -846,7 +866,7 @@ footprint radius R): the subdivision n from the error bound, then _area_pixel;
         if n > AREA_MAX_SUBDIVISION:
             return math.nan, 0
     return _area_pixel(cam, xf, ix, iy, n, jac, hess, cand, ncand, base, values, grid, poly,
-                       pat)
+                       pat, corners, r0)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -904,7 +924,7 @@ the longest step between neighbouring ring points for the curve between them."""
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, jac, cand,
-                  values, pat, area, tol, hess, grid, poly):
+                  values, pat, area, tol, hess, grid, poly, corners):
     r"""Adaptive value of pixel (ix, iy) (band row k, column c); returns (value, rays, how):
 how 0 uniform, 1 point sampled, 2 area coverage (area mode), 3 point sampled in area
 mode where area coverage is not computed"""
@@ -954,7 +974,7 @@ mode where area coverage is not computed"""
             hess[4] = d2yx
             hess[5] = d2yy
             v, n = _area_value(cam, xf, ix, iy, px, py, r, tol, jac, hess, cand, values, grid,
-                               poly, pat)
+                               poly, pat, corners, iy - k + 1)
             if v - v == 0.0:
                 return v, n, 2
             v, n2 = _supersample(cam, xf, ix, iy, K, offs, counts, stack, True, jac, values,
@@ -1054,7 +1074,9 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
     cand = np.empty(MAX_LOCAL_CIRCLES, dtype=np.int64)
     hess = np.zeros(6)
     grid = np.empty((2, AREA_MAX_SUBDIVISION + 1, AREA_MAX_SUBDIVISION + 1))
-    poly = np.empty((6, AREA_MAX_VERTICES))
+    poly = np.empty((8, AREA_MAX_VERTICES))
+    # the board points of the pixel corners of the band's rows, traced once (area mode)
+    corners = np.full((2, r1 - r0 + 1, W + 1) if area else (2, 1, 1), math.nan)
     narea = 0
     nfallback = 0
     nrays = 0
@@ -1117,7 +1139,7 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
                     ntested += 1
                     v, n, how = _render_pixel(cam, xf, ix, iy, iy - r0 + 1, ix + 1, hx, hy,
                                               hok, K, offs, counts, stack, jac, cand, values,
-                                              pat, area, tol, hess, grid, poly)
+                                              pat, area, tol, hess, grid, poly, corners)
                     out[iy, ix] = v
                     nrays += n
                     nsuper += how != 0

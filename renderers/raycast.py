@@ -49,6 +49,21 @@ different albedos, circle outlines; circles are found through a bucket grid):
    footprint is far from affine (near the board plane's horizon) or whose
    neighbours miss the plane are traced in full.
 
+Area coverage (RenderSettings(options={"coverage": "area"}); point sampling
+stays the default): the pixels that the steps above find uniform are filled as
+before; every other pixel gets the albedo integrated exactly over its
+preimage on the board, the polygon through the board points of exact rays at
+its corners (an (n+1) x (n+1) grid where n = 2, 4, 8 is needed), weighted by
+the pixel-to-board density (linear in each quadrilateral). The board
+rectangle and the cells are clipped out of it, the circles integrated along
+their arcs (renderers._raycast_kernels, "Area coverage"). The error of a
+pixel's value is bounded by options["area_tolerance"] (default 1e-4 of its
+area, AREA_TOLERANCE) from the curvature of the preimage across the pixel;
+where the bound needs n > 8, where a ray misses the plane, or where circles
+overlap near the pixel, the pixel is K x K point sampled instead
+(metadata area_point_sampled_fraction). tests/test_raycast_area.py checks
+edge pixels against an exact line-by-line integral.
+
 tests/test_raycast.py checks adaptive == full bit for bit on several cameras,
 targets and poses (including noncentral CAHVOREs at K = 16).
 
