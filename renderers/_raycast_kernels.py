@@ -450,9 +450,11 @@ subsamples closer than e to an edge are traced."""
 # misassigned: at most (|P_u x P_uu| + |P_v x P_vv|) / (6 |det J|) / n^2 of the
 # pixel's area (the straight sides inside the pixel are shared by two
 # quadrilaterals and cancel); the density's second-order part adds
-# kappa^2 / 4 / n^2 (kappa: its relative change across the pixel) (_area_error). n is the smallest of 1, 2, 4, 8 with e <= tolerance;
-# where none is, or where the neighbourhood is not one this handles (circles over
-# cells, overlapping circles, a ray missing the plane), the pixel is point sampled.
+# kappa^2 / 4 / n^2 (kappa: its relative change across the pixel) (_area_error).
+# n is the smallest of 1, 2, 4, 8 with that bound <= tolerance; where none is, or
+# where the neighbourhood is not one this handles (circles that overlap near the
+# pixel, more than AREA_MAX_CELLS cells under it, a ray missing the plane, a
+# footprint far from affine), the pixel is K x K point sampled.
 AREA_MAX_SUBDIVISION = 8
 AREA_MAX_CELLS = 16
 AREA_MAX_VERTICES = 16

@@ -86,7 +86,7 @@ clipped chord, split where the chord's ends meet the box or the circle (~1e-12)'
             breaks += [x for x in (cx - d, cx + d) if a < x < b]
     breaks = sorted(breaks)
     return sum(quad(chord, u, v, epsabs=1e-14, epsrel=1e-13, limit=200)[0]
-               for u, v in zip(breaks[:-1], breaks[1:]))
+               for u, v in zip(breaks[:-1], breaks[1:], strict=True))
 
 
 @pytest.mark.parametrize("box", [(-0.3, 0.4, -0.2, 0.5), (0.5, 1.4, -0.2, 0.3),
