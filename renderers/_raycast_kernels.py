@@ -431,6 +431,446 @@ subsamples closer than e to an edge are traced."""
     return _pixel_value(counts, values, float(K * K)), nrays
 
 
+# ---------------------------------------------------------------------------
+# Area coverage (coverage = "area"): the exact covered area of an edge pixel
+#
+# The preimage of pixel (ix, iy) on the board is approximated by the polygon
+# through the board points of an (n+1) x (n+1) grid of exact rays over the pixel
+# (its corners at n = 1): n x n quadrilaterals, each of image area 1/n^2. In one
+# quadrilateral the pixel measure is w(p) dp with w = 1 / |det d(board)/d(pixel)|,
+# taken as linear in p (its value and gradient from the quadratic model of the
+# board points of the 3 x 3 neighbouring pixel centres). The albedo integral over
+# the quadrilateral is exact for that polygon and that density: polygons are
+# clipped by the board rectangle and the cells (Sutherland-Hodgman), circles are
+# integrated exactly (arcs and segments, Green's theorem: area and first moments).
+#
+# Error: the true preimage's sides bow away from the straight sides of the polygon
+# by the sagitta |P_u x P_uu| / (8 |P_u|) (per side of length |P_u|; zero for a
+# pinhole, whose lines stay lines); material inside those slivers may be
+# misassigned: at most (|P_u x P_uu| + |P_v x P_vv|) / (6 |det J|) / n^2 of the
+# pixel's area (the straight sides inside the pixel are shared by two
+# quadrilaterals and cancel); the density's second-order part adds
+# kappa^2 / 4 / n^2 (kappa: its relative change across the pixel) (_area_error).
+# n is the smallest of 1, 2, 4, 8 with that bound <= tolerance; where none is, or
+# where the neighbourhood is not one this handles (circles that overlap near the
+# pixel, more than AREA_MAX_CELLS cells under it, a ray missing the plane, a
+# footprint far from affine), the pixel is K x K point sampled.
+AREA_MAX_SUBDIVISION = 8
+AREA_MAX_CELLS = 16
+AREA_MAX_VERTICES = 16
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _seg_moments(px, py, qx, qy):
+    r"""Green's-theorem integrals along the segment p -> q: (area, int x dA, int y dA)"""
+    dx = qx - px
+    dy = qy - py
+    a = 0.5 * (px * qy - py * qx)
+    mx = 0.5 * dy * (px * px + px * dx + dx * dx / 3.0)
+    my = -0.5 * dx * (py * py + py * dy + dy * dy / 3.0)
+    return a, mx, my
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _arc_moments(ax, ay, bx, by, r):
+    r"""Green's-theorem integrals along the arc of the circle of radius r about the
+origin from the direction of a to the direction of b (the shorter way)"""
+    la = math.sqrt(ax * ax + ay * ay)
+    lb = math.sqrt(bx * bx + by * by)
+    c1 = ax / la
+    s1 = ay / la
+    c2 = bx / lb
+    s2 = by / lb
+    d = math.atan2(c1 * s2 - s1 * c2, c1 * c2 + s1 * s2)
+    r2 = r * r
+    r3 = r2 * r
+    a = 0.5 * r2 * d
+    mx = 0.5 * r3 * ((s2 - s2 * s2 * s2 / 3.0) - (s1 - s1 * s1 * s1 / 3.0))
+    my = 0.5 * r3 * ((c1 - c1 * c1 * c1 / 3.0) - (c2 - c2 * c2 * c2 / 3.0))
+    return a, mx, my
+
+
+@njit(cache=True, error_model="numpy")
+def _poly_moments(xs, ys, n, ox, oy):
+    r"""(area, int x dA, int y dA) of the polygon xs[:n], ys[:n] about (ox, oy), signed by
+its orientation"""
+    a = 0.0
+    mx = 0.0
+    my = 0.0
+    for k in range(n):
+        kn = k + 1 if k + 1 < n else 0
+        da, dmx, dmy = _seg_moments(xs[k] - ox, ys[k] - oy, xs[kn] - ox, ys[kn] - oy)
+        a += da
+        mx += dmx
+        my += dmy
+    return a, mx, my
+
+
+@njit(cache=True, error_model="numpy")
+def _disc_poly_moments(xs, ys, n, cx, cy, r):
+    r"""(area, int x dA, int y dA) of the disc (cx, cy, r) intersected with the polygon
+xs[:n], ys[:n] (signed by its orientation), about the circle's centre
+
+The polygon is a fan of triangles (centre, p_k, p_k+1); each triangle meets the
+disc in a region bounded by two radii (which cancel between neighbouring
+triangles) and, along the side p_k p_k+1, the side where it is inside the disc
+and the arc where it is outside."""
+    a = 0.0
+    mx = 0.0
+    my = 0.0
+    r2 = r * r
+    for k in range(n):
+        kn = k + 1 if k + 1 < n else 0
+        px = xs[k] - cx
+        py = ys[k] - cy
+        qx = xs[kn] - cx
+        qy = ys[kn] - cy
+        dx = qx - px
+        dy = qy - py
+        dd = dx * dx + dy * dy
+        if dd == 0.0:
+            continue
+        b = (px * dx + py * dy) / dd
+        c = (px * px + py * py - r2) / dd
+        disc = b * b - c
+        t1 = 2.0
+        t2 = 2.0
+        if disc > 0.0:
+            sq = math.sqrt(disc)
+            t1 = -b - sq
+            t2 = -b + sq
+        if disc <= 0.0 or t1 >= 1.0 or t2 <= 0.0:
+            # the side lies outside the disc: the arc between its ends' directions
+            if px * px + py * py > 0.0 and qx * qx + qy * qy > 0.0:
+                da, dmx, dmy = _arc_moments(px, py, qx, qy, r)
+                a += da
+                mx += dmx
+                my += dmy
+            continue
+        ux = px
+        uy = py
+        if t1 > 0.0:
+            ux = px + t1 * dx
+            uy = py + t1 * dy
+            da, dmx, dmy = _arc_moments(px, py, ux, uy, r)
+            a += da
+            mx += dmx
+            my += dmy
+        vx = qx
+        vy = qy
+        if t2 < 1.0:
+            vx = px + t2 * dx
+            vy = py + t2 * dy
+        da, dmx, dmy = _seg_moments(ux, uy, vx, vy)
+        a += da
+        mx += dmx
+        my += dmy
+        if t2 < 1.0:
+            da, dmx, dmy = _arc_moments(vx, vy, qx, qy, r)
+            a += da
+            mx += dmx
+            my += dmy
+    return a, mx, my
+
+
+@njit(cache=True, error_model="numpy")
+def _clip(xs, ys, n, axis, value, keep_above, ox, oy):
+    r"""Sutherland-Hodgman: the part of the convex polygon xs[:n], ys[:n] where
+coordinate `axis` is >= value (keep_above) or <= value, into ox, oy; returns its
+number of vertices"""
+    m = 0
+    if n == 0:
+        return 0
+    for k in range(n):
+        kp = k - 1 if k > 0 else n - 1
+        a = (xs[kp] if axis == 0 else ys[kp]) - value
+        b = (xs[k] if axis == 0 else ys[k]) - value
+        if not keep_above:
+            a = -a
+            b = -b
+        if b >= 0.0:
+            if a < 0.0:
+                t = a / (a - b)
+                ox[m] = xs[kp] + t * (xs[k] - xs[kp])
+                oy[m] = ys[kp] + t * (ys[k] - ys[kp])
+                m += 1
+            ox[m] = xs[k]
+            oy[m] = ys[k]
+            m += 1
+        elif a >= 0.0:
+            t = a / (a - b)
+            ox[m] = xs[kp] + t * (xs[k] - xs[kp])
+            oy[m] = ys[kp] + t * (ys[k] - ys[kp])
+            m += 1
+    return m
+
+
+@njit(cache=True, error_model="numpy")
+def _clip_box(poly, n, x0, x1, y0, y1):
+    r"""Clip the polygon poly[0:2, :n] to the box [x0, x1] x [y0, y1] (result in poly[0:2],
+poly[2:4] is scratch); returns its number of vertices"""
+    n = _clip(poly[0], poly[1], n, 0, x0, True, poly[2], poly[3])
+    n = _clip(poly[2], poly[3], n, 0, x1, False, poly[0], poly[1])
+    n = _clip(poly[0], poly[1], n, 1, y0, True, poly[2], poly[3])
+    return _clip(poly[2], poly[3], n, 1, y1, False, poly[0], poly[1])
+
+
+@njit(cache=True, error_model="numpy")
+def _area_circles(x, y, R, cand, pat):
+    r"""(ncand, base): the circles whose outline lies within R of (x, y), into cand, and
+the material of the disc of radius R apart from them; ncand = -1 when they cannot
+be integrated one by one (circles that overlap near here, too many of them, a
+footprint wider than MAX_BUCKET_SPAN buckets); base = -1 when the board's own
+material is not uniform near here (cells)"""
+    f, ii = pat
+    base = ii[1]
+    nbx = f[F_BUCKETS + 4]
+    if nbx <= 0.0:
+        return 0, base
+    inv = f[F_BUCKETS + 3]
+    if 2.0 * R * inv > MAX_BUCKET_SPAN:
+        return -1, 0
+    bx0 = int(max(math.floor((x - R - f[F_BUCKETS]) * inv), 0.0))
+    bx1 = int(min(math.floor((x + R - f[F_BUCKETS]) * inv), nbx - 1.0))
+    by0 = int(max(math.floor((y - R - f[F_BUCKETS + 1]) * inv), 0.0))
+    by1 = int(min(math.floor((y + R - f[F_BUCKETS + 1]) * inv), f[F_BUCKETS + 5] - 1.0))
+    start = ii[I_OFFSETS + 2]
+    items = ii[I_OFFSETS + 3]
+    n = 0
+    inside = 0
+    for jy in range(by0, by1 + 1):
+        for jx in range(bx0, bx1 + 1):
+            b = start + jy * int(nbx) + jx
+            for k in range(ii[b], ii[b + 1]):
+                c = ii[items + k]
+                dx = x - f[F_CIRCLES + 3 * c]
+                dy = y - f[F_CIRCLES + 3 * c + 1]
+                rc = f[F_CIRCLES + 3 * c + 2]
+                d = math.sqrt(dx * dx + dy * dy)
+                if abs(d - rc) <= R:
+                    dup = False
+                    for j in range(n):
+                        dup = dup or cand[j] == c
+                    if dup:
+                        continue
+                    if n == cand.shape[0]:
+                        return -1, 0
+                    cand[n] = c
+                    n += 1
+                elif d < rc:
+                    inside += 1
+    if inside > 0 and n > 0:
+        return -1, 0
+    if inside > 0:
+        base = ii[2]
+    # two circles near here that overlap: the painting order is not integrated
+    for j in range(n):
+        cj = F_CIRCLES + 3 * cand[j]
+        for k in range(j):
+            ck = F_CIRCLES + 3 * cand[k]
+            dx = f[cj] - f[ck]
+            dy = f[cj + 1] - f[ck + 1]
+            rr = f[cj + 2] + f[ck + 2]
+            if dx * dx + dy * dy < rr * rr:
+                return -1, 0
+    return n, base
+
+
+@njit(cache=True, error_model="numpy")
+def _quad_value(qx, qy, w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat):
+    r"""The mean albedo over the quadrilateral qx[:4], qy[:4] (board) under the density
+w0 + g . (p - o); NaN when its cells are too many"""
+    f, ii = pat
+    for k in range(4):
+        poly[0, k] = qx[k]
+        poly[1, k] = qy[k]
+    aq, mxq, myq = _poly_moments(poly[0], poly[1], 4, ox, oy)
+    wq = w0 * aq + gx * mxq + gy * myq
+    n = _clip_box(poly, 4, f[0], f[1], f[2], f[3])
+    if n < 3:
+        return values[ii[0]]
+    ap, mxp, myp = _poly_moments(poly[0], poly[1], n, ox, oy)
+    wp = w0 * ap + gx * mxp + gy * myp
+    total = values[ii[0]] * (wq - wp)
+    if base != ii[1]:
+        # the polygon lies inside a circle
+        return (total + values[base] * wp) / wq
+    # the circles over the polygon
+    wdisc = 0.0
+    for k in range(ncand):
+        wdisc += _disc_weight(poly[0], poly[1], n, w0, gx, gy, ox, oy, cand[k], f)
+    rest = wp - wdisc
+    total += values[ii[2]] * wdisc
+    cs = f[F_CELLS + 2]
+    if cs > 0.0:
+        # the cells under the polygon, each clipped out of it (less the circles on them)
+        xlo = poly[0, 0]
+        xhi = xlo
+        ylo = poly[1, 0]
+        yhi = ylo
+        for k in range(1, n):
+            xlo = min(xlo, poly[0, k])
+            xhi = max(xhi, poly[0, k])
+            ylo = min(ylo, poly[1, k])
+            yhi = max(yhi, poly[1, k])
+        nx = int(f[F_CELLS + 3])
+        ny = int(f[F_CELLS + 4])
+        cx0 = max(int(math.floor((xlo - f[F_CELLS]) / cs)), 0)
+        cx1 = min(int(math.floor((xhi - f[F_CELLS]) / cs)), nx - 1)
+        cy0 = max(int(math.floor((ylo - f[F_CELLS + 1]) / cs)), 0)
+        cy1 = min(int(math.floor((yhi - f[F_CELLS + 1]) / cs)), ny - 1)
+        if (cx1 - cx0 + 1) * (cy1 - cy0 + 1) > AREA_MAX_CELLS:
+            return math.nan
+        for cy in range(cy0, cy1 + 1):
+            for cx in range(cx0, cx1 + 1):
+                mat = ii[ii[I_OFFSETS] + (cy + 1) * (nx + 2) + cx + 1]
+                if mat == ii[1]:
+                    continue
+                for k in range(n):
+                    poly[4, k] = poly[0, k]
+                    poly[5, k] = poly[1, k]
+                x0 = f[F_CELLS] + cx * cs
+                y0 = f[F_CELLS + 1] + cy * cs
+                m = _clip(poly[4], poly[5], n, 0, x0, True, poly[2], poly[3])
+                m = _clip(poly[2], poly[3], m, 0, x0 + cs, False, poly[4], poly[5])
+                m = _clip(poly[4], poly[5], m, 1, y0, True, poly[2], poly[3])
+                m = _clip(poly[2], poly[3], m, 1, y0 + cs, False, poly[4], poly[5])
+                if m < 3:
+                    continue
+                ac, mxc, myc = _poly_moments(poly[4], poly[5], m, ox, oy)
+                wc = w0 * ac + gx * mxc + gy * myc
+                for k in range(ncand):
+                    wc -= _disc_weight(poly[4], poly[5], m, w0, gx, gy, ox, oy, cand[k], f)
+                total += values[mat] * wc
+                rest -= wc
+    total += values[ii[1]] * rest
+    return total / wq
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _disc_weight(xs, ys, n, w0, gx, gy, ox, oy, k, f):
+    r"""The integral of the density w0 + g . (p - o) over circle k x the polygon"""
+    c = F_CIRCLES + 3 * k
+    a, mx, my = _disc_poly_moments(xs, ys, n, f[c], f[c + 1], f[c + 2])
+    return (w0 + gx * (f[c] - ox) + gy * (f[c + 1] - oy)) * a + gx * mx + gy * my
+
+
+@njit(cache=True, error_model="numpy")
+def _area_pixel(cam, xf, ix, iy, n, jac, hess, cand, ncand, base, values, grid, poly, pat,
+                corners, r0):
+    r"""The area coverage value of pixel (ix, iy) from an (n+1) x (n+1) grid of exact rays
+(see above); returns (value, rays), value NaN where it cannot be computed
+
+jac[0:4] = (dx/dqx, dy/dqx, dx/dqy, dy/dqy) at the pixel centre, hess[0:6] =
+(P_uu, P_uv, P_vv) (x, y each): the quadratic model of the board points of the
+neighbouring pixel centres, for the density.
+corners[0:2, k, c]: the board points of the pixel corners (c - 0.5, r0 + k - 0.5)
+traced so far in this band (NaN: not yet), shared between neighbouring pixels
+at n = 1."""
+    warm = (math.nan, 0.0, 0.0, 0.0)
+    have_warm = False
+    nrays = 0
+    inv = 1.0 / n
+    for j in range(n + 1):
+        y = iy - 0.5 + j * inv
+        for i in range(n + 1):
+            if n == 1:
+                bx = corners[0, iy - r0 + j, ix + i]
+                if bx == bx:
+                    grid[0, j, i] = bx
+                    grid[1, j, i] = corners[1, iy - r0 + j, ix + i]
+                    continue
+            if not have_warm:
+                warm = warm_start(cam, ix, iy)
+                have_warm = True
+                nrays += 1
+            s, vx, vy, vz = ray_warm(cam, ix - 0.5 + i * inv, y, warm)
+            nrays += 1
+            ok, bx, by = _hit(xf, s, vx, vy, vz)
+            if not ok:
+                return math.nan, nrays
+            grid[0, j, i] = bx
+            grid[1, j, i] = by
+            if n == 1:
+                corners[0, iy - r0 + j, ix + i] = bx
+                corners[1, iy - r0 + j, ix + i] = by
+    qx = poly[6]
+    qy = poly[7]
+    acc = 0.0
+    for j in range(n):
+        dv = (j + 0.5) * inv - 0.5
+        for i in range(n):
+            du = (i + 0.5) * inv - 0.5
+            # the quadrilateral, in the order of the pixel's corners (0,0) (1,0) (1,1) (0,1)
+            qx[0] = grid[0, j, i]
+            qy[0] = grid[1, j, i]
+            qx[1] = grid[0, j, i + 1]
+            qy[1] = grid[1, j, i + 1]
+            qx[2] = grid[0, j + 1, i + 1]
+            qy[2] = grid[1, j + 1, i + 1]
+            qx[3] = grid[0, j + 1, i]
+            qy[3] = grid[1, j + 1, i]
+            ox = 0.25 * (qx[0] + qx[1] + qx[2] + qx[3])
+            oy = 0.25 * (qy[0] + qy[1] + qy[2] + qy[3])
+            # the Jacobian of the quadratic model at the quadrilateral's centre, and its
+            # derivatives: the density w = 1/|D| and its gradient on the board
+            bux = jac[0] + hess[0] * du + hess[2] * dv
+            buy = jac[1] + hess[1] * du + hess[3] * dv
+            bvx = jac[2] + hess[2] * du + hess[4] * dv
+            bvy = jac[3] + hess[3] * du + hess[5] * dv
+            D = bux * bvy - buy * bvx
+            dDu = (hess[0] * bvy - hess[1] * bvx) + (bux * hess[3] - buy * hess[2])
+            dDv = (hess[2] * bvy - hess[3] * bvx) + (bux * hess[5] - buy * hess[4])
+            gDx = (bvy * dDu - buy * dDv) / D
+            gDy = (-bvx * dDu + bux * dDv) / D
+            sgn = 1.0 if D > 0.0 else -1.0
+            w0 = sgn / D
+            gx = -sgn * gDx / (D * D)
+            gy = -sgn * gDy / (D * D)
+            v = _quad_value(qx, qy, w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat)
+            if not (v - v == 0.0):
+                return math.nan, nrays
+            acc += v
+    return acc * inv * inv, nrays
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _area_error(jac, hess):
+    r"""The bound on the error of a pixel's area coverage (fraction of its area) at n = 1:
+the slivers between the polygon's straight sides and the bowed preimage of the
+pixel's sides (sagitta |P_u x P_uu| / (8 |P_u|) over a side of length |P_u|, area
+2/3 sagitta x length, two sides each way), plus the second-order part of the
+density left out of its linear model (kappa^2 / 4, kappa = the density's relative
+change across the pixel); both fall as 1/n^2 with n x n quadrilaterals"""
+    D = abs(jac[0] * jac[3] - jac[1] * jac[2])
+    cu = abs(jac[0] * hess[1] - jac[1] * hess[0])
+    cv = abs(jac[2] * hess[5] - jac[3] * hess[4])
+    dDu = (hess[0] * jac[3] - hess[1] * jac[2]) + (jac[0] * hess[3] - jac[1] * hess[2])
+    dDv = (hess[2] * jac[3] - hess[3] * jac[2]) + (jac[0] * hess[5] - jac[1] * hess[4])
+    kappa = (abs(dDu) + abs(dDv)) / D
+    return ((cu + cv) / (6.0 * D) + 0.25 * kappa * kappa) * (1.0 + FOOTPRINT_SAFETY)
+
+
+@njit(cache=True, error_model="numpy")
+def _area_value(cam, xf, ix, iy, px, py, R, tol, jac, hess, cand, values, grid, poly, pat,
+                corners, r0):
+    r"""The area coverage value of an edge pixel (board point (px, py) of its centre,
+footprint radius R): the subdivision n from the error bound, then _area_pixel;
+(NaN, rays) where it is not computed (the pixel is then point sampled)"""
+    f, ii = pat
+    ncand, base = _area_circles(px, py, R, cand, pat)
+    if ncand < 0:
+        return math.nan, 0
+    e = _area_error(jac, hess)
+    n = 1
+    while e > tol * n * n:
+        n *= 2
+        if n > AREA_MAX_SUBDIVISION:
+            return math.nan, 0
+    return _area_pixel(cam, xf, ix, iy, n, jac, hess, cand, ncand, base, values, grid, poly,
+                       pat, corners, r0)
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _ring_side(xs, ys, px, py):
     r"""(max |P_i - p|^2, max |P_i - P_i-1|^2) of the points (xs, ys) of one side of a ring"""
@@ -486,8 +926,10 @@ the longest step between neighbouring ring points for the curve between them."""
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, jac, cand,
-                  values, pat):
-    r"""Adaptive value of pixel (ix, iy) (band row k, column c); returns (value, rays, 0|1)"""
+                  values, pat, area, tol, hess, grid, poly, corners):
+    r"""Adaptive value of pixel (ix, iy) (band row k, column c); returns (value, rays, how):
+how 0 uniform, 1 point sampled, 2 area coverage (area mode), 3 point sampled in area
+mode where area coverage is not computed"""
     nok = 0
     for dk in range(-1, 2):
         for dc in range(-1, 2):
@@ -497,7 +939,7 @@ def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, ja
         return values[pat[1][0]], 0, 0
     if nok < 9:
         v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, False, jac, values, pat)
-        return v, n, 1
+        return v, n, 3 if area else 1
     # the footprint of the pixel from its neighbours' board points: the
     # Jacobian, and a bound on the quadratic part over the pixel
     px = hx[k, c]
@@ -526,6 +968,20 @@ def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, ja
         clear, m = _classify(px, py, r, pat)
         if clear:
             return values[m], 0, 0
+        if area:
+            hess[0] = d2xx
+            hess[1] = d2xy
+            hess[2] = dcx
+            hess[3] = dcy
+            hess[4] = d2yx
+            hess[5] = d2yy
+            v, n = _area_value(cam, xf, ix, iy, px, py, r, tol, jac, hess, cand, values, grid,
+                               poly, pat, corners, iy - k + 1)
+            if v - v == 0.0:
+                return v, n, 2
+            v, n2 = _supersample(cam, xf, ix, iy, K, offs, counts, stack, True, jac, values,
+                                 pat)
+            return v, n + n2, 3
         if quad <= PREDICT_NONLINEARITY * lin and K * K > 1:
             jac[5] = px
             jac[6] = py
@@ -536,7 +992,7 @@ def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, ja
                                           values, pat)
             return v, n, 1
     v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, affine, jac, values, pat)
-    return v, n, 1
+    return v, n, 3 if area else 1
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -595,7 +1051,7 @@ disc lies inside the board rectangle or wholly outside it)"""
 
 @njit(cache=True, error_model="numpy")
 def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values, out,
-                 stats, pat, qbox):
+                 stats, pat, qbox, area, tol):
     H, W = out.shape
     nk = r1 - r0 + 2
     # board points of the centre rays of image rows r0-1 .. r1 (band row k = iy - r0 + 1)
@@ -618,6 +1074,13 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
     blocks = np.empty((4 * (int(math.log2(T)) + 3), 4), dtype=np.int64)
     jac = np.zeros(9)
     cand = np.empty(MAX_LOCAL_CIRCLES, dtype=np.int64)
+    hess = np.zeros(6)
+    grid = np.empty((2, AREA_MAX_SUBDIVISION + 1, AREA_MAX_SUBDIVISION + 1))
+    poly = np.empty((8, AREA_MAX_VERTICES))
+    # the board points of the pixel corners of the band's rows, traced once (area mode)
+    corners = np.full((2, r1 - r0 + 1, W + 1) if area else (2, 1, 1), math.nan)
+    narea = 0
+    nfallback = 0
     nrays = 0
     nsuper = 0
     nblocks = 0
@@ -676,18 +1139,23 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
             for iy in range(ya, yb):
                 for ix in range(xa, xb):
                     ntested += 1
-                    v, n, sup = _render_pixel(cam, xf, ix, iy, iy - r0 + 1, ix + 1, hx, hy,
+                    v, n, how = _render_pixel(cam, xf, ix, iy, iy - r0 + 1, ix + 1, hx, hy,
                                               hok, K, offs, counts, stack, jac, cand, values,
-                                              pat)
+                                              pat, area, tol, hess, grid, poly, corners)
                     out[iy, ix] = v
                     nrays += n
-                    nsuper += sup
+                    nsuper += how != 0
+                    narea += how == 2
+                    nfallback += how == 3
     stats[0] = nrays
     stats[1] = nsuper
     stats[2] = nboard
     stats[3] = nblocks
     stats[4] = ntested
     stats[5] = _count_nonfinite(out, r0, r1)
+    if stats.shape[0] > 6:
+        stats[6] = narea
+        stats[7] = nfallback
 
 
 @njit(cache=True, error_model="numpy")
@@ -703,12 +1171,15 @@ def _count_nonfinite(out, r0, r1):
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive, T, values, out, stats, pat,
-                  qbox, nthreads):
+                  qbox, nthreads, area=False, tol=1e-4):
     r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
 
 stats (Nbands,6) receives per band: rays traced, supersampled pixels, pixels
 whose centre ray sees the board, blocks of pixels tested, pixels tested,
-non-finite pixels (a bug).
+non-finite pixels (a bug); with 8 columns also: pixels of area coverage, pixels
+point sampled in area mode where area coverage was not computed.
+area: edge pixels get their exact covered area (to within tol of the pixel's
+area; see "Area coverage") instead of K x K point samples (adaptive only).
 qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
 not known); adaptive mode fills the pixels outside with the background.
 nthreads: numba's thread count (bands are dealt out round-robin among them)."""
@@ -726,7 +1197,7 @@ nthreads: numba's thread count (bands are dealt out round-robin among them)."""
         r1 = min(H, r0 + T)
         if r1 > r0:
             _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values,
-                         out, stats[b], pat, qbox)
+                         out, stats[b], pat, qbox, area, tol)
 
 
 def compiled_entry_points():
