@@ -87,7 +87,8 @@ def render_images(directory, camera, tname, spp, nposes):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cameras", default="15,17,8")
     ap.add_argument("--targets", default="apriltag,chessboard")
     ap.add_argument("--spp", type=int, default=16)

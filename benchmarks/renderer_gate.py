@@ -38,7 +38,8 @@ def campaign(cameras, family, renderer, seed, name):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out")
     ap.add_argument("--cameras", default="15,17")
     ap.add_argument("--faults", default="shift_001,focal_scale,half_pixel,r1_sign,theta90")

@@ -17,7 +17,9 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 BENCH = REPO / "benchmarks"
-SCRIPTS = ("accuracy", "bench_render", "bench_stages", "bench_campaign", "legacy_signature")
+SCRIPTS = ("accuracy", "bench_render", "bench_stages", "bench_campaign", "legacy_signature",
+           "bench_raycast_area", "bench_corners", "bench_models", "bench_command_protocol",
+           "renderer_gate")
 ENV = dict(os.environ, NUMBA_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
 
 TINY_CAMPAIGN = '''
