@@ -323,8 +323,8 @@ gate_spec: the gate whose result opens the report (see verdict()).
         h.append(f"<details><summary>gate failures{more}</summary>" +
                  _html_table(("fullname", "field", "value", "limit"), shown) + "</details>")
     h.append(_html_table(("", ""), facts))
-    sections = [("renderer-verdict", "Renderer verdict per record"),
-                ("detectable", "Minimum detectable faults"),
+    sections = [("detectable", "Minimum detectable faults"),
+                ("renderer-verdict", "Renderer verdict per record"),
                 ("summary", "Summary per calibrator"), ("figures", "Figures")]
     if legacy_fig:
         sections.append(("legacy", "Legacy signature (paper Figs. 4-5)"))

@@ -399,5 +399,7 @@ def detectable_fault_rows(doc):
 (harness.gate.minimum_detectable_faults under the renderer gate), "—" where not judged'''
     cams = ((doc.get("minimum_detectable_faults") or {}).get("cameras") or {})
     faults = ("Hc shift", "Vc shift", "focal scale", "theta change", "R1 scale")
-    return [(cam,) + tuple(_fmt((f.get(k) or {}).get("value")) for k in faults)
-            for cam, f in cams.items()]
+    def order(cam):     # catalogue slots by number, then extras and files by name
+        return (0, int(cam), "") if str(cam).isdigit() else (1, 0, str(cam))
+    return [(cam,) + tuple(_fmt((cams[cam].get(k) or {}).get("value")) for k in faults)
+            for cam in sorted(cams, key=order)]
