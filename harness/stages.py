@@ -162,12 +162,16 @@ def render_stage(renderer_name, truth, target, poses, settings):
     r'''-> ([RenderResult], seconds per image (list), renderer version)
 
 A renderer that cannot render this camera by design (RendererNotApplicable: a
-field of view no pinhole warp covers) makes the job not-applicable.'''
+field of view no pinhole warp covers) makes the job not-applicable; an image
+that cannot fit in this machine's memory (renderers.memory) fails the job
+before anything of its size is allocated.'''
     from renderers.base import RendererNotApplicable, RenderSettings
+    from renderers.memory import check_render_memory
     try:
         renderer = cached_renderer(renderer_name)
         rs = RenderSettings(spp=int(settings["spp"]), adaptive=bool(settings["adaptive"]),
                             options=dict(settings.get("options") or {}))
+        check_render_memory(renderer, truth, rs)
         pattern = target.pattern()
         results, secs = [], []
         for Rt in poses:

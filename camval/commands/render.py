@@ -21,7 +21,8 @@ renderer's metadata (settings, version, seconds, samples). Points that do not
 project are null.
 
 Existing files are not overwritten without --force. A camera that cannot see
-the target prints the reason and exits with status 2.
+the target, or whose image cannot fit in this machine's memory
+(renderers.memory), prints the reason and exits with status 2.
 '''
 
 from pathlib import Path
@@ -108,6 +109,7 @@ def run(args):
     from reference_models.catalogue import load_catalogue
     from reference_models.errors import CamvalError
     from renderers.base import RenderSettings, get_renderer
+    from renderers.memory import check_render_memory
     from renderers.png import save_png16
     from targets.boards import load_target
     from targets.poses import plan_poses
@@ -137,8 +139,9 @@ def run(args):
         outputs = [out]
     _check_free([p for o in outputs for p in (o, o.with_suffix(".json"))], args.force)
 
-    poses = plan_poses(model, target, n=max(NPOSES, max(indices) + 1), seed=args.seed)
     renderer = get_renderer(args.renderer)
+    check_render_memory(renderer, model, settings)
+    poses = plan_poses(model, target, n=max(NPOSES, max(indices) + 1), seed=args.seed)
     if args.poses is not None:
         outdir.mkdir(parents=True, exist_ok=True)
     for i, out in zip(indices, outputs, strict=True):
