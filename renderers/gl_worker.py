@@ -11,14 +11,13 @@ SYNOPSIS
 The renderers' OpenGL calls run in one worker process per process that uses
 them (`python -m renderers.gl_worker`, started on first use, restarted in a
 forked child and after it dies); the caller never loads libOSMesa. Why: Mesa's
-llvmpipe links its own LLVM (libLLVM-15), numba's llvmlite another; with OSMesa
-rendering in the test process a whole-suite run aborted at interpreter exit
-with glibc's "corrupted size vs. prev_size" inside llvmlite's LLVMContext
-destructor. Measured: the whole suite without the tests that render through
-OSMesa exited normally although libOSMesa and libLLVM-15 were loaded (so
-loading both is not enough: using llvmpipe is); with OSMesa in this worker the
-whole suite exits normally, libOSMesa never loaded in the test process. Which
-write corrupts the heap was not found.
+llvmpipe links its own LLVM (libLLVM-15), numba's llvmlite another; a
+whole-suite test run has aborted at interpreter exit with glibc's "corrupted
+size vs. prev_size" inside llvmlite's LLVMContext destructor, and two LLVMs in
+one process were the suspect. Not confirmed: the abort is intermittent (a
+whole-suite run of the code before this worker, normal exit, OSMesa in
+process, exited with status 0 here), so the worker separates the two LLVMs
+without proof that they were the cause.
 
 A request is a pickled (name, args, kwargs) on the worker's stdin; the reply,
 a pickled ("ok", value) or ("error", exception), comes back on its stdout (the
