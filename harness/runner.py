@@ -18,6 +18,8 @@ A Job (harness.jobs) is camera x model family x target x renderer setting.
 run_job() runs the stages of harness.stages (camera, poses, render, response,
 detect, calibrate, compare; its docstring lists them), each a plain function on
 plain values, and returns one record per calibrator model (harness.job_records).
+Render, response and detect run image by image (stages.render_detect_stage): a
+job holds one image at a time unless it keeps its images.
 A stage that fails (the camera cannot see the target, the renderer raises, nothing is
 detected, the calibrator diverges) ends the job's records with status
 "failed", the stage and the reason; it never raises. Jobs are independent;
@@ -53,14 +55,12 @@ from .stages import (
     StageFailed,
     cached_target,
     camera_stage,
-    detect_stage,
     failure_reason,
     observations_from,
     poses_stage,
+    render_detect_stage,
     render_features,
-    render_stage,
     render_summary,
-    response_stage,
 )
 
 
@@ -81,26 +81,32 @@ A job with twins (group_twins) gives the records of each of its cameras.
         t0 = time.perf_counter()
         poses = poses_stage(truth, target, job.poses_n, job.poses_seed)
         seconds["poses"] = time.perf_counter() - t0
-        renders, rsecs, rversion = render_stage(job.renderer, truth, target, poses,
-                                                job.settings)
+        keep = bool(job.keep_images and job.run_dir)
+        # each image is detected as soon as it is rendered, then dropped
+        out = render_detect_stage(job, truth, target, poses, keep_images=keep)
+        rsecs, rversion = out.render_seconds, out.version
         seconds["render"] = float(sum(rsecs))
         # the median: the first image of a camera also builds the renderer's caches
         seconds["render_per_image"] = float(statistics.median(rsecs))
         seconds["render_first_image"] = float(rsecs[0])
-        features = render_features([r.metadata for r in renders])
-        images, rsec = response_stage(job, truth, [r.image for r in renders])
-        if rsec:
-            seconds["response"] = float(sum(rsec.values()))
-            seconds["response_stages"] = rsec
+        features = render_features(out.metadata)
+        if out.failure is not None and out.failure.stage == "response":
+            raise out.failure
+        if out.response_seconds:
+            seconds["response"] = float(sum(out.response_seconds.values()))
+            seconds["response_stages"] = out.response_seconds
         artifacts = {}
-        if job.keep_images and job.run_dir:
-            artifacts["images"] = save_images(job, images)
-        dets, seconds["detect"] = detect_stage(images, target)
+        if keep:
+            artifacts["images"] = save_images(job, out.images)
+        if out.failure is not None:
+            raise out.failure
+        dets = out.detections
+        seconds["detect"] = out.detect_seconds
         detections = {"n_expected": int(sum(d.n_expected for d in dets)),
                       "n_found": int(sum(d.n_found for d in dets)),
                       "per_pose": [int(d.n_found) for d in dets],
                       "failed_poses": [i for i, d in enumerate(dets) if d.status != "ok"]}
-        if job.keep_images and job.run_dir:
+        if keep:
             artifacts["detections"] = save_detections(job, dets, poses)
         obs = observations_from(truth, target, poses, dets)
     except StageFailed as e:
@@ -113,7 +119,7 @@ A job with twins (group_twins) gives the records of each of its cameras.
             members, "internal", f"{failure_reason(e)} ({Path(tb.filename).name}:{tb.lineno})",
             entry=entry, seconds=seconds, **({"features": features} if features else {}))}
 
-    render_info = render_summary([r.metadata for r in renders])
+    render_info = render_summary(out.metadata)
     ctx = dict(obs=obs, target=target, truth=truth, entry=entry, seconds=seconds,
                detections=detections, artifacts=artifacts, rversion=rversion,
                render_info=render_info, features=features)

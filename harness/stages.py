@@ -43,6 +43,11 @@ The public names:
                      the truth model of a job / of a camera spec and family
     poses_stage, render_stage, response_stage, detect_stage, calibrate_stage,
     compare_stage    the stages above
+    render_detect_stage, ImageStages
+                     render, response and detect image by image, each image dropped
+                     once detected (what run_job runs)
+    iter_renders, renderer_version
+                     render_stage one pose at a time; the renderer's version
     noise_seed       the noise seed of image i of a job
     response_info    the record's "response" entry of a job
     render_features, BOARD_FEATURES
@@ -56,6 +61,7 @@ The public names:
 import hashlib
 import math
 import time
+from dataclasses import dataclass
 
 from reference_models.cahvore import FAMILIES
 from reference_models.errors import CamvalError
@@ -191,28 +197,148 @@ def poses_stage(truth, target, n, seed):
         raise StageFailed("poses", failure_reason(e), status=status) from None
 
 
-def render_stage(renderer_name, truth, target, poses, settings):
-    r'''-> ([RenderResult], seconds per image (list), renderer version)
+def _render_failure(e):
+    from renderers.base import RendererNotApplicable
+    status = "not-applicable" if isinstance(e, RendererNotApplicable) else "failed"
+    return StageFailed("render", failure_reason(e), status=status)
 
-A renderer that cannot render this camera by design (RendererNotApplicable: a
-field of view no pinhole warp covers) makes the job not-applicable.'''
-    from renderers.base import RendererNotApplicable, RenderSettings
+
+def iter_renders(renderer_name, truth, target, poses, settings):
+    r'''Render the poses one at a time: yields (RenderResult, seconds) per pose
+
+render_stage without holding the images: the caller drops each one when done
+with it. The renderer's failures raise StageFailed("render") as in render_stage.'''
+    from renderers.base import RenderSettings
+    from renderers.memory import check_render_memory
     try:
         renderer = cached_renderer(renderer_name)
         rs = RenderSettings(spp=int(settings["spp"]), adaptive=bool(settings["adaptive"]),
                             options=dict(settings.get("options") or {},
                                          **(settings.get("setup") or {})))
+        check_render_memory(renderer, truth, rs)
         pattern = target.pattern()
-        results, secs = [], []
-        for Rt in poses:
-            t0 = time.perf_counter()
-            results.append(renderer.render(truth, pattern, Rt, rs))
-            secs.append(time.perf_counter() - t0)
-        version = renderer.version() if hasattr(renderer, "version") else ""
     except Exception as e:
-        status = "not-applicable" if isinstance(e, RendererNotApplicable) else "failed"
-        raise StageFailed("render", failure_reason(e), status=status) from None
-    return results, secs, version
+        raise _render_failure(e) from None
+    for Rt in poses:
+        t0 = time.perf_counter()
+        try:
+            result = renderer.render(truth, pattern, Rt, rs)
+        except Exception as e:
+            raise _render_failure(e) from None
+        yield result, time.perf_counter() - t0
+
+
+def renderer_version(renderer_name):
+    r'''The version string of a (cached) renderer; "" when it gives none'''
+    try:
+        renderer = cached_renderer(renderer_name)
+        return renderer.version() if hasattr(renderer, "version") else ""
+    except Exception as e:
+        raise _render_failure(e) from None
+
+
+def render_stage(renderer_name, truth, target, poses, settings):
+    r'''-> ([RenderResult], seconds per image (list), renderer version)
+
+A renderer that cannot render this camera by design (RendererNotApplicable: a
+field of view no pinhole warp covers) makes the job not-applicable; an image
+that cannot fit in this machine's memory (renderers.memory) fails the job
+before anything of its size is allocated.'''
+    results, secs = [], []
+    for result, sec in iter_renders(renderer_name, truth, target, poses, settings):
+        results.append(result)
+        secs.append(sec)
+    return results, secs, renderer_version(renderer_name)
+
+
+@dataclass(eq=False)
+class ImageStages:
+    r'''What render_detect_stage gives: the outputs of render_stage, response_stage and
+detect_stage without the images
+
+metadata:          [renderer metadata] per pose
+render_seconds:    [seconds] per pose
+version:           the renderer's version
+response_seconds:  {stage: seconds} as response_stage ({} for a clean job)
+detections:        [Detection] per pose (when every image was detected)
+detect_seconds:    seconds of detection, summed
+images:            the images after the response when kept (keep_images), else None
+failure:           StageFailed of the response or the detection, or None (raise
+                   it after recording what the renders gave)
+'''
+    metadata: list
+    render_seconds: list
+    version: str
+    response_seconds: dict
+    detections: list
+    detect_seconds: float
+    images: list = None
+    failure: StageFailed = None
+
+
+def render_detect_stage(job, truth, target, poses, keep_images=False):
+    r'''Render, respond and detect image by image -> ImageStages
+
+Each image goes through the job's camera response and the detector as soon as
+it is rendered, then is dropped: a job holds one image at a time instead of
+all of them (six 5120x3840 float32 images of camera 1 are 0.47 GB). The values
+are those of render_stage, response_stage and detect_stage run one after the
+other (same noise seeds, same detections), and so is the failure reported: a
+render failure of any pose (raised: StageFailed) before a response failure of
+any image, before a detection failure (returned in .failure). keep_images
+keeps the images after the response (as response_stage returns them).
+'''
+    from targets.detect import detect
+    failure = {}
+    resp_secs = {}
+    chain = None
+    t0 = time.perf_counter()
+    try:
+        from renderers.response import ResponseChain
+        chain = ResponseChain.from_config(job.response or {})
+        if chain.stages:
+            resp_secs["setup"] = time.perf_counter() - t0
+        else:
+            chain = None
+    except Exception as e:
+        failure["response"] = StageFailed("response", failure_reason(e))
+    metadata, rsecs, dets, kept = [], [], [], []
+    dsecs = 0.0
+    renders = iter_renders(job.renderer, truth, target, poses, job.settings)
+    for i, (result, sec) in enumerate(renders):
+        metadata.append(result.metadata)
+        rsecs.append(sec)
+        image = result.image
+        del result
+        if "response" in failure:
+            continue   # the other poses are rendered only for a render failure to win
+        if chain is not None:
+            try:
+                r = chain.apply(image, model=truth, seed=noise_seed(job, i))
+            except Exception as e:
+                failure["response"] = StageFailed("response", failure_reason(e))
+                continue
+            image = r.image
+            for st in r.stages:
+                resp_secs[st["stage"]] = resp_secs.get(st["stage"], 0.0) + float(st["seconds"])
+        if keep_images:
+            kept.append(image)
+        if "detect" in failure:
+            continue
+        t1 = time.perf_counter()
+        try:
+            dets.append(detect(image, target))
+        except Exception as e:
+            failure["detect"] = StageFailed("detect", failure_reason(e))
+        dsecs += time.perf_counter() - t1
+        del image
+    version = renderer_version(job.renderer)
+    first = failure.get("response") or failure.get("detect")
+    if first is None:
+        first = _none_found(dets)
+    return ImageStages(metadata=metadata, render_seconds=rsecs, version=version,
+                       response_seconds=resp_secs, detections=dets, detect_seconds=dsecs,
+                       images=kept if keep_images else None, failure=first)
 
 
 def noise_seed(job, i_image):
@@ -300,11 +426,19 @@ def detect_stage(images, target):
     except Exception as e:
         raise StageFailed("detect", failure_reason(e)) from None
     secs = time.perf_counter() - t0
-    if not any(d.n_found for d in dets):
-        reasons = sorted({d.reason for d in dets if d.reason})
-        raise StageFailed("detect", "the target was found in none of the "
-                                    f"{len(dets)} images" + (f": {reasons[0]}" if reasons else ""))
+    failed = _none_found(dets)
+    if failed is not None:
+        raise failed
     return dets, secs
+
+
+def _none_found(dets):
+    r'''StageFailed("detect") when the target was found in none of the images, else None'''
+    if any(d.n_found for d in dets):
+        return None
+    reasons = sorted({d.reason for d in dets if d.reason})
+    return StageFailed("detect", "the target was found in none of the "
+                                 f"{len(dets)} images" + (f": {reasons[0]}" if reasons else ""))
 
 
 def observations_from(truth, target, poses, detections):

@@ -26,6 +26,9 @@ camval pinhole pixel (u, v), and the buffer (row 0 at the bottom, OSMesa's
 default Y_UP) is flipped once when read. No other flip (FINDINGS: with
 OSMESA_Y_UP = 0 a first attempt came out upside down).
 
+OpenGL runs in a child process (renderers.gl_worker: the process that renders
+never loads libOSMesa, whose llvmpipe brings a second LLVM beside numba's);
+the pinhole view is drawn there, the warp here. In that process
 PYOPENGL_PLATFORM is set to "osmesa" before OpenGL is imported, unless the
 environment already sets it. Missing libOSMesa raises
 RendererUnavailableError at construction with the fix.
@@ -132,26 +135,15 @@ def board_triangles(pattern):
     return layers
 
 
-class OSMesaRenderer:
-    r'''OpenGL/OSMesa pinhole render + warp (see the module docstring)
+class GLRasteriser:
+    r'''The pinhole raster in this process: an OSMesa context and its float32 buffer
 
-ARGUMENTS (defaults; RenderSettings.options override them)
-
-- interpolation: warp interpolation, "bilinear" or "bicubic"
-- warp_scale: pinhole resolution relative to the model's finest pixel
-- warp_samples: n, average n x n remaps per model pixel (use with warp_scale = n)
-- legacy / fault: render a defective model (renderers.legacy)
+Runs in the OpenGL worker process (renderers.gl_worker), never in a process
+that compiles with numba (see there).
 '''
 
-    name = "osmesa"
-
-    def __init__(self, interpolation="bilinear", warp_scale=1.0, warp_samples=1, legacy=None,
-                 fault=None):
+    def __init__(self):
         self.GL, self.arrays, self.osmesa = _import_gl()
-        self.defaults = dict(interpolation=interpolation, warp_scale=warp_scale,
-                             warp_samples=warp_samples, legacy=legacy,
-                             fault=fault)
-        self._check(self.defaults)
         with _GL_LOCK:
             self._ctx = self.osmesa.OSMesaCreateContextExt(self.osmesa.OSMESA_RGBA, 0, 0, 0,
                                                            None)
@@ -159,12 +151,6 @@ ARGUMENTS (defaults; RenderSettings.options override them)
             raise RendererUnavailableError(f"OSMesa could not create a context; {INSTALL_HINT}")
         self._version = None
         self._buf = None
-
-    @staticmethod
-    def _check(o):
-        if o["interpolation"] not in INTERPOLATIONS:
-            raise RendererError(f"osmesa interpolation {o['interpolation']!r} is unknown; "
-                                f"known: {', '.join(INTERPOLATIONS)}")
 
     def version(self):
         if self._version is None:
@@ -209,14 +195,14 @@ ARGUMENTS (defaults; RenderSettings.options override them)
         # red channel, top row first (float32; averaged in float64 by the caller)
         return np.ascontiguousarray(buf[::-1, :, 0])
 
-    def render_pinhole(self, pinhole, pattern, Rt_cam_board, K):
+    def render_pinhole(self, pinhole, pattern, Rt_cam_board, K, tile_size=TILE):
         r'''Render the pinhole view (pinhole.height, pinhole.width), K x K supersampled'''
         Rt = np.asarray(Rt_cam_board, dtype=np.float64)
         if Rt.shape != (4, 3) or not np.all(np.isfinite(Rt)):
             raise RendererError(f"Rt_cam_board must be a finite (4,3) array; got shape {Rt.shape}")
         layers = [(v, t @ Rt[:3].T + Rt[3]) for v, t in board_triangles(pattern)]
         fine = pinhole.scaled(K)
-        step = max(1, TILE // K) * K            # fine pixels per tile side, a multiple of K
+        step = max(1, tile_size // K) * K       # fine pixels per tile side, a multiple of K
         out = np.empty((pinhole.height, pinhole.width))
         with _GL_LOCK:
             for oy in range(0, fine.height, step):
@@ -228,6 +214,48 @@ ARGUMENTS (defaults; RenderSettings.options override them)
                                                                    dtype=np.float64)
                     out[oy // K:(oy + th) // K, ox // K:(ox + tw) // K] = blk
         return out
+
+
+class OSMesaRenderer:
+    r'''OpenGL/OSMesa pinhole render + warp (see the module docstring)
+
+The raster runs in the OpenGL worker process (renderers.gl_worker); the warp
+runs here.
+
+ARGUMENTS (defaults; RenderSettings.options override them)
+
+- interpolation: warp interpolation, "bilinear" or "bicubic"
+- warp_scale: pinhole resolution relative to the model's finest pixel
+- warp_samples: n, average n x n remaps per model pixel (use with warp_scale = n)
+- legacy / fault: render a defective model (renderers.legacy)
+'''
+
+    name = "osmesa"
+
+    def __init__(self, interpolation="bilinear", warp_scale=1.0, warp_samples=1, legacy=None,
+                 fault=None):
+        from .gl_worker import call
+        self._call = call
+        self.defaults = dict(interpolation=interpolation, warp_scale=warp_scale,
+                             warp_samples=warp_samples, legacy=legacy,
+                             fault=fault)
+        self._check(self.defaults)
+        # loads OSMesa in the worker: RendererUnavailableError with the fix when it cannot
+        self._version = call("osmesa.version")
+
+    @staticmethod
+    def _check(o):
+        if o["interpolation"] not in INTERPOLATIONS:
+            raise RendererError(f"osmesa interpolation {o['interpolation']!r} is unknown; "
+                                f"known: {', '.join(INTERPOLATIONS)}")
+
+    def version(self):
+        return self._version
+
+    def render_pinhole(self, pinhole, pattern, Rt_cam_board, K):
+        r'''Render the pinhole view (pinhole.height, pinhole.width), K x K supersampled'''
+        return self._call("osmesa.render_pinhole", pinhole, pattern,
+                          np.asarray(Rt_cam_board), int(K), TILE)
 
     def render(self, model, scene, Rt_cam_board, settings=None):
         from .legacy import apply_defects

@@ -51,6 +51,11 @@ osmesa.py: renderers.warp.PinholeWarp, K x K supersampling by a K-times finer
 pinhole in tiles of at most TILE pixels); noncentral CAHVORE is warped at
 warp.NONCENTRAL_RANGE, as for the board.
 
+OpenGL runs in the worker process of renderers.gl_worker (the caller never
+loads libOSMesa): render_terrain, cell_shadows and gl_version send their
+arguments there, where render_terrain_here, cell_shadows_here and
+gl_version_here run.
+
 cell_shadows draws pass 2 with an orthographic top-down camera whose pixel
 centres are the triangle centroids (pitch cell/3) and reads the shadow test
 itself (not the darkened colour).
@@ -188,7 +193,8 @@ def _program(GL, vs, fs):
         raise RendererUnavailableError(f"OSMesa cannot compile the shadow-map shaders: {e}") from e
 
 
-def gl_version():
+def gl_version_here():
+    r'''gl_version in this process (the OpenGL worker's side)'''
     with _lock():
         _context(1, 1)
         return _STATE["version"]
@@ -439,8 +445,10 @@ def top_down_matrix(terrain, ox=0, oy=0, width=None, height=None):
     return P
 
 
-def cell_shadows(terrain, map_size=DEFAULT_MAP_SIZE, slope_bias=0.5):
-    r'''The shadow-map verdict at every triangle centroid, seen from straight above
+def cell_shadows_here(terrain, map_size=DEFAULT_MAP_SIZE, slope_bias=0.5, tile_size=TILE):
+    r'''cell_shadows in this process (the OpenGL worker's side)
+
+The shadow-map verdict at every triangle centroid, seen from straight above
 
 SYNOPSIS
 
@@ -457,9 +465,9 @@ give the code.
     with _lock():
         scene = _Scene(terrain, map_size, slope_bias, True)
         try:
-            for oy in range(0, H, TILE):
-                for ox in range(0, W, TILE):
-                    tw, th = min(TILE, W - ox), min(TILE, H - oy)
+            for oy in range(0, H, tile_size):
+                for ox in range(0, W, tile_size):
+                    tw, th = min(tile_size, W - ox), min(tile_size, H - oy)
                     buf = scene.view(top_down_matrix(terrain, ox, oy, tw, th), tw, th, 1.0)
                     inside = (col >= ox) & (col < ox + tw) & (row >= oy) & (row < oy + th)
                     px[inside] = buf[row[inside] - oy, col[inside] - ox]
@@ -485,10 +493,12 @@ def _camera_matrix(model, Rt_ref_terrain, terrain):
     return M
 
 
-def render_terrain(model, terrain, Rt_ref_terrain=None, spp=1, shadows=True, exposure=1.0,
-                   sky=0.0, shadow_factor=None, map_size=DEFAULT_MAP_SIZE, slope_bias=0.5,
-                   interpolation="bilinear", warp_scale=1.0):
-    r'''Render a terrain through a camera model with OpenGL and the two-pass shadow map
+def render_terrain_here(model, terrain, Rt_ref_terrain=None, spp=1, shadows=True, exposure=1.0,
+                        sky=0.0, shadow_factor=None, map_size=DEFAULT_MAP_SIZE, slope_bias=0.5,
+                        interpolation="bilinear", warp_scale=1.0, tile_size=TILE):
+    r'''render_terrain in this process (the OpenGL worker's side)
+
+Render a terrain through a camera model with OpenGL and the two-pass shadow map
 
 SYNOPSIS
 
@@ -520,7 +530,7 @@ warp_scale.
     far = 2.0 * (np.linalg.norm(M[:3, 3]) + math.hypot(xmax - xmin, ymax - ymin,
                                                          np.ptp(terrain.heights))) + 1.0
     K = spp
-    step = max(1, TILE // K) * K
+    step = max(1, tile_size // K) * K
     pin = np.empty((warp.pinhole.height, warp.pinhole.width))
     pin_code = np.empty(pin.shape, np.uint8)
     with _lock():
@@ -551,7 +561,7 @@ warp_scale.
     t3 = time.perf_counter()
     return TerrainRender(
         image=np.clip(image, 0.0, 1.0).astype(np.float32), range=None, shadow=shadow,
-        metadata={"renderer": NAME, "version": gl_version(), "spp": spp,
+        metadata={"renderer": NAME, "version": gl_version_here(), "spp": spp,
                   "shadows": bool(shadows), "exposure": exposure, "shadow_factor": factor,
                   "map_size": map_size, "slope_bias": slope_bias,
                   "shadow_texel_diagonal_m": scene.texel_diag, "seconds": t3 - t0,
@@ -559,6 +569,45 @@ warp_scale.
                   "seconds_warp": t3 - t2, "pinhole": warp.pinhole.as_dict(),
                   "interpolation": interpolation,
                   "surface": "triangle pair per cell", "terrain": terrain.as_dict()})
+
+
+# --- the public functions: OpenGL runs in the worker process (renderers.gl_worker) -----
+def gl_version():
+    r'''The OpenGL version and renderer string (RendererUnavailableError with the fix when
+OSMesa cannot be loaded)'''
+    from renderers.gl_worker import call
+    return call("terrain.version")
+
+
+def cell_shadows(terrain, map_size=DEFAULT_MAP_SIZE, slope_bias=0.5):
+    r'''The shadow-map verdict at every triangle centroid, seen from straight above
+
+SYNOPSIS
+
+    code = cell_shadows(terrain, map_size=4096)   # (Ny-1, Nx-1, 2) uint8: 0 lit, 1 away, 2 cast
+
+Drawn in the OpenGL worker process (cell_shadows_here there).
+'''
+    from renderers.gl_worker import call
+    return call("terrain.cell_shadows", terrain, map_size=map_size, slope_bias=slope_bias,
+                tile_size=TILE)
+
+
+def render_terrain(model, terrain, Rt_ref_terrain=None, spp=1, shadows=True, exposure=1.0,
+                   sky=0.0, shadow_factor=None, map_size=DEFAULT_MAP_SIZE, slope_bias=0.5,
+                   interpolation="bilinear", warp_scale=1.0):
+    r'''Render a terrain through a camera model with OpenGL and the two-pass shadow map
+
+SYNOPSIS
+
+    r = render_terrain(model, terrain, Rt_ref_terrain, spp=1, shadows=True)
+    # a TerrainRender, as render_terrain_here's; rendered in the OpenGL worker process
+'''
+    from renderers.gl_worker import call
+    return call("terrain.render", model, terrain, Rt_ref_terrain, spp=spp, shadows=shadows,
+                exposure=exposure, sky=sky, shadow_factor=shadow_factor, map_size=map_size,
+                slope_bias=slope_bias, interpolation=interpolation, warp_scale=warp_scale,
+                tile_size=TILE)
 
 
 class OSMesaTerrainRenderer:
@@ -584,7 +633,7 @@ K = 1); RenderSettings.adaptive does not apply.
     def __init__(self, shadows=True, exposure=1.0, sky=0.0, shadow_factor=None,
                  map_size=DEFAULT_MAP_SIZE, slope_bias=0.5, interpolation="bilinear",
                  warp_scale=1.0):
-        _gl()
+        gl_version()
         self.defaults = dict(shadows=shadows, exposure=exposure, sky=sky,
                              shadow_factor=shadow_factor, map_size=map_size,
                              slope_bias=slope_bias, interpolation=interpolation,

@@ -157,3 +157,41 @@ def test_noncentral_cahvore_through_the_plane_exact_warp():
     assert np.abs(img.astype(float) - ref).mean() < 0.003
     err = np.array([measured_centroid(img, e, 7) for e in exps]) - exps
     assert np.sqrt((err ** 2).sum(1).mean()) < 0.008
+
+
+def _loaded(name):
+    with open("/proc/self/maps") as f:
+        return any(name in line for line in f)
+
+
+def test_opengl_runs_in_a_worker_process_and_never_loads_here():
+    # two LLVMs in one process (Mesa's llvmpipe and numba's llvmlite) corrupted the heap
+    # at exit: OSMesa is loaded only by the worker (renderers.gl_worker)
+    from renderers import gl_worker
+    r = _renderer()
+    m = small_model("CAHVOR", W=96, H=64, f=90.0)
+    pat, _ = grid_board()
+    r.render(m, pat, board_pose(), RenderSettings(spp=1))
+    assert not _loaded("libOSMesa") and not _loaded("libLLVM")
+    import os
+    assert gl_worker.call("pid") != os.getpid()
+    # an error in the worker is raised here, same class and message
+    with pytest.raises(RendererError, match=r"Rt_cam_board must be a finite \(4,3\) array"):
+        r.render_pinhole(Pinhole(fx=60.0, fy=60.0, cx=31.5, cy=23.5, width=64, height=48),
+                         pat, np.zeros((3, 3)), 1)
+
+
+def test_a_dead_worker_is_an_error_and_the_next_call_starts_another():
+    import os
+    import signal
+
+    from renderers import gl_worker
+    r = _renderer()
+    pid = gl_worker.call("pid")
+    os.kill(pid, signal.SIGKILL)
+    with pytest.raises(RendererError, match=r"the OpenGL worker process ended \(exit status -9\)"):
+        gl_worker.call("pid")
+    assert gl_worker.call("pid") not in (pid, os.getpid())
+    m = small_model("CAHVOR", W=96, H=64, f=90.0)
+    pat, _ = grid_board()
+    assert r.render(m, pat, board_pose(), RenderSettings(spp=1)).image.shape == (64, 96)

@@ -23,7 +23,8 @@ renderer's metadata (settings, version, seconds, samples). Points that do not
 project are null.
 
 Existing files are not overwritten without --force. A camera that cannot see
-the target prints the reason and exits with status 2.
+the target, or whose image cannot fit in this machine's memory
+(renderers.memory), prints the reason and exits with status 2.
 '''
 
 from pathlib import Path
@@ -116,6 +117,7 @@ def run(args):
     from reference_models.catalogue import load_catalogue
     from reference_models.errors import CamvalError
     from renderers.base import RenderSettings, get_renderer
+    from renderers.memory import check_render_memory
     from renderers.png import save_png16
     from targets.boards import load_target
     from targets.poses import plan_poses
@@ -145,7 +147,6 @@ def run(args):
         outputs = [out]
     _check_free([p for o in outputs for p in (o, o.with_suffix(".json"))], args.force)
 
-    poses = plan_poses(model, target, n=max(NPOSES, max(indices) + 1), seed=args.seed)
     if args.renderer == "command":
         from renderers.command import setup_from_cli
         renderer = get_renderer("command", **setup_from_cli(args.command, args.setup))
@@ -153,6 +154,8 @@ def run(args):
         raise CamvalError("--command and --setup are for --renderer command")
     else:
         renderer = get_renderer(args.renderer)
+    check_render_memory(renderer, model, settings)
+    poses = plan_poses(model, target, n=max(NPOSES, max(indices) + 1), seed=args.seed)
     if args.poses is not None:
         outdir.mkdir(parents=True, exist_ok=True)
     for i, out in zip(indices, outputs, strict=True):
