@@ -49,7 +49,7 @@ def build_parser():
     parser = argparse.ArgumentParser(
         prog="camval", description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="subcommand", metavar="COMMAND")
     sub.required = True
     for name, mod in commands.items():
         doc = (mod.__doc__ or "").strip()
@@ -68,7 +68,7 @@ def main(argv=None):
     try:
         return int(args._module.run(args) or 0)
     except CamvalError as e:
-        print(f"camval {args.command}: error: {e}", file=sys.stderr)
+        print(f"camval {args.subcommand}: error: {e}", file=sys.stderr)
         return 2
     except BrokenPipeError:
         return 0
