@@ -123,7 +123,62 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
                                           f"{tb.lineno})", seconds=dict(ctx["seconds"]),
                                    detections=ctx["detections"], artifacts=ctx["artifacts"],
                                    features=ctx["features"]))
+    return explain_against_reference(records)
+
+
+# a record's total projection difference this many times the reference calibrator's
+# (jpl) is explained in its reason: issue 15's bar (within 5x of jpl, or say why)
+FAR_FACTOR = 5.0
+REFERENCE_CALIBRATOR = "jpl"
+
+
+def explain_against_reference(records):
+    r'''records, where an ok record's projection difference (rotation RMS) exceeds
+FAR_FACTOR x that of the ok jpl record of the same job gets a sentence in its reason
+saying why, in words, from its verdict: the floor (its fit of the exact observations
+is already that far from the truth: the model or the calibrator, not the images), or
+the renderer part (its fits of the images and of the exact observations differ: the
+detection errors move this model's parameters that far), and the poses and model it
+fitted. Records without a jpl record, or jpl failed: unchanged.'''
+    ref = next((r for r in records if r.get("calibrator") == REFERENCE_CALIBRATOR
+                and r.get("status") == "ok"), None)
+    ref_rms = ((ref or {}).get("projection") or {}).get("rms")
+    if not ref_rms:
+        return records
+    for r in records:
+        rms = (r.get("projection") or {}).get("rms")
+        if r is ref or r.get("status") != "ok" or rms is None or rms <= FAR_FACTOR * ref_rms:
+            continue
+        r["reason"] = "; ".join(x for x in (r.get("reason"), _far_sentence(r, rms, ref_rms))
+                                if x)
     return records
+
+
+def _far_sentence(r, rms, ref_rms):
+    v = r.get("verdict") if isinstance(r.get("verdict"), dict) else {}
+    info = r.get("info") or {}
+    n = (info.get("poses") or {}).get("n")
+    what = f"{r['calibrator']} {r['calibrator_model']}"
+    head = (f"{what} is {rms / ref_rms:.3g}x jpl's projection difference ({rms:.3g} vs "
+            f"{ref_rms:.3g} px RMS)")
+    floor = ((v.get("floor") or {}).get("projection") or {}).get("rms")
+    rend = ((v.get("renderer") or {}).get("projection") or {}).get("rms")
+    noise = (v.get("detection_noise") or {}).get("rms")
+    if floor is not None and floor > 0.5 * rms:
+        why = (f"because the model cannot get closer even from exact detections: its fit of "
+               f"the exact observations is already {floor:.3g} px from the truth")
+    elif rend is not None and rend > 0.5 * rms:
+        why = (f"because the detection errors ({noise:.3g} px RMS) move this model's "
+               f"parameters: its fit of the images lies {rend:.3g} px from its fit of the "
+               f"exact observations (floor {floor if floor is None else format(floor, '.3g')} "
+               f"px), so {n if n else 'its'} poses do not constrain it as well as jpl's "
+               f"known board poses constrain jpl")
+    else:
+        why = "for no single cause: floor and renderer part are each below half of it"
+        if floor is not None and rend is not None:
+            why += f" (floor {floor:.3g} px, renderer part {rend:.3g} px)"
+    poses = f", fitted on {n} poses" if n else ""
+    return f"{head}{poses}, {why}"
 
 
 def pose_subset(ctx, n):

@@ -53,11 +53,10 @@ def test_corner_poses_cover_the_image(name):
     # dots sit inside its border and the planner's margin; measured on camera 17:
     # 44-76 px of 800, on the CAHVOR of 9: below 60 px of 1448)
     diag = np.hypot(W, H)
+    pts = np.concatenate(q)
     for c in ((-0.5, -0.5), (W - 0.5, -0.5), (-0.5, H - 0.5), (W - 0.5, H - 0.5)):
-        def near(qs):
-            pts = np.concatenate(qs)
-            return np.min(np.hypot(pts[:, 0] - c[0], pts[:, 1] - c[1]))
-        assert near(q) < diag / 8, (c, near(q), near(q[:6]))
+        near = np.min(np.hypot(pts[:, 0] - c[0], pts[:, 1] - c[1]))
+        assert near < diag / 8, (c, near)
 
 
 def test_image_coverage_counts_cells():
@@ -136,3 +135,25 @@ poses (the extra ones go to mrcal); every record says how many poses it fitted''
     assert a["info"]["poses"] == {"n": 6}
     assert b["info"]["poses"] == {"n": 6, "rendered": 8}
     assert m["info"]["poses"] == {"n": 8} and len(m["detections"]["per_pose"]) == 8
+
+
+def test_far_record_says_why():
+    from harness.job_records import explain_against_reference
+
+    def rec(cal, model, rms, floor, rend, reason=""):
+        return {"calibrator": cal, "calibrator_model": model, "status": "ok",
+                "projection": {"rms": rms}, "reason": reason, "info": {"poses": {"n": 30}},
+                "verdict": {"floor": {"projection": {"rms": floor}},
+                            "renderer": {"projection": {"rms": rend}},
+                            "detection_noise": {"rms": 0.002}}}
+    recs = [rec("jpl", "CAHVORE", 0.001, 1e-6, 0.001),
+            rec("mrcal", "SPLINED", 0.2, 0.19, 0.01, "floor far"),
+            rec("opencv", "FISHEYE", 0.05, 0.001, 0.05),
+            rec("mrcal", "CAHVORE", 0.004, 0.0, 0.004)]
+    out = explain_against_reference([dict(r) for r in recs])
+    assert out[0]["reason"] == "" and out[3]["reason"] == ""       # within 5x
+    assert out[1]["reason"].startswith("floor far; mrcal SPLINED is 200x jpl's")
+    assert "exact detections" in out[1]["reason"] and "30 poses" in out[1]["reason"]
+    assert "detection errors (0.002 px RMS) move" in out[2]["reason"]
+    # no ok jpl record: nothing to compare with
+    assert explain_against_reference([dict(recs[1])])[0]["reason"] == "floor far"
