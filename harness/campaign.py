@@ -29,6 +29,8 @@ A campaign is a TOML file (tomllib):
     [poses]
     n = 6
     seed = 0
+    cover = "corners"        # poses beyond the first six: "corners" (reach the image
+                             # corners and edges) or "paper" (cycle the six templates)
 
     [[renderer]]
     name = "raycast"
@@ -49,6 +51,9 @@ A campaign is a TOML file (tomllib):
                              # simplest model within options.best_tolerance px (0.01) of
                              # the truth (harness.model_benchmark); or named models
     options = {}
+    poses = 30               # optional: its own pose count (default: [poses] n); the job
+                             # renders the most any calibrator asks for, and each
+                             # calibrator fits the first N (the first six are the paper's)
 
     [response.clean]         # a profile with no stages: the rendered image as it is
 
@@ -92,14 +97,21 @@ from reference_models.errors import CamvalError
 
 JOB_FAMILY = "family"
 
+# [poses] cover: how the poses beyond the first six are planned
+# (targets.poses.plan_poses): "corners" reaches the image's corners and edges, which a
+# calibrator given more poses than the campaign's n (calibrator poses = N) needs for a
+# rich model; the first six, the paper's, are the same either way
+POSES_COVER = "corners"
+POSES_COVERS = ("paper", "corners")
+
 TOP_KEYS = ("name", "description", "cameras", "models", "targets", "keep_images", "keep_maps",
             "share_identical_cameras", "catalogue", "seed", "poses", "renderer", "calibrator",
             "response")
-POSE_KEYS = ("n", "seed")
+POSE_KEYS = ("n", "seed", "cover")
 RENDERER_KEYS = ("name", "spp", "adaptive", "options", "response", "label", "setup")
 LABEL = re.compile(r"^[A-Za-z0-9_.-]+$")
 PROFILE_NAME = re.compile(r"^[A-Za-z0-9_-]+$")
-CALIBRATOR_KEYS = ("name", "models", "options")
+CALIBRATOR_KEYS = ("name", "models", "options", "poses")
 
 
 class CampaignError(CamvalError):
@@ -236,6 +248,7 @@ class CalibratorSpec:
     name: str
     models: tuple = (JOB_FAMILY,)
     options: dict = field(default_factory=dict)
+    poses: int = None      # its own pose count (None: the campaign's [poses] n)
 
     def models_for(self, family):
         r'''The calibrator's models for a job of this family ("family" -> the family;
@@ -268,7 +281,10 @@ given: the family.
         return out
 
     def as_dict(self):
-        return {"name": self.name, "models": list(self.models), "options": dict(self.options)}
+        d = {"name": self.name, "models": list(self.models), "options": dict(self.options)}
+        if self.poses is not None:
+            d["poses"] = self.poses
+        return d
 
 
 @dataclass(frozen=True)
@@ -281,6 +297,7 @@ class Campaign:
     calibrators: tuple = (CalibratorSpec("jpl"),)
     poses_n: int = 6
     poses_seed: int = 0
+    poses_cover: str = POSES_COVER
     keep_images: bool = False
     keep_maps: bool = True
     catalogue: str = None
@@ -304,7 +321,9 @@ class Campaign:
                 "targets": list(self.targets),
                 "renderers": [r.as_dict() for r in self.renderers],
                 "calibrators": [c.as_dict() for c in self.calibrators],
-                "poses": {"n": self.poses_n, "seed": self.poses_seed},
+                "poses": dict({"n": self.poses_n, "seed": self.poses_seed},
+                              **({} if self.poses_cover == POSES_COVER
+                                 else {"cover": self.poses_cover})),
                 "keep_images": self.keep_images, "keep_maps": self.keep_maps,
                 "catalogue": self.catalogue, "seed": self.seed,
                 "response": [r.as_dict() for r in self.responses],
@@ -323,9 +342,10 @@ class Campaign:
                                                 dict(r.get("setup") or {}))
                                    for r in d["renderers"]),
                    calibrators=tuple(CalibratorSpec(c["name"], tuple(c["models"]),
-                                                    dict(c["options"]))
+                                                    dict(c["options"]), c.get("poses"))
                                      for c in d["calibrators"]),
                    poses_n=d["poses"]["n"], poses_seed=d["poses"]["seed"],
+                   poses_cover=d["poses"].get("cover", POSES_COVER),
                    keep_images=d["keep_images"], keep_maps=d["keep_maps"],
                    catalogue=d.get("catalogue"), seed=d.get("seed", 0),
                    responses=tuple(ResponseSpec(r["name"], r["config"])
@@ -418,6 +438,10 @@ would name the records: a CampaignError that says to move it to setup"""
 BEST = "best"
 BEST_TOLERANCE = "best_tolerance"
 MODEL_CHOICE = "model_choice"
+# a calibrator's own pose count (CalibratorSpec.poses), among the options of a job's
+# calibrator (harness.jobs.expand_jobs); the record keeps it in info["poses"], the
+# calibrator never sees it
+POSE_COUNT = "pose_count"
 
 
 def _best_model(calibrator, family, camera_model, tolerance):
@@ -537,6 +561,10 @@ Relative model-file paths among the cameras are taken from base_dir.
     _unknown(source, "poses.", poses, POSE_KEYS)
     n = _int(source, "poses.n", poses.get("n", 6), 1)
     seed = _int(source, "poses.seed", poses.get("seed", 0), 0)
+    cover = poses.get("cover", POSES_COVER)
+    if cover not in POSES_COVERS:
+        raise CampaignError(f"{_where(source, 'poses.cover')}: expected one of "
+                            f"{', '.join(repr(c) for c in POSES_COVERS)}; got {cover!r}")
     noise_seed = _int(source, "seed", doc.get("seed", 0), 0)
     responses = parse_responses(source, doc.get("response"))
 
@@ -605,7 +633,8 @@ Relative model-file paths among the cameras are taken from base_dir.
         opts = c.get("options", {})
         if not isinstance(opts, dict):
             raise CampaignError(f"{_where(source, key + '.options')}: expected a table")
-        calibrators.append(CalibratorSpec(c["name"], tuple(ms), dict(opts)))
+        own = _int(source, key + ".poses", c["poses"], 1) if "poses" in c else None
+        calibrators.append(CalibratorSpec(c["name"], tuple(ms), dict(opts), own))
     if len({c.name for c in calibrators}) != len(calibrators):
         raise CampaignError(f"{_where(source, 'calibrator')}: a calibrator appears twice; "
                             f"list all its models in one table")
@@ -625,6 +654,7 @@ Relative model-file paths among the cameras are taken from base_dir.
     return Campaign(name=name, description=desc, source=str(source), cameras=tuple(cameras),
                     models=models, targets=targets, renderers=tuple(renderers),
                     calibrators=tuple(calibrators), poses_n=n, poses_seed=seed,
+                    poses_cover=cover,
                     keep_images=_bool(source, "keep_images", doc.get("keep_images", False)),
                     keep_maps=_bool(source, "keep_maps", doc.get("keep_maps", True)),
                     catalogue=cat, seed=noise_seed, responses=responses,

@@ -58,6 +58,9 @@ run_dir:      where images and maps are kept (None: keep nothing)
 response:     the camera-response profile's configuration ({} : clean)
 response_name: the profile's name ("" : the campaign has no profiles)
 seed:         the campaign's noise seed
+poses_n:      the poses rendered: the most any calibrator fits (a calibrator's options
+              [harness.campaign.POSE_COUNT] = N: it fits the first N; none: all)
+poses_cover:  targets.poses.plan_poses(cover=...) for the poses beyond the first six
 twins:        ((camera spec, camera key), ...) of other cameras that are this one
               (group_twins): run_job() gives their records too
 '''
@@ -72,6 +75,7 @@ twins:        ((camera spec, camera key), ...) of other cameras that are this on
     calibrators: tuple
     poses_n: int = 6
     poses_seed: int = 0
+    poses_cover: str = "paper"
     keep_images: bool = False
     keep_maps: bool = False
     catalogue: str = None
@@ -114,13 +118,15 @@ entries: {camera spec: CatalogueEntry} from campaign.validate() (validated here 
                 for r in campaign.renderers:
                     for s, prof in zip(r.settings(campaign.responses),
                                        r.profiles(campaign.responses), strict=True):
-                        cals = tuple((c.name, m, o) for c in campaign.calibrators
+                        cals = tuple((c.name, m, _with_pose_count(o, c, campaign))
+                                     for c in campaign.calibrators
                                      for m, o in c.models_and_options(family, entry.model))
                         jobs.append(Job(
                             key=f"{key}/{family}/{target}/{renderer_key(r.name, s)}",
                             camera=spec, camera_key=key, family=family, target=target,
                             renderer=r.name, settings=s, calibrators=cals,
-                            poses_n=campaign.poses_n, poses_seed=campaign.poses_seed,
+                            poses_n=_poses_rendered(campaign), poses_seed=campaign.poses_seed,
+                            poses_cover=getattr(campaign, "poses_cover", "paper"),
                             keep_images=campaign.keep_images, keep_maps=campaign.keep_maps,
                             catalogue=campaign.catalogue,
                             run_dir=str(run_dir) if run_dir is not None else None,
@@ -134,6 +140,23 @@ entries: {camera spec: CatalogueEntry} from campaign.validate() (validated here 
         raise RunnerError(f"the campaign lists the same job twice: {dup[0]} (a camera named "
                           f"twice under different specs?)")
     return jobs
+
+
+def _poses_rendered(campaign):
+    r'''The poses a job renders: the campaign's n, or more when a calibrator asks for more'''
+    return max([campaign.poses_n] + [c.poses for c in campaign.calibrators
+                                     if getattr(c, "poses", None) is not None])
+
+
+def _with_pose_count(options, spec, campaign):
+    r'''A calibrator's options with its pose count when the job renders another number
+(harness.job_records fits it on the first N poses); unchanged otherwise, so a campaign
+without calibrator pose counts has the jobs (and the twins' signatures) it had'''
+    from .campaign import POSE_COUNT
+    n = spec.poses if getattr(spec, "poses", None) is not None else campaign.poses_n
+    if n == _poses_rendered(campaign):
+        return options
+    return dict(options, **{POSE_COUNT: n})
 
 
 def camera_key(entry, spec):
@@ -249,5 +272,5 @@ alone. The order of the remaining jobs is kept.
 def _twin_signature(job):
     return (job.family, job.target, job.renderer, renderer_key(job.renderer, job.settings),
             repr(job.settings.get("setup")),
-            repr(job.calibrators), job.poses_n, job.poses_seed, job.keep_images,
+            repr(job.calibrators), job.poses_n, job.poses_seed, job.poses_cover, job.keep_images,
             job.keep_maps, job.catalogue, job.run_dir, job.seed)

@@ -79,7 +79,7 @@ A job with twins (group_twins) gives the records of each of its cameras.
         entry, truth = camera_stage(job)
         target = cached_target(job.target)
         t0 = time.perf_counter()
-        poses = poses_stage(truth, target, job.poses_n, job.poses_seed)
+        poses = poses_stage(truth, target, job.poses_n, job.poses_seed, job.poses_cover)
         seconds["poses"] = time.perf_counter() - t0
         keep = bool(job.keep_images and job.run_dir)
         # each image is detected as soon as it is rendered, then dropped
@@ -122,7 +122,8 @@ A job with twins (group_twins) gives the records of each of its cameras.
     render_info = render_summary(out.metadata)
     ctx = dict(obs=obs, target=target, truth=truth, entry=entry, seconds=seconds,
                detections=detections, artifacts=artifacts, rversion=rversion,
-               render_info=render_info, features=features)
+               render_info=render_info, features=features,
+               render_metadata=[r.metadata for r in renders])
     fits = {} if len(members) > 1 else None
     twins = [m.camera_key for m in members[1:]]
     records = calibrator_records(job, ctx, fits, {"twins": twins} if twins else None)

@@ -185,11 +185,11 @@ camera_key: the camera's name in the reason of a family it cannot give
     return entry, truncate(entry.model, family)
 
 
-def poses_stage(truth, target, n, seed):
-    r'''-> [Rt_cam_board (4,3)] * n'''
+def poses_stage(truth, target, n, seed, cover="paper"):
+    r'''-> [Rt_cam_board (4,3)] * n (cover: targets.poses.plan_poses's, for poses past six)'''
     from targets.poses import plan_poses
     try:
-        return plan_poses(truth, target, n=n, seed=seed)
+        return plan_poses(truth, target, n=n, seed=seed, cover=cover)
     except Exception as e:  # NotVisibleError and any planner bug alike end this job only
         # a camera the procedure does not apply to (targets.poses.OffAxisError) is
         # not-applicable, not a failure

@@ -74,6 +74,17 @@ _TEMPLATES = (
 )
 
 
+# plan_poses(cover=...): "paper" cycles the templates; "corners" adds poses that reach
+# the image's corners and edges (plan_poses says how)
+COVERS = ("paper", "corners")
+# the anchors of cover="corners" poses: the four corners, then the four edge midpoints
+COVER_ANCHORS = ((-1, -1), (1, -1), (1, 1), (-1, 1), (0, -1), (1, 0), (0, 1), (-1, 0))
+# their range factors, one round of COVER_ANCHORS each: a board at f times the range at
+# which it fills the middle spans ~1/f of the image, so it can reach f times deeper into
+# a corner; 3 keeps 10x10 dots ~1/30 of the image apart (detectable at 640 px)
+COVER_FACTORS = (1.6, 2.2, 3.0)
+
+
 class NotVisibleError(CamvalError):
     '''A camera that cannot see the target in a usable calibration pose (the message says why).'''
 
@@ -326,20 +337,37 @@ def _margin_px(model):
     return max(4.0, 0.02 * min(model.width, model.height))
 
 
-def plan_poses(model, target, n=6, seed=0, *, allow_offaxis=False, max_range=DEFAULT_MAX_RANGE):
+def plan_poses(model, target, n=6, seed=0, *, allow_offaxis=False, max_range=DEFAULT_MAX_RANGE,
+               cover="paper"):
     r'''Plan n board poses that calibrate `model`
 
 SYNOPSIS
 
     Rt_cam_board_all = plan_poses(model, target, n=6, seed=0)
     # list of n arrays of shape (4,3), in the camera frame of model.Rt_ref_cam()
+    Rt_cam_board_all = plan_poses(model, target, n=30, seed=0, cover="corners")
 
 See the module docstring for what the poses are. Deterministic for a seed.
+The first poses do not depend on n: plan_poses(n=30)[:6] == plan_poses(n=6),
+bit for bit, for either cover.
+
+cover: what poses beyond the six templates do. "paper": cycle through the
+templates with other tilt axes and ranges (the boards stay as large, so on a
+fisheye they reach no further into the corners). "corners": smaller boards
+(COVER_FACTORS times the range at which the board fills the middle) pushed into
+the four image corners and onto the four edge midpoints (COVER_ANCHORS), with
+tilts of 15-45 deg about varying axes from their own random stream (seed, 1):
+the detected points reach the corners and edges, which is what constrains the
+rich models (mrcal's documentation: observations near the corners constrain
+the distortion there; a splined model is undetermined where nothing was seen).
+
 Raises NotVisibleError (with the reason) when the camera cannot see the
-target in a usable calibration pose, CamvalError for a bad n.
+target in a usable calibration pose, CamvalError for a bad n or cover.
 '''
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise CamvalError(f"number of poses must be a positive integer; got {n!r}")
+    if cover not in COVERS:
+        raise CamvalError(f"cover must be one of {', '.join(COVERS)}; got {cover!r}")
     W, H = model.width, model.height
     ph = model.photogrammetric()
     if not allow_offaxis and (abs(ph.Hc - (W - 1) / 2) > W or abs(ph.Vc - (H - 1) / 2) > H):
@@ -356,19 +384,29 @@ target in a usable calibration pose, CamvalError for a bad n.
         raise NotVisibleError(f"the image centre {q_centre.tolist()} does not unproject "
                               "through this camera model")
     rng = np.random.default_rng(seed)
-    corners = {(-1, -1): (-0.5, -0.5), (1, -1): (W - 0.5, -0.5),
-               (1, 1): (W - 0.5, H - 0.5), (-1, 1): (-0.5, H - 0.5)}
+    rng_cover = np.random.default_rng([seed, 1])
+    corners = {(sx, sy): ((W - 1) / 2 + sx * W / 2, (H - 1) / 2 + sy * H / 2)
+               for sx in (-1, 0, 1) for sy in (-1, 0, 1) if (sx, sy) != (0, 0)}
     poses = []
     for i in range(n):
         anchor, tilt, azimuth, roll, factor = _TEMPLATES[i % len(_TEMPLATES)]
-        if i >= len(_TEMPLATES):
+        if i >= len(_TEMPLATES) and cover == "corners":
+            k = i - len(_TEMPLATES)
+            anchor = COVER_ANCHORS[k % len(COVER_ANCHORS)]
+            factor = COVER_FACTORS[(k // len(COVER_ANCHORS)) % len(COVER_FACTORS)]
+            tilt = rng_cover.uniform(15.0, MAX_TILT_DEG)
+            azimuth = rng_cover.uniform(0.0, 360.0)
+            roll = rng_cover.uniform(-10.0, 10.0)
+            factor *= rng_cover.uniform(0.95, 1.05)
+        elif i >= len(_TEMPLATES):
             # later rounds: other tilt axes and ranges
             azimuth += 60.0 * (i // len(_TEMPLATES))
             factor *= 1.0 + 0.15 * (i // len(_TEMPLATES))
-        tilt = min(MAX_TILT_DEG, max(0.0, tilt + rng.uniform(-5.0, 5.0)))
-        azimuth += rng.uniform(-15.0, 15.0)
-        roll += rng.uniform(-3.0, 3.0)
-        factor *= rng.uniform(0.95, 1.05)
+        if not (i >= len(_TEMPLATES) and cover == "corners"):
+            tilt = min(MAX_TILT_DEG, max(0.0, tilt + rng.uniform(-5.0, 5.0)))
+            azimuth += rng.uniform(-15.0, 15.0)
+            roll += rng.uniform(-3.0, 3.0)
+            factor *= rng.uniform(0.95, 1.05)
         d_fit = planner.closest_fit_range(q_centre, tilt, azimuth, roll)
         if d_fit is None:
             raise NotVisibleError(
@@ -388,6 +426,27 @@ target in a usable calibration pose, CamvalError for a bad n.
                                   f"at {d:.3g} m with tilt {tilt:.0f} deg")
         poses.append(Rt)
     return poses
+
+
+def image_coverage(q_all, width, height, cells=10):
+    r'''Fraction of the image's cells x cells grid that holds at least one point
+
+SYNOPSIS
+
+    image_coverage([det.q for det in detections], W, H)     # 0.64
+
+q_all: arrays (...,2) of pixels (NaN: not detected); the union over all of
+them counts. Cells split [-0.5, W-0.5] x [-0.5, H-0.5] evenly.
+'''
+    hit = np.zeros((cells, cells), dtype=bool)
+    for q in q_all:
+        q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+        q = q[np.all(np.isfinite(q), axis=1)]
+        ix = np.floor((q[:, 0] + 0.5) / width * cells).astype(int)
+        iy = np.floor((q[:, 1] + 0.5) / height * cells).astype(int)
+        ok = (ix >= 0) & (ix < cells) & (iy >= 0) & (iy < cells)
+        hit[iy[ok], ix[ok]] = True
+    return float(hit.mean())
 
 
 def pose_summary(model, target, Rt_cam_board, margin_px=None):
