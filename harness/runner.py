@@ -123,7 +123,7 @@ A job with twins (group_twins) gives the records of each of its cameras.
     ctx = dict(obs=obs, target=target, truth=truth, entry=entry, seconds=seconds,
                detections=detections, artifacts=artifacts, rversion=rversion,
                render_info=render_info, features=features,
-               render_metadata=[r.metadata for r in renders])
+               render_metadata=list(out.metadata))
     fits = {} if len(members) > 1 else None
     twins = [m.camera_key for m in members[1:]]
     records = calibrator_records(job, ctx, fits, {"twins": twins} if twins else None)
