@@ -238,7 +238,9 @@ ARGUMENTS
 - steps: (N,2,2) columns: image displacement of one board unit along the two board axes
 - half_box: the window is the pixels whose square lies within half_box board units of the
   coarse corner along both axes (and within max_window_px px)
-- options: max_window_px, max_misfit, min_contrast (module constants by default)
+- options: max_window_px, max_misfit, min_contrast (module constants by default); kernel:
+  "numba" (default: targets._corner_kernels, compiled) or "numpy" (wedge_area: the
+  reference the compiled model is tested against, within 1e-12 px)
 
 RETURNED VALUE
 
@@ -274,8 +276,11 @@ second polishes with the exact ones.
 
 def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
-         converged_px=CONVERGED_PX):
-    r'''One pass of refine_corners (the window about q0; widen: see wedge_area)'''
+         converged_px=CONVERGED_PX, kernel="numba"):
+    r'''One pass of refine_corners (the window about q0; widen: see wedge_area; kernel:
+"numba" the compiled pixel-area model of targets._corner_kernels, "numpy" wedge_area's)'''
+    if kernel not in ("numba", "numpy"):
+        raise ValueError(f"kernel must be 'numba' or 'numpy', not {kernel!r}")
     img = np.asarray(image, dtype=np.float64)
     q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
     N = len(q0)
@@ -319,14 +324,18 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
     ui = u[:, wedges[:, 0]]
     uj = u[:, wedges[:, 1]]
     flip = _cross(ui, uj) < 0                                # (n,Nw)
-    first = np.where(flip, wedges[None, :, 1], wedges[None, :, 0])
-    second = np.where(flip, wedges[None, :, 0], wedges[None, :, 1])
+    first = np.ascontiguousarray(np.where(flip, wedges[None, :, 1], wedges[None, :, 0]))
+    second = np.ascontiguousarray(np.where(flip, wedges[None, :, 0], wedges[None, :, 1]))
     c = q0[idx].copy()
     n, R = theta.shape
 
     def model(s, c, theta):
         # D (m,P) dark area of each window pixel and its derivatives, for the corners s
         uu = np.stack((np.cos(theta), np.sin(theta)), axis=-1)     # (m,R,2)
+        if kernel == "numba":
+            from ._corner_kernels import wedge_model
+            return wedge_model(centres, np.ascontiguousarray(s, dtype=np.int64),
+                               np.ascontiguousarray(c), uu, first, second, float(widen))
         d = centres[s] - c[:, None, :]
         m = len(s)
         D = np.zeros(d.shape[:-1])
