@@ -212,10 +212,13 @@ def _window(q0, steps, half_box, shape, max_px):
     iy = c0[:, 1:2] + oy
     # board offsets of the pixel squares' corners (local affine map)
     Ainv = np.linalg.inv(steps)                                      # (N,2,2)
-    corners = np.stack((ix, iy), axis=-1)[:, :, None, :] + _SQUARE   # (N,P,4,2)
-    rel = corners - q0[:, None, None, :]
-    b = np.einsum("nij,npkj->npki", Ainv, rel)
-    inside = np.all(np.abs(b) <= half_box, axis=(-1, -2))
+    # each square corner's offset from q0, (N,P,4) per axis, mapped by Ainv (written out:
+    # einsum on these shapes was most of a detection's refinement time)
+    rx = (ix - q0[:, 0:1])[:, :, None] + _SQUARE[:, 0]
+    ry = (iy - q0[:, 1:2])[:, :, None] + _SQUARE[:, 1]
+    a = Ainv[:, None, None, :, :]
+    inside = np.all((np.abs(a[..., 0, 0] * rx + a[..., 0, 1] * ry) <= half_box)
+                    & (np.abs(a[..., 1, 0] * rx + a[..., 1, 1] * ry) <= half_box), axis=-1)
     inside &= (np.abs(ix - q0[:, 0:1]) <= max_px) & (np.abs(iy - q0[:, 1:2]) <= max_px)
     on_image = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
     return ix, iy, inside, on_image
