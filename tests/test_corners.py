@@ -173,3 +173,19 @@ a few ulp of a ~100 px coordinate, 1e-14 px), the reasons and misfits as well'''
     assert a.iterations == b.iterations
     mk = np.isfinite(a.misfit)
     assert np.allclose(a.misfit[mk], b.misfit[mk], rtol=1e-9, atol=0)
+
+
+def test_corners_campaign_renders_the_corner_targets_with_area_coverage():
+    r'''campaigns/corners.toml: apriltag and chessboard on the ray caster's exact covered-area
+mode (point sampling at K=16 resolves an edge near the pixel grid only to 1/32 px)'''
+    from pathlib import Path
+
+    from harness.campaign import load_campaign
+    from harness.jobs import expand_jobs
+    c = load_campaign(Path(__file__).resolve().parents[1] / "campaigns" / "corners.toml")
+    jobs = expand_jobs(c)
+    assert {j.target for j in jobs} == {"apriltag", "chessboard"}
+    assert {j.camera for j in jobs} == {"15", "17", "8"}
+    assert len(jobs) == 3 * 3 * 2                       # cameras x families x targets
+    assert all(j.settings["options"] == {"coverage": "area"} for j in jobs)
+    assert [k.name for k in c.calibrators] == ["jpl"]
