@@ -93,13 +93,16 @@ def _expected_squares(target):
     return light
 
 
-def _find_sb(cv2, img8, size, flags_sb):
+def _find_sb(cv2, img8, size, flags_sb, fast=True):
     r'''findChessboardCornersSB without CALIB_CB_ACCURACY first (4x faster: 0.04-0.06 s
 instead of 0.16-0.22 s on 512x512, benchmarks/bench_corners.py images; its sub-pixel
 polish is redone below by cornerSubPix and the corner model), then with it where that
-finds no board (1 of 18 images of MER hazcam 8, camera 17, navcam 15)'''
-    ok, corners = cv2.findChessboardCornersSB(img8, size,
-                                              flags=flags_sb & ~cv2.CALIB_CB_ACCURACY)
+finds no board (1 of 18 images of MER hazcam 8, camera 17, navcam 15). fast=False (the
+corners are used as OpenCV finds them, refine=False): with it only.'''
+    ok = False
+    if fast:
+        ok, corners = cv2.findChessboardCornersSB(img8, size,
+                                                  flags=flags_sb & ~cv2.CALIB_CB_ACCURACY)
     if not ok:
         ok, corners = cv2.findChessboardCornersSB(img8, size, flags=flags_sb)
     return ok, corners
@@ -148,7 +151,7 @@ ARGUMENTS
             corners = (np.asarray(corners, dtype=np.float64) + 0.5) * shrink - 0.5
             info["method"] = f"findChessboardCornersSB at 1/{shrink} size"
     if not ok:
-        ok, corners = _find_sb(cv2, img8, (nx, ny), flags_sb)
+        ok, corners = _find_sb(cv2, img8, (nx, ny), flags_sb, fast=bool(refine))
         info["method"] = "findChessboardCornersSB"
     if not ok:
         ok, corners = cv2.findChessboardCorners(
