@@ -113,3 +113,40 @@ def wedge_model(centres, s, c, uu, first, second, widen):
                 dD_dt[j, p, i1] += -0.5 * (s1a ** 2 - s0a ** 2)
                 dD_dt[j, p, i2] += 0.5 * (s1b ** 2 - s0b ** 2)
     return D, dD_dc, dD_dt
+
+
+@njit(cache=True, error_model="numpy")
+def normal_equations(s, D, dD_dc, dD_dt, b, w, r):
+    r'''J^T W J (m,K,K) and J^T W r (m,K) of the corners s, J = [1, D, b dD_dc, b dD_dt]
+(the Jacobian refine_corners builds in numpy; summed pixel by pixel, so equal to numpy's
+matmul to rounding, not bit for bit)'''
+    m = len(s)
+    P = D.shape[1]
+    R = dD_dt.shape[2]
+    K = 4 + R
+    JtJ = np.zeros((m, K, K))
+    Jtr = np.zeros((m, K))
+    J = np.empty(K)
+    for j in range(m):
+        n = s[j]
+        bn = b[n]
+        for p in range(P):
+            wp = w[n, p]
+            if wp == 0.0:
+                continue
+            J[0] = 1.0
+            J[1] = D[n, p]
+            J[2] = bn * dD_dc[n, p, 0]
+            J[3] = bn * dD_dc[n, p, 1]
+            for k in range(R):
+                J[4 + k] = bn * dD_dt[n, p, k]
+            rp = r[n, p]
+            for k in range(K):
+                jw = J[k] * wp
+                Jtr[j, k] += jw * rp
+                for ll in range(k, K):
+                    JtJ[j, k, ll] += jw * J[ll]
+        for k in range(K):
+            for ll in range(k):
+                JtJ[j, k, ll] = JtJ[j, ll, k]
+    return JtJ, Jtr

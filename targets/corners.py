@@ -395,12 +395,16 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
         it += 1
         s = np.flatnonzero(~converged)
         # Jacobian of the model in (a, b, cx, cy, theta...) for the corners still fitting
-        J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
-                            b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]), axis=-1)
-        ws = w[s]
-        Jw = J * ws[..., None]
-        JtJ = Jw.transpose(0, 2, 1) @ J
-        Jtr = (Jw.transpose(0, 2, 1) @ r[s][..., None])[..., 0]
+        if kernel == "numba":
+            from ._corner_kernels import normal_equations
+            JtJ, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r)
+        else:
+            J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
+                                b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]),
+                               axis=-1)
+            Jw = J * w[s][..., None]
+            JtJ = Jw.transpose(0, 2, 1) @ J
+            Jtr = (Jw.transpose(0, 2, 1) @ r[s][..., None])[..., 0]
         diag = np.einsum("nii->ni", JtJ)
         step = np.linalg.solve(JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye,
                                Jtr[..., None])[..., 0]
