@@ -53,7 +53,7 @@ the pixel grid only to 1/(2K) px; the corners of a board posed without roll
 px max at K = 16, 0.0003-0.002 at K = 64 (the same poses and cameras). The
 ray caster's exact covered-area mode (RenderSettings options coverage = "area")
 draws what this model assumes: corner error RMS before the bias correction
-0.00002 px on navcam 15, 0.002-0.006 on hazcams 17 and 8 (edge curvature), and
+0.000014 px on navcam 15, 0.002-0.006 on hazcams 17 and 8 (edge curvature), and
 after jpl's fit with corner_bias residual and projection difference RMS of
 0.0007 px at most (campaigns/corners.toml, benchmarks/bench_corners.py
 --coverage area).
