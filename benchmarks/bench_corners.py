@@ -3,11 +3,14 @@ r'''Corner accuracy of the AprilTag and chessboard detectors against the exact p
 SYNOPSIS
 
     uv run --frozen python benchmarks/bench_corners.py [--cameras 15,17,8] [--spp 16]
-        [--poses 6] [--images /tmp/cornerbench] [--out benchmarks/results]
+        [--poses 6] [--coverage point|area] [--images /tmp/cornerbench]
+        [--out benchmarks/results]
 
 For each camera (its catalogue model in its own family), target (apriltag,
 chessboard) and planned pose, the ray-cast renderer draws the board with --spp x
---spp subsamples per pixel (images kept as .npy in --images and reused). Each image
+--spp subsamples per pixel, or with --coverage area in the ray caster's exact
+covered-area mode (options coverage = "area": edge pixels integrate the board's
+edges exactly); images are kept as .npy in --images and reused. Each image
 goes through every method:
 
 - apriltag: pupil_apriltags' corners (refine=False); those polished by cv2.cornerSubPix
@@ -43,17 +46,12 @@ METHODS = {
 FAMILY_ORDER = ("CAHV", "CAHVOR", "CAHVORE")
 
 
-def render_images(directory, camera, tname, spp, nposes):
+def render_images(directory, camera, tname, spp, nposes, coverage="point"):
     r'''[(image, truth (N,2))] of one camera and target, rendered once into directory'''
     from harness.campaign import load_campaign
-    from harness.runner import (
-        StageFailed,
-        _target,
-        camera_stage,
-        expand_jobs,
-        poses_stage,
-        render_stage,
-    )
+    from harness.jobs import expand_jobs
+    from harness.stages import StageFailed, camera_stage, poses_stage, render_stage
+    from harness.stages import cached_target as _target
     from targets.centroids import projected_points
 
     jobs = [j for j in expand_jobs(load_campaign(ROOT / "campaigns" / "quick.toml"))
@@ -72,16 +70,19 @@ def render_images(directory, camera, tname, spp, nposes):
     poses = poses_stage(truth, target, nposes, 0)
     out = []
     directory.mkdir(parents=True, exist_ok=True)
+    tag = f"k{spp}" + ("" if coverage == "point" else f"{coverage}")
     missing = [i for i in range(len(poses))
-               if not (directory / f"cam{camera}_{tname}_k{spp}_{i}.npy").exists()]
+               if not (directory / f"cam{camera}_{tname}_{tag}_{i}.npy").exists()]
     if missing:
         settings = dict(job.settings, spp=spp)
+        if coverage != "point":
+            settings["options"] = dict(settings.get("options") or {}, coverage=coverage)
         results, _, _ = render_stage(job.renderer, truth, target,
                                      [poses[i] for i in missing], settings)
         for i, r in zip(missing, results, strict=True):
-            np.save(directory / f"cam{camera}_{tname}_k{spp}_{i}.npy", np.asarray(r.image))
+            np.save(directory / f"cam{camera}_{tname}_{tag}_{i}.npy", np.asarray(r.image))
     for i, Rt in enumerate(poses):
-        img = np.load(directory / f"cam{camera}_{tname}_k{spp}_{i}.npy")
+        img = np.load(directory / f"cam{camera}_{tname}_{tag}_{i}.npy")
         out.append((img, projected_points(truth, target, Rt)))
     return job.family, target, out
 
@@ -93,6 +94,8 @@ def main():
     ap.add_argument("--targets", default="apriltag,chessboard")
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--poses", type=int, default=6)
+    ap.add_argument("--coverage", choices=("point", "area"), default="point",
+                    help="ray-cast coverage: point sampling (spp x spp) or exact covered area")
     ap.add_argument("--images", type=Path, default=Path("/tmp/cornerbench"))
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = ap.parse_args()
@@ -104,7 +107,7 @@ def main():
     for cam in args.cameras.split(","):
         for tname in args.targets.split(","):
             family, target, images = render_images(args.images, cam, tname, args.spp,
-                                                   args.poses)
+                                                   args.poses, args.coverage)
             for method, refine in METHODS[tname]:
                 errs, secs, found, dropped = [], [], 0, {}
                 for img, truth in images:
@@ -119,7 +122,7 @@ def main():
                 e = np.concatenate(errs)
                 row = {"fullname": f"{cam}/{family}/{tname}/{method}", "camera": cam,
                        "family": family, "target": tname, "method": method,
-                       "spp": args.spp, "images": len(images),
+                       "spp": args.spp, "coverage": args.coverage, "images": len(images),
                        "shape": list(images[0][0].shape),
                        "corners_expected": int(target.Npoints * len(images)),
                        "corners_found": found, "corners_dropped": dropped,
@@ -135,6 +138,7 @@ def main():
     doc = {"schema": 1, "date": datetime.now(UTC).isoformat(timespec="seconds"),
            "commit": git_commit()["commit"], "python": platform.python_version(),
            "machine": platform.machine(), "renderer": "raycast", "spp": args.spp,
+           "coverage": args.coverage,
            "truth": "targets.centroids.projected_points", "records": rows}
     args.out.mkdir(parents=True, exist_ok=True)
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")

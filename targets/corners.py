@@ -50,7 +50,19 @@ left on K=64 ray-cast renders of slot 8 (benchmarks/bench_corners.py).
 A renderer that samples each pixel at K x K points sees an edge parallel to
 the pixel grid only to 1/(2K) px; the corners of a board posed without roll
 (edges within 0.1 deg of the grid) inherit that: 0.006-0.013 px RMS, 0.03-0.05
-px max at K = 16, 0.0003-0.002 at K = 64 (the same poses and cameras).
+px max at K = 16, 0.0003-0.002 at K = 64 (the same poses and cameras). The
+ray caster's exact covered-area mode (RenderSettings options coverage = "area")
+draws what this model assumes: corner error RMS before the bias correction
+0.000014 px on navcam 15, 0.002-0.006 on hazcams 17 and 8 (edge curvature), and
+after jpl's fit with corner_bias residual and projection difference RMS of
+0.0007 px at most (campaigns/corners.toml, benchmarks/bench_corners.py
+--coverage area).
+
+The pixel-area model runs compiled (targets._corner_kernels, numba); kernel="numpy"
+runs wedge_area instead (the reference, equal within 1e-12 px, tested). Detection
+with refinement per image (median of 6 poses, 2 shared cores under load):
+AprilTag 0.07 s on 1024x1024, 0.03 s on 640x480; chessboard 0.11-0.14 s (OpenCV's
+sector-based search and cornerSubPix are about half of it).
 
 A corner is dropped, never kept at its coarse position, with its reason:
 its window leaves the image or holds fewer than MIN_WINDOW_PIXELS pixels,
@@ -212,10 +224,13 @@ def _window(q0, steps, half_box, shape, max_px):
     iy = c0[:, 1:2] + oy
     # board offsets of the pixel squares' corners (local affine map)
     Ainv = np.linalg.inv(steps)                                      # (N,2,2)
-    corners = np.stack((ix, iy), axis=-1)[:, :, None, :] + _SQUARE   # (N,P,4,2)
-    rel = corners - q0[:, None, None, :]
-    b = np.einsum("nij,npkj->npki", Ainv, rel)
-    inside = np.all(np.abs(b) <= half_box, axis=(-1, -2))
+    # each square corner's offset from q0, (N,P,4) per axis, mapped by Ainv (written out:
+    # einsum on these shapes was most of a detection's refinement time)
+    rx = (ix - q0[:, 0:1])[:, :, None] + _SQUARE[:, 0]
+    ry = (iy - q0[:, 1:2])[:, :, None] + _SQUARE[:, 1]
+    a = Ainv[:, None, None, :, :]
+    inside = np.all((np.abs(a[..., 0, 0] * rx + a[..., 0, 1] * ry) <= half_box)
+                    & (np.abs(a[..., 1, 0] * rx + a[..., 1, 1] * ry) <= half_box), axis=-1)
     inside &= (np.abs(ix - q0[:, 0:1]) <= max_px) & (np.abs(iy - q0[:, 1:2]) <= max_px)
     on_image = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
     return ix, iy, inside, on_image
@@ -238,7 +253,9 @@ ARGUMENTS
 - steps: (N,2,2) columns: image displacement of one board unit along the two board axes
 - half_box: the window is the pixels whose square lies within half_box board units of the
   coarse corner along both axes (and within max_window_px px)
-- options: max_window_px, max_misfit, min_contrast (module constants by default)
+- options: max_window_px, max_misfit, min_contrast (module constants by default); kernel:
+  "numba" (default: targets._corner_kernels, compiled) or "numpy" (wedge_area: the
+  reference the compiled model is tested against, within 1e-12 px)
 
 RETURNED VALUE
 
@@ -274,8 +291,11 @@ second polishes with the exact ones.
 
 def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
-         converged_px=CONVERGED_PX):
-    r'''One pass of refine_corners (the window about q0; widen: see wedge_area)'''
+         converged_px=CONVERGED_PX, kernel="numba"):
+    r'''One pass of refine_corners (the window about q0; widen: see wedge_area; kernel:
+"numba" the compiled pixel-area model of targets._corner_kernels, "numpy" wedge_area's)'''
+    if kernel not in ("numba", "numpy"):
+        raise ValueError(f"kernel must be 'numba' or 'numpy', not {kernel!r}")
     img = np.asarray(image, dtype=np.float64)
     q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
     N = len(q0)
@@ -319,14 +339,18 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
     ui = u[:, wedges[:, 0]]
     uj = u[:, wedges[:, 1]]
     flip = _cross(ui, uj) < 0                                # (n,Nw)
-    first = np.where(flip, wedges[None, :, 1], wedges[None, :, 0])
-    second = np.where(flip, wedges[None, :, 0], wedges[None, :, 1])
+    first = np.ascontiguousarray(np.where(flip, wedges[None, :, 1], wedges[None, :, 0]))
+    second = np.ascontiguousarray(np.where(flip, wedges[None, :, 0], wedges[None, :, 1]))
     c = q0[idx].copy()
     n, R = theta.shape
 
     def model(s, c, theta):
         # D (m,P) dark area of each window pixel and its derivatives, for the corners s
         uu = np.stack((np.cos(theta), np.sin(theta)), axis=-1)     # (m,R,2)
+        if kernel == "numba":
+            from ._corner_kernels import wedge_model
+            return wedge_model(centres, np.ascontiguousarray(s, dtype=np.int64),
+                               np.ascontiguousarray(c), uu, first, second, float(widen))
         d = centres[s] - c[:, None, :]
         m = len(s)
         D = np.zeros(d.shape[:-1])
@@ -371,12 +395,16 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
         it += 1
         s = np.flatnonzero(~converged)
         # Jacobian of the model in (a, b, cx, cy, theta...) for the corners still fitting
-        J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
-                            b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]), axis=-1)
-        ws = w[s]
-        Jw = J * ws[..., None]
-        JtJ = Jw.transpose(0, 2, 1) @ J
-        Jtr = (Jw.transpose(0, 2, 1) @ r[s][..., None])[..., 0]
+        if kernel == "numba":
+            from ._corner_kernels import normal_equations
+            JtJ, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r)
+        else:
+            J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
+                                b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]),
+                               axis=-1)
+            Jw = J * w[s][..., None]
+            JtJ = Jw.transpose(0, 2, 1) @ J
+            Jtr = (Jw.transpose(0, 2, 1) @ r[s][..., None])[..., 0]
         diag = np.einsum("nii->ni", JtJ)
         step = np.linalg.solve(JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye,
                                Jtr[..., None])[..., 0]

@@ -26,7 +26,9 @@ refine=True (default) fits each corner with targets.corners.refine_tag_corners:
 the exact area-sampled image of the two border edges meeting there, in a
 window of 0.8 tag bit (0.06-1.06 px RMS -> 0.004-0.017 px on exact K=16
 ray-cast renders of MER navcam and hazcam fisheyes, the renders' own sampling
-error; benchmarks/bench_corners.py). A corner the fit cannot refine (a tag bit
+error; 0.000013-0.004 px on the ray caster's exact area-coverage renders, where
+what is left is the hazcams' edge curvature that corner_bias removes;
+benchmarks/bench_corners.py). A corner the fit cannot refine (a tag bit
 of a few px gives too small a window) is dropped, never kept at the coarse
 position (info["corners_dropped"]: {reason: count}). refine="subpix" is the
 older polish described next, kept for comparison.

@@ -140,3 +140,52 @@ k w^2 / 10; harness.calibrators.bias.corner_bias predicts it from the model and 
     # measured 0.0017 -> 0.0010 px RMS; what is left is the K=32 render's sampling error
     # (0.0005 px on the same board through a pinhole, test above)
     assert corrected < 0.65 * raw and corrected < 0.0013, (raw, corrected)
+
+
+@pytest.mark.parametrize("kind", ["chessboard", "apriltag"])
+def test_compiled_model_gives_the_numpy_references_corners(kind):
+    r'''targets._corner_kernels (numba) does wedge_area's arithmetic in the same order: the
+refined corners agree to rounding (1e-12 px: the fit's ~10 Gauss-Newton steps each carry
+a few ulp of a ~100 px coordinate, 1e-14 px), the reasons and misfits as well'''
+    t = load_target(kind)
+    if kind == "chessboard":
+        m = pinhole(400, 400, 260.0, R=[0.0, -0.2, 0.0])
+        Rt = _rolled_pose(17.0, 25.0, [-0.45, -0.5, 1.3])
+    else:   # the tags' windows need bits of 5+ px (MIN_WINDOW_PIXELS)
+        m = pinhole(640, 640, 600.0, R=[0.0, -0.2, 0.0])
+        Rt = _rolled_pose(-23.0, 20.0, [-0.5, -0.45, 1.6])
+    img = render(m, t.pattern(), Rt, K=8)
+    truth = projected_points(m, t, Rt)
+    rng = np.random.default_rng(2)
+    q0 = truth + 0.3 * _unit(rng.uniform(0, 2 * np.pi, len(truth))).T
+    if kind == "chessboard":
+        fits = [refine_chessboard_corners(img, q0.reshape(10, 10, 2), chessboard_half_box(t),
+                                          kernel=k) for k in ("numba", "numpy")]
+    else:
+        fits = [refine_tag_corners(img, q0.reshape(-1, 4, 2), kernel=k)
+                for k in ("numba", "numpy")]
+    a, b = fits
+    assert np.isfinite(a.q).sum() >= 0.9 * a.q.size     # most corners are compared
+    assert a.reasons.tolist() == b.reasons.tolist()
+    assert np.array_equal(np.isnan(a.q), np.isnan(b.q))
+    ok = np.isfinite(a.q)
+    assert np.abs(a.q[ok] - b.q[ok]).max() <= 1e-12
+    assert a.iterations == b.iterations
+    mk = np.isfinite(a.misfit)
+    assert np.allclose(a.misfit[mk], b.misfit[mk], rtol=1e-9, atol=0)
+
+
+def test_corners_campaign_renders_the_corner_targets_with_area_coverage():
+    r'''campaigns/corners.toml: apriltag and chessboard on the ray caster's exact covered-area
+mode (point sampling at K=16 resolves an edge near the pixel grid only to 1/32 px)'''
+    from pathlib import Path
+
+    from harness.campaign import load_campaign
+    from harness.jobs import expand_jobs
+    c = load_campaign(Path(__file__).resolve().parents[1] / "campaigns" / "corners.toml")
+    jobs = expand_jobs(c)
+    assert {j.target for j in jobs} == {"apriltag", "chessboard"}
+    assert {j.camera for j in jobs} == {"15", "17", "8"}
+    assert len(jobs) == 3 * 3 * 2                       # cameras x families x targets
+    assert all(j.settings["options"] == {"coverage": "area"} for j in jobs)
+    assert [k.name for k in c.calibrators] == ["jpl"]

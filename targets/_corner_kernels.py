@@ -1,0 +1,152 @@
+r'''Compiled pixel-area model of targets.corners (numba): the refiner's hot loop
+
+SYNOPSIS
+
+    from targets._corner_kernels import wedge_model
+
+    D, dD_dc, dD_dt = wedge_model(centres, s, c, uu, first, second, widen)
+    # centres (n,P,2) pixel centres of every window; s (m,) the corners to evaluate;
+    # c (m,2) their apexes; uu (m,R,2) their unit rays; first, second (n,Nw) ray indices
+    # of each wedge (counter-clockwise, below pi); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R)
+
+The same arithmetic as targets.corners.wedge_area / _ray_stretch (the numpy reference),
+one pixel at a time, in the same order of operations, so the two agree to rounding
+(tests/test_corners.py holds them within 1e-12 px on refined corners). The rays' cos/sin
+stay in numpy (the caller passes uu) so that both paths start from identical directions.
+'''
+
+import numpy as np
+from numba import njit
+
+# the pixel square's corners relative to its centre, counter-clockwise (as corners._SQUARE)
+_SX = (-0.5, 0.5, 0.5, -0.5)
+_SY = (-0.5, -0.5, 0.5, 0.5)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _stretch(dx, dy, ux, uy, half):
+    # corners._ray_stretch for one pixel: Liang-Barsky clipping of the ray s u, s >= 0
+    lo = 0.0
+    hi = np.inf
+    for k in range(2):
+        if k == 0:
+            uk, dk = ux, dx
+        else:
+            uk, dk = uy, dy
+        a = dk - half
+        b = dk + half
+        if uk == 0.0:
+            if a <= 0.0 and b >= 0.0:
+                t0, t1 = -np.inf, np.inf
+            else:
+                t0, t1 = np.inf, -np.inf
+        elif uk > 0.0:
+            t0, t1 = a / uk, b / uk
+        else:
+            t0, t1 = b / uk, a / uk
+        lo = max(lo, t0)
+        hi = min(hi, t1)
+    if not (hi > lo) or not np.isfinite(hi):
+        return 0.0, 0.0
+    return lo, hi
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _area(dx, dy, u1x, u1y, u2x, u2y):
+    # corners.wedge_area (the area only) for one pixel centre d relative to the apex
+    A = 0.0
+    for k in range(4):
+        px = dx + _SX[k]
+        py = dy + _SY[k]
+        qx = dx + _SX[(k + 1) % 4]
+        qy = dy + _SY[(k + 1) % 4]
+        ex = qx - px
+        ey = qy - py
+        t0 = 0.0
+        t1 = 1.0
+        for h in range(2):
+            if h == 0:
+                vx, vy = u1x, u1y
+            else:
+                vx, vy = -u2x, -u2y
+            f0 = vx * py - vy * px
+            g = vx * ey - vy * ex
+            if g > 0.0:
+                t0 = max(t0, -f0 / g)
+            elif g < 0.0:
+                t1 = min(t1, -f0 / g)
+            elif f0 < 0.0:
+                t1 = t0
+        frac = max(t1 - t0, 0.0)
+        A += frac * (px * qy - py * qx)
+    return 0.5 * A
+
+
+@njit(cache=True, error_model="numpy")
+def wedge_model(centres, s, c, uu, first, second, widen):
+    m = len(s)
+    P = centres.shape[1]
+    R = uu.shape[1]
+    Nw = first.shape[1]
+    D = np.zeros((m, P))
+    dD_dc = np.zeros((m, P, 2))
+    dD_dt = np.zeros((m, P, R))
+    half = 0.5 + widen
+    for j in range(m):
+        n = s[j]
+        for p in range(P):
+            dx = centres[n, p, 0] - c[j, 0]
+            dy = centres[n, p, 1] - c[j, 1]
+            for k in range(Nw):
+                i1 = first[n, k]
+                i2 = second[n, k]
+                u1x, u1y = uu[j, i1, 0], uu[j, i1, 1]
+                u2x, u2y = uu[j, i2, 0], uu[j, i2, 1]
+                D[j, p] += _area(dx, dy, u1x, u1y, u2x, u2y)
+                s0a, s1a = _stretch(dx, dy, u1x, u1y, half)
+                s0b, s1b = _stretch(dx, dy, u2x, u2y, half)
+                la = s1a - s0a
+                lb = s1b - s0b
+                # -la perp(u1) + lb perp(u2), perp(u) = (-u_y, u_x)
+                dD_dc[j, p, 0] += -la * -u1y + lb * -u2y
+                dD_dc[j, p, 1] += -la * u1x + lb * u2x
+                dD_dt[j, p, i1] += -0.5 * (s1a ** 2 - s0a ** 2)
+                dD_dt[j, p, i2] += 0.5 * (s1b ** 2 - s0b ** 2)
+    return D, dD_dc, dD_dt
+
+
+@njit(cache=True, error_model="numpy")
+def normal_equations(s, D, dD_dc, dD_dt, b, w, r):
+    r'''J^T W J (m,K,K) and J^T W r (m,K) of the corners s, J = [1, D, b dD_dc, b dD_dt]
+(the Jacobian refine_corners builds in numpy; summed pixel by pixel, so equal to numpy's
+matmul to rounding, not bit for bit)'''
+    m = len(s)
+    P = D.shape[1]
+    R = dD_dt.shape[2]
+    K = 4 + R
+    JtJ = np.zeros((m, K, K))
+    Jtr = np.zeros((m, K))
+    J = np.empty(K)
+    for j in range(m):
+        n = s[j]
+        bn = b[n]
+        for p in range(P):
+            wp = w[n, p]
+            if wp == 0.0:
+                continue
+            J[0] = 1.0
+            J[1] = D[n, p]
+            J[2] = bn * dD_dc[n, p, 0]
+            J[3] = bn * dD_dc[n, p, 1]
+            for k in range(R):
+                J[4 + k] = bn * dD_dt[n, p, k]
+            rp = r[n, p]
+            for k in range(K):
+                jw = J[k] * wp
+                Jtr[j, k] += jw * rp
+                for ll in range(k, K):
+                    JtJ[j, k, ll] += jw * J[ll]
+        for k in range(K):
+            for ll in range(k):
+                JtJ[j, k, ll] = JtJ[j, ll, k]
+    return JtJ, Jtr
