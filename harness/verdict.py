@@ -370,7 +370,7 @@ A failed exact fit leaves floor and renderer None with exact_fit saying why.
     return jsonable(out)
 
 
-def exact_fit(cal, model, options, obs, target, truth, cache, fits=None):
+def exact_fit(cal, model, options, obs, target, truth, cache, fits=None, start=None):
     r'''The calibrator's fit of the exact observations -> (CalibrationResult, noise, reused)
 
 obs: the job's observations (with the surveyed poses); cache: a dict kept for
@@ -382,16 +382,25 @@ frame then fits them once, on observations without the surveyed poses, and
 the others reuse it (reused True). Otherwise a fit of bit-identical inputs made
 earlier in this process (another renderer of the same camera and poses) is
 reused (reused True; see _exact_key).
+
+start: None (a cold fit, as the calibrator fits images), or the image fit (an ok
+CalibrationResult): a calibrator whose fit() takes start= (jpl, mrcal, OpenCV) fits
+the exact observations from it (warm_options()). The exact observations differ from the
+image ones by the detection error (~1e-3 px): the fit converges in a few steps, in the
+image fit's own minimum (the cold one could land in another: mrcal CAHVOR). A warm fit
+is reused only for the same start (bit for bit: _exact_key).
 '''
     from harness.calibrators import uses_world_frame
 
     from .stages import calibrate_stage
+    options = warm_options(cal, options, start)
     if "obs" not in cache:
         cache["obs"] = exact_observations(obs, truth, target)
         cache["noise"] = detection_noise(obs, cache["obs"])
     obs_x, noise = cache["obs"], cache["noise"]
     if fits is not None and not uses_world_frame(cal, options):
-        k = ("exact", cal, model, repr(sorted(options.items())))
+        k = ("exact", cal, model, repr(sorted((a, b) for a, b in options.items()
+                                              if a != "start")), _start_key(start))
         if k in fits:
             return fits[k], noise, True
         fits[k] = calibrate_stage(cal, obs_x.replace(Rt_ref_board=None), target, model,
@@ -427,10 +436,46 @@ def _exact_key(cal, model, options, obs_x, target, truth):
     h = hashlib.sha256()
     for a in (obs_x.q, obs_x.p_board, obs_x.Rt_ref_board):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
+    start = options.get("start")
+    h.update(repr(_start_key(start)).encode())
+    options = {k: v for k, v in options.items() if k != "start"}
     h.update(repr((cal, model, sorted(options.items()), obs_x.imagersize,
                    getattr(target, "name", None), getattr(target, "source", None),
                    _model_key(truth))).encode())
     return h.hexdigest()
+
+
+def warm_options(cal, options, start):
+    r'''options + {"start": start} when the calibrator's fit() takes a start and start is
+an ok fit; options unchanged otherwise (a cold fit)'''
+    import inspect
+
+    from harness.calibrators import calibrator_module
+    if start is None or getattr(start, "status", None) != "ok":
+        return options
+    try:
+        fit = calibrator_module(cal).fit
+        if "start" not in inspect.signature(fit).parameters:
+            return options
+    except (TypeError, ValueError, ImportError):
+        return options
+    return dict(options, start=start)
+
+
+def _start_key(start):
+    r'''Every number a warm start hands the calibrator (None: a cold fit)'''
+    if start is None:
+        return None
+    h = []
+    for a in (getattr(start, "Rt_cam_board", None),
+              (start.info or {}).get("intrinsics"), (start.info or {}).get("K"),
+              (start.info or {}).get("dist")):
+        h.append(None if a is None else np.ascontiguousarray(a, dtype=np.float64).tobytes())
+    m = getattr(start, "model", None)
+    if _is_jpl(m):
+        from .compare import _model_key
+        h.append(repr(_model_key(m)))
+    return repr(h)
 
 
 # --- expected scatter: the covariance of a fit from its Jacobian at the solution ---------
