@@ -315,3 +315,14 @@ a hundred times below it cannot move a verdict.'''
     # the same start again: the memo's fit
     again, _, reused = verdict.exact_fit(cal, model, {}, img, target, truth, {}, start=res)
     assert reused and again is warm
+
+
+def test_one_blas_thread_restores_the_thread_count():
+    r'''scatter()'s linear algebra runs on one OpenBLAS thread; the count is restored'''
+    lib = verdict._openblas()
+    if lib is None:
+        pytest.skip("numpy's OpenBLAS is not found here (the block is a no-op)")
+    n = lib[0]()
+    with verdict._OneBlasThread():
+        assert lib[0]() == 1
+    assert lib[0]() == n
