@@ -45,6 +45,15 @@ exact observations agree to ~1e-12 px, not bit for bit, and an ill-conditioned
 fit lands far apart from such differences (mrcal CAHVOR of camera 17: px),
 which would make a twin's shared record differ from its unshared one.
 
+The exact fit starts from the image fit (exact_fit(start=...), harness.job_records):
+the two sets of observations differ by the detection error (~1e-3 px), so it converges
+in a few steps and in the image fit's own minimum. jpl and OpenCV land where their cold
+fits land (projection within 1e-11 and 1e-8 px); mrcal skips its seed, race and
+restarts and so no longer crawls along its flat R0 / focal-length valleys into another
+minimum than the image fit's (quick campaign, camera 17 CAHVOR: cold floor 0.0107 px,
+warm 1.1e-7 px); where the cold fit was in the image fit's minimum the floors differ
+by < 2e-5 px (tests/test_verdict.py holds warm = cold to 1e-5 px on navcam 15).
+
 A floor is "far" when it exceeds both what the images can show (the measured
 detection noise, detected minus exact positions) and FLOOR_TOLERANCE_PX: the
 record's total error is then the calibrator's, not the images'; floor_reason
@@ -427,9 +436,13 @@ is reused only for the same start (bit for bit: _exact_key).
 
 # The exact fit depends on the calibrator, its model and options, the exact observations
 # (truth, poses, the detected mask), the target and what the calibrator reads of the truth;
-# not on the renderer: the jobs of one camera and pose set under several renderers or
-# settings (a renderer comparison, the mutation suite) fit it once per process. Keyed on
-# every bit of those inputs; the calibrators are deterministic, so a hit is the same fit.
+# a cold fit (start=None) not on the renderer: the jobs of one camera and pose set under
+# several renderers or settings fit it once per process. A warm fit (harness.job_records
+# passes the image fit as start) also depends on its start, which is part of the key: it is
+# reused only for the same image fit (a warm fit costs a few solver steps; reusing another
+# renderer's would measure the image fit against an exact fit near ANOTHER image fit, the
+# "different minima" of mrcal's flat valleys). Keyed on every bit of those inputs; the
+# calibrators are deterministic, so a hit is the same fit.
 EXACT_FITS_MEMO = 64
 _EXACT_FITS = {}
 _EXACT_LOCK = threading.Lock()
