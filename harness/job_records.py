@@ -286,7 +286,7 @@ be computed says why in verdict["error"] and leaves the record ok.'''
         # not bit for bit, and an ill-conditioned fit (mrcal CAHVOR of camera 17) lands
         # px apart from such differences: shared records must equal unshared ones
         exact, noise, reused = vd.exact_fit(cal, model, options, obs, target, truth, cache,
-                                            None)
+                                            None, start=res)
         sec["exact_fit"] = 0.0 if reused else float(exact.seconds)
         t1 = time.perf_counter()
         v = vd.assess(truth, res, exact, noise, params, projection, obs=obs)

@@ -45,6 +45,15 @@ exact observations agree to ~1e-12 px, not bit for bit, and an ill-conditioned
 fit lands far apart from such differences (mrcal CAHVOR of camera 17: px),
 which would make a twin's shared record differ from its unshared one.
 
+The exact fit starts from the image fit (exact_fit(start=...), harness.job_records):
+the two sets of observations differ by the detection error (~1e-3 px), so it converges
+in a few steps and in the image fit's own minimum. jpl and OpenCV land where their cold
+fits land (projection within 1e-11 and 1e-8 px); mrcal skips its seed, race and
+restarts and so no longer crawls along its flat R0 / focal-length valleys into another
+minimum than the image fit's (quick campaign, camera 17 CAHVOR: cold floor 0.0107 px,
+warm 1.1e-7 px); where the cold fit was in the image fit's minimum the floors differ
+by < 2e-5 px (tests/test_verdict.py holds warm = cold to 1e-5 px on navcam 15).
+
 A floor is "far" when it exceeds both what the images can show (the measured
 detection noise, detected minus exact positions) and FLOOR_TOLERANCE_PX: the
 record's total error is then the calibrator's, not the images'; floor_reason
@@ -332,6 +341,12 @@ numbers fitted) or its "error". Returns a JSON-able dict:
 
 A failed exact fit leaves floor and renderer None with exact_fit saying why.
 '''
+    with _OneBlasThread():
+        return _assess(truth, res, exact_res, noise, total_params, total_projection,
+                       seconds, obs)
+
+
+def _assess(truth, res, exact_res, noise, total_params, total_projection, seconds, obs):
     from .records import jsonable
     theta = res.calibrator == "jpl"
     world = _world(res)
@@ -370,7 +385,7 @@ A failed exact fit leaves floor and renderer None with exact_fit saying why.
     return jsonable(out)
 
 
-def exact_fit(cal, model, options, obs, target, truth, cache, fits=None):
+def exact_fit(cal, model, options, obs, target, truth, cache, fits=None, start=None):
     r'''The calibrator's fit of the exact observations -> (CalibrationResult, noise, reused)
 
 obs: the job's observations (with the surveyed poses); cache: a dict kept for
@@ -382,16 +397,25 @@ frame then fits them once, on observations without the surveyed poses, and
 the others reuse it (reused True). Otherwise a fit of bit-identical inputs made
 earlier in this process (another renderer of the same camera and poses) is
 reused (reused True; see _exact_key).
+
+start: None (a cold fit, as the calibrator fits images), or the image fit (an ok
+CalibrationResult): a calibrator whose fit() takes start= (jpl, mrcal, OpenCV) fits
+the exact observations from it (warm_options()). The exact observations differ from the
+image ones by the detection error (~1e-3 px): the fit converges in a few steps, in the
+image fit's own minimum (the cold one could land in another: mrcal CAHVOR). A warm fit
+is reused only for the same start (bit for bit: _exact_key).
 '''
     from harness.calibrators import uses_world_frame
 
     from .stages import calibrate_stage
+    options = warm_options(cal, options, start)
     if "obs" not in cache:
         cache["obs"] = exact_observations(obs, truth, target)
         cache["noise"] = detection_noise(obs, cache["obs"])
     obs_x, noise = cache["obs"], cache["noise"]
     if fits is not None and not uses_world_frame(cal, options):
-        k = ("exact", cal, model, repr(sorted(options.items())))
+        k = ("exact", cal, model, repr(sorted((a, b) for a, b in options.items()
+                                              if a != "start")), _start_key(start))
         if k in fits:
             return fits[k], noise, True
         fits[k] = calibrate_stage(cal, obs_x.replace(Rt_ref_board=None), target, model,
@@ -412,9 +436,13 @@ reused (reused True; see _exact_key).
 
 # The exact fit depends on the calibrator, its model and options, the exact observations
 # (truth, poses, the detected mask), the target and what the calibrator reads of the truth;
-# not on the renderer: the jobs of one camera and pose set under several renderers or
-# settings (a renderer comparison, the mutation suite) fit it once per process. Keyed on
-# every bit of those inputs; the calibrators are deterministic, so a hit is the same fit.
+# a cold fit (start=None) not on the renderer: the jobs of one camera and pose set under
+# several renderers or settings fit it once per process. A warm fit (harness.job_records
+# passes the image fit as start) also depends on its start, which is part of the key: it is
+# reused only for the same image fit (a warm fit costs a few solver steps; reusing another
+# renderer's would measure the image fit against an exact fit near ANOTHER image fit, the
+# "different minima" of mrcal's flat valleys). Keyed on every bit of those inputs; the
+# calibrators are deterministic, so a hit is the same fit.
 EXACT_FITS_MEMO = 64
 _EXACT_FITS = {}
 _EXACT_LOCK = threading.Lock()
@@ -427,10 +455,46 @@ def _exact_key(cal, model, options, obs_x, target, truth):
     h = hashlib.sha256()
     for a in (obs_x.q, obs_x.p_board, obs_x.Rt_ref_board):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
+    start = options.get("start")
+    h.update(repr(_start_key(start)).encode())
+    options = {k: v for k, v in options.items() if k != "start"}
     h.update(repr((cal, model, sorted(options.items()), obs_x.imagersize,
                    getattr(target, "name", None), getattr(target, "source", None),
                    _model_key(truth))).encode())
     return h.hexdigest()
+
+
+def warm_options(cal, options, start):
+    r'''options + {"start": start} when the calibrator's fit() takes a start and start is
+an ok fit; options unchanged otherwise (a cold fit)'''
+    import inspect
+
+    from harness.calibrators import calibrator_module
+    if start is None or getattr(start, "status", None) != "ok":
+        return options
+    try:
+        fit = calibrator_module(cal).fit
+        if "start" not in inspect.signature(fit).parameters:
+            return options
+    except (TypeError, ValueError, ImportError):
+        return options
+    return dict(options, start=start)
+
+
+def _start_key(start):
+    r'''Every number a warm start hands the calibrator (None: a cold fit)'''
+    if start is None:
+        return None
+    h = []
+    for a in (getattr(start, "Rt_cam_board", None),
+              (start.info or {}).get("intrinsics"), (start.info or {}).get("K"),
+              (start.info or {}).get("dist")):
+        h.append(None if a is None else np.ascontiguousarray(a, dtype=np.float64).tobytes())
+    m = getattr(start, "model", None)
+    if _is_jpl(m):
+        from .compare import _model_key
+        h.append(repr(_model_key(m)))
+    return repr(h)
 
 
 # --- expected scatter: the covariance of a fit from its Jacobian at the solution ---------
@@ -644,7 +708,61 @@ where an image has no point'''
     return out
 
 
+def _openblas():
+    r'''(get_num_threads, set_num_threads) of numpy's bundled OpenBLAS, or None'''
+    global _OPENBLAS
+    if _OPENBLAS is False:
+        import ctypes
+        import glob
+        import os
+        _OPENBLAS = None
+        libs = os.path.join(os.path.dirname(os.path.dirname(np.__file__)), "numpy.libs")
+        for path in sorted(glob.glob(os.path.join(libs, "lib*openblas*.so*"))):
+            try:
+                lib = ctypes.CDLL(path)     # the copy numpy loaded (same path: same handle)
+            except OSError:
+                continue
+            for suffix in ("64_", ""):
+                for pre in ("scipy_openblas", "openblas"):
+                    get = getattr(lib, f"{pre}_get_num_threads{suffix}", None)
+                    put = getattr(lib, f"{pre}_set_num_threads{suffix}", None)
+                    if get is not None and put is not None:
+                        _OPENBLAS = (get, put)
+                        return _OPENBLAS
+    return _OPENBLAS
+
+
+_OPENBLAS = False
+
+
+class _OneBlasThread:
+    r'''numpy's OpenBLAS on one thread inside the block (a no-op where it is not found).
+
+scatter()'s linear algebra is on matrices of a few dozen columns: a 48 x 48 eigh takes
+0.3 ms on one thread and 0.2-0.4 s on two with both cores busy (a campaign's two workers
+on 2 cores: OpenBLAS's threads wait for each other), measured 2026-11-25 at load 11.'''
+
+    def __enter__(self):
+        self.lib = _openblas()
+        if self.lib is not None:
+            self.n = self.lib[0]()
+            self.lib[1](1)
+        return self
+
+    def __exit__(self, *exc):
+        if self.lib is not None:
+            self.lib[1](self.n)
+        return False
+
+
 def scatter(res, exact_res, obs, truth):
+    r'''Expected scatter of the image fit about the exact fit (see _scatter), with numpy's
+linear algebra on one thread (_OneBlasThread)'''
+    with _OneBlasThread():
+        return _scatter(res, exact_res, obs, truth)
+
+
+def _scatter(res, exact_res, obs, truth):
     r'''Expected scatter of the image fit about the exact fit, from its Jacobian
 
 SYNOPSIS

@@ -335,8 +335,13 @@ def _cahvore_type(truth, options):
 
 def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4,
         bias_tolerance=1e-5,
-        max_rms=1.0, model_type=None, linearity=None, R0=0.0):
-    r'''The jpl calibrator (see the module docstring); returns a CalibrationResult'''
+        max_rms=1.0, model_type=None, linearity=None, R0=0.0, start=None):
+    r'''The jpl calibrator (see the module docstring); returns a CalibrationResult
+
+start: None, or an ok CalibrationResult of this calibrator and model (harness.verdict: the
+image fit, to fit the exact observations): the first pass starts from its model (m0 of
+fit_model: the last stage only, no DLT); a start of another family is ignored.
+'''
     t0 = time.perf_counter()
     if not obs.has_world_points:
         raise CalibrationFailed("the jpl calibrator needs the surveyed board poses "
@@ -354,7 +359,11 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4
     p_ref = obs.p_ref()
     p = p_ref[found]
     q_obs = obs.q
-    model, info = fit_model(p, q_obs[found], model_name, W, H, mtype, lin, R0=R0)
+    m_start = getattr(start, "model", None) if getattr(start, "status", None) == "ok" \
+        else None
+    if getattr(m_start, "family", None) != model_name:
+        m_start = None
+    model, info = fit_model(p, q_obs[found], model_name, W, H, mtype, lin, m0=m_start, R0=R0)
     r_first = np.linalg.norm(project(model, p) - q_obs[found], axis=-1)
     passes = [{"pass": 1, "rms": float(np.sqrt(np.mean(r_first ** 2))),
                "max": float(r_first.max()), **info}]
@@ -383,4 +392,5 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4
         info={"passes": passes, "bias_corrected": bias_applied,
               "world_points_known": True, "world_frame": True,
               "model_type": mtype, "linearity": lin,
-              "R0_held": R0 if model_name != "CAHV" else None})
+              "R0_held": R0 if model_name != "CAHV" else None,
+              **({} if start is None else {"warm_start": m_start is not None})})

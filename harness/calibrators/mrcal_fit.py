@@ -98,6 +98,12 @@ COARSE_STEP = 2
 # Bias passes stop when the bias changes by less than bias_tolerance px or by less than
 # BIAS_RELATIVE x the RMS residual (a change far below what the model cannot fit anyway).
 BIAS_RELATIVE = 0.05
+# A warm start (fit(start=...): harness.verdict's fit of the exact observations from the
+# image fit) restarts mrcal.optimize at most this many times per polish: the start is
+# within the detection error (~1e-3 px) of the exact observations' optimum of the same
+# minimum, and the restarts' crawl along the R0 / focal-length valley is what carried a
+# cold exact fit into another minimum than the image fit's (mrcal CAHVOR, cameras 5, 17).
+WARM_RESTARTS = 1
 
 
 def uses_world_frame(known_poses=False, **options):
@@ -224,8 +230,16 @@ def _Rt_board_grid(origin):
 @diagnostics_of(LIBRARY)
 def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
         bias_passes=4, bias_tolerance=1e-5, regularization=None, max_rms=1.0,
-        linearity=None, max_restarts=25):
-    r'''The mrcal calibrator (see the module docstring); returns a CalibrationResult'''
+        linearity=None, max_restarts=25, start=None):
+    r'''The mrcal calibrator (see the module docstring); returns a CalibrationResult
+
+start: None, or an ok CalibrationResult of this calibrator and model on observations of
+the same poses (harness.verdict: the image fit, to fit the exact observations): its
+intrinsics and board poses are the starting point; the pinhole seed, the staged model and
+the race of two starts are skipped, and each solve is one mrcal.optimize without restarts
+(see WARM_RESTARTS): the fit stays in the start's minimum. A start of another lens model
+or without every board pose is ignored (info["warm_start"] says which).
+'''
     import mrcal
 
     t0 = time.perf_counter()
@@ -268,6 +282,9 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
     check_pose_diversity(Rt_cam_grid)
 
     nint = mrcal.lensmodel_num_params(lensmodel)
+    warm = _warm_start(start, lensmodel, nint, Nposes, origin)
+    if warm is not None:
+        Rt_cam_grid = warm[1]
     problem = dict(
         intrinsics=np.zeros((1, nint)),
         rt_cam_ref=None,
@@ -287,10 +304,14 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
         do_optimize_frames=True,
     )
     problem["intrinsics"][0, :4] = seed
+    if warm is not None:
+        problem["intrinsics"][0] = warm[0]
     unpolished = False   # the race's winner still needs its full polish
     iterations = 0
     stages = []
-    start_info = {}
+    start_info = {"warm_start": warm is not None} if start is not None else {}
+    if warm is not None:
+        max_restarts = WARM_RESTARTS
 
     # every COARSE_STEP-th row and column of the grid: the coarse problem of polish(), used
     # when it has 4 x 4 points or more and every pose keeps at least 8 of them
@@ -328,7 +349,9 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
 
     # an intermediate lens model first: wide lenses fall into local minima otherwise
     staged = {"OPENCV8": ("LENSMODEL_OPENCV4", 8)}
-    if model_name in staged:
+    if warm is not None:
+        pass
+    elif model_name in staged:
         lm_stage, n_stage = staged[model_name]
         problem.update(lensmodel=lm_stage, intrinsics=np.zeros((1, n_stage)))
         problem["intrinsics"][0, :4] = seed
@@ -367,7 +390,11 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
             rms_prev = r
         return r
 
-    if nint > 4:
+    if warm is not None:
+        unpolished = nint > 4 and not regularization
+        if regularization:
+            solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
+    elif nint > 4:
         if regularization:
             solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
         else:
@@ -472,6 +499,25 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
               "world_frame": bool(known_poses), "regularization": bool(regularization),
               "bias_corrected": bias_applied, "passes": passes, "seed_pinhole": seed,
               "intrinsics": cm.intrinsics()[1], "cameramodel": cm, **start_info})
+
+
+def _warm_start(start, lensmodel, nint, Nposes, origin):
+    r'''(intrinsics (nint,), Rt_cam_grid (Nposes,4,3)) of a start result, or None'''
+    import mrcal
+    if start is None or getattr(start, "status", None) != "ok":
+        return None
+    cm = (start.info or {}).get("cameramodel")
+    Rts = start.Rt_cam_board
+    if cm is None or Rts is None or (start.info or {}).get("known_poses"):
+        return None
+    lm, intr = cm.intrinsics()
+    intr = np.asarray(intr, dtype=np.float64)
+    Rts = np.asarray(Rts, dtype=np.float64)
+    if lm != lensmodel or intr.shape != (nint,) or Rts.shape != (Nposes, 4, 3) or \
+            not np.all(np.isfinite(intr)) or not np.all(np.isfinite(Rts)):
+        return None
+    Rt_board_grid = _Rt_board_grid(origin)
+    return intr.copy(), np.array([mrcal.compose_Rt(Rt, Rt_board_grid) for Rt in Rts])
 
 
 def _snapshot(problem):

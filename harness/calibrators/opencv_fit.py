@@ -187,8 +187,13 @@ def _calibrate_threaded(model_name, objs, imgs, size, K0=None, dist0=None):
 
 @diagnostics_of(LIBRARY)
 def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
-        bias_passes=4, bias_tolerance=1e-5, max_rms=1.0):
-    r'''The OpenCV calibrator (see the module docstring); returns a CalibrationResult'''
+        bias_passes=4, bias_tolerance=1e-5, max_rms=1.0, start=None):
+    r'''The OpenCV calibrator (see the module docstring); returns a CalibrationResult
+
+start: None, or an ok CalibrationResult of this calibrator and model (harness.verdict: the
+image fit, to fit the exact observations): the first pass starts from its K and
+distortion (CALIB_USE_INTRINSIC_GUESS, as the bias passes do); another model is ignored.
+'''
     t0 = time.perf_counter()
     if known_poses:
         return CalibrationResult(
@@ -216,7 +221,13 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
             Rts[i] = _Rt(rvecs[j], tvecs[j])
         return model, Rts
 
-    rms, K, D, rvecs, tvecs = run(obs.q)
+    K0 = D0 = None
+    if getattr(start, "status", None) == "ok" and \
+            isinstance(getattr(start, "model", None), OpenCVModel) and \
+            start.model.family == model_name:
+        K0 = np.array(start.info["K"], dtype=np.float64)
+        D0 = np.array(start.info["dist"], dtype=np.float64)
+    rms, K, D, rvecs, tvecs = run(obs.q, K0, D0)
     if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D))):
         raise CalibrationFailed("diverged: OpenCV returned non-finite intrinsics")
     model, Rts = state(K, D, rvecs, tvecs)
@@ -239,4 +250,5 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
         max_rms=max_rms, Rt_cam_board=Rts, iterations=len(passes),
         info={"K": K, "dist": D, "max_abs_coefficient": float(np.max(np.abs(D))),
               "passes": passes, "bias_corrected": bias_applied, "world_frame": False,
-              "known_poses": False})
+              "known_poses": False,
+              **({} if start is None else {"warm_start": K0 is not None})})
