@@ -12,6 +12,16 @@ from harness import stages, verdict
 from harness.records import Record
 
 
+@pytest.fixture(autouse=True)
+def _fresh_exact_fit_memo():
+    r'''Each test starts with an empty memo of exact fits: the process-wide memo reuses a
+fit of bit-identical inputs, so what one test fitted would otherwise be "reused" in
+the next (the tests' results must not depend on their order)'''
+    verdict._EXACT_FITS.clear()
+    yield
+    verdict._EXACT_FITS.clear()
+
+
 @pytest.fixture(scope="module")
 def navcam():
     _, truth = stages.camera_truth("15", "CAHVOR")
