@@ -148,7 +148,10 @@ def adapters_from_records(records):
     for r in records.values():
         v = r.get("versions") or {}
         if v.get("renderer"):
-            out["renderers"][r["renderer"]] = v["renderer"]
+            # keyed by the campaign's label when it gives one: two command renderers
+            # (different programs, one name "command") keep a version each
+            label = (r.get("settings") or {}).get("label") or r["renderer"]
+            out["renderers"][label] = v["renderer"]
         if v.get("calibrator"):
             out["calibrators"][r["calibrator"]] = v["calibrator"]
     return out

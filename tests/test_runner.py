@@ -110,6 +110,17 @@ def test_resume_redoes_only_missing_jobs(first_run, tmp_path):
     assert _comparable(third) == _comparable(doc)
 
 
+def test_adapter_versions_are_kept_per_renderer_label():
+    from harness.runner import adapters_from_records
+    recs = {"a": {"renderer": "command", "settings": {"label": "pathtracer"},
+                  "versions": {"renderer": "pt 2.1"}},
+            "b": {"renderer": "command", "settings": {"label": "raster"},
+                  "versions": {"renderer": "raster 0.9"}},
+            "c": {"renderer": "raycast", "settings": {}, "versions": {"renderer": "raycast x"}}}
+    got = adapters_from_records(recs)["renderers"]
+    assert got == {"pathtracer": "pt 2.1", "raster": "raster 0.9", "raycast": "raycast x"}
+
+
 def test_stage_failures_are_records():
     c = parse_campaign({"cameras": [15], "models": ["CAHVORE", "CAHV"],
                         "calibrator": [{"name": "jpl"}, {"name": "mrcal"}]})
