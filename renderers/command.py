@@ -7,6 +7,10 @@ SYNOPSIS
     r = get_renderer("command", command=["python", "examples/external_renderer.py"])
     result = r.render(model, target.pattern(), Rt_cam_board, RenderSettings(spp=4))
 
+    t = get_terrain_renderer("command", command=["python", "examples/external_renderer.py"])
+    tr = t.render_terrain(model, terrain, Rt_ref_terrain, RenderSettings(spp=2))
+    code = t.cell_shadows(terrain)       # the shadow check, as one rays request
+
     # inside the external program (if it is written in Python; camval installed):
     from renderers.protocol import read_request, write_image, serve
     req = read_request(sys.argv[1])      # .model, .pattern, .Rt_cam_board, .settings, .output

@@ -20,7 +20,10 @@ docs/README-renderers.md ("The external renderer protocol"). In short:
 
 - A request is a directory: request.json (what to render, which camval wrote
   it), camera.cahv|.cahvor|.cahvore (the JPL model file, full precision),
-  scene.json (the board and its pose) and, in "rays" mode, rays files.
+  scene.json (the board and its pose; or, version 3, a terrain: height field
+  and texture as .npy beside it, sun, lighting, pose) and, in "rays" mode,
+  rays files. A terrain program reads req.terrain (TerrainScene, plain
+  values) and may also write the range and shadow codes (optional outputs).
 - One-shot: camval runs COMMAND... REQUEST_DIR/request.json per image. Exit 0
   with the output written; exit EXIT_NOT_APPLICABLE (10) when the program
   cannot render this camera by design (the last lines of stderr are the
