@@ -338,7 +338,7 @@ returns a value per ray (not used) and shadow.npy, one code per ray. ->
 
     def write(d):
         np.save(os.path.join(d, "rays-directions.npy"),
-                np.broadcast_to(down, (n, 3)).astype(np.float32))
+                np.repeat(down.astype(np.float32), n, axis=0))
         np.save(os.path.join(d, "rays-origins.npy"), origins.astype(np.float32))
         rays = {"directions": "rays-directions.npy", "origins": "rays-origins.npy",
                 "origin": None, "count": n, "rows": [0, ny - 1], "samples_per_pixel": 1,
