@@ -371,10 +371,14 @@ def _stereo(tmp_path, extra):
 
 
 @pytest.mark.slow
-def test_camval_stereo_on_the_command_renderer_gives_the_built_ins_verdict(tmp_path):
+def test_camval_stereo_on_the_command_renderer_gives_the_built_ins_verdict(tmp_path,
+                                                                           c_renderer):
     r'''camval stereo 12 11 --scale 0.25 through the example program (image mode, .npy,
 persistent): its images are the built-in's, so every statistic is the same; the verdict
-is test_stereo's quarter-scale bar (band median |range error| < 12%)'''
+is test_stereo's quarter-scale bar (band median |range error| < 12%). Through the C
+program in rays mode the images differ in a few edge samples (float32 rays), which moves
+a few disparities: measured band median |error| 7.4188% against 7.4191%, the same
+valid pixels.'''
     want = _stereo(tmp_path / "builtin", [])
     got = _stereo(tmp_path / "command", [
         "--renderer", "command", "--command", " ".join(EXAMPLE),
@@ -384,6 +388,13 @@ is test_stereo's quarter-scale bar (band median |range error| < 12%)'''
     s, s0 = got["variants"]["clean"]["stats"], want["variants"]["clean"]["stats"]
     assert s == s0
     assert s["band"]["median_abs_rel_error"] < 0.12 and s["band"]["n"] > 800
+    c = _stereo(tmp_path / "c", ["--renderer", "command", "--command", c_renderer,
+                                 "--setup", "mode=rays", "--setup", "persistent=true"])
+    sc = c["variants"]["clean"]["stats"]
+    assert sc["band"]["median_abs_rel_error"] < 0.12
+    assert sc["band"]["median_abs_rel_error"] == pytest.approx(
+        s0["band"]["median_abs_rel_error"], rel=0.01)
+    assert sc["valid_fraction"] == pytest.approx(s0["valid_fraction"], abs=0.005)
 
 
 def test_stereo_refuses_a_command_without_a_program(tmp_path):
