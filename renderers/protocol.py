@@ -39,12 +39,12 @@ docs/README-renderers.md ("The external renderer protocol"). In short:
   warps it), "rays" (return one value per ray of the rays files).
 '''
 
+import dataclasses
 import json
 import math
 import os
 import subprocess
 import sys
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
