@@ -37,17 +37,252 @@ def campaign(cameras, family, renderer, seed, name):
                            {"name": "opencv", "models": ["OPENCV5"]}]}
 
 
+ROOT = Path(__file__).resolve().parents[1]
+FAULT_PROGRAM = ROOT / "examples" / "fault_renderer.py"
+CALIBRATORS = ("jpl", "mrcal", "opencv")
+# the parameter of a jpl record that sees each fault directly (its limit is the record's
+# minimum detectable fault of that kind); the others are seen through the projection
+FAULT_PARAMETER = {"hc_shift": "Hc", "focal_scale": "Hs", "theta90": "theta_deg",
+                   "r1_scale": "R1_frac", "half_pixel": "Hc", "round_centre": "Hc"}
+
+
+def fault_program():
+    r'''examples/fault_renderer.py as a module (its fault definitions, to size each fault)'''
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("fault_renderer", FAULT_PROGRAM)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def fault_size(fr, model, fault):
+    r'''(projection change RMS px with the camera frames identified, the same after a fitted
+rotation) of the faulty camera against the true one; None: the fault does not apply'''
+    from harness.compare import projection_difference
+    try:
+        bad = fr.faulty_model(model, fault)
+    except fr.FaultNotApplicable:
+        return None
+    return (projection_difference(model, bad, "intrinsics")["rms"],
+            projection_difference(model, bad, "rotation")["rms"])
+
+
+def _lookup(r, path):
+    for part in path.split("."):
+        if not isinstance(r, dict) or part not in r:
+            return None
+        r = r[part]
+    return r
+
+
+def judged_quantities(name, rec, spec):
+    r'''[(value / limit, "field value (sigma, z) vs limit")] of every [[scatter]] limit of
+the spec on this record, largest ratio first'''
+    from harness.gate import _matches
+    out = []
+    for lim in spec.scatter:
+        if not _matches(name, lim.match):
+            continue
+        v, s = _lookup(rec, lim.field), _lookup(rec, lim.sigma)
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            continue
+        allowed, _ = lim.allowed(abs(s) if s else None)
+        z = f", z {abs(v) / abs(s):.3g}" if s else ""
+        sig = f"{abs(s):.2g}" if s else "none"
+        out.append((abs(v) / allowed if allowed else float("inf"),
+                    f"{lim.field.rsplit('.', 1)[-1]} {abs(v):.3g} (sigma {sig}{z}) "
+                    f"vs {allowed:.3g}"))
+    return sorted(out, reverse=True)
+
+
+def projection_limit(name, rec, spec):
+    from harness.gate import _matches
+    for lim in spec.scatter:
+        if lim.field == "verdict.renderer.projection.rms" and _matches(name, lim.match):
+            s = _lookup(rec, lim.sigma)
+            return lim.allowed(abs(s) if s else None)[0]
+    return None
+
+
+def classify(fault, cal, name, rec, flagged, spec, size):
+    r'''(outcome, the deciding quantity or the reason) of one record of a fault run'''
+    st = rec.get("status")
+    if st != "ok":
+        return st, rec.get("reason") or ""
+    v = rec.get("verdict") or {}
+    q = judged_quantities(name, rec, spec)
+    top = q[0][1] if q else "(no judged quantity)"
+    if flagged:
+        return ("passed?" if fault == "none" else "flagged"), top
+    if v.get("floor_far") or v.get("fits_disagree"):
+        return "not-judged", v.get("floor_reason") or v.get("disagree_reason") or ""
+    if fault == "none":
+        return "passed", top
+    if cal != "jpl" and fault == "theta90":
+        return "not-visible", (f"{cal}'s model frame holds theta at 90 deg: it fits the true "
+                               "and the faulty camera alike; " + top)
+    lim = projection_limit(name, rec, spec)
+    if cal != "jpl" and lim is not None and size[1] <= lim:
+        return "not-visible", (f"the fault moves projections {size[1]:.2g} px RMS after a "
+                               f"fitted rotation, below this record's limit {lim:.2g} px "
+                               f"(the {cal} records are judged by that RMS only)")
+    p = FAULT_PARAMETER.get(fault)
+    extra = ""
+    if cal == "jpl" and p:
+        s = _lookup(rec, f"verdict.renderer.sigma.{p}")
+        extra = f"; {p} sigma {s:.2g}" if isinstance(s, (int, float)) else ""
+    return "missed", top + extra
+
+
+def external(args):
+    r'''--external: every fault of examples/fault_renderer.py through the command renderer,
+on each camera, judged by the default gate spec -> the fault x camera x calibrator table'''
+    import common
+
+    from harness.campaign import parse_campaign
+    from harness.gate import DEFAULT_SPEC, check, load_gate_spec
+    from harness.runner import run_campaign
+    from reference_models.cahvore import truncate
+    from reference_models.catalogue import load_catalogue
+    from reference_models.errors import CamvalError
+
+    fr = fault_program()
+    spec = load_gate_spec(DEFAULT_SPEC)
+    out = Path(args.out)
+    results = common.Results("renderer_gate", args, out_dir=args.out_dir)
+    cat = load_catalogue()
+    cams = [c for c in args.cameras.split(",") if c]
+    faults = [f for f in (args.faults or ",".join(fr.FAULTS)).split(",") if f]
+    rows = {}
+    ok = True
+    for cam in cams:
+        native = cat.get(cam).model
+        for fault in faults:
+            # E exists on CAHVORE only: drop_e runs on the camera's CAHVORE, the others on
+            # args.family (CAHVOR has every other parameter the faults change)
+            family = "CAHVORE" if fault == "drop_e" else args.family
+            key = f"{fault}/{cam}"
+            try:
+                model = truncate(native, family)
+            except CamvalError as e:    # a CAHVOR camera has no CAHVORE: no E to drop
+                why = f"camera {cam} is {native.family}: {e}"
+                rows[key] = {c: ("not-applicable", why) for c in CALIBRATORS}
+                results.add(key, status="not-applicable", reason=why, family=family)
+                print(f"{fault:13s} {cam:4s} {family:8s} not applicable: {why}", flush=True)
+                continue
+            size = fault_size(fr, model, fault)
+            if size is None:
+                why = f"{family} has no parameter the fault changes"
+                rows[key] = {c: ("not-applicable", why) for c in CALIBRATORS}
+                results.add(key, status="not-applicable", reason=why, family=family)
+                print(f"{fault:13s} {cam:4s} {family:8s} not applicable: {why}", flush=True)
+                continue
+            if fault != "none" and size[0] < 1e-9:
+                why = (f"the fault changes nothing on camera {cam} {family} (theta "
+                       f"{model.photogrammetric().theta_deg:.4f} deg, E "
+                       f"{getattr(model, 'E', None)}): its images are the clean run's")
+                rows[key] = {c: ("not-visible", why) for c in CALIBRATORS}
+                results.add(key, status="not-visible", reason=why, family=family,
+                            fault_px_rms_intrinsics=size[0])
+                print(f"{fault:13s} {cam:4s} {family:8s} no-op: {why}", flush=True)
+                continue
+            renderer = {"name": "command", "label": f"fault-{fault}", "spp": args.spp,
+                        "setup": {"command": [sys.executable, str(FAULT_PROGRAM), "--fault",
+                                              fault], "persistent": True}}
+            run_dir = out / f"ext-{fault}-{cam}"
+            t0 = time.perf_counter()
+            doc = campaign([int(cam) if cam.isdigit() else cam], family, renderer, 0,
+                           f"ext-{fault}")
+            r = run_campaign(parse_campaign(doc), run_dir, progress=False, workers=1,
+                             resume=run_dir.exists())
+            secs = time.perf_counter() - t0
+            failures = check(r, spec)
+            flagged_names = {f.fullname for f in failures}
+            cells = {}
+            for name, rec in r["records"].items():
+                cal = name.rsplit("/", 1)[-1].split("[", 1)[0]
+                cells[cal] = classify(fault, cal, name, rec, name in flagged_names, spec, size)
+            rows[key] = cells
+            run_flagged = bool(failures)
+            ok &= run_flagged if fault != "none" else not run_flagged
+            results.add(key, family=family, run_dir=str(run_dir), seconds=secs,
+                        flagged=run_flagged, fault_px_rms_intrinsics=size[0],
+                        fault_px_rms_rotation=size[1],
+                        failures=[f.as_dict() for f in failures],
+                        calibrators={c: {"outcome": o, "detail": d}
+                                     for c, (o, d) in cells.items()})
+            print(f"{fault:13s} {cam:4s} {family:8s} run "
+                  f"{'FLAGGED' if run_flagged else 'passed '} ({secs:.0f} s; fault "
+                  f"{size[0]:.2g} px RMS, {size[1]:.2g} after a rotation)", flush=True)
+            for cal in sorted(cells):
+                print(f"    {cal:7s} {cells[cal][0]:13s} {cells[cal][1]}", flush=True)
+    print_table(rows, faults, cams)
+    results.doc["summary"] = summarise(rows, faults, cams)
+    for line in results.doc["summary"]["lines"]:
+        print(line)
+    results.write()
+    print("renderer gate (external faults):", "PASS" if ok else "FAIL")
+    return 0 if ok else 1
+
+
+SHORT = {"flagged": "FLAG", "missed": "MISS", "not-visible": "n/v", "not-judged": "n/j",
+         "not-applicable": "n/a", "failed": "FAIL", "passed": "pass", "passed?": "FLAG!"}
+
+
+def print_table(rows, faults, cams):
+    cols = [(cam, cal) for cam in cams for cal in CALIBRATORS]
+    print("\n" + " " * 13 + "".join(f"{'camera ' + cam:18s}" for cam in cams))
+    print(f"{'fault':13s}" + "".join(f"{cal[:5]:6s}" for _, cal in cols))
+    for fault in faults:
+        cells = [rows.get(f"{fault}/{cam}", {}).get(cal, ("-", ""))[0] for cam, cal in cols]
+        print(f"{fault:13s}" + "".join(f"{SHORT.get(c, c):6s}" for c in cells))
+    print("FLAG flagged, MISS missed, n/v not visible to that calibrator, n/j not judged "
+          "(floor far / fits in different minima), n/a fault not applicable; FLAG! a clean "
+          "run flagged\n")
+
+
+def summarise(rows, faults, cams):
+    out = {"faults": {}, "lines": []}
+    for fault in faults:
+        if fault == "none":
+            continue
+        per = {}
+        for cal in CALIBRATORS:
+            cells = [rows.get(f"{fault}/{cam}", {}).get(cal, ("-", ""))[0] for cam in cams]
+            per[cal] = {"flagged": sum(c == "flagged" for c in cells),
+                        "missed": sum(c == "missed" for c in cells),
+                        "exists": sum(c not in ("not-applicable", "-") for c in cells)}
+        run_flagged = sum(any(rows.get(f"{fault}/{cam}", {}).get(cal, ("",))[0] == "flagged"
+                              for cal in CALIBRATORS) for cam in cams)
+        out["faults"][fault] = dict(per, cameras_flagged=run_flagged)
+        out["lines"].append(
+            f"{fault:13s} flagged on {run_flagged} of {len(cams)} cameras; "
+            + ", ".join(f"{cal} {per[cal]['flagged']} flagged / {per[cal]['missed']} missed"
+                        for cal in CALIBRATORS))
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out")
+    ap.add_argument("--external", action="store_true",
+                    help="the faults of examples/fault_renderer.py through the command "
+                         "renderer (--faults default: all of them, and 'none')")
+    ap.add_argument("--out-dir", type=Path, default=None,
+                    help="directory of the JSON document (--external; default "
+                         "benchmarks/results)")
     ap.add_argument("--cameras", default="15,17")
-    ap.add_argument("--faults", default="shift_001,focal_scale,half_pixel,r1_sign,theta90")
+    ap.add_argument("--faults", default=None,
+                    help="default: shift_001,focal_scale,half_pixel,r1_sign,theta90; with "
+                         "--external every fault of examples/fault_renderer.py")
     ap.add_argument("--clean", default="")
     ap.add_argument("--family", default="CAHVOR")
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--spp", type=int, default=16)
     args = ap.parse_args(argv)
+    if args.external:
+        return external(args)
 
     from harness.campaign import parse_campaign
     from harness.gate import DEFAULT_SPEC, check, explain, load_gate_spec
@@ -70,7 +305,8 @@ def main(argv=None):
         return r, check(r, spec), time.perf_counter() - t0
 
     cams = [c if not c.isdigit() else int(c) for c in args.cameras.split(",") if c]
-    for fault in [f for f in args.faults.split(",") if f]:
+    faults = args.faults or "shift_001,focal_scale,half_pixel,r1_sign,theta90"
+    for fault in [f for f in faults.split(",") if f]:
         family = "CAHV" if fault == "theta90" else args.family
         for cam in cams:
             renderer = {"name": "faulty", "spp": args.spp, "options": {"fault": fault}}
