@@ -40,11 +40,6 @@ def campaign(cameras, family, renderer, seed, name):
 ROOT = Path(__file__).resolve().parents[1]
 FAULT_PROGRAM = ROOT / "examples" / "fault_renderer.py"
 CALIBRATORS = ("jpl", "mrcal", "opencv")
-# the parameter of a jpl record that sees each fault directly (its limit is the record's
-# minimum detectable fault of that kind); the others are seen through the projection
-FAULT_PARAMETER = {"hc_shift": "Hc", "focal_scale": "Hs", "theta90": "theta_deg",
-                   "r1_scale": "R1_frac", "half_pixel": "Hc", "round_centre": "Hc"}
-
 
 def fault_program():
     r'''examples/fault_renderer.py as a module (its fault definitions, to size each fault)'''
@@ -104,8 +99,37 @@ def projection_limit(name, rec, spec):
     return None
 
 
-def classify(fault, cal, name, rec, flagged, spec, size):
-    r'''(outcome, the deciding quantity or the reason) of one record of a fault run'''
+def fault_parameter(fault, model):
+    r'''(parameter of verdict.renderer.params, how far the fault moves it) for the faults
+that move one judged parameter by a known amount, else None'''
+    if fault == "hc_shift":
+        return "Hc", 0.01
+    if fault == "focal_scale":
+        return "Hs", 1e-5
+    if fault == "r1_scale":
+        return "R1_frac", 0.01
+    if fault == "theta90":
+        return "theta_deg", abs(model.photogrammetric().theta_deg - 90.0)
+    return None
+
+
+def parameter_limit(name, rec, spec, p):
+    from harness.gate import _matches
+    for lim in spec.scatter:
+        if lim.field == f"verdict.renderer.params.{p}" and _matches(name, lim.match):
+            s = _lookup(rec, lim.sigma)
+            return lim.allowed(abs(s) if s else None)[0], s
+    return None, None
+
+
+def classify(fault, cal, name, rec, flagged, spec, size, model):
+    r'''(outcome, the deciding quantity or the reason) of one record of a fault run
+
+outcome: flagged; missed (the fault is above what this record can detect and was not
+flagged: a gate bug); below-limit (not flagged, and the fault is smaller than this
+record's limit on every quantity that sees it: its minimum detectable fault is larger);
+not-visible (the calibrator's model fits the faulty and the true camera alike);
+not-judged (the record's floor is far or its fits disagree); a record's status.'''
     st = rec.get("status")
     if st != "ok":
         return st, rec.get("reason") or ""
@@ -121,17 +145,20 @@ def classify(fault, cal, name, rec, flagged, spec, size):
     if cal != "jpl" and fault == "theta90":
         return "not-visible", (f"{cal}'s model frame holds theta at 90 deg: it fits the true "
                                "and the faulty camera alike; " + top)
+    why = []
     lim = projection_limit(name, rec, spec)
-    if cal != "jpl" and lim is not None and size[1] <= lim:
-        return "not-visible", (f"the fault moves projections {size[1]:.2g} px RMS after a "
-                               f"fitted rotation, below this record's limit {lim:.2g} px "
-                               f"(the {cal} records are judged by that RMS only)")
-    p = FAULT_PARAMETER.get(fault)
-    extra = ""
-    if cal == "jpl" and p:
-        s = _lookup(rec, f"verdict.renderer.sigma.{p}")
-        extra = f"; {p} sigma {s:.2g}" if isinstance(s, (int, float)) else ""
-    return "missed", top + extra
+    below = lim is not None and size[1] <= lim
+    if lim is not None:
+        why.append(f"the fault moves projections {size[1]:.2g} px RMS after a fitted "
+                   f"rotation, limit {lim:.2g} px")
+    fp = fault_parameter(fault, model) if cal == "jpl" else None
+    if fp is not None:
+        plim, s = parameter_limit(name, rec, spec, fp[0])
+        if plim is not None:
+            below &= fp[1] <= plim
+            why.append(f"it moves {fp[0]} by {fp[1]:.2g}, limit {plim:.2g} (sigma {s:.2g}): "
+                       f"the record's minimum detectable fault")
+    return ("below-limit" if below else "missed"), "; ".join(why + [f"closest: {top}"])
 
 
 def external(args):
@@ -201,7 +228,8 @@ on each camera, judged by the default gate spec -> the fault x camera x calibrat
             cells = {}
             for name, rec in r["records"].items():
                 cal = name.rsplit("/", 1)[-1].split("[", 1)[0]
-                cells[cal] = classify(fault, cal, name, rec, name in flagged_names, spec, size)
+                cells[cal] = classify(fault, cal, name, rec, name in flagged_names, spec, size,
+                                      model)
             rows[key] = cells
             run_flagged = bool(failures)
             ok &= run_flagged if fault != "none" else not run_flagged
@@ -225,8 +253,9 @@ on each camera, judged by the default gate spec -> the fault x camera x calibrat
     return 0 if ok else 1
 
 
-SHORT = {"flagged": "FLAG", "missed": "MISS", "not-visible": "n/v", "not-judged": "n/j",
-         "not-applicable": "n/a", "failed": "FAIL", "passed": "pass", "passed?": "FLAG!"}
+SHORT = {"flagged": "FLAG", "missed": "MISS", "below-limit": "<lim", "not-visible": "n/v",
+         "not-judged": "n/j", "not-applicable": "n/a", "failed": "FAIL", "passed": "pass",
+         "passed?": "FLAG!"}
 
 
 def print_table(rows, faults, cams):
@@ -236,9 +265,10 @@ def print_table(rows, faults, cams):
     for fault in faults:
         cells = [rows.get(f"{fault}/{cam}", {}).get(cal, ("-", ""))[0] for cam, cal in cols]
         print(f"{fault:13s}" + "".join(f"{SHORT.get(c, c):6s}" for c in cells))
-    print("FLAG flagged, MISS missed, n/v not visible to that calibrator, n/j not judged "
-          "(floor far / fits in different minima), n/a fault not applicable; FLAG! a clean "
-          "run flagged\n")
+    print("FLAG flagged; <lim not flagged, the fault is below the record's limit (its minimum "
+          "detectable fault); MISS not flagged though above the limit; n/v not visible to "
+          "that calibrator's model; n/j not judged (floor far / fits in different minima); "
+          "n/a fault not applicable; FLAG! a clean run flagged\n")
 
 
 def summarise(rows, faults, cams):
@@ -251,14 +281,15 @@ def summarise(rows, faults, cams):
             cells = [rows.get(f"{fault}/{cam}", {}).get(cal, ("-", ""))[0] for cam in cams]
             per[cal] = {"flagged": sum(c == "flagged" for c in cells),
                         "missed": sum(c == "missed" for c in cells),
+                        "below_limit": sum(c == "below-limit" for c in cells),
                         "exists": sum(c not in ("not-applicable", "-") for c in cells)}
         run_flagged = sum(any(rows.get(f"{fault}/{cam}", {}).get(cal, ("",))[0] == "flagged"
                               for cal in CALIBRATORS) for cam in cams)
         out["faults"][fault] = dict(per, cameras_flagged=run_flagged)
         out["lines"].append(
             f"{fault:13s} flagged on {run_flagged} of {len(cams)} cameras; "
-            + ", ".join(f"{cal} {per[cal]['flagged']} flagged / {per[cal]['missed']} missed"
-                        for cal in CALIBRATORS))
+            + ", ".join(f"{cal} {per[cal]['flagged']} flagged / {per[cal]['below_limit']} "
+                        f"below limit / {per[cal]['missed']} missed" for cal in CALIBRATORS))
     return out
 
 
