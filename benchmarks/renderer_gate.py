@@ -2,6 +2,8 @@ r'''The renderer gate (campaigns/gate-renderer.toml) on faulty and clean rendere
 
     uv run --frozen python benchmarks/renderer_gate.py OUT_DIR [--cameras 15,17]
         [--faults shift_001,focal_scale,...] [--clean CAMERA,...] [--seeds 0,1,...]
+    uv run --frozen python benchmarks/renderer_gate.py OUT_DIR --external
+        [--cameras 13,15,17,21] [--faults hc_shift,...] [--family CAHVOR] [--out-dir DIR]
 
 Each fault of renderers.legacy.FAULTS is injected into the exact ray caster
 (renderer "faulty", harness.mutation) on each camera, and jpl, mrcal and
@@ -12,7 +14,69 @@ pose seed of --seeds and must pass. Prints one line per run (the failing
 fields, per calibrator), the exact fit's and verdict's CPU seconds per record, and the
 minimum detectable faults; exits 1 if a fault is missed or a clean run fails.
 
-Measured (2026-11-25, 2 shared cores, K=16, 6 poses):
+--external: the faults reach camval only through images. Each fault of
+examples/fault_renderer.py (a separate program speaking the command protocol,
+persistent, rendering the faulty camera with camval's exact ray caster) runs as
+a `command` renderer labelled fault-NAME, K=16, 6 poses (seed 0), on each camera
+(drop_e on the camera's CAHVORE, the others on --family), calibrated by jpl,
+mrcal and OPENCV5 and judged by the DEFAULT gate spec (`camval gate`'s). Prints
+per run and calibrator the outcome with its deciding quantity (the judged
+quantity nearest its limit: value, sigma, z, limit), then a fault x camera x
+calibrator table, and writes the JSON document (benchmarks/common.py). A fault
+the gate does not flag is "below-limit" when it is smaller than the record's
+limit on every quantity that sees it (projection RMS after a fitted rotation;
+for jpl also the parameter it moves: the record's minimum detectable fault),
+"missed" otherwise (a gate bug); "not-visible" when the calibrator's model fits
+the true and faulty camera alike (theta for mrcal and OpenCV) or the fault
+changes nothing on the camera (theta90 on camera 17: theta 90.0000 deg; drop_e
+on 17: E = 0); "not-judged" when the record's floor is far (harness.verdict).
+Run directories OUT_DIR/ext-FAULT-CAMERA-FAMILY are resumed when they exist
+(the table is then rebuilt from them). "none" is the clean control. Exit 1 when
+a fault is not flagged on some camera or a clean run is.
+
+Measured (2026-11-25, 2 shared cores, load 18-27; 14-27 s a run on 13, 15, 17,
+48-117 s on 21 at 5120x3840):
+  uv run --frozen python benchmarks/renderer_gate.py /tmp/hf/full --external \
+      --cameras 13,15,17,21
+
+                 camera 13         camera 15         camera 17         camera 21
+    fault        jpl   mrcal openc jpl   mrcal openc jpl   mrcal openc jpl   mrcal openc
+    hc_shift     <lim  <lim  n/j   FLAG  <lim  n/j   FLAG  <lim  <lim  FLAG  n/j   n/j
+    focal_scale  FLAG  <lim  n/j   FLAG  <lim  n/j   <lim  <lim  <lim  FLAG  n/j   n/j
+    theta90      FLAG  n/j   n/j   FLAG  FLAG  n/j   n/v   n/v   n/v   FLAG  n/j   n/j
+    half_pixel   FLAG  <lim  <lim  FLAG  FLAG  FLAG  FLAG  FLAG  FLAG  FLAG  FLAG  FLAG
+    r1_scale     <lim  <lim  n/j   <lim  <lim  n/j   <lim  <lim  <lim  FLAG  FLAG  n/j
+    r2_scale     <lim  <lim  n/j   FLAG  <lim  n/j   <lim  <lim  <lim  FLAG  FLAG  n/j
+    drop_e       n/a   n/a   n/a   n/a   n/a   n/a   n/v   n/v   n/v   FLAG  n/j   n/j
+    o_tilt       <lim  <lim  n/j   <lim  <lim  n/j   <lim  <lim  <lim  FLAG  n/j   n/j
+    round_centre FLAG  <lim  n/j   FLAG  FLAG  n/j   FLAG  FLAG  FLAG  FLAG  FLAG  n/j
+    none         pass  pass  n/j   pass  pass  n/j   pass  pass  pass  pass  n/j   n/j
+
+  (families: CAHVOR; drop_e CAHVORE, which 13 and 15 do not have.) Flagged on >= 3
+  of 4 cameras: hc_shift, focal_scale, theta90 (17's theta is 90), half_pixel,
+  round_centre. drop_e flagged wherever E != 0: camera 21, and the extra camera 12
+  (CAHVORE; --cameras 12,21 --faults drop_e,none --family CAHVORE: drop_e flagged
+  z 272 / 2090, clean CAHVORE runs pass). Not flagged on >= 2 cameras, each below
+  the record's minimum detectable fault (no "missed"; the jpl line of each run):
+  - r1_scale (R1 x 0.99): minimum detectable R1 scale 0.098 / 0.021 / 0.028 on
+    13 / 15 / 17 (R1_frac sigma 0.016 / 0.0036 / 0.0047); the fault moves
+    projections 0.00034 / 0.0017 / 0.0029 px RMS against limits of 0.0019 / 0.0022
+    / 0.0063 px (R1 is -0.0022 on 15, 0.0011 on 17; 21's 0.0495 moves 0.52 px).
+  - r2_scale (R2 x 0.99): 0.00014 px RMS on 13 (limit 0.0019) and 0.0016 px on 17
+    (limit 0.0062): ~14x and ~4x the fault would reach the limits.
+  - o_tilt (O 0.01 deg): O matters only through R: 1.6e-5 / 2.9e-4 / 5.4e-5 px RMS
+    after a rotation on 13 / 15 / 17 (limits 0.0019 / 0.0022 / 0.0063 px).
+  - hc_shift on pancam 13 (16 deg field): Hc sigma 0.014 px, minimum detectable
+    Hc shift 0.084 px; focal_scale on 17: Hs sigma 3e-6, minimum 1.8e-5.
+  mrcal is judged by its projection RMS only: limit 6 sigma = 0.0096 px on 15, the
+  0.02 px cap on 13 and 17 (sigma 0.003-0.004 px). It flags the faults that move
+  projections beyond that after a rotation (half_pixel, round_centre; theta90 on
+  15). Its records on 21 (theta 90.0106 deg, floor 0.02-0.035 px) are not judged,
+  except where the fault itself raises the measured detection noise (detected
+  minus exact, 0.04-0.7 px) above the floor: half_pixel, r1_scale, r2_scale,
+  round_centre, all flagged.
+
+In-process faults, measured (2026-11-25, 2 shared cores, K=16, 6 poses):
 - clean, all 22 slots + 11 extras, CAHV + CAHVOR, jpl/mrcal/OPENCV5: pose seed 3, 198
   records, PASS (SuperCam not-applicable); also seeds 0-2 on 15, 17, MCAM_Z_LEFT-Z026/
   Z100, MCAM_Z_RIGHT-Z110, seeds 0-1 on 1, 8, 13, 21, seed 0 on the other 23 cameras:
@@ -158,6 +222,10 @@ not-judged (the record's floor is far or its fits disagree); a record's status.'
             below &= fp[1] <= plim
             why.append(f"it moves {fp[0]} by {fp[1]:.2g}, limit {plim:.2g} (sigma {s:.2g}): "
                        f"the record's minimum detectable fault")
+    if below and lim and size[1] > 0:
+        # the fault's image-wide effect is linear in its size: this many times the fault
+        # reaches the projection limit (a calibrator that absorbs part of it needs more)
+        why.append(f"~{lim / size[1]:.2g} x this fault reaches the projection limit")
     return ("below-limit" if below else "missed"), "; ".join(why + [f"closest: {top}"])
 
 
@@ -216,13 +284,14 @@ on each camera, judged by the default gate spec -> the fault x camera x calibrat
             renderer = {"name": "command", "label": f"fault-{fault}", "spp": args.spp,
                         "setup": {"command": [sys.executable, str(FAULT_PROGRAM), "--fault",
                                               fault], "persistent": True}}
-            run_dir = out / f"ext-{fault}-{cam}"
+            run_dir = out / f"ext-{fault}-{cam}-{family}"
             t0 = time.perf_counter()
             doc = campaign([int(cam) if cam.isdigit() else cam], family, renderer, 0,
                            f"ext-{fault}")
             r = run_campaign(parse_campaign(doc), run_dir, progress=False, workers=1,
                              resume=run_dir.exists())
-            secs = time.perf_counter() - t0
+            # a stored run (resumed, nothing rerun) has no time of its own here
+            secs = (time.perf_counter() - t0) if r["execution"]["jobs_run"] else None
             failures = check(r, spec)
             flagged_names = {f.fullname for f in failures}
             cells = {}
@@ -240,7 +309,8 @@ on each camera, judged by the default gate spec -> the fault x camera x calibrat
                         calibrators={c: {"outcome": o, "detail": d}
                                      for c, (o, d) in cells.items()})
             print(f"{fault:13s} {cam:4s} {family:8s} run "
-                  f"{'FLAGGED' if run_flagged else 'passed '} ({secs:.0f} s; fault "
+                  f"{'FLAGGED' if run_flagged else 'passed '} "
+                  f"({'stored run' if secs is None else format(secs, '.0f') + ' s'}; fault "
                   f"{size[0]:.2g} px RMS, {size[1]:.2g} after a rotation)", flush=True)
             for cal in sorted(cells):
                 print(f"    {cal:7s} {cells[cal][0]:13s} {cells[cal][1]}", flush=True)
