@@ -28,7 +28,8 @@ clean control). In a campaign, label each fault so its records are distinct
 The faults (FAULTS; the sizes are the smallest ones camval's issue 14 asks
 the gate to flag on real cameras):
 
-  hc_shift      Hc + 0.01 px (H += 0.01 A: the image moves 0.01 px in x)
+  hc_shift      Hc + 0.01 px (H += 0.01 A: the image moves 0.01 px in x;
+                renderers.legacy.shift_001)
   focal_scale   Hs, Vs x (1 + 1e-5)
   theta90       theta forced to 90 deg (V' := A x H'; OpenGL and mrcal have no skew)
   half_pixel    the pixel-centre convention slipped half a pixel in x and y
@@ -52,7 +53,6 @@ import sys
 import numpy as np
 
 FAULT_ENV = "CAMVAL_FAULT"
-HC_SHIFT_PX = 0.01
 FOCAL_SCALE = 1e-5
 R_SCALE = 0.99
 O_TILT_DEG = 0.01
@@ -69,7 +69,8 @@ def _needs(model, families, fault):
 
 
 def hc_shift(model):
-    return model.replace(H=model.H + HC_SHIFT_PX * model.A)
+    from renderers.legacy import shift_001     # H += SHIFT_PX A, SHIFT_PX = 0.01 px
+    return shift_001(model)
 
 
 def focal_scale(model):
@@ -104,8 +105,9 @@ def r2_scale(model):
 
 
 def drop_e(model):
+    from renderers.legacy import ignore_e
     _needs(model, ("CAHVORE",), "drop_e")
-    return model.replace(E=np.zeros(3))
+    return ignore_e(model)
 
 
 def o_tilt(model):
