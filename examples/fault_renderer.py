@@ -69,7 +69,7 @@ def _needs(model, families, fault):
 
 
 def hc_shift(model):
-    from renderers.legacy import shift_001     # H += SHIFT_PX A, SHIFT_PX = 0.01 px
+    from renderers.legacy import shift_001  # H += SHIFT_PX A, SHIFT_PX = 0.01 px
     return shift_001(model)
 
 
