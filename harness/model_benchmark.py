@@ -59,6 +59,7 @@ cy and the skew theta; CAHVOR +2 O +2 R (R0 is a gauge); CAHVORE +3 E).
 "Simplest" is the fewest parameters, then the order of CANDIDATES.
 '''
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -810,12 +811,21 @@ $XDG_CACHE_HOME/camval/best-models (~/.cache/camval/best-models)'''
     return Path(xdg) / "camval" / "best-models"
 
 
+@functools.cache
 def _code_version():
-    r'''This module's source and the fitting libraries' versions: a choice made by other
-code is not reused'''
+    r'''The sources a choice depends on (this module, the calibrators, the planner, the
+comparison) and the fitting libraries' versions: a choice made by other code is not
+reused'''
     import hashlib
     from importlib import metadata
-    h = hashlib.sha256(open(__file__, "rb").read())
+    from pathlib import Path
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for f in [Path(__file__), here / "compare.py", here / "verdict.py",
+              here.parent / "targets" / "poses.py",
+              *sorted((here / "calibrators").glob("*.py"))]:
+        if f.is_file():
+            h.update(f.read_bytes())
     for dist in ("mrcal", "opencv-python-headless", "numpy", "scipy"):
         try:
             h.update(f"{dist} {metadata.version(dist)}".encode())
