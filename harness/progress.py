@@ -59,13 +59,16 @@ class Progress:
             from rich.progress import (
                 BarColumn,
                 MofNCompleteColumn,
-                Progress as RichProgress,
                 TextColumn,
                 TimeElapsedColumn,
                 TimeRemainingColumn,
             )
+            from rich.progress import (
+                Progress as RichProgress,
+            )
             self.bar = RichProgress(
-                TextColumn("[bold]{task.fields[stage]}"), BarColumn(), MofNCompleteColumn(),
+                TextColumn("[bold]{task.fields[stage]}"), BarColumn(bar_width=24),
+                MofNCompleteColumn(),
                 TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
                 TextColumn("{task.description}"),
                 console=Console(file=self.stream, force_terminal=True), transient=False)
