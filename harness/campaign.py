@@ -479,7 +479,7 @@ splined model is the slow one); a choice kept on disk takes milliseconds.
     if not todo:
         return []
     if progress is not None:
-        progress.stage("choosing the best models", total=len(todo))
+        progress.stage("best models", total=len(todo))
     out = []
     for spec, family, c in todo:
         tol = c.options.get(BEST_TOLERANCE)

@@ -144,7 +144,7 @@ campaign's Progress (its "jobs" stage shows the running jobs' stages on a termin
     own = not isinstance(progress, Progress)
     bar = Progress(enabled=bool(progress)) if own else progress
     if (warm and executor == "local" and workers > 1 and fn is run_job and todo):
-        bar.stage("compiling the renderer's kernels")
+        bar.stage("warm-up")
         info = warm_up(todo)
         if report is not None:
             report["warm_up"] = info

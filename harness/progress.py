@@ -66,12 +66,22 @@ class Progress:
             from rich.progress import (
                 Progress as RichProgress,
             )
+            from rich.table import Column
+            console = Console(file=self.stream, force_terminal=True)
+
+            def fixed(n):
+                return Column(no_wrap=True, min_width=n)
+            # stage 12 + bar 20 + count 7 + times 2 x 7 + "ETA" + gaps ~ 62 columns: the
+            # description gets the rest of the line, cut with an ellipsis
             self.bar = RichProgress(
-                TextColumn("[bold]{task.fields[stage]}"), BarColumn(bar_width=24),
-                MofNCompleteColumn(),
-                TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
-                TextColumn("{task.description}"),
-                console=Console(file=self.stream, force_terminal=True), transient=False)
+                TextColumn("[bold]{task.fields[stage]}", table_column=Column(
+                    no_wrap=True, min_width=12, max_width=12, overflow="ellipsis")),
+                BarColumn(bar_width=20), MofNCompleteColumn(table_column=fixed(7)),
+                TimeElapsedColumn(table_column=fixed(7)), TextColumn("ETA"),
+                TimeRemainingColumn(table_column=fixed(7)),
+                TextColumn("{task.description}", table_column=Column(
+                    no_wrap=True, overflow="ellipsis", max_width=max(10, console.width - 64))),
+                console=console, transient=False)
             self.bar.start()
 
     def __enter__(self):
@@ -86,12 +96,14 @@ class Progress:
 directory whose workers report their jobs' stages (job_stage)'''
         self._stop_watching()
         self.name, self.total, self.done = name, total, 0
+        self._last = ""
         self.t0 = time.monotonic()
         if not self.enabled:
             return
         if self.bar is not None:
-            if self.task is not None:
-                self.bar.update(self.task, description="")
+            if self.task is not None:     # the stage before is done: its bar full
+                n = max(self.bar.tasks[-1].completed, 1)
+                self.bar.update(self.task, description="", total=n, completed=n)
             self.task = self.bar.add_task("", total=total, stage=name)
         else:
             n = "" if total is None else f" ({total})"
@@ -177,7 +189,8 @@ campaign with a terminal; a Dask worker elsewhere writes nothing). stage None: d
             path.unlink(missing_ok=True)
             return
         tmp = d / f".{os.getpid()}.tmp"
-        tmp.write_text(f"{job.key}: {stage}")
+        # camera/family first: on an 80-column terminal the rest of the key is cut
+        tmp.write_text(f"{'/'.join(job.key.split('/')[:2])}: {stage}")
         os.replace(tmp, path)
     except OSError:      # progress is a courtesy: it never ends a job
         pass

@@ -837,9 +837,9 @@ choice is made on).
     axes[0, 0].legend(fontsize=6, loc="lower left")
     fig.supxlabel("parameters", fontsize=8)
     fig.supylabel("floor (px, max over the image)", fontsize=8)
-    fig.suptitle("Camera-model floors: each candidate fitted to the camera's exact "
-                 "projections", fontsize=9)
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.25 / fig.get_figheight()))
+    fig.suptitle("Camera-model floors: each candidate fitted\nto the camera's exact "
+                 "projections", fontsize=8)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.4 / fig.get_figheight()))
     path = Path(out) / f"{key}.png"
     save_png(fig, path, dpi=80)
     plt.close(fig)

@@ -191,5 +191,5 @@ def test_best_models_are_chosen_before_the_jobs_with_progress(tmp_path, monkeypa
                                                        ("15", "CAHV", "opencv", "FISHEYE")]
     assert calls == [("CAHV", "jpl", 0.01), ("CAHV", "opencv", 0.5)]
     text = out.getvalue()
-    assert "choosing the best models (2) ..." in text
+    assert "best models (2) ..." in text
     assert "[2/2] camera 15 CAHV opencv: FISHEYE" in text
