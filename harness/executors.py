@@ -177,7 +177,8 @@ campaign's Progress (its "jobs" stage shows the running jobs' stages on a termin
             for r in recs:
                 statuses[r["status"]] = statuses.get(r["status"], 0) + 1
             summary = ", ".join(f"{n} {s}" for s, n in sorted(statuses.items()))
-            bar.advance(f"{job.key}: {summary}")
+            bar.advance(f"{job.key}: {summary}",
+                        short=f"{'/'.join(job.key.split('/')[:2])}: {summary}")
     finally:
         if own:
             bar.close()

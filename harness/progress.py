@@ -71,16 +71,16 @@ class Progress:
 
             def fixed(n):
                 return Column(no_wrap=True, min_width=n)
-            # stage 12 + bar 20 + count 7 + times 2 x 7 + "ETA" + gaps ~ 62 columns: the
+            # stage 12 + bar 16 + count 7 + times 2 x 7 + "ETA" + gaps = 58 columns: the
             # description gets the rest of the line, cut with an ellipsis
             self.bar = RichProgress(
                 TextColumn("[bold]{task.fields[stage]}", table_column=Column(
                     no_wrap=True, min_width=12, max_width=12, overflow="ellipsis")),
-                BarColumn(bar_width=20), MofNCompleteColumn(table_column=fixed(7)),
+                BarColumn(bar_width=16), MofNCompleteColumn(table_column=fixed(7)),
                 TimeElapsedColumn(table_column=fixed(7)), TextColumn("ETA"),
                 TimeRemainingColumn(table_column=fixed(7)),
                 TextColumn("{task.description}", table_column=Column(
-                    no_wrap=True, overflow="ellipsis", max_width=max(10, console.width - 64))),
+                    no_wrap=True, overflow="ellipsis", max_width=max(10, console.width - 58))),
                 console=console, transient=False)
             self.bar.start()
 
@@ -113,13 +113,14 @@ directory whose workers report their jobs' stages (job_stage)'''
             self._thread = threading.Thread(target=self._poll, daemon=True)
             self._thread.start()
 
-    def advance(self, text):
-        r'''One item of the current stage done; text says which and how it ended'''
+    def advance(self, text, short=None):
+        r'''One item of the current stage done; text says which and how it ended (short: the
+same for the bar's one line, when text is long)'''
         self.done += 1
         if not self.enabled:
             return
         if self.bar is not None:
-            self._last = text
+            self._last = short or text
             self.bar.update(self.task, advance=1, description=self._describe())
         else:
             el = time.monotonic() - self.t0
