@@ -173,3 +173,18 @@ the exact dot centroids of the campaign's poses (30, cover "corners", bias corre
         # covering the image; the pose sets differ (14 vs 30), so the weighting does
         within = 0.5 * own["rms"] < v["rms"] < 2.0 * own["rms"]
         assert within, (own, v)
+
+
+def test_none_within_tolerance_picks_the_simplest_alike_to_the_lowest():
+    def row(model, n, floor):
+        return {"name": model, "nparams": n, "status": "ok", "max": floor,
+                "calibrators": {"opencv": model}}
+    # FISHEYE 0.255 and OPENCV5 0.250 are alike at 0.01 px; RATIONAL 0.247 too: the simplest
+    rows = [row("FISHEYE", 8, 0.255), row("OPENCV5", 9, 0.250), row("RATIONAL", 12, 0.247)]
+    c = mb._choose_rows(rows, "opencv", 0.01, "max")
+    assert c["model"] == "FISHEYE" and "lowest max floor is 0.247 px (RATIONAL)" in c["why"]
+    assert "simplest within 0.01 px of it: FISHEYE" in c["why"]
+    # a gain larger than the tolerance is worth the parameters
+    rows = [row("FISHEYE", 8, 0.30), row("OPENCV5", 9, 0.25), row("RATIONAL", 12, 0.10)]
+    c = mb._choose_rows(rows, "opencv", 0.01, "max")
+    assert c["model"] == "RATIONAL" and "simplest within" not in c["why"]
