@@ -403,17 +403,18 @@ def test_dead_worker_is_reported_and_retried_on_resume(tmp_path):
 def test_rich_progress_bar_on_a_terminal():
     import io
 
-    from harness.executors import _Progress
+    from harness.progress import Progress
 
     class Terminal(io.StringIO):
         def isatty(self):
             return True
 
     term = Terminal()
-    bar = _Progress(2, stream=term)
+    bar = Progress(stream=term)
     assert bar.bar is not None
-    bar.advance("15/CAHV/dots/raycast[spp=16,adaptive]", {"ok": 3})
-    bar.advance("17/CAHV/dots/raycast[spp=16,adaptive]", {"failed": 1})
+    bar.stage("jobs", total=2)
+    bar.advance("15/CAHV/dots/raycast[spp=16,adaptive]: 3 ok", short="15/CAHV: 3 ok")
+    bar.advance("17/CAHV/dots/raycast[spp=16,adaptive]: 1 failed", short="17/CAHV: 1 failed")
     bar.close()
     out = term.getvalue()
     assert "2/2" in out and "ETA" in out and "1 failed" in out
