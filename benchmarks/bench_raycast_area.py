@@ -8,8 +8,8 @@ SYNOPSIS
 
 For each camera (catalogue slots; default 15: 1024x1024 CAHVOR navcam, 17:
 640x480 CAHVORE fisheye hazcam, 1: 5120x3840 noncentral CAHVORE) and each
-setting (point sampling K=<n> adaptive; coverage="area", "area@<tolerance>" with
-options area_tolerance), the 10x10 "dots"
+setting (point sampling K=<n> adaptive: coverage="point"; coverage="area", the
+default, "area@<tolerance>" with options area_tolerance), the 10x10 "dots"
 target at the poses of targets.poses.plan_poses (seed 0) is rendered with a warm
 ray cache; targets.detect finds the dots and each is compared with the exact
 centroid of its projected outline (targets.centroids.expected_centroids):
@@ -46,7 +46,7 @@ def settings_of(name):
         return RenderSettings(spp=16, options={"coverage": "area",
                                                "area_tolerance": float(name[5:])})
     if name.startswith("K="):
-        return RenderSettings(spp=int(name[2:]), adaptive=True)
+        return RenderSettings(spp=int(name[2:]), adaptive=True, options={"coverage": "point"})
     raise SystemExit(f"setting {name!r}: expected K=<n>, area or area@<tolerance>")
 
 

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from reference_models.errors import CamvalError
+from renderers.base import DEFAULT_OPTIONS
 
 SCHEMA_VERSION = 1
 RUN_DOCUMENT = "run.json"
@@ -107,8 +108,14 @@ def renderer_key(renderer, settings):
 
 The label is settings["label"] when the campaign gives one, else the
 renderer's name; settings["setup"] (how the renderer is run: a command, a
-timeout) never enters it, so a baseline joins whatever the setup.
+timeout) never enters it, so a baseline joins whatever the setup. The
+options a renderer applies by default (renderers.base.DEFAULT_OPTIONS) are
+named whether the settings give them or not ("raycast[spp=16,adaptive,
+coverage=area]"): a record of another default never joins.
 '''
+    defaults = DEFAULT_OPTIONS.get(renderer)
+    if defaults:
+        settings = dict(settings, options={**defaults, **(settings.get("options") or {})})
     return f"{settings.get('label') or renderer}[{settings_label(settings)}]"
 
 

@@ -6,19 +6,28 @@ SYNOPSIS
     from renderers.base import RenderSettings
 
     r = RaycastRenderer()
-    result = r.render(model, pattern, Rt_cam_board, RenderSettings(spp=16, adaptive=True))
+    result = r.render(model, pattern, Rt_cam_board, RenderSettings(spp=16))
     # result.image has shape (model.height, model.width), float32 in [0,1]
-    # result.metadata: renderer, version, settings, seconds, samples, adaptive_fraction, ...
+    # result.metadata: renderer, version, settings, seconds, coverage, samples, ...
+    point = r.render(model, pattern, Rt_cam_board,
+                     RenderSettings(spp=16, options={"coverage": "point"}))
 
-Every subsample is an exact ray of the camera model: the unprojection of
+A pixel is the mean albedo over its area [ix-0.5, ix+0.5) x [iy-0.5, iy+0.5)
+(reference_models.conventions). By default (coverage "area", see "Area
+coverage" below) a pixel that sees an edge gets that mean exactly, integrated
+over the pixel's preimage on the board; K (RenderSettings.spp) then sets only
+the K x K point sampling of the few pixels where the exact integral is not
+used (a corner ray that misses the plane, a preimage too curved, overlapping
+circles: metadata area_point_sampled_fraction). With coverage "point" (kept
+for comparison) every pixel is the average of K x K subsamples at
+(ix + (i+0.5)/K - 0.5, iy + (j+0.5)/K - 0.5), i, j = 0..K-1.
+
+Every sample is an exact ray of the camera model: the unprojection of
 reference_models.cahvore compiled with numba (float64, no fastmath), including
 the moving entrance pupil of a noncentral CAHVORE (E != 0). The ray meets the
 board plane z = 0 (board frame: Rt_board_ref = inverse of
 compose(model.Rt_ref_cam(), Rt_cam_board)) and the albedo of the
-targets.pattern.Pattern there is the sample. A pixel is the average of K x K
-subsamples at (ix + (i+0.5)/K - 0.5, iy + (j+0.5)/K - 0.5), i, j = 0..K-1: the
-area coverage of the pixel [ix-0.5, ix+0.5) x [iy-0.5, iy+0.5)
-(reference_models.conventions).
+targets.pattern.Pattern there is the sample.
 
 Adaptive mode gives the same image as full supersampling, bit for bit. A pixel
 is the area average computed from integer counts of the materials its
@@ -49,9 +58,9 @@ different albedos, circle outlines; circles are found through a bucket grid):
    footprint is far from affine (near the board plane's horizon) or whose
    neighbours miss the plane are traced in full.
 
-Area coverage (RenderSettings(options={"coverage": "area"}); point sampling
-stays the default): the pixels that the steps above find uniform are filled as
-before; every other pixel gets the albedo integrated exactly over its
+Area coverage (the default; RenderSettings.options "coverage" = "area"): the
+pixels that the steps above find uniform are filled as before (their value is
+exact either way, so adaptive = False changes nothing under area coverage); every other pixel gets the albedo integrated exactly over its
 preimage on the board, the polygon through the board points of exact rays at
 its corners (an (n+1) x (n+1) grid where n = 2, 4, 8 is needed), weighted by
 the pixel-to-board density (linear in each quadrilateral). The board
@@ -64,7 +73,11 @@ overlap near the pixel, the pixel is K x K point sampled instead
 (metadata area_point_sampled_fraction). tests/test_raycast_area.py checks
 edge pixels against an exact line-by-line integral.
 
-tests/test_raycast.py checks adaptive == full bit for bit on several cameras,
+The coverage names the records (renderers.base.DEFAULT_OPTIONS: a fullname
+says "coverage=area" whether the settings give it or not), so records of
+point sampling, the default before, never join those of area coverage.
+
+tests/test_raycast.py checks point sampling's adaptive == full bit for bit on several cameras,
 targets and poses (including noncentral CAHVOREs at K = 16).
 
 The rays of the pixel centres (and a one-pixel ring) are cached per camera
@@ -89,9 +102,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from reference_models.errors import CamvalError
-from renderers.base import RendererError, RenderResult, RenderSettings
+from renderers.base import DEFAULT_OPTIONS, RendererError, RenderResult, RenderSettings
 
-RAYCAST_VERSION = "1.0"
+# 2.0: area coverage is the default
+RAYCAST_VERSION = "2.0"
+COVERAGES = ("area", "point")
+DEFAULT_COVERAGE = DEFAULT_OPTIONS["raycast"]["coverage"]
 DEFAULT_CACHE_BYTES = 1 << 30
 # the image is rendered in tiles of TILE x TILE pixels; a tile far from every edge is
 # filled without looking at its pixels
@@ -473,17 +489,20 @@ ARGUMENTS
 - scene: a targets.pattern.Pattern (or anything with a .pattern() method
   returning one, such as a target)
 - Rt_cam_board: (4,3) the board in the camera frame model.Rt_ref_cam()
-- settings: RenderSettings (spp = K, adaptive); default K = 16, adaptive
+- settings: RenderSettings (spp = K, adaptive, options "coverage": "area" (the
+  default) or "point", "area_tolerance"); default K = 16, adaptive, area
 
 RETURNED VALUE
 
 RenderResult(image, metadata). metadata: renderer, version, settings, seconds,
-samples (rays traced in this render: subsample rays and the pixel-centre rays
+coverage, samples (rays traced in this render: subsample rays and the pixel-centre rays
 that start their Newton solves; the cached pixel-centre rays are not counted),
 adaptive_fraction (pixels supersampled / pixels), board_fraction (pixels whose
 centre ray sees the board; 0 for a board behind the camera, which renders as
 blank background), blocks_tested and pixels_tested (adaptive bookkeeping),
-ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
+ray_cache ("cold" or "warm"), ray_cache_seconds, threads; under area coverage
+also area_tolerance, area_fraction (pixels integrated exactly / pixels) and
+area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
 '''
         import numba
 
@@ -547,9 +566,9 @@ ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
             "ray_cache": "cold" if cold else "warm",
             "ray_cache_seconds": t_rays,
             "threads": numba.get_num_threads(),
+            "coverage": "area" if area else "point",
         }
         if area:
-            metadata["coverage"] = "area"
             metadata["area_tolerance"] = tol
             metadata["area_fraction"] = float(total[6]) / (W * H)
             metadata["area_point_sampled_fraction"] = float(total[7]) / (W * H)
@@ -557,14 +576,14 @@ ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
 
 
 def _coverage(settings):
-    r'''(area, tolerance) from settings.options: coverage "point" (the default: K x K point
-samples) or "area" (exact covered area of edge pixels, within area_tolerance of a
-pixel's area; default AREA_TOLERANCE)'''
+    r'''(area, tolerance) from settings.options: coverage "area" (DEFAULT_COVERAGE: exact
+covered area of edge pixels, within area_tolerance of a pixel's area; default
+AREA_TOLERANCE) or "point" (K x K point samples)'''
     options = settings.options or {}
-    coverage = options.get("coverage", "point")
-    if coverage not in ("point", "area"):
-        raise CamvalError(f"coverage = {coverage!r}; expected \"point\" (K x K point samples) "
-                          "or \"area\" (exact covered area of edge pixels)")
+    coverage = options.get("coverage", DEFAULT_COVERAGE)
+    if coverage not in COVERAGES:
+        raise CamvalError(f"coverage = {coverage!r}; expected \"area\" (exact covered area of "
+                          "edge pixels, the default) or \"point\" (K x K point samples)")
     tol = options.get("area_tolerance", AREA_TOLERANCE)
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0.0 < tol < 1.0):
         raise CamvalError(f"area_tolerance = {tol!r}; expected a fraction of a pixel's area "

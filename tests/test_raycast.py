@@ -1,4 +1,4 @@
-r'''The exact ray-cast renderer: rays, pixel convention, adaptive == full, bad input'''
+r'''The exact ray-cast renderer: rays, pixel convention, point sampling's adaptive == full, bad input'''
 
 import math
 
@@ -16,6 +16,12 @@ from targets.boards import load_target
 from targets.centroids import board_to_ref, polygon_centroid
 from targets.pattern import Pattern
 from targets.poses import plan_poses
+
+
+def point(spp, adaptive=True):
+    r'''Settings of K x K point sampling: what most tests here check (subsample rays,
+adaptive == full); area coverage, the default, is tests/test_raycast_area.py'''
+    return RenderSettings(spp=spp, adaptive=adaptive, options={"coverage": "point"})
 
 
 def _pinhole_parts(width, height, f, cx=None, cy=None):
@@ -154,7 +160,7 @@ computed by the reference model (independent of the kernels)'''
     model = small_models()[name]
     pattern = dot_pattern()
     Rt = board_pose(model, 0.9, (25, -20, 5))
-    image = RaycastRenderer().render(model, pattern, Rt, RenderSettings(spp=1)).image
+    image = RaycastRenderer().render(model, pattern, Rt, point(spp=1)).image
     from reference_models.conventions import pixel_centres
     origin, v = model.unproject(pixel_centres(model.width, model.height))
     Rt_br = Rt_board_ref(model, Rt)
@@ -176,7 +182,7 @@ iy + (j+0.5)/3 - 0.5) of the reference model'''
     pattern = dot_pattern()
     Rt = board_pose(model, 0.9, (-15, 25, 40))
     image = RaycastRenderer().render(model, pattern, Rt,
-                                     RenderSettings(spp=K, adaptive=False)).image
+                                     point(spp=K, adaptive=False)).image
     off = (np.arange(K) + 0.5) / K - 0.5
     iy, ix = np.mgrid[0:model.height, 0:model.width]
     Rt_br = Rt_board_ref(model, Rt)
@@ -225,7 +231,7 @@ and the area sampling'''
                       board_value=1.0, background_value=1.0,
                       circles=np.array([[0.0, 0.0, radius]]), circle_value=0.0)
     # K = 64: the K x K grid errs by ~1e-3 px at K = 16, ~1e-4 px at K = 64 (measured)
-    result = RaycastRenderer().render(model, pattern, Rt, RenderSettings(spp=64))
+    result = RaycastRenderer().render(model, pattern, Rt, point(spp=64))
     t = np.linspace(0, 2 * math.pi, 1440, endpoint=False)
     outline = np.stack((radius * np.cos(t), radius * np.sin(t), 0 * t), axis=-1)
     q = model.project(board_to_ref(model, Rt, outline))
@@ -249,8 +255,8 @@ def test_adaptive_equals_full_supersampling_bit_for_bit(name, K):
                                                                  offset=(0.2, -0.1))):
         for pattern in (dot_pattern(), load_target("chessboard").pattern(),
                         load_target("apriltag").pattern()):
-            a = r.render(model, pattern, Rt, RenderSettings(spp=K, adaptive=True))
-            f = r.render(model, pattern, Rt, RenderSettings(spp=K, adaptive=False))
+            a = r.render(model, pattern, Rt, point(spp=K, adaptive=True))
+            f = r.render(model, pattern, Rt, point(spp=K, adaptive=False))
             assert a.metadata["board_fraction"] > 0.01
             assert 0 < a.metadata["adaptive_fraction"] < 0.8
             assert f.metadata["adaptive_fraction"] == 1.0
@@ -269,13 +275,13 @@ K = 16, on the rows of the image where the target is'''
     tgt = load_target(target)
     r = RaycastRenderer()
     Rt = plan_poses(model, tgt, n=6, seed=0)[slot % 6]
-    a = r.render(model, tgt.pattern(), Rt, RenderSettings(spp=16))
+    a = r.render(model, tgt.pattern(), Rt, point(spp=16))
     # full supersampling of a band of rows through the board (all of it is too slow here)
     rows = np.flatnonzero((a.image != a.image[0, 0]).any(axis=1))
     start = int(np.clip(rows[len(rows) // 2] - 24, 0, model.height - 48))
     band = slice(start, start + 48)
     crop = model.replace(V=model.V - band.start * model.A, height=48)
-    f = r.render(crop, tgt.pattern(), Rt, RenderSettings(spp=16, adaptive=False))
+    f = r.render(crop, tgt.pattern(), Rt, point(spp=16, adaptive=False))
     assert np.array_equal(a.image[band], f.image)
     assert len(np.unique(f.image)) > 50
 
@@ -437,8 +443,8 @@ image, part of the board recedes to grazing angles (footprints far from affine)'
     r = RaycastRenderer()
     big = dot_pattern(n=20, spacing=0.1, r=0.03)
     Rt = board_pose(model, 0.4, (80, 0, 10), centre=(0.95, 0.95))
-    a = r.render(model, big, Rt, RenderSettings(spp=6))
-    f = r.render(model, big, Rt, RenderSettings(spp=6, adaptive=False))
+    a = r.render(model, big, Rt, point(spp=6))
+    f = r.render(model, big, Rt, point(spp=6, adaptive=False))
     assert 0.05 < a.metadata["board_fraction"] < 0.9
     assert np.array_equal(a.image, f.image)
     # the horizon: some pixel rows see the plane, the top ones do not
