@@ -81,15 +81,21 @@ tests/test_raycast.py checks point sampling's adaptive == full bit for bit on se
 targets and poses (including noncentral CAHVOREs at K = 16).
 
 The rays of the pixel centres (and a one-pixel ring) are cached per camera
-model: 24 bytes per pixel, 32 for a noncentral CAHVORE (0.63 GB for a
-5120x3840 camera); subsample rays are traced on the fly. The cached rays
-(reference_models.kernels.build_ray_cache: exact to the floating-point
-level, directions not normalised) only decide where to look closer, within
-the slack of the bounds above; no pixel's value is read from them. The cache is bounded
-(cache_bytes, least recently used models are dropped). The models a new one
-displaces are dropped before its rays are traced, and their arrays, when of
-its shapes and held by no render, are overwritten with its rays (no second
-0.5 GB cache in memory, no fresh pages to fault in).
+model: 24 bytes per pixel, 32 for a noncentral CAHVORE; subsample rays are
+traced on the fly. The cached rays (renderers._raycast_kernels.fill_centre_rays:
+exact to the floating-point level, directions not normalised) only decide
+where to look closer, within the slack of the bounds above; no pixel's value
+is read from them. The cache is bounded (cache_bytes, least recently used
+models are dropped). The models a new one displaces are dropped before its
+rays are traced, and their arrays, when of its shapes and held by no render,
+are overwritten with its rays (no second cache in memory, no fresh pages to
+fault in). A camera whose cache would exceed lazy_above_bytes (LAZY_ABOVE_BYTES,
+1/4 GB: a 5120x3840 camera, 0.47 GB, 0.63 GB noncentral) has none: each tile
+traces the centre rays it reads, its ring's and, when the ring does not show
+it uniform, its interior's (tiles outside the board's image are a fill). The
+rays are traced in runs along a row that start at fixed columns, so the
+traced rays are the cached ones bit for bit, and so are the pixels
+(tests/test_raycast.py).
 '''
 
 import math
@@ -109,6 +115,11 @@ RAYCAST_VERSION = "2.0"
 COVERAGES = ("area", "point")
 DEFAULT_COVERAGE = DEFAULT_OPTIONS["raycast"]["coverage"]
 DEFAULT_CACHE_BYTES = 1 << 30
+# a camera whose whole-image ray cache would be larger than this has no cache: each render
+# traces the centre rays of the tiles it looks into (lazy). 1/4 GB: every catalogue camera up
+# to 2.5 Mpixel keeps its cache; a 5120x3840 one (0.47 GB, 0.63 GB noncentral) renders in a
+# few hundred MB
+LAZY_ABOVE_BYTES = 1 << 28
 # the image is rendered in tiles of TILE x TILE pixels; a tile far from every edge is
 # filled without looking at its pixels
 TILE = 32
@@ -385,11 +396,15 @@ class RaycastRenderer:
 
 SYNOPSIS
 
-    r = RaycastRenderer(cache_bytes=1 << 30, threads=None, shared_cache=True)
+    r = RaycastRenderer(cache_bytes=1 << 30, threads=None, shared_cache=True,
+                        lazy_above_bytes=1 << 28)
     result = r.render(model, pattern, Rt_cam_board, RenderSettings(spp=16))
 
 cache_bytes bounds the memory of the per-camera ray cache (the least recently
 used cameras are dropped when a new one is added; the newest is always kept);
+a camera whose cache would take more than lazy_above_bytes gets none: each
+render traces the centre rays of the tiles it looks into (the same rays, so
+the same pixels: metadata ray_cache "lazy"; 0 = always);
 by default all RaycastRenderers of a process share one cache, so a renderer
 made per job still finds the rays of a camera it has seen. threads sets
 numba's thread count (default: all).
@@ -400,9 +415,14 @@ numba's thread count (default: all).
     # alike get the same images (campaigns render them once: harness.runner.group_twins)
     camera_frame_exact = True
 
-    def __init__(self, cache_bytes=DEFAULT_CACHE_BYTES, threads=None, shared_cache=True):
+    def __init__(self, cache_bytes=DEFAULT_CACHE_BYTES, threads=None, shared_cache=True,
+                 lazy_above_bytes=LAZY_ABOVE_BYTES):
         if not (isinstance(cache_bytes, int) and cache_bytes >= 0):
             raise CamvalError(f"cache_bytes = {cache_bytes!r}; expected an integer >= 0")
+        if not (isinstance(lazy_above_bytes, int) and lazy_above_bytes >= 0):
+            raise CamvalError(f"lazy_above_bytes = {lazy_above_bytes!r}; expected an "
+                              "integer >= 0")
+        self.lazy_above_bytes = lazy_above_bytes
         if threads is not None and not (isinstance(threads, int) and threads >= 1):
             raise CamvalError(f"threads = {threads!r}; expected a positive integer")
         self.cache_bytes = cache_bytes
@@ -419,8 +439,12 @@ numba's thread count (default: all).
 
     # --- the per-camera ray cache --------------------------------------------
     def rays(self, model):
-        r'''(cam, dirs, shift, noncentral, cold) of a model, from the cache or traced now'''
+        r'''(cam, dirs, shift, noncentral, cold) of a model, from the cache or traced now;
+dirs is None for a camera rendered without a cache (lazy_above_bytes)'''
         from reference_models import kernels
+        from renderers import _raycast_kernels as kern
+        if ray_cache_bytes(model) > self.lazy_above_bytes:
+            return kernels.pack_model(model), None, None, not model.is_central, False
         key = _model_key(model)
         with self._lock:
             entry = self._rays.get(key)
@@ -430,10 +454,13 @@ numba's thread count (default: all).
             cam = kernels.pack_model(model)
             noncentral = not model.is_central
             W, H = model.width, model.height
-            nbytes = (H + 2) * (W + 2) * (32 if noncentral else 24) + (0 if noncentral else 8)
-            out = self._evict_for(nbytes, (H + 2, W + 2, 3),
-                                  (H + 2, W + 2) if noncentral else (1, 1))
-            dirs, shift = kernels.build_ray_cache(cam, W, H, noncentral, out=out)
+            dshape = (H + 2, W + 2, 3)
+            sshape = (H + 2, W + 2) if noncentral else (1, 1)
+            dirs, shift = self._evict_for(ray_cache_bytes(model), dshape, sshape)
+            # a dropped camera's arrays are overwritten: every element is written
+            dirs = np.empty(dshape) if dirs is None else dirs
+            shift = np.zeros(sshape) if shift is None else shift
+            kern.fill_centre_rays(cam, dirs, shift, noncentral)
             entry = (cam, dirs, shift, noncentral)
             self._rays[key] = entry
             return entry + (True,)
@@ -500,7 +527,8 @@ that start their Newton solves; the cached pixel-centre rays are not counted),
 adaptive_fraction (pixels supersampled / pixels), board_fraction (pixels whose
 centre ray sees the board; 0 for a board behind the camera, which renders as
 blank background), blocks_tested and pixels_tested (adaptive bookkeeping),
-ray_cache ("cold" or "warm"), ray_cache_seconds, threads; under area coverage
+ray_cache ("cold", "warm" or "lazy": no cache, the centre rays traced in
+the render), ray_cache_seconds, threads; under area coverage
 also area_tolerance, area_fraction (pixels integrated exactly / pixels) and
 area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
 '''
@@ -532,6 +560,9 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
         t1 = time.perf_counter()
         cam, dirs, shift, noncentral, cold = self.rays(model)
         t_rays = time.perf_counter() - t1
+        lazy = dirs is None
+        if lazy:
+            dirs, shift = np.zeros((1, 1, 3)), np.zeros((1, 1))
 
         R = Rt[:3]
         t = Rt[3]
@@ -541,13 +572,9 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
         out = np.empty((H, W), dtype=np.float32)
         stats = np.zeros((-(-H // TILE), 8 if area else 6), dtype=np.int64)
         qbox = board_image_box(model, Rt_cam_board, cp.f[:4])
-        if area:
-            kern.render_kernel(cam, dirs, shift, noncentral, xf, K, True, TILE, cp.values, out,
-                               stats, cp.kernel_args(), qbox, numba.get_num_threads(), True, tol)
-        else:
-            kern.render_kernel(cam, dirs, shift, noncentral, xf, K, bool(settings.adaptive), TILE,
-                               cp.values, out, stats, cp.kernel_args(), qbox,
-                               numba.get_num_threads())
+        kern.render_kernel(cam, dirs, shift, noncentral, xf, K, area or bool(settings.adaptive),
+                           TILE, cp.values, out, stats, cp.kernel_args(), qbox,
+                           numba.get_num_threads(), area, tol, lazy)
         total = stats.sum(axis=0)
         if total[5] != 0:
             raise RendererError(f"the ray-cast renderer produced {int(total[5])} non-finite "
@@ -563,7 +590,7 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
             "board_fraction": float(total[2]) / (W * H),
             "blocks_tested": int(total[3]),
             "pixels_tested": int(total[4]),
-            "ray_cache": "cold" if cold else "warm",
+            "ray_cache": "lazy" if lazy else "cold" if cold else "warm",
             "ray_cache_seconds": t_rays,
             "threads": numba.get_num_threads(),
             "coverage": "area" if area else "point",
@@ -573,6 +600,14 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
             metadata["area_fraction"] = float(total[6]) / (W * H)
             metadata["area_point_sampled_fraction"] = float(total[7]) / (W * H)
         return RenderResult(image=out, metadata=metadata)
+
+
+def ray_cache_bytes(model):
+    r'''The bytes of a camera's whole-image ray cache: 24 per pixel and ring pixel, 32 for
+a noncentral CAHVORE'''
+    noncentral = not model.is_central
+    return ((model.height + 2) * (model.width + 2) * (32 if noncentral else 24)
+            + (0 if noncentral else 8))
 
 
 def _coverage(settings):

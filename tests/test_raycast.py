@@ -464,3 +464,44 @@ def test_non_finite_pixels_are_counted_per_band():
     assert kern._count_nonfinite(out, 0, 3) == 1
     assert kern._count_nonfinite(out, 3, 6) == 2
     assert kern._count_nonfinite(out, 0, 6) == 3
+
+
+# --- the lazy ray cache ---------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["cahvor", "cahvore-noncentral", "cahvore-fisheye"])
+def test_lazy_rays_render_the_cached_pixels_bit_for_bit(name):
+    r'''A camera rendered without a ray cache (lazy_above_bytes=0: each tile traces the
+centre rays it reads) gives the pixels of the cached render, bit for bit, in area and
+point coverage, whatever was rendered before in the process: the traced rays are the
+cached ones (runs of RAY_RUN from fixed columns)'''
+    model = small_models()[name]
+    cached = RaycastRenderer(shared_cache=False)
+    lazy = RaycastRenderer(shared_cache=False, lazy_above_bytes=0)
+    for Rt in (board_pose(model, 0.7, (25, -20, 5)),
+               board_pose(model, 1.2, (-40, 30, 60), offset=(0.2, -0.1))):
+        for pattern in (dot_pattern(), load_target("chessboard").pattern()):
+            for settings in (RenderSettings(spp=4), point(spp=4)):
+                a = cached.render(model, pattern, Rt, settings)
+                b = lazy.render(model, pattern, Rt, settings)
+                assert b.metadata["ray_cache"] == "lazy"
+                assert a.metadata["ray_cache"] in ("cold", "warm")
+                assert np.array_equal(a.image, b.image)
+                assert a.metadata["pixels_tested"] == b.metadata["pixels_tested"]
+                assert a.metadata["board_fraction"] == b.metadata["board_fraction"]
+    assert not lazy._rays
+
+
+@pytest.mark.parametrize("name", ["cahv", "cahvor", "cahvore-noncentral", "cahvore-fisheye"])
+def test_renderer_ray_cache_equals_model_unproject(name):
+    r'''The renderer's cache (fill_centre_rays: runs of RAY_RUN along a row) to the same
+level as reference_models.kernels.build_ray_cache's'''
+    model = small_models()[name]
+    W, H = model.width, model.height
+    cam, dirs, shift, noncentral, cold = RaycastRenderer(shared_cache=False).rays(model)
+    assert cold and noncentral == (not model.is_central) and dirs.shape == (H + 2, W + 2, 3)
+    q = np.stack(np.meshgrid(np.arange(-1.0, W + 1), np.arange(-1.0, H + 1)), axis=-1)
+    origin, v = model.unproject(q)
+    np.testing.assert_allclose(dirs / np.linalg.norm(dirs, axis=-1, keepdims=True), v,
+                               rtol=0, atol=1e-12)
+    if noncentral:
+        np.testing.assert_allclose(model.C + shift[..., None] * model.O, origin, rtol=0,
+                                   atol=1e-12)
