@@ -60,8 +60,9 @@ different albedos, circle outlines; circles are found through a bucket grid):
 
 Area coverage (the default; RenderSettings.options "coverage" = "area"): the
 pixels that the steps above find uniform are filled as before (their value is
-exact either way, so adaptive = False changes nothing under area coverage); every other pixel gets the albedo integrated exactly over its
-preimage on the board, the polygon through the board points of exact rays at
+exact either way, so adaptive = False changes nothing under area coverage);
+every other pixel gets the albedo integrated exactly over its preimage on
+the board, the polygon through the board points of exact rays at
 its corners (an (n+1) x (n+1) grid where n = 2, 4, 8 is needed), weighted by
 the pixel-to-board density (linear in each quadrilateral). The board
 rectangle and the cells are clipped out of it, the circles integrated along

@@ -1,4 +1,5 @@
-r'''The exact ray-cast renderer: rays, pixel convention, point sampling's adaptive == full, bad input'''
+r'''The exact ray-cast renderer: rays, pixel convention, point sampling's adaptive == full,
+the lazy ray cache, bad input'''
 
 import math
 

@@ -161,8 +161,8 @@ def test_report_files(run_dir):
                 "speed_accuracy"):
         assert f"{key}.png" in names
     # one map figure per render setting
-    assert "maps_jpl_raycast_spp_4_adaptive_.png" in names
-    assert "maps_jpl_raycast_spp_16_adaptive_.png" in names
+    assert "maps_jpl_raycast_spp_4_adaptive_coverage_area_.png" in names
+    assert "maps_jpl_raycast_spp_16_adaptive_coverage_area_.png" in names
     for p in paths["figures"]:
         assert Path(p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert html.count("<img ") == len(names)
