@@ -998,7 +998,9 @@ mode where area coverage is not computed"""
             v, n = _area_value(cam, xf, ix, iy, px, py, r, tol, jac, hess, cand, values, grid,
                                poly, pat, corners, iy - k + 1)
             if v - v == 0.0:
-                return v, n, 2
+                # a mean of albedos in [0, 1]: the sum of signed moments can round past the
+                # ends (-2e-16 where a pixel is all background 0)
+                return min(max(v, 0.0), 1.0), n, 2
             v, n2 = _supersample(cam, xf, ix, iy, K, offs, counts, stack, True, jac, values,
                                  pat)
             return v, n + n2, 3

@@ -202,6 +202,8 @@ pixels are ~100x farther off'''
     point = r.render(model, pattern, Rt, RenderSettings(spp=16, options={"coverage": "point"}))
     md = area.metadata
     assert md["coverage"] == "area"
+    # a mean of albedos: never past [0, 1], rounding included (an external renderer's check)
+    assert area.image.min() >= 0.0 and area.image.max() <= 1.0
     assert md["area_fraction"] > 0.02
     assert md["area_point_sampled_fraction"] == 0.0
     img = area.image.astype(np.float64)

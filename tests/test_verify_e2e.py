@@ -138,9 +138,11 @@ def test_interrupted_run_resumes_and_dask_agrees(tmp_path):
 
 
 def test_gate_fails_an_aliased_renderer(tmp_path):
-    # K=1, no supersampling: the aliasing the paper's renderer had; the default gate catches it
+    # K=1 point sampling, no supersampling: the aliasing the paper's renderer had; the default
+    # gate catches it (the ray caster's default area coverage has none)
     small = dict(SMALL, cameras=[17], models=["CAHV"],
-                 renderer=[{"name": "raycast", "spp": 1, "adaptive": False}])
+                 renderer=[{"name": "raycast", "spp": 1, "adaptive": False,
+                            "options": {"coverage": "point"}}])
     run = tmp_path / "k1"
     doc = run_campaign(parse_campaign(small), run, workers=1, progress=False)
     (rec,) = doc["records"].values()
@@ -153,5 +155,5 @@ def test_gate_fails_an_aliased_renderer(tmp_path):
     spec.write_text((ROOT / "campaigns" / "gate.toml").read_text().replace("[spp=16,", "[spp=1,"))
     out = _camval("gate", run, "--spec", spec, timeout=300)
     assert out.returncode == 1
-    assert "17/CAHV/dots/raycast[spp=1,full,coverage=area]/jpl[CAHV]" in out.stdout
+    assert "17/CAHV/dots/raycast[spp=1,full,coverage=point]/jpl[CAHV]" in out.stdout
     assert "residuals.rms" in out.stdout
