@@ -113,8 +113,8 @@ def test_interrupted_run_resumes_and_dask_agrees(tmp_path):
     for name, mtime in before.items():
         assert (run / "records" / name).stat().st_mtime_ns == mtime
     assert len(doc["records"]) == 4
-    assert doc["records"]["15/CAHVORE/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHVORE]"]["status"] \
-        == "not-applicable"
+    key = "15/CAHVORE/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHVORE]"
+    assert doc["records"][key]["status"] == "not-applicable"
     assert (run / "report" / "report.html").is_file()
 
     # the same campaign on a Dask cluster gives the same records as the resumed local run.
