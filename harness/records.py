@@ -10,14 +10,14 @@ SYNOPSIS
     doc = store.assemble()                     # writes run.json (atomic), returns it
 
     doc = load_run("runs/20261122T150000Z")   # a run dir or a run.json
-    doc["records"]["15/CAHVOR/dots/raycast[spp=16,adaptive]/jpl[CAHVOR]"]["projection"]["rms"]
+    doc["records"]["15/CAHVOR/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHVOR]"]["projection"]["rms"]
 
 One Record per camera x model family x target x renderer setting x calibrator
 (and its model), keyed by a stable `fullname`
 
     camera/model/target/renderer[settings]/calibrator[model]
 
-e.g. "15/CAHVOR/dots/raycast[spp=16,adaptive]/jpl[CAHVOR]". Records are plain
+e.g. "15/CAHVOR/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHVOR]". Records are plain
 JSON (json.dumps(..., allow_nan=False): NaN and inf are stored as null).
 
 A run directory holds
@@ -104,7 +104,7 @@ always had, so clean records keep their fullnames.
 
 
 def renderer_key(renderer, settings):
-    r'''The renderer's part of a fullname: "label[settings]" ("raycast[spp=16,adaptive]")
+    r'''The renderer's part of a fullname: "label[settings]" ("povray[spp=16,adaptive,camera=mesh]")
 
 The label is settings["label"] when the campaign gives one, else the
 renderer's name; settings["setup"] (how the renderer is run: a command, a

@@ -28,7 +28,8 @@ def test_shipped_campaigns_load_and_validate():
     jobs = expand_jobs(paper)
     assert len(jobs) == 22 * 3
     assert jobs[0].key == "1/CAHV/dots/raycast[spp=16,adaptive,coverage=area]"
-    assert jobs[0].fullname("jpl", "CAHV") == "1/CAHV/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHV]"
+    assert jobs[0].fullname("jpl", "CAHV") == \
+        "1/CAHV/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHV]"
     assert len({j.key for j in jobs}) == len(jobs)
 
 
@@ -46,8 +47,10 @@ models = ["family", "CAHV"]
 '''))
     jobs = expand_jobs(c)
     assert [j.key for j in jobs] == [
-        "17/CAHVOR/dots/raycast[spp=1,adaptive,coverage=area]", "17/CAHVOR/dots/raycast[spp=1,full,coverage=area]",
-        "17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]", "17/CAHVOR/dots/raycast[spp=4,full,coverage=area]"]
+        "17/CAHVOR/dots/raycast[spp=1,adaptive,coverage=area]",
+        "17/CAHVOR/dots/raycast[spp=1,full,coverage=area]",
+        "17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]",
+        "17/CAHVOR/dots/raycast[spp=4,full,coverage=area]"]
     assert jobs[0].calibrators == (("jpl", "CAHVOR", {}), ("jpl", "CAHV", {}))
     assert Campaign.from_dict(c.as_dict()) == c
 
@@ -170,9 +173,10 @@ shot_noise = {}
 psf = {sigma_px = 2.0}
 '''))
     jobs = expand_jobs(c)
-    assert [j.key for j in jobs] == ["17/CAHV/dots/raycast[spp=4,adaptive,coverage=area,response=blur]",
-                                     "17/CAHV/dots/raycast[spp=4,adaptive,coverage=area]",
-                                     "17/CAHV/dots/raycast[spp=1,adaptive,coverage=area,response=noise]"]
+    assert [j.key for j in jobs] == [
+        "17/CAHV/dots/raycast[spp=4,adaptive,coverage=area,response=blur]",
+        "17/CAHV/dots/raycast[spp=4,adaptive,coverage=area]",
+        "17/CAHV/dots/raycast[spp=1,adaptive,coverage=area,response=noise]"]
     assert [j.response_name for j in jobs] == ["blur", "clean", "noise"]
     assert {j.seed for j in jobs} == {5}
     assert Campaign.from_dict(c.as_dict()) == c

@@ -176,8 +176,8 @@ a few ulp of a ~100 px coordinate, 1e-14 px), the reasons and misfits as well'''
 
 
 def test_corners_campaign_renders_the_corner_targets_with_area_coverage():
-    r'''campaigns/corners.toml: apriltag and chessboard on the ray caster's exact covered-area
-coverage, its default (point sampling at K=16 resolves an edge near the pixel grid only to 1/32 px)'''
+    r'''campaigns/corners.toml: apriltag and chessboard on the ray caster's exact area coverage,
+its default (point sampling at K=16 resolves an edge near the pixel grid only to 1/32 px)'''
     from pathlib import Path
 
     from harness.campaign import load_campaign

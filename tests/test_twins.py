@@ -63,7 +63,8 @@ def test_paper_campaign_folds_the_derived_slots():
            for f in ("CAHV", "CAHVOR", "CAHVORE")},
         **{f"9/{f}/dots/raycast[spp=16,adaptive,coverage=area]": ["10", "11", "12"]
            for f in ("CAHV", "CAHVOR", "CAHVORE")},
-        **{f"13/{f}/dots/raycast[spp=16,adaptive,coverage=area]": ["14"] for f in ("CAHV", "CAHVOR")},
+        **{f"13/{f}/dots/raycast[spp=16,adaptive,coverage=area]": ["14"]
+           for f in ("CAHV", "CAHVOR")},
         **{f"17/{f}/dots/raycast[spp=16,adaptive,coverage=area]": ["18"]
            for f in ("CAHV", "CAHVOR", "CAHVORE")}}
     # every job is there once, as itself or as a twin
@@ -125,7 +126,8 @@ def test_shared_records_equal_unshared_records(tmp_path):
     assert sorted(shared) == sorted(alone) and len(shared) == 6
     for k in shared:
         assert _without_sharing_info(shared[k]) == _without_sharing_info(alone[k]), k
-    assert docs[True]["execution"]["twins"] == {"17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]": ["18"]}
+    assert docs[True]["execution"]["twins"] == {
+        "17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]": ["18"]}
     assert docs[True]["execution"]["jobs_run"] == 2
     facts = dict(run_facts(docs[True]))
     assert facts["cameras rendered once for others (identical in their camera frames)"] == \
@@ -136,8 +138,8 @@ def test_shared_records_equal_unshared_records(tmp_path):
     assert jpl["info"]["shared"] == {"with": "17", "stages": ["poses", "render", "detect"]}
     assert mrcal["info"]["shared"] == {"with": "17",
                                        "stages": ["poses", "render", "detect", "calibrate"]}
-    assert shared["17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHVOR]"]["info"]["shared"] == \
-        {"twins": ["18"]}
+    jpl17 = "17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHVOR]"
+    assert shared[jpl17]["info"]["shared"] == {"twins": ["18"]}
     # the twin's own work is timed, the shared work is not counted twice
     assert jpl["seconds"]["render"] == 0.0 and jpl["seconds"]["detect"] == 0.0
     assert jpl["seconds"]["calibrate"] > 0.0 and mrcal["seconds"]["calibrate"] == 0.0
