@@ -328,6 +328,15 @@ def test_ray_cache_is_reused_and_bounded():
                     RenderSettings(spp=1)).metadata["ray_cache"] == "cold"
 
 
+def _fresh_rays(m):
+    r'''(dirs, shift) of the renderer's ray cache of m in new arrays'''
+    noncentral = not m.is_central
+    dirs = np.empty((m.height + 2, m.width + 2, 3))
+    shift = np.zeros((m.height + 2, m.width + 2) if noncentral else (1, 1))
+    kern.fill_centre_rays(kernels.pack_model(m), dirs, shift, noncentral)
+    return dirs, shift
+
+
 def test_a_dropped_ray_cache_is_overwritten_by_the_next_camera_of_its_shapes():
     r'''The arrays of the camera that a new one evicts are reused when nothing holds them;
 the rays written over them equal a fresh cache, and a render's arrays are never reused'''
@@ -340,17 +349,17 @@ the rays written over them equal a fresh cache, and a render's arrays are never 
         m = models[name]
         entry = r.rays(m)
         assert entry[1].ctypes.data != held[1].ctypes.data
-        fresh = kernels.build_ray_cache(kernels.pack_model(m), m.width, m.height, False)
+        fresh = _fresh_rays(m)
         assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
         held = entry
-    fresh = kernels.build_ray_cache(kernels.pack_model(models["cahvor"]), 200, 150, False)
+    fresh = _fresh_rays(models["cahvor"])
     assert np.array_equal(held[1], fresh[0])  # still the CAHVOR rays it was given
     pointer = held[1].ctypes.data
     del held, entry
     m = models["cahv"]
     entry = r.rays(m)
     assert entry[1].ctypes.data == pointer
-    fresh = kernels.build_ray_cache(kernels.pack_model(m), m.width, m.height, False)
+    fresh = _fresh_rays(m)
     assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
     assert entry[2].shape == (1, 1) and entry[2][0, 0] == 0.0
     # a noncentral camera of the same size reuses the directions, not the (1,1) shift
@@ -359,13 +368,12 @@ the rays written over them equal a fresh cache, and a render's arrays are never 
     del entry
     entry = r.rays(nc)
     assert entry[1].ctypes.data == pointer and entry[2].shape == (152, 202)
-    fresh = kernels.build_ray_cache(kernels.pack_model(nc), nc.width, nc.height, True)
+    fresh = _fresh_rays(nc)
     assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
     del entry
     entry = r.rays(m)
     assert entry[1].ctypes.data == pointer and entry[2].shape == (1, 1)
-    assert entry[2][0, 0] == 0.0 and np.array_equal(entry[1], kernels.build_ray_cache(
-        kernels.pack_model(m), m.width, m.height, False)[0])
+    assert entry[2][0, 0] == 0.0 and np.array_equal(entry[1], _fresh_rays(m)[0])
 
 
 def test_renderers_share_the_ray_cache_by_default():
