@@ -375,7 +375,7 @@ image of its jobs.
         rms = (r.get("projection") or {}).get("rms")
         if t is None or rms is None:
             continue
-        rlab = f"{r['renderer']}[{_settings_text(r['settings'])}]"
+        rlab = _renderer_text(r["renderer"], r["settings"])
         clab = r["calibrator"] + ("" if _calmodel(r) == "family" else f"[{_calmodel(r)}]")
         g = groups.setdefault((rlab, clab), {"t": {}, "rms": []})
         g["t"][r["fullname"].rsplit("/", 1)[0]] = t
@@ -384,9 +384,11 @@ image of its jobs.
              len(g["rms"])) for (rl, cl), g in sorted(groups.items())]
 
 
-def _settings_text(s):
-    from harness.records import settings_label
-    return settings_label(s)
+def _renderer_text(renderer, s):
+    r'''"raycast[spp=16,adaptive,coverage=area]": the renderer's name and its settings as
+in a fullname (with the options it applies by default)'''
+    from harness.records import renderer_key
+    return renderer_key(renderer, {k: v for k, v in s.items() if k != "label"})
 
 
 def pareto_front(points):
@@ -407,9 +409,10 @@ its points differ in supersampling K'''
     out = {}
     for r in records.values():
         s = r.get("settings") or {}
-        rlab = f"{r['renderer']}[{_settings_text(s)}]"
-        opts = ", ".join(f"{k}={_opt_text(v)}" for k, v in sorted((s.get("options") or {})
-                                                                  .items()))
+        rlab = _renderer_text(r["renderer"], s)
+        from renderers.base import DEFAULT_OPTIONS
+        options = {**DEFAULT_OPTIONS.get(r["renderer"], {}), **(s.get("options") or {})}
+        opts = ", ".join(f"{k}={_opt_text(v)}" for k, v in sorted(options.items()))
         series = r["renderer"] + ("" if s.get("adaptive", False) else " (full)")
         if opts:
             series += f" {opts}"

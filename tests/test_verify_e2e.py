@@ -40,12 +40,12 @@ def test_quick_campaign_end_to_end(tmp_path):
     assert len(recs) == 27
     na = [k for k, r in recs.items() if r["status"] == "not-applicable"]
     assert sorted(k for k in na if k.startswith("15/CAHVORE/")) == sorted(
-        f"15/CAHVORE/dots/raycast[spp=16,adaptive]/{c}"
+        f"15/CAHVORE/dots/raycast[spp=16,adaptive,coverage=area]/{c}"
         for c in ("jpl[CAHVORE]", "mrcal[CAHVORE]", "opencv[OPENCV5]"))
     assert sorted(na) == sorted(k for k in recs if k.startswith("15/CAHVORE/"))
     for cam in ("15", "17", "8"):
         for fam in ("CAHV", "CAHVOR") + (("CAHVORE",) if cam != "15" else ()):
-            r = recs[f"{cam}/{fam}/dots/raycast[spp=16,adaptive]/jpl[{fam}]"]
+            r = recs[f"{cam}/{fam}/dots/raycast[spp=16,adaptive,coverage=area]/jpl[{fam}]"]
             assert r["status"] == "ok", r["reason"]
             assert r["detections"]["n_found"] == r["detections"]["n_expected"] == 600
             # the paper got 1/30 px RMS and 0.14 px worst; exact K=16 ray casting does far better
@@ -113,8 +113,8 @@ def test_interrupted_run_resumes_and_dask_agrees(tmp_path):
     for name, mtime in before.items():
         assert (run / "records" / name).stat().st_mtime_ns == mtime
     assert len(doc["records"]) == 4
-    assert doc["records"]["15/CAHVORE/dots/raycast[spp=4,adaptive]/jpl[CAHVORE]"]["status"] \
-        == "not-applicable"
+    key = "15/CAHVORE/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHVORE]"
+    assert doc["records"][key]["status"] == "not-applicable"
     assert (run / "report" / "report.html").is_file()
 
     # the same campaign on a Dask cluster gives the same records as the resumed local run.
@@ -138,9 +138,11 @@ def test_interrupted_run_resumes_and_dask_agrees(tmp_path):
 
 
 def test_gate_fails_an_aliased_renderer(tmp_path):
-    # K=1, no supersampling: the aliasing the paper's renderer had; the default gate catches it
+    # K=1 point sampling, no supersampling: the aliasing the paper's renderer had; the default
+    # gate catches it (the ray caster's default area coverage has none)
     small = dict(SMALL, cameras=[17], models=["CAHV"],
-                 renderer=[{"name": "raycast", "spp": 1, "adaptive": False}])
+                 renderer=[{"name": "raycast", "spp": 1, "adaptive": False,
+                            "options": {"coverage": "point"}}])
     run = tmp_path / "k1"
     doc = run_campaign(parse_campaign(small), run, workers=1, progress=False)
     (rec,) = doc["records"].values()
@@ -153,5 +155,5 @@ def test_gate_fails_an_aliased_renderer(tmp_path):
     spec.write_text((ROOT / "campaigns" / "gate.toml").read_text().replace("[spp=16,", "[spp=1,"))
     out = _camval("gate", run, "--spec", spec, timeout=300)
     assert out.returncode == 1
-    assert "17/CAHV/dots/raycast[spp=1,full]/jpl[CAHV]" in out.stdout
+    assert "17/CAHV/dots/raycast[spp=1,full,coverage=point]/jpl[CAHV]" in out.stdout
     assert "residuals.rms" in out.stdout
