@@ -80,7 +80,7 @@ Every stage is off unless named; the stages run in their physical order
 whatever the order in the file. Without a [response] table every job renders
 clean, as before. A profile with no stages is the clean render and leaves the
 fullname unchanged; any other profile adds ",response=NAME" to the renderer
-settings of the fullname (15/CAHVOR/dots/raycast[spp=16,adaptive,
+settings of the fullname (15/CAHVOR/dots/raycast[spp=16,adaptive,coverage=area,
 response=realistic]/jpl[CAHVOR]), so the same camera with and without noise
 are distinct records. The noise of image i of a job is drawn from
 numpy.random.default_rng([seed, profile seed, sha256(job key) as four 32-bit
