@@ -91,7 +91,8 @@ def _detector_class():
     from pupil_apriltags import Detector
 
     class OrderedDetector(Detector):
-        def __del__(self):
+        # bound now: at interpreter shutdown this module's globals may be gone already
+        def __del__(self, _destroy=_destroy):
             _destroy(self)
 
     return OrderedDetector
