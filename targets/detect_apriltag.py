@@ -64,14 +64,20 @@ apriltag_detector_destroy() then runs quick_decode_uninit() on each family, whic
 reads and zeroes fam->impl (offset 64 of the freed 72-byte apriltag_family_t): a write
 after free (valgrind: "Invalid write of size 8 ... 64 bytes inside a block of size 72
 free'd", tag36h11_destroy then quick_decode_uninit). Offset 64 of that block is the
-next heap chunk's prev_size, so when the freed block has left the tcache for a bin
-(a full tcache, and free() of the decode table consolidating the fastbins), the
-zero is a corrupt heap: a later free() beside it aborts with glibc's "corrupted size
-vs. prev_size". The cached detectors are collected when the interpreter shuts down,
-so that later free() was one run by exit() (llvmlite's LLVMContext destructor): the
-whole test suite aborted, status 134, after every test had passed, in about 2 of 7
-runs. Destroying the detector first uninitialises live families; freeing them after
-is what the AprilTag library expects (apriltag_detector_destroy frees neither).'''
+next heap chunk's prev_size, so when the freed block is in a bin when the zero is
+written (its tcache bin full, and any malloc of 1 KB or more in between, Python's own
+in __del__ included, consolidating the fastbins), the heap is corrupt: a later free()
+beside it aborts with glibc's "corrupted size vs. prev_size" (and when the block was
+taken again in between, the stale fam->impl read segfaults instead). The cached
+detectors are collected when the interpreter shuts down, so that later free() was one
+run by exit() (llvmlite's LLVMContext destructor): the whole test suite aborted,
+status 134, after every test had passed, in about 2 of 7 runs. Destroying the
+detector first uninitialises live families; freeing them after is what the AprilTag
+library expects (apriltag_detector_destroy frees neither).
+Upstream: pupil-labs/apriltags pull request 65 (open) makes the same reordering, the
+duckietown fork has it (lib-dt-apriltags pull request 26); pupil's issues 34 (a
+segfault at exit in quick_decode_uninit) and 39 ("corrupted size vs. prev_size") are
+this bug.'''
     ptr, detector.tag_detector_ptr = detector.tag_detector_ptr, None
     if ptr is None:
         return
