@@ -56,13 +56,60 @@ APRILTAG_PIXEL_OFFSET = 0.5
 MIN_REFINE_WINDOW = 4
 
 
+def _destroy(detector):
+    r'''Free a pupil_apriltags Detector's C objects: the detector first, then its families
+
+pupil_apriltags' own Detector.__del__ (1.0.4.post11) frees the families first, and
+apriltag_detector_destroy() then runs quick_decode_uninit() on each family, which
+reads and zeroes fam->impl (offset 64 of the freed 72-byte apriltag_family_t): a write
+after free (valgrind: "Invalid write of size 8 ... 64 bytes inside a block of size 72
+free'd", tag36h11_destroy then quick_decode_uninit). Offset 64 of that block is the
+next heap chunk's prev_size, so when the freed block is in a bin when the zero is
+written (its tcache bin full, and any malloc of 1 KB or more in between, Python's own
+in __del__ included, consolidating the fastbins), the heap is corrupt: a later free()
+beside it aborts with glibc's "corrupted size vs. prev_size" (and when the block was
+taken again in between, the stale fam->impl read segfaults instead). The cached
+detectors are collected when the interpreter shuts down, so that later free() was one
+run by exit() (llvmlite's LLVMContext destructor): the whole test suite aborted,
+status 134, after every test had passed, in about 2 of 7 runs. Destroying the
+detector first uninitialises live families; freeing them after is what the AprilTag
+library expects (apriltag_detector_destroy frees neither).
+Upstream: pupil-labs/apriltags pull request 65 (open) makes the same reordering, the
+duckietown fork has it (lib-dt-apriltags pull request 26); pupil's issues 34 (a
+segfault at exit in quick_decode_uninit) and 39 ("corrupted size vs. prev_size") are
+this bug.'''
+    ptr, detector.tag_detector_ptr = detector.tag_detector_ptr, None
+    if ptr is None:
+        return
+    lib = detector.libc
+    lib.apriltag_detector_destroy.restype = None
+    lib.apriltag_detector_destroy(ptr)
+    families, detector.tag_families = detector.tag_families, {}
+    for name, family in families.items():
+        destroy = getattr(lib, f"{name}_destroy")
+        destroy.restype = None
+        destroy(family)
+
+
+@functools.cache
+def _detector_class():
+    r'''pupil_apriltags' Detector, freed in the right order (see _destroy)'''
+    from pupil_apriltags import Detector
+
+    class OrderedDetector(Detector):
+        # bound now: at interpreter shutdown this module's globals may be gone already
+        def __del__(self, _destroy=_destroy):
+            _destroy(self)
+
+    return OrderedDetector
+
+
 # detectors live as long as the process: the option sets are few
 @functools.cache
 def _detector(quad_decimate, quad_sigma, refine_edges, decode_sharpening):
-    from pupil_apriltags import Detector
-    return Detector(families="tag36h11", nthreads=1, quad_decimate=quad_decimate,
-                    quad_sigma=quad_sigma, refine_edges=refine_edges,
-                    decode_sharpening=decode_sharpening)
+    return _detector_class()(families="tag36h11", nthreads=1, quad_decimate=quad_decimate,
+                             quad_sigma=quad_sigma, refine_edges=refine_edges,
+                             decode_sharpening=decode_sharpening)
 
 
 def _refine(img32, corners):
