@@ -43,9 +43,12 @@ def main(argv=None):
     ap.add_argument("out")
     ap.add_argument("--cameras", default="15,17")
     ap.add_argument("--faults", default="shift_001,focal_scale,half_pixel,r1_sign,theta90")
-    ap.add_argument("--clean", default="")
+    ap.add_argument("--clean", default="", help="cameras, or 'all': every slot and extra")
     ap.add_argument("--family", default="CAHVOR")
-    ap.add_argument("--seeds", default="0")
+    ap.add_argument("--clean-families", default="CAHV,CAHVOR,CAHVORE",
+                    help="a family richer than a camera is a not-applicable record")
+    ap.add_argument("--seeds", default="0", help="0,1,... or a range 0-9")
+    ap.add_argument("-j", "--jobs", type=int, default=1, help="workers of the clean runs")
     ap.add_argument("--spp", type=int, default=16)
     args = ap.parse_args(argv)
 
@@ -58,9 +61,9 @@ def main(argv=None):
     ok = True
     cost = {"exact_fit": 0.0, "verdict": 0.0, "calibrate": 0.0, "records": 0}
 
-    def run(doc, tag):
+    def run(doc, tag, workers=1):
         t0 = time.perf_counter()
-        r = run_campaign(parse_campaign(doc), out / tag, progress=False, workers=1)
+        r = run_campaign(parse_campaign(doc), out / tag, progress=False, workers=workers)
         for rec in r["records"].values():
             s = rec.get("seconds") or {}
             if rec["status"] == "ok":
@@ -86,22 +89,27 @@ def main(argv=None):
                   f"({secs:.0f} s)", flush=True)
             for cal, lines in sorted(by_cal.items()):
                 print(f"    {cal:18s} {'; '.join(lines[:3])}", flush=True)
-    clean = [c if not c.isdigit() else int(c) for c in args.clean.split(",") if c]
-    for seed in [int(s) for s in args.seeds.split(",") if s]:
-        for fam in ("CAHV", "CAHVOR"):
-            if not clean:
-                break
-            renderer = {"name": "raycast", "spp": args.spp, "adaptive": True}
-            r, failures, secs = run(campaign(clean, fam, renderer, seed, "clean"),
-                                    f"clean-{fam}-{seed}")
-            ok &= not failures
-            n_ok = sum(x["status"] == "ok" for x in r["records"].values())
-            print(f"clean seed {seed} {fam}: {len(r['records'])} records ({n_ok} ok), "
-                  f"{'PASS' if not failures else 'FAIL'} ({secs:.0f} s)", flush=True)
-            for f in failures:
-                print(f"    {f.fullname}  {f.field}  {f.value}  {f.limit}", flush=True)
-            if seed == 0 and fam == "CAHVOR":
-                print("\n".join(explain(r, spec)))
+    if args.clean == "all":
+        from reference_models.catalogue import load_catalogue
+        clean = [e.id if e.kind == "slot" else e.key for e in load_catalogue()]
+    else:
+        clean = [c if not c.isdigit() else int(c) for c in args.clean.split(",") if c]
+    seeds = [int(s) for s in args.seeds.split(",") if s and "-" not in s]
+    for a, b in (s.split("-") for s in args.seeds.split(",") if "-" in s):
+        seeds += range(int(a), int(b) + 1)
+    fams = [f for f in args.clean_families.split(",") if f]
+    for seed in seeds if clean else []:
+        renderer = {"name": "raycast", "spp": args.spp, "adaptive": True}
+        doc = campaign(clean, fams[0], renderer, seed, "clean") | {"models": fams}
+        r, failures, secs = run(doc, f"clean-{seed}", workers=args.jobs)
+        ok &= not failures
+        n_ok = sum(x["status"] == "ok" for x in r["records"].values())
+        print(f"clean seed {seed} {'/'.join(fams)}: {len(r['records'])} records ({n_ok} ok), "
+              f"{'PASS' if not failures else 'FAIL'} ({secs:.0f} s)", flush=True)
+        for f in failures:
+            print(f"    {f.fullname}  {f.field}  {f.value}  {f.limit}", flush=True)
+        if seed == seeds[0]:
+            print("\n".join(explain(r, spec)), flush=True)
     n = max(cost["records"], 1)
     print(f"cost per ok record: exact fit {cost['exact_fit'] / n:.3f} s, verdict "
           f"{cost['verdict'] / n:.3f} s, image fit {cost['calibrate'] / n:.3f} s "
