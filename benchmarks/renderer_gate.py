@@ -1,14 +1,17 @@
 r'''The renderer gate (campaigns/gate-renderer.toml) on faulty and clean renderers
 
     uv run --frozen python benchmarks/renderer_gate.py OUT_DIR [--cameras 15,17]
-        [--faults shift_001,focal_scale,...] [--clean CAMERA,...] [--seeds 0,1,...]
+        [--faults shift_001,focal_scale,...] [--clean CAMERA,...|all] [--seeds 0,1,...|0-9]
+        [--clean-families CAHV,CAHVOR,CAHVORE] [-j 2]
 
 Each fault of renderers.legacy.FAULTS is injected into the exact ray caster
 (renderer "faulty", harness.mutation) on each camera, and jpl, mrcal and
 OpenCV (OPENCV5) calibrate the images; the renderer gate must flag every
 fault (it judges verdict.renderer against each record's sigma). The clean
-ray caster runs on the --clean cameras (e.g. the narrow extras) with every
-pose seed of --seeds and must pass. Prints one line per run (the failing
+ray caster runs on the --clean cameras (e.g. the narrow extras; "all": every
+catalogue slot and extra) under each of --clean-families (a family richer than
+the camera is a not-applicable record), one campaign per pose seed of --seeds,
+and must pass. Prints one line per run (the failing
 fields, per calibrator), the exact fit's and verdict's CPU seconds per record, and the
 minimum detectable faults; exits 1 if a fault is missed or a clean run fails.
 
