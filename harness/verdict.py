@@ -801,11 +801,19 @@ projection difference (the rotation's own freedom projected out).
     cov = Ninv @ (Js.T @ (Js * var_row[:, None])) @ Ninv / np.outer(s_col, s_col)
     cov = cov[:lin.n_model, :lin.n_model]
     m0 = lin.model(lin.x0)
-    q0 = _signed_quantities(m0, m0, theta, world)
+    # The differences are taken against the exact fit, as the renderer comparison takes
+    # them: a fractional one (Hs, R1_frac, ...) is (image - exact) / |exact|, so its sigma
+    # is the image fit's sigma over |exact|. Over |image| instead (the image fit's own
+    # value) the two disagree by |image / exact|, which is ~1 unless the parameter is
+    # near zero against its sigma (a nearly distortion-free lens: Mastcam-Z Z110's R2
+    # gave R2_frac z 32 for an R2 at z 1.5; navcam 15 with R1 = 1e-8, R1_frac z 1270 for
+    # an R1 at z 1.4: a false alarm of the renderer gate, which judges R1_frac).
+    ref = exact_res.model if getattr(exact_res, "model", None) is not None else m0
+    q0 = _signed_quantities(ref, m0, theta, world)
     names = list(q0)
 
     def qvec(m):
-        q = _signed_quantities(m0, m, theta, world)
+        q = _signed_quantities(ref, m, theta, world)
         return np.array([q.get(k, 0.0) for k in names])
     G = _central_jacobian(*lin.model_part(qvec))                    # (m, n_model)
     # a variance below zero is rounding in a direction the fit barely determines
