@@ -16,6 +16,10 @@ fields, per calibrator), the exact fit's and verdict's CPU seconds per record, a
 minimum detectable faults; exits 1 if a fault is missed or a clean run fails.
 
 Measured (2026-11-25, 2 shared cores, K=16, 6 poses):
+- clean, --clean all --seeds 0-9 -j 2 (33 cameras x CAHV/CAHVOR/CAHVORE, 297 records a
+  seed): PASS on all 10 seeds (`camval gate` of each run too), 2310 ok records; RMS z
+  of every judged quantity 0.93-1.08, largest 4.34 of 7288; 128-1788 s a seed (load 4-27).
+  Cost per ok record: exact fit 0.38 s + verdict 0.27 s against the image fit's 0.86 s.
 - clean, all 22 slots + 11 extras, CAHV + CAHVOR, jpl/mrcal/OPENCV5: pose seed 3, 198
   records, PASS (SuperCam not-applicable); also seeds 0-2 on 15, 17, MCAM_Z_LEFT-Z026/
   Z100, MCAM_Z_RIGHT-Z110, seeds 0-1 on 1, 8, 13, 21, seed 0 on the other 23 cameras:
