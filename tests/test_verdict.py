@@ -336,3 +336,39 @@ def test_one_blas_thread_restores_the_thread_count():
     with verdict._OneBlasThread():
         assert lib[0]() == 1
     assert lib[0]() == n
+
+
+def test_a_fractional_difference_of_a_parameter_near_zero_is_judged_like_the_parameter():
+    r'''A CAHVOR lens with R1 ~ 0 (navcam 15 with R1 = 1e-8: a nearly distortion-free lens;
+the same happened to Mastcam-Z Z110's R2 on the exact ray caster). The exact fit's R1 is
+~1e-8, the image fit's ~1e-5 (R1's sigma under 0.001 px of noise is 7e-6), so R1_frac =
+(image - exact) / |exact| is ~1e3. Its sigma must be taken over the same |exact|: then
+R1_frac's z is R1's (a fractional difference is the absolute one over a constant) and
+the renderer gate passes this perfect renderer. Taken over the image fit's |R1| it was
+z 1270: a false alarm.'''
+    from harness.gate import DEFAULT_SPEC, check, load_gate_spec
+    from targets.centroids import expected_centroids
+    _, t15 = stages.camera_truth("15", "CAHVOR")
+    truth = t15.replace(R=np.array([t15.R[0], 1e-8, t15.R[2]]))
+    target = stages.cached_target("dots")
+    poses = stages.poses_stage(truth, target, 6, 0)
+
+    class D:
+        def __init__(self, q):
+            self.q = q
+    obs = stages.observations_from(truth, target, poses,
+                                   [D(expected_centroids(truth, target, Rt)) for Rt in poses])
+    rng = np.random.default_rng(1)
+    img = obs.replace(q=obs.q + rng.normal(0, 0.001 / np.sqrt(2), obs.q.shape))
+    exact, noise, _ = verdict.exact_fit("jpl", "CAHVOR", {}, img, target, truth, {})
+    res = stages.calibrate_stage("jpl", img, target, "CAHVOR", truth, {})
+    params, proj, _ = stages.compare_stage(truth, res)
+    v = verdict.assess(truth, res, exact, noise, params, proj, obs=img)
+    z = v["renderer"]["z"]
+    # the case: R1 far below its own sigma, so its fractional difference is huge ...
+    assert abs(v["renderer"]["params"]["R1_frac"]) > 100
+    assert 0.5 < z["R1"] < 3          # ... while R1 itself moved by an ordinary amount
+    assert z["R1_frac"] == pytest.approx(z["R1"], rel=1e-6)
+    name = "navcam-R1-0/CAHVOR/dots/raycast/jpl[CAHVOR]"
+    run = {"records": {name: {"status": "ok", "calibrator": "jpl", "verdict": v}}}
+    assert check(run, load_gate_spec(DEFAULT_SPEC)) == []
