@@ -230,7 +230,7 @@ live in the truth's world frame).
 
 
 def _world(res):
-    return bool(res.info.get("world_frame", res.calibrator == "jpl"))
+    return res.world_frame
 
 
 def fit_comparison(ref, fit, truth, theta_estimated, world_frame):
@@ -348,7 +348,7 @@ A failed exact fit leaves floor and renderer None with exact_fit saying why.
 
 def _assess(truth, res, exact_res, noise, total_params, total_projection, seconds, obs):
     from .records import jsonable
-    theta = res.calibrator == "jpl"
+    theta = res.theta_estimated
     world = _world(res)
     out = {"total": {"params": total_params,
                      "projection": {k: (total_projection or {}).get(k)
@@ -784,7 +784,7 @@ projection difference (the rotation's own freedom projected out).
     lin = linearisation(res, obs)
     if lin is None:
         return None
-    theta = res.calibrator == "jpl"
+    theta = res.theta_estimated
     world = _world(res)
     n = len(lin.x0)
     J = lin.jacobian()                                              # (2N, n)
