@@ -549,12 +549,13 @@ Relative model-file paths among the cameras are taken from base_dir.
                                 f"known: {', '.join(FAMILIES)}")
     targets = tuple(_list_of(source, "targets", doc.get("targets", ["dots"]), (str,),
                              "target names"))
-    from targets.detect import known_detectors
-    known_targets = known_detectors()
+    from targets.boards import known_targets
+    known = known_targets()
     for t in targets:
-        if t not in known_targets and not Path(t).suffix == ".toml":
+        if t not in known and not Path(t).suffix == ".toml":
             raise CampaignError(f"{_where(source, 'targets')}: unknown target {t!r}; known: "
-                                f"{', '.join(known_targets)} or a target .toml file")
+                                f"{', '.join(known)} or a target .toml file (its key "
+                                f"detector names any registered detector, plug-ins too)")
     poses = doc.get("poses", {})
     if not isinstance(poses, dict):
         raise CampaignError(f"{_where(source, 'poses')}: expected a table with n and seed")

@@ -79,7 +79,8 @@ def test_model_file_camera_is_resolved_relative_to_the_campaign(tmp_path):
      r"renderer\[0\]\.samples: unknown key; known keys: name, spp, adaptive, options"),
     ('cameras = [15]\n[[calibrator]]\nmodels = ["CAHV"]\n', r"calibrator\[0\]\.name: missing"),
     ('cameras = [15]\ntargets = ["checkers"]\n',
-     r"targets: unknown target 'checkers'; known: dots, apriltag, chessboard"),
+     r"targets: unknown target 'checkers'; known: apriltag, chessboard, dots or a target "
+     r"\.toml file"),
     ('cameras = [15]\nkeep_images = "yes"\n', r"keep_images: expected true or false"),
     ('cameras = [15\n', r"not valid TOML"),
 ])
