@@ -13,8 +13,11 @@ corners (if it fails, findChessboardCorners); cornerSubPix then polishes them
 targets.corners.refine_chessboard_corners fits the exact area-sampled image of
 the four square edges at each corner (0.06-0.1 px -> 0.002-0.01 px RMS on exact
 K=16 ray-cast renders, whose own sampling error that is; see
-benchmarks/bench_corners.py). A corner the fit cannot refine is dropped
-(info["corners_dropped"]: {reason: count}), never kept at OpenCV's position. OpenCV numbers the
+benchmarks/bench_corners.py). A corner the fit cannot refine, or whose
+image is no chessboard saddle, is dropped (info["corners_dropped"]: {reason:
+count}), never kept at OpenCV's position; the detection keeps the others and
+is "ok" with at least MIN_POINTS_FOR_POSE corners not all on one line (what
+a view's pose needs; min_found). OpenCV numbers the
 corners in one of the 8 rotations/flips of the grid (any of them for a square
 grid). The numbering is fixed by the squares: for
 each candidate numbering, every interior square's centre (the crossing of its
@@ -28,11 +31,13 @@ OpenCV's pixel convention is camval's (pixel centres at integers).
 
 import numpy as np
 
-from .detection import as_float_image, failed, result
+from .detection import MIN_POINTS_FOR_POSE, as_float_image, failed, result
 
 DETECTOR = "chessboard"
 # images larger than twice this (smaller side) are searched at a reduced size first
 SEARCH_SIZE_PX = 400
+# the reason of a corner dropped because the image around it is no chessboard saddle
+NOT_SADDLE = "not a saddle"
 # how far along the diagonals (in grid steps) a corner's saddle is checked
 SADDLE_PROBE = 0.15
 ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, True)
@@ -108,7 +113,8 @@ corners are used as OpenCV finds them, refine=False): with it only.'''
     return ok, corners
 
 
-def detect_chessboard(image, target, *, min_found=None, refine=True, reduced_search=True):
+def detect_chessboard(image, target, *, min_found=MIN_POINTS_FOR_POSE, refine=True,
+                      reduced_search=True):
     r'''Detect a chessboard; see the module docstring
 
 SYNOPSIS
@@ -119,7 +125,8 @@ ARGUMENTS
 
 - image: (H,W) float in [0,1], or uint8/uint16 (OpenCV gets 8 bits)
 - target: a "chessboard" targets.boards.Target
-- min_found: fewest corners for status "ok" (default: all)
+- min_found: fewest corners for status "ok" (default: what a view's pose needs,
+  targets.detection.MIN_POINTS_FOR_POSE; the corners kept must not lie on one line)
 - refine: True: polish the corners with cv2.cornerSubPix, then fit the corner model
   (targets.corners); "subpix": cornerSubPix only; False: OpenCV's corners as found
 - reduced_search: on large images, search at reduced size first (falls back to full
@@ -221,10 +228,13 @@ ARGUMENTS
                                      reduced_search=False)
         info["rejected_corners"] = int(not_saddle.sum())
         G[not_saddle] = np.nan
+    dropped = {NOT_SADDLE: int(not_saddle.sum())} if not_saddle.any() else {}
     if refine is True:
         from .corners import chessboard_half_box, refine_chessboard_corners
         fit = refine_chessboard_corners(img, G, chessboard_half_box(target))
-        info["corners_dropped"] = fit.dropped()
+        # the refiner calls the corners rejected above "not detected"
+        dropped.update({k: v for k, v in fit.dropped().items() if k != "not detected"})
         G = fit.q.reshape(ny, nx, 2)
+    info["corners_dropped"] = dropped
     return result(target, G.reshape(-1, 2), DETECTOR,
                   min_found=min_found, info=info)
