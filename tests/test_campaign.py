@@ -26,8 +26,15 @@ def test_shipped_campaigns_load_and_validate():
     assert paper.cameras == tuple(str(i) for i in range(1, 23))
     assert (paper.poses_n, paper.poses_seed) == (6, 0)
     jobs = expand_jobs(paper)
-    assert len(jobs) == 22 * 3
+    # dots and the AprilTag grid (issue 16); the grid by jpl alone (mrcal's object is a
+    # regular grid, OpenCV's model is judged on the dots)
+    assert len(jobs) == 22 * 3 * 2
     assert jobs[0].key == "1/CAHV/dots/raycast[spp=16,adaptive]"
+    assert jobs[1].key == "1/CAHV/apriltag/raycast[spp=16,adaptive]"
+    for c in (quick, paper):
+        cals = {j.target: sorted({name for name, _, _ in j.calibrators})
+                for j in expand_jobs(c)}
+        assert cals == {"dots": ["jpl", "mrcal", "opencv"], "apriltag": ["jpl"]}
     assert jobs[0].fullname("jpl", "CAHV") == "1/CAHV/dots/raycast[spp=16,adaptive]/jpl[CAHV]"
     assert len({j.key for j in jobs}) == len(jobs)
 
@@ -78,6 +85,10 @@ def test_model_file_camera_is_resolved_relative_to_the_campaign(tmp_path):
     ('cameras = [15]\n[[renderer]]\nname = "raycast"\nsamples = 4\n',
      r"renderer\[0\]\.samples: unknown key; known keys: name, spp, adaptive, options"),
     ('cameras = [15]\n[[calibrator]]\nmodels = ["CAHV"]\n', r"calibrator\[0\]\.name: missing"),
+    ('cameras = [15]\n[[calibrator]]\nname = "jpl"\ntargets = ["apriltag"]\n',
+     r"calibrator\[0\]\.targets: 'apriltag' is not among the campaign's targets \(dots\)"),
+    ('cameras = [15]\ntargets = ["dots", "apriltag"]\n[[calibrator]]\nname = "jpl"\n'
+     'targets = ["dots"]\n', r"calibrator: no calibrator fits the target 'apriltag'"),
     ('cameras = [15]\ntargets = ["checkers"]\n',
      r"targets: unknown target 'checkers'; known: apriltag, chessboard, dots or a target "
      r"\.toml file"),
@@ -136,7 +147,8 @@ def test_response_campaign_expands_clean_and_realistic_jobs():
     assert [j.key for j in jobs[:2]] == ["15/CAHV/dots/raycast[spp=16,adaptive]",
                                          "15/CAHV/dots/raycast[spp=16,adaptive,response=realistic]"]
     # the clean jobs are the quick campaign's jobs, under the same fullnames
-    quick = {j.key: j for j in expand_jobs(load_campaign(ROOT / "campaigns" / "quick.toml"))}
+    quick = {j.key: j for j in expand_jobs(load_campaign(ROOT / "campaigns" / "quick.toml"))
+             if j.target == "dots"}
     clean = [j for j in jobs if j.response_name == "clean"]
     assert {j.key for j in clean} == set(quick)
     assert all(j.settings == quick[j.key].settings and j.response == {} for j in clean)
@@ -191,7 +203,7 @@ def test_a_campaign_document_from_before_response_profiles_still_loads():
     old = c.as_dict()
     del old["seed"], old["response"]
     assert Campaign.from_dict(old) == c
-    assert c.responses == () and [j.response for j in expand_jobs(c)] == [{}] * 9
+    assert c.responses == () and [j.response for j in expand_jobs(c)] == [{}] * 18
 
 
 R = 'cameras = [15]\n'

@@ -57,15 +57,17 @@ def test_paper_campaign_folds_the_derived_slots():
     jobs = expand_jobs(load_campaign("campaigns/paper.toml"))
     grouped = group_twins(jobs)
     twins = {j.key: [k for _, k in j.twins] for j in grouped if j.twins}
-    assert len(jobs) == 66 and len(grouped) == 43
+    # dots and the AprilTag grid: each target's jobs fold alike
+    assert len(jobs) == 2 * 66 and len(grouped) == 2 * 43
     assert twins == {
-        **{f"5/{f}/dots/raycast[spp=16,adaptive]": ["6", "7", "8"]
-           for f in ("CAHV", "CAHVOR", "CAHVORE")},
-        **{f"9/{f}/dots/raycast[spp=16,adaptive]": ["10", "11", "12"]
-           for f in ("CAHV", "CAHVOR", "CAHVORE")},
-        **{f"13/{f}/dots/raycast[spp=16,adaptive]": ["14"] for f in ("CAHV", "CAHVOR")},
-        **{f"17/{f}/dots/raycast[spp=16,adaptive]": ["18"]
-           for f in ("CAHV", "CAHVOR", "CAHVORE")}}
+        **{f"5/{f}/{t}/raycast[spp=16,adaptive]": ["6", "7", "8"]
+           for f in ("CAHV", "CAHVOR", "CAHVORE") for t in ("dots", "apriltag")},
+        **{f"9/{f}/{t}/raycast[spp=16,adaptive]": ["10", "11", "12"]
+           for f in ("CAHV", "CAHVOR", "CAHVORE") for t in ("dots", "apriltag")},
+        **{f"13/{f}/{t}/raycast[spp=16,adaptive]": ["14"] for f in ("CAHV", "CAHVOR")
+           for t in ("dots", "apriltag")},
+        **{f"17/{f}/{t}/raycast[spp=16,adaptive]": ["18"]
+           for f in ("CAHV", "CAHVOR", "CAHVORE") for t in ("dots", "apriltag")}}
     # every job is there once, as itself or as a twin
     members = [m.key for j in grouped for m in j.members()]
     assert sorted(members) == sorted(j.key for j in jobs)
