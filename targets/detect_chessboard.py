@@ -7,8 +7,9 @@ SYNOPSIS
     det = detect_chessboard(image, target)   # targets.detection.Detection
     det.q                                    # (nx*ny,2): corner iy*nx + ix
 
-OpenCV's findChessboardCornersSB (sector-based) finds the nx x ny inner
-corners (if it fails, findChessboardCorners); cornerSubPix then polishes them
+OpenCV's findChessboardCorners (quad-based, a few ms) finds the nx x ny inner
+corners (if it fails, findChessboardCornersSB, sector-based: ten times slower,
+searched at reduced size on large images); cornerSubPix then polishes them
 (about 0.2 px RMS -> 0.1 px on distorted, tilted boards), and
 targets.corners.refine_chessboard_corners fits the exact area-sampled image of
 the four square edges at each corner (0.06-0.1 px -> 0.002-0.01 px RMS on exact
@@ -36,6 +37,8 @@ from .detection import MIN_POINTS_FOR_POSE, as_float_image, failed, result
 DETECTOR = "chessboard"
 # images larger than twice this (smaller side) are searched at a reduced size first
 SEARCH_SIZE_PX = 400
+# OpenCV's quad-based search (findChessboardCorners)
+CLASSIC_FLAGS = 3     # cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE (1 | 2)
 # the reason of a corner dropped because the image around it is no chessboard saddle
 NOT_SADDLE = "not a saddle"
 # how far along the diagonals (in grid steps) a corner's saddle is checked
@@ -114,7 +117,7 @@ corners are used as OpenCV finds them, refine=False): with it only.'''
 
 
 def detect_chessboard(image, target, *, min_found=MIN_POINTS_FOR_POSE, refine=True,
-                      reduced_search=True):
+                      reduced_search=True, classic_first=True):
     r'''Detect a chessboard; see the module docstring
 
 SYNOPSIS
@@ -131,6 +134,11 @@ ARGUMENTS
   (targets.corners); "subpix": cornerSubPix only; False: OpenCV's corners as found
 - reduced_search: on large images, search at reduced size first (falls back to full
   size when a corner wanders off its refinement window)
+- classic_first: with refine, try OpenCV's findChessboardCorners (quad-based) before the
+  sector-based search: 1.5-5 ms of CPU against 25-70 ms on 1024x1024 renders, and it found
+  every board of the 18 images of benchmarks/bench_corners.py (cameras 15, 17, 8) where
+  the reduced-size sector search missed 1; a board it misses, or whose corners fail the
+  saddle check, goes to the sector-based search
 '''
     import cv2
 
@@ -145,11 +153,14 @@ ARGUMENTS
     info = {}
     flags_sb = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
     ok, corners = False, None
+    if refine and classic_first:
+        ok, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=CLASSIC_FLAGS)
+        info["method"] = "findChessboardCorners"
     # the sector-based detector costs ~1.3 s on 1024x1024 (0.2 s without its ACCURACY
     # polish, _find_sb): find the board on a reduced
     # image first (the corners are polished at full resolution below)
     shrink = int(min(img8.shape) // SEARCH_SIZE_PX)
-    if shrink >= 2 and refine and reduced_search:
+    if not ok and shrink >= 2 and refine and reduced_search:
         small = cv2.resize(img8, (img8.shape[1] // shrink, img8.shape[0] // shrink),
                            interpolation=cv2.INTER_AREA)
         ok, corners = _find_sb(cv2, small, (nx, ny), flags_sb)
@@ -160,9 +171,8 @@ ARGUMENTS
     if not ok:
         ok, corners = _find_sb(cv2, img8, (nx, ny), flags_sb, fast=bool(refine))
         info["method"] = "findChessboardCornersSB"
-    if not ok:
-        ok, corners = cv2.findChessboardCorners(
-            img8, (nx, ny), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+    if not ok and not (refine and classic_first):
+        ok, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=CLASSIC_FLAGS)
         info["method"] = "findChessboardCorners"
     if not ok or corners is None:
         return failed(target, f"OpenCV found no {nx}x{ny} chessboard", DETECTOR, info)
@@ -222,10 +232,14 @@ ARGUMENTS
     G = np.asarray(G, dtype=np.float64).reshape(ny, nx, 2)
     not_saddle = ~_is_saddle(img, G)
     if not_saddle.any():
+        if info["method"] == "findChessboardCorners" and refine and classic_first:
+            # the quad-based search misplaced a corner: the sector-based search
+            return detect_chessboard(image, target, min_found=min_found, refine=refine,
+                                     reduced_search=reduced_search, classic_first=False)
         if info["method"].endswith("size"):
             # the reduced-size search was too coarse here: search at full size
             return detect_chessboard(image, target, min_found=min_found, refine=refine,
-                                     reduced_search=False)
+                                     reduced_search=False, classic_first=False)
         info["rejected_corners"] = int(not_saddle.sum())
         G[not_saddle] = np.nan
     dropped = {NOT_SADDLE: int(not_saddle.sum())} if not_saddle.any() else {}
