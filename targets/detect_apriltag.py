@@ -46,7 +46,7 @@ import functools
 
 import numpy as np
 
-from .detection import as_float_image, failed, result
+from .detection import failed, result, working_image
 
 DETECTOR = "apriltag"
 # AprilTag pixel coordinates minus camval's for the same point
@@ -105,13 +105,13 @@ ARGUMENTS
 - refine: True: fit the corner model (targets.corners); "subpix": polish each corner with
   cv2.cornerSubPix in a window of half a tag bit; False: pupil_apriltags' corners
 '''
-    img = as_float_image(image)
     if target.kind != "apriltag":
         return failed(target, f"detect_apriltags() needs an apriltag target; got "
                       f"{target.kind!r}", DETECTOR)
-    if not np.all(np.isfinite(img)):
+    work = working_image(image)
+    if work is None:
         return failed(target, "the image has non-finite pixels", DETECTOR)
-    img8 = np.ascontiguousarray(np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8))
+    img, img8, (lo, hi) = work
     detector = _detector(float(quad_decimate), float(quad_sigma), int(refine_edges),
                          float(decode_sharpening))
     ids = target.point_ids()
@@ -127,7 +127,7 @@ ARGUMENTS
     W = img.shape[1]
     q = np.full((len(ids), 2), np.nan)
     seen = {}
-    img32 = img.astype(np.float32)
+    img32 = img if img.dtype == np.float32 or refine != "subpix" else img.astype(np.float32)
     rejected = {"hamming": 0, "not_on_board": 0, "duplicate": 0}
     for tag in tags:
         if tag.hamming > max_hamming:
@@ -151,7 +151,7 @@ ARGUMENTS
         used.append((tag_id, c))
     if refine is True and used:
         from .corners import refine_tag_corners
-        fit = refine_tag_corners(img, np.array([c for _, c in used]))
+        fit = refine_tag_corners(img, np.array([c for _, c in used]), value_range=hi - lo)
         refined = fit.q.reshape(-1, 4, 2)
         used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
     for tag_id, c in used:

@@ -32,7 +32,7 @@ OpenCV's pixel convention is camval's (pixel centres at integers).
 
 import numpy as np
 
-from .detection import MIN_POINTS_FOR_POSE, as_float_image, failed, result
+from .detection import MIN_POINTS_FOR_POSE, failed, result, working_image
 
 DETECTOR = "chessboard"
 # images larger than twice this (smaller side) are searched at a reduced size first
@@ -73,7 +73,7 @@ def _square_centres(G):
     return c
 
 
-def _is_saddle(img, G):
+def _is_saddle(img, G, contrast=None):
     r'''(ny,nx) bool: the image around each corner is a chessboard saddle
 
 Four samples at SADDLE_PROBE of the local grid steps along the diagonals: the two on one
@@ -85,7 +85,8 @@ square (or an edge) fails.'''
     r = SADDLE_PROBE
     a = _bilinear(img, G + r * (u + v)) + _bilinear(img, G - r * (u + v))
     b = _bilinear(img, G + r * (u - v)) + _bilinear(img, G - r * (u - v))
-    contrast = float(img.max() - img.min())
+    if contrast is None:
+        contrast = float(img.max() - img.min())
     return np.abs(a - b) / 2 > contrast / 3
 
 
@@ -142,14 +143,14 @@ ARGUMENTS
 '''
     import cv2
 
-    img = as_float_image(image)
     if target.kind != "chessboard":
         return failed(target, f"detect_chessboard() needs a chessboard target; got "
                       f"{target.kind!r}", DETECTOR)
-    if not np.all(np.isfinite(img)):
+    work = working_image(image)
+    if work is None:
         return failed(target, "the image has non-finite pixels", DETECTOR)
+    img, img8, (lo, hi) = work
     nx, ny = target.grid_shape
-    img8 = np.ascontiguousarray(np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8))
     info = {}
     flags_sb = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
     ok, corners = False, None
@@ -180,7 +181,7 @@ ARGUMENTS
     # OpenCV's order: rows of nx; lattice a along a row, b across rows
     G_cv = c.reshape(ny, nx, 2)
     expected = _expected_squares(target)
-    mid = 0.5 * (img.max() + img.min())
+    mid = 0.5 * (hi + lo)
     scores = []
     for t in ALL_TRANSFORMS:
         swap, fa, fb = t
@@ -215,7 +216,7 @@ ARGUMENTS
                    np.linalg.norm(np.diff(G, axis=1), axis=-1).min())
         wins = [int(np.clip(0.25 * step, 2, 40)), int(np.clip(0.2 * step, 2, 10))]
         info["subpix_windows_px"] = wins
-        img32 = img.astype(np.float32)
+        img32 = img if img.dtype == np.float32 else img.astype(np.float32)
         G = G.reshape(-1, 1, 2).astype(np.float32)
         wandered = np.zeros(len(G), bool)
         for win in wins:
@@ -230,7 +231,7 @@ ARGUMENTS
         if wandered.any():
             info["unrefined_corners"] = int(wandered.sum())
     G = np.asarray(G, dtype=np.float64).reshape(ny, nx, 2)
-    not_saddle = ~_is_saddle(img, G)
+    not_saddle = ~_is_saddle(img, G, hi - lo)
     if not_saddle.any():
         if info["method"] == "findChessboardCorners" and refine and classic_first:
             # the quad-based search misplaced a corner: the sector-based search
@@ -245,7 +246,8 @@ ARGUMENTS
     dropped = {NOT_SADDLE: int(not_saddle.sum())} if not_saddle.any() else {}
     if refine is True:
         from .corners import chessboard_half_box, refine_chessboard_corners
-        fit = refine_chessboard_corners(img, G, chessboard_half_box(target))
+        fit = refine_chessboard_corners(img, G, chessboard_half_box(target),
+                                        value_range=hi - lo)
         # the refiner calls the corners rejected above "not detected"
         dropped.update({k: v for k, v in fit.dropped().items() if k != "not detected"})
         G = fit.q.reshape(ny, nx, 2)

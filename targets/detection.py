@@ -136,3 +136,29 @@ float32 image is then not copied at all.'''
     if a.dtype.kind in "iu":
         raise DetectionInputError(f"integer images must be uint8 or uint16; got {a.dtype}")
     return a.astype(dtype, copy=False) if a.dtype == dtype else a.astype(dtype)
+
+
+def working_image(image):
+    r'''A detector's image: (H,W) float32 in [0,1] (float64 kept as float64), its uint8
+copy for OpenCV and the AprilTag library, and its (min, max); None when a pixel is not
+finite
+
+SYNOPSIS
+
+    img, img8, (lo, hi) = working_image(image)   # or None
+
+One pass each through OpenCV (checkRange, minMaxLoc, max, convertScaleAbs): on a
+5120x3840 image the numpy round/clip/isfinite/max/min they replace took 0.25 s of CPU.
+img8 = round(255 * clip(img, 0, 1)) (round half to even, as numpy's round).
+'''
+    import cv2
+    a = np.asarray(image)
+    img = as_float_image(a, dtype=np.float64 if a.dtype == np.float64 else np.float32)
+    img = np.ascontiguousarray(img)
+    if not cv2.checkRange(img):
+        return None
+    lo, hi, _, _ = cv2.minMaxLoc(img)
+    # negatives to 0 first (convertScaleAbs takes |value|); above 255 it saturates
+    img8 = cv2.convertScaleAbs(cv2.max(img, 0.0), alpha=255.0)
+    return img, img8, (float(lo), float(hi))
+
