@@ -15,8 +15,10 @@ goes through every method:
 
 - apriltag: pupil_apriltags' corners (refine=False); those polished by cv2.cornerSubPix
   (refine="subpix"); camval's refined corners (targets.corners, refine=True)
-- chessboard: cv2.findChessboardCornersSB (+ the orientation by the mark, refine=False);
-  polished by cv2.cornerSubPix (refine="subpix"); camval's refined corners
+- chessboard: cv2.findChessboardCornersSB with CALIB_CB_ACCURACY (+ the orientation by the
+  mark, refine=False); cv2.findChessboardCorners (the sector-based search where it fails)
+  polished by cv2.cornerSubPix (refine="subpix"); camval's refined corners (the same
+  search, then targets.corners)
 
 The truth is targets.centroids.projected_points: the board's corner points projected
 through the camera. Prints the table method x camera (corner error RMS / max px,
@@ -44,7 +46,7 @@ METHODS = {
     "apriltag": [("pupil_apriltags", False), ("pupil_apriltags+cornerSubPix", "subpix"),
                  ("camval", True)],
     "chessboard": [("findChessboardCornersSB", False),
-                   ("findChessboardCornersSB+cornerSubPix", "subpix"), ("camval", True)],
+                   ("findChessboardCorners(SB)+cornerSubPix", "subpix"), ("camval", True)],
 }
 FAMILY_ORDER = ("CAHV", "CAHVOR", "CAHVORE")
 

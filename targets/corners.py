@@ -60,9 +60,11 @@ after jpl's fit with corner_bias residual and projection difference RMS of
 
 The pixel-area model runs compiled (targets._corner_kernels, numba); kernel="numpy"
 runs wedge_area instead (the reference, equal within 1e-12 px, tested). Detection
-with refinement per image (median of 6 poses, 2 shared cores under load):
-AprilTag 0.07 s on 1024x1024, 0.03 s on 640x480; chessboard 0.11-0.14 s (OpenCV's
-sector-based search and cornerSubPix are about half of it).
+with refinement, CPU seconds per image (median; benchmarks/bench_corners.py timing
+table, a machine at load 13-17 where the wall time is several times that): AprilTag
+0.054 s on 1024x1024, 0.023 s on 640x480, 0.38-0.48 s on 5120x3840 (pupil_apriltags'
+own search 0.26 s of it); chessboard 0.045 s on 1024x1024 (this fit 0.037 s of it),
+0.043 s on 640x480, 0.19 s on 5120x3840.
 
 A corner is dropped, never kept at its coarse position, with its reason:
 its window leaves the image or holds fewer than MIN_WINDOW_PIXELS pixels,
