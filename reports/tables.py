@@ -133,11 +133,12 @@ SYNOPSIS
     variant = record_variant(records)
     variant(r)      # "apriltag, raycast[spp=16,adaptive]", "apriltag", ""
 '''
-    targets = len({r["target"] for r in records.values()}) > 1
+    targets = len({r.get("target") for r in records.values()}) > 1
     renders = len(render_variants(records)) > 1
 
     def variant(r):
-        parts = ([r["target"]] if targets else []) + ([render_variant(r)] if renders else [])
+        parts = ([str(r.get("target"))] if targets else []) + (
+            [render_variant(r)] if renders else [])
         return ", ".join(parts)
     return variant
 
