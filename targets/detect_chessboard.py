@@ -138,8 +138,8 @@ ARGUMENTS
 - classic_first: with refine, try OpenCV's findChessboardCorners (quad-based) before the
   sector-based search: 1.5-5 ms of CPU against 25-70 ms on 1024x1024 renders, and it found
   every board of the 18 images of benchmarks/bench_corners.py (cameras 15, 17, 8) where
-  the reduced-size sector search missed 1; a board it misses, or whose corners fail the
-  saddle check, goes to the sector-based search
+  the reduced-size sector search missed 1; a board it misses, whose squares it cannot
+  number, or whose corners fail the saddle check, goes to the sector-based search
 '''
     import cv2
 
@@ -199,7 +199,13 @@ ARGUMENTS
     scores.sort(key=lambda s: s[0])
     info["square_mismatches"] = [s[0] for s in scores]
     best = scores[0]
-    if len(scores) > 1 and scores[1][0] - best[0] < 2:
+    ambiguous = len(scores) > 1 and scores[1][0] - best[0] < 2
+    if (ambiguous or best[0] > max(2, expected.size // 20)) and \
+            info["method"] == "findChessboardCorners" and refine and classic_first:
+        # the quad-based search's grid does not explain the squares: the sector-based one
+        return detect_chessboard(image, target, min_found=min_found, refine=refine,
+                                 reduced_search=reduced_search, classic_first=False)
+    if ambiguous:
         return failed(target, f"the chessboard's orientation is ambiguous (square mismatches "
                       f"{[s[0] for s in scores]}); is the orientation mark visible?",
                       DETECTOR, info)
