@@ -369,3 +369,13 @@ def test_large_image_path_falls_back_when_the_reduction_hides_the_dots(monkeypat
     assert dd._blobs_from_reduced(img.astype(np.float32), 0.5, 64) is None
     det = detect(img, dots)
     assert det.status == "ok" and det.n_found == 100
+
+
+def test_apriltag_quad_decimation_keeps_a_1024_px_image():
+    r'''The quad search is decimated only as far as a 1024 px image (the size at which the
+catalogue's 1024x1024 cameras decode every tag of their planned poses undecimated)'''
+    from targets.detect_apriltag import DECIMATED_MIN_SIDE_PX, decimate_for
+    for shape, k in (((480, 640), 1), ((1024, 1024), 1), ((1200, 1648), 1),
+                     ((2048, 2048), 2), ((3840, 5120), 3)):
+        assert decimate_for(shape) == k
+        assert min(shape) // k >= DECIMATED_MIN_SIDE_PX or k == 1
