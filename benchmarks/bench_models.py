@@ -14,6 +14,7 @@ and its seconds, and the recommended model with its floor. The issue's bar:
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import sys
@@ -54,12 +55,17 @@ def main(argv=None):
         slow = max(b["rows"], key=lambda r: r["seconds"])
         rec = b["recommended"]
         rec_txt = f"{rec['name']} {rec['max']:.2g} px" if rec else "none"
+        own = {cal: round(o["seconds"], 1) for cal, o in b.get("own", {}).items()}
+        picks = {cal: c["model"] for cal, c in b["per_calibrator"].items()}
         print(f"{spec:10s} {statistics.median(walls):8.1f} {statistics.median(cpus):8.1f}  "
-              f"{slow['name'][:34]:34s} {slow['seconds']:6.1f}  {rec_txt}", flush=True)
+              f"{slow['name'][:34]:34s} {slow['seconds']:6.1f}  {rec_txt}; own fits s {own}; "
+              f"choices {picks}; load {os.getloadavg()[0]:.1f}", flush=True)
         out["records"][f"models/{spec}"] = {
             "wall_s": statistics.median(walls), "cpu_s": statistics.median(cpus),
             "slowest": slow["name"], "slowest_s": slow["seconds"],
-            "recommended": rec["name"] if rec else None,
+            "recommended": rec["name"] if rec else None, "load_1min": os.getloadavg()[0],
+            "own_fit_seconds": {cal: o["seconds"] for cal, o in b.get("own", {}).items()},
+            "choices": {cal: c["model"] for cal, c in b["per_calibrator"].items()},
             "floor_max_px": rec["max"] if rec else None,
             "rows": [{k: r.get(k) for k in ("name", "nparams", "rms", "max", "seconds")}
                      for r in b["rows"]]}

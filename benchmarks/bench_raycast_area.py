@@ -8,8 +8,8 @@ SYNOPSIS
 
 For each camera (catalogue slots; default 15: 1024x1024 CAHVOR navcam, 17:
 640x480 CAHVORE fisheye hazcam, 1: 5120x3840 noncentral CAHVORE) and each
-setting (point sampling K=<n> adaptive; coverage="area", "area@<tolerance>" with
-options area_tolerance), the 10x10 "dots"
+setting (point sampling K=<n> adaptive: coverage="point"; coverage="area", the
+default, "area@<tolerance>" with options area_tolerance), the 10x10 "dots"
 target at the poses of targets.poses.plan_poses (seed 0) is rendered with a warm
 ray cache; targets.detect finds the dots and each is compared with the exact
 centroid of its projected outline (targets.centroids.expected_centroids):
@@ -20,7 +20,9 @@ min and median over the poses x --repeats (pose 0 apart: the figure of issue
 load average at start and end is in the document (environment).
 
 --memory-camera: that camera is also rendered in area mode in a fresh process,
-which reports its peak resident memory (getrusage) and its warm times.
+which reports its peak resident memory (getrusage) and its warm times;
+--lazy-above-bytes N: with RaycastRenderer(lazy_above_bytes=N) (1 << 40 keeps
+the whole-image ray cache of a 5120x3840 camera: the figure before lazy tiles).
 
 Records: raycast_area/<camera>/<setting> (rms_px, max_px, n, wall_s, cpu_s,
 pose0_wall_s, fractions), raycast_area/memory/<camera>/area.
@@ -46,7 +48,7 @@ def settings_of(name):
         return RenderSettings(spp=16, options={"coverage": "area",
                                                "area_tolerance": float(name[5:])})
     if name.startswith("K="):
-        return RenderSettings(spp=int(name[2:]), adaptive=True)
+        return RenderSettings(spp=int(name[2:]), adaptive=True, options={"coverage": "point"})
     raise SystemExit(f"setting {name!r}: expected K=<n>, area or area@<tolerance>")
 
 
@@ -101,7 +103,7 @@ def measure(out, cam, setting_names, nposes, repeats):
               f"{rec['cpu_s']['median'] * 1e3:.1f} ms", flush=True)
 
 
-def memory_child(cam, repeats):
+def memory_child(cam, repeats, lazy_above_bytes):
     r'''In a fresh process: area-mode renders of one camera; JSON on stdout'''
     from reference_models.catalogue import load_catalogue
     from renderers.raycast import RaycastRenderer
@@ -118,7 +120,8 @@ def memory_child(cam, repeats):
     # Linux: reset the peak (VmHWM) so that it measures this camera's renders alone
     reset = _reset_peak_rss()
     poses = plan_poses(model, target, n=6, seed=0)
-    renderer = RaycastRenderer()
+    renderer = (RaycastRenderer() if lazy_above_bytes is None
+                else RaycastRenderer(lazy_above_bytes=lazy_above_bytes))
     with common.Stopwatch() as cold:
         renderer.render(model, target.pattern(), poses[0], settings_of("area"))
     walls = []
@@ -127,7 +130,9 @@ def memory_child(cam, repeats):
             with common.Stopwatch() as sw:
                 renderer.render(model, target.pattern(), Rt, settings_of("area"))
             walls.append(sw.wall_s)
+    md = renderer.render(model, target.pattern(), poses[0], settings_of("area")).metadata
     print(json.dumps({"camera": cam, "size": [model.width, model.height],
+                      "ray_cache": md["ray_cache"], "lazy_above_bytes": lazy_above_bytes,
                       "cold_s": cold.wall_s, "wall_s": common.summary(walls),
                       "peak_rss_MB": (_vm("VmHWM") if reset else common.peak_rss_bytes()) / 1e6,
                       "peak_rss_since": "the camera" if reset else "process start",
@@ -159,22 +164,28 @@ memory now, or 0 where the reset is not possible'''
 
 def run(args, out):
     if args.memory_child:
-        memory_child(args.memory_child, args.repeats)
+        memory_child(args.memory_child, args.repeats, args.lazy_above_bytes)
         sys.exit(0)
     print(f"dots, warm ray cache, {args.poses} poses x {args.repeats} repeats:")
     for cam in args.cameras:
         measure(out, cam, args.settings, args.poses, args.repeats)
     if args.memory_camera:
+        lazy = ([] if args.lazy_above_bytes is None
+                else ["--lazy-above-bytes", str(args.lazy_above_bytes)])
         r = subprocess.run([sys.executable, __file__, "--memory-child", args.memory_camera,
-                            "--repeats", "1"], capture_output=True, text=True, cwd=common.ROOT)
+                            "--repeats", "1", *lazy], capture_output=True, text=True,
+                           cwd=common.ROOT)
         name = f"raycast_area/memory/{args.memory_camera}/area"
+        if args.lazy_above_bytes is not None:
+            name += f"/lazy_above={args.lazy_above_bytes}"
         if r.returncode != 0:
             out.add(name, status="failed",
                     reason=" ".join(r.stderr.strip().splitlines()[-1:]) or "no output")
             return 0
         rec = out.add(name, json.loads(r.stdout.strip().splitlines()[-1]),
                       bar_peak_rss_MB=BARS["peak_rss_5120x3840_MB"])
-        print(f"  camera {rec['camera']} area, fresh process: cold {rec['cold_s']:.2f} s, warm "
+        print(f"  camera {rec['camera']} area, ray cache {rec['ray_cache']}, fresh process: "
+              f"cold {rec['cold_s']:.2f} s, warm "
               f"median {rec['wall_s']['median']:.3f} s, peak RSS {rec['peak_rss_MB']:.0f} MB "
               f"since {rec['peak_rss_since']} (resident before the camera: "
               f"{rec['rss_before_MB']:.0f} MB)", flush=True)
@@ -188,6 +199,10 @@ def make_parser():
     ap.add_argument("--settings", nargs="+", default=["K=4", "K=16", "area"])
     ap.add_argument("--memory-camera", default="1")
     ap.add_argument("--memory-child", help=common.argparse.SUPPRESS)
+    ap.add_argument("--lazy-above-bytes", type=int, default=None,
+                    help="the memory camera's RaycastRenderer(lazy_above_bytes=...): a camera "
+                         "whose whole ray cache is larger renders without one (default "
+                         "renderers.raycast.LAZY_ABOVE_BYTES; a large value keeps the cache)")
     ap.set_defaults(run=run)
     return ap
 

@@ -2,6 +2,8 @@ r'''The renderer gate (campaigns/gate-renderer.toml) on faulty and clean rendere
 
     uv run --frozen python benchmarks/renderer_gate.py OUT_DIR [--cameras 15,17]
         [--faults shift_001,focal_scale,...] [--clean CAMERA,...] [--seeds 0,1,...]
+    uv run --frozen python benchmarks/renderer_gate.py OUT_DIR --external
+        [--cameras 13,15,17,21] [--faults hc_shift,...] [--family CAHVOR] [--out-dir DIR]
 
 Each fault of renderers.legacy.FAULTS is injected into the exact ray caster
 (renderer "faulty", harness.mutation) on each camera, and jpl, mrcal and
@@ -12,7 +14,69 @@ pose seed of --seeds and must pass. Prints one line per run (the failing
 fields, per calibrator), the exact fit's and verdict's CPU seconds per record, and the
 minimum detectable faults; exits 1 if a fault is missed or a clean run fails.
 
-Measured (2026-11-25, 2 shared cores, K=16, 6 poses):
+--external: the faults reach camval only through images. Each fault of
+examples/fault_renderer.py (a separate program speaking the command protocol,
+persistent, rendering the faulty camera with camval's exact ray caster) runs as
+a `command` renderer labelled fault-NAME, K=16, 6 poses (seed 0), on each camera
+(drop_e on the camera's CAHVORE, the others on --family), calibrated by jpl,
+mrcal and OPENCV5 and judged by the DEFAULT gate spec (`camval gate`'s). Prints
+per run and calibrator the outcome with its deciding quantity (the judged
+quantity nearest its limit: value, sigma, z, limit), then a fault x camera x
+calibrator table, and writes the JSON document (benchmarks/common.py). A fault
+the gate does not flag is "below-limit" when it is smaller than the record's
+limit on every quantity that sees it (projection RMS after a fitted rotation;
+for jpl also the parameter it moves: the record's minimum detectable fault),
+"missed" otherwise (a gate bug); "not-visible" when the calibrator's model fits
+the true and faulty camera alike (theta for mrcal and OpenCV) or the fault
+changes nothing on the camera (theta90 on camera 17: theta 90.0000 deg; drop_e
+on 17: E = 0); "not-judged" when the record's floor is far (harness.verdict).
+Run directories OUT_DIR/ext-FAULT-CAMERA-FAMILY are resumed when they exist
+(the table is then rebuilt from them). "none" is the clean control. Exit 1 when
+a fault is not flagged on some camera or a clean run is.
+
+Measured (2026-11-25, 2 shared cores, load 18-27; 14-27 s a run on 13, 15, 17,
+48-117 s on 21 at 5120x3840):
+  uv run --frozen python benchmarks/renderer_gate.py /tmp/hf/full --external \
+      --cameras 13,15,17,21
+
+                 camera 13         camera 15         camera 17         camera 21
+    fault        jpl   mrcal openc jpl   mrcal openc jpl   mrcal openc jpl   mrcal openc
+    hc_shift     <lim  <lim  n/j   FLAG  <lim  n/j   FLAG  <lim  <lim  FLAG  n/j   n/j
+    focal_scale  FLAG  <lim  n/j   FLAG  <lim  n/j   <lim  <lim  <lim  FLAG  n/j   n/j
+    theta90      FLAG  n/j   n/j   FLAG  FLAG  n/j   n/v   n/v   n/v   FLAG  n/j   n/j
+    half_pixel   FLAG  <lim  <lim  FLAG  FLAG  FLAG  FLAG  FLAG  FLAG  FLAG  FLAG  FLAG
+    r1_scale     <lim  <lim  n/j   <lim  <lim  n/j   <lim  <lim  <lim  FLAG  FLAG  n/j
+    r2_scale     <lim  <lim  n/j   FLAG  <lim  n/j   <lim  <lim  <lim  FLAG  FLAG  n/j
+    drop_e       n/a   n/a   n/a   n/a   n/a   n/a   n/v   n/v   n/v   FLAG  n/j   n/j
+    o_tilt       <lim  <lim  n/j   <lim  <lim  n/j   <lim  <lim  <lim  FLAG  n/j   n/j
+    round_centre FLAG  <lim  n/j   FLAG  FLAG  n/j   FLAG  FLAG  FLAG  FLAG  FLAG  n/j
+    none         pass  pass  n/j   pass  pass  n/j   pass  pass  pass  pass  n/j   n/j
+
+  (families: CAHVOR; drop_e CAHVORE, which 13 and 15 do not have.) Flagged on >= 3
+  of 4 cameras: hc_shift, focal_scale, theta90 (17's theta is 90), half_pixel,
+  round_centre. drop_e flagged wherever E != 0: camera 21, and the extra camera 12
+  (CAHVORE; --cameras 12,21 --faults drop_e,none --family CAHVORE: drop_e flagged
+  z 272 / 2090, clean CAHVORE runs pass). Not flagged on >= 2 cameras, each below
+  the record's minimum detectable fault (no "missed"; the jpl line of each run):
+  - r1_scale (R1 x 0.99): minimum detectable R1 scale 0.098 / 0.021 / 0.028 on
+    13 / 15 / 17 (R1_frac sigma 0.016 / 0.0036 / 0.0047); the fault moves
+    projections 0.00034 / 0.0017 / 0.0029 px RMS against limits of 0.0019 / 0.0022
+    / 0.0063 px (R1 is -0.0022 on 15, 0.0011 on 17; 21's 0.0495 moves 0.52 px).
+  - r2_scale (R2 x 0.99): 0.00014 px RMS on 13 (limit 0.0019) and 0.0016 px on 17
+    (limit 0.0062): ~14x and ~4x the fault would reach the limits.
+  - o_tilt (O 0.01 deg): O matters only through R: 1.6e-5 / 2.9e-4 / 5.4e-5 px RMS
+    after a rotation on 13 / 15 / 17 (limits 0.0019 / 0.0022 / 0.0063 px).
+  - hc_shift on pancam 13 (16 deg field): Hc sigma 0.014 px, minimum detectable
+    Hc shift 0.084 px; focal_scale on 17: Hs sigma 3e-6, minimum 1.8e-5.
+  mrcal is judged by its projection RMS only: limit 6 sigma = 0.0096 px on 15, the
+  0.02 px cap on 13 and 17 (sigma 0.003-0.004 px). It flags the faults that move
+  projections beyond that after a rotation (half_pixel, round_centre; theta90 on
+  15). Its records on 21 (theta 90.0106 deg, floor 0.02-0.035 px) are not judged,
+  except where the fault itself raises the measured detection noise (detected
+  minus exact, 0.04-0.7 px) above the floor: half_pixel, r1_scale, r2_scale,
+  round_centre, all flagged.
+
+In-process faults, measured (2026-11-25, 2 shared cores, K=16, 6 poses):
 - clean, all 22 slots + 11 extras, CAHV + CAHVOR, jpl/mrcal/OPENCV5: pose seed 3, 198
   records, PASS (SuperCam not-applicable); also seeds 0-2 on 15, 17, MCAM_Z_LEFT-Z026/
   Z100, MCAM_Z_RIGHT-Z110, seeds 0-1 on 1, 8, 13, 21, seed 0 on the other 23 cameras:
@@ -37,17 +101,289 @@ def campaign(cameras, family, renderer, seed, name):
                            {"name": "opencv", "models": ["OPENCV5"]}]}
 
 
+ROOT = Path(__file__).resolve().parents[1]
+FAULT_PROGRAM = ROOT / "examples" / "fault_renderer.py"
+CALIBRATORS = ("jpl", "mrcal", "opencv")
+
+def fault_program():
+    r'''examples/fault_renderer.py as a module (its fault definitions, to size each fault)'''
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("fault_renderer", FAULT_PROGRAM)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def fault_size(fr, model, fault):
+    r'''(projection change RMS px with the camera frames identified, the same after a fitted
+rotation) of the faulty camera against the true one; None: the fault does not apply'''
+    from harness.compare import projection_difference
+    try:
+        bad = fr.faulty_model(model, fault)
+    except fr.FaultNotApplicable:
+        return None
+    return (projection_difference(model, bad, "intrinsics")["rms"],
+            projection_difference(model, bad, "rotation")["rms"])
+
+
+def _lookup(r, path):
+    for part in path.split("."):
+        if not isinstance(r, dict) or part not in r:
+            return None
+        r = r[part]
+    return r
+
+
+def judged_quantities(name, rec, spec):
+    r'''[(value / limit, "field value (sigma, z) vs limit")] of every [[scatter]] limit of
+the spec on this record, largest ratio first'''
+    from harness.gate import _matches
+    out = []
+    for lim in spec.scatter:
+        if not _matches(name, lim.match):
+            continue
+        v, s = _lookup(rec, lim.field), _lookup(rec, lim.sigma)
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            continue
+        allowed, _ = lim.allowed(abs(s) if s else None)
+        z = f", z {abs(v) / abs(s):.3g}" if s else ""
+        sig = f"{abs(s):.2g}" if s else "none"
+        out.append((abs(v) / allowed if allowed else float("inf"),
+                    f"{lim.field.rsplit('.', 1)[-1]} {abs(v):.3g} (sigma {sig}{z}) "
+                    f"vs {allowed:.3g}"))
+    return sorted(out, reverse=True)
+
+
+def projection_limit(name, rec, spec):
+    from harness.gate import _matches
+    for lim in spec.scatter:
+        if lim.field == "verdict.renderer.projection.rms" and _matches(name, lim.match):
+            s = _lookup(rec, lim.sigma)
+            return lim.allowed(abs(s) if s else None)[0]
+    return None
+
+
+def fault_parameter(fault, model):
+    r'''(parameter of verdict.renderer.params, how far the fault moves it) for the faults
+that move one judged parameter by a known amount, else None'''
+    if fault == "hc_shift":
+        return "Hc", 0.01
+    if fault == "focal_scale":
+        return "Hs", 1e-5
+    if fault == "r1_scale":
+        return "R1_frac", 0.01
+    if fault == "theta90":
+        return "theta_deg", abs(model.photogrammetric().theta_deg - 90.0)
+    return None
+
+
+def parameter_limit(name, rec, spec, p):
+    from harness.gate import _matches
+    for lim in spec.scatter:
+        if lim.field == f"verdict.renderer.params.{p}" and _matches(name, lim.match):
+            s = _lookup(rec, lim.sigma)
+            return lim.allowed(abs(s) if s else None)[0], s
+    return None, None
+
+
+def classify(fault, cal, name, rec, flagged, spec, size, model):
+    r'''(outcome, the deciding quantity or the reason) of one record of a fault run
+
+outcome: flagged; missed (the fault is above what this record can detect and was not
+flagged: a gate bug); below-limit (not flagged, and the fault is smaller than this
+record's limit on every quantity that sees it: its minimum detectable fault is larger);
+not-visible (the calibrator's model fits the faulty and the true camera alike);
+not-judged (the record's floor is far or its fits disagree); a record's status.'''
+    st = rec.get("status")
+    if st != "ok":
+        return st, rec.get("reason") or ""
+    v = rec.get("verdict") or {}
+    q = judged_quantities(name, rec, spec)
+    top = q[0][1] if q else "(no judged quantity)"
+    if flagged:
+        return ("passed?" if fault == "none" else "flagged"), top
+    if v.get("floor_far") or v.get("fits_disagree"):
+        return "not-judged", v.get("floor_reason") or v.get("disagree_reason") or ""
+    if fault == "none":
+        return "passed", top
+    if cal != "jpl" and fault == "theta90":
+        return "not-visible", (f"{cal}'s model frame holds theta at 90 deg: it fits the true "
+                               "and the faulty camera alike; " + top)
+    why = []
+    lim = projection_limit(name, rec, spec)
+    below = lim is not None and size[1] <= lim
+    if lim is not None:
+        why.append(f"the fault moves projections {size[1]:.2g} px RMS after a fitted "
+                   f"rotation, limit {lim:.2g} px")
+    fp = fault_parameter(fault, model) if cal == "jpl" else None
+    if fp is not None:
+        plim, s = parameter_limit(name, rec, spec, fp[0])
+        if plim is not None:
+            below &= fp[1] <= plim
+            why.append(f"it moves {fp[0]} by {fp[1]:.2g}, limit {plim:.2g} (sigma {s:.2g}): "
+                       f"the record's minimum detectable fault")
+    if below and lim and size[1] > 0:
+        # the fault's image-wide effect is linear in its size: this many times the fault
+        # reaches the projection limit (a calibrator that absorbs part of it needs more)
+        why.append(f"~{lim / size[1]:.2g} x this fault reaches the projection limit")
+    return ("below-limit" if below else "missed"), "; ".join(why + [f"closest: {top}"])
+
+
+def external(args):
+    r'''--external: every fault of examples/fault_renderer.py through the command renderer,
+on each camera, judged by the default gate spec -> the fault x camera x calibrator table'''
+    import common
+
+    from harness.campaign import parse_campaign
+    from harness.gate import DEFAULT_SPEC, check, load_gate_spec
+    from harness.runner import run_campaign
+    from reference_models.cahvore import truncate
+    from reference_models.catalogue import load_catalogue
+    from reference_models.errors import CamvalError
+
+    fr = fault_program()
+    spec = load_gate_spec(DEFAULT_SPEC)
+    out = Path(args.out)
+    results = common.Results("renderer_gate", args, out_dir=args.out_dir)
+    cat = load_catalogue()
+    cams = [c for c in args.cameras.split(",") if c]
+    faults = [f for f in (args.faults or ",".join(fr.FAULTS)).split(",") if f]
+    rows = {}
+    ok = True
+    for cam in cams:
+        native = cat.get(cam).model
+        for fault in faults:
+            # E exists on CAHVORE only: drop_e runs on the camera's CAHVORE, the others on
+            # args.family (CAHVOR has every other parameter the faults change)
+            family = "CAHVORE" if fault == "drop_e" else args.family
+            key = f"{fault}/{cam}"
+            try:
+                model = truncate(native, family)
+            except CamvalError as e:    # a CAHVOR camera has no CAHVORE: no E to drop
+                why = f"camera {cam} is {native.family}: {e}"
+                rows[key] = {c: ("not-applicable", why) for c in CALIBRATORS}
+                results.add(key, status="not-applicable", reason=why, family=family)
+                print(f"{fault:13s} {cam:4s} {family:8s} not applicable: {why}", flush=True)
+                continue
+            size = fault_size(fr, model, fault)
+            if size is None:
+                why = f"{family} has no parameter the fault changes"
+                rows[key] = {c: ("not-applicable", why) for c in CALIBRATORS}
+                results.add(key, status="not-applicable", reason=why, family=family)
+                print(f"{fault:13s} {cam:4s} {family:8s} not applicable: {why}", flush=True)
+                continue
+            if fault != "none" and size[0] < 1e-9:
+                why = (f"the fault changes nothing on camera {cam} {family} (theta "
+                       f"{model.photogrammetric().theta_deg:.4f} deg, E "
+                       f"{getattr(model, 'E', None)}): its images are the clean run's")
+                rows[key] = {c: ("not-visible", why) for c in CALIBRATORS}
+                results.add(key, status="not-visible", reason=why, family=family,
+                            fault_px_rms_intrinsics=size[0])
+                print(f"{fault:13s} {cam:4s} {family:8s} no-op: {why}", flush=True)
+                continue
+            renderer = {"name": "command", "label": f"fault-{fault}", "spp": args.spp,
+                        "setup": {"command": [sys.executable, str(FAULT_PROGRAM), "--fault",
+                                              fault], "persistent": True}}
+            run_dir = out / f"ext-{fault}-{cam}-{family}"
+            t0 = time.perf_counter()
+            doc = campaign([int(cam) if cam.isdigit() else cam], family, renderer, 0,
+                           f"ext-{fault}")
+            r = run_campaign(parse_campaign(doc), run_dir, progress=False, workers=1,
+                             resume=run_dir.exists())
+            # a stored run (resumed, nothing rerun) has no time of its own here
+            secs = (time.perf_counter() - t0) if r["execution"]["jobs_run"] else None
+            failures = check(r, spec)
+            flagged_names = {f.fullname for f in failures}
+            cells = {}
+            for name, rec in r["records"].items():
+                cal = name.rsplit("/", 1)[-1].split("[", 1)[0]
+                cells[cal] = classify(fault, cal, name, rec, name in flagged_names, spec, size,
+                                      model)
+            rows[key] = cells
+            run_flagged = bool(failures)
+            ok &= run_flagged if fault != "none" else not run_flagged
+            results.add(key, family=family, run_dir=str(run_dir), seconds=secs,
+                        flagged=run_flagged, fault_px_rms_intrinsics=size[0],
+                        fault_px_rms_rotation=size[1],
+                        failures=[f.as_dict() for f in failures],
+                        calibrators={c: {"outcome": o, "detail": d}
+                                     for c, (o, d) in cells.items()})
+            print(f"{fault:13s} {cam:4s} {family:8s} run "
+                  f"{'FLAGGED' if run_flagged else 'passed '} "
+                  f"({'stored run' if secs is None else format(secs, '.0f') + ' s'}; fault "
+                  f"{size[0]:.2g} px RMS, {size[1]:.2g} after a rotation)", flush=True)
+            for cal in sorted(cells):
+                print(f"    {cal:7s} {cells[cal][0]:13s} {cells[cal][1]}", flush=True)
+    print_table(rows, faults, cams)
+    results.doc["summary"] = summarise(rows, faults, cams)
+    for line in results.doc["summary"]["lines"]:
+        print(line)
+    results.write()
+    print("renderer gate (external faults):", "PASS" if ok else "FAIL")
+    return 0 if ok else 1
+
+
+SHORT = {"flagged": "FLAG", "missed": "MISS", "below-limit": "<lim", "not-visible": "n/v",
+         "not-judged": "n/j", "not-applicable": "n/a", "failed": "FAIL", "passed": "pass",
+         "passed?": "FLAG!"}
+
+
+def print_table(rows, faults, cams):
+    cols = [(cam, cal) for cam in cams for cal in CALIBRATORS]
+    print("\n" + " " * 13 + "".join(f"{'camera ' + cam:18s}" for cam in cams))
+    print(f"{'fault':13s}" + "".join(f"{cal[:5]:6s}" for _, cal in cols))
+    for fault in faults:
+        cells = [rows.get(f"{fault}/{cam}", {}).get(cal, ("-", ""))[0] for cam, cal in cols]
+        print(f"{fault:13s}" + "".join(f"{SHORT.get(c, c):6s}" for c in cells))
+    print("FLAG flagged; <lim not flagged, the fault is below the record's limit (its minimum "
+          "detectable fault); MISS not flagged though above the limit; n/v not visible to "
+          "that calibrator's model; n/j not judged (floor far / fits in different minima); "
+          "n/a fault not applicable; FLAG! a clean run flagged\n")
+
+
+def summarise(rows, faults, cams):
+    out = {"faults": {}, "lines": []}
+    for fault in faults:
+        if fault == "none":
+            continue
+        per = {}
+        for cal in CALIBRATORS:
+            cells = [rows.get(f"{fault}/{cam}", {}).get(cal, ("-", ""))[0] for cam in cams]
+            per[cal] = {"flagged": sum(c == "flagged" for c in cells),
+                        "missed": sum(c == "missed" for c in cells),
+                        "below_limit": sum(c == "below-limit" for c in cells),
+                        "exists": sum(c not in ("not-applicable", "-") for c in cells)}
+        run_flagged = sum(any(rows.get(f"{fault}/{cam}", {}).get(cal, ("",))[0] == "flagged"
+                              for cal in CALIBRATORS) for cam in cams)
+        out["faults"][fault] = dict(per, cameras_flagged=run_flagged)
+        out["lines"].append(
+            f"{fault:13s} flagged on {run_flagged} of {len(cams)} cameras; "
+            + ", ".join(f"{cal} {per[cal]['flagged']} flagged / {per[cal]['below_limit']} "
+                        f"below limit / {per[cal]['missed']} missed" for cal in CALIBRATORS))
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out")
+    ap.add_argument("--external", action="store_true",
+                    help="the faults of examples/fault_renderer.py through the command "
+                         "renderer (--faults default: all of them, and 'none')")
+    ap.add_argument("--out-dir", type=Path, default=None,
+                    help="directory of the JSON document (--external; default "
+                         "benchmarks/results)")
     ap.add_argument("--cameras", default="15,17")
-    ap.add_argument("--faults", default="shift_001,focal_scale,half_pixel,r1_sign,theta90")
+    ap.add_argument("--faults", default=None,
+                    help="default: shift_001,focal_scale,half_pixel,r1_sign,theta90; with "
+                         "--external every fault of examples/fault_renderer.py")
     ap.add_argument("--clean", default="")
     ap.add_argument("--family", default="CAHVOR")
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--spp", type=int, default=16)
     args = ap.parse_args(argv)
+    if args.external:
+        return external(args)
 
     from harness.campaign import parse_campaign
     from harness.gate import DEFAULT_SPEC, check, explain, load_gate_spec
@@ -70,7 +406,8 @@ def main(argv=None):
         return r, check(r, spec), time.perf_counter() - t0
 
     cams = [c if not c.isdigit() else int(c) for c in args.cameras.split(",") if c]
-    for fault in [f for f in args.faults.split(",") if f]:
+    faults = args.faults or "shift_001,focal_scale,half_pixel,r1_sign,theta90"
+    for fault in [f for f in faults.split(",") if f]:
         family = "CAHV" if fault == "theta90" else args.family
         for cam in cams:
             renderer = {"name": "faulty", "spp": args.spp, "options": {"fault": fault}}

@@ -16,7 +16,19 @@ protocol: docs/README-renderers.md.
 This example renders with camval's own exact ray caster (image mode), with a
 CAHV pinhole through the ray caster (pinhole mode) and by intersecting each
 ray with the board plane (rays mode), so a campaign run through it gives the
-same records as the built-in "raycast" renderer in image mode:
+same records as the built-in "raycast" renderer in image mode.
+
+Terrain requests (scene kind "terrain", protocol version 3: req.terrain holds
+the height field, texture, sun and lighting as plain values) it renders with
+camval's terrain ray caster (renderers.raycast_terrain) as the stand-in
+engine: image mode the model's image plus the optional range and shadow
+outputs, pinhole mode the pinhole as a CAHV, rays mode each given ray
+(trace_rays) with its range and shadow code, which is also how it answers the
+shadow check. `camval stereo 12 11 --renderer command --command "python
+examples/external_renderer.py" --setup persistent=true` runs the stereo range
+check on it.
+
+A board campaign through it:
 
     [[renderer]]
     name = "command"
@@ -70,6 +82,28 @@ def ray_values(req):
     return out
 
 
+def terrain_render(req):
+    r'''A terrain request: the image (or ray values) with range and shadow codes'''
+    from renderers.raycast_terrain import render_terrain, trace_rays
+
+    t = req.terrain
+    terrain = t.to_terrain()          # camval's Terrain: the stand-in engine's scene
+    light = t.lighting()              # shadows, exposure, sky
+    if req.mode == "rays":
+        origins, dirs = req.rays()
+        value, rng, code = trace_rays(terrain, origins, dirs, Rt_ref_terrain=t.Rt_cam_terrain,
+                                      **light)
+        # each ray's radiance clipped to [0,1] (the protocol's range of values)
+        return {"values": np.clip(value, 0.0, 1.0), "range": rng, "shadow": code}
+    if req.mode == "pinhole":
+        # the pinhole sits at C in the model's camera frame: the terrain's pose there
+        r = render_terrain(pinhole_as_cahv(req.pinhole), terrain, t.Rt_cam_terrain,
+                           spp=req.settings.spp, **light)
+        return r.image
+    r = render_terrain(req.model, terrain, t.Rt_ref_terrain, spp=req.settings.spp, **light)
+    return {"image": r.image, "range": r.range, "shadow": r.shadow}
+
+
 def render(req):
     opts = req.settings.options
     if opts.get("sleep"):
@@ -81,6 +115,8 @@ def render(req):
         raise NotApplicable(opts["not_applicable"])
     if opts.get("wrong_size"):
         return np.zeros((1, 1))
+    if req.terrain is not None:
+        return terrain_render(req)
     if req.mode == "rays":
         return ray_values(req)
     from renderers.raycast import RaycastRenderer

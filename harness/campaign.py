@@ -82,7 +82,7 @@ Every stage is off unless named; the stages run in their physical order
 whatever the order in the file. Without a [response] table every job renders
 clean, as before. A profile with no stages is the clean render and leaves the
 fullname unchanged; any other profile adds ",response=NAME" to the renderer
-settings of the fullname (15/CAHVOR/dots/raycast[spp=16,adaptive,
+settings of the fullname (15/CAHVOR/dots/raycast[spp=16,adaptive,coverage=area,
 response=realistic]/jpl[CAHVOR]), so the same camera with and without noise
 are distinct records. The noise of image i of a job is drawn from
 numpy.random.default_rng([seed, profile seed, sha256(job key) as four 32-bit
@@ -470,6 +470,42 @@ def _best_model(calibrator, family, camera_model, tolerance):
     if name is None:
         return family, f"{why}: the job's family {family}"
     return name, why
+
+
+def resolve_best(campaign, entries, progress=None):
+    r'''Choose every "best" model of the campaign now, one camera, family and calibrator
+at a time, with progress (harness.progress.Progress): harness.jobs.expand_jobs then finds
+them chosen (harness.model_benchmark.best_model keeps its choices per process and on
+disk, keyed on the camera's parameters). Returns [(camera, family, calibrator, model,
+why, seconds)].
+
+A benchmark takes 0.2-15 s per camera and family on a loaded 2-core machine (the mrcal
+splined model is the slow one); a choice kept on disk takes milliseconds.
+'''
+    import time
+
+    from harness.model_benchmark import cached_choice
+    todo = [(spec, family, c) for spec in campaign.cameras for family in campaign.models
+            for c in campaign.calibrators if BEST in c.models]
+    if not todo:
+        return []
+    if progress is not None:
+        progress.stage("best models", total=len(todo))
+    out = []
+    for spec, family, c in todo:
+        tol = c.options.get(BEST_TOLERANCE)
+        what = f"camera {spec} {family} {c.name}"
+        t0 = time.perf_counter()
+        if progress is not None:
+            progress.note(f"{what}: model benchmark")
+        cached = cached_choice(entries[spec].model, family, c.name, tol)
+        name, why = _best_model(c.name, family, entries[spec].model, tol)
+        dt = time.perf_counter() - t0
+        out.append((spec, family, c.name, name, why, dt))
+        if progress is not None:
+            progress.advance(f"{what}: {name} ({'kept from an earlier run, ' if cached else ''}"
+                             f"{dt:.1f} s)")
+    return out
 
 
 def _calibrator_has_model(cal, model):

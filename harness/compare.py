@@ -300,8 +300,8 @@ SYNOPSIS
         out["parameters"] = None
         out["projection"] = None
         return out
-    world = bool(result.info.get("world_frame", result.calibrator == "jpl"))
-    theta = result.calibrator == "jpl"
+    world = result.world_frame
+    theta = result.theta_estimated
     out["parameters"] = parameter_errors(truth, result.model, theta_estimated=theta,
                                          world_frame=world)
     modes = ("rotation", "intrinsics") + (("world",) if world else ())

@@ -18,12 +18,14 @@ function (harness.runner.run_job).
 
 import os
 import pickle
+import shutil
 import sys
-import time
 import uuid
+from pathlib import Path
 
 from .job_records import failure_records
 from .jobs import RunnerError, slug
+from .progress import PROGRESS_DIR, Progress, watch_dir
 from .stages import failure_reason
 from .warmup import warm_up
 
@@ -107,49 +109,6 @@ every job's records are stored by then'''
               f"records are stored", file=sys.stderr)
 
 
-class _Progress:
-    r'''A rich progress bar with ETA on a terminal; one plain line per job otherwise'''
-
-    def __init__(self, total, enabled=True, stream=None):
-        self.total = total
-        self.done = 0
-        self.stream = stream or sys.stderr
-        self.t0 = time.monotonic()
-        self.enabled = enabled
-        self.bar = None
-        if enabled and total and getattr(self.stream, "isatty", lambda: False)():
-            from rich.console import Console
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-                TimeRemainingColumn,
-            )
-            self.bar = Progress(TextColumn("[bold]verify"), BarColumn(), MofNCompleteColumn(),
-                                TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
-                                TextColumn("{task.description}"),
-                                console=Console(file=self.stream), transient=False)
-            self.task = self.bar.add_task("", total=total)
-            self.bar.start()
-
-    def advance(self, job_key, statuses):
-        self.done += 1
-        summary = ", ".join(f"{n} {s}" for s, n in sorted(statuses.items()))
-        if self.bar is not None:
-            self.bar.update(self.task, advance=1, description=f"{job_key} ({summary})")
-        elif self.enabled:
-            el = time.monotonic() - self.t0
-            eta = el / self.done * (self.total - self.done)
-            print(f"[{self.done}/{self.total}] {job_key}: {summary}  "
-                  f"(elapsed {el:.0f} s, ETA {eta:.0f} s)", file=self.stream, flush=True)
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.stop()
-
-
 def run_jobs(jobs, store, fn=None, executor="local", workers=None, scheduler=None,
              progress=True, warm=True, report=None):
     r'''Run jobs, storing each job's records in `store` as it finishes
@@ -168,6 +127,8 @@ processes or on Dask, a module-level function (it travels by reference).
 warm: before starting local worker processes (workers > 1, fn = run_job),
 compile the renderer's kernels once here (warm_up) so that the workers load
 them from numba's cache. report: a dict that receives {"warm_up": {...}}.
+progress: True (a harness.progress.Progress of its own on stderr), False, or the
+campaign's Progress (its "jobs" stage shows the running jobs' stages on a terminal).
 '''
     from .runner import run_job  # the job function the runner hands to the executors
     if fn is None:
@@ -180,11 +141,18 @@ them from numba's cache. report: a dict that receives {"warm_up": {...}}.
     todo = sorted((j for j in jobs if j.key not in done), key=lambda j: (-j.cost, j.key))
     if workers is None:
         workers = min(len(todo), os.cpu_count() or 1)
+    own = not isinstance(progress, Progress)
+    bar = Progress(enabled=bool(progress)) if own else progress
     if (warm and executor == "local" and workers > 1 and fn is run_job and todo):
+        bar.stage("warm-up")
         info = warm_up(todo)
         if report is not None:
             report["warm_up"] = info
-    bar = _Progress(len(todo), enabled=progress)
+    watch = None
+    if bar.rich and executor == "local" and getattr(store, "dir", None) is not None:
+        watch = store.dir
+        watch_dir(watch)
+    bar.stage("jobs", total=len(todo), watch=watch)
     try:
         results = (_dask_results(fn, todo, scheduler) if executor == "dask"
                    else _local_results(fn, todo, workers))
@@ -208,7 +176,12 @@ them from numba's cache. report: a dict that receives {"warm_up": {...}}.
             statuses = {}
             for r in recs:
                 statuses[r["status"]] = statuses.get(r["status"], 0) + 1
-            bar.advance(job.key, statuses)
+            summary = ", ".join(f"{n} {s}" for s, n in sorted(statuses.items()))
+            bar.advance(f"{job.key}: {summary}",
+                        short=f"{'/'.join(job.key.split('/')[:2])}: {summary}")
     finally:
-        bar.close()
+        if own:
+            bar.close()
+        if watch is not None:
+            shutil.rmtree(Path(watch) / PROGRESS_DIR, ignore_errors=True)
     return sum(1 + len(j.twins) for j in todo)

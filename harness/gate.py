@@ -299,7 +299,8 @@ def load_gate_spec(path):
 
 
 def _glob_regex(glob):
-    # Fullnames carry brackets ("15/CAHVOR/dots/raycast[spp=16]/jpl[CAHVOR]"), so only
+    # Fullnames carry brackets
+    # ("15/CAHVOR/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHVOR]"), so only
     # * and ? are wildcards; fnmatch would read "[*]" as a one-character class.
     return re.compile("".join(".*" if c == "*" else "." if c == "?" else re.escape(c)
                               for c in glob) + r"\Z", re.S)

@@ -6,7 +6,7 @@ SYNOPSIS
 
     jobs = expand_jobs(campaign)                # [Job, ...]
     jobs = group_twins(jobs, skip=store.done_jobs())
-    jobs[0].key                                 # "15/CAHVOR/dots/raycast[spp=8,adaptive]"
+    jobs[0].key               # "15/CAHVOR/dots/raycast[spp=8,adaptive,coverage=area]"
 
 A Job is camera x model family x target x renderer setting, with the
 calibrators to run on it: a frozen dataclass that pickles by value, so the

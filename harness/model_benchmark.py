@@ -9,6 +9,7 @@ SYNOPSIS
         row["name"], row["nparams"], row["rms"], row["max"], row["corner"]
     b["recommended"]                      # the simplest candidate whose floor <= tolerance
     b["per_calibrator"]["mrcal"]          # {"model": "CAHVORE", "why": "...", ...}
+    b["own"]["mrcal"]["rows"]             # mrcal's own fits: the floors its choice is made on
 
     name, why = best_model(truth, "opencv", tolerance=0.01)   # "FISHEYE", "floor ..."
 
@@ -46,11 +47,19 @@ How each candidate is fitted (all by least squares on those exact points):
   (COLMAP's pixel origin differs by 0.5 px, which a floor does not see): their
   rows are fitted with cv2 as well.
 
+The choice per calibrator (jpl, mrcal, OpenCV: OWN_FIT) is made on the floors of the
+calibrator's OWN fit of exact observations of whole-image poses (own_floor(); see "a
+calibrator's own floor" below): its model frame and constraints, its solver. The direct
+fits' floors are what each model can do at all; a calibrator's can be higher (OpenCV
+weighs the field by its boards) or lower (mrcal's solver follows the CAHVOR R0 valley
+to a skewed camera that the direct fit crawls towards).
+
 nparams counts the intrinsic parameters a calibrator fits (CAHV 5: fx, fy, cx,
 cy and the skew theta; CAHVOR +2 O +2 R (R0 is a gauge); CAHVORE +3 E).
 "Simplest" is the fewest parameters, then the order of CANDIDATES.
 '''
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -69,6 +78,12 @@ STOP_GAIN = 1e-3
 # at most this many evaluations for the splined model: slot 15 reaches its floor in 5, hazcam
 # 9 in ~20; SuperCam (theta 75 deg, 1.1 deg field of view) crawls for 700 (241 s) to 2 px
 SPLINED_EVALUATIONS = 40
+# calibrators whose floors come from their own fits (see "a calibrator's own floor" below)
+OWN_FIT = ("jpl", "mrcal", "opencv")
+# six templates and the eight corner and edge anchors of targets.poses's "corners" cover
+FLOOR_POSES = 14
+FLOOR_COVER = "corners"
+FLOOR_TARGET = "dots"
 
 
 @dataclass(frozen=True)
@@ -522,7 +537,8 @@ def _nparams(c, truth):
 
 
 def benchmark(truth, tolerance=DEFAULT_TOLERANCE, ranges_m=None, candidates=None,
-              criterion="max", fit_points=FIT_POINTS, eval_step=None, first_within=False):
+              criterion="max", fit_points=FIT_POINTS, eval_step=None, first_within=False,
+              own_fits=OWN_FIT):
     r'''Fit every candidate model to the truth's exact projections; the floors and the choice
 
 SYNOPSIS
@@ -544,7 +560,9 @@ ARGUMENTS
 - fit_points: fit-grid points along the longer image side; eval_step: px between the
   evaluation grid's points (default harness.compare.DEFAULT_GRID_STEP)
 - first_within: try the candidates from the fewest parameters up and stop at the first
-  within tolerance (what best_model() needs: the splined model, slowest, comes last)
+  within tolerance (the splined model, slowest, comes last)
+- own_fits: calibrators whose choice comes from their own fits (own_fit_choice(); default
+  OWN_FIT): b["own"][cal] = {"choice", "rows", "poses", "seconds", "diagnostics"}
 
 A candidate whose fit raises is a row with status "failed" and the reason.
 '''
@@ -595,6 +613,14 @@ A candidate whose fit raises is a row with status "failed" and the reason.
            "eval_points": int(len(q_e)), "rows": rows,
            "seconds": time.perf_counter() - t_all, "diagnostics": cap.summary()}
     out["recommended"] = _simplest(rows, tolerance, criterion)
+    out["own"] = {}
+    for cal in (c for c in own_fits if any(c in x.calibrators for x in chosen)):
+        t0 = time.perf_counter()
+        with capture() as cap:
+            choice, own_rows = own_fit_choice(truth, cal, tolerance, criterion)
+        out["own"][cal] = {"choice": choice, "rows": own_rows, "poses": FLOOR_POSES,
+                           "seconds": time.perf_counter() - t0, "diagnostics": cap.summary()}
+    out["seconds"] = time.perf_counter() - t_all
     out["per_calibrator"] = {cal: choose(out, cal) for cal in ("jpl", "mrcal", "opencv",
                                                                 "colmap")}
     return out
@@ -627,24 +653,41 @@ SYNOPSIS
 When none is within tolerance: the model with the lowest floor, and "why" says so;
 when the calibrator fits no candidate: model None.
 '''
-    tol, crit = bench["tolerance"], bench["criterion"]
+    if calibrator in bench.get("own", {}):
+        return bench["own"][calibrator]["choice"]
     rows = [r for r in bench["rows"] if calibrator in r["calibrators"]]
+    return _choose_rows(rows, calibrator, bench["tolerance"], bench["criterion"])
+
+
+def _choose_rows(rows, calibrator, tol, crit, how=None):
     if not rows:
         return {"model": None, "why": f"the benchmark has no {calibrator} model"}
+    how = f" ({how})" if how else ""
     within = _simplest(rows, tol, crit)
     if within is not None:
         skipped = [r["calibrators"][calibrator] for r in rows
                    if r["nparams"] is not None and r["nparams"] < within["nparams"]]
         why = (f"simplest {calibrator} model with {crit} floor {within[crit]:.2g} px <= "
-               f"{tol:g} px" + (f" ({', '.join(skipped)}: floors above)" if skipped else ""))
+               f"{tol:g} px{how}" + (f" ({', '.join(skipped)}: floors above)" if skipped
+                                     else ""))
         r = within
     else:
         fitted = [r for r in rows if r.get("status") == "ok" and r.get(crit) is not None]
         if not fitted:
-            return {"model": None, "why": f"no {calibrator} model could be fitted"}
-        r = min(fitted, key=lambda r: (r.get("n_invalid", 0), r[crit], rows.index(r)))
-        why = (f"no {calibrator} model within {tol:g} px; the lowest {crit} floor is "
-               f"{r[crit]:.3g} px")
+            return {"model": None, "why": f"no {calibrator} model could be fitted{how}"}
+        lowest = min(fitted, key=lambda r: (r.get("n_invalid") or 0, r[crit], rows.index(r)))
+        # floors that differ by less than the tolerance are alike at that tolerance: the
+        # simplest of those (a richer model fitted for a gain below the tolerance only adds
+        # parameters the images must determine: OpenCV's rational model diverged on 6 poses
+        # of hazcam 17 for 0.025 px against OPENCV5's)
+        alike = [r for r in fitted if (r.get("n_invalid") or 0) == (lowest.get("n_invalid") or 0)
+                 and r[crit] <= lowest[crit] + tol]
+        r = min(alike, key=lambda r: (r["nparams"], rows.index(r)))
+        why = (f"no {calibrator} model within {tol:g} px{how}; the lowest {crit} floor is "
+               f"{lowest[crit]:.3g} px ({lowest['calibrators'][calibrator]})")
+        if r is not lowest:
+            why += (f"; the simplest within {tol:g} px of it: {r['calibrators'][calibrator]} "
+                    f"({r[crit]:.3g} px)")
         if r.get("n_invalid"):
             why += (f" over the field of view it can see ({r['n_invalid']} of {r['n']} points "
                     "are 90 deg or more off its axis)")
@@ -652,8 +695,188 @@ when the calibrator fits no candidate: model None.
             "floor": r[crit], "nparams": r["nparams"], "why": why}
 
 
+# ---------------------------------------------------------------- a calibrator's own floor
+#
+# The direct fits above ask what each model can do at all: intrinsics and a rotation of the
+# camera frame, by Levenberg-Marquardt over the whole field of view, every point weighed
+# alike. A calibrator's floor is what ITS fit of the model can do, under its own frame and
+# constraints: jpl fits C, A, H, V, O, R, E in the world frame with the boards at their
+# surveyed poses (theta free); OpenCV fits K without skew, the distortion and every board's
+# pose; mrcal fits its orthonormal camera frame's intrinsics and every board's pose with its
+# own solver and recipe. These differ from the direct fits: mrcal's LENSMODEL_CAHVOR reaches
+# a camera with theta != 90 deg only by running off along the R0 / focal-length valley
+# (harness/calibrators/mrcal_fit.py), which its dogleg solver and restarts do (navcam 15: 1e-9
+# px) and a direct fit crawls along (0.23 px after 300 evaluations, 0.035 px after 2000);
+# OpenCV weighs the field by where the boards are, so its floor over the whole image is
+# 1.2-1.8x the direct fit's RMS and ~2x its max (constructed cameras, 2026-11-25).
+# So each calibrator in OWN_FIT gets its floor from its own fit, as the verdict gets a
+# record's (harness.verdict): exact observations of the target's points (no dots, no bias
+# correction) in FLOOR_POSES poses planned to cover the whole image (targets.poses, cover
+# "corners": the four corners and the edge midpoints), compared with the truth by
+# harness.verdict.floor_comparison (rotation-mode projection difference over the truth's
+# image grid at the projection-difference range). The campaign's own pose set can leave
+# parts of the image unobserved; its records' floors are then larger where it extrapolates.
+
+
+class _Exact:
+    def __init__(self, q):
+        self.q = q
+
+
+def floor_observations(truth, n=FLOOR_POSES, target_name=FLOOR_TARGET, cover=FLOOR_COVER):
+    r'''(obs, target): exact observations of n whole-image poses (targets.poses's planner)'''
+    from harness import stages
+    from targets.centroids import projected_points
+    target = stages.cached_target(target_name)
+    poses = stages.poses_stage(truth, target, n, 0, cover)
+    dets = [_Exact(projected_points(truth, target, Rt)) for Rt in poses]
+    return stages.observations_from(truth, target, poses, dets), target
+
+
+def own_floor(truth, calibrator, model, observations=None):
+    r'''The calibrator's floor for a model: its own fit of exact whole-image observations
+
+SYNOPSIS
+
+    r = own_floor(truth, "mrcal", "CAHVOR")
+    r["status"], r["reason"], r["rms"], r["max"], r["residual_rms"], r["seconds"]
+
+observations: (obs, target) from floor_observations() (made here when None). A fit
+that fails is status "failed" with the calibrator's reason.
+'''
+    from harness import stages, verdict
+    t0 = time.perf_counter()
+    obs, target = observations or floor_observations(truth)
+    res = stages.calibrate_stage(calibrator, obs, target, model, truth,
+                                 {"bias_correction": False})
+    out = {"calibrator": calibrator, "model": model, "status": res.status,
+           "reason": res.reason or "", "rms": None, "max": None, "residual_rms": None,
+           "poses": int(obs.Nposes)}
+    if res.status == "ok":
+        try:
+            fl = verdict.floor_comparison(truth, res)["projection"]
+            out.update(rms=fl.get("rms"), max=fl.get("max"),
+                       residual_rms=(res.residual_stats() or {}).get("rms"))
+            if out["max"] is None:
+                out.update(status="failed", reason="the fitted model projects no point")
+        except Exception as e:   # a comparison that fails is a row with its reason
+            out.update(status="failed", reason=f"{type(e).__name__}: {e}".splitlines()[0])
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def _own_models(calibrator, truth):
+    r'''The calibrator's models of the candidates, fewest parameters first'''
+    seen, out = set(), []
+    for c in sorted((c for c in CANDIDATES if calibrator in c.calibrators),
+                    key=lambda c: _nparams(c, truth)):
+        m = c.calibrators[calibrator]
+        if m not in seen:
+            seen.add(m)
+            out.append((m, c, _nparams(c, truth)))
+    return out
+
+
+def own_fit_choice(truth, calibrator, tolerance=DEFAULT_TOLERANCE, criterion="max",
+                   first_within=True):
+    r'''choose()'s answer for a calibrator in OWN_FIT, from its own fits (own_floor)
+
+Returns (choice, rows): rows one per model tried, fewest parameters first (stopping at
+the first within tolerance when first_within).
+'''
+    rows = []
+    try:
+        observations = floor_observations(truth)
+    except Exception as e:
+        from harness.stages import failure_reason
+        return ({"model": None, "why": f"no whole-image poses for {calibrator}'s own fits: "
+                                       f"{failure_reason(e)}"}, rows)
+    for model, c, n in _own_models(calibrator, truth):
+        r = own_floor(truth, calibrator, model, observations)
+        rows.append({**r, "name": c.name, "nparams": n,
+                     "calibrators": {calibrator: model}})
+        if first_within and _value(r, criterion) <= tolerance:
+            break
+    return _choose_rows(rows, calibrator, tolerance, criterion,
+                        how=f"its own fit of exact observations of {FLOOR_POSES} "
+                            "whole-image poses"), rows
+
+
 # per process: a campaign asks for the same camera once per job
 _MEMO = {}
+# on disk: a campaign's choices cost 0.2-15 s per camera, family and calibrator; a rerun of
+# the campaign (or another campaign with the same cameras) finds them here
+CACHE_ENV = "CAMVAL_CACHE_DIR"
+
+
+def cache_dir():
+    r'''Where best_model keeps its choices: $CAMVAL_CACHE_DIR/best-models, else
+$XDG_CACHE_HOME/camval/best-models (~/.cache/camval/best-models)'''
+    import os
+    from pathlib import Path
+    root = os.environ.get(CACHE_ENV)
+    if root:
+        return Path(root) / "best-models"
+    xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(xdg) / "camval" / "best-models"
+
+
+@functools.cache
+def _code_version():
+    r'''The sources a choice depends on (this module, the calibrators, the planner, the
+comparison) and the fitting libraries' versions: a choice made by other code is not
+reused'''
+    import hashlib
+    from importlib import metadata
+    from pathlib import Path
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for f in [Path(__file__), here / "compare.py", here / "verdict.py",
+              here.parent / "targets" / "poses.py",
+              *sorted((here / "calibrators").glob("*.py"))]:
+        if f.is_file():
+            h.update(f.read_bytes())
+    for dist in ("mrcal", "opencv-python-headless", "numpy", "scipy"):
+        try:
+            h.update(f"{dist} {metadata.version(dist)}".encode())
+        except metadata.PackageNotFoundError:
+            pass
+    return h.hexdigest()
+
+
+def _cache_key(truth, calibrator, tolerance, criterion):
+    import hashlib
+
+    from harness.compare import _model_key
+    key = (_model_key(truth), calibrator, float(tolerance), criterion)
+    h = hashlib.sha256(repr(key).encode())
+    h.update(_code_version().encode())
+    return key, h.hexdigest()[:32]
+
+
+def _read_cached(digest):
+    import json
+    try:
+        with open(cache_dir() / f"{digest}.json") as f:
+            c = json.load(f)
+    except (OSError, ValueError):
+        return None
+    return c if isinstance(c, dict) and "model" in c and "why" in c else None
+
+
+def _write_cached(digest, choice):
+    import json
+    import os
+    d = cache_dir()
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        tmp = d / f".{digest}.{os.getpid()}.tmp"
+        with open(tmp, "w") as f:
+            json.dump({k: choice.get(k) for k in ("model", "candidate", "floor", "nparams",
+                                                   "why")}, f, allow_nan=False)
+        os.replace(tmp, d / f"{digest}.json")
+    except (OSError, ValueError):     # a cache that cannot be written is no cache
+        pass
 
 
 def best_model(truth, calibrator, tolerance=DEFAULT_TOLERANCE, criterion="max"):
@@ -663,17 +886,41 @@ SYNOPSIS
 
     name, why = best_model(truth, "mrcal")    # ("CAHVORE", "simplest mrcal model ...")
 
-Benchmarks only the calibrator's own candidates; memoised per process.
+Benchmarks only the calibrator's own candidates (a calibrator in OWN_FIT: with its own
+fits, own_fit_choice()); memoised per process and kept on disk
+(cache_dir(), keyed on every parameter of the truth, the calibrator, tolerance,
+criterion and this module's source).
 '''
-    from harness.compare import _model_key
-    names = [c.name for c in CANDIDATES if calibrator in c.calibrators]
-    key = (_model_key(truth), calibrator, float(tolerance), criterion)
+    key, digest = _cache_key(truth, calibrator, tolerance, criterion)
     if key not in _MEMO:
-        b = benchmark(truth, tolerance=tolerance, candidates=names, criterion=criterion,
-                      first_within=True)
-        _MEMO[key] = choose(b, calibrator)
+        c = _read_cached(digest)
+        if c is None:
+            if calibrator in OWN_FIT:
+                from harness.quiet import capture
+                with capture():
+                    c = own_fit_choice(truth, calibrator, tolerance, criterion)[0]
+            else:
+                names = [c.name for c in CANDIDATES if calibrator in c.calibrators]
+                b = benchmark(truth, tolerance=tolerance, candidates=names,
+                              criterion=criterion, first_within=True, own_fits=())
+                c = choose(b, calibrator)
+            _write_cached(digest, c)
+        _MEMO[key] = c
     c = _MEMO[key]
     return c["model"], c["why"]
+
+
+def cached_choice(camera_model, family, calibrator, tolerance=None, criterion="max"):
+    r'''Whether best_model's choice for this camera truncated to the family is already
+made (in this process or on disk)'''
+    from reference_models.cahvore import truncate
+    try:
+        truth = truncate(camera_model, family)
+    except Exception:       # no such family: nothing to benchmark
+        return False
+    tol = DEFAULT_TOLERANCE if tolerance is None else float(tolerance)
+    key, digest = _cache_key(truth, calibrator, tol, criterion)
+    return key in _MEMO or (cache_dir() / f"{digest}.json").is_file()
 
 
 def format_table(bench):
@@ -696,6 +943,17 @@ def format_table(bench):
         elif r.get("n_invalid"):
             line += f"  [{r['n_invalid']} of {r['n']} points not projected]"
         lines.append(line)
+    for cal, own in bench.get("own", {}).items():
+        lines.append("")
+        lines.append(f"{cal}'s own fits (its calibrator on exact observations of {own['poses']} "
+                     f"whole-image poses; the floors its choice is made on), "
+                     f"{own['seconds']:.1f} s:")
+        for r in own["rows"]:
+            line = (f"  {cal + ' ' + r['model']:46s} {cal:11s} {r['nparams']:>6d} "
+                    f"{f(r.get('rms'))} {f(r.get('max'))} {'':>22s} {r['seconds']:6.2f}")
+            if r["status"] != "ok":
+                line += f"  [{r['status']}: {r['reason']}]"
+            lines.append(line)
     rec = bench["recommended"]
     tol = bench["tolerance"]
     lines.append("")

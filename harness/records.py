@@ -10,14 +10,14 @@ SYNOPSIS
     doc = store.assemble()                     # writes run.json (atomic), returns it
 
     doc = load_run("runs/20261122T150000Z")   # a run dir or a run.json
-    doc["records"]["15/CAHVOR/dots/raycast[spp=16,adaptive]/jpl[CAHVOR]"]["projection"]["rms"]
+    doc["records"]["15/CAHVOR/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHVOR]"]["projection"]["rms"]
 
 One Record per camera x model family x target x renderer setting x calibrator
 (and its model), keyed by a stable `fullname`
 
     camera/model/target/renderer[settings]/calibrator[model]
 
-e.g. "15/CAHVOR/dots/raycast[spp=16,adaptive]/jpl[CAHVOR]". Records are plain
+e.g. "15/CAHVOR/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHVOR]". Records are plain
 JSON (json.dumps(..., allow_nan=False): NaN and inf are stored as null).
 
 A run directory holds
@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from reference_models.errors import CamvalError
+from renderers.base import DEFAULT_OPTIONS
 
 SCHEMA_VERSION = 1
 RUN_DOCUMENT = "run.json"
@@ -103,12 +104,18 @@ always had, so clean records keep their fullnames.
 
 
 def renderer_key(renderer, settings):
-    r'''The renderer's part of a fullname: "label[settings]" ("raycast[spp=16,adaptive]")
+    r'''The renderer's part of a fullname: "label[settings]" ("povray[spp=16,adaptive,camera=mesh]")
 
 The label is settings["label"] when the campaign gives one, else the
 renderer's name; settings["setup"] (how the renderer is run: a command, a
-timeout) never enters it, so a baseline joins whatever the setup.
+timeout) never enters it, so a baseline joins whatever the setup. The
+options a renderer applies by default (renderers.base.DEFAULT_OPTIONS) are
+named whether the settings give them or not ("raycast[spp=16,adaptive,
+coverage=area]"): a record of another default never joins.
 '''
+    defaults = DEFAULT_OPTIONS.get(renderer)
+    if defaults:
+        settings = dict(settings, options={**defaults, **(settings.get("options") or {})})
     return f"{settings.get('label') or renderer}[{settings_label(settings)}]"
 
 

@@ -50,6 +50,7 @@ from .job_records import (
     save_images,
 )
 from .jobs import expand_jobs, group_twins
+from .progress import Progress, job_stage
 from .records import RunStore
 from .stages import (
     StageFailed,
@@ -76,12 +77,14 @@ A job with twins (group_twins) gives the records of each of its cameras.
     seconds = {}
     features = None
     try:
+        job_stage(job, "poses")
         entry, truth = camera_stage(job)
         target = cached_target(job.target)
         t0 = time.perf_counter()
         poses = poses_stage(truth, target, job.poses_n, job.poses_seed, job.poses_cover)
         seconds["poses"] = time.perf_counter() - t0
         keep = bool(job.keep_images and job.run_dir)
+        job_stage(job, f"render + detect ({len(poses)} images)")
         # each image is detected as soon as it is rendered, then dropped
         out = render_detect_stage(job, truth, target, poses, keep_images=keep)
         rsecs, rversion = out.render_seconds, out.version
@@ -110,10 +113,12 @@ A job with twins (group_twins) gives the records of each of its cameras.
             artifacts["detections"] = save_detections(job, dets, poses)
         obs = observations_from(truth, target, poses, dets)
     except StageFailed as e:
+        job_stage(job, None)
         return {"job": job.key, "records": member_failures(
             members, e.stage, e.reason, status=e.status, entry=entry, seconds=seconds,
             **({"features": features} if features else {}))}
     except Exception as e:  # a bug in a stage: still a record, with where it happened
+        job_stage(job, None)
         tb = traceback.extract_tb(e.__traceback__)[-1]
         return {"job": job.key, "records": member_failures(
             members, "internal", f"{failure_reason(e)} ({Path(tb.filename).name}:{tb.lineno})",
@@ -124,6 +129,8 @@ A job with twins (group_twins) gives the records of each of its cameras.
                detections=detections, artifacts=artifacts, rversion=rversion,
                render_info=render_info, features=features,
                render_metadata=list(out.metadata))
+    job_stage(job, "calibrate + verdict (" + ", ".join(sorted({c for c, _, _ in job.calibrators}))
+              + ")")
     fits = {} if len(members) > 1 else None
     twins = [m.camera_key for m in members[1:]]
     records = calibrator_records(job, ctx, fits, {"twins": twins} if twins else None)
@@ -138,6 +145,7 @@ A job with twins (group_twins) gives the records of each of its cameras.
         ctx_t = dict(ctx, obs=observations_from(truth_t, target, poses, dets), truth=truth_t,
                      entry=entry_t, seconds=seconds_t)
         records += calibrator_records(twin, ctx_t, fits, {"with": job.camera_key})
+    job_stage(job, None)
     return {"job": job.key, "records": records}
 
 
@@ -148,7 +156,10 @@ def adapters_from_records(records):
     for r in records.values():
         v = r.get("versions") or {}
         if v.get("renderer"):
-            out["renderers"][r["renderer"]] = v["renderer"]
+            # keyed by the campaign's label when it gives one: two command renderers
+            # (different programs, one name "command") keep a version each
+            label = (r.get("settings") or {}).get("label") or r["renderer"]
+            out["renderers"][label] = v["renderer"]
         if v.get("calibrator"):
             out["calibrators"][r["calibrator"]] = v["calibrator"]
     return out
@@ -171,12 +182,31 @@ def run_campaign(campaign, run_dir, executor="local", workers=None, scheduler=No
     r'''Run (or resume) a campaign into run_dir; write run.json; return the run document
 
 warm: compile the renderer's kernels once before local workers start (run_jobs).
+progress: True/False, or a harness.progress.Progress: the stages (the "best" models
+chosen per camera and family, the kernels' warm-up, the jobs) with ETA; a bar on a
+terminal, plain lines otherwise.
 The document's "execution" says how the jobs ran (and the warm-up's seconds).
 '''
+    bar = progress if isinstance(progress, Progress) else Progress(enabled=bool(progress))
+    try:
+        return _run_campaign(campaign, run_dir, executor, workers, scheduler, resume, bar,
+                             entries, warm)
+    finally:
+        if bar is not progress:
+            bar.close()
+
+
+def _run_campaign(campaign, run_dir, executor, workers, scheduler, resume, bar, entries,
+                  warm):
+    from .campaign import resolve_best
     if resume:
         store = RunStore.open(run_dir)
     else:
         store = RunStore.create(run_dir, campaign.as_dict())
+    if entries is None:
+        entries = campaign.validate()
+    # the "best" models before the jobs are expanded: with their progress, not silently
+    resolve_best(campaign, entries, bar)
     jobs = expand_jobs(campaign, entries=entries, run_dir=store.dir)
     expected = {j.key for j in jobs}
     if campaign.share_identical_cameras:
@@ -184,7 +214,7 @@ The document's "execution" says how the jobs ran (and the warm-up's seconds).
     t0 = time.perf_counter()
     report = {}
     n = run_jobs(jobs, store, executor=executor, workers=workers, scheduler=scheduler,
-                 progress=progress, warm=warm, report=report)
+                 progress=bar, warm=warm, report=report)
     wall = time.perf_counter() - t0
     records = store.records()
     stray = {k for k in store.done_jobs() if k not in expected}

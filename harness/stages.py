@@ -497,8 +497,8 @@ equal), computed here from its parts so that the rotation-mode difference map
 are the rotation-mode values: the headline projection difference.
 '''
     from harness import compare as cmp
-    world = bool(result.info.get("world_frame", result.calibrator == "jpl"))
-    theta = result.calibrator == "jpl"
+    world = result.world_frame
+    theta = result.theta_estimated
     params = cmp.parameter_errors(truth, result.model, theta_estimated=theta,
                                   world_frame=world)
     proj = {}

@@ -4,13 +4,22 @@ SYNOPSIS
 
     from reference_models import kernels
     cam = kernels.pack_model(model)                          # (NCAM,) float64
-    dirs, shift = kernels.build_ray_cache(cam, W, H, noncentral)
+    dirs = np.empty((H + 2, W + 2, 3)); shift = np.empty((H + 2, W + 2))  # (1,1): central
+    fill_centre_rays(cam, dirs, shift, noncentral)           # the ray cache
     render_kernel(cam, dirs, shift, ...)                     # fills an image; see renderers.raycast
+    render_kernel(cam, dirs, shift, ..., lazy=True)          # no cache: rays traced per tile
 
 The board (hits, materials, the distance to the nearest edge), adaptive
 supersampling and the band loop of the renderer. The camera - the packed
-model, its rays (ray, warm_start, ray_warm) and the ray cache - is
-reference_models.kernels', compiled into these kernels.
+model, its rays (ray, warm_start, ray_warm) - is reference_models.kernels',
+compiled into these kernels.
+
+The rays of the pixel centres (the ray cache, or the rays of a tile traced in
+the render, lazy) are traced in runs of RAY_RUN grid points along a row: the
+first ray of a run is solved cold, each next one from the previous one's
+prediction (reference_models.kernels.fill_ray_cache's scheme, restarted every
+RAY_RUN points). A centre ray then depends on its grid point alone, so a tile
+traced on its own gives the rays of the whole-image cache bit for bit.
 
 Everything here is float64 and compiled without fastmath.
 '''
@@ -20,7 +29,18 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from reference_models.kernels import fill_ray_cache, ray_warm, warm_start
+from reference_models.kernels import (
+    _KIND,
+    KIND_CAHV,
+    _ray_warm_chi,
+    _warm_coefficients,
+    ray_warm,
+    warm_start,
+)
+
+# the centre rays are traced in runs of this many grid points along a row (a tile's width:
+# a tile's window, columns x0 - 1 .. x0 + TILE, starts a run)
+RAY_RUN = 32
 
 # a block of at most this many subsamples is sampled outright, not tested
 LEAF_SAMPLES = 4
@@ -978,7 +998,9 @@ mode where area coverage is not computed"""
             v, n = _area_value(cam, xf, ix, iy, px, py, r, tol, jac, hess, cand, values, grid,
                                poly, pat, corners, iy - k + 1)
             if v - v == 0.0:
-                return v, n, 2
+                # a mean of albedos in [0, 1]: the sum of signed moments can round past the
+                # ends (-2e-16 where a pixel is all background 0)
+                return min(max(v, 0.0), 1.0), n, 2
             v, n2 = _supersample(cam, xf, ix, iy, K, offs, counts, stack, True, jac, values,
                                  pat)
             return v, n + n2, 3
@@ -996,6 +1018,63 @@ mode where area coverage is not computed"""
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _centre_ray(cam, central, gx, y, warm):
+    r"""(s, vx, vy, vz, warm): the centre ray of grid column gx (image x = gx - 1) in the
+image row y, and the warm start of the next column of its run (see RAY_RUN)"""
+    if gx % RAY_RUN == 0:
+        warm = (math.nan, 0.0, 0.0, 0.0)
+    s, vx, vy, vz, u, chi = _ray_warm_chi(cam, gx - 1.0, y, warm, True)
+    if not central:
+        warm = _warm_coefficients(cam, u, chi)
+    return s, vx, vy, vz, warm
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def fill_centre_rays(cam, dirs, shift, noncentral):
+    r"""The ray cache: dirs (H+2,W+2,3) and, noncentral, shift (H+2,W+2) of the rays of the
+pixel centres, grid point (gx, gy) = pixel (gx - 1, gy - 1) (runs of RAY_RUN; the rays of
+reference_models.kernels.build_ray_cache to the floating-point level). Every element is
+written (a central camera's shift is not read)."""
+    central = cam[_KIND] == KIND_CAHV
+    for gy in prange(dirs.shape[0]):
+        y = gy - 1.0
+        warm = (math.nan, 0.0, 0.0, 0.0)
+        for gx in range(dirs.shape[1]):
+            s, vx, vy, vz, warm = _centre_ray(cam, central, gx, y, warm)
+            dirs[gy, gx, 0] = vx
+            dirs[gy, gx, 1] = vy
+            dirs[gy, gx, 2] = vz
+            if noncentral:
+                shift[gy, gx] = s
+
+
+@njit(cache=True, error_model="numpy")
+def _trace_rows(cam, xf, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
+    r"""_hit_rows without a cache: the centre rays traced here (from the start of the run
+of column c0), the same rays"""
+    central = cam[_KIND] == KIND_CAHV
+    for k in range(k0, k1):
+        y = r0 + k - 1.0
+        warm = (math.nan, 0.0, 0.0, 0.0)
+        for gx in range(c0 - c0 % RAY_RUN, c1):
+            s, vx, vy, vz, warm = _centre_ray(cam, central, gx, y, warm)
+            if gx >= c0:
+                ok, x, yb = _hit(xf, s if noncentral else 0.0, vx, vy, vz)
+                hok[k, gx] = ok
+                hx[k, gx] = x
+                hy[k, gx] = yb
+
+
+@njit(cache=True, error_model="numpy")
+def _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
+    r"""_hit_rows from the cache, or lazy: from rays traced now (_trace_rows)"""
+    if lazy:
+        _trace_rows(cam, xf, noncentral, r0, k0, k1, c0, c1, hx, hy, hok)
+    else:
+        _hit_rows(xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _hit_rows(xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
     r"""The board points of the cached rays of band rows k0..k1-1, band columns c0..c1-1
 (image row r0 - 1 + k, column c - 1) into hx, hy, hok"""
@@ -1010,17 +1089,20 @@ def _hit_rows(xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
 
 
 @njit(cache=True, error_model="numpy")
-def _hit_ring(xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
+def _hit_ring(lazy, cam, xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
     r"""The board points of the ring band rows k0, k1 x band columns c0..c1 (and columns
 c0, c1 between) and of its centre ((k0+k1)//2, (c0+c1)//2): what _block_uniform reads"""
-    _hit_rows(xf, dirs, shift, noncentral, r0, k0, k0 + 1, c0, c1 + 1, hx, hy, hok)
-    _hit_rows(xf, dirs, shift, noncentral, r0, k1, k1 + 1, c0, c1 + 1, hx, hy, hok)
+    for k in (k0, k1):
+        _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, k, k + 1, c0, c1 + 1,
+                      hx, hy, hok)
     for k in range(k0 + 1, k1):
-        _hit_rows(xf, dirs, shift, noncentral, r0, k, k + 1, c0, c0 + 1, hx, hy, hok)
-        _hit_rows(xf, dirs, shift, noncentral, r0, k, k + 1, c1, c1 + 1, hx, hy, hok)
+        for c in (c0, c1):
+            _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, k, k + 1, c, c + 1,
+                          hx, hy, hok)
     kc = (k0 + k1) // 2
     cc = (c0 + c1) // 2
-    _hit_rows(xf, dirs, shift, noncentral, r0, kc, kc + 1, cc, cc + 1, hx, hy, hok)
+    _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, kc, kc + 1, cc, cc + 1,
+                  hx, hy, hok)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -1051,7 +1133,7 @@ disc lies inside the board rectangle or wholly outside it)"""
 
 @njit(cache=True, error_model="numpy")
 def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values, out,
-                 stats, pat, qbox, area, tol):
+                 stats, pat, qbox, area, tol, lazy):
     H, W = out.shape
     nk = r1 - r0 + 2
     # board points of the centre rays of image rows r0-1 .. r1 (band row k = iy - r0 + 1)
@@ -1063,7 +1145,8 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
     nboard = 0
     if not adaptive:
         # every pixel is supersampled; the board points only count board pixels
-        _hit_rows(xf, dirs, shift, noncentral, r0, 1, nk - 1, 1, W + 1, hx, hy, hok)
+        _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, 1, nk - 1, 1, W + 1, hx, hy,
+                      hok)
         nboard = _count_board(hx, hy, hok, 1, nk - 1, 1, W + 1, rect)
 
     counts = np.zeros(values.shape[0], dtype=np.int64)
@@ -1114,14 +1197,14 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
                 uniform, m = True, pat[1][0]
             else:
                 if tile:
-                    _hit_ring(xf, dirs, shift, noncentral, r0, 0, nk - 1, x0, x1 + 1, hx, hy,
-                              hok)
+                    _hit_ring(lazy, cam, xf, dirs, shift, noncentral, r0, 0, nk - 1, x0, x1 + 1,
+                              hx, hy, hok)
                 uniform, m = _block_uniform(hx, hy, hok, ya - r0, yb - r0 + 1, xa, xb + 1, pat)
                 nblocks += 1
                 if tile:
                     if not uniform:
-                        _hit_rows(xf, dirs, shift, noncentral, r0, 1, nk - 1, x0 + 1, x1 + 1,
-                                  hx, hy, hok)
+                        _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, 1, nk - 1,
+                                      x0 + 1, x1 + 1, hx, hy, hok)
                         nboard += _count_board(hx, hy, hok, 1, nk - 1, x0 + 1, x1 + 1, rect)
                     elif _centre_on_board(hx, hy, hok, 0, nk - 1, x0, x1 + 1, rect):
                         # a uniform block whose centre is on the board lies on the board
@@ -1171,7 +1254,7 @@ def _count_nonfinite(out, r0, r1):
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive, T, values, out, stats, pat,
-                  qbox, nthreads, area=False, tol=1e-4):
+                  qbox, nthreads, area=False, tol=1e-4, lazy=False):
     r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
 
 stats (Nbands,6) receives per band: rays traced, supersampled pixels, pixels
@@ -1180,6 +1263,9 @@ non-finite pixels (a bug); with 8 columns also: pixels of area coverage, pixels
 point sampled in area mode where area coverage was not computed.
 area: edge pixels get their exact covered area (to within tol of the pixel's
 area; see "Area coverage") instead of K x K point samples (adaptive only).
+lazy: no ray cache (dirs, shift are not read): the centre rays a tile needs are
+traced in it (its ring, its interior when the ring does not show it uniform),
+the same rays as fill_centre_rays'.
 qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
 not known); adaptive mode fills the pixels outside with the background.
 nthreads: numba's thread count (bands are dealt out round-robin among them)."""
@@ -1197,7 +1283,7 @@ nthreads: numba's thread count (bands are dealt out round-robin among them)."""
         r1 = min(H, r0 + T)
         if r1 > r0:
             _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values,
-                         out, stats[b], pat, qbox, area, tol)
+                         out, stats[b], pat, qbox, area, tol, lazy)
 
 
 def compiled_entry_points():
@@ -1208,7 +1294,7 @@ SYNOPSIS
     for kernel in compiled_entry_points():
         kernel.signatures     # what numba has compiled (or loaded from its cache)
 
-render_kernel and the ray cache's reference_models.kernels.fill_ray_cache: what
-a warm-up compiles (harness.runner) and a cache check looks for.
+render_kernel and the ray cache's fill_centre_rays: what a warm-up compiles
+(harness.runner) and a cache check looks for.
 '''
-    return (render_kernel, fill_ray_cache)
+    return (render_kernel, fill_centre_rays)

@@ -57,6 +57,11 @@ BUILTIN_RENDERERS = {
     "povray_terrain": "renderers.povray_terrain:PovrayTerrainRenderer",
     "osmesa_terrain": "renderers.osmesa_terrain:OSMesaTerrainRenderer",
 }
+# options a built-in renderer applies when a render's settings leave them out, where they
+# change its images: harness.records.renderer_key names them in every record's fullname, so
+# a record made under another default (a baseline of the ray caster's point sampling, its
+# default until area coverage) never joins these records
+DEFAULT_OPTIONS = {"raycast": {"coverage": "area"}}
 # the scenes a renderer can declare in its class attribute `scenes`; without one: boards
 SCENE_KINDS = ("board", "terrain")
 DEFAULT_SCENES = ("board",)

@@ -7,6 +7,10 @@ SYNOPSIS
     r = get_renderer("command", command=["python", "examples/external_renderer.py"])
     result = r.render(model, target.pattern(), Rt_cam_board, RenderSettings(spp=4))
 
+    t = get_terrain_renderer("command", command=["python", "examples/external_renderer.py"])
+    tr = t.render_terrain(model, terrain, Rt_ref_terrain, RenderSettings(spp=2))
+    code = t.cell_shadows(terrain)       # the shadow check, as one rays request
+
     # inside the external program (if it is written in Python; camval installed):
     from renderers.protocol import read_request, write_image, serve
     req = read_request(sys.argv[1])      # .model, .pattern, .Rt_cam_board, .settings, .output
@@ -227,6 +231,8 @@ ARGUMENTS (the setup; each may instead be given per render as an option)
 '''
 
     name = "command"
+    # boards (render) and terrain (render_terrain, cell_shadows): renderers.base.SCENE_KINDS
+    scenes = ("board", "terrain")
     SETUP_KEYS = SETUP_KEYS      # campaigns keep these out of options (harness.campaign)
 
     def __init__(self, command=None, output_format="png16", timeout=None, keep_requests=None,
@@ -418,8 +424,8 @@ output (read(workdir) -> value) -> (value, workdir or None)'''
                                      model.height))
         else:
             from . import command_modes
-            img, workdir, extra = command_modes.render(self, mode, setup, model, scene,
-                                                        Rt_cam_board, settings)
+            img, workdir, extra, _ = command_modes.render(self, mode, setup, model, scene,
+                                                           Rt_cam_board, settings)
         meta = dict(renderer=self.name, version=self._last_version,
                     settings=settings.as_dict(), seconds=time.perf_counter() - t0,
                     samples=settings.spp ** 2, command=setup["command"],
@@ -428,3 +434,69 @@ output (read(workdir) -> value) -> (value, workdir or None)'''
         if workdir:
             meta["request_dir"] = workdir
         return RenderResult(image=np.asarray(img).astype(np.float32), metadata=meta)
+
+    # --- terrain scenes (renderers.base.TerrainRenderer) ---------------------------------
+    def render_terrain(self, model, terrain, Rt_ref_terrain=None, settings=None):
+        r'''Render a targets.terrain.Terrain through the program -> TerrainRender
+
+Rt_ref_terrain places the terrain in the model's frame (None: identity);
+settings.options shadows, exposure, sky are the lighting (scene.json), the
+rest the program's own options; settings None: K = 1, as the built-in
+terrain renderers. image mode: range and shadow are the program's optional
+range.npy / shadow.npy (None when it writes none); rays mode: its per-ray
+range / shadow at each pixel's centre sample when K is odd (there is no
+centre sample when K is even: None); pinhole mode: central cameras only,
+range and shadow None.
+'''
+        from .base import TerrainRender
+        from .protocol import TERRAIN_OUTPUTS, read_terrain_output, terrain_lighting
+
+        settings = RenderSettings(spp=1) if settings is None else settings
+        setup, settings = self._resolve(settings)
+        light = terrain_lighting(settings.options)
+        self._last_version = self._version_of(setup)
+        t0 = time.perf_counter()
+        mode = setup.get("mode", "image")
+        if Rt_ref_terrain is None:
+            Rt_ref_terrain = np.vstack((np.eye(3), np.zeros(3)))
+        outputs, extra = {}, {}
+        if mode == "image":
+            fmt = setup.get("output_format", "png16")
+            W, H = model.width, model.height
+
+            def read(d):
+                img = read_image(os.path.join(d, OUTPUT_FORMATS[fmt]), W, H)
+                more = {k: read_terrain_output(os.path.join(d, f), k, W * H)
+                        for k, f in TERRAIN_OUTPUTS.items()}
+                return img, {k: v.reshape(H, W) for k, v in more.items() if v is not None}
+
+            (img, outputs), workdir = self._exchange(
+                setup,
+                lambda d: write_request(d, model, terrain, Rt_ref_terrain, settings, fmt),
+                read)
+        else:
+            from . import command_modes
+            img, workdir, extra, outputs = command_modes.render(
+                self, mode, setup, model, terrain, Rt_ref_terrain, settings)
+        meta = dict(renderer=self.name, version=self._last_version,
+                    settings=settings.as_dict(), seconds=time.perf_counter() - t0,
+                    spp=settings.spp, samples=settings.spp ** 2, command=setup["command"],
+                    output_format=setup.get("output_format", "png16"), mode=mode,
+                    persistent=bool(setup.get("persistent")), **light,
+                    outputs=sorted(outputs), terrain=terrain.as_dict(), **extra)
+        if workdir:
+            meta["request_dir"] = workdir
+        return TerrainRender(image=np.asarray(img).astype(np.float32),
+                             range=outputs.get("range"), shadow=outputs.get("shadow"),
+                             metadata=meta)
+
+    def cell_shadows(self, terrain):
+        r'''The shadow check (renderers.terrain_shadows): the program's shadow code at every
+triangle centroid, asked as one rays-mode request of vertical rays from above
+(command_modes.shadow_rays) whatever the setup's mode -> (Ny-1, Nx-1, 2) uint8.
+A program that does not do rays mode on terrain declines it: not-applicable.'''
+        from . import command_modes
+
+        setup, _ = self._resolve(RenderSettings(spp=1))
+        self._last_version = self._version_of(setup)
+        return command_modes.cell_shadows(self, setup, terrain)

@@ -36,8 +36,17 @@ import os
 
 import numpy as np
 
-from .base import RendererError
-from .protocol import MAX_RAYS_PER_REQUEST, check_values, read_image, write_request
+from .base import RendererError, RendererNotApplicable
+from .protocol import (
+    MAX_RAYS_PER_REQUEST,
+    TERRAIN_OUTPUTS,
+    check_values,
+    is_terrain,
+    read_image,
+    read_terrain_output,
+    terrain_lighting,
+    write_request,
+)
 
 PINHOLE_DEFAULTS = {"pinhole_scale": 2.0, "pinhole_samples": "auto",
                     "pinhole_interpolation": "bilinear", "pinhole_measure_warp": True}
@@ -47,7 +56,12 @@ RAYS_ORDER = ("row iy, column ix, sub-row j, sub-column i (i fastest); sample (i
 
 
 def render(renderer, mode, setup, model, scene, Rt_cam_board, settings):
-    r'''-> (image (height, width) float64, kept request dir or None, metadata extras)'''
+    r'''-> (image (height, width) float64, kept request dir or None, metadata extras,
+terrain outputs {"range", "shadow": (height, width)} (those the program gave; {} for a
+board))
+
+scene: a board pattern (Rt_cam_board) or a targets.terrain.Terrain (then
+Rt_cam_board is Rt_ref_terrain, as protocol.write_request).'''
     if mode == "pinhole":
         return _pinhole(renderer, setup, model, scene, Rt_cam_board, settings)
     if mode == "rays":
@@ -64,6 +78,12 @@ def _pinhole_options(setup):
 def _pinhole(renderer, setup, model, scene, Rt_cam_board, settings):
     from .warp import PinholeWarp
 
+    terrain = is_terrain(scene)
+    if terrain and not model.is_central:
+        raise RendererNotApplicable(
+            "command renderer, pinhole mode: a noncentral camera (CAHVORE with E != 0) is "
+            "warped from a pinhole exactly only for a known depth per pixel (a board's "
+            "plane); a terrain has none: use mode \"image\" or \"rays\"")
     o = _pinhole_options(setup)
     scale = float(o["pinhole_scale"])
     samples = o["pinhole_samples"]
@@ -84,13 +104,14 @@ def _pinhole(renderer, setup, model, scene, Rt_cam_board, settings):
                                 extra=extra),
         lambda d: read_image(os.path.join(d, OUTPUT_FORMATS[fmt]), pin.width, pin.height))
     interp = o["pinhole_interpolation"]
-    image = warp.apply(img_pin, interpolation=interp, Rt_cam_board=Rt_cam_board)
+    image = warp.apply(img_pin, interpolation=interp,
+                       Rt_cam_board=None if terrain else Rt_cam_board)
     meta = {"warp": {"pinhole": extra["pinhole"], "scale": scale, "samples": samples,
                      "interpolation": interp}}
     if o["pinhole_measure_warp"]:
         rms, mx = warp_share(warp, model, scene, Rt_cam_board, settings, interp)
         meta.update(warp_rms=rms, warp_max=mx)
-    return image.astype(np.float64), workdir, meta
+    return image.astype(np.float64), workdir, meta, {}
 
 
 def area_samples(warp):
@@ -121,12 +142,26 @@ finite-difference Jacobian is of the warp's own map (pixel centres, no pose).'''
 
 def warp_share(warp, model, scene, Rt_cam_board, settings, interpolation="bilinear"):
     r'''The warp's own error on one image: (RMS, max) of warp(exact pinhole) - exact model
-image, both ray cast here at the request's K (image values in [0,1])'''
+image, both ray cast here at the request's K (image values in [0,1]; a terrain by
+renderers.raycast_terrain with the request's lighting, Rt_cam_board = Rt_ref_terrain)'''
     from dataclasses import replace
 
+    pin = warp.pinhole
+    if is_terrain(scene):
+        from reference_models.poseutils import compose_Rt, invert_Rt
+
+        from .raycast_terrain import render_terrain
+        light = terrain_lighting(settings.options)
+        # the pinhole's frame is the model's camera frame
+        Rt_cam_terrain = compose_Rt(invert_Rt(model.Rt_ref_cam()), Rt_cam_board)
+        exact_pin = render_terrain(pinhole_cahv(pin), scene, Rt_cam_terrain, spp=settings.spp,
+                                   **light).image
+        warped = warp.apply(exact_pin, interpolation=interpolation)
+        exact = render_terrain(model, scene, Rt_cam_board, spp=settings.spp, **light).image
+        d = warped.astype(np.float64) - exact.astype(np.float64)
+        return float(np.sqrt(np.mean(d * d))), float(np.max(np.abs(d)))
     from .raycast import RaycastRenderer
 
-    pin = warp.pinhole
     rc = RaycastRenderer()
     s = replace(settings, options={})
     exact_pin = rc.render(pinhole_cahv(pin), scene, Rt_cam_board, s).image
@@ -183,6 +218,12 @@ def _rays(renderer, setup, model, scene, Rt_cam_board, settings):
     K = settings.spp
     W = model.width
     image = np.empty((model.height, W), dtype=np.float64)
+    terrain = is_terrain(scene)
+    # terrain: the program's per-ray range and shadow codes, kept at each pixel's centre
+    # sample (sample (K//2, K//2) is the pixel centre when K is odd; there is none when
+    # K is even)
+    centre = (K // 2) * K + K // 2 if terrain and K % 2 == 1 else None
+    outputs = {}
     workdir = None
     parts = bands(model, K, int(setup.get("max_rays") or MAX_RAYS_PER_REQUEST))
     for y0, y1 in parts:
@@ -203,12 +244,26 @@ def _rays(renderer, setup, model, scene, Rt_cam_board, settings):
                                  extra={"rays": rays})
 
         def read(d, y0=y0, y1=y1, n=n):
-            return read_values(os.path.join(d, "values.npy"), n, y1 - y0, W, K)
+            v = read_values(os.path.join(d, "values.npy"), n, y1 - y0, W, K)
+            more = {}
+            if centre is not None:
+                for k, f in TERRAIN_OUTPUTS.items():
+                    r = read_terrain_output(os.path.join(d, f), k, n)
+                    if r is not None:
+                        more[k] = r.reshape(y1 - y0, W, K * K)[..., centre]
+            return v, more
 
-        image[y0:y1], wd = renderer._exchange(setup, write, read)
+        (image[y0:y1], more), wd = renderer._exchange(setup, write, read)
+        for k, v in more.items():
+            if k not in outputs:
+                outputs[k] = [np.empty((model.height, W), dtype=v.dtype), 0]
+            outputs[k][0][y0:y1] = v
+            outputs[k][1] += 1
         workdir = workdir or wd
+    # an output the program gave for some bands only is not an image of it
+    outputs = {k: a for k, (a, n) in outputs.items() if n == len(parts)}
     return image, workdir, {"rays": {"bands": len(parts), "dtype": "float32",
-                                     "adaptive": False}}
+                                     "adaptive": False}}, outputs
 
 
 def read_values(path, n, rows, W, K):
@@ -232,3 +287,75 @@ def read_values(path, n, rows, W, K):
                             f"one per pixel ({rows * W})")
     check_values(path, v)
     return out
+
+
+# --- the shadow check through the protocol ------------------------------------------------
+SHADOW_RAYS_ORDER = ("cell row j, cell column i, triangle k (k fastest; k = 0: the centroid "
+                     "at (u, v) = (2/3, 1/3), k = 1: (1/3, 2/3))")
+
+
+def shadow_camera(terrain):
+    r'''The frame of the shadow check's rays request: a CAHV whose camera frame is the
+terrain frame (C = 0, x = H' = x, y = A x H' = y, z = A = z), 2 (Nx-1) x (Ny-1) "pixels"
+(one per triangle centroid)'''
+    from reference_models.cahvore import CAHV
+    ny, nx = terrain.heights.shape
+    return CAHV(C=np.zeros(3), A=np.array([0.0, 0.0, 1.0]), H=np.array([1.0, 0.0, 0.0]),
+                V=np.array([0.0, 1.0, 0.0]), width=2 * (nx - 1), height=ny - 1)
+
+
+def shadow_rays(terrain):
+    r'''The shadow check's rays: from 1 m above the highest node straight down onto every
+triangle centroid (renderers.terrain_shadows.sample_points), terrain frame -> (origins
+(N, 3), directions (1, 3)) float64, N = 2 (Ny-1)(Nx-1), order SHADOW_RAYS_ORDER'''
+    from .terrain_shadows import sample_points
+    x, y = sample_points(terrain)
+    top = float(terrain.heights.max()) + 1.0
+    origins = np.stack((x.ravel(), y.ravel(), np.full(x.size, top)), axis=-1)
+    return origins, np.array([[0.0, 0.0, -1.0]])
+
+
+def cell_shadows(renderer, setup, terrain):
+    r'''The program's shadow codes at the triangle centroids (renderers.terrain_shadows)
+
+One rays-mode request (whatever setup's mode) with the camera of shadow_camera,
+the terrain at the identity pose, K = 1, the vertical rays of shadow_rays as
+per-ray origins and directions, and the shadow output required; the program
+returns a value per ray (not used) and shadow.npy, one code per ray. ->
+(Ny-1, Nx-1, 2) uint8: 0 lit, 1 facing away, 2 cast. A ray that misses
+(255) is a RendererError, as for the built-in renderers.'''
+    from .base import RenderSettings
+
+    ny, nx = terrain.heights.shape
+    model = shadow_camera(terrain)
+    origins, down = shadow_rays(terrain)
+    n = len(origins)
+    if n > MAX_RAYS_PER_REQUEST:
+        raise RendererError(f"command renderer shadow check: {n} triangles; one request holds "
+                            f"at most {MAX_RAYS_PER_REQUEST} rays")
+    settings = RenderSettings(spp=1, adaptive=False)
+    identity = np.vstack((np.eye(3), np.zeros(3)))
+
+    def write(d):
+        np.save(os.path.join(d, "rays-directions.npy"),
+                np.repeat(down.astype(np.float32), n, axis=0))
+        np.save(os.path.join(d, "rays-origins.npy"), origins.astype(np.float32))
+        rays = {"directions": "rays-directions.npy", "origins": "rays-origins.npy",
+                "origin": None, "count": n, "rows": [0, ny - 1], "samples_per_pixel": 1,
+                "frame": "camera", "order": SHADOW_RAYS_ORDER, "dtype": "float32",
+                "purpose": "shadow_check"}
+        return write_request(d, model, terrain, identity, settings, mode="rays",
+                             extra={"rays": rays, "shadow_required": True})
+
+    def read(d):
+        read_values(os.path.join(d, "values.npy"), n, ny - 1, 2 * (nx - 1), 1)
+        return read_terrain_output(os.path.join(d, TERRAIN_OUTPUTS["shadow"]), "shadow", n,
+                                   required=True)
+
+    code, _ = renderer._exchange(dict(setup, mode="rays"), write, read)
+    code = code.reshape(ny - 1, nx - 1, 2)
+    if np.any(code == 255):
+        raise RendererError(f"external renderer {setup['command'][0]!r}: the shadow check's "
+                            f"vertical rays missed the terrain at {int(np.sum(code == 255))} "
+                            "centroids (each lies on the surface)")
+    return code

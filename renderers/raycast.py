@@ -6,19 +6,28 @@ SYNOPSIS
     from renderers.base import RenderSettings
 
     r = RaycastRenderer()
-    result = r.render(model, pattern, Rt_cam_board, RenderSettings(spp=16, adaptive=True))
+    result = r.render(model, pattern, Rt_cam_board, RenderSettings(spp=16))
     # result.image has shape (model.height, model.width), float32 in [0,1]
-    # result.metadata: renderer, version, settings, seconds, samples, adaptive_fraction, ...
+    # result.metadata: renderer, version, settings, seconds, coverage, samples, ...
+    point = r.render(model, pattern, Rt_cam_board,
+                     RenderSettings(spp=16, options={"coverage": "point"}))
 
-Every subsample is an exact ray of the camera model: the unprojection of
+A pixel is the mean albedo over its area [ix-0.5, ix+0.5) x [iy-0.5, iy+0.5)
+(reference_models.conventions). By default (coverage "area", see "Area
+coverage" below) a pixel that sees an edge gets that mean exactly, integrated
+over the pixel's preimage on the board; K (RenderSettings.spp) then sets only
+the K x K point sampling of the few pixels where the exact integral is not
+used (a corner ray that misses the plane, a preimage too curved, overlapping
+circles: metadata area_point_sampled_fraction). With coverage "point" (kept
+for comparison) every pixel is the average of K x K subsamples at
+(ix + (i+0.5)/K - 0.5, iy + (j+0.5)/K - 0.5), i, j = 0..K-1.
+
+Every sample is an exact ray of the camera model: the unprojection of
 reference_models.cahvore compiled with numba (float64, no fastmath), including
 the moving entrance pupil of a noncentral CAHVORE (E != 0). The ray meets the
 board plane z = 0 (board frame: Rt_board_ref = inverse of
 compose(model.Rt_ref_cam(), Rt_cam_board)) and the albedo of the
-targets.pattern.Pattern there is the sample. A pixel is the average of K x K
-subsamples at (ix + (i+0.5)/K - 0.5, iy + (j+0.5)/K - 0.5), i, j = 0..K-1: the
-area coverage of the pixel [ix-0.5, ix+0.5) x [iy-0.5, iy+0.5)
-(reference_models.conventions).
+targets.pattern.Pattern there is the sample.
 
 Adaptive mode gives the same image as full supersampling, bit for bit. A pixel
 is the area average computed from integer counts of the materials its
@@ -49,10 +58,11 @@ different albedos, circle outlines; circles are found through a bucket grid):
    footprint is far from affine (near the board plane's horizon) or whose
    neighbours miss the plane are traced in full.
 
-Area coverage (RenderSettings(options={"coverage": "area"}); point sampling
-stays the default): the pixels that the steps above find uniform are filled as
-before; every other pixel gets the albedo integrated exactly over its
-preimage on the board, the polygon through the board points of exact rays at
+Area coverage (the default; RenderSettings.options "coverage" = "area"): the
+pixels that the steps above find uniform are filled as before (their value is
+exact either way, so adaptive = False changes nothing under area coverage);
+every other pixel gets the albedo integrated exactly over its preimage on
+the board, the polygon through the board points of exact rays at
 its corners (an (n+1) x (n+1) grid where n = 2, 4, 8 is needed), weighted by
 the pixel-to-board density (linear in each quadrilateral). The board
 rectangle and the cells are clipped out of it, the circles integrated along
@@ -64,19 +74,29 @@ overlap near the pixel, the pixel is K x K point sampled instead
 (metadata area_point_sampled_fraction). tests/test_raycast_area.py checks
 edge pixels against an exact line-by-line integral.
 
-tests/test_raycast.py checks adaptive == full bit for bit on several cameras,
+The coverage names the records (renderers.base.DEFAULT_OPTIONS: a fullname
+says "coverage=area" whether the settings give it or not), so records of
+point sampling, the default before, never join those of area coverage.
+
+tests/test_raycast.py checks point sampling's adaptive == full bit for bit on several cameras,
 targets and poses (including noncentral CAHVOREs at K = 16).
 
 The rays of the pixel centres (and a one-pixel ring) are cached per camera
-model: 24 bytes per pixel, 32 for a noncentral CAHVORE (0.63 GB for a
-5120x3840 camera); subsample rays are traced on the fly. The cached rays
-(reference_models.kernels.build_ray_cache: exact to the floating-point
-level, directions not normalised) only decide where to look closer, within
-the slack of the bounds above; no pixel's value is read from them. The cache is bounded
-(cache_bytes, least recently used models are dropped). The models a new one
-displaces are dropped before its rays are traced, and their arrays, when of
-its shapes and held by no render, are overwritten with its rays (no second
-0.5 GB cache in memory, no fresh pages to fault in).
+model: 24 bytes per pixel, 32 for a noncentral CAHVORE; subsample rays are
+traced on the fly. The cached rays (renderers._raycast_kernels.fill_centre_rays:
+exact to the floating-point level, directions not normalised) only decide
+where to look closer, within the slack of the bounds above; no pixel's value
+is read from them. The cache is bounded (cache_bytes, least recently used
+models are dropped). The models a new one displaces are dropped before its
+rays are traced, and their arrays, when of its shapes and held by no render,
+are overwritten with its rays (no second cache in memory, no fresh pages to
+fault in). A camera whose cache would exceed lazy_above_bytes (LAZY_ABOVE_BYTES,
+1/4 GB: a 5120x3840 camera, 0.47 GB, 0.63 GB noncentral) has none: each tile
+traces the centre rays it reads, its ring's and, when the ring does not show
+it uniform, its interior's (tiles outside the board's image are a fill). The
+rays are traced in runs along a row that start at fixed columns, so the
+traced rays are the cached ones bit for bit, and so are the pixels
+(tests/test_raycast.py).
 '''
 
 import math
@@ -89,10 +109,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from reference_models.errors import CamvalError
-from renderers.base import RendererError, RenderResult, RenderSettings
+from renderers.base import DEFAULT_OPTIONS, RendererError, RenderResult, RenderSettings
 
-RAYCAST_VERSION = "1.0"
+# 2.0: area coverage is the default
+RAYCAST_VERSION = "2.0"
+COVERAGES = ("area", "point")
+DEFAULT_COVERAGE = DEFAULT_OPTIONS["raycast"]["coverage"]
 DEFAULT_CACHE_BYTES = 1 << 30
+# a camera whose whole-image ray cache would be larger than this has no cache: each render
+# traces the centre rays of the tiles it looks into (lazy). 1/4 GB: every catalogue camera up
+# to 2.5 Mpixel keeps its cache; a 5120x3840 one (0.47 GB, 0.63 GB noncentral) renders in a
+# few hundred MB
+LAZY_ABOVE_BYTES = 1 << 28
 # the image is rendered in tiles of TILE x TILE pixels; a tile far from every edge is
 # filled without looking at its pixels
 TILE = 32
@@ -369,11 +397,15 @@ class RaycastRenderer:
 
 SYNOPSIS
 
-    r = RaycastRenderer(cache_bytes=1 << 30, threads=None, shared_cache=True)
+    r = RaycastRenderer(cache_bytes=1 << 30, threads=None, shared_cache=True,
+                        lazy_above_bytes=1 << 28)
     result = r.render(model, pattern, Rt_cam_board, RenderSettings(spp=16))
 
 cache_bytes bounds the memory of the per-camera ray cache (the least recently
 used cameras are dropped when a new one is added; the newest is always kept);
+a camera whose cache would take more than lazy_above_bytes gets none: each
+render traces the centre rays of the tiles it looks into (the same rays, so
+the same pixels: metadata ray_cache "lazy"; 0 = always);
 by default all RaycastRenderers of a process share one cache, so a renderer
 made per job still finds the rays of a camera it has seen. threads sets
 numba's thread count (default: all).
@@ -384,9 +416,14 @@ numba's thread count (default: all).
     # alike get the same images (campaigns render them once: harness.runner.group_twins)
     camera_frame_exact = True
 
-    def __init__(self, cache_bytes=DEFAULT_CACHE_BYTES, threads=None, shared_cache=True):
+    def __init__(self, cache_bytes=DEFAULT_CACHE_BYTES, threads=None, shared_cache=True,
+                 lazy_above_bytes=LAZY_ABOVE_BYTES):
         if not (isinstance(cache_bytes, int) and cache_bytes >= 0):
             raise CamvalError(f"cache_bytes = {cache_bytes!r}; expected an integer >= 0")
+        if not (isinstance(lazy_above_bytes, int) and lazy_above_bytes >= 0):
+            raise CamvalError(f"lazy_above_bytes = {lazy_above_bytes!r}; expected an "
+                              "integer >= 0")
+        self.lazy_above_bytes = lazy_above_bytes
         if threads is not None and not (isinstance(threads, int) and threads >= 1):
             raise CamvalError(f"threads = {threads!r}; expected a positive integer")
         self.cache_bytes = cache_bytes
@@ -403,8 +440,12 @@ numba's thread count (default: all).
 
     # --- the per-camera ray cache --------------------------------------------
     def rays(self, model):
-        r'''(cam, dirs, shift, noncentral, cold) of a model, from the cache or traced now'''
+        r'''(cam, dirs, shift, noncentral, cold) of a model, from the cache or traced now;
+dirs is None for a camera rendered without a cache (lazy_above_bytes)'''
         from reference_models import kernels
+        from renderers import _raycast_kernels as kern
+        if ray_cache_bytes(model) > self.lazy_above_bytes:
+            return kernels.pack_model(model), None, None, not model.is_central, False
         key = _model_key(model)
         with self._lock:
             entry = self._rays.get(key)
@@ -414,10 +455,13 @@ numba's thread count (default: all).
             cam = kernels.pack_model(model)
             noncentral = not model.is_central
             W, H = model.width, model.height
-            nbytes = (H + 2) * (W + 2) * (32 if noncentral else 24) + (0 if noncentral else 8)
-            out = self._evict_for(nbytes, (H + 2, W + 2, 3),
-                                  (H + 2, W + 2) if noncentral else (1, 1))
-            dirs, shift = kernels.build_ray_cache(cam, W, H, noncentral, out=out)
+            dshape = (H + 2, W + 2, 3)
+            sshape = (H + 2, W + 2) if noncentral else (1, 1)
+            dirs, shift = self._evict_for(ray_cache_bytes(model), dshape, sshape)
+            # a dropped camera's arrays are overwritten: every element is written
+            dirs = np.empty(dshape) if dirs is None else dirs
+            shift = np.zeros(sshape) if shift is None else shift
+            kern.fill_centre_rays(cam, dirs, shift, noncentral)
             entry = (cam, dirs, shift, noncentral)
             self._rays[key] = entry
             return entry + (True,)
@@ -473,17 +517,21 @@ ARGUMENTS
 - scene: a targets.pattern.Pattern (or anything with a .pattern() method
   returning one, such as a target)
 - Rt_cam_board: (4,3) the board in the camera frame model.Rt_ref_cam()
-- settings: RenderSettings (spp = K, adaptive); default K = 16, adaptive
+- settings: RenderSettings (spp = K, adaptive, options "coverage": "area" (the
+  default) or "point", "area_tolerance"); default K = 16, adaptive, area
 
 RETURNED VALUE
 
 RenderResult(image, metadata). metadata: renderer, version, settings, seconds,
-samples (rays traced in this render: subsample rays and the pixel-centre rays
+coverage, samples (rays traced in this render: subsample rays and the pixel-centre rays
 that start their Newton solves; the cached pixel-centre rays are not counted),
 adaptive_fraction (pixels supersampled / pixels), board_fraction (pixels whose
 centre ray sees the board; 0 for a board behind the camera, which renders as
 blank background), blocks_tested and pixels_tested (adaptive bookkeeping),
-ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
+ray_cache ("cold", "warm" or "lazy": no cache, the centre rays traced in
+the render), ray_cache_seconds, threads; under area coverage
+also area_tolerance, area_fraction (pixels integrated exactly / pixels) and
+area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
 '''
         import numba
 
@@ -513,6 +561,9 @@ ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
         t1 = time.perf_counter()
         cam, dirs, shift, noncentral, cold = self.rays(model)
         t_rays = time.perf_counter() - t1
+        lazy = dirs is None
+        if lazy:
+            dirs, shift = np.zeros((1, 1, 3)), np.zeros((1, 1))
 
         R = Rt[:3]
         t = Rt[3]
@@ -522,13 +573,9 @@ ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
         out = np.empty((H, W), dtype=np.float32)
         stats = np.zeros((-(-H // TILE), 8 if area else 6), dtype=np.int64)
         qbox = board_image_box(model, Rt_cam_board, cp.f[:4])
-        if area:
-            kern.render_kernel(cam, dirs, shift, noncentral, xf, K, True, TILE, cp.values, out,
-                               stats, cp.kernel_args(), qbox, numba.get_num_threads(), True, tol)
-        else:
-            kern.render_kernel(cam, dirs, shift, noncentral, xf, K, bool(settings.adaptive), TILE,
-                               cp.values, out, stats, cp.kernel_args(), qbox,
-                               numba.get_num_threads())
+        kern.render_kernel(cam, dirs, shift, noncentral, xf, K, area or bool(settings.adaptive),
+                           TILE, cp.values, out, stats, cp.kernel_args(), qbox,
+                           numba.get_num_threads(), area, tol, lazy)
         total = stats.sum(axis=0)
         if total[5] != 0:
             raise RendererError(f"the ray-cast renderer produced {int(total[5])} non-finite "
@@ -544,27 +591,35 @@ ray_cache ("cold" or "warm"), ray_cache_seconds, threads.
             "board_fraction": float(total[2]) / (W * H),
             "blocks_tested": int(total[3]),
             "pixels_tested": int(total[4]),
-            "ray_cache": "cold" if cold else "warm",
+            "ray_cache": "lazy" if lazy else "cold" if cold else "warm",
             "ray_cache_seconds": t_rays,
             "threads": numba.get_num_threads(),
+            "coverage": "area" if area else "point",
         }
         if area:
-            metadata["coverage"] = "area"
             metadata["area_tolerance"] = tol
             metadata["area_fraction"] = float(total[6]) / (W * H)
             metadata["area_point_sampled_fraction"] = float(total[7]) / (W * H)
         return RenderResult(image=out, metadata=metadata)
 
 
+def ray_cache_bytes(model):
+    r'''The bytes of a camera's whole-image ray cache: 24 per pixel and ring pixel, 32 for
+a noncentral CAHVORE'''
+    noncentral = not model.is_central
+    return ((model.height + 2) * (model.width + 2) * (32 if noncentral else 24)
+            + (0 if noncentral else 8))
+
+
 def _coverage(settings):
-    r'''(area, tolerance) from settings.options: coverage "point" (the default: K x K point
-samples) or "area" (exact covered area of edge pixels, within area_tolerance of a
-pixel's area; default AREA_TOLERANCE)'''
+    r'''(area, tolerance) from settings.options: coverage "area" (DEFAULT_COVERAGE: exact
+covered area of edge pixels, within area_tolerance of a pixel's area; default
+AREA_TOLERANCE) or "point" (K x K point samples)'''
     options = settings.options or {}
-    coverage = options.get("coverage", "point")
-    if coverage not in ("point", "area"):
-        raise CamvalError(f"coverage = {coverage!r}; expected \"point\" (K x K point samples) "
-                          "or \"area\" (exact covered area of edge pixels)")
+    coverage = options.get("coverage", DEFAULT_COVERAGE)
+    if coverage not in COVERAGES:
+        raise CamvalError(f"coverage = {coverage!r}; expected \"area\" (exact covered area of "
+                          "edge pixels, the default) or \"point\" (K x K point samples)")
     tol = options.get("area_tolerance", AREA_TOLERANCE)
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0.0 < tol < 1.0):
         raise CamvalError(f"area_tolerance = {tol!r}; expected a fraction of a pixel's area "

@@ -377,7 +377,7 @@ image of its jobs.
         rms = (r.get("projection") or {}).get("rms")
         if t is None or rms is None:
             continue
-        rlab = f"{r['renderer']}[{_settings_text(r['settings'])}]"
+        rlab = _renderer_text(r["renderer"], r["settings"])
         clab = r["calibrator"] + ("" if _calmodel(r) == "family" else f"[{_calmodel(r)}]")
         g = groups.setdefault((rlab, clab), {"t": {}, "rms": []})
         g["t"][r["fullname"].rsplit("/", 1)[0]] = t
@@ -386,9 +386,11 @@ image of its jobs.
              len(g["rms"])) for (rl, cl), g in sorted(groups.items())]
 
 
-def _settings_text(s):
-    from harness.records import settings_label
-    return settings_label(s)
+def _renderer_text(renderer, s):
+    r'''"raycast[spp=16,adaptive,coverage=area]": the renderer's name and its settings as
+in a fullname (with the options it applies by default)'''
+    from harness.records import renderer_key
+    return renderer_key(renderer, {k: v for k, v in s.items() if k != "label"})
 
 
 def pareto_front(points):
@@ -409,9 +411,10 @@ its points differ in supersampling K'''
     out = {}
     for r in records.values():
         s = r.get("settings") or {}
-        rlab = f"{r['renderer']}[{_settings_text(s)}]"
-        opts = ", ".join(f"{k}={_opt_text(v)}" for k, v in sorted((s.get("options") or {})
-                                                                  .items()))
+        rlab = _renderer_text(r["renderer"], s)
+        from renderers.base import DEFAULT_OPTIONS
+        options = {**DEFAULT_OPTIONS.get(r["renderer"], {}), **(s.get("options") or {})}
+        opts = ", ".join(f"{k}={_opt_text(v)}" for k, v in sorted(options.items()))
         series = r["renderer"] + ("" if s.get("adaptive", False) else " (full)")
         if opts:
             series += f" {opts}"
@@ -789,6 +792,8 @@ SYNOPSIS
 Each candidate model is a point at (parameters, max floor px), log scales; the
 tolerance is a dashed line and the recommended model is circled. A model that
 cannot see the whole field of view is drawn hollow at its floor over the rest.
+A cross is a calibrator's own fit of the model (b["own"]: the floors its "best"
+choice is made on).
 '''
     items = [(cam, b) for cam, b in benchmarks.items() if b.get("rows")]
     if not items:
@@ -812,6 +817,16 @@ cannot see the whole field of view is drawn hollow at its floor over the rest.
                     ax.plot([r["nparams"] for r in sel],
                             [max(r[crit], 1e-13) for r in sel], marker, color=colour,
                             mfc=mfc, ls="none", ms=5, label=lab)
+        # each calibrator's own fits (the floors its "best" choice is made on): crosses in
+        # its library's colour
+        for cal, own in (b.get("own") or {}).items():
+            colour = {"jpl": "tab:blue", "mrcal": "tab:orange", "opencv": "tab:green"}.get(
+                cal, "k")
+            rows = [r for r in own.get("rows", []) if r.get(crit) is not None]
+            if rows:
+                ax.plot([r["nparams"] for r in rows], [max(r[crit], 1e-13) for r in rows],
+                        "x", color=colour, ls="none", ms=6, mew=1.2,
+                        label=f"{cal}'s own fit")
         ax.axhline(b["tolerance"], color="tab:red", ls="--", lw=0.8)
         rec = b.get("recommended")
         if rec:
@@ -827,9 +842,9 @@ cannot see the whole field of view is drawn hollow at its floor over the rest.
     axes[0, 0].legend(fontsize=6, loc="lower left")
     fig.supxlabel("parameters", fontsize=8)
     fig.supylabel("floor (px, max over the image)", fontsize=8)
-    fig.suptitle("Camera-model floors: each candidate fitted to the camera's exact "
-                 "projections", fontsize=9)
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.25 / fig.get_figheight()))
+    fig.suptitle("Camera-model floors: each candidate fitted\nto the camera's exact "
+                 "projections", fontsize=8)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.4 / fig.get_figheight()))
     path = Path(out) / f"{key}.png"
     save_png(fig, path, dpi=80)
     plt.close(fig)
@@ -838,4 +853,6 @@ cannot see the whole field of view is drawn hollow at its floor over the rest.
                   "model_benchmark): its floor (max projection difference) against its "
                   "parameter count; dashed: the tolerance; circled: the simplest model "
                   "within it; hollow: the model cannot see the whole field of view (the "
-                  "floor is over the rest).", str(path))
+                  "floor is over the rest); crosses: each calibrator's own fit of exact "
+                  "observations of whole-image poses, the floors its 'best' choice is "
+                  "made on.", str(path))

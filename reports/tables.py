@@ -111,7 +111,7 @@ def _cal_label(r):
 
 def render_variant(r):
     r'''The renderer and its settings of a record, as its fullname writes them
-(e.g. "raycast[spp=16,adaptive,response=realistic]")'''
+(e.g. "raycast[spp=16,adaptive,coverage=area,response=realistic]")'''
     from harness.records import renderer_key
     return renderer_key(r["renderer"], r.get("settings") or {})
 

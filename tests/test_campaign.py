@@ -29,13 +29,14 @@ def test_shipped_campaigns_load_and_validate():
     # dots and the AprilTag grid (issue 16); the grid by jpl alone (mrcal's object is a
     # regular grid, OpenCV's model is judged on the dots)
     assert len(jobs) == 22 * 3 * 2
-    assert jobs[0].key == "1/CAHV/dots/raycast[spp=16,adaptive]"
-    assert jobs[1].key == "1/CAHV/apriltag/raycast[spp=16,adaptive]"
+    assert jobs[0].key == "1/CAHV/dots/raycast[spp=16,adaptive,coverage=area]"
+    assert jobs[1].key == "1/CAHV/apriltag/raycast[spp=16,adaptive,coverage=area]"
     for c in (quick, paper):
         cals = {j.target: sorted({name for name, _, _ in j.calibrators})
                 for j in expand_jobs(c)}
         assert cals == {"dots": ["jpl", "mrcal", "opencv"], "apriltag": ["jpl"]}
-    assert jobs[0].fullname("jpl", "CAHV") == "1/CAHV/dots/raycast[spp=16,adaptive]/jpl[CAHV]"
+    assert jobs[0].fullname("jpl", "CAHV") == \
+        "1/CAHV/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHV]"
     assert len({j.key for j in jobs}) == len(jobs)
 
 
@@ -53,8 +54,10 @@ models = ["family", "CAHV"]
 '''))
     jobs = expand_jobs(c)
     assert [j.key for j in jobs] == [
-        "17/CAHVOR/dots/raycast[spp=1,adaptive]", "17/CAHVOR/dots/raycast[spp=1,full]",
-        "17/CAHVOR/dots/raycast[spp=4,adaptive]", "17/CAHVOR/dots/raycast[spp=4,full]"]
+        "17/CAHVOR/dots/raycast[spp=1,adaptive,coverage=area]",
+        "17/CAHVOR/dots/raycast[spp=1,full,coverage=area]",
+        "17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]",
+        "17/CAHVOR/dots/raycast[spp=4,full,coverage=area]"]
     assert jobs[0].calibrators == (("jpl", "CAHVOR", {}), ("jpl", "CAHV", {}))
     assert Campaign.from_dict(c.as_dict()) == c
 
@@ -68,7 +71,7 @@ def test_model_file_camera_is_resolved_relative_to_the_campaign(tmp_path):
     c = load_campaign(_write(tmp_path, 'cameras = ["models/nav.cahvor"]\nmodels = ["CAHV"]\n'))
     assert c.cameras == (str(tmp_path / "models" / "nav.cahvor"),)
     jobs = expand_jobs(c)
-    assert jobs[0].key == "file-nav.cahvor/CAHV/dots/raycast[spp=16,adaptive]"
+    assert jobs[0].key == "file-nav.cahvor/CAHV/dots/raycast[spp=16,adaptive,coverage=area]"
 
 
 @pytest.mark.parametrize("text, message", [
@@ -144,8 +147,8 @@ def test_response_campaign_expands_clean_and_realistic_jobs():
     assert c.seed == 0
     jobs = expand_jobs(c)
     assert len(jobs) == 3 * 3 * 2
-    assert [j.key for j in jobs[:2]] == ["15/CAHV/dots/raycast[spp=16,adaptive]",
-                                         "15/CAHV/dots/raycast[spp=16,adaptive,response=realistic]"]
+    assert [j.key for j in jobs[:2]] == ["15/CAHV/dots/raycast[spp=16,adaptive,coverage=area]",
+                                         "15/CAHV/dots/raycast[spp=16,adaptive,coverage=area,response=realistic]"]
     # the clean jobs are the quick campaign's jobs, under the same fullnames
     quick = {j.key: j for j in expand_jobs(load_campaign(ROOT / "campaigns" / "quick.toml"))
              if j.target == "dots"}
@@ -159,7 +162,7 @@ def test_response_campaign_expands_clean_and_realistic_jobs():
                               "shot_noise": {}, "read_noise": {"sigma_e": 12.0},
                               "quantise": {"bits": 12}}
     assert noisy.fullname("jpl", "CAHV") == \
-        "15/CAHV/dots/raycast[spp=16,adaptive,response=realistic]/jpl[CAHV]"
+        "15/CAHV/dots/raycast[spp=16,adaptive,coverage=area,response=realistic]/jpl[CAHV]"
     assert Campaign.from_dict(c.as_dict()) == c
 
 
@@ -183,9 +186,10 @@ shot_noise = {}
 psf = {sigma_px = 2.0}
 '''))
     jobs = expand_jobs(c)
-    assert [j.key for j in jobs] == ["17/CAHV/dots/raycast[spp=4,adaptive,response=blur]",
-                                     "17/CAHV/dots/raycast[spp=4,adaptive]",
-                                     "17/CAHV/dots/raycast[spp=1,adaptive,response=noise]"]
+    assert [j.key for j in jobs] == [
+        "17/CAHV/dots/raycast[spp=4,adaptive,coverage=area,response=blur]",
+        "17/CAHV/dots/raycast[spp=4,adaptive,coverage=area]",
+        "17/CAHV/dots/raycast[spp=1,adaptive,coverage=area,response=noise]"]
     assert [j.response_name for j in jobs] == ["blur", "clean", "noise"]
     assert {j.seed for j in jobs} == {5}
     assert Campaign.from_dict(c.as_dict()) == c
@@ -194,8 +198,8 @@ psf = {sigma_px = 2.0}
                                         '[response.noise]\nshot_noise = {}\n[response.clean]\n',
                               "c2.toml"))
     assert [j.key for j in expand_jobs(c2)] == [
-        "17/CAHV/dots/raycast[spp=16,adaptive,response=noise]",
-        "17/CAHV/dots/raycast[spp=16,adaptive]"]
+        "17/CAHV/dots/raycast[spp=16,adaptive,coverage=area,response=noise]",
+        "17/CAHV/dots/raycast[spp=16,adaptive,coverage=area]"]
 
 
 def test_a_campaign_document_from_before_response_profiles_still_loads():

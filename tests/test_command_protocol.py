@@ -114,7 +114,8 @@ def test_setup_never_names_records_and_label_does():
     assert c[0].key == "17/CAHV/dots/mysim[spp=4,adaptive,quality=high]"
     # names without a label are what they always were
     assert make_fullname("15", "CAHVOR", "dots", "raycast", {"spp": 16, "adaptive": True},
-                         "jpl", "CAHVOR") == "15/CAHVOR/dots/raycast[spp=16,adaptive]/jpl[CAHVOR]"
+                         "jpl", "CAHVOR") == \
+        "15/CAHVOR/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHVOR]"
 
 
 def test_campaign_mistakes_about_setup_and_labels():

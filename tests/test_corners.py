@@ -176,8 +176,8 @@ a few ulp of a ~100 px coordinate, 1e-14 px), the reasons and misfits as well'''
 
 
 def test_corners_campaign_renders_the_corner_targets_with_area_coverage():
-    r'''campaigns/corners.toml: apriltag and chessboard on the ray caster's exact covered-area
-mode (point sampling at K=16 resolves an edge near the pixel grid only to 1/32 px)'''
+    r'''campaigns/corners.toml: apriltag and chessboard on the ray caster's exact area coverage,
+its default (point sampling at K=16 resolves an edge near the pixel grid only to 1/32 px)'''
     from pathlib import Path
 
     from harness.campaign import load_campaign
@@ -187,5 +187,7 @@ mode (point sampling at K=16 resolves an edge near the pixel grid only to 1/32 p
     assert {j.target for j in jobs} == {"apriltag", "chessboard"}
     assert {j.camera for j in jobs} == {"15", "17", "8"}
     assert len(jobs) == 3 * 3 * 2                       # cameras x families x targets
-    assert all(j.settings["options"] == {"coverage": "area"} for j in jobs)
+    # area coverage is the ray caster's default, and the records name it
+    assert all(j.settings["options"] == {} for j in jobs)
+    assert all(j.key.endswith("/raycast[spp=16,adaptive,coverage=area]") for j in jobs)
     assert [k.name for k in c.calibrators] == ["jpl"]

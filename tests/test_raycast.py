@@ -1,4 +1,5 @@
-r'''The exact ray-cast renderer: rays, pixel convention, adaptive == full, bad input'''
+r'''The exact ray-cast renderer: rays, pixel convention, point sampling's adaptive == full,
+the lazy ray cache, bad input'''
 
 import math
 
@@ -16,6 +17,12 @@ from targets.boards import load_target
 from targets.centroids import board_to_ref, polygon_centroid
 from targets.pattern import Pattern
 from targets.poses import plan_poses
+
+
+def point(spp, adaptive=True):
+    r'''Settings of K x K point sampling: what most tests here check (subsample rays,
+adaptive == full); area coverage, the default, is tests/test_raycast_area.py'''
+    return RenderSettings(spp=spp, adaptive=adaptive, options={"coverage": "point"})
 
 
 def _pinhole_parts(width, height, f, cx=None, cy=None):
@@ -154,7 +161,7 @@ computed by the reference model (independent of the kernels)'''
     model = small_models()[name]
     pattern = dot_pattern()
     Rt = board_pose(model, 0.9, (25, -20, 5))
-    image = RaycastRenderer().render(model, pattern, Rt, RenderSettings(spp=1)).image
+    image = RaycastRenderer().render(model, pattern, Rt, point(spp=1)).image
     from reference_models.conventions import pixel_centres
     origin, v = model.unproject(pixel_centres(model.width, model.height))
     Rt_br = Rt_board_ref(model, Rt)
@@ -176,7 +183,7 @@ iy + (j+0.5)/3 - 0.5) of the reference model'''
     pattern = dot_pattern()
     Rt = board_pose(model, 0.9, (-15, 25, 40))
     image = RaycastRenderer().render(model, pattern, Rt,
-                                     RenderSettings(spp=K, adaptive=False)).image
+                                     point(spp=K, adaptive=False)).image
     off = (np.arange(K) + 0.5) / K - 0.5
     iy, ix = np.mgrid[0:model.height, 0:model.width]
     Rt_br = Rt_board_ref(model, Rt)
@@ -225,7 +232,7 @@ and the area sampling'''
                       board_value=1.0, background_value=1.0,
                       circles=np.array([[0.0, 0.0, radius]]), circle_value=0.0)
     # K = 64: the K x K grid errs by ~1e-3 px at K = 16, ~1e-4 px at K = 64 (measured)
-    result = RaycastRenderer().render(model, pattern, Rt, RenderSettings(spp=64))
+    result = RaycastRenderer().render(model, pattern, Rt, point(spp=64))
     t = np.linspace(0, 2 * math.pi, 1440, endpoint=False)
     outline = np.stack((radius * np.cos(t), radius * np.sin(t), 0 * t), axis=-1)
     q = model.project(board_to_ref(model, Rt, outline))
@@ -249,8 +256,8 @@ def test_adaptive_equals_full_supersampling_bit_for_bit(name, K):
                                                                  offset=(0.2, -0.1))):
         for pattern in (dot_pattern(), load_target("chessboard").pattern(),
                         load_target("apriltag").pattern()):
-            a = r.render(model, pattern, Rt, RenderSettings(spp=K, adaptive=True))
-            f = r.render(model, pattern, Rt, RenderSettings(spp=K, adaptive=False))
+            a = r.render(model, pattern, Rt, point(spp=K, adaptive=True))
+            f = r.render(model, pattern, Rt, point(spp=K, adaptive=False))
             assert a.metadata["board_fraction"] > 0.01
             assert 0 < a.metadata["adaptive_fraction"] < 0.8
             assert f.metadata["adaptive_fraction"] == 1.0
@@ -269,13 +276,13 @@ K = 16, on the rows of the image where the target is'''
     tgt = load_target(target)
     r = RaycastRenderer()
     Rt = plan_poses(model, tgt, n=6, seed=0)[slot % 6]
-    a = r.render(model, tgt.pattern(), Rt, RenderSettings(spp=16))
+    a = r.render(model, tgt.pattern(), Rt, point(spp=16))
     # full supersampling of a band of rows through the board (all of it is too slow here)
     rows = np.flatnonzero((a.image != a.image[0, 0]).any(axis=1))
     start = int(np.clip(rows[len(rows) // 2] - 24, 0, model.height - 48))
     band = slice(start, start + 48)
     crop = model.replace(V=model.V - band.start * model.A, height=48)
-    f = r.render(crop, tgt.pattern(), Rt, RenderSettings(spp=16, adaptive=False))
+    f = r.render(crop, tgt.pattern(), Rt, point(spp=16, adaptive=False))
     assert np.array_equal(a.image[band], f.image)
     assert len(np.unique(f.image)) > 50
 
@@ -321,6 +328,15 @@ def test_ray_cache_is_reused_and_bounded():
                     RenderSettings(spp=1)).metadata["ray_cache"] == "cold"
 
 
+def _fresh_rays(m):
+    r'''(dirs, shift) of the renderer's ray cache of m in new arrays'''
+    noncentral = not m.is_central
+    dirs = np.empty((m.height + 2, m.width + 2, 3))
+    shift = np.zeros((m.height + 2, m.width + 2) if noncentral else (1, 1))
+    kern.fill_centre_rays(kernels.pack_model(m), dirs, shift, noncentral)
+    return dirs, shift
+
+
 def test_a_dropped_ray_cache_is_overwritten_by_the_next_camera_of_its_shapes():
     r'''The arrays of the camera that a new one evicts are reused when nothing holds them;
 the rays written over them equal a fresh cache, and a render's arrays are never reused'''
@@ -333,17 +349,17 @@ the rays written over them equal a fresh cache, and a render's arrays are never 
         m = models[name]
         entry = r.rays(m)
         assert entry[1].ctypes.data != held[1].ctypes.data
-        fresh = kernels.build_ray_cache(kernels.pack_model(m), m.width, m.height, False)
+        fresh = _fresh_rays(m)
         assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
         held = entry
-    fresh = kernels.build_ray_cache(kernels.pack_model(models["cahvor"]), 200, 150, False)
+    fresh = _fresh_rays(models["cahvor"])
     assert np.array_equal(held[1], fresh[0])  # still the CAHVOR rays it was given
     pointer = held[1].ctypes.data
     del held, entry
     m = models["cahv"]
     entry = r.rays(m)
     assert entry[1].ctypes.data == pointer
-    fresh = kernels.build_ray_cache(kernels.pack_model(m), m.width, m.height, False)
+    fresh = _fresh_rays(m)
     assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
     assert entry[2].shape == (1, 1) and entry[2][0, 0] == 0.0
     # a noncentral camera of the same size reuses the directions, not the (1,1) shift
@@ -352,13 +368,12 @@ the rays written over them equal a fresh cache, and a render's arrays are never 
     del entry
     entry = r.rays(nc)
     assert entry[1].ctypes.data == pointer and entry[2].shape == (152, 202)
-    fresh = kernels.build_ray_cache(kernels.pack_model(nc), nc.width, nc.height, True)
+    fresh = _fresh_rays(nc)
     assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
     del entry
     entry = r.rays(m)
     assert entry[1].ctypes.data == pointer and entry[2].shape == (1, 1)
-    assert entry[2][0, 0] == 0.0 and np.array_equal(entry[1], kernels.build_ray_cache(
-        kernels.pack_model(m), m.width, m.height, False)[0])
+    assert entry[2][0, 0] == 0.0 and np.array_equal(entry[1], _fresh_rays(m)[0])
 
 
 def test_renderers_share_the_ray_cache_by_default():
@@ -437,8 +452,8 @@ image, part of the board recedes to grazing angles (footprints far from affine)'
     r = RaycastRenderer()
     big = dot_pattern(n=20, spacing=0.1, r=0.03)
     Rt = board_pose(model, 0.4, (80, 0, 10), centre=(0.95, 0.95))
-    a = r.render(model, big, Rt, RenderSettings(spp=6))
-    f = r.render(model, big, Rt, RenderSettings(spp=6, adaptive=False))
+    a = r.render(model, big, Rt, point(spp=6))
+    f = r.render(model, big, Rt, point(spp=6, adaptive=False))
     assert 0.05 < a.metadata["board_fraction"] < 0.9
     assert np.array_equal(a.image, f.image)
     # the horizon: some pixel rows see the plane, the top ones do not
@@ -458,3 +473,44 @@ def test_non_finite_pixels_are_counted_per_band():
     assert kern._count_nonfinite(out, 0, 3) == 1
     assert kern._count_nonfinite(out, 3, 6) == 2
     assert kern._count_nonfinite(out, 0, 6) == 3
+
+
+# --- the lazy ray cache ---------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["cahvor", "cahvore-noncentral", "cahvore-fisheye"])
+def test_lazy_rays_render_the_cached_pixels_bit_for_bit(name):
+    r'''A camera rendered without a ray cache (lazy_above_bytes=0: each tile traces the
+centre rays it reads) gives the pixels of the cached render, bit for bit, in area and
+point coverage, whatever was rendered before in the process: the traced rays are the
+cached ones (runs of RAY_RUN from fixed columns)'''
+    model = small_models()[name]
+    cached = RaycastRenderer(shared_cache=False)
+    lazy = RaycastRenderer(shared_cache=False, lazy_above_bytes=0)
+    for Rt in (board_pose(model, 0.7, (25, -20, 5)),
+               board_pose(model, 1.2, (-40, 30, 60), offset=(0.2, -0.1))):
+        for pattern in (dot_pattern(), load_target("chessboard").pattern()):
+            for settings in (RenderSettings(spp=4), point(spp=4)):
+                a = cached.render(model, pattern, Rt, settings)
+                b = lazy.render(model, pattern, Rt, settings)
+                assert b.metadata["ray_cache"] == "lazy"
+                assert a.metadata["ray_cache"] in ("cold", "warm")
+                assert np.array_equal(a.image, b.image)
+                assert a.metadata["pixels_tested"] == b.metadata["pixels_tested"]
+                assert a.metadata["board_fraction"] == b.metadata["board_fraction"]
+    assert not lazy._rays
+
+
+@pytest.mark.parametrize("name", ["cahv", "cahvor", "cahvore-noncentral", "cahvore-fisheye"])
+def test_renderer_ray_cache_equals_model_unproject(name):
+    r'''The renderer's cache (fill_centre_rays: runs of RAY_RUN along a row) to the same
+level as reference_models.kernels.build_ray_cache's'''
+    model = small_models()[name]
+    W, H = model.width, model.height
+    cam, dirs, shift, noncentral, cold = RaycastRenderer(shared_cache=False).rays(model)
+    assert cold and noncentral == (not model.is_central) and dirs.shape == (H + 2, W + 2, 3)
+    q = np.stack(np.meshgrid(np.arange(-1.0, W + 1), np.arange(-1.0, H + 1)), axis=-1)
+    origin, v = model.unproject(q)
+    np.testing.assert_allclose(dirs / np.linalg.norm(dirs, axis=-1, keepdims=True), v,
+                               rtol=0, atol=1e-12)
+    if noncentral:
+        np.testing.assert_allclose(model.C + shift[..., None] * model.O, origin, rtol=0,
+                                   atol=1e-12)

@@ -1,4 +1,4 @@
-r'''The ray caster's area coverage (RenderSettings(options={"coverage": "area"}))
+r'''The ray caster's area coverage (its default; RenderSettings(options={"coverage": "area"}))
 
 Every edge pixel's value is the albedo integrated over the pixel's preimage on
 the board (renderers._raycast_kernels, "Area coverage"), to within
@@ -199,9 +199,11 @@ pixels are ~100x farther off'''
     Rt = board_pose(0.9 if target == "dots" else 1.6, (35, -25, 10))
     r = RaycastRenderer()
     area = r.render(model, pattern, Rt, AREA)
-    point = r.render(model, pattern, Rt, RenderSettings(spp=16))
+    point = r.render(model, pattern, Rt, RenderSettings(spp=16, options={"coverage": "point"}))
     md = area.metadata
     assert md["coverage"] == "area"
+    # a mean of albedos: never past [0, 1], rounding included (an external renderer's check)
+    assert area.image.min() >= 0.0 and area.image.max() <= 1.0
     assert md["area_fraction"] > 0.02
     assert md["area_point_sampled_fraction"] == 0.0
     img = area.image.astype(np.float64)
@@ -263,16 +265,18 @@ centroid of its projected outline: RMS <= 1e-3 px'''
 
 
 # --- settings ----------------------------------------------------------------------------------
-def test_point_sampling_stays_the_default_and_area_is_an_option():
+def test_area_coverage_is_the_default_and_point_sampling_an_option():
     model = cameras()["cahvor-strong"]
     pattern = dots()
     Rt = board_pose(0.9, (30, -20, 15))
     r = RaycastRenderer()
     default = r.render(model, pattern, Rt, RenderSettings(spp=8))
     point = r.render(model, pattern, Rt, RenderSettings(spp=8, options={"coverage": "point"}))
-    assert np.array_equal(default.image, point.image)
-    assert "coverage" not in default.metadata
+    assert default.metadata["coverage"] == "area"
+    assert point.metadata["coverage"] == "point"
+    assert "area_fraction" not in point.metadata
     area = r.render(model, pattern, Rt, RenderSettings(spp=8, options={"coverage": "area"}))
+    assert np.array_equal(default.image, area.image)
     assert not np.array_equal(area.image, point.image)
     # away from the edges the two are the same pixels
     same = (area.image == point.image).mean()

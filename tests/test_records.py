@@ -35,14 +35,14 @@ def test_fullname_and_settings_label():
     s = {"spp": 4, "adaptive": False, "options": {"noise": 2.0, "legacy": True}}
     assert settings_label(s) == "spp=4,full,legacy=true,noise=2.0"
     assert make_fullname("15", "CAHVOR", "dots", "raycast", s, "mrcal", "CAHVOR") == \
-        "15/CAHVOR/dots/raycast[spp=4,full,legacy=true,noise=2.0]/mrcal[CAHVOR]"
+        "15/CAHVOR/dots/raycast[spp=4,full,coverage=area,legacy=true,noise=2.0]/mrcal[CAHVOR]"
 
 
 def test_response_profile_in_the_fullname():
     s = {"spp": 16, "adaptive": True, "options": {"legacy": True}, "response": "realistic"}
     assert settings_label(s) == "spp=16,adaptive,legacy=true,response=realistic"
     assert make_fullname("15", "CAHVOR", "dots", "raycast", s, "jpl", "CAHVOR") == \
-        "15/CAHVOR/dots/raycast[spp=16,adaptive,legacy=true,response=realistic]/jpl[CAHVOR]"
+        "15/CAHVOR/dots/raycast[spp=16,adaptive,coverage=area,legacy=true,response=realistic]/jpl[CAHVOR]"
     # no profile, or an empty one: the label a clean record always had
     assert settings_label(dict(s, response="")) == settings_label(
         {"spp": 16, "adaptive": True, "options": {"legacy": True}}) == "spp=16,adaptive,legacy=true"

@@ -18,8 +18,10 @@ from renderers.memory import (
     memory_limit,
     render_memory,
 )
+from renderers.raycast import RaycastRenderer
 
-# a CAHVOR of 100000 x 100000 pixels: 40 GB of float32 image and 240 GB of ray cache
+# a CAHVOR of 100000 x 100000 pixels: 40 GB of float32 image (its rays, 240 GB cached, are
+# traced per tile)
 HUGE = """\
 Model = CAHVOR = perspective, distortion
 Dimensions = 100000 100000
@@ -108,8 +110,9 @@ def test_camval_render_refuses_a_huge_model_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2
     assert err.count("\n") == 1 and "Traceback" not in err
-    assert err.startswith("camval render: error: a 100000x100000 image needs at least 280 GB "
-                          "to render with raycast (image 40 GB, ray cache 240 GB)")
+    # the image alone: its 240 GB ray cache is above lazy_above_bytes (traced per tile)
+    assert err.startswith("camval render: error: a 100000x100000 image needs at least 40 GB "
+                          "to render with raycast (image 40 GB)")
     assert not (tmp_path / "x.png").exists() and not (tmp_path / "x.json").exists()
     # refused before anything of the image's size was allocated: the peak grew < 1 GB
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 1 << 20   # kB
@@ -123,12 +126,18 @@ def test_a_campaign_job_on_a_huge_model_is_a_failed_render_record(tmp_path):
         "renderer": [{"name": "raycast", "spp": 4}], "calibrator": [{"name": "jpl"}]}))
     (rec,) = run_job(job)["records"]
     assert (rec["status"], rec["stage"]) == ("failed", "render")
-    assert rec["reason"].startswith("a 100000x100000 image needs at least 280 GB to render "
+    # its image alone: its ray cache (240 GB) is far above lazy_above_bytes, so it has none
+    assert rec["reason"].startswith("a 100000x100000 image needs at least 40 GB to render "
                                     "with raycast")
 
 
 def test_an_ordinary_camera_passes_the_check():
     r = get_renderer("raycast")
     need = check_render_memory(r, _cahv(5120, 3840), RenderSettings(spp=16))
-    # camera 1's size: 79 MB of image and 0.47 GB of rays, far below any machine of this kind
-    assert need.total == 4 * 5120 * 3840 + 24 * 5122 * 3842
+    # camera 1's size: 79 MB of image; its rays (0.47 GB cached) are traced per tile
+    # (renderers.raycast.LAZY_ABOVE_BYTES), far below any machine of this kind
+    assert need.total == 4 * 5120 * 3840
+    assert "ray cache" not in need.parts
+    kept = RaycastRenderer(lazy_above_bytes=1 << 30)
+    assert check_render_memory(kept, _cahv(5120, 3840), RenderSettings(spp=16)).total == \
+        4 * 5120 * 3840 + 24 * 5122 * 3842

@@ -122,8 +122,8 @@ def test_tables_and_speed_points(run_dir):
     records = load_run(run_dir)["records"]
     # two render settings: one table each, never pooled
     t16, t4 = summary_tables(records)
-    assert t4.title == "Calibrator jpl on raycast[spp=4,adaptive]"
-    assert t16.title == "Calibrator jpl on raycast[spp=16,adaptive]"
+    assert t4.title == "Calibrator jpl on raycast[spp=4,adaptive,coverage=area]"
+    assert t16.title == "Calibrator jpl on raycast[spp=16,adaptive,coverage=area]"
     for t, noise in ((t4, 3e-3), (t16, 1e-3)):
         assert t.header[:3] == ("quantity", "unit", "paper (ROAMS)")
         rows = {r[0]: r for r in t.rows}
@@ -138,13 +138,13 @@ def test_tables_and_speed_points(run_dir):
     assert t16.note == "4 ok"
     # the per-camera figures get one panel per calibrator and setting
     panels = calibrator_panels(records)
-    assert panels == [("jpl", "family", "raycast[spp=16,adaptive]"),
-                      ("jpl", "family", "raycast[spp=4,adaptive]")]
+    assert panels == [("jpl", "family", "raycast[spp=16,adaptive,coverage=area]"),
+                      ("jpl", "family", "raycast[spp=4,adaptive,coverage=area]")]
     one = {k: r for k, r in records.items() if r["settings"]["spp"] == 4}
     assert calibrator_panels(one) == [("jpl", "family", "")]
     pts = speed_accuracy_points(records)
-    assert [(p[0], p[1]) for p in pts] == [("raycast[spp=16,adaptive]", "jpl"),
-                                           ("raycast[spp=4,adaptive]", "jpl")]
+    assert [(p[0], p[1]) for p in pts] == [("raycast[spp=16,adaptive,coverage=area]", "jpl"),
+                                           ("raycast[spp=4,adaptive,coverage=area]", "jpl")]
     assert pts[0][2] == pytest.approx(0.05) and pts[1][2] == pytest.approx(0.01)
     assert pareto_front([(p[2], p[3]) for p in pts]) == [1, 0]
     # a slower and worse setting is not on the front
@@ -190,8 +190,8 @@ def test_report_files(run_dir):
                 "speed_accuracy"):
         assert f"{key}.png" in names
     # one map figure per render setting
-    assert "maps_jpl_raycast_spp_4_adaptive_.png" in names
-    assert "maps_jpl_raycast_spp_16_adaptive_.png" in names
+    assert "maps_jpl_raycast_spp_4_adaptive_coverage_area_.png" in names
+    assert "maps_jpl_raycast_spp_16_adaptive_coverage_area_.png" in names
     for p in paths["figures"]:
         assert Path(p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert html.count("<img ") == len(names)
@@ -410,7 +410,7 @@ def test_speed_chart_labels_renderer_paths(legacy_run, tmp_path):
     series = speed_series(recs)
     assert sorted(set(series.values())) == sorted(
         [(n, k) for n in ("povray (full) camera=mesh", "povray (full) camera=perspective",
-                          "raycast") for k in (1, 4, 16)])
+                          "raycast coverage=area") for k in (1, 4, 16)])
     assert len(speed_accuracy_points(recs)) == 9
     assert Path(fig_speed(recs, tmp_path).path).is_file()
 

@@ -28,8 +28,8 @@ from harness.stages import render_summary
 ROOT = Path(__file__).resolve().parent.parent
 SMALL = {"name": "small", "cameras": [17, "SuperCam"], "models": ["CAHV"], "keep_images": True,
          "renderer": [{"name": "raycast", "spp": 4}], "calibrator": [{"name": "jpl"}]}
-OK = "17/CAHV/dots/raycast[spp=4,adaptive]/jpl[CAHV]"
-NOT_VISIBLE = "SuperCam/CAHV/dots/raycast[spp=4,adaptive]/jpl[CAHV]"
+OK = "17/CAHV/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHV]"
+NOT_VISIBLE = "SuperCam/CAHV/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHV]"
 
 
 def _campaign():
@@ -96,7 +96,7 @@ def test_resume_redoes_only_missing_jobs(first_run, tmp_path):
     shutil.copytree(d, run)
     (run / "run.json").unlink()
     files = {p.name: p.stat().st_mtime_ns for p in (run / "records").glob("*.json")}
-    gone = job_filename("17/CAHV/dots/raycast[spp=4,adaptive]")
+    gone = job_filename("17/CAHV/dots/raycast[spp=4,adaptive,coverage=area]")
     (run / "records" / gone).unlink()
     again = run_campaign(_campaign(), run, workers=1, progress=False, resume=True)
     assert again["execution"]["jobs_run"] == 1
@@ -108,6 +108,17 @@ def test_resume_redoes_only_missing_jobs(first_run, tmp_path):
     third = run_campaign(_campaign(), run, workers=1, progress=False, resume=True)
     assert third["execution"]["jobs_run"] == 0
     assert _comparable(third) == _comparable(doc)
+
+
+def test_adapter_versions_are_kept_per_renderer_label():
+    from harness.runner import adapters_from_records
+    recs = {"a": {"renderer": "command", "settings": {"label": "pathtracer"},
+                  "versions": {"renderer": "pt 2.1"}},
+            "b": {"renderer": "command", "settings": {"label": "raster"},
+                  "versions": {"renderer": "raster 0.9"}},
+            "c": {"renderer": "raycast", "settings": {}, "versions": {"renderer": "raycast x"}}}
+    got = adapters_from_records(recs)["renderers"]
+    assert got == {"pathtracer": "pt 2.1", "raster": "raster 0.9", "raycast": "raycast x"}
 
 
 def test_stage_failures_are_records():
@@ -139,7 +150,7 @@ def test_progress_lines_when_not_a_tty(tmp_path, capsys):
     store = RunStore.create(tmp_path / "r", c.as_dict())
     assert run_jobs(expand_jobs(c), store, workers=1, progress=True) == 1
     err = capsys.readouterr().err
-    assert "[1/1] SuperCam/CAHV/dots/raycast[spp=4,adaptive]: 1 not-applicable" in err
+    assert "[1/1] SuperCam/CAHV/dots/raycast[spp=4,adaptive,coverage=area]: 1 not-applicable" in err
     assert "ETA 0 s" in err
 
 
@@ -154,7 +165,7 @@ def test_executor_usage_errors(tmp_path):
     assert Job(key="k", camera="1", camera_key="1", family="CAHV", target="dots",
                renderer="raycast", settings={"spp": 1, "adaptive": False},
                calibrators=()).fullname("jpl", "CAHV") == \
-        "1/CAHV/dots/raycast[spp=1,full]/jpl[CAHV]"
+        "1/CAHV/dots/raycast[spp=1,full,coverage=area]/jpl[CAHV]"
 
 
 @pytest.mark.parametrize("args, message", [
@@ -225,7 +236,7 @@ NOISY = {"full_well_e": 20000.0, "psf": {"kind": "gaussian", "sigma_px": 0.7},
 RESPONSE = dict(SMALL, cameras=[17], seed=3, keep_images=True,
                 renderer=[{"name": "raycast", "spp": 4, "response": ["clean", "noisy"]}],
                 response={"clean": {}, "noisy": NOISY})
-NOISY_KEY = "17/CAHV/dots/raycast[spp=4,adaptive,response=noisy]"
+NOISY_KEY = "17/CAHV/dots/raycast[spp=4,adaptive,coverage=area,response=noisy]"
 
 
 @pytest.fixture(scope="module")
@@ -392,17 +403,18 @@ def test_dead_worker_is_reported_and_retried_on_resume(tmp_path):
 def test_rich_progress_bar_on_a_terminal():
     import io
 
-    from harness.executors import _Progress
+    from harness.progress import Progress
 
     class Terminal(io.StringIO):
         def isatty(self):
             return True
 
     term = Terminal()
-    bar = _Progress(2, stream=term)
+    bar = Progress(stream=term)
     assert bar.bar is not None
-    bar.advance("15/CAHV/dots/raycast[spp=16,adaptive]", {"ok": 3})
-    bar.advance("17/CAHV/dots/raycast[spp=16,adaptive]", {"failed": 1})
+    bar.stage("jobs", total=2)
+    bar.advance("15/CAHV/dots/raycast[spp=16,adaptive,coverage=area]: 3 ok", short="15/CAHV: 3 ok")
+    bar.advance("17/CAHV/dots/raycast[spp=16,adaptive,coverage=area]: 1 failed", short="17/CAHV: 1 failed")
     bar.close()
     out = term.getvalue()
     assert "2/2" in out and "ETA" in out and "1 failed" in out

@@ -60,19 +60,19 @@ def test_paper_campaign_folds_the_derived_slots():
     # dots and the AprilTag grid: each target's jobs fold alike
     assert len(jobs) == 2 * 66 and len(grouped) == 2 * 43
     assert twins == {
-        **{f"5/{f}/{t}/raycast[spp=16,adaptive]": ["6", "7", "8"]
+        **{f"5/{f}/{t}/raycast[spp=16,adaptive,coverage=area]": ["6", "7", "8"]
            for f in ("CAHV", "CAHVOR", "CAHVORE") for t in ("dots", "apriltag")},
-        **{f"9/{f}/{t}/raycast[spp=16,adaptive]": ["10", "11", "12"]
+        **{f"9/{f}/{t}/raycast[spp=16,adaptive,coverage=area]": ["10", "11", "12"]
            for f in ("CAHV", "CAHVOR", "CAHVORE") for t in ("dots", "apriltag")},
-        **{f"13/{f}/{t}/raycast[spp=16,adaptive]": ["14"] for f in ("CAHV", "CAHVOR")
-           for t in ("dots", "apriltag")},
-        **{f"17/{f}/{t}/raycast[spp=16,adaptive]": ["18"]
+        **{f"13/{f}/{t}/raycast[spp=16,adaptive,coverage=area]": ["14"]
+           for f in ("CAHV", "CAHVOR") for t in ("dots", "apriltag")},
+        **{f"17/{f}/{t}/raycast[spp=16,adaptive,coverage=area]": ["18"]
            for f in ("CAHV", "CAHVOR", "CAHVORE") for t in ("dots", "apriltag")}}
     # every job is there once, as itself or as a twin
     members = [m.key for j in grouped for m in j.members()]
     assert sorted(members) == sorted(j.key for j in jobs)
     # the pancams' CAHVORE jobs are not-applicable (no CAHVORE of a CAHVOR): not folded
-    assert "14/CAHVORE/dots/raycast[spp=16,adaptive]" in {j.key for j in grouped}
+    assert "14/CAHVORE/dots/raycast[spp=16,adaptive,coverage=area]" in {j.key for j in grouped}
 
 
 def test_only_exact_renderers_and_clean_jobs_share():
@@ -82,7 +82,7 @@ def test_only_exact_renderers_and_clean_jobs_share():
                        source="c.toml")
     grouped = group_twins(expand_jobs(c))
     shared = [j.key for j in grouped if j.twins]
-    assert shared == ["17/CAHV/dots/raycast[spp=16,adaptive]"]
+    assert shared == ["17/CAHV/dots/raycast[spp=16,adaptive,coverage=area]"]
     assert len(grouped) == len(expand_jobs(c)) - 1
     # the legacy renderer's defects may depend on where the camera is: it renders every one
     assert camera_frame_exact("raycast") and not camera_frame_exact("faulty")
@@ -127,32 +127,33 @@ def test_shared_records_equal_unshared_records(tmp_path):
     assert sorted(shared) == sorted(alone) and len(shared) == 6
     for k in shared:
         assert _without_sharing_info(shared[k]) == _without_sharing_info(alone[k]), k
-    assert docs[True]["execution"]["twins"] == {"17/CAHVOR/dots/raycast[spp=4,adaptive]": ["18"]}
+    assert docs[True]["execution"]["twins"] == {
+        "17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]": ["18"]}
     assert docs[True]["execution"]["jobs_run"] == 2
     facts = dict(run_facts(docs[True]))
     assert facts["cameras rendered once for others (identical in their camera frames)"] == \
         "17 for 18"
     assert not any(k.startswith("cameras rendered once") for k, _ in run_facts(docs[False]))
-    key = "18/CAHVOR/dots/raycast[spp=4,adaptive]"
+    key = "18/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]"
     jpl, mrcal = shared[key + "/jpl[CAHVOR]"], shared[key + "/mrcal[CAHVOR]"]
     assert jpl["info"]["shared"] == {"with": "17", "stages": ["poses", "render", "detect"]}
     assert mrcal["info"]["shared"] == {"with": "17",
                                        "stages": ["poses", "render", "detect", "calibrate"]}
-    assert shared["17/CAHVOR/dots/raycast[spp=4,adaptive]/jpl[CAHVOR]"]["info"]["shared"] == \
-        {"twins": ["18"]}
+    jpl17 = "17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHVOR]"
+    assert shared[jpl17]["info"]["shared"] == {"twins": ["18"]}
     # the twin's own work is timed, the shared work is not counted twice
     assert jpl["seconds"]["render"] == 0.0 and jpl["seconds"]["detect"] == 0.0
     assert jpl["seconds"]["calibrate"] > 0.0 and mrcal["seconds"]["calibrate"] == 0.0
     assert jpl["seconds"]["render_per_image"] == \
-        shared["17/CAHVOR/dots/raycast[spp=4,adaptive]/jpl[CAHVOR]"]["seconds"]["render_per_image"]
+        shared["17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHVOR]"]["seconds"]["render_per_image"]
     # the images are counted once: the twin rendered none
     stages, images = stage_seconds(shared)
     assert images == 6 and stage_seconds(alone)[1] == 12
     assert stages["calibrate:mrcal"] == pytest.approx(
-        shared["17/CAHVOR/dots/raycast[spp=4,adaptive]/mrcal[CAHVOR]"]["seconds"]["calibrate"])
+        shared["17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]/mrcal[CAHVOR]"]["seconds"]["calibrate"])
     # each camera has its own job file, so a lost twin is redone alone on resume
     store = RunStore.open(tmp_path / "True")
-    assert {"17/CAHVOR/dots/raycast[spp=4,adaptive]", key} <= store.done_jobs()
+    assert {"17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]", key} <= store.done_jobs()
     (store.records_dir / job_filename(key)).unlink()
     c = parse_campaign(dict(spec, share_identical_cameras=True), source="c.toml")
     again = run_campaign(c, tmp_path / "True", resume=True, workers=1, progress=False)
@@ -178,7 +179,7 @@ def test_a_job_function_that_forgets_a_twin_leaves_it_to_resume(tmp_path):
     store = RunStore.create(tmp_path / "run", c.as_dict())
     run_jobs([job], store, fn=leader_only, workers=1, progress=False)
     recs = store.records()
-    twin = recs["18/CAHV/dots/raycast[spp=1,adaptive]/jpl[CAHV]"]
+    twin = recs["18/CAHV/dots/raycast[spp=1,adaptive,coverage=area]/jpl[CAHV]"]
     assert (twin["status"], twin["stage"]) == ("failed", "internal")
     assert "no records for camera 18" in twin["reason"]
-    assert store.done_jobs() == {"17/CAHV/dots/raycast[spp=1,adaptive]"}
+    assert store.done_jobs() == {"17/CAHV/dots/raycast[spp=1,adaptive,coverage=area]"}

@@ -12,7 +12,12 @@ OPENCV_FISHEYE) is fitted to the camera's exact projections over the whole
 field of view; the table gives each one's floor (projection difference RMS
 and max over the image, the worst corner) and parameter count, then the
 simplest model within the tolerance (default 0.01 px, on the max), overall
-and per calibrator. See harness/model_benchmark.py for how each is fitted.
+and per calibrator. A calibrator's choice (what `models = ["best"]` picks in a
+campaign) is made on its OWN fits of the models it has: jpl, mrcal and OpenCV
+each fit exact observations of 14 poses covering the whole image under their
+own frame, constraints and solver, compared with the truth as the verdict
+compares a record's exact-observation fit; the table lists those floors below
+the direct ones. See harness/model_benchmark.py for how each is fitted.
 '''
 
 

@@ -1,6 +1,7 @@
 r'''Stereo range check: render terrain through a stereo pair, match, and compare ranges
 
 camval stereo SLOT_L SLOT_R [-o DIR] [--scale S] [--spp K] [--variants clean,psf,...] [--stages]
+              [--renderer NAME [--command 'PROGRAM ARGS' --setup KEY=VALUE ...]]
 
 Renders a generated terrain through both cameras of a catalogue stereo pair
 (same frame), rectifies with mrcal (theta = 90, E = 0 versions of the models,
@@ -35,6 +36,10 @@ images; --stages runs "clean", then every stage alone, then "all":
 
 Examples: camval stereo 21 22 --scale 0.25 -o out/   (Mars 2020 navcam pair)
           camval stereo 12 11 --stages -o out/       (MER B front hazcams)
+          camval stereo 12 11 --scale 0.25 --renderer command \
+              --command 'python examples/external_renderer.py' --setup persistent=true
+                                                     (an external renderer: the protocol's
+                                                      terrain requests, docs/README-renderers.md)
 '''
 
 # each response stage alone at a realistic setting (renderers/response.py), in the
@@ -102,6 +107,12 @@ def add_arguments(p):
     p.add_argument("--renderer", default="raycast_terrain",
                    help="terrain renderer, a registry name (camval renderers list; default "
                         "raycast_terrain)")
+    p.add_argument("--command", default=None, metavar="'PROGRAM ARGS'",
+                   help="--renderer command: the external renderer to run (split as a shell "
+                        "would)")
+    p.add_argument("--setup", action="append", default=[], metavar="KEY=VALUE",
+                   help="--renderer command: a setup value (persistent=true, mode=rays, "
+                        "timeout=60, ...; repeatable)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
 
 
@@ -207,6 +218,12 @@ def run(args):
         if p.exists() and not args.force:
             raise StereoError(f"'{p}' exists; pass --force to overwrite it")
     out.mkdir(parents=True, exist_ok=True)
+    renderer_options = {}
+    if args.renderer == "command":
+        from renderers.command import setup_from_cli
+        renderer_options = setup_from_cli(args.command, args.setup)
+    elif args.command or args.setup:
+        raise StereoError("--command and --setup are for --renderer command")
     setup = StereoSetup.from_catalogue(args.left, args.right, scale=args.scale,
                                        camera_height_m=args.camera_height,
                                        look_range_m=args.look_range, seed=args.seed)
@@ -218,6 +235,7 @@ def run(args):
                                            "off": False}[args.photometric],
                               flat_field=args.flat_field,
                               seed=args.seed, renderer=args.renderer,
+                              renderer_options=renderer_options,
                               progress=lambda s: print(f"  {s}", flush=True))
     doc = result.as_dict()
     rows = stage_table(doc)

@@ -187,7 +187,8 @@ iterations:     the solver work: jpl, scipy function evaluations; mrcal, calls o
                 adjustments (these libraries do not report their inner iterations)
 seconds:        wall time of the fit
 library:        name of the library that did the fit; library_version its version
-info:           calibrator-specific figures (first pass, coefficients, options)
+info:           calibrator-specific figures (first pass, coefficients, options); two
+                keys are read by the comparison (world_frame, theta_estimated below)
 '''
 
     calibrator: str
@@ -210,6 +211,21 @@ info:           calibrator-specific figures (first pass, coefficients, options)
     @property
     def ok(self):
         return self.status == "ok"
+
+    @property
+    def world_frame(self):
+        r'''Whether the fitted model sits in the surveyed world frame (info["world_frame"],
+set by each calibrator: jpl and mrcal with known poses do; OpenCV and COLMAP fit
+their own camera frame), so its C, A, H, V compare with the truth's directly'''
+        return bool(self.info.get("world_frame", False))
+
+    @property
+    def theta_estimated(self):
+        r'''Whether the fit estimates the angle theta between the image axes
+(info["theta_estimated"]; jpl's CAHV* fits do). A model frame with square pixel
+axes (mrcal, OpenCV, COLMAP) holds theta at 90 deg, so its theta error is the
+truth's own departure from 90 deg, not a fit error'''
+        return bool(self.info.get("theta_estimated", False))
 
     @property
     def residual_norms(self):

@@ -390,7 +390,7 @@ fit_model: the last stage only, no DLT); a start of another family is ignored.
         Rt_cam_board=Rt_cam_board_of(model, obs.Rt_ref_board),
         iterations=sum(x.get("nfev", 0) for x in passes),
         info={"passes": passes, "bias_corrected": bias_applied,
-              "world_points_known": True, "world_frame": True,
+              "world_points_known": True, "world_frame": True, "theta_estimated": True,
               "model_type": mtype, "linearity": lin,
               "R0_held": R0 if model_name != "CAHV" else None,
               **({} if start is None else {"warm_start": m_start is not None})})

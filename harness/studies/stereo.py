@@ -578,7 +578,7 @@ two cameras near the Nyquist frequency).
 def run_stereo_check(setup, variants=None, spp=2, render_model="true", block_size=5,
                      oversample=1.5, refine=True, refine_radius=4, prefilter_px=0.8,
                      photometric="auto", flat_field=False, seed=0, progress=None,
-                     renderer=DEFAULT_TERRAIN_RENDERER):
+                     renderer=DEFAULT_TERRAIN_RENDERER, renderer_options=None):
     r'''Render, rectify, match, triangulate and compare, for each response variant
 
 SYNOPSIS
@@ -591,7 +591,9 @@ variants: {name: response config (renderers.response.ResponseChain.from_config)}
           default {"clean": {}}
 spp:      K, K x K rays per pixel for the rendered images
 renderer: the terrain renderer's registry name (renderers.base.get_terrain_renderer:
-          raycast_terrain, povray_terrain, osmesa_terrain or a plugin)
+          raycast_terrain, povray_terrain, osmesa_terrain, command or a plugin)
+renderer_options: its constructor's arguments (e.g. the command renderer's setup:
+          {"command": [...], "persistent": True})
 oversample: rectified pixels per degree, relative to the left camera's focal
           length (Hs). 1.5 by default: at 1 the rectified grid is coarser than
           the raw one along the rows over much of a wide lens's field (1.1 raw
@@ -637,7 +639,7 @@ them and in the band of true ranges within +-10% of setup.look_range_m.
     if render_model == "rectifiable":
         mL, mR = rectifiable(mL), rectifiable(mR)
     say(f"rendering {mL.width}x{mL.height} x2, K={spp}")
-    terrain_renderer = get_terrain_renderer(renderer)
+    terrain_renderer = get_terrain_renderer(renderer, **(renderer_options or {}))
     settings = RenderSettings(spp=spp)
     rL = terrain_renderer.render_terrain(mL, setup.terrain, setup.Rt_ref_terrain, settings)
     rR = terrain_renderer.render_terrain(mR, setup.terrain, setup.Rt_ref_terrain, settings)
@@ -731,7 +733,8 @@ them and in the band of true ranges within +-10% of setup.look_range_m.
             "num_disparities": int(16 * math.ceil(max_disp / 16)), "block_size": block_size,
             "camera_height_m": setup.camera_height_m, "pitch_deg": setup.pitch_deg,
             "look_range_m": setup.look_range_m, "seconds": tm,
-            "terrain": setup.terrain.as_dict(),
+            "terrain": setup.terrain.as_dict(), "renderer": rL.metadata.get("renderer"),
+            "renderer_version": rL.metadata.get("version"),
             "mrcal": getattr(mrcal, "__version__", "?"), "opencv": cv2.__version__}
     return StereoResult(setup=setup, images=(rL.image, rR.image), rectified=rect_clean,
                         true_range=true_range, elevation_true=elev_true,
