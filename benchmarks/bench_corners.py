@@ -15,13 +15,18 @@ goes through every method:
 
 - apriltag: pupil_apriltags' corners (refine=False); those polished by cv2.cornerSubPix
   (refine="subpix"); camval's refined corners (targets.corners, refine=True)
-- chessboard: cv2.findChessboardCornersSB (+ the orientation by the mark, refine=False);
-  polished by cv2.cornerSubPix (refine="subpix"); camval's refined corners
+- chessboard: cv2.findChessboardCornersSB with CALIB_CB_ACCURACY (+ the orientation by the
+  mark, refine=False); cv2.findChessboardCorners (the sector-based search where it fails)
+  polished by cv2.cornerSubPix (refine="subpix"); camval's refined corners (the same
+  search, then targets.corners)
 
 The truth is targets.centroids.projected_points: the board's corner points projected
 through the camera. Prints the table method x camera (corner error RMS / max px,
-corners found, median seconds per image) and writes one JSON document to
---out/<UTC stamp>-corners.json (never overwriting).
+corners found, median seconds per image), then the detection time per image of each
+method and image size (median and max over the images: the bars are 0.1 s on 1024x1024
+and 0.5 s on 5120x3840, issue 16; loaded-machine figures, the load average is
+recorded), and writes one JSON document to --out/<UTC stamp>-corners.json (never
+overwriting).
 '''
 
 import argparse
@@ -41,7 +46,7 @@ METHODS = {
     "apriltag": [("pupil_apriltags", False), ("pupil_apriltags+cornerSubPix", "subpix"),
                  ("camval", True)],
     "chessboard": [("findChessboardCornersSB", False),
-                   ("findChessboardCornersSB+cornerSubPix", "subpix"), ("camval", True)],
+                   ("findChessboardCorners(SB)+cornerSubPix", "subpix"), ("camval", True)],
 }
 FAMILY_ORDER = ("CAHV", "CAHVOR", "CAHVORE")
 
@@ -87,6 +92,30 @@ def render_images(directory, camera, tname, spp, nposes, coverage="point"):
     return job.family, target, out
 
 
+def timing_rows(rows):
+    r'''[{target, method, shape "WxH", images, seconds_median, seconds_max}]: the detection
+time per image of each method, pooled over the cameras of one image size'''
+    groups = {}
+    for r in rows:
+        h, w = r["shape"][:2]
+        g = groups.setdefault((r["target"], r["method"], f"{w}x{h}"), ([], []))
+        g[0].extend(r["seconds"])
+        g[1].extend(r["cpu_seconds"])
+    return [{"target": t, "method": m, "shape": shape, "images": len(v),
+             "seconds_median": float(np.median(v)), "seconds_max": float(np.max(v)),
+             "cpu_seconds_median": float(np.median(c)), "cpu_seconds_max": float(np.max(c))}
+            for (t, m, shape), (v, c) in sorted(groups.items(), key=lambda kv: (
+                kv[0][0], kv[0][1], int(kv[0][2].split("x")[0]) * int(kv[0][2].split("x")[1])))]
+
+
+def _load():
+    import os
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return None
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -109,11 +138,12 @@ def main():
             family, target, images = render_images(args.images, cam, tname, args.spp,
                                                    args.poses, args.coverage)
             for method, refine in METHODS[tname]:
-                errs, secs, found, dropped = [], [], 0, {}
+                errs, secs, cpus, found, dropped = [], [], [], 0, {}
                 for img, truth in images:
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.process_time()
                     det = detect(img, target, refine=refine, min_found=4)
                     secs.append(time.perf_counter() - t0)
+                    cpus.append(time.process_time() - c0)
                     e = np.linalg.norm(det.q - truth, axis=-1)
                     errs.append(e[np.isfinite(e)])
                     found += int(det.n_found)
@@ -128,18 +158,31 @@ def main():
                        "corners_found": found, "corners_dropped": dropped,
                        "error_rms_px": float(np.sqrt(np.mean(e ** 2))) if len(e) else None,
                        "error_max_px": float(e.max()) if len(e) else None,
-                       "seconds_median": float(np.median(secs))}
+                       "seconds_median": float(np.median(secs)),
+                       "seconds": [float(x) for x in secs],
+                       "cpu_seconds": [float(x) for x in cpus]}
                 rows.append(row)
                 print(f"{cam:>3s} {family:8s} {tname:10s} {method:38s} "
                       f"rms {row['error_rms_px']:.4f} max {row['error_max_px']:.4f} px  "
                       f"{found:4d}/{row['corners_expected']} found  "
                       f"{row['seconds_median']:.3f} s/image"
                       + (f"  dropped {dropped}" if dropped else ""), flush=True)
+    timing = timing_rows(rows)
+    print(f"\ndetection seconds per image, wall and CPU of this process (median / max over "
+          f"the images; the 1024x1024 bar is 0.1 s, the 5120x3840 one 0.5 s; load average "
+          f"{_load()}: under load the wall time is the CPU time stretched)")
+    print(f"{'target':10s} {'method':38s} {'image':>10s} {'images':>6s} {'wall med':>9s} "
+          f"{'wall max':>9s} {'CPU med':>8s} {'CPU max':>8s}")
+    for t in timing:
+        print(f"{t['target']:10s} {t['method']:38s} {t['shape']:>10s} {t['images']:6d} "
+              f"{t['seconds_median']:9.3f} {t['seconds_max']:9.3f} "
+              f"{t['cpu_seconds_median']:8.3f} {t['cpu_seconds_max']:8.3f}")
     doc = {"schema": 1, "date": datetime.now(UTC).isoformat(timespec="seconds"),
            "commit": git_commit()["commit"], "python": platform.python_version(),
            "machine": platform.machine(), "renderer": "raycast", "spp": args.spp,
            "coverage": args.coverage,
-           "truth": "targets.centroids.projected_points", "records": rows}
+           "truth": "targets.centroids.projected_points", "load_average": _load(),
+           "records": rows, "timing": timing}
     args.out.mkdir(parents=True, exist_ok=True)
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
     path = args.out / f"{stamp}-corners.json"

@@ -54,6 +54,8 @@ A campaign is a TOML file (tomllib):
     poses = 30               # optional: its own pose count (default: [poses] n); the job
                              # renders the most any calibrator asks for, and each
                              # calibrator fits the first N (the first six are the paper's)
+    targets = ["dots"]       # optional: the campaign's targets it fits (default: all);
+                             # every target needs at least one calibrator
 
     [response.clean]         # a profile with no stages: the rendered image as it is
 
@@ -111,7 +113,7 @@ POSE_KEYS = ("n", "seed", "cover")
 RENDERER_KEYS = ("name", "spp", "adaptive", "options", "response", "label", "setup")
 LABEL = re.compile(r"^[A-Za-z0-9_.-]+$")
 PROFILE_NAME = re.compile(r"^[A-Za-z0-9_-]+$")
-CALIBRATOR_KEYS = ("name", "models", "options", "poses")
+CALIBRATOR_KEYS = ("name", "models", "options", "poses", "targets")
 
 
 class CampaignError(CamvalError):
@@ -249,6 +251,11 @@ class CalibratorSpec:
     models: tuple = (JOB_FAMILY,)
     options: dict = field(default_factory=dict)
     poses: int = None      # its own pose count (None: the campaign's [poses] n)
+    targets: tuple = None  # the campaign's targets it fits (None: all)
+
+    def fits(self, target):
+        r'''Whether the calibrator runs on the jobs of this target'''
+        return self.targets is None or target in self.targets
 
     def models_for(self, family):
         r'''The calibrator's models for a job of this family ("family" -> the family;
@@ -284,6 +291,8 @@ given: the family.
         d = {"name": self.name, "models": list(self.models), "options": dict(self.options)}
         if self.poses is not None:
             d["poses"] = self.poses
+        if self.targets is not None:
+            d["targets"] = list(self.targets)
         return d
 
 
@@ -342,7 +351,9 @@ class Campaign:
                                                 dict(r.get("setup") or {}))
                                    for r in d["renderers"]),
                    calibrators=tuple(CalibratorSpec(c["name"], tuple(c["models"]),
-                                                    dict(c["options"]), c.get("poses"))
+                                                    dict(c["options"]), c.get("poses"),
+                                                    tuple(c["targets"]) if "targets" in c
+                                                    else None)
                                      for c in d["calibrators"]),
                    poses_n=d["poses"]["n"], poses_seed=d["poses"]["seed"],
                    poses_cover=d["poses"].get("cover", POSES_COVER),
@@ -585,12 +596,13 @@ Relative model-file paths among the cameras are taken from base_dir.
                                 f"known: {', '.join(FAMILIES)}")
     targets = tuple(_list_of(source, "targets", doc.get("targets", ["dots"]), (str,),
                              "target names"))
-    from targets.detect import known_detectors
-    known_targets = known_detectors()
+    from targets.boards import known_targets
+    known = known_targets()
     for t in targets:
-        if t not in known_targets and not Path(t).suffix == ".toml":
+        if t not in known and not Path(t).suffix == ".toml":
             raise CampaignError(f"{_where(source, 'targets')}: unknown target {t!r}; known: "
-                                f"{', '.join(known_targets)} or a target .toml file")
+                                f"{', '.join(known)} or a target .toml file (its key "
+                                f"detector names any registered detector, plug-ins too)")
     poses = doc.get("poses", {})
     if not isinstance(poses, dict):
         raise CampaignError(f"{_where(source, 'poses')}: expected a table with n and seed")
@@ -670,10 +682,22 @@ Relative model-file paths among the cameras are taken from base_dir.
         if not isinstance(opts, dict):
             raise CampaignError(f"{_where(source, key + '.options')}: expected a table")
         own = _int(source, key + ".poses", c["poses"], 1) if "poses" in c else None
-        calibrators.append(CalibratorSpec(c["name"], tuple(ms), dict(opts), own))
+        fits = None
+        if "targets" in c:
+            fits = tuple(_list_of(source, key + ".targets", c["targets"], (str,),
+                                  "target names"))
+            for t in fits:
+                if t not in targets:
+                    raise CampaignError(f"{_where(source, key + '.targets')}: {t!r} is not "
+                                        f"among the campaign's targets ({', '.join(targets)})")
+        calibrators.append(CalibratorSpec(c["name"], tuple(ms), dict(opts), own, fits))
     if len({c.name for c in calibrators}) != len(calibrators):
         raise CampaignError(f"{_where(source, 'calibrator')}: a calibrator appears twice; "
                             f"list all its models in one table")
+    for t in targets:
+        if not any(c.fits(t) for c in calibrators):
+            raise CampaignError(f"{_where(source, 'calibrator')}: no calibrator fits the "
+                                f"target {t!r} (their targets = [...] leave it out)")
 
     cat = doc.get("catalogue")
     if cat is not None:

@@ -120,6 +120,7 @@ entries: {camera spec: CatalogueEntry} from campaign.validate() (validated here 
                                        r.profiles(campaign.responses), strict=True):
                         cals = tuple((c.name, m, _with_pose_count(o, c, campaign))
                                      for c in campaign.calibrators
+                                     if getattr(c, "fits", lambda t: True)(target)
                                      for m, o in c.models_and_options(family, entry.model))
                         jobs.append(Job(
                             key=f"{key}/{family}/{target}/{renderer_key(r.name, s)}",

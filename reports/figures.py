@@ -21,7 +21,7 @@ import numpy as np
 
 from harness.studies.sweep import level_text
 
-from .tables import render_variant, render_variants
+from .tables import record_variant
 
 FAMILY_COLOURS = {"CAHV": "tab:blue", "CAHVOR": "tab:orange", "CAHVORE": "tab:green"}
 FAMILY_OFFSET = {"CAHV": -0.22, "CAHVOR": 0.0, "CAHVORE": 0.22}
@@ -52,11 +52,12 @@ def camera_order(records):
 
 
 def calibrator_panels(records):
-    r'''[(calibrator, calibrator_model label, render variant), ...] that have ok records,
-in a stable order; the variant (tables.render_variant) is "" when the run has only one,
-so that records of different renderers, K or response profiles never share a panel'''
-    several = len(render_variants(records)) > 1
-    out = sorted({(r["calibrator"], _calmodel(r), render_variant(r) if several else "")
+    r'''[(calibrator, calibrator_model label, variant), ...] that have ok records,
+in a stable order; the variant (tables.record_variant: the target and the render variant,
+each when the run has several) is "" when the run has only one, so that records of
+different targets, renderers, K or response profiles never share a panel'''
+    variant = record_variant(records)
+    out = sorted({(r["calibrator"], _calmodel(r), variant(r))
                   for r in records.values() if r["status"] == "ok"})
     return out
 
@@ -71,9 +72,10 @@ def _calmodel(r):
 
 
 def _panel_records(records, cal, calmodel, variant=""):
+    of = record_variant(records)
     return [r for r in records.values()
             if r["status"] == "ok" and r["calibrator"] == cal and _calmodel(r) == calmodel
-            and (not variant or render_variant(r) == variant)]
+            and (not variant or of(r) == variant)]
 
 
 def _param(r, name):

@@ -1,4 +1,5 @@
-r'''The report's tables: one summary per calibrator beside the paper's numbers, failures
+r'''The report's tables: one summary per calibrator (and target) beside the paper's numbers,
+failures
 
 SYNOPSIS
 
@@ -120,15 +121,39 @@ def render_variants(records):
     return sorted({render_variant(r) for r in records.values()})
 
 
+def record_variant(records):
+    r'''-> a function record -> its variant: what a table or panel never pools
+
+The target (when the run has several: dots and an AprilTag grid have their own
+accuracy) then the render variant (when the run has several), joined by ", ";
+"" for a run of one target and one render variant.
+
+SYNOPSIS
+
+    variant = record_variant(records)
+    variant(r)      # "apriltag, raycast[spp=16,adaptive]", "apriltag", ""
+'''
+    targets = len({r.get("target") for r in records.values()}) > 1
+    renders = len(render_variants(records)) > 1
+
+    def variant(r):
+        parts = ([str(r.get("target"))] if targets else []) + (
+            [render_variant(r)] if renders else [])
+        return ", ".join(parts)
+    return variant
+
+
 def summary_tables(records):
     r'''One Table per calibrator (and named model): paper | CAHV | CAHVOR | CAHVORE
 
-A run with several render variants (renderers, K, response profiles) gets one table
-per calibrator and variant: their statistics are not pooled.'''
-    several = len(render_variants(records)) > 1
+A run with several targets (dots, AprilTag grid, chessboard) or several render variants
+(renderers, K, response profiles) gets one table per calibrator and variant
+(record_variant: "Calibrator jpl on apriltag"): their statistics are not pooled.'''
+    variant = record_variant(records)
     by_cal = {}
     for r in records.values():
-        label = _cal_label(r) + (f" on {render_variant(r)}" if several else "")
+        v = variant(r)
+        label = _cal_label(r) + (f" on {v}" if v else "")
         by_cal.setdefault(label, []).append(r)
     tables = []
     for cal in sorted(by_cal):

@@ -5,6 +5,8 @@ SYNOPSIS
     from targets.boards import load_target
 
     target = load_target("dots")       # or "apriltag", "chessboard", or a .toml path
+    known_targets()                    # {name: file} of the built-in targets (targets/data)
+    target.detector                    # the detector that finds it (targets.detect)
     p   = target.points()              # (N,3) surveyed points in the board frame, metres
     ids = target.point_ids()           # (N,) stable integer ids
     pattern = target.pattern()         # targets.pattern.Pattern for a renderer
@@ -30,11 +32,22 @@ Three kinds:
 - "chessboard": mrcal's preferred target; the points are the inner corners,
   id = iy*nx + ix. Light dots in a few dark squares fix its orientation.
 
+A target's geometry is one of these kinds; which detector finds it is a
+separate choice: the key `detector` of its file names any detector of the
+registry (targets.detect.known_detectors(): the built-in ones and plug-ins of
+the entry-point group "camval.detectors"); without it, the built-in detector
+of its kind. So a plug-in detector is used from a campaign through a target
+file, e.g. kind = "chessboard" and detector = "my_chessboard" beside the
+chessboard's geometry. The lists live in one place each: the geometry kinds
+are the builders here (TARGET_KINDS), the named targets are the files of
+targets/data (known_targets()), the detectors are targets.detect's registry.
+
 The tag36h11 codes are read from the AprilTag 3 C library that pupil_apriltags
 ships (AprilRobotics/apriltag, tag36h11.c), so the board draws exactly the
 codes the detector decodes.
 '''
 
+import dataclasses
 import functools
 import math
 import tomllib
@@ -48,8 +61,6 @@ from reference_models.errors import CamvalError
 from .pattern import Pattern
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
-KNOWN_TARGETS = ("dots", "apriltag", "chessboard")
-TARGET_KINDS = ("dots", "apriltag", "chessboard")
 
 # largest subdivision of a tag bit we accept to make the gap between tags a whole number of cells
 MAX_BIT_SUBDIVISION = 20
@@ -190,7 +201,8 @@ class Target:
 
 Build with load_target() or target_from_dict(). Fields:
 
-- name, kind ("dots" | "apriltag" | "chessboard"), source (the file)
+- name, kind ("dots" | "apriltag" | "chessboard": the geometry), source (the file)
+- detector: the name of the detector that finds it (targets.detect; default its kind)
 - spec: the definition (TOML content with defaults), JSON-able
 - extent: (xmin, xmax, ymin, ymax) of the board, metres
 - grid_shape: (nx, ny) of the point grid (dots, chessboard), tags (apriltag)
@@ -206,6 +218,7 @@ Build with load_target() or target_from_dict(). Fields:
     _ids: np.ndarray
     _radii: np.ndarray
     _pattern: Pattern
+    detector: str = None
 
     def points(self):
         r'''(N,3) float64: the surveyed points in the board frame (metres)'''
@@ -277,8 +290,9 @@ SYNOPSIS
 
     def as_dict(self):
         r'''A JSON-able description: the definition plus the number of points'''
-        return {"name": self.name, "kind": self.kind, "source": self.source,
-                "extent": list(self.extent), "Npoints": self.Npoints, "spec": self.spec}
+        return {"name": self.name, "kind": self.kind, "detector": self.detector,
+                "source": self.source, "extent": list(self.extent), "Npoints": self.Npoints,
+                "spec": self.spec}
 
     def _require(self, kind, what):
         if self.kind != kind:
@@ -287,8 +301,19 @@ SYNOPSIS
 
 
 # ---------------------------------------------------------------------------------------------
+def known_targets():
+    r'''{name: path} of the built-in targets: the files targets/data/NAME.toml
+
+SYNOPSIS
+
+    known_targets()     # {"apriltag": Path(...), "chessboard": ..., "dots": ...}
+'''
+    return {p.stem: p for p in sorted(DATA_DIR.glob("*.toml"))}
+
+
 def load_target(name_or_path):
-    r'''Load a target by name ("dots", "apriltag", "chessboard") or from a TOML file
+    r'''Load a target by name (known_targets(): "dots", "apriltag", "chessboard") or from
+a TOML file
 
 SYNOPSIS
 
@@ -296,13 +321,14 @@ SYNOPSIS
     target = load_target("my/board.toml")
 '''
     s = str(name_or_path)
-    if s in KNOWN_TARGETS:
-        path = DATA_DIR / f"{s}.toml"
+    known = known_targets()
+    if s in known:
+        path = known[s]
     else:
         path = Path(s)
         if not path.is_file():
             raise TargetError(f"unknown target {s!r}: not a known name "
-                              f"({', '.join(KNOWN_TARGETS)}) and no such file")
+                              f"({', '.join(known)}) and no such file")
     try:
         with open(path, "rb") as f:
             spec = tomllib.load(f)
@@ -318,11 +344,30 @@ def target_from_dict(spec, source="<dict>"):
     spec = dict(spec)
     kind = spec.get("kind")
     if kind not in TARGET_KINDS:
-        raise TargetError(f"{source}: kind = {kind!r}; expected one of {', '.join(TARGET_KINDS)}")
+        raise TargetError(f"{source}: kind = {kind!r}; expected one of {', '.join(TARGET_KINDS)}"
+                          f" (the board geometries; a plug-in detector is named by the key "
+                          f"detector)")
     spec.setdefault("name", Path(source).stem if source != "<dict>" else kind)
-    builder = {"dots": _build_dots, "apriltag": _build_apriltag,
-               "chessboard": _build_chessboard}[kind]
-    return builder(spec, source)
+    detector = _detector_name(spec, kind, source)
+    target = _BUILDERS[kind](spec, source)
+    return dataclasses.replace(target, detector=detector)
+
+
+def _detector_name(spec, kind, source):
+    r'''The detector a target file names (key "detector", default its kind), checked
+against the registry of targets.detect'''
+    name = spec.get("detector", kind)
+    if name == kind:
+        return name
+    if not isinstance(name, str) or not name:
+        raise TargetError(f"{source}: detector = {name!r}; expected a detector's name")
+    from .detect import known_detectors
+    known = known_detectors()
+    if name not in known:
+        raise TargetError(f"{source}: detector = {name!r} is not registered; known "
+                          f"detectors: {', '.join(known)} (plug-ins register under the "
+                          f"entry-point group 'camval.detectors')")
+    return name
 
 
 def _get(spec, key, source, kind=float, positive=False, nonneg=False, default=None, albedo=False):
@@ -509,3 +554,8 @@ def _build_apriltag(spec, source):
     return Target(name=str(spec["name"]), kind="apriltag", source=source, spec=spec,
                   extent=extent, grid_shape=(nx, ny), _points=p,
                   _ids=np.concatenate(ids).astype(np.int64), _radii=None, _pattern=pattern)
+
+
+# the geometry kinds: one builder each (a target's detector is chosen apart, by name)
+_BUILDERS = {"dots": _build_dots, "apriltag": _build_apriltag, "chessboard": _build_chessboard}
+TARGET_KINDS = tuple(_BUILDERS)

@@ -60,9 +60,11 @@ after jpl's fit with corner_bias residual and projection difference RMS of
 
 The pixel-area model runs compiled (targets._corner_kernels, numba); kernel="numpy"
 runs wedge_area instead (the reference, equal within 1e-12 px, tested). Detection
-with refinement per image (median of 6 poses, 2 shared cores under load):
-AprilTag 0.07 s on 1024x1024, 0.03 s on 640x480; chessboard 0.11-0.14 s (OpenCV's
-sector-based search and cornerSubPix are about half of it).
+with refinement, CPU seconds per image (median; benchmarks/bench_corners.py timing
+table, a machine at load 13-17 where the wall time is several times that): AprilTag
+0.054 s on 1024x1024, 0.023 s on 640x480, 0.38-0.48 s on 5120x3840 (pupil_apriltags'
+own search 0.26 s of it); chessboard 0.045 s on 1024x1024 (this fit 0.037 s of it),
+0.043 s on 640x480, 0.19 s on 5120x3840.
 
 A corner is dropped, never kept at its coarse position, with its reason:
 its window leaves the image or holds fewer than MIN_WINDOW_PIXELS pixels,
@@ -253,7 +255,9 @@ ARGUMENTS
 - steps: (N,2,2) columns: image displacement of one board unit along the two board axes
 - half_box: the window is the pixels whose square lies within half_box board units of the
   coarse corner along both axes (and within max_window_px px)
-- options: max_window_px, max_misfit, min_contrast (module constants by default); kernel:
+- options: max_window_px, max_misfit, min_contrast (module constants by default);
+  value_range: the image's max - min when the caller has it (the contrast test's scale;
+  default: computed here, a pass over the image); kernel:
   "numba" (default: targets._corner_kernels, compiled) or "numpy" (wedge_area: the
   reference the compiled model is tested against, within 1e-12 px)
 
@@ -291,12 +295,16 @@ second polishes with the exact ones.
 
 def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
-         converged_px=CONVERGED_PX, kernel="numba"):
+         converged_px=CONVERGED_PX, kernel="numba", value_range=None):
     r'''One pass of refine_corners (the window about q0; widen: see wedge_area; kernel:
 "numba" the compiled pixel-area model of targets._corner_kernels, "numpy" wedge_area's)'''
     if kernel not in ("numba", "numpy"):
         raise ValueError(f"kernel must be 'numba' or 'numpy', not {kernel!r}")
-    img = np.asarray(image, dtype=np.float64)
+    # float32 stays float32 (the windows' pixels are taken as float64 below): a large
+    # image is not copied
+    img = np.asarray(image)
+    if img.dtype not in (np.float32, np.float64):
+        img = img.astype(np.float64)
     q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
     N = len(q0)
     dirs = np.asarray(directions, dtype=np.float64).reshape(N, -1, 2)
@@ -328,7 +336,7 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
     order = np.argsort(~mask, axis=-1, kind="stable")[:, :int(mask.sum(-1).max())]
     ix, iy, mask = (np.take_along_axis(x, order, axis=-1) for x in (ix, iy, mask))
     H, W = img.shape
-    v = img[np.clip(iy, 0, H - 1), np.clip(ix, 0, W - 1)]
+    v = img[np.clip(iy, 0, H - 1), np.clip(ix, 0, W - 1)].astype(np.float64)
     w = mask.astype(np.float64)
     centres = np.stack((ix, iy), axis=-1).astype(np.float64)
 
@@ -427,7 +435,10 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
         small = (dc < converged_px) & (np.abs(step[:, 4:]).max(-1) * max_window_px < converged_px)
         # a damping this large moves nothing: the fit is at its minimum to rounding
         converged[s] = (better & small) | ((lam[s] > 1e6) & (dc < converged_px))
-    rng = float(np.nanmax(img) - np.nanmin(img)) if img.size else 0.0
+    if value_range is not None:
+        rng = float(value_range)
+    else:
+        rng = float(np.nanmax(img) - np.nanmin(img)) if img.size else 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
         mis = np.sqrt(S / w.sum(-1)) / np.abs(b)
     misfit[idx] = mis

@@ -13,7 +13,7 @@ SYNOPSIS
     detector = get_detector("dots")            # the detector of a target kind
     known_detectors()               # {kind: source}: built-in ones and entry-point plugins
 
-One detector per target kind, chosen by target.kind: targets.detect_dots
+One built-in detector per target kind: targets.detect_dots
 (intensity-weighted dot centroids, ordered with the orientation mark),
 targets.detect_apriltag (pupil_apriltags), targets.detect_chessboard
 (OpenCV). The result is a targets.detection.Detection; q[i] belongs to
@@ -23,8 +23,10 @@ A detector is anything with this shape (typing.Protocol `Detector`:
 detector(image, target, **options) -> Detection); a plain function is one.
 The registry is a dict of lazy specs "module:function": a detector's module
 (OpenCV, pupil_apriltags) is imported only when its kind is detected. Python
-packages add detectors under the entry-point group "camval.detectors", named
-by the target kind they detect; a built-in kind keeps its built-in detector.
+packages add detectors under the entry-point group "camval.detectors": a
+target file names one with its key `detector` (targets.boards; e.g. kind =
+"chessboard", detector = "my_chessboard"), and a target whose kind is the
+plug-in's name gets it; a built-in name keeps its built-in detector.
 
 A detector never raises because the target was not found: it returns status
 "failed" with the reason. Only input that is not an image at all (wrong
@@ -88,6 +90,9 @@ SYNOPSIS
     det = detect(image, target)          # Detection
     det = detect(image, target, window_dilation_px=3)   # options of the kind's detector
 
-Calls the detector registered for target.kind (get_detector).
+Calls the detector the target names (target.detector: a target file's key
+"detector", targets.boards), else the one registered for target.kind
+(get_detector).
 '''
-    return get_detector(getattr(target, "kind", None))(image, target, **options)
+    name = getattr(target, "detector", None) or getattr(target, "kind", None)
+    return get_detector(name)(image, target, **options)

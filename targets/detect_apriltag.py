@@ -46,7 +46,7 @@ import functools
 
 import numpy as np
 
-from .detection import as_float_image, failed, result
+from .detection import failed, result, working_image
 
 DETECTOR = "apriltag"
 # AprilTag pixel coordinates minus camval's for the same point
@@ -104,6 +104,20 @@ def _detector_class():
     return OrderedDetector
 
 
+# the quad search runs on an image decimated by an integer while its smaller side stays at
+# least this (px): a 1024x1024 camera decodes every tag of its planned poses undecimated, so
+# a decimated image no smaller has tag bits no smaller than those
+DECIMATED_MIN_SIDE_PX = 1024
+
+
+def decimate_for(shape):
+    r'''pupil_apriltags' quad_decimate for an image of this (H, W): the largest integer
+keeping the smaller side >= DECIMATED_MIN_SIDE_PX (1 up to 2047 px). On 5120x3840
+renders (camera 21, 3 poses) 3 found every corner, 0.11 s CPU per image instead of 0.31,
+the refined corners within 8e-6 px of the undecimated search's.'''
+    return max(1, int(min(shape[:2]) // DECIMATED_MIN_SIDE_PX))
+
+
 # detectors live as long as the process: the option sets are few
 @functools.cache
 def _detector(quad_decimate, quad_sigma, refine_edges, decode_sharpening):
@@ -134,7 +148,7 @@ its window, keeps pupil_apriltags' position'''
     return out
 
 
-def detect_apriltags(image, target, *, max_hamming=1, min_found=4, quad_decimate=1.0,
+def detect_apriltags(image, target, *, max_hamming=1, min_found=4, quad_decimate=None,
                      quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25, refine=True):
     r'''Detect an AprilTag grid; see the module docstring
 
@@ -148,17 +162,21 @@ ARGUMENTS
 - target: an "apriltag" targets.boards.Target
 - max_hamming: largest number of corrected bit errors accepted
 - min_found: fewest corners for status "ok" (default 4: one tag)
-- quad_decimate, quad_sigma, refine_edges, decode_sharpening: pupil_apriltags' options
+- quad_decimate, quad_sigma, refine_edges, decode_sharpening: pupil_apriltags' options;
+  quad_decimate None: decimate_for(image shape) (the quads only: decoding and the corners
+  use the full image)
 - refine: True: fit the corner model (targets.corners); "subpix": polish each corner with
   cv2.cornerSubPix in a window of half a tag bit; False: pupil_apriltags' corners
 '''
-    img = as_float_image(image)
     if target.kind != "apriltag":
         return failed(target, f"detect_apriltags() needs an apriltag target; got "
                       f"{target.kind!r}", DETECTOR)
-    if not np.all(np.isfinite(img)):
+    work = working_image(image)
+    if work is None:
         return failed(target, "the image has non-finite pixels", DETECTOR)
-    img8 = np.ascontiguousarray(np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8))
+    img, img8, (lo, hi) = work
+    if quad_decimate is None:
+        quad_decimate = decimate_for(img8.shape)
     detector = _detector(float(quad_decimate), float(quad_sigma), int(refine_edges),
                          float(decode_sharpening))
     ids = target.point_ids()
@@ -174,7 +192,7 @@ ARGUMENTS
     W = img.shape[1]
     q = np.full((len(ids), 2), np.nan)
     seen = {}
-    img32 = img.astype(np.float32)
+    img32 = img if img.dtype == np.float32 or refine != "subpix" else img.astype(np.float32)
     rejected = {"hamming": 0, "not_on_board": 0, "duplicate": 0}
     for tag in tags:
         if tag.hamming > max_hamming:
@@ -198,7 +216,7 @@ ARGUMENTS
         used.append((tag_id, c))
     if refine is True and used:
         from .corners import refine_tag_corners
-        fit = refine_tag_corners(img, np.array([c for _, c in used]))
+        fit = refine_tag_corners(img, np.array([c for _, c in used]), value_range=hi - lo)
         refined = fit.q.reshape(-1, 4, 2)
         used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
     for tag_id, c in used:

@@ -7,14 +7,18 @@ SYNOPSIS
     det = detect_chessboard(image, target)   # targets.detection.Detection
     det.q                                    # (nx*ny,2): corner iy*nx + ix
 
-OpenCV's findChessboardCornersSB (sector-based) finds the nx x ny inner
-corners (if it fails, findChessboardCorners); cornerSubPix then polishes them
+OpenCV's findChessboardCorners (quad-based, a few ms) finds the nx x ny inner
+corners (if it fails, findChessboardCornersSB, sector-based: ten times slower,
+searched at reduced size on large images); cornerSubPix then polishes them
 (about 0.2 px RMS -> 0.1 px on distorted, tilted boards), and
 targets.corners.refine_chessboard_corners fits the exact area-sampled image of
 the four square edges at each corner (0.06-0.1 px -> 0.002-0.01 px RMS on exact
 K=16 ray-cast renders, whose own sampling error that is; see
-benchmarks/bench_corners.py). A corner the fit cannot refine is dropped
-(info["corners_dropped"]: {reason: count}), never kept at OpenCV's position. OpenCV numbers the
+benchmarks/bench_corners.py). A corner the fit cannot refine, or whose
+image is no chessboard saddle, is dropped (info["corners_dropped"]: {reason:
+count}), never kept at OpenCV's position; the detection keeps the others and
+is "ok" with at least MIN_POINTS_FOR_POSE corners not all on one line (what
+a view's pose needs; min_found). OpenCV numbers the
 corners in one of the 8 rotations/flips of the grid (any of them for a square
 grid). The numbering is fixed by the squares: for
 each candidate numbering, every interior square's centre (the crossing of its
@@ -28,11 +32,15 @@ OpenCV's pixel convention is camval's (pixel centres at integers).
 
 import numpy as np
 
-from .detection import as_float_image, failed, result
+from .detection import MIN_POINTS_FOR_POSE, failed, result, working_image
 
 DETECTOR = "chessboard"
 # images larger than twice this (smaller side) are searched at a reduced size first
 SEARCH_SIZE_PX = 400
+# OpenCV's quad-based search (findChessboardCorners)
+CLASSIC_FLAGS = 3     # cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE (1 | 2)
+# the reason of a corner dropped because the image around it is no chessboard saddle
+NOT_SADDLE = "not a saddle"
 # how far along the diagonals (in grid steps) a corner's saddle is checked
 SADDLE_PROBE = 0.15
 ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, True)
@@ -65,7 +73,7 @@ def _square_centres(G):
     return c
 
 
-def _is_saddle(img, G):
+def _is_saddle(img, G, contrast=None):
     r'''(ny,nx) bool: the image around each corner is a chessboard saddle
 
 Four samples at SADDLE_PROBE of the local grid steps along the diagonals: the two on one
@@ -77,7 +85,8 @@ square (or an edge) fails.'''
     r = SADDLE_PROBE
     a = _bilinear(img, G + r * (u + v)) + _bilinear(img, G - r * (u + v))
     b = _bilinear(img, G + r * (u - v)) + _bilinear(img, G - r * (u - v))
-    contrast = float(img.max() - img.min())
+    if contrast is None:
+        contrast = float(img.max() - img.min())
     return np.abs(a - b) / 2 > contrast / 3
 
 
@@ -108,7 +117,8 @@ corners are used as OpenCV finds them, refine=False): with it only.'''
     return ok, corners
 
 
-def detect_chessboard(image, target, *, min_found=None, refine=True, reduced_search=True):
+def detect_chessboard(image, target, *, min_found=MIN_POINTS_FOR_POSE, refine=True,
+                      reduced_search=True, classic_first=True):
     r'''Detect a chessboard; see the module docstring
 
 SYNOPSIS
@@ -119,30 +129,39 @@ ARGUMENTS
 
 - image: (H,W) float in [0,1], or uint8/uint16 (OpenCV gets 8 bits)
 - target: a "chessboard" targets.boards.Target
-- min_found: fewest corners for status "ok" (default: all)
+- min_found: fewest corners for status "ok" (default: what a view's pose needs,
+  targets.detection.MIN_POINTS_FOR_POSE; the corners kept must not lie on one line)
 - refine: True: polish the corners with cv2.cornerSubPix, then fit the corner model
   (targets.corners); "subpix": cornerSubPix only; False: OpenCV's corners as found
 - reduced_search: on large images, search at reduced size first (falls back to full
   size when a corner wanders off its refinement window)
+- classic_first: with refine, try OpenCV's findChessboardCorners (quad-based) before the
+  sector-based search: 1.5-5 ms of CPU against 25-70 ms on 1024x1024 renders, and it found
+  every board of the 18 images of benchmarks/bench_corners.py (cameras 15, 17, 8) where
+  the reduced-size sector search missed 1; a board it misses, whose squares it cannot
+  number, or whose corners fail the saddle check, goes to the sector-based search
 '''
     import cv2
 
-    img = as_float_image(image)
     if target.kind != "chessboard":
         return failed(target, f"detect_chessboard() needs a chessboard target; got "
                       f"{target.kind!r}", DETECTOR)
-    if not np.all(np.isfinite(img)):
+    work = working_image(image)
+    if work is None:
         return failed(target, "the image has non-finite pixels", DETECTOR)
+    img, img8, (lo, hi) = work
     nx, ny = target.grid_shape
-    img8 = np.ascontiguousarray(np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8))
     info = {}
     flags_sb = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
     ok, corners = False, None
+    if refine and classic_first:
+        ok, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=CLASSIC_FLAGS)
+        info["method"] = "findChessboardCorners"
     # the sector-based detector costs ~1.3 s on 1024x1024 (0.2 s without its ACCURACY
     # polish, _find_sb): find the board on a reduced
     # image first (the corners are polished at full resolution below)
     shrink = int(min(img8.shape) // SEARCH_SIZE_PX)
-    if shrink >= 2 and refine and reduced_search:
+    if not ok and shrink >= 2 and refine and reduced_search:
         small = cv2.resize(img8, (img8.shape[1] // shrink, img8.shape[0] // shrink),
                            interpolation=cv2.INTER_AREA)
         ok, corners = _find_sb(cv2, small, (nx, ny), flags_sb)
@@ -153,9 +172,8 @@ ARGUMENTS
     if not ok:
         ok, corners = _find_sb(cv2, img8, (nx, ny), flags_sb, fast=bool(refine))
         info["method"] = "findChessboardCornersSB"
-    if not ok:
-        ok, corners = cv2.findChessboardCorners(
-            img8, (nx, ny), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+    if not ok and not (refine and classic_first):
+        ok, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=CLASSIC_FLAGS)
         info["method"] = "findChessboardCorners"
     if not ok or corners is None:
         return failed(target, f"OpenCV found no {nx}x{ny} chessboard", DETECTOR, info)
@@ -163,7 +181,7 @@ ARGUMENTS
     # OpenCV's order: rows of nx; lattice a along a row, b across rows
     G_cv = c.reshape(ny, nx, 2)
     expected = _expected_squares(target)
-    mid = 0.5 * (img.max() + img.min())
+    mid = 0.5 * (hi + lo)
     scores = []
     for t in ALL_TRANSFORMS:
         swap, fa, fb = t
@@ -181,7 +199,13 @@ ARGUMENTS
     scores.sort(key=lambda s: s[0])
     info["square_mismatches"] = [s[0] for s in scores]
     best = scores[0]
-    if len(scores) > 1 and scores[1][0] - best[0] < 2:
+    ambiguous = len(scores) > 1 and scores[1][0] - best[0] < 2
+    if (ambiguous or best[0] > max(2, expected.size // 20)) and \
+            info["method"] == "findChessboardCorners" and refine and classic_first:
+        # the quad-based search's grid does not explain the squares: the sector-based one
+        return detect_chessboard(image, target, min_found=min_found, refine=refine,
+                                 reduced_search=reduced_search, classic_first=False)
+    if ambiguous:
         return failed(target, f"the chessboard's orientation is ambiguous (square mismatches "
                       f"{[s[0] for s in scores]}); is the orientation mark visible?",
                       DETECTOR, info)
@@ -198,7 +222,7 @@ ARGUMENTS
                    np.linalg.norm(np.diff(G, axis=1), axis=-1).min())
         wins = [int(np.clip(0.25 * step, 2, 40)), int(np.clip(0.2 * step, 2, 10))]
         info["subpix_windows_px"] = wins
-        img32 = img.astype(np.float32)
+        img32 = img if img.dtype == np.float32 else img.astype(np.float32)
         G = G.reshape(-1, 1, 2).astype(np.float32)
         wandered = np.zeros(len(G), bool)
         for win in wins:
@@ -213,18 +237,26 @@ ARGUMENTS
         if wandered.any():
             info["unrefined_corners"] = int(wandered.sum())
     G = np.asarray(G, dtype=np.float64).reshape(ny, nx, 2)
-    not_saddle = ~_is_saddle(img, G)
+    not_saddle = ~_is_saddle(img, G, hi - lo)
     if not_saddle.any():
+        if info["method"] == "findChessboardCorners" and refine and classic_first:
+            # the quad-based search misplaced a corner: the sector-based search
+            return detect_chessboard(image, target, min_found=min_found, refine=refine,
+                                     reduced_search=reduced_search, classic_first=False)
         if info["method"].endswith("size"):
             # the reduced-size search was too coarse here: search at full size
             return detect_chessboard(image, target, min_found=min_found, refine=refine,
-                                     reduced_search=False)
+                                     reduced_search=False, classic_first=False)
         info["rejected_corners"] = int(not_saddle.sum())
         G[not_saddle] = np.nan
+    dropped = {NOT_SADDLE: int(not_saddle.sum())} if not_saddle.any() else {}
     if refine is True:
         from .corners import chessboard_half_box, refine_chessboard_corners
-        fit = refine_chessboard_corners(img, G, chessboard_half_box(target))
-        info["corners_dropped"] = fit.dropped()
+        fit = refine_chessboard_corners(img, G, chessboard_half_box(target),
+                                        value_range=hi - lo)
+        # the refiner calls the corners rejected above "not detected"
+        dropped.update({k: v for k, v in fit.dropped().items() if k != "not detected"})
         G = fit.q.reshape(ny, nx, 2)
+    info["corners_dropped"] = dropped
     return result(target, G.reshape(-1, 2), DETECTOR,
                   min_found=min_found, info=info)

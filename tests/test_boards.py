@@ -152,7 +152,7 @@ def test_bad_definitions(change, match):
 
 
 def test_bad_files_and_names(tmp_path):
-    with pytest.raises(TargetError, match="unknown target 'circles'.*dots, apriltag"):
+    with pytest.raises(TargetError, match="unknown target 'circles'.*apriltag, chessboard, dots"):
         load_target("circles")
     f = tmp_path / "bad.toml"
     f.write_text("kind = 'dots'\nnx = [\n")

@@ -81,8 +81,13 @@ def test_model_file_camera_is_resolved_relative_to_the_campaign(tmp_path):
     ('cameras = [15]\n[[renderer]]\nname = "raycast"\nsamples = 4\n',
      r"renderer\[0\]\.samples: unknown key; known keys: name, spp, adaptive, options"),
     ('cameras = [15]\n[[calibrator]]\nmodels = ["CAHV"]\n', r"calibrator\[0\]\.name: missing"),
+    ('cameras = [15]\n[[calibrator]]\nname = "jpl"\ntargets = ["apriltag"]\n',
+     r"calibrator\[0\]\.targets: 'apriltag' is not among the campaign's targets \(dots\)"),
+    ('cameras = [15]\ntargets = ["dots", "apriltag"]\n[[calibrator]]\nname = "jpl"\n'
+     'targets = ["dots"]\n', r"calibrator: no calibrator fits the target 'apriltag'"),
     ('cameras = [15]\ntargets = ["checkers"]\n',
-     r"targets: unknown target 'checkers'; known: dots, apriltag, chessboard"),
+     r"targets: unknown target 'checkers'; known: apriltag, chessboard, dots or a target "
+     r"\.toml file"),
     ('cameras = [15]\nkeep_images = "yes"\n', r"keep_images: expected true or false"),
     ('cameras = [15\n', r"not valid TOML"),
 ])
@@ -252,3 +257,14 @@ def test_a_terrain_only_renderer_is_refused_with_the_scene_kinds(tmp_path):
            "renderer": [{"name": "raycast_terrain"}], "calibrator": [{"name": "jpl"}]}
     with pytest.raises(CampaignError, match="renders terrain scenes, not the boards"):
         parse_campaign(doc).validate()
+
+
+def test_a_calibrator_can_keep_to_some_targets():
+    # mrcal's calibration object is a regular grid: a campaign gives it the dots only, and
+    # the AprilTag jobs carry jpl alone
+    c = parse_campaign({"name": "t", "cameras": [15], "models": ["CAHV"],
+                        "targets": ["dots", "apriltag"],
+                        "calibrator": [{"name": "jpl"}, {"name": "mrcal", "targets": ["dots"]}]})
+    c.validate()
+    cals = {j.target: sorted({name for name, _, _ in j.calibrators}) for j in expand_jobs(c)}
+    assert cals == {"dots": ["jpl", "mrcal"], "apriltag": ["jpl"]}

@@ -182,6 +182,50 @@ produced one, 7.9 px off, on a fisheye; the detector then searches at full size)
     assert not ok[4, 4] and ok.sum() == 99
 
 
+def test_chessboard_keeps_the_corners_it_could_refine():
+    r'''A corner blurred out (a smudge on the lens) is dropped with its reason; the other 99
+stay, as exact as on the clean image, and the detection is ok'''
+    from scipy.ndimage import gaussian_filter
+    t = load_target("chessboard")
+    m = pinhole(480, 360, 300.0, R=WIDE["R"])
+    Rt = plan_poses(m, t, seed=0)[0]
+    img = render(m, t.pattern(), Rt, K=4)
+    truth = projected_points(m, t, Rt)
+    x, y = np.round(truth[44]).astype(int)
+    blurred = img.copy()
+    # sigma 3 px over a 9 px box: the corner model's edges cannot fit it (misfit), while
+    # OpenCV still finds the board
+    blurred[y - 4:y + 5, x - 4:x + 5] = gaussian_filter(img, 3.0)[y - 4:y + 5, x - 4:x + 5]
+    det = detect(blurred, t)
+    assert det.status == "ok", det.reason
+    assert not det.found[44] and det.n_found == 99
+    assert sum(det.info["corners_dropped"].values()) == 1
+    clean = detect(img, t)
+    assert clean.n_found == 100 and clean.info["corners_dropped"] == {}
+    # the kept corners are the clean image's (their windows, <= 8 px, miss the smudge
+    # except the 8 neighbours, which sit a full square (~20 px) away)
+    keep = det.found
+    np.testing.assert_allclose(det.q[keep], clean.q[keep], atol=0.02)
+
+
+def test_chessboard_corners_on_one_line_give_no_view():
+    r'''What a view's pose needs (targets.detection.MIN_POINTS_FOR_POSE): 4 corners, not on
+one line of the board'''
+    from targets.detection import result
+    t = load_target("chessboard")
+    q = projected_points(pinhole(480, 360, 300.0), t, plan_poses(pinhole(480, 360, 300.0),
+                                                                   t, seed=0)[0])
+    row = np.full_like(q, np.nan)
+    row[:10] = q[:10]             # the first row of corners only
+    d = result(t, row, "chessboard", min_found=4)
+    assert d.status == "failed" and "one line" in d.reason
+    row[15] = q[15]
+    assert result(t, row, "chessboard", min_found=4).status == "ok"
+    three = np.full_like(q, np.nan)
+    three[[0, 1, 10]] = q[[0, 1, 10]]
+    assert "need 4" in result(t, three, "chessboard", min_found=4).reason
+
+
 def test_chessboard_mirrored_is_numbered_by_the_mark():
     t = load_target("chessboard")
     m = _mirrored_camera(480, 360, 300.0)
@@ -325,3 +369,13 @@ def test_large_image_path_falls_back_when_the_reduction_hides_the_dots(monkeypat
     assert dd._blobs_from_reduced(img.astype(np.float32), 0.5, 64) is None
     det = detect(img, dots)
     assert det.status == "ok" and det.n_found == 100
+
+
+def test_apriltag_quad_decimation_keeps_a_1024_px_image():
+    r'''The quad search is decimated only as far as a 1024 px image (the size at which the
+catalogue's 1024x1024 cameras decode every tag of their planned poses undecimated)'''
+    from targets.detect_apriltag import DECIMATED_MIN_SIDE_PX, decimate_for
+    for shape, k in (((480, 640), 1), ((1024, 1024), 1), ((1200, 1648), 1),
+                     ((2048, 2048), 2), ((3840, 5120), 3)):
+        assert decimate_for(shape) == k
+        assert min(shape) // k >= DECIMATED_MIN_SIDE_PX or k == 1

@@ -151,6 +151,35 @@ def test_tables_and_speed_points(run_dir):
     assert pareto_front([(1.0, 1.0), (2.0, 2.0), (3.0, 0.5)]) == [0, 2]
 
 
+def test_targets_get_their_own_tables_and_panels(run_dir):
+    r'''dots and an AprilTag grid in one run: one table and one figure panel per
+calibrator and target (the AprilTag's corners and the dots' centroids have their own
+accuracy); the statistics are the target's own'''
+    import copy
+
+    from harness.records import load_run
+    records = {k: r for k, r in load_run(run_dir)["records"].items()
+               if r["settings"]["spp"] == 16}
+    tags = {}
+    for k, r in records.items():
+        t = copy.deepcopy(r)
+        t["target"] = "apriltag"
+        t["fullname"] = k.replace("/dots/", "/apriltag/")
+        t["projection"]["rms"] = 0.5     # told apart from the dots' 0.001-level values
+        tags[t["fullname"]] = t
+    both = dict(records, **tags)
+    tables = summary_tables(both)
+    assert [t.title for t in tables] == ["Calibrator jpl on apriltag", "Calibrator jpl on dots"]
+    rms = {t.title: {r[0]: r for r in t.rows}["projection difference RMS, median"]
+           for t in tables}
+    assert rms["Calibrator jpl on apriltag"][3:] == ("0.5", "0.5")
+    assert all(float(v) < 0.01 for v in rms["Calibrator jpl on dots"][3:])
+    assert calibrator_panels(both) == [("jpl", "family", "apriltag"),
+                                       ("jpl", "family", "dots")]
+    # one target: the titles of before
+    assert [t.title for t in summary_tables(records)] == ["Calibrator jpl"]
+
+
 def test_report_files(run_dir):
     paths = build_report(run_dir)
     html = Path(paths["html"]).read_text()
