@@ -188,3 +188,21 @@ def test_parallel_boards_are_degenerate_poses():
     same = exact_observations(truth, TARGET, [synthetic_poses(truth, TARGET)[1]] * 6)
     r = calibrate("mrcal", same, TARGET, "CAHVOR", bias_correction=False)
     assert r.status == "failed" and r.reason.startswith("degenerate poses")
+
+
+def test_a_pose_without_detections_is_left_out_not_a_failure():
+    # a detector that found no dot in one image (seen on a clean render of a hazcam): mrcal's
+    # PnP seed would fail on that pose; the fit drops it, says so, and still recovers the
+    # exact camera from the other poses
+    truth = dict(MODELS)["15"]
+    poses = synthetic_poses(truth, TARGET)
+    obs = exact_observations(truth, TARGET, poses)
+    q = obs.q.copy()
+    q[2] = np.nan
+    q[4, 3:] = np.nan              # 3 points left: too few to seed a pose
+    r = calibrate("mrcal", obs.replace(q=q), TARGET, truth.family, truth=truth,
+                  bias_correction=False)
+    _check(truth, r)
+    assert [(d["pose"], d["found"]) for d in r.info["poses_dropped"]] == [(2, 0), (4, 3)]
+    assert np.all(np.isnan(r.residuals[[2, 4]])) and np.all(np.isnan(r.Rt_cam_board[[2, 4]]))
+    assert np.all(np.isfinite(r.Rt_cam_board[[0, 1, 3, 5]]))

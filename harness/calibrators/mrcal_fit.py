@@ -227,11 +227,51 @@ def _Rt_board_grid(origin):
     return np.vstack((np.eye(3), origin))
 
 
+# a pose with fewer detections than this is left out of the fit (mrcal seeds each board
+# pose by a homography / PnP, which needs 4 points off one line; 6 is the Zhang seed's
+# own minimum above, so a kept pose contributes to the seed too)
+MIN_POSE_POINTS = 6
+
+
 @diagnostics_of(LIBRARY)
-def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
-        bias_passes=4, bias_tolerance=1e-5, regularization=None, max_rms=1.0,
-        linearity=None, max_restarts=25, start=None):
+def fit(obs, target, model_name, truth=None, start=None, **options):
     r'''The mrcal calibrator (see the module docstring); returns a CalibrationResult
+
+Poses with fewer than MIN_POSE_POINTS detections are left out (a detector that found
+no dot in an image must not fail the fit: mrcal's PnP seed needs points in every
+pose it is given); info["poses_dropped"] lists them with their counts, and their
+residuals and board poses are NaN. The rest as _fit_poses.
+'''
+    counts = obs.found.sum(axis=1)
+    views = np.flatnonzero(counts >= MIN_POSE_POINTS)
+    if len(views) == obs.Nposes or len(views) < 2:
+        return _fit_poses(obs, target, model_name, truth=truth, start=start, **options)
+    sub = obs.replace(q=obs.q[views], p_board=obs.p_board[views],
+                      Rt_ref_board=None if obs.Rt_ref_board is None else obs.Rt_ref_board[views])
+    if start is not None and getattr(start, "Rt_cam_board", None) is not None \
+            and len(start.Rt_cam_board) == obs.Nposes:
+        start = start.replace(Rt_cam_board=start.Rt_cam_board[views])
+    res = _fit_poses(sub, target, model_name, truth=truth, start=start, **options)
+    dropped = [{"pose": int(i), "found": int(counts[i]),
+                "reason": f"{int(counts[i])} points found; mrcal's pose seed needs "
+                          f"{MIN_POSE_POINTS}"}
+               for i in range(obs.Nposes) if i not in set(views.tolist())]
+    changes = {"info": {**res.info, "poses_dropped": dropped}}
+    if res.residuals is not None:
+        r = np.full(obs.q.shape, np.nan)
+        r[views] = res.residuals
+        changes["residuals"] = r
+    if res.Rt_cam_board is not None:
+        Rt = np.full((obs.Nposes, 4, 3), np.nan)
+        Rt[views] = res.Rt_cam_board
+        changes["Rt_cam_board"] = Rt
+    return res.replace(**changes)
+
+
+def _fit_poses(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
+               bias_passes=4, bias_tolerance=1e-5, regularization=None, max_rms=1.0,
+               linearity=None, max_restarts=25, start=None):
+    r'''The mrcal fit of every pose of obs (see fit)
 
 start: None, or an ok CalibrationResult of this calibrator and model on observations of
 the same poses (harness.verdict: the image fit, to fit the exact observations): its
