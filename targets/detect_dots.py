@@ -432,6 +432,64 @@ def _grow(c, area, seed, tree, max_extent):
     return nodes
 
 
+# the neighbourhood (lattice steps each way) whose areas predict a dot's own
+MARK_NEIGHBOURHOOD = 2
+
+
+def mark_flags(nodes, area, ratio_threshold):
+    r'''(len(area),) bool: the lattice's dots larger than their neighbourhood predicts
+
+A dot is a mark when its blob area exceeds the area its lattice neighbours (within
+MARK_NEIGHBOURHOOD steps) predict by more than ratio_threshold (the mark's diameter
+over the small dots': half the mark's area ratio in log). The prediction is a plane in
+log area over the lattice offsets, so it follows perspective: a dot on the lattice's
+edge is predicted by extrapolation from the rows inward, not by their median (on a
+board seen obliquely through a wide lens, areas fall 1.4x a row: an edge row then
+sat 1.41x above its inward neighbours' median and read as marks). Neighbours that are
+themselves far above the plane (other marks) are left out and the plane refitted.
+With fewer than 3 neighbours off one line the median of the 8 adjacent ones decides.
+'''
+    is_mark = np.zeros(len(area), bool)
+    log_thr = np.log(ratio_threshold)
+    la = np.log(np.maximum(area, 1e-300))
+    R = MARK_NEIGHBOURHOOD
+    for (ka, kb), j in nodes.items():
+        offs, vals = [], []
+        for da in range(-R, R + 1):
+            for db in range(-R, R + 1):
+                k = nodes.get((ka + da, kb + db))
+                if (da or db) and k is not None:
+                    offs.append((1.0, da, db))
+                    vals.append(la[k])
+        if not offs:
+            continue
+        A, y = np.array(offs), np.array(vals)
+        keep = np.ones(len(y), bool)
+        pred = None
+        for _ in range(3):
+            Ak = A[keep]
+            N = Ak.T @ Ak
+            # fewer than 3 neighbours off one line: no plane (offsets are small integers,
+            # so a collinear set makes N exactly singular)
+            if keep.sum() < 3 or abs(np.linalg.det(N)) < 0.5:
+                pred = None
+                break
+            coef = np.linalg.solve(N, Ak.T @ y[keep])
+            pred = coef[0]
+            high = (y - A @ coef) > 0.5 * log_thr
+            if not np.any(high & keep):
+                break
+            keep &= ~high
+        if pred is None:
+            neigh = [nodes[(ka + da, kb + db)] for da in (-1, 0, 1) for db in (-1, 0, 1)
+                     if (da or db) and (ka + da, kb + db) in nodes]
+            if neigh:
+                is_mark[j] = area[j] / _median(area[neigh]) > ratio_threshold
+            continue
+        is_mark[j] = la[j] - pred > log_thr
+    return is_mark
+
+
 def _number(nodes, is_mark, target):
     r'''Number lattice (a, b) as grid (ix, iy) by the mark: -> (ix, iy, info) or a reason'''
     nx, ny = target.grid_shape
@@ -701,11 +759,7 @@ ARGUMENTS
     is_mark = np.zeros(len(c), bool)
     if mark_spec is not None:
         ratio_threshold = float(mark_spec["dot_diameter"]) / (2 * float(radii.min()))
-        for (ka, kb), j in best.items():
-            neigh = [best[(ka + da, kb + db)] for da in (-1, 0, 1) for db in (-1, 0, 1)
-                     if (da or db) and (ka + da, kb + db) in best]
-            if neigh:
-                is_mark[j] = a[j] / _median(a[neigh]) > ratio_threshold
+        is_mark = mark_flags(best, a, ratio_threshold)
         numbered = _number(best, is_mark, target)
     else:
         numbered = _unmarked_choice(best, c, target)
