@@ -33,8 +33,11 @@ def c_renderer(tmp_path_factory):
 
 
 def _full(model, pattern, Rt, K):
-    return get_renderer("raycast").render(model, pattern, Rt,
-                                          RenderSettings(spp=K, adaptive=False)).image
+    # rays mode sends K x K point samples per pixel: the ray caster's point sampling (its
+    # default, area coverage, integrates edge pixels instead)
+    return get_renderer("raycast").render(
+        model, pattern, Rt,
+        RenderSettings(spp=K, adaptive=False, options={"coverage": "point"})).image
 
 
 def test_sample_rays_are_the_model_rays_in_the_camera_frame():
@@ -123,7 +126,8 @@ def test_pinhole_mode_records_the_warps_share():
     assert a.metadata["warp"]["samples"] == area_samples(PinholeWarp.for_model(m, scale=2.0))
     # the program renders the pinhole exactly, so the whole difference from the exact
     # image is the warp's, and the recorded share is all of it
-    d = a.image.astype(np.float64) - _full(m, pat, Rt, 4)
+    exact = get_renderer("raycast").render(m, pat, Rt, RenderSettings(spp=4)).image
+    d = a.image.astype(np.float64) - exact
     assert a.metadata["warp_rms"] == pytest.approx(np.sqrt(np.mean(d * d)), rel=1e-6)
     assert a.metadata["warp_max"] == pytest.approx(np.abs(d).max(), rel=1e-6)
     assert 0 < a.metadata["warp_rms"] < 0.05
@@ -170,7 +174,8 @@ def test_c_renderer_records_equal_the_ray_casters(c_renderer, tmp_path):
 
     c = record({"name": "command", "label": "c-rays",
                 "setup": {"command": [c_renderer], "mode": "rays", "persistent": True}}, "c")
-    ref = record({"name": "raycast"}, "raycast")
+    # rays mode point-samples: the ray caster's point sampling is the reference
+    ref = record({"name": "raycast", "options": {"coverage": "point"}}, "raycast")
     assert c["status"] == "ok", c["reason"]
     assert c["fullname"] == "17/CAHVORE/dots/c-rays[spp=4,full]/jpl[CAHVORE]"
     assert c["detections"] == ref["detections"]
