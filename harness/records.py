@@ -112,7 +112,7 @@ options a renderer applies by default (renderers.base.DEFAULT_OPTIONS) are
 named whether the settings give them or not ("raycast[spp=16,adaptive,
 coverage=area]"): a record of another default never joins.
 '''
-    from renderers.base import DEFAULT_OPTIONS   # here: records stay light to import
+    from renderers.base import DEFAULT_OPTIONS  # here: records stay light to import
     defaults = DEFAULT_OPTIONS.get(renderer)
     if defaults:
         settings = dict(settings, options={**defaults, **(settings.get("options") or {})})
