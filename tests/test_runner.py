@@ -413,8 +413,10 @@ def test_rich_progress_bar_on_a_terminal():
     bar = Progress(stream=term)
     assert bar.bar is not None
     bar.stage("jobs", total=2)
-    bar.advance("15/CAHV/dots/raycast[spp=16,adaptive,coverage=area]: 3 ok", short="15/CAHV: 3 ok")
-    bar.advance("17/CAHV/dots/raycast[spp=16,adaptive,coverage=area]: 1 failed", short="17/CAHV: 1 failed")
+    bar.advance("15/CAHV/dots/raycast[spp=16,adaptive,coverage=area]: 3 ok",
+                short="15/CAHV: 3 ok")
+    bar.advance("17/CAHV/dots/raycast[spp=16,adaptive,coverage=area]: 1 failed",
+                short="17/CAHV: 1 failed")
     bar.close()
     out = term.getvalue()
     assert "2/2" in out and "ETA" in out and "1 failed" in out
