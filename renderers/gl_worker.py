@@ -11,13 +11,11 @@ SYNOPSIS
 The renderers' OpenGL calls run in one worker process per process that uses
 them (`python -m renderers.gl_worker`, started on first use, restarted in a
 forked child and after it dies); the caller never loads libOSMesa. Why: Mesa's
-llvmpipe links its own LLVM (libLLVM-15), numba's llvmlite another; a
-whole-suite test run has aborted at interpreter exit with glibc's "corrupted
-size vs. prev_size" inside llvmlite's LLVMContext destructor, and two LLVMs in
-one process were the suspect. Not confirmed: the abort is intermittent (a
-whole-suite run of the code before this worker, normal exit, OSMesa in
-process, exited with status 0 here), so the worker separates the two LLVMs
-without proof that they were the cause.
+llvmpipe links its own LLVM (libLLVM-15), numba's llvmlite another, and two LLVMs
+in one process were once the suspect of a heap-corruption abort at interpreter
+exit. That abort was found elsewhere (pupil_apriltags' detector freed after its tag
+family: targets.detect_apriltag._destroy); the worker stays because it keeps a
+second LLVM and Mesa's threads out of every campaign worker and test process.
 
 A request is a pickled (name, args, kwargs) on the worker's stdin; the reply,
 a pickled ("ok", value) or ("error", exception), comes back on its stdout (the

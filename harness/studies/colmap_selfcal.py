@@ -83,10 +83,10 @@ RETURNED VALUE: dict with status, reason, camera model and params (COLMAP's
 convention), registered images, points, mean reprojection error
 
 The pycolmap pipeline runs in a child process of its own: its native code
-(SIFT, matching, Ceres) can abort the process or leave its heap corrupted
-(seen here: a "corrupted size vs. prev_size" abort at the exit of a test
-process that had run it), and a calibrator's failure must be a result, not
-the end of the caller.
+(SIFT, matching, Ceres) can abort the process, and a calibrator's failure must
+be a result, not the end of the caller. (The "corrupted size vs. prev_size" abort
+at the exit of test processes, once blamed on it, was pupil_apriltags': see
+targets.detect_apriltag._destroy.)
 '''
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
