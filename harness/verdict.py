@@ -20,8 +20,11 @@ Three comparisons, each with parameter differences and projection differences:
             this calibrator and model can do at all (representability, gauge
             runoff, an unconstrained model). Exact observations are the exact
             dot centroids (targets.centroids.expected_centroids of the truth at the
-            poses) or, for corner targets, the exact corner projections; only the
-            points the detector found are kept, so both fits see the same points.
+            poses) or, for corner targets, the corners the detector finds on
+            camval's exact render of the poses (reference_corners: the corner
+            refiner's systematic errors are the detector's, not the renderer's);
+            only the points the detector found are kept, so both fits see the
+            same points.
 - renderer: the image fit vs the exact-observation fit: what the images cost. A
             deterministic calibrator's runoff and misfit are the same in both
             fits and cancel here: this is the renderer's verdict.
@@ -108,24 +111,62 @@ def Rt_cam_board_from(obs, truth):
     return np.array(out)
 
 
+# The reference render of a corner target's exact observations (reference_corners): camval's
+# exact ray caster with exact-area coverage of edge pixels (pixel values to 1e-4 of their
+# value: corner positions to ~1e-4 px), K only for the few pixels area coverage cannot
+# integrate.
+REFERENCE_RENDER = {"renderer": "raycast", "spp": 16, "adaptive": True,
+                    "options": {"coverage": "area"}}
+
+
 def exact_observations(obs, truth, target):
-    r'''The observations a perfect renderer and detector would give, at the same poses
+    r'''The observations a perfect renderer would give, at the same poses
 
 SYNOPSIS
 
     obs_x = exact_observations(obs, truth, target)   # obs.q replaced; same mask
 
 obs must hold the surveyed board poses (Rt_ref_board, as observations_from
-gives). Exact dot centroids for a dot target, exact corner projections for
-the others; NaN where obs has NaN (the detector did not find the point) or
-the truth cannot image the point.
+gives). For a dot target, the exact dot centroids (a perfect renderer and a
+perfect detector: the dot detector's errors on exact renders are small and
+independent from dot to dot, ~0.0005 px). For corner targets, the corners the
+detector finds on a perfect render (reference_corners): the corner refiner's
+errors on exact renders are systematic (up to ~0.001 px, the same for the same
+corner geometry, correlated along each edge), so exact projections would charge
+them to the renderer: the verdict's independent-noise scatter put a perfect
+renderer's AprilTag records at z 7-17. Against the reference render they cancel,
+and the floor holds the detector's share. NaN where obs has NaN (the detector did
+not find the point) or the truth cannot image the point; a corner found in the
+images but not on the reference render takes its exact projection.
 '''
     from targets.centroids import expected_centroids, projected_points
     Rts = Rt_cam_board_from(obs, truth)
     exact = expected_centroids if target.kind == "dots" else projected_points
     q = np.stack([exact(truth, target, Rt) for Rt in Rts])
+    if target.kind != "dots":
+        ref = reference_corners(truth, target, Rts)
+        q = np.where(np.isfinite(ref), ref, q)
     q = np.where(obs.found[..., None], q, np.nan)
     return obs.replace(q=q)
+
+
+def reference_corners(truth, target, Rts):
+    r'''(Nposes,Npoints,2) the detector's points on camval's exact renders of the poses
+(REFERENCE_RENDER), NaN where it finds none; one image in memory at a time'''
+    from renderers.base import RenderSettings
+    from targets.detect import detect
+
+    from .stages import cached_renderer
+    renderer = cached_renderer(REFERENCE_RENDER["renderer"])
+    rs = RenderSettings(spp=REFERENCE_RENDER["spp"], adaptive=REFERENCE_RENDER["adaptive"],
+                        options=dict(REFERENCE_RENDER["options"]))
+    pattern = target.pattern()
+    out = []
+    for Rt in Rts:
+        image = renderer.render(truth, pattern, Rt, rs).image
+        out.append(np.asarray(detect(image, target).q, dtype=np.float64))
+        del image
+    return np.stack(out)
 
 
 def detection_noise(obs, obs_exact):
@@ -698,9 +739,18 @@ def _signed_quantities(ref, m, theta, world):
     return out
 
 
+# The smallest detection scatter the model assumes, px: differences below it are below
+# what a renderer's output resolves (float32 model vectors move a projection by ~1e-4 px,
+# harness/mutation.py; area coverage fixes a pixel to 1e-4 of its value). Without it an
+# image equal to the reference render (a corner target through camval's own ray caster:
+# detected - reference ~1e-12 px, the float rounding of the pose round trip) would get a
+# sigma of 1e-13 and judge rounding noise at z 8.
+DETECTION_RESOLUTION_PX = 1e-4
+
+
 def noise_per_pose(res, exact_res, Nposes, n_params):
-    r'''(Nposes,) sigma px of the detection error per image (see the notes above), NaN
-where an image has no point'''
+    r'''(Nposes,) sigma px of the detection error per image (see the notes above), at
+least DETECTION_RESOLUTION_PX; NaN where an image has no point'''
     d = np.asarray(res.residuals, dtype=np.float64) - np.asarray(exact_res.residuals,
                                                                    dtype=np.float64)
     ok = np.all(np.isfinite(d), axis=-1)
@@ -709,7 +759,8 @@ where an image has no point'''
     out = np.full(Nposes, np.nan)
     for i in range(Nposes):
         if ok[i].any():
-            out[i] = dof * math.sqrt(np.mean(np.sum(d[i][ok[i]] ** 2, axis=-1)))
+            out[i] = max(dof * math.sqrt(np.mean(np.sum(d[i][ok[i]] ** 2, axis=-1))),
+                         DETECTION_RESOLUTION_PX)
     return out
 
 

@@ -372,3 +372,43 @@ z 1270: a false alarm.'''
     name = "navcam-R1-0/CAHVOR/dots/raycast/jpl[CAHVOR]"
     run = {"records": {name: {"status": "ok", "calibrator": "jpl", "verdict": v}}}
     assert check(run, load_gate_spec(DEFAULT_SPEC)) == []
+
+
+def test_corner_targets_are_judged_against_the_detector_on_exact_renders():
+    # a constructed camera (not from the catalogue): 800x600 CAHVOR with mild distortion
+    from reference_models.cahvore import CAHVOR
+    from renderers.base import RenderSettings
+    from renderers.raycast import RaycastRenderer
+    from targets.centroids import projected_points
+    from targets.detect import detect
+
+    f, W, H = 700.0, 800, 600
+    truth = CAHVOR(C=[0, 0, 0], A=[0, 0, 1], H=[f, 0, W / 2 - 0.5 + 3.2],
+                   V=[0, f, H / 2 - 0.5 - 1.7], O=[0.01, -0.02, 1.0], R=[0, -0.05, 0.01],
+                   width=W, height=H)
+    target = stages.cached_target("apriltag")
+    poses = stages.poses_stage(truth, target, 3, 0)
+    r = RaycastRenderer()
+    rs = RenderSettings(spp=16, adaptive=True, options=dict(verdict.REFERENCE_RENDER["options"]))
+
+    def observe(model):
+        dets = [detect(r.render(model, target.pattern(), Rt, rs).image, target) for Rt in poses]
+        return stages.observations_from(truth, target, poses, dets)
+
+    obs = observe(truth)
+    assert obs.found.sum() > 100
+    obs_x = verdict.exact_observations(obs, truth, target)
+    # the images ARE the reference renders (the poses' round trip through the world frame
+    # moves them by float rounding only): the renderer's share is nil ...
+    d = np.linalg.norm(obs.q - obs_x.q, axis=-1)[obs.found]
+    assert d.max() < 1e-6
+    # ... while the detector's own share is in the reference, not charged to the images:
+    # exact projections differ from it by the corner refiner's bias (0 < ... < 0.005 px)
+    exact = np.stack([projected_points(truth, target, Rt) for Rt in poses])
+    bias = np.linalg.norm(obs_x.q - exact, axis=-1)[obs.found]
+    assert 1e-6 < np.sqrt(np.mean(bias ** 2)) < 0.005
+    # a renderer whose principal point is off by 0.01 px shows exactly that against it
+    shifted = CAHVOR(C=truth.C, A=truth.A, H=truth.H + 0.01 * truth.A, V=truth.V, O=truth.O,
+                     R=truth.R, width=W, height=H)
+    dx = (observe(shifted).q - obs_x.q)[..., 0][obs.found]
+    assert abs(np.median(dx) - 0.01) < 0.002

@@ -36,13 +36,24 @@ def test_quick_campaign_end_to_end(tmp_path):
     assert str(run / "report" / "report.html") in out.stdout
     doc = load_run(run)
     recs = doc["records"]
-    # 3 cameras x 3 families x 3 calibrators
-    assert len(recs) == 27
+    # 3 cameras x 3 families x (3 calibrators on the dots + jpl on the AprilTag grid)
+    assert len(recs) == 36
     na = [k for k, r in recs.items() if r["status"] == "not-applicable"]
     assert sorted(k for k in na if k.startswith("15/CAHVORE/")) == sorted(
-        f"15/CAHVORE/dots/raycast[spp=16,adaptive,coverage=area]/{c}"
-        for c in ("jpl[CAHVORE]", "mrcal[CAHVORE]", "opencv[OPENCV5]"))
+        [f"15/CAHVORE/dots/raycast[spp=16,adaptive,coverage=area]/{c}"
+         for c in ("jpl[CAHVORE]", "mrcal[CAHVORE]", "opencv[OPENCV5]")]
+        + ["15/CAHVORE/apriltag/raycast[spp=16,adaptive,coverage=area]/jpl[CAHVORE]"])
     assert sorted(na) == sorted(k for k in recs if k.startswith("15/CAHVORE/"))
+    for cam in ("15", "17", "8"):
+        for fam in ("CAHV", "CAHVOR") + (("CAHVORE",) if cam != "15" else ()):
+            r = recs[f"{cam}/{fam}/apriltag/raycast[spp=16,adaptive,coverage=area]/jpl[{fam}]"]
+            assert r["status"] == "ok", r["reason"]
+            # 640x480 hazcam 17 keeps ~half of the 864 corners (tags whose refinement
+            # window is under 30 px are dropped, with their reason); a fit needs far fewer
+            assert r["detections"]["n_found"] >= 100
+            # issue 16's bar on the ray caster's area-coverage renders: corners as exact as
+            # the dots (measured 0.0007 px at most on these cameras)
+            assert r["residuals"]["rms"] < 0.005 and r["projection"]["rms"] < 0.005
     for cam in ("15", "17", "8"):
         for fam in ("CAHV", "CAHVOR") + (("CAHVORE",) if cam != "15" else ()):
             r = recs[f"{cam}/{fam}/dots/raycast[spp=16,adaptive,coverage=area]/jpl[{fam}]"]
@@ -64,13 +75,19 @@ def test_quick_campaign_end_to_end(tmp_path):
         assert sum(r["status"] == "ok" for k, r in recs.items() if cal in k) >= 6, cal
     html = (run / "report" / "report.html").read_text()
     assert html.count('src="data:image/png;base64,') >= 10
-    for table in ("Calibrator jpl", "Calibrator mrcal", "Calibrator opencv[OPENCV5]"):
+    for table in ("Calibrator jpl on apriltag", "Calibrator jpl on dots",
+                  "Calibrator mrcal on dots", "Calibrator opencv[OPENCV5] on dots"):
         assert table in html
     assert (run / "report" / "report.md").is_file()
     assert len(list((run / "maps").glob("*.npy"))) == sum(
         1 for r in recs.values() if r["status"] == "ok")
-    # the shipped gate passes on it
+    # the shipped gate judges both targets (its globs name no target) and passes on them
     out = _camval("gate", run, "--spec", "campaigns/gate.toml", timeout=300)
+    assert out.returncode == 0, out.stdout[-3000:]
+    # and the default, renderer gate (each record's own scatter) on both targets: the
+    # AprilTag records are judged against the detector's corners on camval's exact renders
+    # (harness.verdict.reference_corners), so the corner refiner's own bias is not charged
+    out = _camval("gate", run, timeout=300)
     assert out.returncode == 0, out.stdout[-3000:]
 
 
