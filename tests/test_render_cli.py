@@ -117,7 +117,11 @@ def test_model_file_as_camera(tmp_path, model):
     assert main(["render", str(f), "--spp", "1", "--no-adaptive", "-o", str(out)]) == 0
     side = _strict_json(out.with_suffix(".json"))
     assert side["render"]["settings"]["adaptive"] is False
-    assert side["render"]["adaptive_fraction"] == 1.0
+    # the ray caster's default, area coverage, integrates the edge pixels it finds whatever
+    # `adaptive` says: a fraction of the image, not all of it (point sampling with
+    # --no-adaptive supersamples every pixel)
+    assert side["render"]["coverage"] == "area"
+    assert 0 < side["render"]["area_fraction"] < 0.5
     np.testing.assert_allclose(side["model"]["H"], model.H, rtol=1e-6)
 
 
