@@ -671,9 +671,11 @@ regularised, an unknown model type).'''
             return model_of(theta).project(p_cam)
     else:
         return None
-    found = obs.found
-    pose = np.nonzero(found)[0]
     Rts = np.asarray(res.Rt_cam_board, dtype=np.float64)
+    # a pose the fit left out (too few points: NaN board pose, as OpenCV's and mrcal's
+    # views leave it) contributes nothing
+    found = obs.found & np.all(np.isfinite(Rts), axis=(1, 2))[:, None]
+    pose = np.nonzero(found)[0]
     nth = len(intr0)
     Np = obs.Nposes
     x0 = np.concatenate((intr0, np.zeros(6 * Np)))
