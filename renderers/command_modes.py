@@ -42,6 +42,7 @@ from .protocol import (
     TERRAIN_OUTPUTS,
     check_values,
     is_terrain,
+    load_output,
     read_image,
     read_terrain_output,
     terrain_lighting,
@@ -271,10 +272,7 @@ def read_values(path, n, rows, W, K):
 (rows*W, K*K) are averaged per pixel; pixel averages (rows, W) or (rows*W,) as they are'''
     if not os.path.exists(path):
         raise RendererError(f"the renderer wrote no values at '{path}'")
-    try:
-        v = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as e:
-        raise RendererError(f"cannot read the values '{path}': {e}") from None
+    v = load_output(path, "values")
     if v.dtype.kind != "f":
         raise RendererError(f"'{path}' holds {v.dtype} values; expected float32 in [0,1]")
     v = v.astype(np.float64)

@@ -543,15 +543,21 @@ def write_image(path, image):
     return path
 
 
+def load_output(path, what):
+    r'''np.load of a .npy file the program wrote (an image, values, a terrain output),
+or RendererError naming what could not be read'''
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise RendererError(f"cannot read the {what} '{path}': {e}") from None
+
+
 def read_image(path, width, height):
     r'''Read an external renderer's output: float64 (height, width) in [0,1], or raise'''
     if not os.path.exists(path):
         raise RendererError(f"the renderer wrote no image at '{path}'")
     if path.endswith(".npy"):
-        try:
-            img = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as e:
-            raise RendererError(f"cannot read the image '{path}': {e}") from None
+        img = load_output(path, "image")
         if img.dtype.kind != "f":
             raise RendererError(f"'{path}' holds {img.dtype} values; expected float32 in [0,1]")
         img = img.astype(np.float64)
@@ -588,10 +594,7 @@ the program wrote none (a RendererError if it was required)'''
             raise RendererError(f"the renderer wrote no {name} output at '{path}' (the "
                                 "request requires it)")
         return None
-    try:
-        v = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as e:
-        raise RendererError(f"cannot read the {name} output '{path}': {e}") from None
+    v = load_output(path, f"{name} output")
     if v.size != size:
         raise RendererError(f"'{path}' has {v.size} values; expected {size}")
     v = v.reshape(-1)
