@@ -29,6 +29,8 @@ the target, or whose image cannot fit in this machine's memory
 
 from pathlib import Path
 
+from . import command_renderer
+
 NPOSES = 6
 
 
@@ -42,12 +44,7 @@ def add_arguments(parser):
     parser.add_argument("--poses", metavar="DIR", default=None,
                         help=f"write all {NPOSES} planned poses into DIR (pose0.png, ...)")
     parser.add_argument("--renderer", default="raycast", help="renderer (default raycast)")
-    parser.add_argument("--command", default=None, metavar="'PROGRAM ARGS...'",
-                        help="--renderer command: the external renderer to run (split as a "
-                             "shell would)")
-    parser.add_argument("--setup", action="append", default=[], metavar="KEY=VALUE",
-                        help="--renderer command: a setup value (timeout=60, persistent=true, "
-                             "output_format=npy, mode=rays, env={...}); repeatable")
+    command_renderer.add_arguments(parser)
     parser.add_argument("--spp", type=int, default=16, metavar="K",
                         help="K x K samples per pixel (default 16)")
     parser.add_argument("--no-adaptive", action="store_true",
@@ -147,13 +144,7 @@ def run(args):
         outputs = [out]
     _check_free([p for o in outputs for p in (o, o.with_suffix(".json"))], args.force)
 
-    if args.renderer == "command":
-        from renderers.command import setup_from_cli
-        renderer = get_renderer("command", **setup_from_cli(args.command, args.setup))
-    elif args.command or args.setup:
-        raise CamvalError("--command and --setup are for --renderer command")
-    else:
-        renderer = get_renderer(args.renderer)
+    renderer = get_renderer(args.renderer, **command_renderer.renderer_options(args))
     check_render_memory(renderer, model, settings)
     poses = plan_poses(model, target, n=max(NPOSES, max(indices) + 1), seed=args.seed)
     if args.poses is not None:

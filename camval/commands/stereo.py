@@ -42,6 +42,8 @@ Examples: camval stereo 21 22 --scale 0.25 -o out/   (Mars 2020 navcam pair)
                                                       terrain requests, docs/README-renderers.md)
 '''
 
+from . import command_renderer
+
 # each response stage alone at a realistic setting (renderers/response.py), in the
 # physical order the chain runs them; then two combinations
 VARIANTS = {
@@ -107,12 +109,7 @@ def add_arguments(p):
     p.add_argument("--renderer", default="raycast_terrain",
                    help="terrain renderer, a registry name (camval renderers list; default "
                         "raycast_terrain)")
-    p.add_argument("--command", default=None, metavar="'PROGRAM ARGS'",
-                   help="--renderer command: the external renderer to run (split as a shell "
-                        "would)")
-    p.add_argument("--setup", action="append", default=[], metavar="KEY=VALUE",
-                   help="--renderer command: a setup value (persistent=true, mode=rays, "
-                        "timeout=60, ...; repeatable)")
+    command_renderer.add_arguments(p)
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
 
 
@@ -218,12 +215,7 @@ def run(args):
         if p.exists() and not args.force:
             raise StereoError(f"'{p}' exists; pass --force to overwrite it")
     out.mkdir(parents=True, exist_ok=True)
-    renderer_options = {}
-    if args.renderer == "command":
-        from renderers.command import setup_from_cli
-        renderer_options = setup_from_cli(args.command, args.setup)
-    elif args.command or args.setup:
-        raise StereoError("--command and --setup are for --renderer command")
+    renderer_options = command_renderer.renderer_options(args, StereoError)
     setup = StereoSetup.from_catalogue(args.left, args.right, scale=args.scale,
                                        camera_height_m=args.camera_height,
                                        look_range_m=args.look_range, seed=args.seed)
