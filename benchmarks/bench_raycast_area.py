@@ -141,14 +141,7 @@ def memory_child(cam, repeats, lazy_above_bytes):
 
 def _vm(field):
     r'''A field of /proc/self/status in bytes (0 where there is none)'''
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith(field + ":"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return 0
+    return common.proc_status("self", field)
 
 
 def _reset_peak_rss():
@@ -162,6 +155,29 @@ memory now, or 0 where the reset is not possible'''
     return _vm("VmRSS")
 
 
+def memory(out, cam, repeats=1, lazy_above_bytes=None):
+    r'''Render one camera in area mode in a fresh process (memory_child) -> the record added
+(raycast_area/memory/<camera>/area): cold and warm seconds, peak resident memory'''
+    lazy = [] if lazy_above_bytes is None else ["--lazy-above-bytes", str(lazy_above_bytes)]
+    r = subprocess.run([sys.executable, __file__, "--memory-child", cam,
+                        "--repeats", str(repeats), *lazy], capture_output=True, text=True,
+                       cwd=common.ROOT)
+    name = f"raycast_area/memory/{cam}/area"
+    if lazy_above_bytes is not None:
+        name += f"/lazy_above={lazy_above_bytes}"
+    if r.returncode != 0:
+        return out.add(name, status="failed",
+                       reason=" ".join(r.stderr.strip().splitlines()[-1:]) or "no output")
+    rec = out.add(name, json.loads(r.stdout.strip().splitlines()[-1]),
+                  bar_peak_rss_MB=BARS["peak_rss_5120x3840_MB"])
+    print(f"  camera {rec['camera']} area, ray cache {rec['ray_cache']}, fresh process: "
+          f"cold {rec['cold_s']:.2f} s, warm "
+          f"median {rec['wall_s']['median']:.3f} s, peak RSS {rec['peak_rss_MB']:.0f} MB "
+          f"since {rec['peak_rss_since']} (resident before the camera: "
+          f"{rec['rss_before_MB']:.0f} MB)", flush=True)
+    return rec
+
+
 def run(args, out):
     if args.memory_child:
         memory_child(args.memory_child, args.repeats, args.lazy_above_bytes)
@@ -170,25 +186,7 @@ def run(args, out):
     for cam in args.cameras:
         measure(out, cam, args.settings, args.poses, args.repeats)
     if args.memory_camera:
-        lazy = ([] if args.lazy_above_bytes is None
-                else ["--lazy-above-bytes", str(args.lazy_above_bytes)])
-        r = subprocess.run([sys.executable, __file__, "--memory-child", args.memory_camera,
-                            "--repeats", "1", *lazy], capture_output=True, text=True,
-                           cwd=common.ROOT)
-        name = f"raycast_area/memory/{args.memory_camera}/area"
-        if args.lazy_above_bytes is not None:
-            name += f"/lazy_above={args.lazy_above_bytes}"
-        if r.returncode != 0:
-            out.add(name, status="failed",
-                    reason=" ".join(r.stderr.strip().splitlines()[-1:]) or "no output")
-            return 0
-        rec = out.add(name, json.loads(r.stdout.strip().splitlines()[-1]),
-                      bar_peak_rss_MB=BARS["peak_rss_5120x3840_MB"])
-        print(f"  camera {rec['camera']} area, ray cache {rec['ray_cache']}, fresh process: "
-              f"cold {rec['cold_s']:.2f} s, warm "
-              f"median {rec['wall_s']['median']:.3f} s, peak RSS {rec['peak_rss_MB']:.0f} MB "
-              f"since {rec['peak_rss_since']} (resident before the camera: "
-              f"{rec['rss_before_MB']:.0f} MB)", flush=True)
+        memory(out, args.memory_camera, 1, args.lazy_above_bytes)
     return 0
 
 

@@ -14,7 +14,8 @@ SYNOPSIS
     out.add("raycast/speed/15/CAHVOR", cpu_s=t["cpu_s"], wall_s=t["wall_s"])
     path = out.write()     # benchmarks/results/<UTC stamp>-bench_render.json, never overwritten
 
-The document: {"schema": 1, "kind": "camval-benchmark", "script", "created",
+The document: {"schema": 1, "schema_version": 1, "kind": "camval-benchmark",
+"script", "created",
 "commit": {"commit", "dirty"}, "machine", "environment" (numba threads, load
 average at start and end), "args", "records": {fullname: {...}}}. Every
 measured case is one record keyed by a stable fullname ("part/case/..."), as a
@@ -23,7 +24,8 @@ campaign's records are; a record may say "status": "failed" with a "reason".
 Timings (timed): warm-up calls first (not counted), then `repeats` calls, each
 measured in process CPU seconds (time.process_time: all threads of this
 process) and wall seconds (time.perf_counter); reported as min, median and
-every value. peak_rss_bytes() is the process's peak resident memory so far.
+every value. peak_rss_bytes() is the process's peak resident memory so far;
+ProcessTree samples each descendant process's peak (a campaign's workers).
 
 The harness's stage functions are imported lazily through this module (see
 STAGES): a benchmark never imports them from their harness module itself, so
@@ -48,6 +50,7 @@ if str(ROOT / "tests") not in sys.path:
     sys.path.append(str(ROOT / "tests"))
 
 from harness.records import (  # noqa: E402  (light: no numba, no renderer)
+    BENCHMARK_KIND,
     SCHEMA_VERSION,
     git_commit,
     machine,
@@ -57,7 +60,7 @@ from harness.records import (  # noqa: E402  (light: no numba, no renderer)
 )
 
 RESULTS_DIR = ROOT / "benchmarks" / "results"
-KIND = "camval-benchmark"
+KIND = BENCHMARK_KIND
 CAMPAIGNS = ROOT / "campaigns"
 FAMILIES = ("CAHV", "CAHVOR", "CAHVORE")
 
@@ -182,9 +185,94 @@ def peak_rss_bytes():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-def peak_rss_children_bytes():
-    r'''Peak resident memory of the largest waited-for child process'''
-    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+def proc_status(pid="self", field="VmHWM"):
+    r'''A field of /proc/<pid>/status in bytes (VmHWM: peak resident, VmRSS: resident now);
+0 where there is none (not Linux, or the process is gone)'''
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+def _proc_stat(pid):
+    r'''(parent pid, CPU seconds user + system) of a live process, or None'''
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    tick = os.sysconf("SC_CLK_TCK")
+    return int(fields[1]), (int(fields[11]) + int(fields[12])) / tick
+
+
+class ProcessTree:
+    r'''Peak resident memory and CPU seconds of each descendant process, sampled
+
+SYNOPSIS
+
+    with common.ProcessTree() as tree:       # a thread reads /proc every `interval` s
+        run_campaign(...)                    # local workers: grandchildren (forkserver)
+    tree.processes   # [{"pid", "role", "peak_rss_bytes", "cpu_s"}, ...]
+
+getrusage(RUSAGE_CHILDREN) cannot say this: it holds the largest child already
+waited for, and a forkserver's workers are its children, not this process's.
+The peak (VmHWM) only grows, so the last sample of a process is its peak up to
+`interval` before it ended; the CPU seconds likewise. role: "worker" (a
+child of a child: a forkserver's), "child" (a direct child: the forkserver, the
+resource tracker, a fork-started worker). Empty where /proc is not readable.
+'''
+
+    def __init__(self, interval=0.2):
+        self.interval = interval
+        self._seen = {}
+        self._stop = None
+
+    def _sample(self):
+        me = os.getpid()
+        parents = {}
+        for name in os.listdir("/proc"):
+            if name.isdigit():
+                st = _proc_stat(name)
+                if st is not None:
+                    parents[int(name)] = st
+        for pid, (_, cpu) in parents.items():
+            depth, p = 0, pid
+            while p in parents and p != me and depth < 8:
+                p, depth = parents[p][0], depth + 1
+            if p != me or pid == me:
+                continue
+            hwm = proc_status(pid, "VmHWM")
+            rec = self._seen.setdefault(pid, {"pid": pid, "role": "child" if depth == 1
+                                              else "worker", "peak_rss_bytes": 0,
+                                              "cpu_s": 0.0})
+            rec["peak_rss_bytes"] = max(rec["peak_rss_bytes"], hwm)
+            rec["cpu_s"] = max(rec["cpu_s"], cpu)
+
+    def _run(self):
+        while not self._stop.wait(self.interval):
+            self._sample()
+
+    def __enter__(self):
+        import threading
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        if os.path.isdir("/proc/self"):
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        return False
+
+    @property
+    def processes(self):
+        return sorted(self._seen.values(), key=lambda r: r["pid"])
 
 
 def numba_threads():
@@ -253,7 +341,9 @@ Written through harness.records (atomic, NaN-free) to
         part = getattr(args, "part", None)
         self.name = f"{script}-{part}" if part else script
         self.out_dir = Path(out_dir or getattr(args, "out_dir", None) or RESULTS_DIR)
-        self.doc = {"schema": SCHEMA_VERSION, "kind": KIND, "script": script, "part": part,
+        # schema_version as a run document has it: `camval gate` reads this document too
+        self.doc = {"schema": SCHEMA_VERSION, "schema_version": SCHEMA_VERSION, "kind": KIND,
+                    "script": script, "part": part,
                     "created": utc_now(), "commit": git_commit(ROOT), "machine": machine(),
                     "environment": {"numba_threads": numba_threads(),
                                     "omp_threads": os.environ.get("OMP_NUM_THREADS"),

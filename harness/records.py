@@ -51,6 +51,10 @@ SCHEMA_VERSION = 1
 RUN_DOCUMENT = "run.json"
 RUN_KIND = "camval-run"
 BASELINE_KIND = "camval-baseline"
+# a benchmark's document (benchmarks/common.py): records a gate spec can judge too
+BENCHMARK_KIND = "camval-benchmark"
+# what `camval gate` and `camval baseline save` read
+GATED_KINDS = (RUN_KIND, BASELINE_KIND, BENCHMARK_KIND)
 STATUSES = ("ok", "failed", "not-applicable")
 # Fields that depend on the machine, not on the campaign: left out when two
 # runs are compared for determinism.

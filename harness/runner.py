@@ -75,6 +75,8 @@ A job with twins (group_twins) gives the records of each of its cameras.
     job = members[0]
     entry = None
     seconds = {}
+    cpu = {}    # CPU seconds (all threads of this process) per stage group: seconds["cpu"]
+    c0 = time.process_time()
     features = None
     try:
         job_stage(job, "poses")
@@ -83,10 +85,12 @@ A job with twins (group_twins) gives the records of each of its cameras.
         t0 = time.perf_counter()
         poses = poses_stage(truth, target, job.poses_n, job.poses_seed, job.poses_cover)
         seconds["poses"] = time.perf_counter() - t0
+        cpu["poses"] = time.process_time() - c0
         keep = bool(job.keep_images and job.run_dir)
         job_stage(job, f"render + detect ({len(poses)} images)")
         # each image is detected as soon as it is rendered, then dropped
         out = render_detect_stage(job, truth, target, poses, keep_images=keep)
+        cpu["render_detect"] = time.process_time() - c0 - cpu["poses"]
         rsecs, rversion = out.render_seconds, out.version
         seconds["render"] = float(sum(rsecs))
         # the median: the first image of a camera also builds the renderer's caches
@@ -145,6 +149,11 @@ A job with twins (group_twins) gives the records of each of its cameras.
         ctx_t = dict(ctx, obs=observations_from(truth_t, target, poses, dets), truth=truth_t,
                      entry=entry_t, seconds=seconds_t)
         records += calibrator_records(twin, ctx_t, fits, {"with": job.camera_key})
+    # the fits and verdicts of every camera of the job, on the records of the first one
+    cpu["calibrate_compare"] = time.process_time() - c0 - cpu["poses"] - cpu["render_detect"]
+    for r in records:
+        if r["fullname"].startswith(job.key + "/") and isinstance(r.get("seconds"), dict):
+            r["seconds"] = dict(r["seconds"], cpu=dict(cpu))
     job_stage(job, None)
     return {"job": job.key, "records": records}
 
@@ -237,6 +246,8 @@ def stage_seconds(records):
 Stages: poses, render, detect (once per job), compare and calibrate:NAME (per
 record). Seconds are those each worker measured, so with several workers they
 sum to more than the wall time. Twins (group_twins) add only their own work.
+cpu:poses, cpu:render_detect, cpu:calibrate_compare: the CPU seconds of the jobs
+(all threads of a worker; a job's twins are in its calibrate_compare).
 '''
     jobs = {}
     out = {"poses": 0.0, "render": 0.0, "detect": 0.0, "compare": 0.0}
@@ -252,6 +263,8 @@ sum to more than the wall time. Twins (group_twins) add only their own work.
         s = r.get("seconds") or {}
         for k in ("poses", "render", "detect"):
             out[k] += s.get(k, 0.0) or 0.0
+        for k, v in (s.get("cpu") or {}).items():
+            out[f"cpu:{k}"] = out.get(f"cpu:{k}", 0.0) + v
         if s.get("render"):
             images += int(((r.get("info") or {}).get("render") or {}).get("images", 0))
     for cal, t in sorted(per_cal.items()):

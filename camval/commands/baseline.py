@@ -24,10 +24,10 @@ def run(args):
     from pathlib import Path
 
     from harness.gate import make_baseline
-    from harness.records import RunError, dumps, load_run
+    from harness.records import GATED_KINDS, RunError, dumps, load_run
 
     out = Path(args.output)
-    doc = make_baseline(load_run(args.run))
+    doc = make_baseline(load_run(args.run, kinds=GATED_KINDS))
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.exists():
         raise RunError(f"baseline '{out}' already exists; baselines are never overwritten "

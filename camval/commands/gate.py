@@ -21,7 +21,8 @@ record's fullname. Every failure is collected and printed as one table
 
 
 def add_arguments(parser):
-    parser.add_argument("run", metavar="RUN_DIR", help="a run directory (or its run.json)")
+    parser.add_argument("run", metavar="RUN_DIR", help="a run directory (or its run.json, or "
+                        "a benchmark's JSON document: benchmarks/speed.py)")
     parser.add_argument("--spec", default=None,
                         help="the gate spec (TOML; default campaigns/gate-renderer.toml)")
     parser.add_argument("--explain", action="store_true",
@@ -33,15 +34,15 @@ def add_arguments(parser):
 
 def run(args):
     from harness.gate import DEFAULT_SPEC, check, explain, format_failures, load_gate_spec
-    from harness.records import load_run
+    from harness.records import GATED_KINDS, load_run
 
     if args.spec is None:
         args.spec = str(DEFAULT_SPEC)
     spec = load_gate_spec(args.spec)
-    doc = load_run(args.run)
+    doc = load_run(args.run, kinds=GATED_KINDS)
     if args.explain:
         print("\n".join(explain(doc, spec)))
-    baseline = load_run(args.baseline) if args.baseline else None
+    baseline = load_run(args.baseline, kinds=GATED_KINDS) if args.baseline else None
     failures = check(doc, spec, baseline)
     n = len(doc["records"])
     if failures:
