@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[1]
 BENCH = REPO / "benchmarks"
 SCRIPTS = ("accuracy", "bench_render", "bench_stages", "bench_campaign", "legacy_signature",
            "bench_raycast_area", "bench_corners", "bench_models", "bench_command_protocol",
-           "renderer_gate")
+           "renderer_gate", "speed")
 ENV = dict(os.environ, NUMBA_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
 
 TINY_CAMPAIGN = '''
@@ -175,9 +175,56 @@ def test_bench_campaign_tiny(tmp_path):
     rec = doc["records"]["campaign/tiny/repeat-1"]
     assert rec["status"] == "ok", rec
     assert rec["records"] == 1 and rec["images"] == 6 and rec["statuses"] == {"ok": 1}
-    assert {"poses", "render", "detect", "compare", "calibrate:jpl"} == set(rec["stage_seconds"])
+    assert {"poses", "render", "detect", "compare", "calibrate:jpl", "cpu:poses",
+            "cpu:render_detect", "cpu:calibrate_compare"} == set(rec["stage_seconds"])
     assert rec["peak_rss_bytes"] > 0
     assert len(doc["records"]["campaign/tiny/repeated"]["wall_s"]["values"]) == 1
+
+
+def test_speed_tiny_and_its_gate(tmp_path):
+    # one run: a render camera and a campaign with 2 local workers (forkserver: the workers
+    # are grandchildren, seen only through /proc); then camval gate judges the document
+    campaign = tmp_path / "tiny.toml"
+    campaign.write_text(TINY_CAMPAIGN)
+    out = tmp_path / "results"
+    run("speed", "--cameras", "17", "--render-repeats", "1", "--campaign", campaign,
+        "-j", "2", "--no-first", "--out-dir", out)
+    [path] = documents(out)
+    doc = check_document(path, "speed")
+    render = doc["records"]["raycast_area/memory/17/area"]
+    assert render["status"] == "ok", render
+    # a 640x480 render holds at least its float32 image; the process at least its imports
+    assert render["peak_rss_MB"] > 640 * 480 * 4 / 1e6
+    assert 0 < render["seconds"]["render_per_image"] <= render["wall_s"]["values"][-1] * 2
+    rec = doc["records"]["campaign/tiny/repeat-1"]
+    assert rec["status"] == "ok", rec
+    workers = [p for p in rec["processes"] if p["role"] == "worker"]
+    # the one job ran in a worker: it rendered 6 images, which takes CPU and memory there
+    assert workers and max(p["cpu_s"] for p in workers) > 0.1
+    assert max(p["peak_rss_bytes"] for p in workers) > 50 * 2**20
+    assert rec["seconds"]["campaign_cpu"] >= max(p["cpu_s"] for p in workers)
+    summary = doc["records"]["speed/summary"]
+    assert summary["peak_rss_worker_bytes"] == max(p["peak_rss_bytes"] for p in workers)
+    assert set(summary["load_average"]) == {"start", "after_render", "after_campaign"}
+
+    # the speed gate reads the document; against itself it passes, against a baseline
+    # three times faster it fails (the margins are below 200%)
+    gate = [sys.executable, "-m", "camval.cli", "gate", str(path), "--spec",
+            str(REPO / "campaigns" / "gate-speed.toml")]
+    r = subprocess.run([*gate, "--baseline", str(path)], capture_output=True, text=True,
+                       cwd=REPO, env=ENV)
+    assert r.returncode == 0, r.stdout + r.stderr
+    fast = json.loads(path.read_text())
+    for rec in fast["records"].values():
+        for k, v in (rec.get("seconds") or {}).items():
+            rec["seconds"][k] = v / 3
+    base = tmp_path / "fast.json"
+    base.write_text(json.dumps(fast))
+    r = subprocess.run([*gate, "--baseline", str(base)], capture_output=True, text=True,
+                       cwd=REPO, env=ENV)
+    assert r.returncode == 1, r.stdout + r.stderr
+    for field in ("seconds.render_per_image", "seconds.campaign", "seconds.campaign_cpu"):
+        assert re.search(rf"\s{re.escape(field)}\s", r.stdout), r.stdout
 
 
 @pytest.mark.slow
@@ -199,7 +246,8 @@ def test_speed_campaign_and_gate_parse():
     assert [r.name for r in campaign.renderers] == ["raycast"]
     spec = load_gate_spec(REPO / "campaigns" / "gate-speed.toml")
     assert [(g.field, g.relative) for g in spec.regressions] == [
-        ("seconds.render_per_image", True)]
+        ("seconds.render_per_image", True), ("seconds.campaign_cpu", True),
+        ("seconds.campaign", True)]
 
 
 def test_every_harness_name_resolves(common):
