@@ -72,11 +72,15 @@ def child(campaign_path, run_dir, workers):
 
 def one_run(path, workers, run_dir, env=None):
     cmd = [sys.executable, __file__, "--child", str(path), str(run_dir), "-j", str(workers)]
+    load = list(os.getloadavg())
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=common.ROOT,
                        env=dict(os.environ, **(env or {})))
+    # the load average (1, 5, 15 min) when the run started and when it ended
+    loads = {"load_average_start": load, "load_average": list(os.getloadavg())}
     if r.returncode != 0:
-        return {"status": "failed", "reason": " ".join(r.stderr.strip().splitlines()[-3:])}
-    return json.loads(r.stdout.strip().splitlines()[-1])
+        return {"status": "failed", "reason": " ".join(r.stderr.strip().splitlines()[-3:]),
+                **loads}
+    return dict(json.loads(r.stdout.strip().splitlines()[-1]), **loads)
 
 
 def _campaign_path(name):
@@ -108,7 +112,7 @@ with the kernels compiled -> the records added (campaign/<name>/first, .../repea
     walls, added = [], []
     for kind, r in runs:
         rec = out.add(f"campaign/{label}/{kind}", r, campaign=str(path),
-                      target_s=TARGETS.get(label), load_average=list(os.getloadavg()))
+                      target_s=TARGETS.get(label))
         added.append(rec)
         if rec["status"] != "ok":
             print(f"{label} {kind}: {rec['status']}: {rec['reason']}")
@@ -134,7 +138,8 @@ with the kernels compiled -> the records added (campaign/<name>/first, .../repea
               f"{warm.get('seconds', 0):.1f} s (cached: {warm.get('cached')}); peak RSS "
               f"{rec['peak_rss_bytes'] / 2**20:.0f} MiB (campaign process), workers "
               + (", ".join(f"{m:.0f}" for m in workers_rss) or "none seen") + " MiB"
-              f"; load average {rec['load_average'][0]:.1f}", flush=True)
+              f"; load average {rec['load_average_start'][0]:.1f} at the start, "
+              f"{rec['load_average'][0]:.1f} at the end", flush=True)
         for p in rec.get("processes") or []:
             print(f"  process {p['pid']:>7} {p['role']:<6} peak RSS "
                   f"{p['peak_rss_bytes'] / 2**20:6.0f} MiB, CPU {p['cpu_s']:6.1f} s")
