@@ -79,6 +79,22 @@ Measured (2026-11-25, 2 shared cores, load 18-27; 14-27 s a run on 13, 15, 17,
   except where the fault itself raises the measured detection noise (detected
   minus exact, 0.04-0.7 px) above the floor: half_pixel, r1_scale, r2_scale,
   round_centre, all flagged.
+  The table above was rendered with point-sampled K=16. With area coverage (the ray
+  caster's default since) the detection noise is lower (navcam 15's minimum
+  detectable R1 scale 0.021 -> 0.010) and more poses lower it as 1/sqrt(poses)
+  (2026-11-25, load 9-15, jpl column; 21 flags all three at 6 poses):
+      --cameras 13,15,17 --faults r1_scale,r2_scale,o_tilt            (6 poses)
+      --cameras 13,15,17 --faults r1_scale,r2_scale,o_tilt --poses 24
+                 6 poses: 13    15    17      24 poses: 13    15    17
+    r1_scale              <lim  FLAG  <lim              <lim  FLAG  FLAG
+    r2_scale              <lim  FLAG  <lim              <lim  FLAG  <lim
+    o_tilt                <lim  <lim  <lim              <lim  <lim  <lim
+  So with 24 poses R1 x 0.99 is flagged on 3 of the 4 cameras (15, 17, 21), R2 x 0.99
+  on 2 (15, 21; 17's R2 moves 0.0016 px against a 0.0034 px limit), O 0.01 deg on 1
+  (21). On pancam 13 (16 deg field) R1 x 0.99 moves projections 0.00034 px RMS
+  against a 24-pose limit of 0.00056 px: about 3x the poses again, or a fault 1.7x
+  larger. mrcal at 24 poses: R2 on 15 is "marginal" (0.0034 px against its 0.0034
+  px limit; it measured 0.0027 px, z 4.8).
 
 In-process faults and clean runs, measured (2026-11-25, 2 shared cores, K=16, 6 poses):
 - clean, --clean all --seeds 0-9 -j 2 (33 cameras x CAHV/CAHVOR/CAHVORE, 297 records a
