@@ -43,6 +43,7 @@ from collections import deque
 
 import numpy as np
 
+from . import _dot_kernels as _kernels
 from .boards import apply_grid_transform, grid_transforms
 from .detection import as_float_image, failed, result
 
@@ -60,6 +61,7 @@ REDUCTION = 4
 MIN_REDUCED_AREA_PX = 4        # smaller reduced blobs are not located this way
 MIN_REDUCED_BLOBS = 4          # fewer: the full image is labelled instead
 MIN_RING_FOR_PLANE = 12
+_NO_FREE = np.zeros((1, 1), bool)     # dot_centroid's free mask when no other blob is near
 ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, True)
                   for fb in (False, True)]
 
@@ -449,6 +451,16 @@ sat 1.41x above its inward neighbours' median and read as marks). Neighbours tha
 themselves far above the plane (other marks) are left out and the plane refitted.
 With fewer than 3 neighbours off one line the median of the 8 adjacent ones decides.
 '''
+    if not nodes:
+        return np.zeros(len(area), bool)
+    return _kernels.mark_flags(np.array(list(nodes.keys()), np.int64),
+                               np.array(list(nodes.values()), np.int64),
+                               np.asarray(area, np.float64), float(ratio_threshold),
+                               MARK_NEIGHBOURHOOD)
+
+
+def _mark_flags_numpy(nodes, area, ratio_threshold):
+    r'''mark_flags() the numpy way: the reference of targets._dot_kernels.mark_flags'''
     is_mark = np.zeros(len(area), bool)
     log_thr = np.log(ratio_threshold)
     la = np.log(np.maximum(area, 1e-300))
@@ -778,12 +790,17 @@ ARGUMENTS
         xa, ya = max(0, x0[label] - pad), max(0, y0[label] - pad)
         xb, yb = min(W, x0[label] + w[label] + pad), min(H, y0[label] + h[label] + pad)
         # float64 from the source pixels, whatever precision the labelling used; a copy
-        crop = (img[ya:yb, xa:xb] if img.dtype == np.float64
-                else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
-        if crop.base is not None:
-            crop = crop.copy()
+        crop = np.ascontiguousarray(img[ya:yb, xa:xb] if img.dtype == np.float64
+                                    else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
         mask, free = _dot_masks(labels, stats, label, xa, ya, xb, yb)
-        c = _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya)
-        if c is not None:
-            q[gy * nx + gx] = c
+        status, cx, cy = _kernels.dot_centroid(crop, mask, _NO_FREE if free is None else free,
+                                              free is not None, win_kernel, ring_kernel,
+                                              int(xa), int(ya), MIN_RING_FOR_PLANE)
+        if status < 0:      # a degenerate plane fit: numpy's solve or its lstsq fallback
+            if crop.base is not None or not crop.flags.writeable:
+                crop = crop.copy()
+            c = _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya)
+            status, (cx, cy) = (0, (0, 0)) if c is None else (1, c)
+        if status:
+            q[gy * nx + gx] = cx, cy
     return result(target, q, DETECTOR, min_found=min_found, info=info)

@@ -1,0 +1,343 @@
+r'''Compiled per-dot centroid of targets.detect_dots (numba): window, ring, board plane, weights
+
+SYNOPSIS
+
+    from targets._dot_kernels import dot_centroid
+
+    status, cx, cy = dot_centroid(crop, mask, free, has_free, win_kernel, ring_kernel, xa, ya)
+    # status 1: centroid (cx, cy); 0: no weight (no centroid); -1: a degenerate plane fit
+    # (a zero pivot) or an element dilations() does not take: the caller computes this dot
+    # the numpy way (detect_dots._dot_centroid)
+
+One call per dot instead of about forty numpy and OpenCV calls (their overhead was most
+of the detector's time: ~250 us a dot). The arithmetic is detect_dots._dot_centroid's
+(the numpy reference, kept as the fallback and the tests' oracle), pixel by pixel:
+
+- window = the mask dilated by win_kernel, ring = dilated by ring_kernel, minus the
+  window, minus pixels of other blobs (free; has_free False: none come near). The
+  dilations (dilations()) are those of cv2.dilate for a symmetric element whose rows are
+  intervals (cv2's MORPH_ELLIPSE; another element returns -1), crop borders clipped as
+  cv2's constant border does.
+- board level: the plane a + b x + c y fitted by normal equations to the ring's pixels
+  (raster order, centred coordinates), refitted without pixels beyond 5 x 1.4826 x the
+  median residual; the ring's median if it has fewer than min_ring pixels, the window's
+  maximum if it has none. The 3x3 systems are solved by Gaussian elimination with
+  partial pivoting (LAPACK's gesv for one right-hand side); a zero pivot returns -1.
+- weights max(1 - I/B, 0) over the window, a non-finite weight counted 0; the centroid
+  is (sum w x, sum w y) / sum w.
+
+Sums run in raster order (numpy sums pairwise), the weighted coordinates in the crop's
+frame (numpy's in the image's: its rounding grows with the coordinates, ~1e-9 px on
+5120x3840): the centroids agree with the numpy path to rounding, well below the 1e-5 px
+that matters (tests/test_detect_dots_exact.py).
+'''
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, error_model="numpy")
+def _element_rows(kernel):
+    r"""The columns of each row of a structuring element, relative to its centre: (lo, hi),
+lo > hi for an empty row; ok False unless every row's elements are one interval"""
+    n, m = kernel.shape
+    r = m // 2
+    lo = np.full(n, 1, np.int64)
+    hi = np.full(n, 0, np.int64)
+    for i in range(n):
+        first, last, count = -1, -1, 0
+        for j in range(m):
+            if kernel[i, j]:
+                if first < 0:
+                    first = j
+                last = j
+                count += 1
+        if count:
+            if count != last - first + 1:
+                return lo, hi, False
+            lo[i], hi[i] = first - r, last - r
+    return lo, hi, True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _add_run(d, y, s, e, lo, hi):
+    h, w = d.shape[0], d.shape[1] - 1
+    r = len(lo) // 2
+    for i in range(len(lo)):
+        Y = y + i - r
+        if lo[i] > hi[i] or Y < 0 or Y >= h:
+            continue
+        a, b = max(s + lo[i], 0), min(e + hi[i], w)
+        if a < b:
+            d[Y, a] += 1
+            d[Y, b] -= 1
+
+
+@njit(cache=True, error_model="numpy")
+def dilations(mask, win_kernel, ring_kernel):
+    r"""(window, outer, ok): mask (uint8, 0/1) dilated by two symmetric structuring elements
+(bool), as cv2.dilate gives them; ok False (nothing computed) unless each row of the
+elements is one interval of columns
+
+Run by run: a run of mask pixels [s, e) of row y covers, in row y + dy, the columns
+[s + lo, e + hi) of the element's row dy (lo..hi); the runs' intervals are summed into
+difference arrays, one pass over the crop for the runs and one for the prefix sums."""
+    h, w = mask.shape
+    window = np.zeros((h, w), np.bool_)
+    outer = np.zeros((h, w), np.bool_)
+    lo_w, hi_w, ok_w = _element_rows(win_kernel)
+    lo_r, hi_r, ok_r = _element_rows(ring_kernel)
+    if not (ok_w and ok_r):
+        return window, outer, False
+    dw = np.zeros((h, w + 1), np.int32)
+    dr = np.zeros((h, w + 1), np.int32)
+    for y in range(h):
+        x = 0
+        while x < w:
+            if not mask[y, x]:
+                x += 1
+                continue
+            s = x
+            while x < w and mask[y, x]:
+                x += 1
+            _add_run(dw, y, s, x, lo_w, hi_w)
+            _add_run(dr, y, s, x, lo_r, hi_r)
+    for y in range(h):
+        cw = cr = 0
+        for x in range(w):
+            cw += dw[y, x]
+            cr += dr[y, x]
+            window[y, x] = cw > 0
+            outer[y, x] = cr > 0
+    return window, outer, True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _solve3(N, b):
+    r'''N^-1 b by Gaussian elimination with partial pivoting (N and b overwritten);
+ok False at a zero pivot'''
+    for k in range(3):
+        p = k
+        for i in range(k + 1, 3):
+            if abs(N[i, k]) > abs(N[p, k]):
+                p = i
+        if N[p, k] == 0.0:
+            return False
+        if p != k:
+            for j in range(3):
+                N[k, j], N[p, j] = N[p, j], N[k, j]
+            b[k], b[p] = b[p], b[k]
+        for i in range(k + 1, 3):
+            f = N[i, k] / N[k, k]
+            for j in range(k + 1, 3):
+                N[i, j] -= f * N[k, j]
+            b[i] -= f * b[k]
+    for k in range(2, -1, -1):
+        s = b[k]
+        for j in range(k + 1, 3):
+            s -= N[k, j] * b[j]
+        b[k] = s / N[k, k]
+    return True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _fit_plane(v, dx, dy, use, coef):
+    r'''Least squares coef (a, b, c) of v = a + b dx + c dy over the points where use is
+True, by the normal equations; False at a zero pivot'''
+    N = np.zeros((3, 3))
+    b = np.zeros(3)
+    for k in range(len(v)):
+        if not use[k]:
+            continue
+        x, y = dx[k], dy[k]
+        N[0, 0] += 1.0
+        N[0, 1] += x
+        N[0, 2] += y
+        N[1, 1] += x * x
+        N[1, 2] += x * y
+        N[2, 2] += y * y
+        b[0] += v[k]
+        b[1] += x * v[k]
+        b[2] += y * v[k]
+    N[1, 0], N[2, 0], N[2, 1] = N[0, 1], N[0, 2], N[1, 2]
+    if not _solve3(N, b):
+        return False
+    coef[:] = b
+    return True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _median(v):
+    r = np.sort(v)
+    k = len(r) // 2
+    if len(r) % 2:
+        return r[k]
+    return (r[k - 1] + r[k]) / 2
+
+
+@njit(cache=True, error_model="numpy")
+def dot_centroid(crop, mask, free, has_free, win_kernel, ring_kernel, xa, ya, min_ring):
+    h, w = crop.shape
+    window, outer, ok = dilations(mask, win_kernel, ring_kernel)
+    if not ok:
+        return -1, 0.0, 0.0
+    n = 0
+    for y in range(h):
+        for x in range(w):
+            ring = outer[y, x] and not window[y, x] and (free[y, x] or not has_free)
+            outer[y, x] = ring
+            n += ring
+    v = np.empty(n)
+    rx = np.empty(n, np.int64)
+    ry = np.empty(n, np.int64)
+    k = 0
+    sx, sy = 0, 0
+    for y in range(h):
+        for x in range(w):
+            if outer[y, x]:
+                v[k] = crop[y, x]
+                rx[k] = x + xa
+                ry[k] = y + ya
+                sx += x + xa
+                sy += y + ya
+                k += 1
+    plane = n >= min_ring
+    level = 0.0
+    coef = np.zeros(3)
+    xm = ym = 0.0
+    if plane:
+        xm, ym = sx / n, sy / n
+        dx = np.empty(n)
+        dy = np.empty(n)
+        for k in range(n):
+            dx[k] = rx[k] - xm
+            dy[k] = ry[k] - ym
+        use = np.ones(n, np.bool_)
+        if not _fit_plane(v, dx, dy, use, coef):
+            return -1, 0.0, 0.0
+        r = np.empty(n)
+        for k in range(n):
+            r[k] = abs(v[k] - (coef[0] + dx[k] * coef[1] + dy[k] * coef[2]))
+        limit = 5 * 1.4826 * (_median(r) + 1e-12) + 1e-9
+        for k in range(n):
+            use[k] = r[k] < limit
+        if not _fit_plane(v, dx, dy, use, coef):
+            return -1, 0.0, 0.0
+    elif n:
+        level = _median(v)
+    else:
+        level = -np.inf
+        for y in range(h):
+            for x in range(w):
+                if window[y, x] and crop[y, x] > level:
+                    level = crop[y, x]
+    s = sxw = syw = 0.0
+    for y in range(h):
+        Y = float(y + ya)
+        for x in range(w):
+            if not window[y, x]:
+                continue
+            X = float(x + xa)
+            b = coef[0] + coef[1] * (X - xm) + coef[2] * (Y - ym) if plane else level
+            wgt = 1.0 - crop[y, x] / b
+            if not np.isfinite(wgt) or wgt <= 0.0:
+                continue
+            s += wgt
+            sxw += wgt * x      # crop coordinates: sums of smaller terms, less rounding
+            syw += wgt * y
+    if not s > 0:
+        return 0, 0.0, 0.0
+    return 1, xa + sxw / s, ya + syw / s
+
+
+@njit(cache=True, error_model="numpy")
+def mark_flags(ab, node, area, ratio_threshold, R):
+    r'''detect_dots.mark_flags on arrays: ab (n,2) lattice coordinates of the nodes, node
+(n,) their blob indices into area; R the neighbourhood (lattice steps each way)
+
+The same fits in the same order: per node, its neighbours' log areas (da outer, db
+inner) and a plane by normal equations, up to three rounds leaving out neighbours far
+above it; the 8 adjacent neighbours' median when the plane is singular (its normal
+matrix has small integer entries: its determinant is exact here, numpy's by LU).'''
+    n = len(node)
+    is_mark = np.zeros(len(area), np.bool_)
+    log_thr = np.log(ratio_threshold)
+    la = np.log(np.maximum(area, 1e-300))
+    a0, b0 = ab[:, 0].min(), ab[:, 1].min()
+    na, nb = ab[:, 0].max() - a0 + 1, ab[:, 1].max() - b0 + 1
+    grid = np.full((na + 2 * R, nb + 2 * R), -1, np.int64)
+    for i in range(n):
+        grid[ab[i, 0] - a0 + R, ab[i, 1] - b0 + R] = node[i]
+    m = (2 * R + 1) ** 2 - 1
+    offa = np.empty(m)
+    offb = np.empty(m)
+    y = np.empty(m)
+    keep = np.empty(m, np.bool_)
+    neigh = np.empty(8)
+    N = np.empty((3, 3))
+    c = np.empty(3)
+    for i in range(n):
+        j = node[i]
+        ga, gb = ab[i, 0] - a0 + R, ab[i, 1] - b0 + R
+        cnt = 0
+        for da in range(-R, R + 1):
+            for db in range(-R, R + 1):
+                k = grid[ga + da, gb + db]
+                if (da or db) and k >= 0:
+                    offa[cnt] = da
+                    offb[cnt] = db
+                    y[cnt] = la[k]
+                    keep[cnt] = True
+                    cnt += 1
+        if cnt == 0:
+            continue
+        have = False
+        pred = 0.0
+        for _ in range(3):
+            nk = 0
+            N[:] = 0.0
+            c[:] = 0.0
+            for k in range(cnt):
+                if keep[k]:
+                    nk += 1
+                    x1, x2 = offa[k], offb[k]
+                    N[0, 0] += 1.0
+                    N[0, 1] += x1
+                    N[0, 2] += x2
+                    N[1, 1] += x1 * x1
+                    N[1, 2] += x1 * x2
+                    N[2, 2] += x2 * x2
+                    c[0] += y[k]
+                    c[1] += x1 * y[k]
+                    c[2] += x2 * y[k]
+            N[1, 0], N[2, 0], N[2, 1] = N[0, 1], N[0, 2], N[1, 2]
+            det = (N[0, 0] * (N[1, 1] * N[2, 2] - N[1, 2] * N[2, 1])
+                   - N[0, 1] * (N[1, 0] * N[2, 2] - N[1, 2] * N[2, 0])
+                   + N[0, 2] * (N[1, 0] * N[2, 1] - N[1, 1] * N[2, 0]))
+            if nk < 3 or abs(det) < 0.5 or not _solve3(N, c):
+                have = False
+                break
+            have = True
+            pred = c[0]
+            any_high = False
+            for k in range(cnt):
+                high = (y[k] - (c[0] + offa[k] * c[1] + offb[k] * c[2])) > 0.5 * log_thr
+                if high and keep[k]:
+                    any_high = True
+                if high:
+                    keep[k] = False
+            if not any_high:
+                break
+        if not have:
+            nn = 0
+            for da in range(-1, 2):
+                for db in range(-1, 2):
+                    k = grid[ga + da, gb + db]
+                    if (da or db) and k >= 0:
+                        neigh[nn] = area[k]
+                        nn += 1
+            if nn:
+                is_mark[j] = area[j] / _median(neigh[:nn]) > ratio_threshold
+            continue
+        is_mark[j] = la[j] - pred > log_thr
+    return is_mark
