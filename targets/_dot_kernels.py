@@ -341,3 +341,25 @@ matrix has small integer entries: its determinant is exact here, numpy's by LU).
             continue
         is_mark[j] = la[j] - pred > log_thr
     return is_mark
+
+
+@njit(cache=True, error_model="numpy")
+def histogram_counts(v, edges, lo, scale):
+    r'''The counts of detect_dots._histogram (np.histogram's) in one pass over v: each
+value's bin estimated as min((v - lo) scale, bins - 1) in v's precision (lo and scale
+of the edges' type), then moved one bin down or up against its edges, so that it counts
+in the bin [edges[i], edges[i+1]) that holds it, the last bin closed'''
+    bins = len(edges) - 1
+    n = np.zeros(bins, np.intp)
+    for k in range(len(v)):
+        b = v[k]
+        f = (b - lo) * scale
+        if f > bins - 1:
+            f = bins - 1
+        i = int(f)
+        if b < edges[i]:
+            i -= 1
+        elif i < bins - 1 and b >= edges[i + 1]:
+            i += 1
+        n[i] += 1
+    return n

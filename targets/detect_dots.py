@@ -52,7 +52,6 @@ NEIGHBOUR_TOLERANCE = 0.3      # of the local spacing
 AREA_RATIO_MAX = 4.0           # between neighbouring blobs
 NSEEDS = 6
 OTSU_PIXELS = 1_000_000        # the threshold is computed on about this many pixels
-HISTOGRAM_BLOCK = 65536        # values at a time: its arrays stay in the cache
 SCAN_ROWS = 64                 # image rows at a time in _scan: 1.3 MB of 5120x3840 float32
 # above this many pixels the blobs are located in an image reduced REDUCTION times, and
 # labelled at full resolution in their boxes only (5120x3840: 0.1 s instead of 1 s)
@@ -83,7 +82,7 @@ def _otsu(img):
 
 def _histogram(v, bins, lo, hi):
     r'''np.histogram(v, bins, range=(lo, hi)) of a 1-D float v within [lo, hi]: the same
-counts and edges, in a few passes over v instead of np.histogram's twenty
+counts and edges, in one pass over v instead of np.histogram's twenty
 
 SYNOPSIS
 
@@ -94,27 +93,13 @@ precision) and then corrects it by one bin either way against its edges (in v's
 precision), so that a value counts in the bin [edges[i], edges[i+1]) that holds it, the
 last bin closed. Here the estimate is made in v's precision: it is a small fraction of a
 bin off at most (the edges are far wider apart than v's resolution; otherwise
-np.histogram itself is called), and the same correction makes it that bin. Blocks of
-HISTOGRAM_BLOCK values go through buffers that stay in the cache.'''
+np.histogram itself is called), and the same correction makes it that bin: one pass of
+targets._dot_kernels.histogram_counts.'''
     edges = np.linspace(lo, hi, bins + 1, dtype=np.result_type(lo, hi, v))
-    if v.dtype.kind != "f" or not hi - lo > 1e-3 * max(abs(lo), abs(hi)):
+    if v.dtype not in (np.float32, np.float64) or not hi - lo > 1e-3 * max(abs(lo), abs(hi)):
         return np.histogram(v, bins=bins, range=(lo, hi))
-    upper = np.append(edges[1:-1], edges.dtype.type(np.inf))    # the last bin is closed
     lo, scale = edges.dtype.type(lo), edges.dtype.type(bins / (hi - lo))
-    n = np.zeros(bins, np.intp)
-    f = np.empty(min(len(v), HISTOGRAM_BLOCK), v.dtype)
-    i = np.empty(len(f), np.intp)
-    step = np.empty(len(f), bool)
-    for k in range(0, len(v), len(f)):
-        b = v[k:k + len(f)]
-        f, i, step = f[:len(b)], i[:len(b)], step[:len(b)]
-        np.subtract(b, lo, out=f)
-        f *= scale
-        np.minimum(f, bins - 1, out=f)
-        i[:] = f        # (truncation, as astype)
-        i -= np.less(b, np.take(edges, i, out=f, mode="clip"), out=step)
-        i += np.greater_equal(b, np.take(upper, i, out=f, mode="clip"), out=step)
-        n += np.bincount(i, minlength=bins)
+    n = _kernels.histogram_counts(np.ascontiguousarray(v), edges, lo, scale)
     return n, edges
 
 
