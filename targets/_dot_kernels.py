@@ -2,12 +2,14 @@ r'''Compiled per-dot centroid of targets.detect_dots (numba): window, ring, boar
 
 SYNOPSIS
 
-    from targets._dot_kernels import dot_centroid
+    from targets import _dot_kernels as K
 
-    status, cx, cy = dot_centroid(crop, mask, free, has_free, win_kernel, ring_kernel, xa, ya)
+    rows = K.element_rows(win_kernel) + K.element_rows(ring_kernel)   # (lo, hi) twice
+    status, cx, cy = K.dot_centroid(crop, mask, free, has_free, *rows, xa, ya, min_ring)
     # status 1: centroid (cx, cy); 0: no weight (no centroid); -1: a degenerate plane fit
-    # (a zero pivot) or an element dilations() does not take: the caller computes this dot
-    # the numpy way (detect_dots._dot_centroid)
+    # (a zero pivot): the caller computes this dot the numpy way (detect_dots._dot_centroid)
+    is_mark = K.mark_flags(ab, node, area, ratio_threshold, R)     # detect_dots.mark_flags
+    counts = K.histogram_counts(v, edges, lo, scale)               # detect_dots._histogram
 
 One call per dot instead of about forty numpy and OpenCV calls (their overhead was most
 of the detector's time: ~250 us a dot). The arithmetic is detect_dots._dot_centroid's
@@ -16,8 +18,8 @@ of the detector's time: ~250 us a dot). The arithmetic is detect_dots._dot_centr
 - window = the mask dilated by win_kernel, ring = dilated by ring_kernel, minus the
   window, minus pixels of other blobs (free; has_free False: none come near). The
   dilations (dilations()) are those of cv2.dilate for a symmetric element whose rows are
-  intervals (cv2's MORPH_ELLIPSE; another element returns -1), crop borders clipped as
-  cv2's constant border does.
+  intervals (cv2's MORPH_ELLIPSE; element_rows() returns None for another element, and
+  the detector then takes the numpy path), crop borders clipped as cv2's border does.
 - board level: the plane a + b x + c y fitted by normal equations to the ring's pixels
   (raster order, centred coordinates), refitted without pixels beyond 5 x 1.4826 x the
   median residual; the ring's median if it has fewer than min_ring pixels, the window's
@@ -29,68 +31,47 @@ of the detector's time: ~250 us a dot). The arithmetic is detect_dots._dot_centr
 Sums run in raster order (numpy sums pairwise), the weighted coordinates in the crop's
 frame (numpy's in the image's: its rounding grows with the coordinates, ~1e-9 px on
 5120x3840): the centroids agree with the numpy path to rounding, well below the 1e-5 px
-that matters (tests/test_detect_dots_exact.py).
+that matters (tests/test_detect_dots_kernels.py).
+
+Compilation: few small functions without np.sort or array expressions, as their
+compile time (paid once per source change, cache=True) grows with the code numba
+generates; a process loads the cached kernels in ~0.4 s CPU.
 '''
+
+import math
 
 import numpy as np
 from numba import njit
 
 
-@njit(cache=True, error_model="numpy")
-def _element_rows(kernel):
-    r"""The columns of each row of a structuring element, relative to its centre: (lo, hi),
-lo > hi for an empty row; ok False unless every row's elements are one interval"""
-    n, m = kernel.shape
-    r = m // 2
-    lo = np.full(n, 1, np.int64)
-    hi = np.full(n, 0, np.int64)
-    for i in range(n):
-        first, last, count = -1, -1, 0
-        for j in range(m):
-            if kernel[i, j]:
-                if first < 0:
-                    first = j
-                last = j
-                count += 1
-        if count:
-            if count != last - first + 1:
-                return lo, hi, False
-            lo[i], hi[i] = first - r, last - r
-    return lo, hi, True
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _add_run(d, y, s, e, lo, hi):
-    h, w = d.shape[0], d.shape[1] - 1
-    r = len(lo) // 2
-    for i in range(len(lo)):
-        Y = y + i - r
-        if lo[i] > hi[i] or Y < 0 or Y >= h:
-            continue
-        a, b = max(s + lo[i], 0), min(e + hi[i], w)
-        if a < b:
-            d[Y, a] += 1
-            d[Y, b] -= 1
+def element_rows(kernel):
+    r"""(lo, hi): the columns lo..hi of each row of a structuring element (uint8, odd
+square) relative to its centre, lo > hi for an empty row, as dilations() takes them;
+None unless every row's elements are one interval (cv2's MORPH_ELLIPSE elements are)"""
+    k = np.asarray(kernel) != 0
+    r = k.shape[1] // 2
+    lo = np.ones(len(k), np.int64)
+    hi = np.zeros(len(k), np.int64)
+    for i, row in enumerate(k):
+        cols = np.flatnonzero(row)
+        if len(cols):
+            if cols[-1] - cols[0] + 1 != len(cols):
+                return None
+            lo[i], hi[i] = cols[0] - r, cols[-1] - r
+    return lo, hi
 
 
 @njit(cache=True, error_model="numpy")
-def dilations(mask, win_kernel, ring_kernel):
-    r"""(window, outer, ok): mask (uint8, 0/1) dilated by two symmetric structuring elements
-(bool), as cv2.dilate gives them; ok False (nothing computed) unless each row of the
-elements is one interval of columns
+def dilations(mask, lo_w, hi_w, lo_r, hi_r):
+    r"""(window, outer): mask (uint8, 0/1) dilated by two symmetric structuring elements
+given by their rows (element_rows()), as cv2.dilate gives them (bool)
 
 Run by run: a run of mask pixels [s, e) of row y covers, in row y + dy, the columns
 [s + lo, e + hi) of the element's row dy (lo..hi); the runs' intervals are summed into
-difference arrays, one pass over the crop for the runs and one for the prefix sums."""
+difference arrays, one pass over the crop for the runs and one for the prefix sums.
+Crop borders clip the intervals, as cv2's constant border adds nothing."""
     h, w = mask.shape
-    window = np.zeros((h, w), np.bool_)
-    outer = np.zeros((h, w), np.bool_)
-    lo_w, hi_w, ok_w = _element_rows(win_kernel)
-    lo_r, hi_r, ok_r = _element_rows(ring_kernel)
-    if not (ok_w and ok_r):
-        return window, outer, False
-    dw = np.zeros((h, w + 1), np.int32)
-    dr = np.zeros((h, w + 1), np.int32)
+    d = np.zeros((2, h, w + 1), np.int32)
     for y in range(h):
         x = 0
         while x < w:
@@ -100,19 +81,30 @@ difference arrays, one pass over the crop for the runs and one for the prefix su
             s = x
             while x < w and mask[y, x]:
                 x += 1
-            _add_run(dw, y, s, x, lo_w, hi_w)
-            _add_run(dr, y, s, x, lo_r, hi_r)
+            for which in range(2):
+                lo, hi = (lo_w, hi_w) if which == 0 else (lo_r, hi_r)
+                r = len(lo) // 2
+                for i in range(len(lo)):
+                    Y = y + i - r
+                    if lo[i] > hi[i] or Y < 0 or Y >= h:
+                        continue
+                    a, b = max(s + lo[i], 0), min(x + hi[i], w)
+                    if a < b:
+                        d[which, Y, a] += 1
+                        d[which, Y, b] -= 1
+    window = np.zeros((h, w), np.bool_)
+    outer = np.zeros((h, w), np.bool_)
     for y in range(h):
         cw = cr = 0
         for x in range(w):
-            cw += dw[y, x]
-            cr += dr[y, x]
+            cw += d[0, y, x]
+            cr += d[1, y, x]
             window[y, x] = cw > 0
             outer[y, x] = cr > 0
-    return window, outer, True
+    return window, outer
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _solve3(N, b):
     r'''N^-1 b by Gaussian elimination with partial pivoting (N and b overwritten);
 ok False at a zero pivot'''
@@ -140,47 +132,45 @@ ok False at a zero pivot'''
     return True
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _fit_plane(v, dx, dy, use, coef):
-    r'''Least squares coef (a, b, c) of v = a + b dx + c dy over the points where use is
-True, by the normal equations; False at a zero pivot'''
-    N = np.zeros((3, 3))
-    b = np.zeros(3)
-    for k in range(len(v)):
-        if not use[k]:
-            continue
-        x, y = dx[k], dy[k]
-        N[0, 0] += 1.0
-        N[0, 1] += x
-        N[0, 2] += y
-        N[1, 1] += x * x
-        N[1, 2] += x * y
-        N[2, 2] += y * y
-        b[0] += v[k]
-        b[1] += x * v[k]
-        b[2] += y * v[k]
-    N[1, 0], N[2, 0], N[2, 1] = N[0, 1], N[0, 2], N[1, 2]
-    if not _solve3(N, b):
-        return False
-    coef[:] = b
-    return True
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _median(v):
-    r = np.sort(v)
-    k = len(r) // 2
-    if len(r) % 2:
-        return r[k]
-    return (r[k - 1] + r[k]) / 2
+@njit(cache=True, error_model="numpy")
+def _median(v, n):
+    r"""The median of v[:n] (n > 0) as np.median takes it: the middle order statistic, or
+the mean of the two middle ones; v[:n] is reordered (a quickselect: compiles in a
+fraction of np.sort's time)"""
+    k = n // 2
+    lo, hi = 0, n - 1
+    while lo < hi:
+        pivot = v[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while v[i] < pivot:
+                i += 1
+            while v[j] > pivot:
+                j -= 1
+            if i <= j:
+                v[i], v[j] = v[j], v[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    m = v[k]
+    if n % 2:
+        return m
+    below = v[0]    # v[:k] holds the k smallest: the largest of them is the (k-1)th
+    for i in range(1, k):
+        if v[i] > below:
+            below = v[i]
+    return (below + m) / 2
 
 
 @njit(cache=True, error_model="numpy")
-def dot_centroid(crop, mask, free, has_free, win_kernel, ring_kernel, xa, ya, min_ring):
+def dot_centroid(crop, mask, free, has_free, lo_w, hi_w, lo_r, hi_r, xa, ya, min_ring):
     h, w = crop.shape
-    window, outer, ok = dilations(mask, win_kernel, ring_kernel)
-    if not ok:
-        return -1, 0.0, 0.0
+    window, outer = dilations(mask, lo_w, hi_w, lo_r, hi_r)
     n = 0
     for y in range(h):
         for x in range(w):
@@ -213,18 +203,37 @@ def dot_centroid(crop, mask, free, has_free, win_kernel, ring_kernel, xa, ya, mi
             dx[k] = rx[k] - xm
             dy[k] = ry[k] - ym
         use = np.ones(n, np.bool_)
-        if not _fit_plane(v, dx, dy, use, coef):
-            return -1, 0.0, 0.0
-        r = np.empty(n)
-        for k in range(n):
-            r[k] = abs(v[k] - (coef[0] + dx[k] * coef[1] + dy[k] * coef[2]))
-        limit = 5 * 1.4826 * (_median(r) + 1e-12) + 1e-9
-        for k in range(n):
-            use[k] = r[k] < limit
-        if not _fit_plane(v, dx, dy, use, coef):
-            return -1, 0.0, 0.0
+        N = np.empty((3, 3))
+        for fit in range(2):
+            # least squares v = a + b dx + c dy over the used pixels: normal equations
+            N[:, :] = 0.0
+            coef[:] = 0.0
+            for k in range(n):
+                if not use[k]:
+                    continue
+                x, y = dx[k], dy[k]
+                N[0, 0] += 1.0
+                N[0, 1] += x
+                N[0, 2] += y
+                N[1, 1] += x * x
+                N[1, 2] += x * y
+                N[2, 2] += y * y
+                coef[0] += v[k]
+                coef[1] += x * v[k]
+                coef[2] += y * v[k]
+            N[1, 0], N[2, 0], N[2, 1] = N[0, 1], N[0, 2], N[1, 2]
+            if not _solve3(N, coef):
+                return -1, 0.0, 0.0
+            if fit == 0:
+                # again without the pixels beyond 5 sigma (MAD) of the first fit
+                r = np.empty(n)
+                for k in range(n):
+                    r[k] = abs(v[k] - (coef[0] + dx[k] * coef[1] + dy[k] * coef[2]))
+                limit = 5 * 1.4826 * (_median(r, n) + 1e-12) + 1e-9
+                for k in range(n):
+                    use[k] = abs(v[k] - (coef[0] + dx[k] * coef[1] + dy[k] * coef[2])) < limit
     elif n:
-        level = _median(v)
+        level = _median(v.copy(), n)
     else:
         level = -np.inf
         for y in range(h):
@@ -240,7 +249,7 @@ def dot_centroid(crop, mask, free, has_free, win_kernel, ring_kernel, xa, ya, mi
             X = float(x + xa)
             b = coef[0] + coef[1] * (X - xm) + coef[2] * (Y - ym) if plane else level
             wgt = 1.0 - crop[y, x] / b
-            if not np.isfinite(wgt) or wgt <= 0.0:
+            if not math.isfinite(wgt) or wgt <= 0.0:
                 continue
             s += wgt
             sxw += wgt * x      # crop coordinates: sums of smaller terms, less rounding
@@ -261,11 +270,16 @@ above it; the 8 adjacent neighbours' median when the plane is singular (its norm
 matrix has small integer entries: its determinant is exact here, numpy's by LU).'''
     n = len(node)
     is_mark = np.zeros(len(area), np.bool_)
-    log_thr = np.log(ratio_threshold)
-    la = np.log(np.maximum(area, 1e-300))
-    a0, b0 = ab[:, 0].min(), ab[:, 1].min()
-    na, nb = ab[:, 0].max() - a0 + 1, ab[:, 1].max() - b0 + 1
-    grid = np.full((na + 2 * R, nb + 2 * R), -1, np.int64)
+    log_thr = math.log(ratio_threshold)
+    la = np.empty(len(area))
+    for k in range(len(area)):
+        la[k] = math.log(max(area[k], 1e-300))
+    a0, b0, a1, b1 = ab[0, 0], ab[0, 1], ab[0, 0], ab[0, 1]
+    for i in range(n):
+        a0, a1 = min(a0, ab[i, 0]), max(a1, ab[i, 0])
+        b0, b1 = min(b0, ab[i, 1]), max(b1, ab[i, 1])
+    na, nb = a1 - a0 + 1, b1 - b0 + 1
+    grid = np.zeros((na + 2 * R, nb + 2 * R), np.int64) - 1
     for i in range(n):
         grid[ab[i, 0] - a0 + R, ab[i, 1] - b0 + R] = node[i]
     m = (2 * R + 1) ** 2 - 1
@@ -295,8 +309,10 @@ matrix has small integer entries: its determinant is exact here, numpy's by LU).
         pred = 0.0
         for _ in range(3):
             nk = 0
-            N[:] = 0.0
-            c[:] = 0.0
+            for u in range(3):
+                c[u] = 0.0
+                for t in range(3):
+                    N[u, t] = 0.0
             for k in range(cnt):
                 if keep[k]:
                     nk += 1
@@ -337,7 +353,7 @@ matrix has small integer entries: its determinant is exact here, numpy's by LU).
                         neigh[nn] = area[k]
                         nn += 1
             if nn:
-                is_mark[j] = area[j] / _median(neigh[:nn]) > ratio_threshold
+                is_mark[j] = area[j] / _median(neigh, nn) > ratio_threshold
             continue
         is_mark[j] = la[j] - pred > log_thr
     return is_mark

@@ -769,19 +769,23 @@ ARGUMENTS
     q = np.full((nx * ny, 2), np.nan)
     win_kernel = _disk(window_dilation_px)
     ring_kernel = _disk(window_dilation_px + ring_px)
+    rows = _kernels.element_rows(win_kernel), _kernels.element_rows(ring_kernel)
+    rows = None if None in rows else rows[0] + rows[1]
     pad = window_dilation_px + ring_px + 1
     for i_blob, gx, gy in zip(best.values(), ix, iy, strict=True):
         label = blobs[i_blob]
         xa, ya = max(0, x0[label] - pad), max(0, y0[label] - pad)
         xb, yb = min(W, x0[label] + w[label] + pad), min(H, y0[label] + h[label] + pad)
-        # float64 from the source pixels, whatever precision the labelling used; a copy
+        # float64 from the source pixels, whatever precision the labelling used
         crop = np.ascontiguousarray(img[ya:yb, xa:xb] if img.dtype == np.float64
                                     else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
         mask, free = _dot_masks(labels, stats, label, xa, ya, xb, yb)
-        status, cx, cy = _kernels.dot_centroid(crop, mask, _NO_FREE if free is None else free,
-                                              free is not None, win_kernel, ring_kernel,
-                                              int(xa), int(ya), MIN_RING_FOR_PLANE)
-        if status < 0:      # a degenerate plane fit: numpy's solve or its lstsq fallback
+        status = -1
+        if rows is not None:
+            status, cx, cy = _kernels.dot_centroid(
+                crop, mask, _NO_FREE if free is None else free, free is not None, *rows,
+                int(xa), int(ya), MIN_RING_FOR_PLANE)
+        if status < 0:      # a degenerate plane fit (numpy's solve or lstsq), or no kernel
             if crop.base is not None or not crop.flags.writeable:
                 crop = crop.copy()
             c = _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya)

@@ -32,28 +32,26 @@ def test_dilations_are_cv2s(seed):
     mask[rng.uniform(size=(h, w)) < 0.03] = 1
     for r1, r2 in ((2, 5), (1, 4), (0, 3), (3, 9)):
         k1, k2 = dd._disk(r1), dd._disk(r2)
-        window, outer, ok = K.dilations(mask, k1, k2)
-        assert ok
+        window, outer = K.dilations(mask, *K.element_rows(k1), *K.element_rows(k2))
         assert np.array_equal(window, cv2.dilate(mask, k1).view(bool))
         assert np.array_equal(outer, cv2.dilate(mask, k2).view(bool))
 
 
 def test_an_element_with_a_gap_in_a_row_is_refused():
     # dilations() takes an element row by row as intervals: a ring-shaped one is refused
-    # (dot_centroid then returns -1 and the detector takes the numpy path)
+    # (the detector then takes the numpy path)
     ring = np.ones((5, 5), np.uint8)
     ring[2, 2] = 0
-    mask = np.zeros((9, 9), np.uint8)
-    mask[4, 4] = 1
-    assert not K.dilations(mask, dd._disk(2), ring)[2]
-    crop = np.full((9, 9), 0.8)
-    assert K.dot_centroid(crop, mask, NO_FREE, False, dd._disk(2), ring, 0, 0, 12)[0] == -1
+    assert K.element_rows(ring) is None
+    lo, hi = K.element_rows(dd._disk(2))
+    assert lo.tolist() == [0, -2, -2, -2, 0] and hi.tolist() == [0, 2, 2, 2, 0]
 
 
 def _kernel_centroid(crop, mask, free, xa, ya):
+    rows = K.element_rows(dd._disk(2)) + K.element_rows(dd._disk(5))
     status, cx, cy = K.dot_centroid(np.ascontiguousarray(crop), mask,
                                     NO_FREE if free is None else free, free is not None,
-                                    dd._disk(2), dd._disk(5), xa, ya, dd.MIN_RING_FOR_PLANE)
+                                    *rows, xa, ya, dd.MIN_RING_FOR_PLANE)
     assert status in (0, 1)
     return (cx, cy) if status else None
 
@@ -135,3 +133,11 @@ neighbourhoods with too few or collinear neighbours take the median), marks, noi
     area = np.array(area)
     ref = dd._mark_flags_numpy(nodes, area, 1.4)
     assert np.array_equal(dd.mark_flags(nodes, area, 1.4), ref)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 8, 9, 31, 100, 901])
+def test_median_is_np_median(n):
+    # the quickselect median, on ties and on continuous values
+    rng = np.random.default_rng(n)
+    for v in (rng.normal(size=n), rng.integers(0, 4, n).astype(float), np.ones(n)):
+        assert K._median(v.copy(), n) == np.median(v)
