@@ -33,6 +33,11 @@ Steps:
    dot area each pixel covers (a 50 % vignette biased the plain weights by
    0.03 px RMS on 320x240 test renders).
 
+Step 3's mark test and 4 (and the Otsu histogram) run as compiled kernels
+(targets._dot_kernels, numba: one call a dot instead of ~40 numpy/OpenCV calls);
+mark_flags' and _dot_centroid's numpy code here is their reference (the tests
+compare) and _dot_centroid the fallback for a degenerate plane fit.
+
 For a uniformly dark dot on a uniform board imaged as an area average, this
 centroid is the area centroid of the dot's projected outline:
 targets.centroids.expected_centroids() gives it exactly.
@@ -621,6 +626,9 @@ copied into the crop, and the label image made only when another blob's box reac
 def _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya):
     r'''The darkness-weighted centroid (x, y) of a blob in a crop (float64, a copy: it is
 overwritten) whose pixel crop[0,0] is (xa, ya); None if it has no weight
+
+The numpy reference of targets._dot_kernels.dot_centroid, which the detector calls; used
+where that kernel declines (a zero pivot in its plane fit: numpy's solve and lstsq).
 
 mask, free: the blob's pixels (uint8) and the pixels of no blob (bool; None: all but the
 blob's), over the crop (_dot_masks). Window, ring, board level and weights as the module
