@@ -379,3 +379,13 @@ in the bin [edges[i], edges[i+1]) that holds it, the last bin closed'''
             i += 1
         n[i] += 1
     return n
+
+
+@njit(cache=True, error_model="numpy")
+def label_counts(labels, n):
+    r'''np.bincount(labels.ravel(), minlength=n) of a (H,W) label image (int32, values in
+0..n-1) in one pass, without bincount's int64 copy of the labels'''
+    counts = np.zeros(n, np.int64)
+    for v in labels.ravel():
+        counts[v] += 1
+    return counts
