@@ -169,12 +169,15 @@ fraction of np.sort's time)"""
 
 @njit(cache=True, error_model="numpy")
 def dot_centroid(crop, mask, free, has_free, lo_w, hi_w, lo_r, hi_r, xa, ya, min_ring):
+    r"""(status, x, y): the centroid of the blob mask (uint8) in crop (float64, not
+written), crop[0, 0] being pixel (xa, ya); free (bool, read only if has_free) the
+pixels of no blob; the elements' rows from element_rows(); see the module docstring"""
     h, w = crop.shape
     window, outer = dilations(mask, lo_w, hi_w, lo_r, hi_r)
     n = 0
     for y in range(h):
         for x in range(w):
-            ring = outer[y, x] and not window[y, x] and (free[y, x] or not has_free)
+            ring = outer[y, x] and not window[y, x] and (not has_free or free[y, x])
             outer[y, x] = ring
             n += ring
     v = np.empty(n)
