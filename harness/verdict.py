@@ -577,14 +577,19 @@ class Linearisation:
 x0:        (n,) the fit's parameters at the solution
 project:   x -> (2N,) the projections of the fit's observed points (pose-major)
 model:     x -> the fitted model (a JPL model, OpenCVModel, MrcalModel)
+project_model: model -> project(x), where that depends on the model only (or None)
 pose:      (N,) the image of each observed point
 n_model:   the model depends on x[:n_model] only (the rest: board poses)
 '''
 
-    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None):
+    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None,
+                 project_model=None):
         self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
         self.n_model = len(x0) if n_model is None else n_model
         self._jacobian = jacobian
+        # project(x) = project_model(model(x)) where the fit's points depend on the model
+        # only (jpl: known poses): model_jacobians() then differences them on its models
+        self.project_model = project_model
 
     def jacobian(self):
         r'''(2N, n) d project / d x at x0 (central differences)'''
@@ -592,11 +597,25 @@ n_model:   the model depends on x[:n_model] only (the rest: board poses)
             return self._jacobian()
         return _central_jacobian(self.project, self.x0, self.steps)
 
-    def model_part(self, f):
-        r'''(g, x0, steps) of f(model(x)) as a function of x[:n_model] only'''
-        rest = self.x0[self.n_model:]
-        return (lambda y: f(self.model(np.concatenate((y, rest)))),
-                self.x0[:self.n_model], self.steps[:self.n_model])
+    def model_jacobians(self, fs):
+        r'''[d f(model(x)) / d x[:n_model] for f in fs]: each (len(f), n_model)
+
+Central differences, as _central_jacobian takes them (the same numbers), with each
+stepped model built once for every f: building a model and its frame costs as much
+as a function of it.'''
+        n, rest = self.n_model, self.x0[self.n_model:]
+        x0, h = self.x0[:n], self.steps[:n]
+        cols = [[] for _ in fs]
+        for i in range(n):
+            xp, xm = x0.copy(), x0.copy()
+            xp[i] += h[i]
+            xm[i] -= h[i]
+            mp = self.model(np.concatenate((xp, rest)))
+            mm = self.model(np.concatenate((xm, rest)))
+            for c, f in zip(cols, fs, strict=True):
+                c.append((np.asarray(f(mp), dtype=np.float64).ravel()
+                          - np.asarray(f(mm), dtype=np.float64).ravel()) / (xp[i] - xm[i]))
+        return [np.stack(c, axis=-1) for c in cols]
 
 
 def _central_jacobian(f, x0, h):
@@ -623,7 +642,8 @@ def jpl_linearisation(res, obs):
     pose = np.nonzero(found)[0]
     x0 = chart.x0()
     h = 1e-6 * np.maximum(np.abs(x0), 1.0)
-    return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h)
+    return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h,
+                         project_model=lambda m: project(m, p))
 
 
 def _rodrigues(r):
@@ -840,24 +860,11 @@ projection difference (the rotation's own freedom projected out).
     theta = res.theta_estimated
     world = _world(res)
     n = len(lin.x0)
-    J = lin.jacobian()                                              # (2N, n)
     sig_pose = noise_per_pose(res, exact_res, obs.Nposes, n)
     # per coordinate: sigma_image^2 / 2 (sigma is the RMS of the 2-d error)
     var_row = np.repeat(sig_pose[lin.pose] ** 2 / 2.0, 2)
     if not np.all(np.isfinite(var_row)):
         return None
-    # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
-    # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
-    # not determine at all; then the block of the parameters the model depends on (the
-    # board poses marginalised)
-    s_col = np.linalg.norm(J, axis=0)
-    s_col[s_col == 0] = 1.0
-    Js = J / s_col
-    w, V = np.linalg.eigh(Js.T @ Js)
-    keep = w > w[-1] * 1e-15
-    Ninv = (V[:, keep] / w[keep]) @ V[:, keep].T
-    cov = Ninv @ (Js.T @ (Js * var_row[:, None])) @ Ninv / np.outer(s_col, s_col)
-    cov = cov[:lin.n_model, :lin.n_model]
     m0 = lin.model(lin.x0)
     # The differences are taken against the exact fit, as the renderer comparison takes
     # them: a fractional one (Hs, R1_frac, ...) is (image - exact) / |exact|, so its sigma
@@ -873,7 +880,28 @@ projection difference (the rotation's own freedom projected out).
     def qvec(m):
         q = _signed_quantities(ref, m, theta, world)
         return np.array([q.get(k, 0.0) for k in names])
-    G = _central_jacobian(*lin.model_part(qvec))                    # (m, n_model)
+    P = projection_points(truth)
+    # the model's Jacobians in one pass over its stepped models: the reported quantities
+    # (G), the projection of the image grid (Jg) and, where the observed points depend on
+    # the model only (jpl), the fit's own Jacobian J
+    fs = [qvec, _grid_projector(P)]
+    if lin.project_model is not None and lin.n_model == n and lin._jacobian is None:
+        fs.append(lin.project_model)
+    with np.errstate(all="ignore"):
+        G, Jg, *J = lin.model_jacobians(fs)          # (m, n_model), (2M, n_model), (2N, n)
+    J = J[0] if J else lin.jacobian()
+    # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
+    # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
+    # not determine at all; then the block of the parameters the model depends on (the
+    # board poses marginalised)
+    s_col = np.linalg.norm(J, axis=0)
+    s_col[s_col == 0] = 1.0
+    Js = J / s_col
+    w, V = np.linalg.eigh(Js.T @ Js)
+    keep = w > w[-1] * 1e-15
+    Ninv = (V[:, keep] / w[keep]) @ V[:, keep].T
+    cov = Ninv @ (Js.T @ (Js * var_row[:, None])) @ Ninv / np.outer(s_col, s_col)
+    cov = cov[:lin.n_model, :lin.n_model]
     # a variance below zero is rounding in a direction the fit barely determines
     var = np.maximum(np.einsum("ij,jk,ik->i", G, cov, G), 0.0)
     sigma = {}
@@ -886,26 +914,38 @@ projection difference (the rotation's own freedom projected out).
     for k in VECTOR_PARAMS:
         if k in sigma:
             sigma[k] = math.sqrt(sigma[k])
-    sigma["projection_rms"] = _projection_sigma(lin, cov, truth)
+    sigma["projection_rms"] = _projection_sigma(m0, P, Jg, cov)
     return {"sigma": sigma, "noise_per_pose": [None if not np.isfinite(s) else float(s)
                                                for s in sig_pose],
             "n_params": n, "n_points": int(len(lin.pose))}
 
 
-def _projection_sigma(lin, cov, truth):
+def projection_points(truth):
+    r'''(M,3) the points of the projection sigma: PROJECTION_SAMPLES of the truth's image
+grid (harness.compare.truth_points), in its camera frame'''
     _, _, p_cam = truth_points(truth)
     P = p_cam.reshape(-1, 3)
     if len(P) > PROJECTION_SAMPLES:
         P = P[np.linspace(0, len(P) - 1, PROJECTION_SAMPLES).astype(int)]
-    m0 = lin.model(lin.x0)
+    return P
+
+
+def _grid_projector(P):
+    r'''m -> (M,2) m's projection of the points P of its own camera frame'''
+    from reference_models.kernels import project
 
     def grid(m):
-        return m.project(_transform(m.Rt_ref_cam(), P))
+        p = _transform(m.Rt_ref_cam(), P)
+        return project(m, p) if _is_jpl(m) else m.project(p)
+    return grid
 
+
+def _projection_sigma(m0, P, Jg, cov):
+    r'''Expected RMS px over the points P of the rotation-mode projection difference, from
+Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covariance'''
     def rotated(w):
         return m0.project(_transform(m0.Rt_ref_cam(), P @ _rodrigues(w).T))
     with np.errstate(all="ignore"):
-        Jg = _central_jacobian(*lin.model_part(grid))               # (2M, n_model)
         Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
     ok = np.all(np.isfinite(Jg), axis=1) & np.all(np.isfinite(Jw), axis=1)
     Jg, Jw = Jg[ok], Jw[ok]
