@@ -51,14 +51,14 @@ def main(argv=None):
         cases = [c for c in pickle.load(f) if args.match in c[0]]
     out = common.Results("bench_verdict", args)
     figures, cpu = {}, {}
-    for name, a, kw in cases:         # warm every import and cache once
+    for _name, a, kw in cases:        # warm every import and cache once
         vd.assess(*a, **kw)
     if args.profile:
         import cProfile
         import pstats
         pr = cProfile.Profile()
         pr.enable()
-        for name, a, kw in cases:
+        for _name, a, kw in cases:
             vd.assess(*a, **kw)
         pr.disable()
         pstats.Stats(pr).sort_stats("cumulative").print_stats(args.profile)
