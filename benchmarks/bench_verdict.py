@@ -28,8 +28,15 @@ import common
 
 
 def _figures(v):
-    r'''{"sigma.<q>": x, "z.<q>": x} of one verdict'''
+    r'''{"sigma.<q>": x, "z.<q>": x, "<part>.<mode>.rms": px} of one verdict'''
     out = {}
+    for part in ("renderer", "floor"):
+        proj = (v.get(part) or {}).get("projection") or {}
+        for mode in ("rotation", "intrinsics", "world"):
+            for k in ("rms", "max"):
+                x = (proj.get(mode) or {}).get(k)
+                if x is not None:
+                    out[f"{part}.{mode}_{k}"] = float(x)
     r = v.get("renderer") or {}
     for part in ("sigma", "z"):
         for k, x in (r.get(part) or {}).items():

@@ -81,6 +81,7 @@ from .compare import (
     _fit_rotation,
     _frac,
     _intrinsics,
+    _projector,
     parameter_errors,
     truth_points,
 )
@@ -228,7 +229,7 @@ D1, ... the differences of the distortion coefficients.
 
 
 def fit_projection_difference(ref, fit, truth, mode="rotation", range_m=DEFAULT_RANGE_M,
-                              step=DEFAULT_GRID_STEP):
+                              step=DEFAULT_GRID_STEP, _ref_q=None):
     r'''|fit - ref| in projection over the truth's image grid, for two fits of any model
 
 SYNOPSIS
@@ -241,7 +242,11 @@ the image grid, in its camera frame (harness.compare.truth_points). ref
 projects them from its own camera frame; fit from its own, rotated by the
 rotation that best matches ref's pixels (mode "rotation"), not rotated
 ("intrinsics"), or both fits project the world points ("world": both must
-live in the truth's world frame).
+live in the truth's world frame). The grid is projected as
+harness.compare.projection_difference projects it (compiled for JPL-family
+fits: _projector); the rotation is fitted as it fits it (_fit_rotation).
+_ref_q: a dict fit_comparison() shares between its modes (ref's pixels of the
+camera-frame points, the same for rotation and intrinsics).
 '''
     if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
             getattr(ref, "family", None) in ("CAHVOR", "CAHVORE"):
@@ -249,15 +254,19 @@ live in the truth's world frame).
     _, p_ref, p_cam = truth_points(truth, range_m, step)
     with np.errstate(all="ignore"):
         if mode == "world":
-            qa = ref.project(p_ref)
-            qb = fit.project(p_ref)
+            qa = _projector(ref)(p_ref)
+            qb = _projector(fit)(p_ref)
             R = None
         else:
-            qa = ref.project(_transform(ref.Rt_ref_cam(), p_cam))
+            qa = None if _ref_q is None else _ref_q.get("cam")
+            if qa is None:
+                qa = _projector(ref)(_transform(ref.Rt_ref_cam(), p_cam))
+                if _ref_q is not None:
+                    _ref_q["cam"] = qa
             R = np.eye(3)
             if mode == "rotation":
                 R = _fit_rotation(fit, p_cam.reshape(-1, 3), qa.reshape(-1, 2))
-            qb = fit.project(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
+            qb = _projector(fit)(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
         d = np.linalg.norm(qb - qa, axis=-1)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "map": d,
@@ -279,8 +288,9 @@ def fit_comparison(ref, fit, truth, theta_estimated, world_frame):
     params = fit_parameter_differences(ref, fit, theta_estimated=theta_estimated,
                                        world_frame=world_frame)
     proj = {}
+    ref_q = {}      # ref's side of the rotation and intrinsics modes: the same pixels
     for mode in ("rotation", "intrinsics") + (("world",) if world_frame else ()):
-        d = fit_projection_difference(ref, fit, truth, mode=mode)
+        d = fit_projection_difference(ref, fit, truth, mode=mode, _ref_q=ref_q)
         proj[mode] = {k: v for k, v in d.items() if k != "map"}
     proj["rms"] = proj["rotation"]["rms"]
     proj["max"] = proj["rotation"]["max"]
