@@ -12,8 +12,10 @@ Replays harness.verdict.assess() on the inputs verdict_capture.py kept (the same
 image fit, exact fit, noise and observations each time), timing each record (CPU
 seconds, best of --repeats) and collecting every sigma and z-score of its
 renderer comparison and the expected projection sigma. --save writes those
-figures; --compare prints, for every quantity, the largest relative change
-against a saved file, |after - before| / |before| over all records (and the
+figures; --steps F scales the linearisation's finite-difference steps (compared
+with a run at 1, the sigmas' own numerical noise); --compare prints, for every
+quantity, the largest relative change against a saved file, |after - before| /
+|before| over all records, with the absolute change beside it (and the
 records where a sigma appeared or vanished). --profile N prints cProfile's N
 most expensive functions over one pass. Results (per-calibrator CPU seconds
 and the largest changes) go to a JSON document via benchmarks/common.py.
@@ -52,8 +54,20 @@ def main(argv=None):
     ap.add_argument("--compare", help="a --save file to compare with")
     ap.add_argument("--profile", type=int, default=0, help="print the N top functions")
     ap.add_argument("--match", default="", help="only records whose fullname contains this")
+    ap.add_argument("--steps", type=float, default=1.0,
+                    help="scale the finite-difference steps of the linearisation by this "
+                         "(with --compare against a run at 1: the sigmas' numerical noise)")
     args = ap.parse_args(argv)
     from harness import verdict as vd
+    if args.steps != 1.0:
+        linearisation = vd.linearisation
+
+        def scaled(res, obs):
+            lin = linearisation(res, obs)
+            if lin is not None:
+                lin.steps = lin.steps * args.steps
+            return lin
+        vd.linearisation = scaled
     with open(args.inputs, "rb") as f:
         cases = [c for c in pickle.load(f) if args.match in c[0]]
     out = common.Results("bench_verdict", args)
@@ -104,7 +118,7 @@ def main(argv=None):
                     worst[q] = (rel, name, b[k], fig[k])
         print("largest relative change per quantity (before -> after):")
         for q, (rel, name, b, a) in sorted(worst.items(), key=lambda t: -t[1][0]):
-            print(f"  {q:24s} {rel:9.2e}  {name}: {b:.6g} -> {a:.6g}")
+            print(f"  {q:24s} {rel:9.2e} (abs {abs(a - b):8.1e})  {name}: {b:.6g} -> {a:.6g}")
             out.add(f"change/{q}", rel=rel, worst=name, before=b, after=a)
         for name, keys in changed[:10]:
             print(f"  {name}: present in one only: {keys[:6]}")
