@@ -942,19 +942,18 @@ grid (harness.compare.truth_points), in its camera frame'''
 
 def _grid_projector(P):
     r'''m -> (M,2) m's projection of the points P of its own camera frame'''
-    from reference_models.kernels import project
-
     def grid(m):
-        p = _transform(m.Rt_ref_cam(), P)
-        return project(m, p) if _is_jpl(m) else m.project(p)
+        return _projector(m)(_transform(m.Rt_ref_cam(), P))
     return grid
 
 
 def _projection_sigma(m0, P, Jg, cov):
     r'''Expected RMS px over the points P of the rotation-mode projection difference, from
 Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covariance'''
+    project, Rt_ref_cam = _projector(m0), m0.Rt_ref_cam()
+
     def rotated(w):
-        return m0.project(_transform(m0.Rt_ref_cam(), P @ _rodrigues(w).T))
+        return project(_transform(Rt_ref_cam, P @ _rodrigues(w).T))
     with np.errstate(all="ignore"):
         Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
     ok = np.all(np.isfinite(Jg), axis=1) & np.all(np.isfinite(Jw), axis=1)
