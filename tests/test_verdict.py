@@ -250,6 +250,9 @@ def test_renderer_gate_passes_the_exact_renderer_and_flags_a_half_pixel_shift(tm
     jpl = next(r for k, r in recs.items() if "/jpl[" in k)
     assert jpl["verdict"]["floor"]["projection"]["rms"] < 1e-5     # jpl is exact on exact data
     assert jpl["seconds"]["exact_fit"] > 0
+    # the exact observations are computed once per job, by its first calibrator (jpl), and
+    # their cost is counted there (job_records: exact_observations), not left out
+    assert jpl["seconds"]["exact_observations"] > 0
     # the exact fits start from each job's image fit (harness.job_records): not shared
     assert run["minimum_detectable_faults"]["cameras"]["15"]["Hc shift"]["value"] < 0.01
     opencv = next(r for k, r in recs.items() if "/opencv[" in k)
