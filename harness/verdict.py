@@ -751,8 +751,17 @@ def linearisation(res, obs):
     return None
 
 
-def _signed_quantities(ref, m, theta, world):
-    r'''The reported parameter differences m - ref as signed numbers (vectors by component)'''
+def _ref_O_in_cam(ref, R0):
+    r'''ref's O in its camera frame, ref moved to R0 (the frame O_deg compares in)'''
+    from .compare import _in_cam
+    rt = with_R0(ref, R0) if ref.family != "CAHV" else ref
+    return _in_cam(rt, rt.O)
+
+
+def _signed_quantities(ref, m, theta, world, ref_O=_ref_O_in_cam):
+    r'''The reported parameter differences m - ref as signed numbers (vectors by component)
+
+ref_O(ref, R0): _ref_O_in_cam, or a memo of it (scatter() asks for one ref, mostly at one R0)'''
     d = fit_parameter_differences(ref, m, theta_estimated=theta, world_frame=world)
     out = {k: v for k, v in d.items() if v is not None and k not in VECTOR_PARAMS}
     if _is_jpl(ref) and _is_jpl(m):
@@ -764,8 +773,7 @@ def _signed_quantities(ref, m, theta, world):
             for i, v in enumerate(np.degrees(m.A - ref.A)):
                 out[f"A_deg[{i}]"] = float(v)
         if d.get("O_deg") is not None:
-            rt = with_R0(ref, float(m.R[0])) if ref.family != "CAHV" else ref
-            dv = _in_cam(m, m.O) - _in_cam(rt, rt.O)
+            dv = _in_cam(m, m.O) - ref_O(ref, float(m.R[0]))
             for i, v in enumerate(np.degrees(dv)):
                 out[f"O_deg[{i}]"] = float(v)
     return out
@@ -887,8 +895,15 @@ projection difference (the rotation's own freedom projected out).
     q0 = _signed_quantities(ref, m0, theta, world)
     names = list(q0)
 
+    ref_O = {}
+
+    def ref_O_memo(ref, R0):
+        if R0 not in ref_O:
+            ref_O[R0] = _ref_O_in_cam(ref, R0)
+        return ref_O[R0]
+
     def qvec(m):
-        q = _signed_quantities(ref, m, theta, world)
+        q = _signed_quantities(ref, m, theta, world, ref_O_memo)
         return np.array([q.get(k, 0.0) for k in names])
     P = projection_points(truth)
     # the model's Jacobians in one pass over its stepped models: the reported quantities
