@@ -91,6 +91,8 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
 
     from harness.calibrators import uses_world_frame
     from harness.campaign import MODEL_CHOICE, POSE_COUNT
+
+    from . import verdict as vd
     records = []
     exact_caches = {}   # per pose count: this camera's exact observations and detection
     for cal, model, options in job.calibrators:     # noise (verdict)
@@ -100,6 +102,9 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
         res, info = None, shared
         cctx = pose_subset(ctx, n_poses)
         exact_cache = exact_caches.setdefault(cctx["poses_used"]["n"], {})
+        if vd.is_reference_render(job.renderer, job.settings, job.response):
+            # the job's detections are the verdict's reference corners: not rendered again
+            exact_cache.setdefault("reference", cctx["obs"].q)
         try:
             if fits is not None and not uses_world_frame(cal, options):
                 k = (cal, model, repr(sorted(options.items())), cctx["poses_used"]["n"])

@@ -120,7 +120,21 @@ REFERENCE_RENDER = {"renderer": "raycast", "spp": 16, "adaptive": True,
                     "options": {"coverage": "area"}}
 
 
-def exact_observations(obs, truth, target):
+def is_reference_render(renderer, settings, response=None):
+    r'''True when a job's images ARE the reference render (REFERENCE_RENDER, no camera
+response): its detections are then the reference corners, bit for bit (the same
+deterministic render and detector), and reference_corners need not render again'''
+    from renderers.response import STAGES
+
+    from .records import renderer_key
+    if renderer != REFERENCE_RENDER["renderer"] or any(k in STAGES for k in (response or {})):
+        return False
+    own = {k: settings.get(k) for k in ("spp", "adaptive", "options")}
+    ref = {k: REFERENCE_RENDER[k] for k in ("spp", "adaptive", "options")}
+    return renderer_key(renderer, own) == renderer_key(renderer, ref)
+
+
+def exact_observations(obs, truth, target, reference=None):
     r'''The observations a perfect renderer would give, at the same poses
 
 SYNOPSIS
@@ -138,14 +152,17 @@ them to the renderer: the verdict's independent-noise scatter put a perfect
 renderer's AprilTag records at z 7-17. Against the reference render they cancel,
 and the floor holds the detector's share. NaN where obs has NaN (the detector did
 not find the point) or the truth cannot image the point; a corner found in the
-images but not on the reference render takes its exact projection.
+images but not on the reference render takes its exact projection. reference: the reference
+corners when the caller has them (the job's own detections when its images are the
+reference render: is_reference_render), else they are rendered here.
 '''
     from targets.centroids import expected_centroids, projected_points
     Rts = Rt_cam_board_from(obs, truth)
     exact = expected_centroids if target.kind == "dots" else projected_points
     q = np.stack([exact(truth, target, Rt) for Rt in Rts])
     if target.kind != "dots":
-        ref = reference_corners(truth, target, Rts)
+        ref = (reference_corners(truth, target, Rts) if reference is None
+               else np.asarray(reference, dtype=np.float64))
         q = np.where(np.isfinite(ref), ref, q)
     q = np.where(obs.found[..., None], q, np.nan)
     return obs.replace(q=q)
@@ -441,7 +458,8 @@ def exact_fit(cal, model, options, obs, target, truth, cache, fits=None, start=N
 
 obs: the job's observations (with the surveyed poses); cache: a dict kept for
 one camera's records (the exact observations and the detection noise are
-computed once per camera). fits: None (what harness.job_records passes: see
+computed once per camera; cache["reference"], when the caller sets it, holds the
+reference corners: exact_observations). fits: None (what harness.job_records passes: see
 the module docstring on twins), or a dict shared by cameras known to give
 bit-identical exact observations: a calibrator that does not read the world
 frame then fits them once, on observations without the surveyed poses, and
@@ -461,7 +479,7 @@ is reused only for the same start (bit for bit: _exact_key).
     from .stages import calibrate_stage
     options = warm_options(cal, options, start)
     if "obs" not in cache:
-        cache["obs"] = exact_observations(obs, truth, target)
+        cache["obs"] = exact_observations(obs, truth, target, cache.get("reference"))
         cache["noise"] = detection_noise(obs, cache["obs"])
     obs_x, noise = cache["obs"], cache["noise"]
     if fits is not None and not uses_world_frame(cal, options):

@@ -436,3 +436,50 @@ numbers as differencing each on its own, bit for bit (the same models, the same 
     if lin.project_model is not None:           # jpl: the fit's own Jacobian too
         J, = lin.model_jacobians([lin.project_model])
         assert np.array_equal(J, lin.jacobian())
+
+
+def test_is_reference_render_names_the_reference_settings_only():
+    # the default ray caster at K=16 adaptive (area coverage by default, given or not) is the
+    # reference render; any other sampling, renderer or a camera response is not
+    assert verdict.is_reference_render("raycast", {"spp": 16, "adaptive": True, "options": {}})
+    assert verdict.is_reference_render(
+        "raycast", {"spp": 16, "adaptive": True, "options": {"coverage": "area"},
+                    "label": "mine"}, {})
+    assert not verdict.is_reference_render(
+        "raycast", {"spp": 16, "adaptive": True, "options": {"coverage": "point"}})
+    assert not verdict.is_reference_render("raycast", {"spp": 4, "adaptive": True,
+                                                       "options": {}})
+    assert not verdict.is_reference_render("command", {"spp": 16, "adaptive": True,
+                                                       "options": {}})
+    assert not verdict.is_reference_render(
+        "raycast", {"spp": 16, "adaptive": True, "options": {}}, {"psf": {"sigma_px": 0.7}})
+
+
+@pytest.mark.slow
+def test_a_reference_render_job_is_not_rendered_again_for_its_corners(tmp_path, monkeypatch):
+    # a job whose images are the reference render gives its own detections as the reference
+    # corners; the records are those of a job that renders them again (the same render and
+    # detector, the poses' round trip through the world frame aside: ~1e-9 px)
+    from harness.campaign import parse_campaign
+    from harness.runner import run_campaign
+    doc = {"name": "ref", "cameras": [17], "models": ["CAHVOR"], "targets": ["apriltag"],
+           "poses": {"n": 3, "seed": 0}, "renderer": [{"name": "raycast", "spp": 16}],
+           "calibrator": [{"name": "jpl"}]}
+    calls = []
+    real = verdict.reference_corners
+    monkeypatch.setattr(verdict, "reference_corners",
+                        lambda *a: calls.append(1) or real(*a))
+    reused = run_campaign(parse_campaign(doc), tmp_path / "reused", progress=False, workers=1)
+    assert calls == []
+    verdict._EXACT_FITS.clear()
+    monkeypatch.setattr(verdict, "is_reference_render", lambda *a: False)
+    rendered = run_campaign(parse_campaign(doc), tmp_path / "rendered", progress=False,
+                            workers=1)
+    assert calls == [1]
+    (a,), (b,) = reused["records"].values(), rendered["records"].values()
+    assert a["status"] == b["status"] == "ok"
+    # the renderer share of the job's own reference is nil; re-rendered, float rounding only
+    assert a["verdict"]["renderer"]["projection"]["rms"] < 1e-9
+    assert b["verdict"]["renderer"]["projection"]["rms"] < 1e-6
+    assert a["verdict"]["floor"]["projection"]["rms"] == pytest.approx(
+        b["verdict"]["floor"]["projection"]["rms"], rel=1e-3, abs=1e-7)
