@@ -558,24 +558,42 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
         if self.threads is not None:
             numba.set_num_threads(self.threads)
 
+        adaptive = area or bool(settings.adaptive)
+        qbox = board_image_box(model, Rt_cam_board, cp.f[:4])
+        H, W = model.height, model.width
+        outlines = None
+        if adaptive and np.all(np.isfinite(qbox)):
+            from renderers.raycast_outlines import project_outlines
+            outlines = project_outlines(model, Rt_cam_board, cp)
         t1 = time.perf_counter()
-        cam, dirs, shift, noncentral, cold = self.rays(model)
-        t_rays = time.perf_counter() - t1
-        lazy = dirs is None
-        if lazy:
+        if outlines is not None:
+            # the edge pixels are known: no ray cache is read
+            from reference_models import kernels
+            cam, noncentral, cold = kernels.pack_model(model), not model.is_central, False
             dirs, shift = np.zeros((1, 1, 3)), np.zeros((1, 1))
+            lazy = True
+            mask = np.zeros((H, W), dtype=np.uint8)
+            tiles = np.zeros((-(-H // TILE), -(-W // TILE)), dtype=np.uint8)
+            kern.mark_outlines(outlines.q, outlines.starts, outlines.closed, outlines.margin,
+                               mask, tiles, TILE)
+        else:
+            cam, dirs, shift, noncentral, cold = self.rays(model)
+            lazy = dirs is None
+            if lazy:
+                dirs, shift = np.zeros((1, 1, 3)), np.zeros((1, 1))
+            mask = tiles = np.zeros((1, 1), dtype=np.uint8)
+        t_rays = time.perf_counter() - t1
 
         R = Rt[:3]
         t = Rt[3]
         O = cam[12:15]
         xf = np.concatenate((R.ravel(), R @ model.C + t, R @ O))
-        H, W = model.height, model.width
         out = np.empty((H, W), dtype=np.float32)
         stats = np.zeros((-(-H // TILE), 8 if area else 6), dtype=np.int64)
-        qbox = board_image_box(model, Rt_cam_board, cp.f[:4])
-        kern.render_kernel(cam, dirs, shift, noncentral, xf, K, area or bool(settings.adaptive),
+        kern.render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive,
                            TILE, cp.values, out, stats, cp.kernel_args(), qbox,
-                           numba.get_num_threads(), area, tol, lazy)
+                           numba.get_num_threads(), area, tol, lazy, outlines is not None,
+                           mask, tiles)
         total = stats.sum(axis=0)
         if total[5] != 0:
             raise RendererError(f"the ray-cast renderer produced {int(total[5])} non-finite "
@@ -591,7 +609,8 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
             "board_fraction": float(total[2]) / (W * H),
             "blocks_tested": int(total[3]),
             "pixels_tested": int(total[4]),
-            "ray_cache": "lazy" if lazy else "cold" if cold else "warm",
+            "ray_cache": ("outlines" if outlines is not None else "lazy" if lazy
+                          else "cold" if cold else "warm"),
             "ray_cache_seconds": t_rays,
             "threads": numba.get_num_threads(),
             "coverage": "area" if area else "point",
