@@ -107,7 +107,7 @@ fails later, in its own record.
             _, truth = camera_stage(job)
             target = cached_target(job.target)
             Rt = poses_stage(truth, target, 1, job.poses_seed)[0]
-            renderer = get_renderer(job.renderer, shared_cache=False)
+            renderer = get_renderer(job.renderer)
             renderer.render(truth, target.pattern(), Rt, RenderSettings(spp=1, adaptive=True))
             seen.add(key)
             done.append(f"{job.renderer}/{job.family}")

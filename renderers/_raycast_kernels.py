@@ -4,22 +4,22 @@ SYNOPSIS
 
     from reference_models import kernels
     cam = kernels.pack_model(model)                          # (NCAM,) float64
-    dirs = np.empty((H + 2, W + 2, 3)); shift = np.empty((H + 2, W + 2))  # (1,1): central
-    fill_centre_rays(cam, dirs, shift, noncentral)           # the ray cache
-    render_kernel(cam, dirs, shift, ...)                     # fills an image; see renderers.raycast
-    render_kernel(cam, dirs, shift, ..., lazy=True)          # no cache: rays traced per tile
+    mark_outlines(q, starts, closed, margin, mask, tiles, T) # edge pixels (raycast_outlines)
+    render_kernel(cam, noncentral, xf, K, ...)               # fills an image; see renderers.raycast
 
-The board (hits, materials, the distance to the nearest edge), adaptive
-supersampling and the band loop of the renderer. The camera - the packed
-model, its rays (ray, warm_start, ray_warm) - is reference_models.kernels',
-compiled into these kernels.
+The board (hits, materials, the distance to the nearest edge), the edge pixels
+from the projected outlines, adaptive supersampling, area coverage and the band
+loop of the renderer. The camera - the packed model, its rays (ray,
+warm_start, ray_warm) - is reference_models.kernels', compiled into these
+kernels.
 
-The rays of the pixel centres (the ray cache, or the rays of a tile traced in
-the render, lazy) are traced in runs of RAY_RUN grid points along a row: the
-first ray of a run is solved cold, each next one from the previous one's
-prediction (reference_models.kernels.fill_ray_cache's scheme, restarted every
-RAY_RUN points). A centre ray then depends on its grid point alone, so a tile
-traced on its own gives the rays of the whole-image cache bit for bit.
+No ray is cached between renders: a render traces the rays it reads. Where the
+edge pixels are not known from the outlines (renderers.raycast_outlines), the
+pixel-centre rays a tile's tests read are traced in runs of RAY_RUN grid points
+along a row: the first ray of a run is solved cold, each next one from the
+previous one's prediction (reference_models.kernels.fill_ray_cache's scheme,
+restarted every RAY_RUN points), so a centre ray depends on its grid point
+alone, whichever block asks for it.
 
 Everything here is float64 and compiled without fastmath.
 '''
@@ -1029,29 +1029,11 @@ image row y, and the warm start of the next column of its run (see RAY_RUN)"""
     return s, vx, vy, vz, warm
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
-def fill_centre_rays(cam, dirs, shift, noncentral):
-    r"""The ray cache: dirs (H+2,W+2,3) and, noncentral, shift (H+2,W+2) of the rays of the
-pixel centres, grid point (gx, gy) = pixel (gx - 1, gy - 1) (runs of RAY_RUN; the rays of
-reference_models.kernels.build_ray_cache to the floating-point level). Every element is
-written (a central camera's shift is not read)."""
-    central = cam[_KIND] == KIND_CAHV
-    for gy in prange(dirs.shape[0]):
-        y = gy - 1.0
-        warm = (math.nan, 0.0, 0.0, 0.0)
-        for gx in range(dirs.shape[1]):
-            s, vx, vy, vz, warm = _centre_ray(cam, central, gx, y, warm)
-            dirs[gy, gx, 0] = vx
-            dirs[gy, gx, 1] = vy
-            dirs[gy, gx, 2] = vz
-            if noncentral:
-                shift[gy, gx] = s
-
-
 @njit(cache=True, error_model="numpy")
-def _trace_rows(cam, xf, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
-    r"""_hit_rows without a cache: the centre rays traced here (from the start of the run
-of column c0), the same rays"""
+def _board_points(cam, xf, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
+    r"""The board points of the centre rays of band rows k0..k1-1, band columns c0..c1-1
+(image row r0 - 1 + k, column c - 1) into hx, hy, hok, traced in runs of RAY_RUN
+from fixed columns (the same rays whichever block asks for them)"""
     central = cam[_KIND] == KIND_CAHV
     for k in range(k0, k1):
         y = r0 + k - 1.0
@@ -1066,42 +1048,19 @@ of column c0), the same rays"""
 
 
 @njit(cache=True, error_model="numpy")
-def _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
-    r"""_hit_rows from the cache, or lazy: from rays traced now (_trace_rows)"""
-    if lazy:
-        _trace_rows(cam, xf, noncentral, r0, k0, k1, c0, c1, hx, hy, hok)
-    else:
-        _hit_rows(xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _hit_rows(xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
-    r"""The board points of the cached rays of band rows k0..k1-1, band columns c0..c1-1
-(image row r0 - 1 + k, column c - 1) into hx, hy, hok"""
-    for k in range(k0, k1):
-        gy = r0 + k
-        for gx in range(c0, c1):
-            s = shift[gy, gx] if noncentral else 0.0
-            ok, x, y = _hit(xf, s, dirs[gy, gx, 0], dirs[gy, gx, 1], dirs[gy, gx, 2])
-            hok[k, gx] = ok
-            hx[k, gx] = x
-            hy[k, gx] = y
-
-
-@njit(cache=True, error_model="numpy")
-def _hit_ring(lazy, cam, xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
+def _hit_ring(cam, xf, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
     r"""The board points of the ring band rows k0, k1 x band columns c0..c1 (and columns
 c0, c1 between) and of its centre ((k0+k1)//2, (c0+c1)//2): what _block_uniform reads"""
     for k in (k0, k1):
-        _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, k, k + 1, c0, c1 + 1,
+        _board_points(cam, xf, noncentral, r0, k, k + 1, c0, c1 + 1,
                       hx, hy, hok)
     for k in range(k0 + 1, k1):
         for c in (c0, c1):
-            _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, k, k + 1, c, c + 1,
+            _board_points(cam, xf, noncentral, r0, k, k + 1, c, c + 1,
                           hx, hy, hok)
     kc = (k0 + k1) // 2
     cc = (c0 + c1) // 2
-    _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, kc, kc + 1, cc, cc + 1,
+    _board_points(cam, xf, noncentral, r0, kc, kc + 1, cc, cc + 1,
                   hx, hy, hok)
 
 
@@ -1132,8 +1091,8 @@ disc lies inside the board rectangle or wholly outside it)"""
 
 
 @njit(cache=True, error_model="numpy")
-def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values, out,
-                 stats, pat, qbox, area, tol, lazy):
+def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats, pat, qbox,
+                 area, tol):
     H, W = out.shape
     nk = r1 - r0 + 2
     # board points of the centre rays of image rows r0-1 .. r1 (band row k = iy - r0 + 1)
@@ -1145,7 +1104,7 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
     nboard = 0
     if not adaptive:
         # every pixel is supersampled; the board points only count board pixels
-        _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, 1, nk - 1, 1, W + 1, hx, hy,
+        _board_points(cam, xf, noncentral, r0, 1, nk - 1, 1, W + 1, hx, hy,
                       hok)
         nboard = _count_board(hx, hy, hok, 1, nk - 1, 1, W + 1, rect)
 
@@ -1197,13 +1156,13 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
                 uniform, m = True, pat[1][0]
             else:
                 if tile:
-                    _hit_ring(lazy, cam, xf, dirs, shift, noncentral, r0, 0, nk - 1, x0, x1 + 1,
+                    _hit_ring(cam, xf, noncentral, r0, 0, nk - 1, x0, x1 + 1,
                               hx, hy, hok)
                 uniform, m = _block_uniform(hx, hy, hok, ya - r0, yb - r0 + 1, xa, xb + 1, pat)
                 nblocks += 1
                 if tile:
                     if not uniform:
-                        _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, 1, nk - 1,
+                        _board_points(cam, xf, noncentral, r0, 1, nk - 1,
                                       x0 + 1, x1 + 1, hx, hy, hok)
                         nboard += _count_board(hx, hy, hok, 1, nk - 1, x0 + 1, x1 + 1, rect)
                     elif _centre_on_board(hx, hy, hok, 0, nk - 1, x0, x1 + 1, rect):
@@ -1469,19 +1428,21 @@ def _count_nonfinite(out, r0, r1):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive, T, values, out, stats, pat,
-                  qbox, nthreads, area, tol, lazy, outline, mask, tiles):
+def render_kernel(cam, noncentral, xf, K, adaptive, T, values, out, stats, pat, qbox, nthreads,
+                  area, tol, outline, mask, tiles):
     r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
 
 stats (Nbands,6) receives per band: rays traced, supersampled pixels, pixels
-whose centre ray sees the board, blocks of pixels tested, pixels tested,
+whose centre ray sees the board, blocks of pixels tested (outline: tiles with
+edge pixels), pixels tested (outline: edge pixels),
 non-finite pixels (a bug); with 8 columns also: pixels of area coverage, pixels
 point sampled in area mode where area coverage was not computed.
 area: edge pixels get their exact covered area (to within tol of the pixel's
 area; see "Area coverage") instead of K x K point samples (adaptive only).
-lazy: no ray cache (dirs, shift are not read): the centre rays a tile needs are
-traced in it (its ring, its interior when the ring does not show it uniform),
-the same rays as fill_centre_rays'.
+outline (adaptive only): the edge pixels are mask (H,W) and the tiles that hold one
+tiles (mark_outlines): _render_band_outline; else every tile is tested
+(_render_band: its ring's centre rays, its interior's when the ring does not
+show it uniform, traced in it).
 qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
 not known); adaptive mode fills the pixels outside with the background.
 nthreads: numba's thread count (bands are dealt out round-robin among them)."""
@@ -1503,8 +1464,8 @@ nthreads: numba's thread count (bands are dealt out round-robin among them)."""
             _render_band_outline(r0, r1, T, cam, noncentral, xf, K, values, out, stats[b], pat,
                                  qbox, area, tol, mask, tiles)
         else:
-            _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values,
-                         out, stats[b], pat, qbox, area, tol, lazy)
+            _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats[b],
+                         pat, qbox, area, tol)
 
 
 def compiled_entry_points():
@@ -1515,7 +1476,7 @@ SYNOPSIS
     for kernel in compiled_entry_points():
         kernel.signatures     # what numba has compiled (or loaded from its cache)
 
-render_kernel and the ray cache's fill_centre_rays: what a warm-up compiles
-(harness.runner) and a cache check looks for.
+render_kernel and mark_outlines: what a warm-up compiles (harness.warmup) and a
+cache check looks for.
 '''
-    return (render_kernel, fill_centre_rays)
+    return (render_kernel, mark_outlines)
