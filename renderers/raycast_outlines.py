@@ -31,7 +31,16 @@ noncentral CAHVORE: its projection is still a function of the 3-D point, the
 pixel whose (shifted-origin) ray passes through it. Where it does not hold -
 a corner behind the camera, an outline point beyond a fisheye's field (NaN
 projection), a projection that fails its grid check - project_outlines
-returns None and the renderer tests pixels as before (renderers.raycast).
+returns None and the renderer tests pixels as before (renderers.raycast). So
+does a projection that is not one to one on the outline: a distortion
+polynomial past its maximum (a CAHVOR or CAHVORE whose R makes chi (1 + R0 +
+R1 chi^2 + R2 chi^4) fall again) folds the points beyond it back into the
+image, where the pixels' rays see other points; every outline point is
+therefore checked to be seen by the ray of the pixel it projects to (_round_trip).
+The board is convex and the region of angles from O where the projection is
+one to one is a cone about O (convex up to 90 degrees; beyond, its
+complement is a cone about -O that a board with every corner in front of the
+camera does not reach), so the outline inside it keeps the board inside it.
 Outline points outside the image are kept (a polyline leaving the image and
 coming back still separates what it separates); pixels outside are not marked.
 
@@ -62,6 +71,9 @@ MAX_STEP_PX = 2.0
 MAX_SAGITTA_PX = 0.02
 # added to every margin: the projection's own error is < 1e-10 px
 PROJECTION_SLOP_PX = 1e-6
+# a pixel's ray meets the board within this fraction of the board's size of the point
+# projected to it (exact rays: ~1e-12; a fold in the projection: far more)
+ROUND_TRIP_TOLERANCE = 1e-7
 # a feature needing more points than this is not outlined (the renderer tests its pixels)
 MAX_POINTS = 1 << 20
 
@@ -153,6 +165,24 @@ def _chord_bounds(q, sizes, closed):
     return np.maximum.reduceat(step, starts[:-1]), np.maximum.reduceat(w, starts[:-1]) / 4.0
 
 
+def _round_trip(cam, Rt_ref_board, q, xy):
+    r"""Whether the ray of each pixel q meets the board plane at the board point xy it
+was projected from (to ROUND_TRIP_TOLERANCE of the board's size): false where the
+projection folds (a distortion polynomial past its maximum maps points beyond it
+back into the image, where the pixels' rays see other points)"""
+    from reference_models import kernels
+    origin, v = kernels.unproject_grid(cam, q)
+    R, t = Rt_ref_board[:3], Rt_ref_board[3]
+    # the board frame: p_board = R' (p_ref - t)
+    o = (origin - t) @ R
+    d = v @ R
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -o[:, 2] / d[:, 2]
+        hit = o[:, :2] + s[:, None] * d[:, :2]
+    size = np.ptp(xy, axis=0).max()
+    return bool(np.all(s > 0.0) and np.all(np.abs(hit - xy) <= ROUND_TRIP_TOLERANCE * size))
+
+
 def project_outlines(model, Rt_cam_board, cp):
     r"""The projected outlines of a compiled pattern (Outlines), or None where the image of
 the board is not known to be bounded by them (see the module docstring)"""
@@ -178,6 +208,8 @@ the board is not known to be bounded by them (see the module docstring)"""
         # a step or a sagitta too large: more points (the sagitta falls as 1/n^2)
         grow = np.maximum(step / MAX_STEP_PX, np.sqrt(bound / MAX_SAGITTA_PX))
         if not np.any(grow > 1.0):
+            if not (model.family == "CAHV" or _round_trip(cam, Rt_ref_board, q, xy)):
+                return None
             return Outlines(q=q, starts=np.concatenate(([0], np.cumsum(sizes))),
                             closed=closed, margin=bound + PROJECTION_SLOP_PX)
         intervals = sizes - 1 + closed

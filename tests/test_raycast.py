@@ -511,3 +511,33 @@ is not known to be bounded by the projected outline, so the pixels are tested (e
     assert a.metadata["edges"] == "tested"
     assert np.array_equal(a.image, b.image)
     assert a.metadata["board_fraction"] > 0.01
+
+
+def test_a_board_past_a_folding_distortion_tests_its_pixels(monkeypatch):
+    r'''A wide CAHVORE (E != 0) whose distortion polynomial chi (1 + R1 chi^2 + R2 chi^4)
+has its maximum (u = 2.02 at chi = 2.14, 667 px from the centre) inside the image: board
+points beyond it project back into the image, where the pixels' rays see other points,
+so the outline does not bound the board's image; the pixels are tested (edges
+"tested"), as with outlines=False. Without that check (_round_trip) the outline path
+paints board over background here'''
+    from renderers import raycast_outlines
+    from targets.poses import plan_poses
+    f = 330.0
+    t = math.radians(1.2)
+    O = np.array([math.sin(t), 0.3 * math.sin(t), math.cos(t)])
+    A = np.array([0.0, 0.0, 1.0])
+    model = CAHVORE(C=[0.0, 0.0, 0.0], A=A, H=np.array([f, 0, 0]) + 642.1 * A,
+                    V=np.array([0, f, 0]) + 478.7 * A, O=O / np.linalg.norm(O),
+                    R=[0.0, 0.08, -0.02], E=[0.004, 0.012, -0.003], model_type=3,
+                    linearity=0.6, width=1280, height=960)
+    target = load_target("dots")
+    Rt = plan_poses(model, target, n=6, seed=0)[4]
+    a = RaycastRenderer().render(model, target.pattern(), Rt, RenderSettings(spp=4))
+    b = RaycastRenderer(outlines=False).render(model, target.pattern(), Rt,
+                                               RenderSettings(spp=4))
+    assert a.metadata["edges"] == "tested"
+    assert np.array_equal(a.image, b.image)
+    monkeypatch.setattr(raycast_outlines, "_round_trip", lambda *args: True)
+    c = RaycastRenderer().render(model, target.pattern(), Rt, RenderSettings(spp=4))
+    assert c.metadata["edges"] == "outlines"
+    assert (np.abs(c.image - b.image) > 0.5).sum() > 100
