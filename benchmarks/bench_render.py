@@ -269,8 +269,9 @@ warm_up on the jobs). Each job is run --repeats times.
 
 Reported per job: CPU seconds (time.process_time, all threads) and wall seconds
 of the 6 renders (min, median, every repeat), the outline seconds and the
-render seconds of each image (renderer metadata), and the sha256 of each image (to check that a change of the
-renderer leaves every pixel as it was; repeats must agree). Run with
+render seconds of each image (renderer metadata), and the sha256 of each image
+(to check that a change of the renderer leaves every pixel as it was; repeats must
+agree). Run with
 NUMBA_NUM_THREADS=1: CPU seconds of a single thread are the cleanest count of
 the work on a shared machine.
 

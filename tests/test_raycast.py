@@ -12,8 +12,13 @@ from reference_models.catalogue import load_catalogue
 from reference_models.errors import CamvalError
 from renderers import _raycast_kernels as kern
 from renderers.base import RenderSettings, get_renderer
-from renderers.raycast import (PatternError, PoseError, RaycastRenderer, Rt_board_ref,
-                               compile_pattern)
+from renderers.raycast import (
+    PatternError,
+    PoseError,
+    RaycastRenderer,
+    Rt_board_ref,
+    compile_pattern,
+)
 from renderers.raycast_outlines import project_outlines
 from targets.boards import load_target
 from targets.centroids import board_to_ref, polygon_centroid
