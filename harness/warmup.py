@@ -23,7 +23,8 @@ NUMBA_RENDERERS = {"raycast": "renderers._raycast_kernels"}
 # every module with @njit(cache=True) kernels that call reference_models.kernels: numba
 # checks a cached kernel against its own source file only (reference_models.kernels.
 # drop_stale_caches says why), so a warm-up drops their stale caches first
-COMPILED_MODULES = ("reference_models.kernels", "renderers._raycast_kernels", "targets.poses",
+COMPILED_MODULES = ("reference_models.kernels", "renderers._raycast_kernels",
+                    "renderers.raycast_outlines", "targets.poses",
                     "harness.calibrators._jpl_kernels")
 
 
