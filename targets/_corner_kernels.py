@@ -4,10 +4,18 @@ SYNOPSIS
 
     from targets._corner_kernels import wedge_model
 
-    D, dD_dc, dD_dt = wedge_model(centres, s, c, uu, first, second, widen)
+    D, dD_dc, dD_dt, dD_ds = wedge_model(centres, s, c, uu, first, second, widen,
+                                         sigma, nodes, weights)
     # centres (n,P,2) pixel centres of every window; s (m,) the corners to evaluate;
     # c (m,2) their apexes; uu (m,R,2) their unit rays; first, second (n,Nw) ray indices
-    # of each wedge (counter-clockwise, below pi); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R)
+    # of each wedge (counter-clockwise, below pi); sigma (m,) the Gaussian blur (px) of
+    # each corner, nodes (M,2) and weights (M,) the quadrature of a unit 2-D Gaussian
+    # (targets.corners.BLUR_NODES); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R), dD_ds (m,P)
+    # (per px of sigma)
+
+With sigma > 0 the dark area of each pixel is blurred: D = sum_q w_q A(d + sigma z_q),
+the Gaussian's expectation of the exact pixel area A (a product Gauss-Hermite rule);
+pixels far from every ray take A once (it is constant over the offsets).
 
 The same arithmetic as targets.corners.wedge_area / _ray_stretch (the numpy reference),
 one pixel at a time, in the same order of operations, so the two agree to rounding
@@ -83,36 +91,84 @@ def _area(dx, dy, u1x, u1y, u2x, u2y):
 
 
 @njit(cache=True, error_model="numpy")
-def wedge_model(centres, s, c, uu, first, second, widen):
+def wedge_model(centres, s, c, uu, first, second, widen, sigma, nodes, weights):
     m = len(s)
     P = centres.shape[1]
     R = uu.shape[1]
     Nw = first.shape[1]
+    M = len(weights)
     D = np.zeros((m, P))
     dD_dc = np.zeros((m, P, 2))
     dD_dt = np.zeros((m, P, R))
+    dD_ds = np.zeros((m, P))
     half = 0.5 + widen
+    rmax = 0.0
+    for k in range(M):
+        rmax = max(rmax, np.sqrt(nodes[k, 0] ** 2 + nodes[k, 1] ** 2))
     for j in range(m):
         n = s[j]
+        sj = sigma[j]
+        blurred = sj > 0.0 and M > 1
+        # a pixel farther than this from every ray (px) sees the same dark area at every
+        # quadrature offset: one evaluation, no derivatives
+        reach = np.sqrt(2.0) * half + sj * rmax
         for p in range(P):
-            dx = centres[n, p, 0] - c[j, 0]
-            dy = centres[n, p, 1] - c[j, 1]
-            for k in range(Nw):
-                i1 = first[n, k]
-                i2 = second[n, k]
-                u1x, u1y = uu[j, i1, 0], uu[j, i1, 1]
-                u2x, u2y = uu[j, i2, 0], uu[j, i2, 1]
-                D[j, p] += _area(dx, dy, u1x, u1y, u2x, u2y)
-                s0a, s1a = _stretch(dx, dy, u1x, u1y, half)
-                s0b, s1b = _stretch(dx, dy, u2x, u2y, half)
-                la = s1a - s0a
-                lb = s1b - s0b
-                # -la perp(u1) + lb perp(u2), perp(u) = (-u_y, u_x)
-                dD_dc[j, p, 0] += -la * -u1y + lb * -u2y
-                dD_dc[j, p, 1] += -la * u1x + lb * u2x
-                dD_dt[j, p, i1] += -0.5 * (s1a ** 2 - s0a ** 2)
-                dD_dt[j, p, i2] += 0.5 * (s1b ** 2 - s0b ** 2)
-    return D, dD_dc, dD_dt
+            dx0 = centres[n, p, 0] - c[j, 0]
+            dy0 = centres[n, p, 1] - c[j, 1]
+            near = not blurred
+            if blurred:
+                for k in range(Nw):
+                    for h in range(2):
+                        if h == 0:
+                            ux, uy = uu[j, first[n, k], 0], uu[j, first[n, k], 1]
+                        else:
+                            ux, uy = uu[j, second[n, k], 0], uu[j, second[n, k], 1]
+                        t = ux * dx0 + uy * dy0
+                        if t < 0.0:
+                            dist = np.sqrt(dx0 * dx0 + dy0 * dy0)
+                        else:
+                            dist = abs(ux * dy0 - uy * dx0)
+                        if dist <= reach:
+                            near = True
+            if blurred and not near:
+                for k in range(Nw):
+                    i1 = first[n, k]
+                    i2 = second[n, k]
+                    D[j, p] += _area(dx0, dy0, uu[j, i1, 0], uu[j, i1, 1],
+                                     uu[j, i2, 0], uu[j, i2, 1])
+                continue
+            for q in range(M if blurred else 1):
+                if blurred:
+                    zx = sj * nodes[q, 0]
+                    zy = sj * nodes[q, 1]
+                    wq = weights[q]
+                else:
+                    zx = 0.0
+                    zy = 0.0
+                    wq = 1.0
+                dx = dx0 + zx
+                dy = dy0 + zy
+                for k in range(Nw):
+                    i1 = first[n, k]
+                    i2 = second[n, k]
+                    u1x, u1y = uu[j, i1, 0], uu[j, i1, 1]
+                    u2x, u2y = uu[j, i2, 0], uu[j, i2, 1]
+                    D[j, p] += wq * _area(dx, dy, u1x, u1y, u2x, u2y)
+                    s0a, s1a = _stretch(dx, dy, u1x, u1y, half)
+                    s0b, s1b = _stretch(dx, dy, u2x, u2y, half)
+                    la = s1a - s0a
+                    lb = s1b - s0b
+                    # -la perp(u1) + lb perp(u2), perp(u) = (-u_y, u_x)
+                    gx = -la * -u1y + lb * -u2y
+                    gy = -la * u1x + lb * u2x
+                    dD_dc[j, p, 0] += wq * gx
+                    dD_dc[j, p, 1] += wq * gy
+                    dD_dt[j, p, i1] += wq * -0.5 * (s1a ** 2 - s0a ** 2)
+                    dD_dt[j, p, i2] += wq * 0.5 * (s1b ** 2 - s0b ** 2)
+                    if blurred:
+                        # the offset z = sigma node moves the pixel by z: -dA/dc . node
+                        dD_ds[j, p] -= wq * (gx * nodes[q, 0] + gy * nodes[q, 1])
+    return D, dD_dc, dD_dt, dD_ds
 
 
 @njit(cache=True, error_model="numpy")
