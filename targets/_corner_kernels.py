@@ -5,17 +5,16 @@ SYNOPSIS
     from targets._corner_kernels import wedge_model
 
     D, dD_dc, dD_dt, dD_ds = wedge_model(centres, s, c, uu, first, second, widen,
-                                         sigma, nodes, weights)
+                                         Z, W, dZ, dW)
     # centres (n,P,2) pixel centres of every window; s (m,) the corners to evaluate;
     # c (m,2) their apexes; uu (m,R,2) their unit rays; first, second (n,Nw) ray indices
-    # of each wedge (counter-clockwise, below pi); sigma (m,) the Gaussian blur (px) of
-    # each corner, nodes (M,2) and weights (M,) the quadrature of a unit 2-D Gaussian
-    # (targets.corners.BLUR_NODES); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R), dD_ds (m,P)
-    # (per px of sigma)
+    # of each wedge (counter-clockwise, below pi); Z (m,M,2) offsets (px) and W (m,M)
+    # weights of each corner's blur kernel, dZ, dW their derivatives in the blur's sigma
+    # (targets.corners.blur_kernel); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R), dD_ds (m,P)
 
-With sigma > 0 the dark area of each pixel is blurred: D = sum_q w_q A(d + sigma z_q),
-the Gaussian's expectation of the exact pixel area A (a product Gauss-Hermite rule);
-pixels far from every ray take A once (it is constant over the offsets).
+With M > 1 the dark area of each pixel is blurred: D = sum_q W_q A(d + Z_q), the
+kernel's expectation of the exact pixel area A; pixels far from every ray take A once
+(it is constant over the offsets).
 
 The same arithmetic as targets.corners.wedge_area / _ray_stretch (the numpy reference),
 one pixel at a time, in the same order of operations, so the two agree to rounding
@@ -91,27 +90,26 @@ def _area(dx, dy, u1x, u1y, u2x, u2y):
 
 
 @njit(cache=True, error_model="numpy")
-def wedge_model(centres, s, c, uu, first, second, widen, sigma, nodes, weights):
+def wedge_model(centres, s, c, uu, first, second, widen, Z, W, dZ, dW):
     m = len(s)
     P = centres.shape[1]
     R = uu.shape[1]
     Nw = first.shape[1]
-    M = len(weights)
+    M = W.shape[1]
     D = np.zeros((m, P))
     dD_dc = np.zeros((m, P, 2))
     dD_dt = np.zeros((m, P, R))
     dD_ds = np.zeros((m, P))
     half = 0.5 + widen
-    rmax = 0.0
-    for k in range(M):
-        rmax = max(rmax, np.sqrt(nodes[k, 0] ** 2 + nodes[k, 1] ** 2))
     for j in range(m):
         n = s[j]
-        sj = sigma[j]
-        blurred = sj > 0.0 and M > 1
+        blurred = M > 1
+        rmax = 0.0
+        for k in range(M):
+            rmax = max(rmax, np.sqrt(Z[j, k, 0] ** 2 + Z[j, k, 1] ** 2))
         # a pixel farther than this from every ray (px) sees the same dark area at every
-        # quadrature offset: one evaluation, no derivatives
-        reach = np.sqrt(2.0) * half + sj * rmax
+        # offset: one evaluation, no derivatives
+        reach = np.sqrt(2.0) * half + rmax
         for p in range(P):
             dx0 = centres[n, p, 0] - c[j, 0]
             dy0 = centres[n, p, 1] - c[j, 1]
@@ -139,9 +137,9 @@ def wedge_model(centres, s, c, uu, first, second, widen, sigma, nodes, weights):
                 continue
             for q in range(M if blurred else 1):
                 if blurred:
-                    zx = sj * nodes[q, 0]
-                    zy = sj * nodes[q, 1]
-                    wq = weights[q]
+                    zx = Z[j, q, 0]
+                    zy = Z[j, q, 1]
+                    wq = W[j, q]
                 else:
                     zx = 0.0
                     zy = 0.0
@@ -153,7 +151,8 @@ def wedge_model(centres, s, c, uu, first, second, widen, sigma, nodes, weights):
                     i2 = second[n, k]
                     u1x, u1y = uu[j, i1, 0], uu[j, i1, 1]
                     u2x, u2y = uu[j, i2, 0], uu[j, i2, 1]
-                    D[j, p] += wq * _area(dx, dy, u1x, u1y, u2x, u2y)
+                    A = _area(dx, dy, u1x, u1y, u2x, u2y)
+                    D[j, p] += wq * A
                     s0a, s1a = _stretch(dx, dy, u1x, u1y, half)
                     s0b, s1b = _stretch(dx, dy, u2x, u2y, half)
                     la = s1a - s0a
@@ -166,8 +165,9 @@ def wedge_model(centres, s, c, uu, first, second, widen, sigma, nodes, weights):
                     dD_dt[j, p, i1] += wq * -0.5 * (s1a ** 2 - s0a ** 2)
                     dD_dt[j, p, i2] += wq * 0.5 * (s1b ** 2 - s0b ** 2)
                     if blurred:
-                        # the offset z = sigma node moves the pixel by z: -dA/dc . node
-                        dD_ds[j, p] -= wq * (gx * nodes[q, 0] + gy * nodes[q, 1])
+                        # sigma moves the offset (dZ: -dA/dc . dZ) and reweighs it (dW)
+                        dD_ds[j, p] += dW[j, q] * A - wq * (gx * dZ[j, q, 0]
+                                                            + gy * dZ[j, q, 1])
     return D, dD_dc, dD_dt, dD_ds
 
 

@@ -239,6 +239,64 @@ def _blur_rule(order=BLUR_ORDER):
 
 
 BLUR_NODES, BLUR_WEIGHTS = _blur_rule()
+# the kinds of blur kernel the model knows (blur_kernel)
+PSF_KINDS = ("gaussian", "sampled")
+# the sampled kernel's half-width: taps to 3 sigma beyond the pixel's half (the weight left
+# out is below 0.05% per side)
+SAMPLED_REACH_SIGMAS = 3.0
+
+
+def blur_kernel(sigma, kind="gaussian"):
+    r'''Offsets and weights of the blur kernel of each corner, and their sigma derivatives
+
+SYNOPSIS
+
+    Z, W, dZ, dW = blur_kernel(sigma, kind)
+    # sigma (m,) px; Z (m,M,2) offsets (px), W (m,M) weights; dZ, dW per px of sigma
+
+The blurred model of a pixel is sum_q W_q A(d + Z_q), A the exact area of the pixel
+inside the dark wedges. Two kinds:
+
+- "gaussian": optics: a Gaussian PSF acting on the scene before the pixel integrates it
+  (kernel: the pixel's square convolved with the Gaussian). Z = sigma * BLUR_NODES,
+  W = BLUR_WEIGHTS (product Gauss-Hermite, BLUR_ORDER per axis: the expectation of the
+  pixel area over the PSF's offsets, 0.26% of the contrast RMS off the exact blur at
+  sigma 0.7 px against 1.0% for order 3, tests/test_corners_blur.py).
+- "sampled": a pixel-integrated Gaussian applied to the pixel image (what
+  renderers.response's psf stage does, _pixel_gaussian_1d): integer offsets within
+  SAMPLED_REACH_SIGMAS sigma, weights outer(k, k), k_j = Phi((j + 1/2) / sigma) -
+  Phi((j - 1/2) / sigma) normalised. On an area-sampled image that is the pixel's square
+  convolved twice (variance sigma^2 + 1/6 per axis, not sigma^2 + 1/12).
+'''
+    sigma = np.atleast_1d(np.asarray(sigma, dtype=np.float64))
+    m = len(sigma)
+    if kind == "gaussian":
+        Z = sigma[:, None, None] * BLUR_NODES[None]
+        W = np.broadcast_to(BLUR_WEIGHTS, (m, len(BLUR_WEIGHTS)))
+        dZ = np.broadcast_to(BLUR_NODES, (m,) + BLUR_NODES.shape)
+        dW = np.zeros(W.shape)
+    elif kind == "sampled":
+        from scipy.special import ndtr
+        sg = np.maximum(sigma, 1e-3)
+        n = max(1, int(np.ceil(SAMPLED_REACH_SIGMAS * sg.max() - 0.5)))
+        j = np.arange(-n, n + 1, dtype=np.float64)
+        hi = (j + 0.5)[None] / sg[:, None]
+        lo = (j - 0.5)[None] / sg[:, None]
+        k = ndtr(hi) - ndtr(lo)
+        phi = lambda x: np.exp(-0.5 * x * x) / np.sqrt(2 * np.pi)  # noqa: E731
+        dk = -(hi * phi(hi) - lo * phi(lo)) / sg[:, None]
+        S = k.sum(-1, keepdims=True)
+        dS = dk.sum(-1, keepdims=True)
+        dk = dk / S - k * dS / S ** 2
+        k = k / S
+        W = (k[:, :, None] * k[:, None, :]).reshape(m, -1)
+        dW = (dk[:, :, None] * k[:, None, :] + k[:, :, None] * dk[:, None, :]).reshape(m, -1)
+        jj = np.stack(np.meshgrid(j, j, indexing="ij"), axis=-1).reshape(-1, 2)
+        Z = np.broadcast_to(jj, (m,) + jj.shape)
+        dZ = np.zeros(Z.shape)
+    else:
+        raise ValueError(f"psf kind must be one of {PSF_KINDS}, not {kind!r}")
+    return tuple(np.ascontiguousarray(x, dtype=np.float64) for x in (Z, W, dZ, dW))
 
 
 def blurred_half_box(steps, half_box, clearance, sigma):
@@ -287,7 +345,7 @@ or (N,) per corner)'''
 
 
 def refine_corners(image, q0, directions, wedges, steps, half_box, *, psf_sigma_px=None,
-                   clearance=None, lines=(), **options):
+                   psf_kind=None, clearance=None, lines=(), **options):
     r'''Refine corners by fitting the area-sampled wedge model; see the module docstring
 
 SYNOPSIS
@@ -307,6 +365,9 @@ ARGUMENTS
 - psf_sigma_px: the image's blur, a Gaussian PSF's sigma (px) on top of the pixel's
   area: a number when the caller knows it (e.g. from a campaign's response stage), None
   (default) to estimate it from the image (estimate_blur), 0 for a sharp image
+- psf_kind: the blur kernel's kind (blur_kernel: "gaussian" optics, "sampled" a blur of
+  the pixel image); None (default): estimate_blur picks the one that fits the image
+  better ("gaussian" when psf_sigma_px is given)
 - clearance: board units from the corner to the nearest other feature along the box's
   axes (default half_box: no room to spare): the window shrinks so that the blurred
   feature stays out of it (blurred_half_box)
@@ -349,8 +410,10 @@ the estimate's spread.
         sigma1 = 0.0
     else:
         sigma1 = float(psf_sigma_px)
+        kind = psf_kind or "gaussian"
+        options["psf_kind"] = kind
         opts1 = options
-        info = {"psf_sigma_px": sigma1, "psf_source": "given"}
+        info = {"psf_sigma_px": sigma1, "psf_source": "given", "psf_kind": kind}
     hb1 = blurred_half_box(steps, half_box, clearance, sigma1)
     fit = _fit(image, q0, directions, wedges, steps, hb1, widen=JACOBIAN_WIDEN,
                converged_px=FIRST_PASS_CONVERGED_PX, sigma=sigma1, **opts1)
@@ -364,7 +427,8 @@ the estimate's spread.
                        dirs[:, 1] * np.linalg.norm(steps[ok, :, 1], axis=-1)[:, None]), axis=-1)
     if psf_sigma_px is None:
         info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box, clearance,
-                             **options)
+                             kinds=PSF_KINDS if psf_kind is None else (psf_kind,), **options)
+        options["psf_kind"] = info["psf_kind"]
     sigma = info["psf_sigma_px"]
     if sigma < BLUR_NEGLIGIBLE_PX:
         sigma = 0.0
@@ -379,7 +443,8 @@ the estimate's spread.
                      info=info)
 
 
-def estimate_blur(image, q, directions, wedges, steps, half_box, clearance, **options):
+def estimate_blur(image, q, directions, wedges, steps, half_box, clearance, kinds=PSF_KINDS,
+                  **options):
     r'''The image's Gaussian blur (px) from the edge profiles at its corners
 
 SYNOPSIS
@@ -390,32 +455,45 @@ SYNOPSIS
 Fits the blurred model with sigma free (one sigma per corner, beside the corner, rays,
 light level and contrast) on up to BLUR_SAMPLE corners spread over the list, in windows
 kept BLUR_PROBE_PX of blur away from the next feature, and takes the median of the fits
-that converged with a misfit below max_misfit. The pixel's own area is in the model, so a
-sharp area-sampled render gives sigma ~ 0 (a few thousandths of a px). info also has
-"psf_sigma_spread_px" (the estimates' MAD x 1.4826), "psf_estimates" (how many) and
-"psf_source" ("estimated"; "estimated (no corner fitted): 0" when none converged).
+that converged with a misfit below max_misfit. Each kind of kernel (blur_kernel) is
+fitted; the one with the lower median misfit is kept ("psf_kind"; "psf_misfit" has each
+kind's). The pixel's own area is in the model, so a sharp area-sampled render gives
+sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1.4826),
+"psf_estimates" (how many) and "psf_source" ("estimated"; "estimated (no corner fitted):
+0" when none converged).
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     n = len(q)
     pick = np.unique(np.linspace(0, n - 1, min(n, BLUR_SAMPLE)).round().astype(np.int64))
     steps = np.asarray(steps, dtype=np.float64).reshape(n, 2, 2)[pick]
     hb = blurred_half_box(steps, half_box, clearance, BLUR_PROBE_PX)
-    fit = _fit(image, q[pick], np.asarray(directions)[pick], wedges, steps, hb,
-               sigma=BLUR_START_PX, fit_sigma=True, **options)
-    good = fit.reasons == ""
-    est = np.abs(fit.info.get("sigma", np.full(len(good), np.nan))[good])
-    if not len(est):
+    options.pop("psf_kind", None)
+    best, misfits = None, {}
+    for kind in kinds:
+        fit = _fit(image, q[pick], np.asarray(directions)[pick], wedges, steps, hb,
+                   sigma=BLUR_START_PX, fit_sigma=True, psf_kind=kind, **options)
+        good = fit.reasons == ""
+        est = np.abs(fit.info.get("sigma", np.full(len(good), np.nan))[good])
+        if not len(est):
+            continue
+        mis = float(np.median(fit.misfit[good]))
+        misfits[kind] = mis
+        if best is None or mis < best[0]:
+            best = (mis, kind, est)
+    if best is None:
         return {"psf_sigma_px": 0.0, "psf_source": "estimated (no corner fitted): 0",
-                "psf_estimates": 0, "psf_sigma_spread_px": float("nan")}
+                "psf_kind": kinds[0], "psf_estimates": 0, "psf_sigma_spread_px": float("nan")}
+    _, kind, est = best
     med = float(np.median(est))
-    return {"psf_sigma_px": med, "psf_source": "estimated", "psf_estimates": int(len(est)),
+    return {"psf_sigma_px": med, "psf_source": "estimated", "psf_kind": kind,
+            "psf_misfit": misfits, "psf_estimates": int(len(est)),
             "psf_sigma_spread_px": float(1.4826 * np.median(np.abs(est - med)))}
 
 
 def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
          converged_px=CONVERGED_PX, kernel="numba", value_range=None, sigma=0.0,
-         fit_sigma=False, lines=()):
+         fit_sigma=False, lines=(), psf_kind="gaussian"):
     r'''One pass of refine_corners (the window about q0, half_box a number or (N,); widen:
 see wedge_area; kernel: "numba" the compiled pixel-area model of targets._corner_kernels,
 "numpy" wedge_area's; sigma: the Gaussian blur, px, fitted per corner from there with
@@ -490,21 +568,22 @@ line through the corner when sigma > 0)'''
     for col, r in enumerate(free, start=len(tied)):
         T[r, col] = 1.0
     L = T.shape[1]
-    if float(sigma) > 0.0 or fit_sigma:
-        nodes, weights = BLUR_NODES, BLUR_WEIGHTS
-    else:
-        nodes, weights = np.zeros((1, 2)), np.ones(1)
+    blurred = float(sigma) > 0.0 or fit_sigma
 
     def model(s, c, theta, sg):
         # D (m,P) dark area of each window pixel and its derivatives, for the corners s;
         # with fit_sigma the blur's derivative is the last column of dD_dt
         uu = np.stack((np.cos(theta), np.sin(theta)), axis=-1)     # (m,R,2)
+        if blurred:
+            Z, W, dZ, dW = blur_kernel(sg, psf_kind)
+        else:
+            Z, dZ = np.zeros((len(s), 1, 2)), np.zeros((len(s), 1, 2))
+            W, dW = np.ones((len(s), 1)), np.zeros((len(s), 1))
         if kernel == "numba":
             from ._corner_kernels import wedge_model
             D, dD_dc, dD_dt, dD_ds = wedge_model(
                 centres, np.ascontiguousarray(s, dtype=np.int64), np.ascontiguousarray(c),
-                uu, first, second, float(widen), np.ascontiguousarray(sg, dtype=np.float64),
-                nodes, weights)
+                uu, first, second, float(widen), Z, W, dZ, dW)
         else:
             d0 = centres[s] - c[:, None, :]
             m = len(s)
@@ -512,8 +591,9 @@ line through the corner when sigma > 0)'''
             dD_dc = np.zeros(d0.shape)
             dD_dt = np.zeros(d0.shape[:-1] + (R,))
             dD_ds = np.zeros(d0.shape[:-1])
-            for z, wz in zip(nodes, weights, strict=True):
-                d = d0 + sg[:, None, None] * z
+            for q in range(W.shape[1]):
+                d = d0 + Z[:, q][:, None, :]
+                wz = W[:, q][:, None]
                 for k in range(first.shape[1]):
                     i1, i2 = first[s, k], second[s, k]
                     u1 = uu[np.arange(m), i1][:, None, :]
@@ -522,10 +602,12 @@ line through the corner when sigma > 0)'''
                         d, np.broadcast_to(u1, d.shape), np.broadcast_to(u2, d.shape), True,
                         widen)
                     D += wz * A
-                    dD_dc += wz * dA_dc
-                    dD_dt += wz * (dA_dt1[..., None] * (np.arange(R) == i1[:, None])[:, None, :]
-                                   + dA_dt2[..., None] * (np.arange(R) == i2[:, None])[:, None, :])
-                    dD_ds -= wz * (dA_dc @ z)
+                    dD_dc += wz[..., None] * dA_dc
+                    dD_dt += wz[..., None] * (
+                        dA_dt1[..., None] * (np.arange(R) == i1[:, None])[:, None, :]
+                        + dA_dt2[..., None] * (np.arange(R) == i2[:, None])[:, None, :])
+                    dD_ds += dW[:, q][:, None] * A \
+                        - wz * (dA_dc * dZ[:, q][:, None, :]).sum(-1)
         if tied:
             dD_dt = dD_dt @ T
         if fit_sigma:
