@@ -129,6 +129,7 @@ def wedge_model(centres, s, c, uu, first, second, widen, Z, W, dZ, dW):
                         if dist <= reach:
                             near = True
             if blurred and not near:
+                # sum W = 1 over the kernel, but the derivatives are 0: A is constant here
                 for k in range(Nw):
                     i1 = first[n, k]
                     i2 = second[n, k]
@@ -136,6 +137,8 @@ def wedge_model(centres, s, c, uu, first, second, widen, Z, W, dZ, dW):
                                      uu[j, i2, 0], uu[j, i2, 1])
                 continue
             for q in range(M if blurred else 1):
+                if blurred and W[j, q] == 0.0 and dW[j, q] == 0.0:
+                    continue
                 if blurred:
                     zx = Z[j, q, 0]
                     zy = Z[j, q, 1]

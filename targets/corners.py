@@ -135,6 +135,10 @@ BLUR_SAMPLE = 32
 BLUR_PROBE_PX = 1.0
 # the first guess of the blur estimate (px); the model is even in sigma, so not 0
 BLUR_START_PX = 0.5
+# the widest blur a fit may reach (px): 3 sigma of it fill the widest window, beyond which
+# a window's edges no longer tell blur from light level and contrast (and the sampled
+# kernel's taps, ~6 sigma across, would grow without bound on a window with no edge)
+BLUR_MAX_PX = MAX_WINDOW_PX / BLUR_REACH_SIGMAS
 # a blur below this (px) is fitted with the sharp model (9x cheaper): on top of the pixel's
 # own area (variance 1/12 px^2) it moves a corner by O(sigma^2): < 1e-4 px (measured below)
 BLUR_NEGLIGIBLE_PX = 0.02
@@ -297,13 +301,16 @@ inside the dark wedges. Two kinds:
     elif kind == "sampled":
         from scipy.special import ndtr
         sg = np.maximum(sigma, 1e-3)
-        n = max(1, int(np.ceil(SAMPLED_REACH_SIGMAS * sg.max() - 0.5)))
+        nj = np.maximum(1, np.ceil(SAMPLED_REACH_SIGMAS * sg - 0.5)).astype(np.int64)
+        n = int(nj.max())
         j = np.arange(-n, n + 1, dtype=np.float64)
         hi = (j + 0.5)[None] / sg[:, None]
         lo = (j - 0.5)[None] / sg[:, None]
-        k = ndtr(hi) - ndtr(lo)
+        # each corner's own taps: zero weights beyond them (the compiled model skips them)
+        own = np.abs(j)[None] <= nj[:, None]
+        k = np.where(own, ndtr(hi) - ndtr(lo), 0.0)
         phi = lambda x: np.exp(-0.5 * x * x) / np.sqrt(2 * np.pi)  # noqa: E731
-        dk = -(hi * phi(hi) - lo * phi(lo)) / sg[:, None]
+        dk = np.where(own, -(hi * phi(hi) - lo * phi(lo)) / sg[:, None], 0.0)
         S = k.sum(-1, keepdims=True)
         dS = dk.sum(-1, keepdims=True)
         dk = dk / S - k * dS / S ** 2
@@ -677,7 +684,8 @@ line through the corner when sigma > 0)'''
         c1 = c[s] + step[:, 2:4]
         t1 = theta[s] + step[:, 4:4 + L] @ T.T
         # the model is even in sigma: keep it positive
-        g1 = np.abs(sig[s] + step[:, 4 + L]) if fit_sigma else sig[s]
+        g1 = np.minimum(np.abs(sig[s] + step[:, 4 + L]), BLUR_MAX_PX) if fit_sigma \
+            else sig[s]
         D1, dD_dc1, dD_dt1 = model(s, c1, t1, g1)
         a1, b1, S1, r1 = linear(s, D1)
         better = S1 <= S[s]
