@@ -77,7 +77,8 @@ sum_q W_q A(d + Z_q) (blur_kernel: "gaussian", a Gaussian acting on the scene be
 the pixel integrates it, or "sampled", a pixel-integrated Gaussian applied to the pixel
 image as renderers.response's psf stage does), with a chessboard's opposite rays tied
 into one line. The blur is estimated from the image (estimate_blur: sigma and the kind
-fitted on up to BLUR_SAMPLE corners, the median kept; a given psf_sigma_px skips it), and
+fitted on up to BLUR_SAMPLE corners, the median kept, after a look at BLUR_QUICK_SAMPLE
+corners with one kind finds any blur; a given psf_sigma_px skips it), and
 each window keeps 3 sigma of blur (px, over the board unit's smallest image step) away
 from the nearest feature it does not model (blurred_half_box). Noise-free, the blurred
 chessboard and tag corners come out within 2e-4 px of the truth on navcam 15's renders
@@ -130,6 +131,10 @@ BLUR_REACH_SIGMAS = 3.0
 # corners the per-image blur estimate fits (spread over the image's corners): the median of
 # 32 independent estimates has a scatter of ~1/4.5 of one corner's
 BLUR_SAMPLE = 32
+# corners of the first, one-kind look (estimate_blur's sample) that decides whether the
+# image is blurred at all: the median of 8 sharp corners' sigmas sits ~1e-5 px from 0,
+# a blur of BLUR_NEGLIGIBLE_PX or more reads as one on any of them
+BLUR_QUICK_SAMPLE = 8
 # the blur (px) assumed while the estimate places its windows: the windows shrink for it,
 # so a neighbouring feature blurred by up to this much stays out of them
 BLUR_PROBE_PX = 1.0
@@ -452,15 +457,17 @@ the estimate's spread.
     steps2 = np.stack((dirs[:, 0] * np.linalg.norm(steps[ok, :, 0], axis=-1)[:, None],
                        dirs[:, 1] * np.linalg.norm(steps[ok, :, 1], axis=-1)[:, None]), axis=-1)
     if psf_sigma_px is None:
+        kinds = PSF_KINDS if psf_kind is None else (psf_kind,)
+        # a sharp image (every clean render) is told by a few corners and one kind: the
+        # full estimate (both kinds, BLUR_SAMPLE corners) only when they see a blur
         info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box, clearance,
-                             kinds=PSF_KINDS if psf_kind is None else (psf_kind,), **options)
+                             kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE, **options)
+        if added_blur_px(info["psf_sigma_px"], info["psf_kind"]) >= BLUR_NEGLIGIBLE_PX:
+            info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box,
+                                 clearance, kinds=kinds, **options)
         options["psf_kind"] = info["psf_kind"]
     sigma = info["psf_sigma_px"]
-    # the blur the kernel adds (its standard deviation per axis): the sampled kernel's taps
-    # carry ~no weight below sigma ~0.2 px, so its sigma wanders there on a sharp image
-    # (0.09-0.13 px measured on exact renders) while it blurs nothing
-    Z, W, _, _ = blur_kernel([max(sigma, 1e-3)], options.get("psf_kind", "gaussian"))
-    if np.sqrt((W[0] * Z[0, :, 0] ** 2).sum()) < BLUR_NEGLIGIBLE_PX:
+    if added_blur_px(sigma, options.get("psf_kind", "gaussian")) < BLUR_NEGLIGIBLE_PX:
         info = dict(info, psf_sigma_px=0.0, psf_sigma_estimated_px=sigma)
         sigma = 0.0
     hb2 = blurred_half_box(steps2, half_box, clearance, sigma)
@@ -474,8 +481,17 @@ the estimate's spread.
                      info=info)
 
 
+def added_blur_px(sigma, kind="gaussian"):
+    r'''The blur (px, standard deviation per axis) a kernel of this sigma and kind adds
+to the pixel's own area: the sampled kernel's taps carry ~no weight below sigma ~0.2 px,
+so its sigma wanders there on a sharp image (0.09-0.13 px measured on exact renders)
+while it blurs nothing'''
+    Z, W, _, _ = blur_kernel([max(float(sigma), 1e-3)], kind)
+    return float(np.sqrt((W[0] * Z[0, :, 0] ** 2).sum()))
+
+
 def estimate_blur(image, q, directions, wedges, steps, half_box, clearance, kinds=PSF_KINDS,
-                  **options):
+                  sample=None, **options):
     r'''The image's Gaussian blur (px) from the edge profiles at its corners
 
 SYNOPSIS
@@ -495,7 +511,8 @@ sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     n = len(q)
-    pick = np.unique(np.linspace(0, n - 1, min(n, BLUR_SAMPLE)).round().astype(np.int64))
+    sample = BLUR_SAMPLE if sample is None else int(sample)
+    pick = np.unique(np.linspace(0, n - 1, min(n, sample)).round().astype(np.int64))
     steps = np.asarray(steps, dtype=np.float64).reshape(n, 2, 2)[pick]
     hb = blurred_half_box(steps, half_box, clearance, BLUR_PROBE_PX)
     options.pop("psf_kind", None)
