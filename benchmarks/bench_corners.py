@@ -4,6 +4,7 @@ SYNOPSIS
 
     uv run --frozen python benchmarks/bench_corners.py [--cameras 15,17,8] [--spp 16]
         [--poses 6] [--coverage point|area] [--images /tmp/cornerbench]
+        [--response realistic] [--psf-sigma PX] [--methods camval]
         [--out benchmarks/results]
 
 For each camera (its catalogue model in its own family), target (apriltag,
@@ -19,6 +20,11 @@ goes through every method:
   mark, refine=False); cv2.findChessboardCorners (the sector-based search where it fails)
   polished by cv2.cornerSubPix (refine="subpix"); camval's refined corners (the same
   search, then targets.corners)
+
+--response NAME passes every image through that profile of campaigns/response.toml
+(renderers.response; seed = the image's index) before detection; --psf-sigma hands camval's
+refiner a known blur (px; default: it estimates the blur from the image); --methods keeps
+the methods whose name contains one of the comma-separated words.
 
 The truth is targets.centroids.projected_points: the board's corner points projected
 through the camera. Prints the table method x camera (corner error RMS / max px,
@@ -126,8 +132,21 @@ def main():
     ap.add_argument("--coverage", choices=("point", "area"), default="point",
                     help="ray-cast coverage: point sampling (spp x spp) or exact covered area")
     ap.add_argument("--images", type=Path, default=Path("/tmp/cornerbench"))
+    ap.add_argument("--response", default=None,
+                    help="a profile of campaigns/response.toml applied to every image")
+    ap.add_argument("--psf-sigma", type=float, default=None,
+                    help="the blur (px) handed to camval's refiner (default: estimated)")
+    ap.add_argument("--methods", default=None, help="comma-separated words: keep the methods "
+                    "whose name contains one")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = ap.parse_args()
+    chain = None
+    if args.response:
+        import tomllib
+
+        from renderers.response import ResponseChain
+        doc = tomllib.loads((ROOT / "campaigns" / "response.toml").read_text())
+        chain = ResponseChain.from_config(doc["response"][args.response])
 
     from harness.records import git_commit
     from targets.detect import detect
@@ -137,22 +156,34 @@ def main():
         for tname in args.targets.split(","):
             family, target, images = render_images(args.images, cam, tname, args.spp,
                                                    args.poses, args.coverage)
+            if chain is not None:
+                images = [(chain.apply(img, seed=i).image, truth)
+                          for i, (img, truth) in enumerate(images)]
             for method, refine in METHODS[tname]:
-                errs, secs, cpus, found, dropped = [], [], [], 0, {}
+                if args.methods and not any(w in method for w in args.methods.split(",")):
+                    continue
+                errs, secs, cpus, found, dropped, sig = [], [], [], 0, {}, []
                 for img, truth in images:
+                    opts = {}
+                    if refine is True and args.psf_sigma is not None:
+                        opts["psf_sigma_px"] = args.psf_sigma
                     t0, c0 = time.perf_counter(), time.process_time()
-                    det = detect(img, target, refine=refine, min_found=4)
+                    det = detect(img, target, refine=refine, min_found=4, **opts)
                     secs.append(time.perf_counter() - t0)
                     cpus.append(time.process_time() - c0)
                     e = np.linalg.norm(det.q - truth, axis=-1)
                     errs.append(e[np.isfinite(e)])
                     found += int(det.n_found)
+                    if "psf_sigma_px" in det.info:
+                        sig.append(det.info["psf_sigma_px"])
                     for k, v in det.info.get("corners_dropped", {}).items():
                         dropped[k] = dropped.get(k, 0) + v
                 e = np.concatenate(errs)
                 row = {"fullname": f"{cam}/{family}/{tname}/{method}", "camera": cam,
                        "family": family, "target": tname, "method": method,
                        "spp": args.spp, "coverage": args.coverage, "images": len(images),
+                       "response": args.response, "psf_sigma_given": args.psf_sigma,
+                       "psf_sigma_px": [float(x) for x in sig],
                        "shape": list(images[0][0].shape),
                        "corners_expected": int(target.Npoints * len(images)),
                        "corners_found": found, "corners_dropped": dropped,
@@ -166,6 +197,7 @@ def main():
                       f"rms {row['error_rms_px']:.4f} max {row['error_max_px']:.4f} px  "
                       f"{found:4d}/{row['corners_expected']} found  "
                       f"{row['seconds_median']:.3f} s/image"
+                      + (f"  blur {np.median(sig):.3f} px" if sig else "")
                       + (f"  dropped {dropped}" if dropped else ""), flush=True)
     timing = timing_rows(rows)
     print(f"\ndetection seconds per image, wall and CPU of this process (median / max over "
@@ -180,7 +212,7 @@ def main():
     doc = {"schema": 1, "date": datetime.now(UTC).isoformat(timespec="seconds"),
            "commit": git_commit()["commit"], "python": platform.python_version(),
            "machine": platform.machine(), "renderer": "raycast", "spp": args.spp,
-           "coverage": args.coverage,
+           "coverage": args.coverage, "response": args.response,
            "truth": "targets.centroids.projected_points", "load_average": _load(),
            "records": rows, "timing": timing}
     args.out.mkdir(parents=True, exist_ok=True)

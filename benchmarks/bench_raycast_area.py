@@ -3,16 +3,18 @@ r'''The ray caster's area coverage against K x K point sampling: dot-centroid ac
 SYNOPSIS
 
     NUMBA_NUM_THREADS=2 uv run python benchmarks/bench_raycast_area.py
-        [--cameras 15,17,1] [--poses 6] [--repeats 3] [--settings K=4 K=16 area area@1e-3]
-        [--memory-camera 1]
+        [--cameras 15,17,1] [--poses 6] [--repeats 3]
+        [--settings K=4 K=16 area area@1e-3 tested:area] [--memory-camera 1]
 
 For each camera (catalogue slots; default 15: 1024x1024 CAHVOR navcam, 17:
 640x480 CAHVORE fisheye hazcam, 1: 5120x3840 noncentral CAHVORE) and each
 setting (point sampling K=<n> adaptive: coverage="point"; coverage="area", the
-default, "area@<tolerance>" with options area_tolerance), the 10x10 "dots"
-target at the poses of targets.poses.plan_poses (seed 0) is rendered with a warm
-ray cache; targets.detect finds the dots and each is compared with the exact
-centroid of its projected outline (targets.centroids.expected_centroids):
+default, "area@<tolerance>" with options area_tolerance; a prefix "tested:" renders
+with RaycastRenderer(outlines=False): edge pixels found by testing pixels instead
+of from the projected outlines, for comparison), the 10x10 "dots" target at the
+poses of targets.poses.plan_poses (seed 0) is rendered (kernels compiled; no ray
+cache is kept between renders); targets.detect finds the dots and each is
+compared with the exact centroid of its projected outline (targets.centroids.expected_centroids):
 RMS and max over all dots of all poses. Time: wall and CPU seconds per image,
 min and median over the poses x --repeats (pose 0 apart: the figure of issue
 18). Bars (issue 18): 1024x1024 centroid RMS <= 0.001 px in <= 0.010 s warm on
@@ -20,9 +22,7 @@ min and median over the poses x --repeats (pose 0 apart: the figure of issue
 load average at start and end is in the document (environment).
 
 --memory-camera: that camera is also rendered in area mode in a fresh process,
-which reports its peak resident memory (getrusage) and its warm times;
---lazy-above-bytes N: with RaycastRenderer(lazy_above_bytes=N) (1 << 40 keeps
-the whole-image ray cache of a 5120x3840 camera: the figure before lazy tiles).
+which reports its peak resident memory (getrusage) and its first and next times.
 
 Records: raycast_area/<camera>/<setting> (rms_px, max_px, n, wall_s, cpu_s,
 pose0_wall_s, fractions), raycast_area/memory/<camera>/area.
@@ -42,6 +42,7 @@ BARS = {"rms_px": 0.001, "wall_1024_s": 0.010, "wall_5120x3840_s": 0.1,
 
 def settings_of(name):
     from renderers.base import RenderSettings
+    name = name.removeprefix("tested:")
     if name == "area":
         return RenderSettings(spp=16, options={"coverage": "area"})
     if name.startswith("area@"):
@@ -64,11 +65,11 @@ def measure(out, cam, setting_names, nposes, repeats):
     target = load_target("dots")
     pattern = target.pattern()
     poses = plan_poses(model, target, n=6, seed=0)[:nposes]
-    renderer = RaycastRenderer()
     truths = [expected_centroids(model, target, Rt) for Rt in poses]
     for name in setting_names:
         settings = settings_of(name)
-        renderer.render(model, pattern, poses[0], settings)     # compile, ray cache
+        renderer = RaycastRenderer(outlines=not name.startswith("tested:"))
+        renderer.render(model, pattern, poses[0], settings)     # compile
         walls, cpus, pose0, errs, md = [], [], [], [], None
         missing = 0
         for i, Rt in enumerate(poses):
@@ -94,8 +95,10 @@ def measure(out, cam, setting_names, nposes, repeats):
                       threads=md["threads"], adaptive_fraction=md["adaptive_fraction"],
                       area_fraction=md.get("area_fraction"),
                       area_point_sampled_fraction=md.get("area_point_sampled_fraction"),
+                      edges=md["edges"], pixels_tested_last_image=md["pixels_tested"],
                       rays_last_image=md["samples"])
-        print(f"  camera {cam:>2} {model.family:<7} {model.width}x{model.height} {name:<5}: "
+        print(f"  camera {cam:>2} {model.family:<7} {model.width}x{model.height} {name:<5} "
+              f"({md['edges']}): "
               f"centroid RMS {rec['rms_px']:.5f} max {rec['max_px']:.5f} px ({rec['n']} dots)  "
               f"wall min {rec['wall_s']['min'] * 1e3:.1f} median "
               f"{rec['wall_s']['median'] * 1e3:.1f} ms (pose 0 min "
@@ -103,7 +106,7 @@ def measure(out, cam, setting_names, nposes, repeats):
               f"{rec['cpu_s']['median'] * 1e3:.1f} ms", flush=True)
 
 
-def memory_child(cam, repeats, lazy_above_bytes):
+def memory_child(cam, repeats):
     r'''In a fresh process: area-mode renders of one camera; JSON on stdout'''
     from reference_models.catalogue import load_catalogue
     from renderers.raycast import RaycastRenderer
@@ -120,8 +123,7 @@ def memory_child(cam, repeats, lazy_above_bytes):
     # Linux: reset the peak (VmHWM) so that it measures this camera's renders alone
     reset = _reset_peak_rss()
     poses = plan_poses(model, target, n=6, seed=0)
-    renderer = (RaycastRenderer() if lazy_above_bytes is None
-                else RaycastRenderer(lazy_above_bytes=lazy_above_bytes))
+    renderer = RaycastRenderer()
     with common.Stopwatch() as cold:
         renderer.render(model, target.pattern(), poses[0], settings_of("area"))
     walls = []
@@ -132,7 +134,7 @@ def memory_child(cam, repeats, lazy_above_bytes):
             walls.append(sw.wall_s)
     md = renderer.render(model, target.pattern(), poses[0], settings_of("area")).metadata
     print(json.dumps({"camera": cam, "size": [model.width, model.height],
-                      "ray_cache": md["ray_cache"], "lazy_above_bytes": lazy_above_bytes,
+                      "edges": md["edges"],
                       "cold_s": cold.wall_s, "wall_s": common.summary(walls),
                       "peak_rss_MB": (_vm("VmHWM") if reset else common.peak_rss_bytes()) / 1e6,
                       "peak_rss_since": "the camera" if reset else "process start",
@@ -155,23 +157,20 @@ memory now, or 0 where the reset is not possible'''
     return _vm("VmRSS")
 
 
-def memory(out, cam, repeats=1, lazy_above_bytes=None):
+def memory(out, cam, repeats=1):
     r'''Render one camera in area mode in a fresh process (memory_child) -> the record added
-(raycast_area/memory/<camera>/area): cold and warm seconds, peak resident memory'''
-    lazy = [] if lazy_above_bytes is None else ["--lazy-above-bytes", str(lazy_above_bytes)]
+(raycast_area/memory/<camera>/area): first and next seconds, peak resident memory'''
     r = subprocess.run([sys.executable, __file__, "--memory-child", cam,
-                        "--repeats", str(repeats), *lazy], capture_output=True, text=True,
+                        "--repeats", str(repeats)], capture_output=True, text=True,
                        cwd=common.ROOT)
     name = f"raycast_area/memory/{cam}/area"
-    if lazy_above_bytes is not None:
-        name += f"/lazy_above={lazy_above_bytes}"
     if r.returncode != 0:
         return out.add(name, status="failed",
                        reason=" ".join(r.stderr.strip().splitlines()[-1:]) or "no output")
     rec = out.add(name, json.loads(r.stdout.strip().splitlines()[-1]),
                   bar_peak_rss_MB=BARS["peak_rss_5120x3840_MB"])
-    print(f"  camera {rec['camera']} area, ray cache {rec['ray_cache']}, fresh process: "
-          f"cold {rec['cold_s']:.2f} s, warm "
+    print(f"  camera {rec['camera']} area, edges {rec['edges']}, fresh process: "
+          f"first {rec['cold_s']:.2f} s, next "
           f"median {rec['wall_s']['median']:.3f} s, peak RSS {rec['peak_rss_MB']:.0f} MB "
           f"since {rec['peak_rss_since']} (resident before the camera: "
           f"{rec['rss_before_MB']:.0f} MB)", flush=True)
@@ -180,13 +179,13 @@ def memory(out, cam, repeats=1, lazy_above_bytes=None):
 
 def run(args, out):
     if args.memory_child:
-        memory_child(args.memory_child, args.repeats, args.lazy_above_bytes)
+        memory_child(args.memory_child, args.repeats)
         sys.exit(0)
-    print(f"dots, warm ray cache, {args.poses} poses x {args.repeats} repeats:")
+    print(f"dots, {args.poses} poses x {args.repeats} repeats:")
     for cam in args.cameras:
         measure(out, cam, args.settings, args.poses, args.repeats)
     if args.memory_camera:
-        memory(out, args.memory_camera, 1, args.lazy_above_bytes)
+        memory(out, args.memory_camera, 1)
     return 0
 
 
@@ -197,10 +196,6 @@ def make_parser():
     ap.add_argument("--settings", nargs="+", default=["K=4", "K=16", "area"])
     ap.add_argument("--memory-camera", default="1")
     ap.add_argument("--memory-child", help=common.argparse.SUPPRESS)
-    ap.add_argument("--lazy-above-bytes", type=int, default=None,
-                    help="the memory camera's RaycastRenderer(lazy_above_bytes=...): a camera "
-                         "whose whole ray cache is larger renders without one (default "
-                         "renderers.raycast.LAZY_ABOVE_BYTES; a large value keeps the cache)")
     ap.set_defaults(run=run)
     return ap
 

@@ -18,7 +18,7 @@ Each part writes one JSON document, benchmarks/results/<UTC stamp>-bench_render-
 raycast    dot-centre accuracy against K (12 cameras of 1024x1024 x 6 poses), warm speed
            at 1024x1024, and a 5120x3840 camera in a fresh process (time, peak memory)
 jobs       the ray-cast jobs of a campaign (default: the paper's 5120x3840 cameras), each
-           rendered from an empty ray cache as a job of a new camera is
+           rendered as a campaign job renders them (no ray cache: every image alike)
 renderers  raycast, POV-Ray (both paths), OSMesa and the warp at 1024x1024: time and
            centroid error
 terrain    terrain ray casting, 1024x1024 with exact shadow rays (bar <= 0.5 s)
@@ -114,7 +114,7 @@ def raycast_speed(out, cameras, repeats):
         model = cat.get(cam).model
         renderer = RaycastRenderer()
         poses = plan_poses(model, target, n=6, seed=0)
-        res, cold, _ = _render(renderer, model, target, poses[0], 16)   # builds the ray cache
+        res, cold, _ = _render(renderer, model, target, poses[0], 16)   # the first image
         walls, cpus, fractions, samples = [], [], [], []
         for _ in range(repeats):
             for Rt in poses:
@@ -152,7 +152,7 @@ def raycast_large_child(camera):
     rss0 = common.peak_rss_bytes() / 2**30
     renderer = RaycastRenderer()
     res, cold, _ = _render(renderer, model, target, poses[0], 16)
-    ray_cache_s = res.metadata["ray_cache_seconds"]
+    outline_s = res.metadata["outline_seconds"]
     walls, cpus = [], []
     for Rt in poses:
         res, wall, cpu = _render(renderer, model, target, Rt, 16)
@@ -160,7 +160,7 @@ def raycast_large_child(camera):
         cpus.append(cpu)
     print(json.dumps({"camera": camera, "size": [model.width, model.height],
                       "family": model.family, "central": bool(model.is_central),
-                      "cold_s": cold, "ray_cache_s": ray_cache_s,
+                      "cold_s": cold, "outline_s": outline_s,
                       "wall_s": common.summary(walls), "cpu_s": common.summary(cpus),
                       "adaptive_fraction": res.metadata["adaptive_fraction"],
                       "peak_rss_GiB": common.peak_rss_bytes() / 2**30,
@@ -180,7 +180,7 @@ def raycast_large(out, camera):
     rec["meets_bars"] = bool(rec["wall_s"]["median"] <= rec["bars"]["wall_s"]
                              and rec["peak_rss_GiB"] <= rec["bars"]["peak_rss_GiB"])
     print(f"  camera {rec['camera']} {rec['size'][0]}x{rec['size'][1]} {rec['family']}: "
-          f"cold {rec['cold_s']:.2f} s (rays {rec['ray_cache_s']:.2f} s), warm median "
+          f"first {rec['cold_s']:.2f} s (outlines {rec['outline_s']:.3f} s), warm median "
           f"{rec['wall_s']['median']:.3f} s (CPU {rec['cpu_s']['median']:.3f}), "
           f"peak RSS {rec['peak_rss_GiB']:.2f} GiB", flush=True)
 
@@ -195,13 +195,13 @@ E != 0 and CAHVOR pancams/navcams) x the 6 poses of targets.poses.plan_poses
 the exact centroid of its projected outline (targets.centroids.
 expected_centroids). Bars at K = 16: RMS <= 0.0015 px, max <= 0.005 px.
 
-Speed: the dot target at K = 16 adaptive with a warm ray cache, per image,
+Speed: the dot target at K = 16 adaptive, compiled, per image,
 median over the 6 poses x --repeats, for the 1024x1024 navcam (slot 15, CAHVOR)
 and hazcam (slot 12, noncentral CAHVORE); bar <= 0.050 s. CPU seconds
 (all threads) are reported next to wall seconds.
 
 Large: a 5120x3840 camera (slot 1, noncentral CAHVORE) in a fresh process:
-cold (ray cache built) and warm render time at K = 16 adaptive (bar <= 1 s),
+first and next render times at K = 16 adaptive (bar <= 1 s),
 and the peak resident memory of the process (getrusage ru_maxrss; bar
 <= 2 GiB).
 
@@ -213,7 +213,7 @@ raycast/large/<camera>/K=16.
         sys.exit(0)
     cameras = args.cameras or common.catalogue_slots((1024, 1024))
     if not args.skip_speed:
-        print("speed, 1024x1024, K=16 adaptive, warm ray cache:")
+        print("speed, 1024x1024, K=16 adaptive:")
         raycast_speed(out, args.speed_cameras, args.repeats)
     if not args.skip_large:
         print("5120x3840, K=16 adaptive (fresh process):")
@@ -240,43 +240,38 @@ def _raycast_arguments(p):
 def _job_once(job):
     import hashlib
 
-    from common import cached_renderer, render_stage
+    from common import render_stage
 
     truth, target, poses = common.job_inputs(job)
-    renderer = cached_renderer(job.renderer)
-    renderer.clear_cache()
     with common.Stopwatch() as sw:
         results, _, _ = render_stage(job.renderer, truth, target, poses, job.settings)
-    cache_bytes = renderer._cache_size()
-    renderer.clear_cache()
     return {
         "cpu_s": sw.cpu_s,
         "wall_s": sw.wall_s,
         "render_s": [r.metadata["seconds"] for r in results],
-        "ray_cache_s": [r.metadata["ray_cache_seconds"] for r in results],
+        "outline_s": [r.metadata.get("outline_seconds", 0.0) for r in results],
         "board_fraction": [r.metadata["board_fraction"] for r in results],
         "samples": [r.metadata["samples"] for r in results],
         "adaptive_fraction": [r.metadata["adaptive_fraction"] for r in results],
-        "cache_bytes": int(cache_bytes),
         "sha256": [hashlib.sha256(r.image.tobytes()).hexdigest() for r in results],
     }
 
 
 def part_jobs(args, out):
-    r'''The ray cache and the renders of a campaign's ray-cast jobs, each from an empty cache
+    r'''The renders of a campaign's ray-cast jobs
 
 For each job of --campaign (default campaigns/paper.toml) whose camera is one of
 --cameras (default: its 5120x3840 cameras, slots 1-4 and 19-22) and whose family
 is one of --families, the job's 6 poses are rendered as the campaign renders
-them (harness render_stage: raycast, K = 16, adaptive), starting from an empty
-ray cache, as a job of a new camera does. numba is warmed first (the harness's
+them (harness render_stage: raycast, K = 16, adaptive; no ray cache is kept
+between renders). numba is warmed first (the harness's
 warm_up on the jobs). Each job is run --repeats times.
 
 Reported per job: CPU seconds (time.process_time, all threads) and wall seconds
-of the 6 renders (min, median, every repeat), the ray-cache seconds and the
-render seconds of each image (renderer metadata), the bytes the cache holds
-afterwards, and the sha256 of each image (to check that a change of the
-renderer leaves every pixel as it was; repeats must agree). Run with
+of the 6 renders (min, median, every repeat), the outline seconds and the
+render seconds of each image (renderer metadata), and the sha256 of each image
+(to check that a change of the renderer leaves every pixel as it was; repeats must
+agree). Run with
 NUMBA_NUM_THREADS=1: CPU seconds of a single thread are the cleanest count of
 the work on a shared machine.
 
@@ -302,14 +297,12 @@ Records: jobs/<job key>.
         rec = out.add(f"jobs/{job.key}", job=job.key, camera=job.camera_key, family=job.family,
                       cpu_s=common.summary([r["cpu_s"] for r in runs]),
                       wall_s=common.summary([r["wall_s"] for r in runs]),
-                      **{k: best[k] for k in ("render_s", "ray_cache_s", "board_fraction",
-                                              "samples", "adaptive_fraction", "cache_bytes",
-                                              "sha256")})
+                      **{k: best[k] for k in ("render_s", "outline_s", "board_fraction",
+                                              "samples", "adaptive_fraction", "sha256")})
         total_cpu += rec["cpu_s"]["min"]
         print(f"{job.key:55s} cpu {rec['cpu_s']['min']:6.2f} s  wall {rec['wall_s']['min']:6.2f} s"
               f"  (repeats cpu {', '.join(f'{c:.2f}' for c in rec['cpu_s']['values'])})  "
-              f"cache {rec['cache_bytes'] / 2**20:6.0f} MiB  ray cache "
-              f"{max(rec['ray_cache_s']):.2f} s  renders "
+              f"outlines {max(rec['outline_s']):.3f} s  renders "
               f"{' '.join(f'{s:.2f}' for s in rec['render_s'])} s", flush=True)
     print(f"total: cpu {total_cpu:.2f} s over {len(jobs)} jobs")
 

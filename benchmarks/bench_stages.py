@@ -212,8 +212,9 @@ minima. Records: detect/<image>, detect/<width>x<height>.
 
 --save FILE writes every detection (q, found, status, info) to an .npz;
 --check FILE compares with such a file and fails (exit status 1) unless q
-(NaN positions included), the found masks, statuses and infos are identical: a
-faster detector must give the same detections bit for bit.
+(NaN positions included), the found masks, statuses and infos are identical
+(--check-px TOL: the centroids within TOL px, e.g. 1e-5 for a detector whose sums
+run in another order; the largest and RMS change are printed and recorded).
 '''
     from targets.boards import load_target
     from targets.detect import detect
@@ -247,16 +248,36 @@ faster detector must give the same detections bit for bit.
                     for k, d in dets.items()})
     if args.check:
         ref = np.load(args.check)
+        tol = args.check_px
+        moved = {k: _centroid_change(ref[f"q_{k}"], d.q) for k, d in dets.items()}
         bad = [k for k, d in dets.items()
-               if not (np.array_equal(ref[f"q_{k}"], d.q, equal_nan=True)
+               if not ((np.array_equal(ref[f"q_{k}"], d.q, equal_nan=True) if tol == 0
+                        else moved[k] is not None and moved[k].max(initial=0.0) <= tol)
                        and np.array_equal(np.isnan(ref[f"q_{k}"]), np.isnan(d.q))
                        and np.array_equal(ref[f"found_{k}"], d.found)
                        and str(ref[f"status_{k}"]) == d.status
                        and str(ref[f"info_{k}"]) == json.dumps(d.info, sort_keys=True,
                                                                default=str))]
-        out.add("detect/check", identical=not bad, against=str(args.check), differ=bad)
-        print("detections identical to", args.check if not bad else f"{args.check}: NO, {bad}")
+        d = np.concatenate([m for m in moved.values() if m is not None] or [np.zeros(0)])
+        change = {"max_px": float(d.max(initial=0.0)),
+                  "rms_px": float(np.sqrt(np.mean(d ** 2))) if len(d) else 0.0,
+                  "centroids": int(len(d))}
+        out.add("detect/check", identical=not bad, against=str(args.check), differ=bad,
+                tolerance_px=tol, centroid_change=change)
+        print(f"centroids moved: max {change['max_px']:.3g} px, RMS {change['rms_px']:.3g} px "
+              f"over {change['centroids']}")
+        what = "identical to" if tol == 0 else f"within {tol:g} px of"
+        print(f"detections {what}", args.check if not bad else f"{args.check}: NO, {bad}")
         return 1 if bad else 0
+
+
+def _centroid_change(q_ref, q):
+    r'''|q - q_ref| (px) of the centroids found in both, or None if they differ in which
+are found'''
+    if not np.array_equal(np.isnan(q_ref), np.isnan(q)):
+        return None
+    d = np.linalg.norm(np.asarray(q) - q_ref, axis=1)
+    return d[np.isfinite(d)]
 
 
 def _detect_arguments(p):
@@ -266,6 +287,9 @@ def _detect_arguments(p):
     p.add_argument("--cameras", type=common.ids, default=["3", "21", "5"])
     p.add_argument("--save", type=Path, help="write the detections to this .npz")
     p.add_argument("--check", type=Path, help="fail unless the detections equal this .npz's")
+    p.add_argument("--check-px", type=float, default=0.0,
+                   help="with --check: centroids may move this far (px; default 0: bit "
+                        "for bit); found dots, status and info must still be equal")
 
 
 part_detect.repeats_warmup = (5, 0)

@@ -91,6 +91,8 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
 
     from harness.calibrators import uses_world_frame
     from harness.campaign import MODEL_CHOICE, POSE_COUNT
+
+    from . import verdict as vd
     records = []
     exact_caches = {}   # per pose count: this camera's exact observations and detection
     for cal, model, options in job.calibrators:     # noise (verdict)
@@ -100,6 +102,9 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
         res, info = None, shared
         cctx = pose_subset(ctx, n_poses)
         exact_cache = exact_caches.setdefault(cctx["poses_used"]["n"], {})
+        if vd.is_reference_render(job.renderer, job.settings, job.response):
+            # the job's detections are the verdict's reference corners: not rendered again
+            exact_cache.setdefault("reference", cctx["obs"].q)
         try:
             if fits is not None and not uses_world_frame(cal, options):
                 k = (cal, model, repr(sorted(options.items())), cctx["poses_used"]["n"])
@@ -276,7 +281,9 @@ def _verdict(cal, model, options, obs, target, truth, res, params, projection, f
              sec):
     r'''(record's verdict, reason) of an ok record (harness.verdict): the fit of the exact
 observations (shared by twins like the image fits), floor / renderer / total; sec gets
-"exact_fit" (the extra fit, 0 when reused) and "verdict" (its comparisons). The reason
+"exact_fit" (the extra fit, 0 when reused), "exact_observations" (computing them: once
+per camera and pose count, ~0 for the job's other calibrators) and "verdict" (its
+comparisons and scatter). The reason
 is the floor's, in words, when the floor is far from the truth; a verdict that cannot
 be computed says why in verdict["error"] and leaves the record ok.'''
     from . import verdict as vd
@@ -287,8 +294,9 @@ be computed says why in verdict["error"] and leaves the record ok.'''
         # px apart from such differences: shared records must equal unshared ones
         exact, noise, reused = vd.exact_fit(cal, model, options, obs, target, truth, cache,
                                             None, start=res)
-        sec["exact_fit"] = 0.0 if reused else float(exact.seconds)
         t1 = time.perf_counter()
+        sec["exact_fit"] = 0.0 if reused else float(exact.seconds)
+        sec["exact_observations"] = max(0.0, t1 - t0 - sec["exact_fit"])
         v = vd.assess(truth, res, exact, noise, params, projection, obs=obs)
         sec["verdict"] = time.perf_counter() - t1
     except Exception as e:  # the record's own figures stand; its verdict says why not

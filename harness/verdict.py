@@ -81,6 +81,7 @@ from .compare import (
     _fit_rotation,
     _frac,
     _intrinsics,
+    _projector,
     parameter_errors,
     truth_points,
 )
@@ -119,7 +120,21 @@ REFERENCE_RENDER = {"renderer": "raycast", "spp": 16, "adaptive": True,
                     "options": {"coverage": "area"}}
 
 
-def exact_observations(obs, truth, target):
+def is_reference_render(renderer, settings, response=None):
+    r'''True when a job's images ARE the reference render (REFERENCE_RENDER, no camera
+response): its detections are then the reference corners, bit for bit (the same
+deterministic render and detector), and reference_corners need not render again'''
+    from renderers.response import STAGES
+
+    from .records import renderer_key
+    if renderer != REFERENCE_RENDER["renderer"] or any(k in STAGES for k in (response or {})):
+        return False
+    own = {k: settings.get(k) for k in ("spp", "adaptive", "options")}
+    ref = {k: REFERENCE_RENDER[k] for k in ("spp", "adaptive", "options")}
+    return renderer_key(renderer, own) == renderer_key(renderer, ref)
+
+
+def exact_observations(obs, truth, target, reference=None):
     r'''The observations a perfect renderer would give, at the same poses
 
 SYNOPSIS
@@ -137,14 +152,17 @@ them to the renderer: the verdict's independent-noise scatter put a perfect
 renderer's AprilTag records at z 7-17. Against the reference render they cancel,
 and the floor holds the detector's share. NaN where obs has NaN (the detector did
 not find the point) or the truth cannot image the point; a corner found in the
-images but not on the reference render takes its exact projection.
+images but not on the reference render takes its exact projection. reference: the reference
+corners when the caller has them (the job's own detections when its images are the
+reference render: is_reference_render), else they are rendered here.
 '''
     from targets.centroids import expected_centroids, projected_points
     Rts = Rt_cam_board_from(obs, truth)
     exact = expected_centroids if target.kind == "dots" else projected_points
     q = np.stack([exact(truth, target, Rt) for Rt in Rts])
     if target.kind != "dots":
-        ref = reference_corners(truth, target, Rts)
+        ref = (reference_corners(truth, target, Rts) if reference is None
+               else np.asarray(reference, dtype=np.float64))
         q = np.where(np.isfinite(ref), ref, q)
     q = np.where(obs.found[..., None], q, np.nan)
     return obs.replace(q=q)
@@ -228,7 +246,7 @@ D1, ... the differences of the distortion coefficients.
 
 
 def fit_projection_difference(ref, fit, truth, mode="rotation", range_m=DEFAULT_RANGE_M,
-                              step=DEFAULT_GRID_STEP):
+                              step=DEFAULT_GRID_STEP, _ref_q=None):
     r'''|fit - ref| in projection over the truth's image grid, for two fits of any model
 
 SYNOPSIS
@@ -241,7 +259,11 @@ the image grid, in its camera frame (harness.compare.truth_points). ref
 projects them from its own camera frame; fit from its own, rotated by the
 rotation that best matches ref's pixels (mode "rotation"), not rotated
 ("intrinsics"), or both fits project the world points ("world": both must
-live in the truth's world frame).
+live in the truth's world frame). The grid is projected as
+harness.compare.projection_difference projects it (compiled for JPL-family
+fits: _projector); the rotation is fitted as it fits it (_fit_rotation).
+_ref_q: a dict fit_comparison() shares between its modes (ref's pixels of the
+camera-frame points, the same for rotation and intrinsics).
 '''
     if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
             getattr(ref, "family", None) in ("CAHVOR", "CAHVORE"):
@@ -249,15 +271,19 @@ live in the truth's world frame).
     _, p_ref, p_cam = truth_points(truth, range_m, step)
     with np.errstate(all="ignore"):
         if mode == "world":
-            qa = ref.project(p_ref)
-            qb = fit.project(p_ref)
+            qa = _projector(ref)(p_ref)
+            qb = _projector(fit)(p_ref)
             R = None
         else:
-            qa = ref.project(_transform(ref.Rt_ref_cam(), p_cam))
+            qa = None if _ref_q is None else _ref_q.get("cam")
+            if qa is None:
+                qa = _projector(ref)(_transform(ref.Rt_ref_cam(), p_cam))
+                if _ref_q is not None:
+                    _ref_q["cam"] = qa
             R = np.eye(3)
             if mode == "rotation":
                 R = _fit_rotation(fit, p_cam.reshape(-1, 3), qa.reshape(-1, 2))
-            qb = fit.project(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
+            qb = _projector(fit)(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
         d = np.linalg.norm(qb - qa, axis=-1)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "map": d,
@@ -279,8 +305,9 @@ def fit_comparison(ref, fit, truth, theta_estimated, world_frame):
     params = fit_parameter_differences(ref, fit, theta_estimated=theta_estimated,
                                        world_frame=world_frame)
     proj = {}
+    ref_q = {}      # ref's side of the rotation and intrinsics modes: the same pixels
     for mode in ("rotation", "intrinsics") + (("world",) if world_frame else ()):
-        d = fit_projection_difference(ref, fit, truth, mode=mode)
+        d = fit_projection_difference(ref, fit, truth, mode=mode, _ref_q=ref_q)
         proj[mode] = {k: v for k, v in d.items() if k != "map"}
     proj["rms"] = proj["rotation"]["rms"]
     proj["max"] = proj["rotation"]["max"]
@@ -431,7 +458,8 @@ def exact_fit(cal, model, options, obs, target, truth, cache, fits=None, start=N
 
 obs: the job's observations (with the surveyed poses); cache: a dict kept for
 one camera's records (the exact observations and the detection noise are
-computed once per camera). fits: None (what harness.job_records passes: see
+computed once per camera; cache["reference"], when the caller sets it, holds the
+reference corners: exact_observations). fits: None (what harness.job_records passes: see
 the module docstring on twins), or a dict shared by cameras known to give
 bit-identical exact observations: a calibrator that does not read the world
 frame then fits them once, on observations without the surveyed poses, and
@@ -451,7 +479,7 @@ is reused only for the same start (bit for bit: _exact_key).
     from .stages import calibrate_stage
     options = warm_options(cal, options, start)
     if "obs" not in cache:
-        cache["obs"] = exact_observations(obs, truth, target)
+        cache["obs"] = exact_observations(obs, truth, target, cache.get("reference"))
         cache["noise"] = detection_noise(obs, cache["obs"])
     obs_x, noise = cache["obs"], cache["noise"]
     if fits is not None and not uses_world_frame(cal, options):
@@ -577,14 +605,19 @@ class Linearisation:
 x0:        (n,) the fit's parameters at the solution
 project:   x -> (2N,) the projections of the fit's observed points (pose-major)
 model:     x -> the fitted model (a JPL model, OpenCVModel, MrcalModel)
+project_model: model -> project(x), where that depends on the model only (or None)
 pose:      (N,) the image of each observed point
 n_model:   the model depends on x[:n_model] only (the rest: board poses)
 '''
 
-    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None):
+    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None,
+                 project_model=None):
         self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
         self.n_model = len(x0) if n_model is None else n_model
         self._jacobian = jacobian
+        # project(x) = project_model(model(x)) where the fit's points depend on the model
+        # only (jpl: known poses): model_jacobians() then differences them on its models
+        self.project_model = project_model
 
     def jacobian(self):
         r'''(2N, n) d project / d x at x0 (central differences)'''
@@ -592,11 +625,25 @@ n_model:   the model depends on x[:n_model] only (the rest: board poses)
             return self._jacobian()
         return _central_jacobian(self.project, self.x0, self.steps)
 
-    def model_part(self, f):
-        r'''(g, x0, steps) of f(model(x)) as a function of x[:n_model] only'''
-        rest = self.x0[self.n_model:]
-        return (lambda y: f(self.model(np.concatenate((y, rest)))),
-                self.x0[:self.n_model], self.steps[:self.n_model])
+    def model_jacobians(self, fs):
+        r'''[d f(model(x)) / d x[:n_model] for f in fs]: each (len(f), n_model)
+
+Central differences, as _central_jacobian takes them (the same numbers), with each
+stepped model built once for every f: building a model and its frame costs as much
+as a function of it.'''
+        n, rest = self.n_model, self.x0[self.n_model:]
+        x0, h = self.x0[:n], self.steps[:n]
+        cols = [[] for _ in fs]
+        for i in range(n):
+            xp, xm = x0.copy(), x0.copy()
+            xp[i] += h[i]
+            xm[i] -= h[i]
+            mp = self.model(np.concatenate((xp, rest)))
+            mm = self.model(np.concatenate((xm, rest)))
+            for c, f in zip(cols, fs, strict=True):
+                c.append((np.asarray(f(mp), dtype=np.float64).ravel()
+                          - np.asarray(f(mm), dtype=np.float64).ravel()) / (xp[i] - xm[i]))
+        return [np.stack(c, axis=-1) for c in cols]
 
 
 def _central_jacobian(f, x0, h):
@@ -623,7 +670,8 @@ def jpl_linearisation(res, obs):
     pose = np.nonzero(found)[0]
     x0 = chart.x0()
     h = 1e-6 * np.maximum(np.abs(x0), 1.0)
-    return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h)
+    return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h,
+                         project_model=lambda m: project(m, p))
 
 
 def _rodrigues(r):
@@ -721,8 +769,17 @@ def linearisation(res, obs):
     return None
 
 
-def _signed_quantities(ref, m, theta, world):
-    r'''The reported parameter differences m - ref as signed numbers (vectors by component)'''
+def _ref_O_in_cam(ref, R0):
+    r'''ref's O in its camera frame, ref moved to R0 (the frame O_deg compares in)'''
+    from .compare import _in_cam
+    rt = with_R0(ref, R0) if ref.family != "CAHV" else ref
+    return _in_cam(rt, rt.O)
+
+
+def _signed_quantities(ref, m, theta, world, ref_O=_ref_O_in_cam):
+    r'''The reported parameter differences m - ref as signed numbers (vectors by component)
+
+ref_O(ref, R0): _ref_O_in_cam, or a memo of it (scatter() asks for one ref, mostly at one R0)'''
     d = fit_parameter_differences(ref, m, theta_estimated=theta, world_frame=world)
     out = {k: v for k, v in d.items() if v is not None and k not in VECTOR_PARAMS}
     if _is_jpl(ref) and _is_jpl(m):
@@ -734,8 +791,7 @@ def _signed_quantities(ref, m, theta, world):
             for i, v in enumerate(np.degrees(m.A - ref.A)):
                 out[f"A_deg[{i}]"] = float(v)
         if d.get("O_deg") is not None:
-            rt = with_R0(ref, float(m.R[0])) if ref.family != "CAHV" else ref
-            dv = _in_cam(m, m.O) - _in_cam(rt, rt.O)
+            dv = _in_cam(m, m.O) - ref_O(ref, float(m.R[0]))
             for i, v in enumerate(np.degrees(dv)):
                 out[f"O_deg[{i}]"] = float(v)
     return out
@@ -840,24 +896,11 @@ projection difference (the rotation's own freedom projected out).
     theta = res.theta_estimated
     world = _world(res)
     n = len(lin.x0)
-    J = lin.jacobian()                                              # (2N, n)
     sig_pose = noise_per_pose(res, exact_res, obs.Nposes, n)
     # per coordinate: sigma_image^2 / 2 (sigma is the RMS of the 2-d error)
     var_row = np.repeat(sig_pose[lin.pose] ** 2 / 2.0, 2)
     if not np.all(np.isfinite(var_row)):
         return None
-    # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
-    # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
-    # not determine at all; then the block of the parameters the model depends on (the
-    # board poses marginalised)
-    s_col = np.linalg.norm(J, axis=0)
-    s_col[s_col == 0] = 1.0
-    Js = J / s_col
-    w, V = np.linalg.eigh(Js.T @ Js)
-    keep = w > w[-1] * 1e-15
-    Ninv = (V[:, keep] / w[keep]) @ V[:, keep].T
-    cov = Ninv @ (Js.T @ (Js * var_row[:, None])) @ Ninv / np.outer(s_col, s_col)
-    cov = cov[:lin.n_model, :lin.n_model]
     m0 = lin.model(lin.x0)
     # The differences are taken against the exact fit, as the renderer comparison takes
     # them: a fractional one (Hs, R1_frac, ...) is (image - exact) / |exact|, so its sigma
@@ -870,10 +913,38 @@ projection difference (the rotation's own freedom projected out).
     q0 = _signed_quantities(ref, m0, theta, world)
     names = list(q0)
 
+    ref_O = {}
+
+    def ref_O_memo(ref, R0):
+        if R0 not in ref_O:
+            ref_O[R0] = _ref_O_in_cam(ref, R0)
+        return ref_O[R0]
+
     def qvec(m):
-        q = _signed_quantities(ref, m, theta, world)
+        q = _signed_quantities(ref, m, theta, world, ref_O_memo)
         return np.array([q.get(k, 0.0) for k in names])
-    G = _central_jacobian(*lin.model_part(qvec))                    # (m, n_model)
+    P = projection_points(truth)
+    # the model's Jacobians in one pass over its stepped models: the reported quantities
+    # (G), the projection of the image grid (Jg) and, where the observed points depend on
+    # the model only (jpl), the fit's own Jacobian J
+    fs = [qvec, _grid_projector(P)]
+    if lin.project_model is not None and lin.n_model == n and lin._jacobian is None:
+        fs.append(lin.project_model)
+    with np.errstate(all="ignore"):
+        G, Jg, *J = lin.model_jacobians(fs)          # (m, n_model), (2M, n_model), (2N, n)
+    J = J[0] if J else lin.jacobian()
+    # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
+    # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
+    # not determine at all; then the block of the parameters the model depends on (the
+    # board poses marginalised)
+    s_col = np.linalg.norm(J, axis=0)
+    s_col[s_col == 0] = 1.0
+    Js = J / s_col
+    w, V = np.linalg.eigh(Js.T @ Js)
+    keep = w > w[-1] * 1e-15
+    Ninv = (V[:, keep] / w[keep]) @ V[:, keep].T
+    cov = Ninv @ (Js.T @ (Js * var_row[:, None])) @ Ninv / np.outer(s_col, s_col)
+    cov = cov[:lin.n_model, :lin.n_model]
     # a variance below zero is rounding in a direction the fit barely determines
     var = np.maximum(np.einsum("ij,jk,ik->i", G, cov, G), 0.0)
     sigma = {}
@@ -886,26 +957,37 @@ projection difference (the rotation's own freedom projected out).
     for k in VECTOR_PARAMS:
         if k in sigma:
             sigma[k] = math.sqrt(sigma[k])
-    sigma["projection_rms"] = _projection_sigma(lin, cov, truth)
+    sigma["projection_rms"] = _projection_sigma(m0, P, Jg, cov)
     return {"sigma": sigma, "noise_per_pose": [None if not np.isfinite(s) else float(s)
                                                for s in sig_pose],
             "n_params": n, "n_points": int(len(lin.pose))}
 
 
-def _projection_sigma(lin, cov, truth):
+def projection_points(truth):
+    r'''(M,3) the points of the projection sigma: PROJECTION_SAMPLES of the truth's image
+grid (harness.compare.truth_points), in its camera frame'''
     _, _, p_cam = truth_points(truth)
     P = p_cam.reshape(-1, 3)
     if len(P) > PROJECTION_SAMPLES:
         P = P[np.linspace(0, len(P) - 1, PROJECTION_SAMPLES).astype(int)]
-    m0 = lin.model(lin.x0)
+    return P
 
+
+def _grid_projector(P):
+    r'''m -> (M,2) m's projection of the points P of its own camera frame'''
     def grid(m):
-        return m.project(_transform(m.Rt_ref_cam(), P))
+        return _projector(m)(_transform(m.Rt_ref_cam(), P))
+    return grid
+
+
+def _projection_sigma(m0, P, Jg, cov):
+    r'''Expected RMS px over the points P of the rotation-mode projection difference, from
+Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covariance'''
+    project, Rt_ref_cam = _projector(m0), m0.Rt_ref_cam()
 
     def rotated(w):
-        return m0.project(_transform(m0.Rt_ref_cam(), P @ _rodrigues(w).T))
+        return project(_transform(Rt_ref_cam, P @ _rodrigues(w).T))
     with np.errstate(all="ignore"):
-        Jg = _central_jacobian(*lin.model_part(grid))               # (2M, n_model)
         Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
     ok = np.all(np.isfinite(Jg), axis=1) & np.all(np.isfinite(Jw), axis=1)
     Jg, Jw = Jg[ok], Jw[ok]

@@ -23,7 +23,8 @@ NUMBA_RENDERERS = {"raycast": "renderers._raycast_kernels"}
 # every module with @njit(cache=True) kernels that call reference_models.kernels: numba
 # checks a cached kernel against its own source file only (reference_models.kernels.
 # drop_stale_caches says why), so a warm-up drops their stale caches first
-COMPILED_MODULES = ("reference_models.kernels", "renderers._raycast_kernels", "targets.poses",
+COMPILED_MODULES = ("reference_models.kernels", "renderers._raycast_kernels",
+                    "renderers.raycast_outlines", "targets.poses",
                     "harness.calibrators._jpl_kernels")
 
 
@@ -77,8 +78,7 @@ SYNOPSIS
     # force=True: warm even when numba's cache is up to date
 
 Renders one image per model family used by the jobs' numba renderers (the
-job's own camera and first planned pose, K=1, with a private ray cache that is
-dropped afterwards), and runs the blooming kernel if a job's response uses it.
+job's own camera and first planned pose, K=1), and runs the blooming kernel if a job's response uses it.
 numba writes what it compiles to its cache directory, so worker processes
 started afterwards load the kernels instead of each compiling them (after a
 kernel change that is minutes per worker on a loaded machine). A renderer
@@ -107,7 +107,7 @@ fails later, in its own record.
             _, truth = camera_stage(job)
             target = cached_target(job.target)
             Rt = poses_stage(truth, target, 1, job.poses_seed)[0]
-            renderer = get_renderer(job.renderer, shared_cache=False)
+            renderer = get_renderer(job.renderer)
             renderer.render(truth, target.pattern(), Rt, RenderSettings(spp=1, adaptive=True))
             seen.add(key)
             done.append(f"{job.renderer}/{job.family}")

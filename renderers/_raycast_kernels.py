@@ -4,22 +4,22 @@ SYNOPSIS
 
     from reference_models import kernels
     cam = kernels.pack_model(model)                          # (NCAM,) float64
-    dirs = np.empty((H + 2, W + 2, 3)); shift = np.empty((H + 2, W + 2))  # (1,1): central
-    fill_centre_rays(cam, dirs, shift, noncentral)           # the ray cache
-    render_kernel(cam, dirs, shift, ...)                     # fills an image; see renderers.raycast
-    render_kernel(cam, dirs, shift, ..., lazy=True)          # no cache: rays traced per tile
+    mark_outlines(q, starts, closed, margin, mask, tiles, T) # edge pixels (raycast_outlines)
+    render_kernel(cam, noncentral, xf, K, ...)               # fills an image; see renderers.raycast
 
-The board (hits, materials, the distance to the nearest edge), adaptive
-supersampling and the band loop of the renderer. The camera - the packed
-model, its rays (ray, warm_start, ray_warm) - is reference_models.kernels',
-compiled into these kernels.
+The board (hits, materials, the distance to the nearest edge), the edge pixels
+from the projected outlines, adaptive supersampling, area coverage and the band
+loop of the renderer. The camera - the packed model, its rays (ray,
+warm_start, ray_warm) - is reference_models.kernels', compiled into these
+kernels.
 
-The rays of the pixel centres (the ray cache, or the rays of a tile traced in
-the render, lazy) are traced in runs of RAY_RUN grid points along a row: the
-first ray of a run is solved cold, each next one from the previous one's
-prediction (reference_models.kernels.fill_ray_cache's scheme, restarted every
-RAY_RUN points). A centre ray then depends on its grid point alone, so a tile
-traced on its own gives the rays of the whole-image cache bit for bit.
+No ray is cached between renders: a render traces the rays it reads. Where the
+edge pixels are not known from the outlines (renderers.raycast_outlines), the
+pixel-centre rays a tile's tests read are traced in runs of RAY_RUN grid points
+along a row: the first ray of a run is solved cold, each next one from the
+previous one's prediction (reference_models.kernels.fill_ray_cache's scheme,
+restarted every RAY_RUN points), so a centre ray depends on its grid point
+alone, whichever block asks for it.
 
 Everything here is float64 and compiled without fastmath.
 '''
@@ -1029,29 +1029,11 @@ image row y, and the warm start of the next column of its run (see RAY_RUN)"""
     return s, vx, vy, vz, warm
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
-def fill_centre_rays(cam, dirs, shift, noncentral):
-    r"""The ray cache: dirs (H+2,W+2,3) and, noncentral, shift (H+2,W+2) of the rays of the
-pixel centres, grid point (gx, gy) = pixel (gx - 1, gy - 1) (runs of RAY_RUN; the rays of
-reference_models.kernels.build_ray_cache to the floating-point level). Every element is
-written (a central camera's shift is not read)."""
-    central = cam[_KIND] == KIND_CAHV
-    for gy in prange(dirs.shape[0]):
-        y = gy - 1.0
-        warm = (math.nan, 0.0, 0.0, 0.0)
-        for gx in range(dirs.shape[1]):
-            s, vx, vy, vz, warm = _centre_ray(cam, central, gx, y, warm)
-            dirs[gy, gx, 0] = vx
-            dirs[gy, gx, 1] = vy
-            dirs[gy, gx, 2] = vz
-            if noncentral:
-                shift[gy, gx] = s
-
-
 @njit(cache=True, error_model="numpy")
-def _trace_rows(cam, xf, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
-    r"""_hit_rows without a cache: the centre rays traced here (from the start of the run
-of column c0), the same rays"""
+def _board_points(cam, xf, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
+    r"""The board points of the centre rays of band rows k0..k1-1, band columns c0..c1-1
+(image row r0 - 1 + k, column c - 1) into hx, hy, hok, traced in runs of RAY_RUN
+from fixed columns (the same rays whichever block asks for them)"""
     central = cam[_KIND] == KIND_CAHV
     for k in range(k0, k1):
         y = r0 + k - 1.0
@@ -1066,42 +1048,19 @@ of column c0), the same rays"""
 
 
 @njit(cache=True, error_model="numpy")
-def _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
-    r"""_hit_rows from the cache, or lazy: from rays traced now (_trace_rows)"""
-    if lazy:
-        _trace_rows(cam, xf, noncentral, r0, k0, k1, c0, c1, hx, hy, hok)
-    else:
-        _hit_rows(xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _hit_rows(xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
-    r"""The board points of the cached rays of band rows k0..k1-1, band columns c0..c1-1
-(image row r0 - 1 + k, column c - 1) into hx, hy, hok"""
-    for k in range(k0, k1):
-        gy = r0 + k
-        for gx in range(c0, c1):
-            s = shift[gy, gx] if noncentral else 0.0
-            ok, x, y = _hit(xf, s, dirs[gy, gx, 0], dirs[gy, gx, 1], dirs[gy, gx, 2])
-            hok[k, gx] = ok
-            hx[k, gx] = x
-            hy[k, gx] = y
-
-
-@njit(cache=True, error_model="numpy")
-def _hit_ring(lazy, cam, xf, dirs, shift, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
+def _hit_ring(cam, xf, noncentral, r0, k0, k1, c0, c1, hx, hy, hok):
     r"""The board points of the ring band rows k0, k1 x band columns c0..c1 (and columns
 c0, c1 between) and of its centre ((k0+k1)//2, (c0+c1)//2): what _block_uniform reads"""
     for k in (k0, k1):
-        _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, k, k + 1, c0, c1 + 1,
+        _board_points(cam, xf, noncentral, r0, k, k + 1, c0, c1 + 1,
                       hx, hy, hok)
     for k in range(k0 + 1, k1):
         for c in (c0, c1):
-            _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, k, k + 1, c, c + 1,
+            _board_points(cam, xf, noncentral, r0, k, k + 1, c, c + 1,
                           hx, hy, hok)
     kc = (k0 + k1) // 2
     cc = (c0 + c1) // 2
-    _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, kc, kc + 1, cc, cc + 1,
+    _board_points(cam, xf, noncentral, r0, kc, kc + 1, cc, cc + 1,
                   hx, hy, hok)
 
 
@@ -1132,8 +1091,8 @@ disc lies inside the board rectangle or wholly outside it)"""
 
 
 @njit(cache=True, error_model="numpy")
-def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values, out,
-                 stats, pat, qbox, area, tol, lazy):
+def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats, pat, qbox,
+                 area, tol):
     H, W = out.shape
     nk = r1 - r0 + 2
     # board points of the centre rays of image rows r0-1 .. r1 (band row k = iy - r0 + 1)
@@ -1145,7 +1104,7 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
     nboard = 0
     if not adaptive:
         # every pixel is supersampled; the board points only count board pixels
-        _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, 1, nk - 1, 1, W + 1, hx, hy,
+        _board_points(cam, xf, noncentral, r0, 1, nk - 1, 1, W + 1, hx, hy,
                       hok)
         nboard = _count_board(hx, hy, hok, 1, nk - 1, 1, W + 1, rect)
 
@@ -1197,13 +1156,13 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
                 uniform, m = True, pat[1][0]
             else:
                 if tile:
-                    _hit_ring(lazy, cam, xf, dirs, shift, noncentral, r0, 0, nk - 1, x0, x1 + 1,
+                    _hit_ring(cam, xf, noncentral, r0, 0, nk - 1, x0, x1 + 1,
                               hx, hy, hok)
                 uniform, m = _block_uniform(hx, hy, hok, ya - r0, yb - r0 + 1, xa, xb + 1, pat)
                 nblocks += 1
                 if tile:
                     if not uniform:
-                        _board_points(lazy, cam, xf, dirs, shift, noncentral, r0, 1, nk - 1,
+                        _board_points(cam, xf, noncentral, r0, 1, nk - 1,
                                       x0 + 1, x1 + 1, hx, hy, hok)
                         nboard += _count_board(hx, hy, hok, 1, nk - 1, x0 + 1, x1 + 1, rect)
                     elif _centre_on_board(hx, hy, hok, 0, nk - 1, x0, x1 + 1, rect):
@@ -1241,6 +1200,222 @@ def _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, value
         stats[7] = nfallback
 
 
+# ---------------------------------------------------------------------------
+# Edge pixels from the projected outlines (renderers.raycast_outlines)
+#
+# mark_outlines marks every pixel whose closed square [ix-0.5, ix+0.5] x [iy-0.5, iy+0.5]
+# comes within a polyline's margin of one of its chords (split into pieces <= MARK_PIECE_PX:
+# a piece of a chord is the chord), by the separating-axis test of the square against the
+# piece grown by the margin: its bounding box (the x and y axes) and its normal. The
+# test keeps every pixel that the grown piece meets (it meets at most the pixels of its
+# oriented box) and a few more near the piece's ends. _render_band_outline then renders
+# a tile without edge pixels from one ray, and in the other tiles the edge pixels as
+# _render_pixel does and the others from a neighbour of the same region.
+MARK_PIECE_PX = 2.0
+
+
+@njit(cache=True, error_model="numpy")
+def mark_outlines(q, starts, closed, margin, mask, tiles, T):
+    r"""Mark the edge pixels of the polylines q[starts[i]:starts[i+1]] in mask (H,W) and
+their tiles (of T x T pixels) in tiles"""
+    H, W = mask.shape
+    for p in range(starts.shape[0] - 1):
+        a0 = starts[p]
+        n = starts[p + 1] - a0
+        m = margin[p]
+        nseg = n if closed[p] else n - 1
+        for i in range(nseg):
+            j = a0 + i
+            k = a0 + i + 1 if i + 1 < n else a0
+            ax = q[j, 0]
+            ay = q[j, 1]
+            dx = q[k, 0] - ax
+            dy = q[k, 1] - ay
+            length = math.sqrt(dx * dx + dy * dy)
+            npieces = max(1, int(math.ceil(length / MARK_PIECE_PX)))
+            nx = 0.0
+            ny = 0.0
+            if length > 0.0:
+                nx = -dy / length
+                ny = dx / length
+            reach = m + 0.5 * (abs(nx) + abs(ny))
+            for piece in range(npieces):
+                u0 = piece / npieces
+                u1 = (piece + 1) / npieces
+                px0 = ax + u0 * dx
+                py0 = ay + u0 * dy
+                px1 = ax + u1 * dx
+                py1 = ay + u1 * dy
+                fx0 = math.ceil(min(px0, px1) - m - 0.5)
+                fx1 = math.floor(max(px0, px1) + m + 0.5)
+                fy0 = math.ceil(min(py0, py1) - m - 0.5)
+                fy1 = math.floor(max(py0, py1) + m + 0.5)
+                if fx1 < 0.0 or fy1 < 0.0 or fx0 > W - 1.0 or fy0 > H - 1.0:
+                    continue
+                ix0 = int(max(fx0, 0.0))
+                ix1 = int(min(fx1, W - 1.0))
+                iy0 = int(max(fy0, 0.0))
+                iy1 = int(min(fy1, H - 1.0))
+                for iy in range(iy0, iy1 + 1):
+                    for ix in range(ix0, ix1 + 1):
+                        if abs(nx * (ix - ax) + ny * (iy - ay)) <= reach:
+                            mask[iy, ix] = 1
+                            tiles[iy // T, ix // T] = 1
+
+
+@njit(cache=True, error_model="numpy")
+def _trace_needed(cam, xf, noncentral, r0, x0, x1, nk, need, hx, hy, hok):
+    r"""The board points of the centre rays of the band grid points (k, c) marked in need
+(band rows 0..nk-1, columns x0..x1+1: need[k, c - x0]), traced along each row's runs
+of marked points (each next ray's Newton started from the previous one's
+prediction); returns the number of rays"""
+    central = cam[_KIND] == KIND_CAHV
+    nrays = 0
+    for k in range(nk):
+        y = r0 + k - 1.0
+        warm = (math.nan, 0.0, 0.0, 0.0)
+        for c in range(x0, x1 + 2):
+            if not need[k, c - x0]:
+                warm = (math.nan, 0.0, 0.0, 0.0)
+                continue
+            s, vx, vy, vz, u, chi = _ray_warm_chi(cam, c - 1.0, y, warm, True)
+            if not central:
+                warm = _warm_coefficients(cam, u, chi)
+            ok, x, yb = _hit(xf, s if noncentral else 0.0, vx, vy, vz)
+            hok[k, c] = ok
+            hx[k, c] = x
+            hy[k, c] = yb
+            nrays += 1
+    return nrays
+
+
+@njit(cache=True, error_model="numpy")
+def _render_band_outline(r0, r1, T, cam, noncentral, xf, K, values, out, stats, pat, qbox,
+                         area, tol, mask, tiles):
+    r"""_render_band where the edge pixels are known (mask, tiles: mark_outlines)
+
+A tile without edge pixels is one region of one material: the board point of one
+centre ray (none outside qbox) decides it, and it is filled. In a tile with edge
+pixels, the centre rays of the edge pixels and of their 8 neighbours are traced,
+each edge pixel is rendered as _render_pixel renders it (area coverage or K x K
+point samples), and every other pixel takes the material of its left or upper
+neighbour when that one is not an edge pixel either (the union of their squares is
+connected and no outline meets it: one material), else of its own centre ray."""
+    H, W = out.shape
+    nk = r1 - r0 + 2
+    hx = np.empty((nk, W + 2))
+    hy = np.empty((nk, W + 2))
+    hok = np.zeros((nk, W + 2), dtype=np.uint8)
+    need = np.zeros((nk, T + 2), dtype=np.uint8)
+    code = np.empty((r1 - r0, T), dtype=np.int64)
+    rect = pat[0]
+    bg = pat[1][0]
+    counts = np.zeros(values.shape[0], dtype=np.int64)
+    offs = np.empty(K)
+    for i in range(K):
+        offs[i] = (i + 0.5) / K - 0.5
+    stack = np.empty((4 * (int(math.log2(K)) + 3), 4), dtype=np.int64)
+    jac = np.zeros(9)
+    cand = np.empty(MAX_LOCAL_CIRCLES, dtype=np.int64)
+    hess = np.zeros(6)
+    grid = np.empty((2, AREA_MAX_SUBDIVISION + 1, AREA_MAX_SUBDIVISION + 1))
+    poly = np.empty((8, AREA_MAX_VERTICES))
+    corners = np.empty((2, r1 - r0 + 1, W + 1) if area else (2, 1, 1))
+    narea = 0
+    nfallback = 0
+    nrays = 0
+    nsuper = 0
+    nboard = 0
+    ntiles = 0
+    nedge = 0
+    ty = r0 // T
+    for x0 in range(0, W, T):
+        x1 = min(W, x0 + T)
+        if tiles[ty, x0 // T] == 0:
+            m = bg
+            onboard = False
+            if not (x1 - 0.5 < qbox[0] or x0 - 0.5 > qbox[1]
+                    or r1 - 0.5 < qbox[2] or r0 - 0.5 > qbox[3]):
+                s, vx, vy, vz = ray_warm(cam, x0, r0, (math.nan, 0.0, 0.0, 0.0))
+                nrays += 1
+                ok, bx, by = _hit(xf, s if noncentral else 0.0, vx, vy, vz)
+                if ok:
+                    m = _material(bx, by, pat)
+                    onboard = _on_board(bx, by, rect)
+            v = values[m]
+            for iy in range(r0, r1):
+                for ix in range(x0, x1):
+                    out[iy, ix] = v
+            if onboard:
+                nboard += (r1 - r0) * (x1 - x0)
+            continue
+        ntiles += 1
+        # the centre rays the edge pixels read: theirs and their neighbours'
+        for k in range(nk):
+            for c in range(x1 - x0 + 2):
+                need[k, c] = 0
+        for iy in range(r0, r1):
+            for ix in range(x0, x1):
+                if mask[iy, ix]:
+                    k = iy - r0
+                    c = ix - x0
+                    for dk in range(3):
+                        for dc in range(3):
+                            need[k + dk, c + dc] = 1
+        nrays += _trace_needed(cam, xf, noncentral, r0, x0, x1, nk, need, hx, hy, hok)
+        if area:
+            for j in range(r1 - r0 + 1):
+                for i in range(x0, x1 + 1):
+                    corners[0, j, i] = math.nan
+        for iy in range(r0, r1):
+            for ix in range(x0, x1):
+                k = iy - r0 + 1
+                c = ix + 1
+                if mask[iy, ix]:
+                    nedge += 1
+                    if hok[k, c] and _on_board(hx[k, c], hy[k, c], rect):
+                        nboard += 1
+                    v, n, how = _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs,
+                                              counts, stack, jac, cand, values, pat, area, tol,
+                                              hess, grid, poly, corners)
+                    out[iy, ix] = v
+                    nrays += n
+                    nsuper += how != 0
+                    narea += how == 2
+                    nfallback += how == 3
+                    continue
+                # 2 m + on board, from a neighbour of the same region or the centre ray
+                if ix > x0 and not mask[iy, ix - 1]:
+                    cd = code[iy - r0, ix - 1 - x0]
+                elif iy > r0 and not mask[iy - 1, ix]:
+                    cd = code[iy - r0 - 1, ix - x0]
+                else:
+                    if need[k, c - x0]:
+                        ok = hok[k, c]
+                        bx = hx[k, c]
+                        by = hy[k, c]
+                    else:
+                        s, vx, vy, vz = ray_warm(cam, ix, iy, (math.nan, 0.0, 0.0, 0.0))
+                        nrays += 1
+                        ok, bx, by = _hit(xf, s if noncentral else 0.0, vx, vy, vz)
+                    if ok:
+                        cd = 2 * _material(bx, by, pat) + _on_board(bx, by, rect)
+                    else:
+                        cd = 2 * bg
+                code[iy - r0, ix - x0] = cd
+                out[iy, ix] = values[cd // 2]
+                nboard += cd % 2
+    stats[0] = nrays
+    stats[1] = nsuper
+    stats[2] = nboard
+    stats[3] = ntiles
+    stats[4] = nedge
+    stats[5] = _count_nonfinite(out, r0, r1)
+    if stats.shape[0] > 6:
+        stats[6] = narea
+        stats[7] = nfallback
+
+
 @njit(cache=True, error_model="numpy")
 def _count_nonfinite(out, r0, r1):
     r"""The number of non-finite pixels of rows r0..r1-1 (read while the band is in cache)"""
@@ -1253,19 +1428,21 @@ def _count_nonfinite(out, r0, r1):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def render_kernel(cam, dirs, shift, noncentral, xf, K, adaptive, T, values, out, stats, pat,
-                  qbox, nthreads, area=False, tol=1e-4, lazy=False):
+def render_kernel(cam, noncentral, xf, K, adaptive, T, values, out, stats, pat, qbox, nthreads,
+                  area, tol, outline, mask, tiles):
     r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
 
 stats (Nbands,6) receives per band: rays traced, supersampled pixels, pixels
-whose centre ray sees the board, blocks of pixels tested, pixels tested,
+whose centre ray sees the board, blocks of pixels tested (outline: tiles with
+edge pixels), pixels tested (outline: edge pixels),
 non-finite pixels (a bug); with 8 columns also: pixels of area coverage, pixels
 point sampled in area mode where area coverage was not computed.
 area: edge pixels get their exact covered area (to within tol of the pixel's
 area; see "Area coverage") instead of K x K point samples (adaptive only).
-lazy: no ray cache (dirs, shift are not read): the centre rays a tile needs are
-traced in it (its ring, its interior when the ring does not show it uniform),
-the same rays as fill_centre_rays'.
+outline (adaptive only): the edge pixels are mask (H,W) and the tiles that hold one
+tiles (mark_outlines): _render_band_outline; else every tile is tested
+(_render_band: its ring's centre rays, its interior's when the ring does not
+show it uniform, traced in it).
 qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
 not known); adaptive mode fills the pixels outside with the background.
 nthreads: numba's thread count (bands are dealt out round-robin among them)."""
@@ -1281,9 +1458,14 @@ nthreads: numba's thread count (bands are dealt out round-robin among them)."""
             continue
         r0 = b * T
         r1 = min(H, r0 + T)
-        if r1 > r0:
-            _render_band(r0, r1, T, cam, dirs, shift, noncentral, xf, K, adaptive, values,
-                         out, stats[b], pat, qbox, area, tol, lazy)
+        if r1 <= r0:
+            continue
+        if outline and adaptive:
+            _render_band_outline(r0, r1, T, cam, noncentral, xf, K, values, out, stats[b], pat,
+                                 qbox, area, tol, mask, tiles)
+        else:
+            _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats[b],
+                         pat, qbox, area, tol)
 
 
 def compiled_entry_points():
@@ -1294,7 +1476,7 @@ SYNOPSIS
     for kernel in compiled_entry_points():
         kernel.signatures     # what numba has compiled (or loaded from its cache)
 
-render_kernel and the ray cache's fill_centre_rays: what a warm-up compiles
-(harness.runner) and a cache check looks for.
+render_kernel and mark_outlines: what a warm-up compiles (harness.warmup) and a
+cache check looks for.
 '''
-    return (render_kernel, fill_centre_rays)
+    return (render_kernel, mark_outlines)

@@ -23,12 +23,9 @@ memory (numpy's MemoryError is then its recorded reason).
 
 The estimate is a lower bound, per path (bytes per model pixel, W x H):
 
-- raycast: the float32 image (4) and the per-camera ray cache of the pixel
-  centres and a one-pixel ring, (W+2)(H+2) x 24 (32 for a noncentral CAHVORE;
-  renderers/raycast.py, RaycastRenderer.rays), unless that cache is larger
-  than the renderer's lazy_above_bytes: then there is none (each tile traces
-  its rays; the per-thread band of board points, ~1 kB per image column, is
-  not counted). Subsamples are traced on the fly: K costs no memory.
+- raycast: the float32 image (4); the edge-pixel mask (1, uint8) and the
+  per-thread band of board points (~1 kB per image column) are not counted.
+  No ray is cached (renderers/raycast.py): K costs no memory.
 - the pinhole warps (osmesa, povray with camera="perspective", and their
   terrain versions): the warp's per-pixel rays, origin and direction in
   float64 (48, times n^2 for warp_samples n), its float32 maps (8 per
@@ -109,12 +106,7 @@ allocated.
         return MemoryEstimate(name, W, H, {k: int(v) for k, v in own(model, settings).items()})
     o = _options(renderer, settings)
     if name == "raycast":
-        from .raycast import LAZY_ABOVE_BYTES, ray_cache_bytes
         parts = {"image": 4 * npx}
-        cache = ray_cache_bytes(model)
-        if cache <= getattr(renderer, "lazy_above_bytes", LAZY_ABOVE_BYTES):
-            # the cache's arrays: (H+2, W+2, 3) directions and a (H+2, W+2) shift (noncentral)
-            parts["ray cache"] = (24 if model.is_central else 32) * (W + 2) * (H + 2)
     elif name == "raycast_terrain":
         parts = {"image, range, shadow": 13 * npx, "subsample rays": 48 * K * K * npx,
                  "subsample shading": 17 * K * K * npx}

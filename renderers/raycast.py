@@ -29,6 +29,23 @@ board plane z = 0 (board frame: Rt_board_ref = inverse of
 compose(model.Rt_ref_cam(), Rt_cam_board)) and the albedo of the
 targets.pattern.Pattern there is the sample.
 
+Edge pixels from the projected outlines (the default path of adaptive
+rendering, renderers.raycast_outlines): every boundary of the pattern (board
+rectangle, cell edges between different albedos, circles) is projected through
+the camera model, sampled finely enough that its chords stay within a stated
+margin of the curve, and every pixel whose square comes within that margin of
+a chord is an edge pixel (renderers._raycast_kernels.mark_outlines; the
+proof-style argument why that is all of them is raycast_outlines' docstring).
+A tile of 32 x 32 pixels without an edge pixel is one ray and a fill; in the
+other tiles, the pixels that are not edge pixels take the material of a
+neighbour of the same region (or of their centre ray), and the edge pixels are
+rendered as in step 3 below, area coverage or K x K point samples, from the
+board points of their own and their 8 neighbours' centre rays (traced, not
+cached). Where the board is not known to lie wholly in front of the camera (a
+corner behind it, an outline point beyond a fisheye's field:
+board_image_box, project_outlines), or with RaycastRenderer(outlines=False),
+the edge pixels are found by testing pixels:
+
 Adaptive mode gives the same image as full supersampling, bit for bit. A pixel
 is the area average computed from integer counts of the materials its
 subsamples hit (a pixel that hits one material is that material's albedo
@@ -81,29 +98,12 @@ point sampling, the default before, never join those of area coverage.
 tests/test_raycast.py checks point sampling's adaptive == full bit for bit on several cameras,
 targets and poses (including noncentral CAHVOREs at K = 16).
 
-The rays of the pixel centres (and a one-pixel ring) are cached per camera
-model: 24 bytes per pixel, 32 for a noncentral CAHVORE; subsample rays are
-traced on the fly. The cached rays (renderers._raycast_kernels.fill_centre_rays:
-exact to the floating-point level, directions not normalised) only decide
-where to look closer, within the slack of the bounds above; no pixel's value
-is read from them. The cache is bounded (cache_bytes, least recently used
-models are dropped). The models a new one displaces are dropped before its
-rays are traced, and their arrays, when of its shapes and held by no render,
-are overwritten with its rays (no second cache in memory, no fresh pages to
-fault in). A camera whose cache would exceed lazy_above_bytes (LAZY_ABOVE_BYTES,
-1/4 GB: a 5120x3840 camera, 0.47 GB, 0.63 GB noncentral) has none: each tile
-traces the centre rays it reads, its ring's and, when the ring does not show
-it uniform, its interior's (tiles outside the board's image are a fill). The
-rays are traced in runs along a row that start at fixed columns, so the
-traced rays are the cached ones bit for bit, and so are the pixels
-(tests/test_raycast.py).
+No ray is cached between renders (RAYCAST_VERSION 3.0): a render traces the
+rays it reads, so a camera's first image costs what its others cost.
 '''
 
 import math
-import sys
-import threading
 import time
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,16 +111,11 @@ import numpy as np
 from reference_models.errors import CamvalError
 from renderers.base import DEFAULT_OPTIONS, RendererError, RenderResult, RenderSettings
 
-# 2.0: area coverage is the default
-RAYCAST_VERSION = "2.0"
+# 2.0: area coverage is the default; 3.0: edge pixels from the projected outlines, no ray
+# cache
+RAYCAST_VERSION = "3.0"
 COVERAGES = ("area", "point")
 DEFAULT_COVERAGE = DEFAULT_OPTIONS["raycast"]["coverage"]
-DEFAULT_CACHE_BYTES = 1 << 30
-# a camera whose whole-image ray cache would be larger than this has no cache: each render
-# traces the centre rays of the tiles it looks into (lazy). 1/4 GB: every catalogue camera up
-# to 2.5 Mpixel keeps its cache; a 5120x3840 one (0.47 GB, 0.63 GB noncentral) renders in a
-# few hundred MB
-LAZY_ABOVE_BYTES = 1 << 28
 # the image is rendered in tiles of TILE x TILE pixels; a tile far from every edge is
 # filled without looking at its pixels
 TILE = 32
@@ -286,16 +281,6 @@ bucket its bounding box touches'''
     return geometry, bstart, bitems
 
 
-def _model_key(model):
-    parts = [model.family, model.width, model.height]
-    for name in ("C", "A", "H", "V", "O", "R", "E"):
-        v = getattr(model, name, None)
-        parts.append(None if v is None else np.asarray(v, dtype=np.float64).tobytes())
-    parts.append(getattr(model, "model_type", None))
-    parts.append(getattr(model, "linearity", None))
-    return tuple(parts)
-
-
 def _check_model(model):
     family = getattr(model, "family", None)
     if family not in ("CAHV", "CAHVOR", "CAHVORE"):
@@ -387,112 +372,35 @@ plane (+-inf): nothing is known.
     return np.array([lo[0], hi[0], lo[1], hi[1]])
 
 
-# the ray cache shared by the renderers of a process (shared_cache=True)
-_SHARED_RAYS = OrderedDict()
-_SHARED_LOCK = threading.Lock()
-
-
 class RaycastRenderer:
-    r'''The embedded exact ray-cast renderer (see the module docstring)
+    r"""The embedded exact ray-cast renderer (see the module docstring)
 
 SYNOPSIS
 
-    r = RaycastRenderer(cache_bytes=1 << 30, threads=None, shared_cache=True,
-                        lazy_above_bytes=1 << 28)
+    r = RaycastRenderer(threads=None, outlines=True)
     result = r.render(model, pattern, Rt_cam_board, RenderSettings(spp=16))
 
-cache_bytes bounds the memory of the per-camera ray cache (the least recently
-used cameras are dropped when a new one is added; the newest is always kept);
-a camera whose cache would take more than lazy_above_bytes gets none: each
-render traces the centre rays of the tiles it looks into (the same rays, so
-the same pixels: metadata ray_cache "lazy"; 0 = always);
-by default all RaycastRenderers of a process share one cache, so a renderer
-made per job still finds the rays of a camera it has seen. threads sets
-numba's thread count (default: all).
-'''
+threads sets numba's thread count (default: all). outlines=False finds the edge
+pixels by testing every pixel (the path a board not wholly in front of the
+camera takes) instead of from the projected outlines: for comparison; the
+images agree to rounding (tests/test_raycast.py).
+"""
 
     name = "raycast"
     # renders in the camera frame, exactly: cameras that image every camera-frame point
     # alike get the same images (campaigns render them once: harness.runner.group_twins)
     camera_frame_exact = True
 
-    def __init__(self, cache_bytes=DEFAULT_CACHE_BYTES, threads=None, shared_cache=True,
-                 lazy_above_bytes=LAZY_ABOVE_BYTES):
-        if not (isinstance(cache_bytes, int) and cache_bytes >= 0):
-            raise CamvalError(f"cache_bytes = {cache_bytes!r}; expected an integer >= 0")
-        if not (isinstance(lazy_above_bytes, int) and lazy_above_bytes >= 0):
-            raise CamvalError(f"lazy_above_bytes = {lazy_above_bytes!r}; expected an "
-                              "integer >= 0")
-        self.lazy_above_bytes = lazy_above_bytes
+    def __init__(self, threads=None, outlines=True):
         if threads is not None and not (isinstance(threads, int) and threads >= 1):
             raise CamvalError(f"threads = {threads!r}; expected a positive integer")
-        self.cache_bytes = cache_bytes
         self.threads = threads
-        if shared_cache:
-            self._rays, self._lock = _SHARED_RAYS, _SHARED_LOCK
-        else:
-            self._rays, self._lock = OrderedDict(), threading.Lock()
+        self.outlines = bool(outlines)
         self._pattern = (None, None)
 
     def version(self):
         import numba
         return f"raycast {RAYCAST_VERSION} (numba {numba.__version__})"
-
-    # --- the per-camera ray cache --------------------------------------------
-    def rays(self, model):
-        r'''(cam, dirs, shift, noncentral, cold) of a model, from the cache or traced now;
-dirs is None for a camera rendered without a cache (lazy_above_bytes)'''
-        from reference_models import kernels
-        from renderers import _raycast_kernels as kern
-        if ray_cache_bytes(model) > self.lazy_above_bytes:
-            return kernels.pack_model(model), None, None, not model.is_central, False
-        key = _model_key(model)
-        with self._lock:
-            entry = self._rays.get(key)
-            if entry is not None:
-                self._rays.move_to_end(key)
-                return entry + (False,)
-            cam = kernels.pack_model(model)
-            noncentral = not model.is_central
-            W, H = model.width, model.height
-            dshape = (H + 2, W + 2, 3)
-            sshape = (H + 2, W + 2) if noncentral else (1, 1)
-            dirs, shift = self._evict_for(ray_cache_bytes(model), dshape, sshape)
-            # a dropped camera's arrays are overwritten: every element is written
-            dirs = np.empty(dshape) if dirs is None else dirs
-            shift = np.zeros(sshape) if shift is None else shift
-            kern.fill_centre_rays(cam, dirs, shift, noncentral)
-            entry = (cam, dirs, shift, noncentral)
-            self._rays[key] = entry
-            return entry + (True,)
-
-    def _evict_for(self, nbytes, dshape, sshape):
-        r'''Drop the least recently used cameras until nbytes more fit in cache_bytes (the
-new camera is always kept); (dirs, shift): arrays of the shapes given of the
-dropped cameras that nothing else holds, to be overwritten (None where there
-is none)
-
-The cameras dropped are those that adding the new one would drop; dropping
-them first keeps one cache in memory instead of two while it is built.'''
-        out = [None, None]
-        while self._rays and self._cache_size() + nbytes > self.cache_bytes:
-            _, entry = self._rays.popitem(last=False)
-            arrays = [entry[1], entry[2]]
-            del entry
-            for i, shape in enumerate((dshape, sshape)):
-                a = arrays[i]
-                arrays[i] = None
-                # 2 = the name a + getrefcount's argument: no render is reading it
-                if out[i] is None and a.shape == shape and sys.getrefcount(a) == 2:
-                    out[i] = a
-        return tuple(out)
-
-    def _cache_size(self):
-        return sum(e[1].nbytes + e[2].nbytes for e in self._rays.values())
-
-    def clear_cache(self):
-        with self._lock:
-            self._rays.clear()
 
     def _compiled(self, pattern):
         last = self._pattern
@@ -523,18 +431,20 @@ ARGUMENTS
 RETURNED VALUE
 
 RenderResult(image, metadata). metadata: renderer, version, settings, seconds,
-coverage, samples (rays traced in this render: subsample rays and the pixel-centre rays
-that start their Newton solves; the cached pixel-centre rays are not counted),
+coverage, samples (rays traced in this render: pixel-centre, corner and subsample
+rays and the rays that start their Newton solves),
 adaptive_fraction (pixels supersampled / pixels), board_fraction (pixels whose
 centre ray sees the board; 0 for a board behind the camera, which renders as
-blank background), blocks_tested and pixels_tested (adaptive bookkeeping),
-ray_cache ("cold", "warm" or "lazy": no cache, the centre rays traced in
-the render), ray_cache_seconds, threads; under area coverage
+blank background), edges ("outlines": edge pixels from the projected outlines,
+"tested": pixels tested), blocks_tested and pixels_tested (outlines: tiles with
+edge pixels and edge pixels; tested: blocks and pixels tested), outline_seconds
+(projecting and marking the outlines), threads; under area coverage
 also area_tolerance, area_fraction (pixels integrated exactly / pixels) and
 area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
 '''
         import numba
 
+        from reference_models import kernels
         from renderers import _raycast_kernels as kern
 
         t0 = time.perf_counter()
@@ -558,24 +468,33 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
         if self.threads is not None:
             numba.set_num_threads(self.threads)
 
+        adaptive = area or bool(settings.adaptive)
+        qbox = board_image_box(model, Rt_cam_board, cp.f[:4])
+        H, W = model.height, model.width
         t1 = time.perf_counter()
-        cam, dirs, shift, noncentral, cold = self.rays(model)
-        t_rays = time.perf_counter() - t1
-        lazy = dirs is None
-        if lazy:
-            dirs, shift = np.zeros((1, 1, 3)), np.zeros((1, 1))
+        outlines = None
+        if adaptive and self.outlines and np.all(np.isfinite(qbox)):
+            from renderers.raycast_outlines import project_outlines
+            outlines = project_outlines(model, Rt_cam_board, cp)
+        cam, noncentral = kernels.pack_model(model), not model.is_central
+        if outlines is not None:
+            mask = np.zeros((H, W), dtype=np.uint8)
+            tiles = np.zeros((-(-H // TILE), -(-W // TILE)), dtype=np.uint8)
+            kern.mark_outlines(outlines.q, outlines.starts, outlines.closed, outlines.margin,
+                               mask, tiles, TILE)
+        else:
+            mask = tiles = np.zeros((1, 1), dtype=np.uint8)
+        t_outlines = time.perf_counter() - t1
 
         R = Rt[:3]
         t = Rt[3]
         O = cam[12:15]
         xf = np.concatenate((R.ravel(), R @ model.C + t, R @ O))
-        H, W = model.height, model.width
         out = np.empty((H, W), dtype=np.float32)
         stats = np.zeros((-(-H // TILE), 8 if area else 6), dtype=np.int64)
-        qbox = board_image_box(model, Rt_cam_board, cp.f[:4])
-        kern.render_kernel(cam, dirs, shift, noncentral, xf, K, area or bool(settings.adaptive),
-                           TILE, cp.values, out, stats, cp.kernel_args(), qbox,
-                           numba.get_num_threads(), area, tol, lazy)
+        kern.render_kernel(cam, noncentral, xf, K, adaptive, TILE, cp.values, out, stats,
+                           cp.kernel_args(), qbox, numba.get_num_threads(), area, tol,
+                           outlines is not None, mask, tiles)
         total = stats.sum(axis=0)
         if total[5] != 0:
             raise RendererError(f"the ray-cast renderer produced {int(total[5])} non-finite "
@@ -591,8 +510,8 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
             "board_fraction": float(total[2]) / (W * H),
             "blocks_tested": int(total[3]),
             "pixels_tested": int(total[4]),
-            "ray_cache": "lazy" if lazy else "cold" if cold else "warm",
-            "ray_cache_seconds": t_rays,
+            "edges": "outlines" if outlines is not None else "tested",
+            "outline_seconds": t_outlines,
             "threads": numba.get_num_threads(),
             "coverage": "area" if area else "point",
         }
@@ -601,14 +520,6 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
             metadata["area_fraction"] = float(total[6]) / (W * H)
             metadata["area_point_sampled_fraction"] = float(total[7]) / (W * H)
         return RenderResult(image=out, metadata=metadata)
-
-
-def ray_cache_bytes(model):
-    r'''The bytes of a camera's whole-image ray cache: 24 per pixel and ring pixel, 32 for
-a noncentral CAHVORE'''
-    noncentral = not model.is_central
-    return ((model.height + 2) * (model.width + 2) * (32 if noncentral else 24)
-            + (0 if noncentral else 8))
 
 
 def _coverage(settings):

@@ -4,10 +4,17 @@ SYNOPSIS
 
     from targets._corner_kernels import wedge_model
 
-    D, dD_dc, dD_dt = wedge_model(centres, s, c, uu, first, second, widen)
+    D, dD_dc, dD_dt, dD_ds = wedge_model(centres, s, c, uu, first, second, widen,
+                                         Z, W, dZ, dW)
     # centres (n,P,2) pixel centres of every window; s (m,) the corners to evaluate;
     # c (m,2) their apexes; uu (m,R,2) their unit rays; first, second (n,Nw) ray indices
-    # of each wedge (counter-clockwise, below pi); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R)
+    # of each wedge (counter-clockwise, below pi); Z (m,M,2) offsets (px) and W (m,M)
+    # weights of each corner's blur kernel, dZ, dW their derivatives in the blur's sigma
+    # (targets.corners.blur_kernel); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R), dD_ds (m,P)
+
+With M > 1 the dark area of each pixel is blurred: D = sum_q W_q A(d + Z_q), the
+kernel's expectation of the exact pixel area A; pixels far from every ray take A once
+(it is constant over the offsets).
 
 The same arithmetic as targets.corners.wedge_area / _ray_stretch (the numpy reference),
 one pixel at a time, in the same order of operations, so the two agree to rounding
@@ -83,36 +90,88 @@ def _area(dx, dy, u1x, u1y, u2x, u2y):
 
 
 @njit(cache=True, error_model="numpy")
-def wedge_model(centres, s, c, uu, first, second, widen):
+def wedge_model(centres, s, c, uu, first, second, widen, Z, W, dZ, dW):
     m = len(s)
     P = centres.shape[1]
     R = uu.shape[1]
     Nw = first.shape[1]
+    M = W.shape[1]
     D = np.zeros((m, P))
     dD_dc = np.zeros((m, P, 2))
     dD_dt = np.zeros((m, P, R))
+    dD_ds = np.zeros((m, P))
     half = 0.5 + widen
     for j in range(m):
         n = s[j]
+        blurred = M > 1
+        rmax = 0.0
+        for k in range(M):
+            rmax = max(rmax, np.sqrt(Z[j, k, 0] ** 2 + Z[j, k, 1] ** 2))
+        # a pixel farther than this from every ray (px) sees the same dark area at every
+        # offset: one evaluation, no derivatives
+        reach = np.sqrt(2.0) * half + rmax
         for p in range(P):
-            dx = centres[n, p, 0] - c[j, 0]
-            dy = centres[n, p, 1] - c[j, 1]
-            for k in range(Nw):
-                i1 = first[n, k]
-                i2 = second[n, k]
-                u1x, u1y = uu[j, i1, 0], uu[j, i1, 1]
-                u2x, u2y = uu[j, i2, 0], uu[j, i2, 1]
-                D[j, p] += _area(dx, dy, u1x, u1y, u2x, u2y)
-                s0a, s1a = _stretch(dx, dy, u1x, u1y, half)
-                s0b, s1b = _stretch(dx, dy, u2x, u2y, half)
-                la = s1a - s0a
-                lb = s1b - s0b
-                # -la perp(u1) + lb perp(u2), perp(u) = (-u_y, u_x)
-                dD_dc[j, p, 0] += -la * -u1y + lb * -u2y
-                dD_dc[j, p, 1] += -la * u1x + lb * u2x
-                dD_dt[j, p, i1] += -0.5 * (s1a ** 2 - s0a ** 2)
-                dD_dt[j, p, i2] += 0.5 * (s1b ** 2 - s0b ** 2)
-    return D, dD_dc, dD_dt
+            dx0 = centres[n, p, 0] - c[j, 0]
+            dy0 = centres[n, p, 1] - c[j, 1]
+            near = not blurred
+            if blurred:
+                for k in range(Nw):
+                    for h in range(2):
+                        if h == 0:
+                            ux, uy = uu[j, first[n, k], 0], uu[j, first[n, k], 1]
+                        else:
+                            ux, uy = uu[j, second[n, k], 0], uu[j, second[n, k], 1]
+                        t = ux * dx0 + uy * dy0
+                        if t < 0.0:
+                            dist = np.sqrt(dx0 * dx0 + dy0 * dy0)
+                        else:
+                            dist = abs(ux * dy0 - uy * dx0)
+                        if dist <= reach:
+                            near = True
+            if blurred and not near:
+                # sum W = 1 over the kernel, but the derivatives are 0: A is constant here
+                for k in range(Nw):
+                    i1 = first[n, k]
+                    i2 = second[n, k]
+                    D[j, p] += _area(dx0, dy0, uu[j, i1, 0], uu[j, i1, 1],
+                                     uu[j, i2, 0], uu[j, i2, 1])
+                continue
+            for q in range(M if blurred else 1):
+                if blurred and W[j, q] == 0.0 and dW[j, q] == 0.0:
+                    continue
+                if blurred:
+                    zx = Z[j, q, 0]
+                    zy = Z[j, q, 1]
+                    wq = W[j, q]
+                else:
+                    zx = 0.0
+                    zy = 0.0
+                    wq = 1.0
+                dx = dx0 + zx
+                dy = dy0 + zy
+                for k in range(Nw):
+                    i1 = first[n, k]
+                    i2 = second[n, k]
+                    u1x, u1y = uu[j, i1, 0], uu[j, i1, 1]
+                    u2x, u2y = uu[j, i2, 0], uu[j, i2, 1]
+                    A = _area(dx, dy, u1x, u1y, u2x, u2y)
+                    D[j, p] += wq * A
+                    s0a, s1a = _stretch(dx, dy, u1x, u1y, half)
+                    s0b, s1b = _stretch(dx, dy, u2x, u2y, half)
+                    la = s1a - s0a
+                    lb = s1b - s0b
+                    # -la perp(u1) + lb perp(u2), perp(u) = (-u_y, u_x)
+                    gx = -la * -u1y + lb * -u2y
+                    gy = -la * u1x + lb * u2x
+                    dD_dc[j, p, 0] += wq * gx
+                    dD_dc[j, p, 1] += wq * gy
+                    dD_dt[j, p, i1] += wq * -0.5 * (s1a ** 2 - s0a ** 2)
+                    dD_dt[j, p, i2] += wq * 0.5 * (s1b ** 2 - s0b ** 2)
+                    if blurred:
+                        # sigma moves the offset (dZ: -dA/dc . dZ) and reweighs it (dW)
+                        dD_ds[j, p] += dW[j, q] * A - wq * (gx * dZ[j, q, 0]
+                                                            + gy * dZ[j, q, 1])
+    return D, dD_dc, dD_dt, dD_ds
 
 
 @njit(cache=True, error_model="numpy")

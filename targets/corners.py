@@ -12,6 +12,7 @@ SYNOPSIS
     # half_box: the window, |board offset| <= half_box along both axes
     fit.q          # (N,2) refined corners, NaN where dropped
     fit.reasons    # (N,) "" or why the corner was dropped
+    fit.info       # the blur used: psf_sigma_px, psf_kind, psf_source (estimated / given)
 
 What a renderer draws around a corner of a chessboard or of an AprilTag's black
 border is a few straight board edges meeting at one point, seen through the
@@ -66,6 +67,25 @@ table, a machine at load 13-17 where the wall time is several times that): April
 own search 0.26 s of it); chessboard 0.045 s on 1024x1024 (this fit 0.037 s of it),
 0.043 s on 640x480, 0.19 s on 5120x3840.
 
+Blur. A camera's optics blur the image (the `realistic` response profile of
+campaigns/response.toml: a Gaussian PSF of sigma 0.7 px), and a sharp-edged model fitted
+to a blurred corner is biased: a chessboard's X junction, its four rays free, fits a
+kinked X whose apex slides along it (0.07-0.25 px RMS on navcam 15), an AprilTag's
+L-shaped corner moves into its dark wedge. The model therefore includes the blur: each
+pixel's value is the kernel's average of the exact pixel area over the PSF's offsets,
+sum_q W_q A(d + Z_q) (blur_kernel: "gaussian", a Gaussian acting on the scene before
+the pixel integrates it, or "sampled", a pixel-integrated Gaussian applied to the pixel
+image as renderers.response's psf stage does), with a chessboard's opposite rays tied
+into one line. The blur is estimated from the image (estimate_blur: sigma and the kind
+fitted on up to BLUR_SAMPLE corners, the median kept, after a look at BLUR_QUICK_SAMPLE
+corners with one kind finds any blur; a given psf_sigma_px skips it), and
+each window keeps 3 sigma of blur (px, over the board unit's smallest image step) away
+from the nearest feature it does not model (blurred_half_box). Noise-free, the blurred
+chessboard and tag corners come out within 2e-4 px of the truth on navcam 15's renders
+(sampled kernel, sigma estimated to 0.7005 px); with the profile's noise, 0.004 px
+(chessboard) and 0.014-0.024 px (AprilTag: two edges of a few px in a window of ~0.5
+bit) RMS (benchmarks/bench_corners.py --response realistic).
+
 A corner is dropped, never kept at its coarse position, with its reason:
 its window leaves the image or holds fewer than MIN_WINDOW_PIXELS pixels,
 the fit did not converge in MAX_ITERATIONS, the corner moved out of its
@@ -103,6 +123,30 @@ CONVERGED_PX = 1e-4
 MAX_MISFIT = 0.1
 # contrast below this fraction of the image's range is no corner
 MIN_CONTRAST = 0.2
+# the blurred model: a product Gauss-Hermite rule of BLUR_ORDER nodes per axis for the
+# expectation of the exact pixel area over the PSF's offsets (see _blur_rule)
+BLUR_ORDER = 5
+# the PSF's reach beyond which a pixel no longer sees an edge: 3 sigma (0.13% of the step)
+BLUR_REACH_SIGMAS = 3.0
+# corners the per-image blur estimate fits (spread over the image's corners): the median of
+# 32 independent estimates has a scatter of ~1/4.5 of one corner's
+BLUR_SAMPLE = 32
+# corners of the first, one-kind look (estimate_blur's sample) that decides whether the
+# image is blurred at all: the median of 8 sharp corners' sigmas sits ~1e-5 px from 0,
+# a blur of BLUR_NEGLIGIBLE_PX or more reads as one on any of them
+BLUR_QUICK_SAMPLE = 8
+# the blur (px) assumed while the estimate places its windows: the windows shrink for it,
+# so a neighbouring feature blurred by up to this much stays out of them
+BLUR_PROBE_PX = 1.0
+# the first guess of the blur estimate (px); the model is even in sigma, so not 0
+BLUR_START_PX = 0.5
+# the widest blur a fit may reach (px): 3 sigma of it fill the widest window, beyond which
+# a window's edges no longer tell blur from light level and contrast (and the sampled
+# kernel's taps, ~6 sigma across, would grow without bound on a window with no edge)
+BLUR_MAX_PX = MAX_WINDOW_PX / BLUR_REACH_SIGMAS
+# a blur below this (px) is fitted with the sharp model (9x cheaper): on top of the pixel's
+# own area (variance 1/12 px^2) it moves a corner by O(sigma^2): < 1e-4 px (measured below)
+BLUR_NEGLIGIBLE_PX = 0.02
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,8 +258,101 @@ refine_corners: a ray parallel to a pixel edge otherwise creeps up to it and sto
     return A, dA_dc, dA_dt1, dA_dt2
 
 
+def _blur_rule(order=BLUR_ORDER):
+    r'''(M,2) nodes and (M,) weights: E[f(z)] ~ sum w f(node), z a unit 2-D Gaussian'''
+    x, w = np.polynomial.hermite_e.hermegauss(order)
+    w = w / w.sum()
+    nodes = np.stack(np.meshgrid(x, x, indexing="ij"), axis=-1).reshape(-1, 2)
+    return np.ascontiguousarray(nodes), np.ascontiguousarray(np.outer(w, w).ravel())
+
+
+BLUR_NODES, BLUR_WEIGHTS = _blur_rule()
+# the kinds of blur kernel the model knows (blur_kernel)
+PSF_KINDS = ("gaussian", "sampled")
+# the sampled kernel's half-width: taps to 3 sigma beyond the pixel's half (the weight left
+# out is below 0.05% per side)
+SAMPLED_REACH_SIGMAS = 3.0
+
+
+def blur_kernel(sigma, kind="gaussian"):
+    r'''Offsets and weights of the blur kernel of each corner, and their sigma derivatives
+
+SYNOPSIS
+
+    Z, W, dZ, dW = blur_kernel(sigma, kind)
+    # sigma (m,) px; Z (m,M,2) offsets (px), W (m,M) weights; dZ, dW per px of sigma
+
+The blurred model of a pixel is sum_q W_q A(d + Z_q), A the exact area of the pixel
+inside the dark wedges. Two kinds:
+
+- "gaussian": optics: a Gaussian PSF acting on the scene before the pixel integrates it
+  (kernel: the pixel's square convolved with the Gaussian). Z = sigma * BLUR_NODES,
+  W = BLUR_WEIGHTS (product Gauss-Hermite, BLUR_ORDER per axis: the expectation of the
+  pixel area over the PSF's offsets, 0.26% of the contrast RMS off the exact blur at
+  sigma 0.7 px against 1.0% for order 3, tests/test_corners_blur.py).
+- "sampled": a pixel-integrated Gaussian applied to the pixel image (what
+  renderers.response's psf stage does, _pixel_gaussian_1d): integer offsets within
+  SAMPLED_REACH_SIGMAS sigma, weights outer(k, k), k_j = Phi((j + 1/2) / sigma) -
+  Phi((j - 1/2) / sigma) normalised. On an area-sampled image that is the pixel's square
+  convolved twice (variance sigma^2 + 1/6 per axis, not sigma^2 + 1/12).
+'''
+    sigma = np.atleast_1d(np.asarray(sigma, dtype=np.float64))
+    m = len(sigma)
+    if kind == "gaussian":
+        Z = sigma[:, None, None] * BLUR_NODES[None]
+        W = np.broadcast_to(BLUR_WEIGHTS, (m, len(BLUR_WEIGHTS)))
+        dZ = np.broadcast_to(BLUR_NODES, (m,) + BLUR_NODES.shape)
+        dW = np.zeros(W.shape)
+    elif kind == "sampled":
+        from scipy.special import ndtr
+        sg = np.maximum(sigma, 1e-3)
+        nj = np.maximum(1, np.ceil(SAMPLED_REACH_SIGMAS * sg - 0.5)).astype(np.int64)
+        n = int(nj.max())
+        j = np.arange(-n, n + 1, dtype=np.float64)
+        hi = (j + 0.5)[None] / sg[:, None]
+        lo = (j - 0.5)[None] / sg[:, None]
+        # each corner's own taps: zero weights beyond them (the compiled model skips them)
+        own = np.abs(j)[None] <= nj[:, None]
+        k = np.where(own, ndtr(hi) - ndtr(lo), 0.0)
+        phi = lambda x: np.exp(-0.5 * x * x) / np.sqrt(2 * np.pi)  # noqa: E731
+        dk = np.where(own, -(hi * phi(hi) - lo * phi(lo)) / sg[:, None], 0.0)
+        S = k.sum(-1, keepdims=True)
+        dS = dk.sum(-1, keepdims=True)
+        dk = dk / S - k * dS / S ** 2
+        k = k / S
+        W = (k[:, :, None] * k[:, None, :]).reshape(m, -1)
+        dW = (dk[:, :, None] * k[:, None, :] + k[:, :, None] * dk[:, None, :]).reshape(m, -1)
+        jj = np.stack(np.meshgrid(j, j, indexing="ij"), axis=-1).reshape(-1, 2)
+        Z = np.broadcast_to(jj, (m,) + jj.shape)
+        dZ = np.zeros(Z.shape)
+    else:
+        raise ValueError(f"psf kind must be one of {PSF_KINDS}, not {kind!r}")
+    return tuple(np.ascontiguousarray(x, dtype=np.float64) for x in (Z, W, dZ, dW))
+
+
+def blurred_half_box(steps, half_box, clearance, sigma):
+    r'''(N,) window half-widths (board units) that keep a blurred neighbour out
+
+The window's pixels must not see the nearest other feature, clearance board units from
+the corner along the box's axes: the PSF spreads it by BLUR_REACH_SIGMAS sigma px, which
+is (that / the smallest image step of one board unit) board units. Never above half_box
+(the sharp image's window).
+'''
+    steps = np.asarray(steps, dtype=np.float64).reshape(-1, 2, 2)
+    smin = np.full(len(steps), np.nan)
+    fin = np.all(np.isfinite(steps), axis=(-1, -2))
+    if fin.any():
+        smin[fin] = np.linalg.svd(steps[fin], compute_uv=False)[:, -1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hb = clearance - BLUR_REACH_SIGMAS * float(sigma) / smin
+    return np.minimum(float(half_box), np.where(np.isfinite(hb), hb, float(half_box)))
+
+
 def _window(q0, steps, half_box, shape, max_px):
-    r'''(N,P) pixel indices ix, iy and mask of each corner's window'''
+    r'''(N,P) pixel indices ix, iy and mask of each corner's window (half_box: a number
+or (N,) per corner)'''
+    half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (len(q0),))
+    half_box = half_box[:, None, None]
     H, W = shape
     r = int(max_px)
     off = np.arange(-r, r + 1)
@@ -238,7 +375,8 @@ def _window(q0, steps, half_box, shape, max_px):
     return ix, iy, inside, on_image
 
 
-def refine_corners(image, q0, directions, wedges, steps, half_box, **options):
+def refine_corners(image, q0, directions, wedges, steps, half_box, *, psf_sigma_px=None,
+                   psf_kind=None, clearance=None, lines=(), **options):
     r'''Refine corners by fitting the area-sampled wedge model; see the module docstring
 
 SYNOPSIS
@@ -255,6 +393,17 @@ ARGUMENTS
 - steps: (N,2,2) columns: image displacement of one board unit along the two board axes
 - half_box: the window is the pixels whose square lies within half_box board units of the
   coarse corner along both axes (and within max_window_px px)
+- psf_sigma_px: the image's blur, a Gaussian PSF's sigma (px) on top of the pixel's
+  area: a number when the caller knows it (e.g. from a campaign's response stage), None
+  (default) to estimate it from the image (estimate_blur), 0 for a sharp image
+- psf_kind: the blur kernel's kind (blur_kernel: "gaussian" optics, "sampled" a blur of
+  the pixel image); None (default): estimate_blur picks the one that fits the image
+  better ("gaussian" when psf_sigma_px is given)
+- clearance: board units from the corner to the nearest other feature along the box's
+  axes (default half_box: no room to spare): the window shrinks so that the blurred
+  feature stays out of it (blurred_half_box)
+- lines: pairs of rays (i, j) that are one straight line through the corner (a
+  chessboard's); fitted as one angle when the image is blurred
 - options: max_window_px, max_misfit, min_contrast (module constants by default);
   value_range: the image's max - min when the caller has it (the contrast test's scale;
   default: computed here, a pass over the image); kernel:
@@ -273,31 +422,137 @@ column's edge in ever smaller steps and stops there (0.25 px off, measured). The
 pass takes the derivatives over pixels widened by JACOBIAN_WIDEN px (an approximate
 Jacobian: Levenberg-Marquardt still only accepts steps that lower the exact misfit); the
 second polishes with the exact ones.
+
+Blur: with sigma > 0 both passes fit the blurred model (the exact pixel area averaged over
+the PSF's offsets, targets._corner_kernels.wedge_model); a sharp-edged model fitted to a
+blurred L-shaped corner (an AprilTag's) would put it ~0.35 sigma inside the dark wedge.
+With psf_sigma_px=None, the first pass fits sharp edges (its misfit not judged: it only
+places the windows), then estimate_blur fits sigma per corner on up to BLUR_SAMPLE of them
+and takes the median; fit.info has "psf_sigma_px", "psf_source" (given / estimated) and
+the estimate's spread.
 '''
-    fit = _fit(image, q0, directions, wedges, steps, half_box, widen=JACOBIAN_WIDEN,
-               converged_px=FIRST_PASS_CONVERGED_PX, **options)
+    clearance = float(half_box) if clearance is None else float(clearance)
+    q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
+    steps = np.asarray(steps, dtype=np.float64).reshape(len(q0), 2, 2)
+    info = {}
+    options = dict(options, lines=lines)
+    if psf_sigma_px is None:
+        opts1 = dict(options, max_misfit=np.inf)
+        sigma1 = 0.0
+    else:
+        sigma1 = float(psf_sigma_px)
+        kind = psf_kind or "gaussian"
+        options["psf_kind"] = kind
+        opts1 = options
+        info = {"psf_sigma_px": sigma1, "psf_source": "given", "psf_kind": kind}
+    hb1 = blurred_half_box(steps, half_box, clearance, sigma1)
+    fit = _fit(image, q0, directions, wedges, steps, hb1, widen=JACOBIAN_WIDEN,
+               converged_px=FIRST_PASS_CONVERGED_PX, sigma=sigma1, **opts1)
     ok = np.all(np.isfinite(fit.q), axis=-1)
     if not ok.any():
-        return fit
-    steps = np.asarray(steps, dtype=np.float64).reshape(len(ok), 2, 2)
+        return CornerFit(q=fit.q, reasons=fit.reasons, misfit=fit.misfit, npixels=fit.npixels,
+                         iterations=fit.iterations, directions=fit.directions, info=info)
     dirs = fit.directions[ok]
     # the box's axes along rays 0 and 1 (the helpers below put the board axes there)
     steps2 = np.stack((dirs[:, 0] * np.linalg.norm(steps[ok, :, 0], axis=-1)[:, None],
                        dirs[:, 1] * np.linalg.norm(steps[ok, :, 1], axis=-1)[:, None]), axis=-1)
-    fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, half_box, **options)
+    if psf_sigma_px is None:
+        kinds = PSF_KINDS if psf_kind is None else (psf_kind,)
+        # a sharp image (every clean render) is told by a few corners and one kind: the
+        # full estimate (both kinds, BLUR_SAMPLE corners) only when they see a blur
+        info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box, clearance,
+                             kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE, **options)
+        if added_blur_px(info["psf_sigma_px"], info["psf_kind"]) >= BLUR_NEGLIGIBLE_PX:
+            info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box,
+                                 clearance, kinds=kinds, **options)
+        options["psf_kind"] = info["psf_kind"]
+    sigma = info["psf_sigma_px"]
+    if added_blur_px(sigma, options.get("psf_kind", "gaussian")) < BLUR_NEGLIGIBLE_PX:
+        info = dict(info, psf_sigma_px=0.0, psf_sigma_estimated_px=sigma)
+        sigma = 0.0
+    hb2 = blurred_half_box(steps2, half_box, clearance, sigma)
+    fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, hb2, sigma=sigma, **options)
     q, reasons = fit.q.copy(), fit.reasons.copy()
     misfit, npix, directions = fit.misfit.copy(), fit.npixels.copy(), fit.directions.copy()
     q[ok], reasons[ok], misfit[ok] = fit2.q, fit2.reasons, fit2.misfit
     npix[ok], directions[ok] = fit2.npixels, fit2.directions
     return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix,
-                     iterations=fit.iterations + fit2.iterations, directions=directions)
+                     iterations=fit.iterations + fit2.iterations, directions=directions,
+                     info=info)
+
+
+def added_blur_px(sigma, kind="gaussian"):
+    r'''The blur (px, standard deviation per axis) a kernel of this sigma and kind adds
+to the pixel's own area: the sampled kernel's taps carry ~no weight below sigma ~0.2 px,
+so its sigma wanders there on a sharp image (0.09-0.13 px measured on exact renders)
+while it blurs nothing'''
+    Z, W, _, _ = blur_kernel([max(float(sigma), 1e-3)], kind)
+    return float(np.sqrt((W[0] * Z[0, :, 0] ** 2).sum()))
+
+
+def estimate_blur(image, q, directions, wedges, steps, half_box, clearance, kinds=PSF_KINDS,
+                  sample=None, **options):
+    r'''The image's Gaussian blur (px) from the edge profiles at its corners
+
+SYNOPSIS
+
+    info = estimate_blur(img, q, directions, wedges, steps, half_box, clearance)
+    info["psf_sigma_px"]     # the median over the corners fitted; 0 for a sharp image
+
+Fits the blurred model with sigma free (one sigma per corner, beside the corner, rays,
+light level and contrast) on up to BLUR_SAMPLE corners spread over the list, in windows
+kept BLUR_PROBE_PX of blur away from the next feature, and takes the median of the fits
+that converged with a misfit below max_misfit. Each kind of kernel (blur_kernel) is
+fitted; the one with the lower median misfit is kept ("psf_kind"; "psf_misfit" has each
+kind's). The pixel's own area is in the model, so a sharp area-sampled render gives
+sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1.4826),
+"psf_estimates" (how many) and "psf_source" ("estimated"; "estimated (no corner fitted):
+0" when none converged).
+'''
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    n = len(q)
+    sample = BLUR_SAMPLE if sample is None else int(sample)
+    pick = np.unique(np.linspace(0, n - 1, min(n, sample)).round().astype(np.int64))
+    steps = np.asarray(steps, dtype=np.float64).reshape(n, 2, 2)[pick]
+    hb = blurred_half_box(steps, half_box, clearance, BLUR_PROBE_PX)
+    options.pop("psf_kind", None)
+    best, misfits = None, {}
+    # small features (AprilTag bits of 3-4 px) leave no window of MIN_WINDOW_PIXELS once
+    # shrunk for BLUR_PROBE_PX: then the sharp image's windows (a blurred neighbour may
+    # reach into them; a blur estimate slightly high beats none: 0.3 px errors, camera 17)
+    for box in (hb, np.full(len(pick), float(half_box))):
+        for kind in kinds:
+            fit = _fit(image, q[pick], np.asarray(directions)[pick], wedges, steps, box,
+                       sigma=BLUR_START_PX, fit_sigma=True, psf_kind=kind, **options)
+            good = fit.reasons == ""
+            est = np.abs(fit.info.get("sigma", np.full(len(good), np.nan))[good])
+            if not len(est):
+                continue
+            mis = float(np.median(fit.misfit[good]))
+            misfits[kind] = mis
+            if best is None or mis < best[0]:
+                best = (mis, kind, est)
+        if best is not None:
+            break
+    if best is None:
+        return {"psf_sigma_px": 0.0, "psf_source": "estimated (no corner fitted): 0",
+                "psf_kind": kinds[0], "psf_estimates": 0, "psf_sigma_spread_px": float("nan")}
+    _, kind, est = best
+    med = float(np.median(est))
+    return {"psf_sigma_px": med, "psf_source": "estimated", "psf_kind": kind,
+            "psf_misfit": misfits, "psf_estimates": int(len(est)),
+            "psf_sigma_spread_px": float(1.4826 * np.median(np.abs(est - med)))}
 
 
 def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
-         converged_px=CONVERGED_PX, kernel="numba", value_range=None):
-    r'''One pass of refine_corners (the window about q0; widen: see wedge_area; kernel:
-"numba" the compiled pixel-area model of targets._corner_kernels, "numpy" wedge_area's)'''
+         converged_px=CONVERGED_PX, kernel="numba", value_range=None, sigma=0.0,
+         fit_sigma=False, lines=(), psf_kind="gaussian"):
+    r'''One pass of refine_corners (the window about q0, half_box a number or (N,); widen:
+see wedge_area; kernel: "numba" the compiled pixel-area model of targets._corner_kernels,
+"numpy" wedge_area's; sigma: the Gaussian blur, px, fitted per corner from there with
+fit_sigma, the fits in info["sigma"]; lines: pairs of rays (i, j) fitted as one straight
+line through the corner when sigma > 0)'''
     if kernel not in ("numba", "numpy"):
         raise ValueError(f"kernel must be 'numba' or 'numpy', not {kernel!r}")
     # float32 stays float32 (the windows' pixels are taken as float64 below): a large
@@ -320,7 +575,8 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
     if not ok.any():
         return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix)
     idx = np.flatnonzero(ok)
-    ix, iy, inside, on_image = _window(q0[idx], steps[idx], half_box, img.shape,
+    half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (N,))
+    ix, iy, inside, on_image = _window(q0[idx], steps[idx], half_box[idx], img.shape,
                                        max_window_px)
     off = (inside & ~on_image).any(axis=-1)
     n_in = (inside & on_image).sum(axis=-1)
@@ -351,30 +607,66 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
     second = np.ascontiguousarray(np.where(flip, wedges[None, :, 0], wedges[None, :, 1]))
     c = q0[idx].copy()
     n, R = theta.shape
+    sig = np.full(n, float(sigma))
+    # T (R,L): ray r turns with angle parameter l where T[r, l] = 1. Blurred, the rays of a
+    # line are tied: four free rays let a blurred X junction fit a kinked X whose apex
+    # slides along it (0.25 px on navcam 15 chessboards, sigma 0.7 px)
+    tied = [tuple(p) for p in lines] if (float(sigma) > 0.0 or fit_sigma) else []
+    free = [r for r in range(R) if not any(r in p for p in tied)]
+    T = np.zeros((R, len(tied) + len(free)))
+    for col, (i, j) in enumerate(tied):
+        T[i, col] = T[j, col] = 1.0
+        # start the line from both rays' directions, exactly opposite
+        phi = np.arctan2(u[:, i, 1] - u[:, j, 1], u[:, i, 0] - u[:, j, 0])
+        theta[:, i], theta[:, j] = phi, phi + np.pi
+    for col, r in enumerate(free, start=len(tied)):
+        T[r, col] = 1.0
+    L = T.shape[1]
+    blurred = float(sigma) > 0.0 or fit_sigma
 
-    def model(s, c, theta):
-        # D (m,P) dark area of each window pixel and its derivatives, for the corners s
+    def model(s, c, theta, sg):
+        # D (m,P) dark area of each window pixel and its derivatives, for the corners s;
+        # with fit_sigma the blur's derivative is the last column of dD_dt
         uu = np.stack((np.cos(theta), np.sin(theta)), axis=-1)     # (m,R,2)
+        if blurred:
+            Z, W, dZ, dW = blur_kernel(sg, psf_kind)
+        else:
+            Z, dZ = np.zeros((len(s), 1, 2)), np.zeros((len(s), 1, 2))
+            W, dW = np.ones((len(s), 1)), np.zeros((len(s), 1))
         if kernel == "numba":
             from ._corner_kernels import wedge_model
-            return wedge_model(centres, np.ascontiguousarray(s, dtype=np.int64),
-                               np.ascontiguousarray(c), uu, first, second, float(widen))
-        d = centres[s] - c[:, None, :]
-        m = len(s)
-        D = np.zeros(d.shape[:-1])
-        dD_dc = np.zeros(d.shape)
-        dD_dt = np.zeros(d.shape[:-1] + (R,))
-        for k in range(first.shape[1]):
-            i1, i2 = first[s, k], second[s, k]
-            u1 = uu[np.arange(m), i1][:, None, :]
-            u2 = uu[np.arange(m), i2][:, None, :]
-            A, dA_dc, dA_dt1, dA_dt2 = wedge_area(d, np.broadcast_to(u1, d.shape),
-                                                  np.broadcast_to(u2, d.shape), True, widen)
-            D += A
-            dD_dc += dA_dc
-            dD_dt += (dA_dt1[..., None] * (np.arange(R) == i1[:, None])[:, None, :]
-                      + dA_dt2[..., None] * (np.arange(R) == i2[:, None])[:, None, :])
-        return D, dD_dc, dD_dt
+            D, dD_dc, dD_dt, dD_ds = wedge_model(
+                centres, np.ascontiguousarray(s, dtype=np.int64), np.ascontiguousarray(c),
+                uu, first, second, float(widen), Z, W, dZ, dW)
+        else:
+            d0 = centres[s] - c[:, None, :]
+            m = len(s)
+            D = np.zeros(d0.shape[:-1])
+            dD_dc = np.zeros(d0.shape)
+            dD_dt = np.zeros(d0.shape[:-1] + (R,))
+            dD_ds = np.zeros(d0.shape[:-1])
+            for q in range(W.shape[1]):
+                d = d0 + Z[:, q][:, None, :]
+                wz = W[:, q][:, None]
+                for k in range(first.shape[1]):
+                    i1, i2 = first[s, k], second[s, k]
+                    u1 = uu[np.arange(m), i1][:, None, :]
+                    u2 = uu[np.arange(m), i2][:, None, :]
+                    A, dA_dc, dA_dt1, dA_dt2 = wedge_area(
+                        d, np.broadcast_to(u1, d.shape), np.broadcast_to(u2, d.shape), True,
+                        widen)
+                    D += wz * A
+                    dD_dc += wz[..., None] * dA_dc
+                    dD_dt += wz[..., None] * (
+                        dA_dt1[..., None] * (np.arange(R) == i1[:, None])[:, None, :]
+                        + dA_dt2[..., None] * (np.arange(R) == i2[:, None])[:, None, :])
+                    dD_ds += dW[:, q][:, None] * A \
+                        - wz * (dA_dc * dZ[:, q][:, None, :]).sum(-1)
+        if tied:
+            dD_dt = dD_dt @ T
+        if fit_sigma:
+            dD_dt = np.concatenate((dD_dt, dD_ds[..., None]), axis=-1)
+        return D, dD_dc, np.ascontiguousarray(dD_dt)
 
     def linear(s, D):
         # light level a and contrast b for the current geometry (weighted least squares)
@@ -392,13 +684,14 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
         return a, b, (ws * r * r).sum(-1), r
 
     alls = np.arange(n)
-    D, dD_dc, dD_dt = model(alls, c, theta)
+    D, dD_dc, dD_dt = model(alls, c, theta, sig)
     a, b, S, r = linear(alls, D)
+    K = 4 + L + int(bool(fit_sigma))
     lam = np.full(n, 1e-3)
-    prev = np.zeros((n, 4 + R))
+    prev = np.zeros((n, K))
     converged = np.zeros(n, bool)
     it = 0
-    eye = np.eye(4 + R)
+    eye = np.eye(K)
     while it < MAX_ITERATIONS and not converged.all():
         it += 1
         s = np.flatnonzero(~converged)
@@ -417,12 +710,15 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
         step = np.linalg.solve(JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye,
                                Jtr[..., None])[..., 0]
         c1 = c[s] + step[:, 2:4]
-        t1 = theta[s] + step[:, 4:]
-        D1, dD_dc1, dD_dt1 = model(s, c1, t1)
+        t1 = theta[s] + step[:, 4:4 + L] @ T.T
+        # the model is even in sigma: keep it positive
+        g1 = np.minimum(np.abs(sig[s] + step[:, 4 + L]), BLUR_MAX_PX) if fit_sigma \
+            else sig[s]
+        D1, dD_dc1, dD_dt1 = model(s, c1, t1, g1)
         a1, b1, S1, r1 = linear(s, D1)
         better = S1 <= S[s]
         sb = s[better]
-        c[sb], theta[sb] = c1[better], t1[better]
+        c[sb], theta[sb], sig[sb] = c1[better], t1[better], g1[better]
         D[sb], dD_dc[sb], dD_dt[sb] = D1[better], dD_dc1[better], dD_dt1[better]
         a[sb], b[sb], S[sb], r[sb] = a1[better], b1[better], S1[better], r1[better]
         # a step back along the last accepted one is a zig-zag across a kink of the misfit
@@ -444,7 +740,7 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
     misfit[idx] = mis
     # the corner must stay inside its window: its board offset from the coarse corner
     rel = np.einsum("nij,nj->ni", np.linalg.inv(steps[idx]), c - q0[idx])
-    moved = np.abs(rel).max(-1) > half_box
+    moved = np.abs(rel).max(-1) > half_box[idx]
     why = np.full(len(idx), "", dtype=object)
     why[~converged] = f"fit not converged in {MAX_ITERATIONS} iterations"
     why[converged & moved] = "corner moved out of its window"
@@ -457,8 +753,10 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
     reasons[idx] = why
     directions = np.full(dirs.shape, np.nan)
     directions[idx] = np.stack((np.cos(theta), np.sin(theta)), axis=-1)
+    sigmas = np.full(N, np.nan)
+    sigmas[idx] = sig
     return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix, iterations=it,
-                     directions=directions)
+                     directions=directions, info={"sigma": sigmas})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -469,9 +767,15 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WI
 TAG_HALF_BOX_BITS = 0.8
 # a chessboard corner: the next grid lines are a square away; keep to 0.45 square
 CHESSBOARD_HALF_BOX = 0.45
+# board units from a corner to the nearest feature its model does not have, along the box's
+# axes: an AprilTag's data bits start one bit inside its border; a chessboard's next corner
+# is a square away (its mark dots: chessboard_clearance)
+TAG_CLEARANCE_BITS = 1.0
+CHESSBOARD_CLEARANCE = 1.0
 
 
-def refine_tag_corners(image, Q, half_box=TAG_HALF_BOX_BITS, **options):
+def refine_tag_corners(image, Q, half_box=TAG_HALF_BOX_BITS, clearance=TAG_CLEARANCE_BITS,
+                       **options):
     r'''Refine the outer corners of AprilTags
 
 SYNOPSIS
@@ -487,7 +791,8 @@ k-1 and k+1; one bit of a tag is its side / 8 (tag36h11: 6x6 data bits in a 1-bi
     prv = np.roll(Q, 1, axis=1) - Q
     dirs = np.stack((nxt, prv), axis=2).reshape(-1, 2, 2)
     steps = np.stack((nxt, prv), axis=-1).reshape(-1, 2, 2) / 8.0
-    return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box, **options)
+    return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box,
+                          clearance=clearance, **options)
 
 
 def chessboard_half_box(target):
@@ -503,7 +808,22 @@ sqrt(2)/2 - r of the corner along the diagonal, where the box reaches sqrt(2) ha
     return min(CHESSBOARD_HALF_BOX, 0.9 * (0.5 - r / np.sqrt(2.0)))
 
 
-def refine_chessboard_corners(image, G, half_box=CHESSBOARD_HALF_BOX, **options):
+def chessboard_clearance(target):
+    r'''Board units (squares) a chessboard's window may reach before a blurred neighbour
+
+The next corner is a square away; a mark dot of radius r squares in a square's middle is
+0.5 - r / sqrt(2) away along the box's axes (its nearest point to the box's corner, taken
+along the axes: conservative by up to sqrt(2)).
+'''
+    mark = target.spec.get("orientation_mark")
+    if mark is None:
+        return CHESSBOARD_CLEARANCE
+    r = 0.5 * float(mark["dot_diameter"]) / float(target.spec["square"])
+    return min(CHESSBOARD_CLEARANCE, 0.5 - r / np.sqrt(2.0))
+
+
+def refine_chessboard_corners(image, G, half_box=CHESSBOARD_HALF_BOX,
+                              clearance=CHESSBOARD_CLEARANCE, **options):
     r'''Refine the inner corners of a chessboard
 
 SYNOPSIS
@@ -520,7 +840,7 @@ The four edges at a corner run along the grid lines towards the neighbouring cor
     dirs = np.stack((ex, ey, -ex, -ey), axis=2).reshape(-1, 4, 2)
     steps = np.stack((ex, ey), axis=-1).reshape(-1, 2, 2)
     return refine_corners(image, G.reshape(-1, 2), dirs, [(0, 1), (2, 3)], steps, half_box,
-                          **options)
+                          clearance=clearance, lines=[(0, 2), (1, 3)], **options)
 
 
 def _grid_step(G, axis):

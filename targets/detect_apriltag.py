@@ -149,7 +149,8 @@ its window, keeps pupil_apriltags' position'''
 
 
 def detect_apriltags(image, target, *, max_hamming=1, min_found=4, quad_decimate=None,
-                     quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25, refine=True):
+                     quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25, refine=True,
+                     psf_sigma_px=None):
     r'''Detect an AprilTag grid; see the module docstring
 
 SYNOPSIS
@@ -167,6 +168,9 @@ ARGUMENTS
   use the full image)
 - refine: True: fit the corner model (targets.corners); "subpix": polish each corner with
   cv2.cornerSubPix in a window of half a tag bit; False: pupil_apriltags' corners
+- psf_sigma_px: the image's Gaussian blur (px) for the corner model when known (e.g. a
+  campaign's response profile); None (default): estimated from the image
+  (targets.corners.estimate_blur); info["psf_sigma_px"] has the value used
 '''
     if target.kind != "apriltag":
         return failed(target, f"detect_apriltags() needs an apriltag target; got "
@@ -216,7 +220,8 @@ ARGUMENTS
         used.append((tag_id, c))
     if refine is True and used:
         from .corners import refine_tag_corners
-        fit = refine_tag_corners(img, np.array([c for _, c in used]), value_range=hi - lo)
+        fit = refine_tag_corners(img, np.array([c for _, c in used]), value_range=hi - lo,
+                                 psf_sigma_px=psf_sigma_px)
         refined = fit.q.reshape(-1, 4, 2)
         used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
     for tag_id, c in used:
@@ -226,6 +231,7 @@ ARGUMENTS
             "rejected": rejected, "mirrored": mirrored}
     if refine is True and used:
         info["corners_dropped"] = fit.dropped()
+        info.update({k: v for k, v in fit.info.items() if k.startswith("psf_")})
     if not np.isfinite(q).any():
         if used:
             return failed(target, f"every corner of the {len(used)} tags of the board decoded was "

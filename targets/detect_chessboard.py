@@ -118,7 +118,7 @@ corners are used as OpenCV finds them, refine=False): with it only.'''
 
 
 def detect_chessboard(image, target, *, min_found=MIN_POINTS_FOR_POSE, refine=True,
-                      reduced_search=True, classic_first=True):
+                      reduced_search=True, classic_first=True, psf_sigma_px=None):
     r'''Detect a chessboard; see the module docstring
 
 SYNOPSIS
@@ -133,6 +133,9 @@ ARGUMENTS
   targets.detection.MIN_POINTS_FOR_POSE; the corners kept must not lie on one line)
 - refine: True: polish the corners with cv2.cornerSubPix, then fit the corner model
   (targets.corners); "subpix": cornerSubPix only; False: OpenCV's corners as found
+- psf_sigma_px: the image's Gaussian blur (px) for the corner model when known (e.g. a
+  campaign's response profile); None (default): estimated from the image
+  (targets.corners.estimate_blur); info["psf_sigma_px"] has the value used
 - reduced_search: on large images, search at reduced size first (falls back to full
   size when a corner wanders off its refinement window)
 - classic_first: with refine, try OpenCV's findChessboardCorners (quad-based) before the
@@ -204,7 +207,8 @@ ARGUMENTS
             info["method"] == "findChessboardCorners" and refine and classic_first:
         # the quad-based search's grid does not explain the squares: the sector-based one
         return detect_chessboard(image, target, min_found=min_found, refine=refine,
-                                 reduced_search=reduced_search, classic_first=False)
+                                 reduced_search=reduced_search, classic_first=False,
+                                 psf_sigma_px=psf_sigma_px)
     if ambiguous:
         return failed(target, f"the chessboard's orientation is ambiguous (square mismatches "
                       f"{[s[0] for s in scores]}); is the orientation mark visible?",
@@ -242,18 +246,22 @@ ARGUMENTS
         if info["method"] == "findChessboardCorners" and refine and classic_first:
             # the quad-based search misplaced a corner: the sector-based search
             return detect_chessboard(image, target, min_found=min_found, refine=refine,
-                                     reduced_search=reduced_search, classic_first=False)
+                                     reduced_search=reduced_search, classic_first=False,
+                                 psf_sigma_px=psf_sigma_px)
         if info["method"].endswith("size"):
             # the reduced-size search was too coarse here: search at full size
             return detect_chessboard(image, target, min_found=min_found, refine=refine,
-                                     reduced_search=False, classic_first=False)
+                                     reduced_search=False, classic_first=False,
+                                     psf_sigma_px=psf_sigma_px)
         info["rejected_corners"] = int(not_saddle.sum())
         G[not_saddle] = np.nan
     dropped = {NOT_SADDLE: int(not_saddle.sum())} if not_saddle.any() else {}
     if refine is True:
-        from .corners import chessboard_half_box, refine_chessboard_corners
+        from .corners import chessboard_clearance, chessboard_half_box, refine_chessboard_corners
         fit = refine_chessboard_corners(img, G, chessboard_half_box(target),
-                                        value_range=hi - lo)
+                                        clearance=chessboard_clearance(target),
+                                        value_range=hi - lo, psf_sigma_px=psf_sigma_px)
+        info.update({k: v for k, v in fit.info.items() if k.startswith("psf_")})
         # the refiner calls the corners rejected above "not detected"
         dropped.update({k: v for k, v in fit.dropped().items() if k != "not detected"})
         G = fit.q.reshape(ny, nx, 2)

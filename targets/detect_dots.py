@@ -33,6 +33,11 @@ Steps:
    dot area each pixel covers (a 50 % vignette biased the plain weights by
    0.03 px RMS on 320x240 test renders).
 
+Step 3's mark test and 4 (and the Otsu histogram) run as compiled kernels
+(targets._dot_kernels, numba: one call a dot instead of ~40 numpy/OpenCV calls);
+mark_flags' and _dot_centroid's numpy code here is their reference (the tests
+compare) and _dot_centroid the fallback for a degenerate plane fit.
+
 For a uniformly dark dot on a uniform board imaged as an area average, this
 centroid is the area centroid of the dot's projected outline:
 targets.centroids.expected_centroids() gives it exactly.
@@ -43,6 +48,7 @@ from collections import deque
 
 import numpy as np
 
+from . import _dot_kernels as _kernels
 from .boards import apply_grid_transform, grid_transforms
 from .detection import as_float_image, failed, result
 
@@ -51,7 +57,6 @@ NEIGHBOUR_TOLERANCE = 0.3      # of the local spacing
 AREA_RATIO_MAX = 4.0           # between neighbouring blobs
 NSEEDS = 6
 OTSU_PIXELS = 1_000_000        # the threshold is computed on about this many pixels
-HISTOGRAM_BLOCK = 65536        # values at a time: its arrays stay in the cache
 SCAN_ROWS = 64                 # image rows at a time in _scan: 1.3 MB of 5120x3840 float32
 # above this many pixels the blobs are located in an image reduced REDUCTION times, and
 # labelled at full resolution in their boxes only (5120x3840: 0.1 s instead of 1 s)
@@ -60,6 +65,7 @@ REDUCTION = 4
 MIN_REDUCED_AREA_PX = 4        # smaller reduced blobs are not located this way
 MIN_REDUCED_BLOBS = 4          # fewer: the full image is labelled instead
 MIN_RING_FOR_PLANE = 12
+_NO_FREE = np.zeros((1, 1), bool)     # dot_centroid's free mask when no other blob is near
 ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, True)
                   for fb in (False, True)]
 
@@ -81,7 +87,7 @@ def _otsu(img):
 
 def _histogram(v, bins, lo, hi):
     r'''np.histogram(v, bins, range=(lo, hi)) of a 1-D float v within [lo, hi]: the same
-counts and edges, in a few passes over v instead of np.histogram's twenty
+counts and edges, in one pass over v instead of np.histogram's twenty
 
 SYNOPSIS
 
@@ -92,27 +98,13 @@ precision) and then corrects it by one bin either way against its edges (in v's
 precision), so that a value counts in the bin [edges[i], edges[i+1]) that holds it, the
 last bin closed. Here the estimate is made in v's precision: it is a small fraction of a
 bin off at most (the edges are far wider apart than v's resolution; otherwise
-np.histogram itself is called), and the same correction makes it that bin. Blocks of
-HISTOGRAM_BLOCK values go through buffers that stay in the cache.'''
+np.histogram itself is called), and the same correction makes it that bin: one pass of
+targets._dot_kernels.histogram_counts.'''
     edges = np.linspace(lo, hi, bins + 1, dtype=np.result_type(lo, hi, v))
-    if v.dtype.kind != "f" or not hi - lo > 1e-3 * max(abs(lo), abs(hi)):
+    if v.dtype not in (np.float32, np.float64) or not hi - lo > 1e-3 * max(abs(lo), abs(hi)):
         return np.histogram(v, bins=bins, range=(lo, hi))
-    upper = np.append(edges[1:-1], edges.dtype.type(np.inf))    # the last bin is closed
     lo, scale = edges.dtype.type(lo), edges.dtype.type(bins / (hi - lo))
-    n = np.zeros(bins, np.intp)
-    f = np.empty(min(len(v), HISTOGRAM_BLOCK), v.dtype)
-    i = np.empty(len(f), np.intp)
-    step = np.empty(len(f), bool)
-    for k in range(0, len(v), len(f)):
-        b = v[k:k + len(f)]
-        f, i, step = f[:len(b)], i[:len(b)], step[:len(b)]
-        np.subtract(b, lo, out=f)
-        f *= scale
-        np.minimum(f, bins - 1, out=f)
-        i[:] = f        # (truncation, as astype)
-        i -= np.less(b, np.take(edges, i, out=f, mode="clip"), out=step)
-        i += np.greater_equal(b, np.take(upper, i, out=f, mode="clip"), out=step)
-        n += np.bincount(i, minlength=bins)
+    n = _kernels.histogram_counts(np.ascontiguousarray(v), edges, lo, scale)
     return n, edges
 
 
@@ -248,12 +240,12 @@ rectangle is the component's, and its pixels carry the component's label.'''
 
 def _label_all(dark):
     r'''(labels, stats, None) of a uint8 mask: cv2.connectedComponentsWithStats' labels and
-stats, the areas counted by np.bincount, in half its time; the centroids are left to
-_blob_centroids() for the blobs kept'''
+stats, the areas counted in one pass (_dot_kernels.label_counts: np.bincount's counts),
+in half its time; the centroids are left to _blob_centroids() for the blobs kept'''
     labels, comp = _components(dark)
     stats = np.zeros((len(comp) + 1, 5), np.int64)
     stats[comp[:, 0], :4] = comp[:, 1:]
-    stats[:, 4] = np.bincount(labels.ravel(), minlength=len(stats))
+    stats[:, 4] = _kernels.label_counts(labels, len(stats))
     return labels, stats, None
 
 
@@ -449,6 +441,16 @@ sat 1.41x above its inward neighbours' median and read as marks). Neighbours tha
 themselves far above the plane (other marks) are left out and the plane refitted.
 With fewer than 3 neighbours off one line the median of the 8 adjacent ones decides.
 '''
+    if not nodes:
+        return np.zeros(len(area), bool)
+    return _kernels.mark_flags(np.array(list(nodes.keys()), np.int64),
+                               np.array(list(nodes.values()), np.int64),
+                               np.asarray(area, np.float64), float(ratio_threshold),
+                               MARK_NEIGHBOURHOOD)
+
+
+def _mark_flags_numpy(nodes, area, ratio_threshold):
+    r'''mark_flags() the numpy way: the reference of targets._dot_kernels.mark_flags'''
     is_mark = np.zeros(len(area), bool)
     log_thr = np.log(ratio_threshold)
     la = np.log(np.maximum(area, 1e-300))
@@ -625,6 +627,9 @@ def _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya):
     r'''The darkness-weighted centroid (x, y) of a blob in a crop (float64, a copy: it is
 overwritten) whose pixel crop[0,0] is (xa, ya); None if it has no weight
 
+The numpy reference of targets._dot_kernels.dot_centroid, which the detector calls; used
+where that kernel declines (a zero pivot in its plane fit: numpy's solve and lstsq).
+
 mask, free: the blob's pixels (uint8) and the pixels of no blob (bool; None: all but the
 blob's), over the crop (_dot_masks). Window, ring, board level and weights as the module
 docstring says. The weights are computed in place in the crop; their non-finite values
@@ -772,18 +777,27 @@ ARGUMENTS
     q = np.full((nx * ny, 2), np.nan)
     win_kernel = _disk(window_dilation_px)
     ring_kernel = _disk(window_dilation_px + ring_px)
+    rows = _kernels.element_rows(win_kernel), _kernels.element_rows(ring_kernel)
+    rows = None if None in rows else rows[0] + rows[1]
     pad = window_dilation_px + ring_px + 1
     for i_blob, gx, gy in zip(best.values(), ix, iy, strict=True):
         label = blobs[i_blob]
         xa, ya = max(0, x0[label] - pad), max(0, y0[label] - pad)
         xb, yb = min(W, x0[label] + w[label] + pad), min(H, y0[label] + h[label] + pad)
-        # float64 from the source pixels, whatever precision the labelling used; a copy
-        crop = (img[ya:yb, xa:xb] if img.dtype == np.float64
-                else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
-        if crop.base is not None:
-            crop = crop.copy()
+        # float64 from the source pixels, whatever precision the labelling used
+        crop = np.ascontiguousarray(img[ya:yb, xa:xb] if img.dtype == np.float64
+                                    else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
         mask, free = _dot_masks(labels, stats, label, xa, ya, xb, yb)
-        c = _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya)
-        if c is not None:
-            q[gy * nx + gx] = c
+        status = -1
+        if rows is not None:
+            status, cx, cy = _kernels.dot_centroid(
+                crop, mask, _NO_FREE if free is None else free, free is not None, *rows,
+                int(xa), int(ya), MIN_RING_FOR_PLANE)
+        if status < 0:      # a degenerate plane fit (numpy's solve or lstsq), or no kernel
+            if crop.base is not None or not crop.flags.writeable:
+                crop = crop.copy()
+            c = _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya)
+            status, (cx, cy) = (0, (0, 0)) if c is None else (1, c)
+        if status:
+            q[gy * nx + gx] = cx, cy
     return result(target, q, DETECTOR, min_found=min_found, info=info)

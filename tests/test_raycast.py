@@ -1,5 +1,5 @@
 r'''The exact ray-cast renderer: rays, pixel convention, point sampling's adaptive == full,
-the lazy ray cache, bad input'''
+edge pixels from the projected outlines, bad input'''
 
 import math
 
@@ -12,7 +12,14 @@ from reference_models.catalogue import load_catalogue
 from reference_models.errors import CamvalError
 from renderers import _raycast_kernels as kern
 from renderers.base import RenderSettings, get_renderer
-from renderers.raycast import PatternError, PoseError, RaycastRenderer, Rt_board_ref
+from renderers.raycast import (
+    PatternError,
+    PoseError,
+    RaycastRenderer,
+    Rt_board_ref,
+    compile_pattern,
+)
+from renderers.raycast_outlines import project_outlines
 from targets.boards import load_target
 from targets.centroids import board_to_ref, polygon_centroid
 from targets.pattern import Pattern
@@ -287,7 +294,7 @@ K = 16, on the rows of the image where the target is'''
     assert len(np.unique(f.image)) > 50
 
 
-# --- output, metadata, cache ----------------------------------------------------------------------
+# --- output, metadata ----------------------------------------------------------------------
 def test_output_range_dtype_and_metadata():
     model = small_models()["cahvore-noncentral"]
     renderer = get_renderer("raycast")
@@ -313,76 +320,6 @@ def test_target_objects_render_like_their_pattern():
     a = r.render(model, tgt, Rt, RenderSettings(spp=2)).image
     b = r.render(model, tgt.pattern(), Rt, RenderSettings(spp=2)).image
     assert np.array_equal(a, b) and len(np.unique(a)) > 3
-
-
-def test_ray_cache_is_reused_and_bounded():
-    models = small_models()
-    r = RaycastRenderer(cache_bytes=0, shared_cache=False)
-    Rt = board_pose(models["cahv"], 1.0)
-    m1 = r.render(models["cahv"], dot_pattern(), Rt, RenderSettings(spp=1)).metadata
-    m2 = r.render(models["cahv"], dot_pattern(), Rt, RenderSettings(spp=2)).metadata
-    assert (m1["ray_cache"], m2["ray_cache"]) == ("cold", "warm")
-    r.render(models["cahvor"], dot_pattern(), Rt, RenderSettings(spp=1))
-    assert len(r._rays) == 1        # cache_bytes = 0 keeps only the latest camera
-    assert r.render(models["cahv"], dot_pattern(), Rt,
-                    RenderSettings(spp=1)).metadata["ray_cache"] == "cold"
-
-
-def _fresh_rays(m):
-    r'''(dirs, shift) of the renderer's ray cache of m in new arrays'''
-    noncentral = not m.is_central
-    dirs = np.empty((m.height + 2, m.width + 2, 3))
-    shift = np.zeros((m.height + 2, m.width + 2) if noncentral else (1, 1))
-    kern.fill_centre_rays(kernels.pack_model(m), dirs, shift, noncentral)
-    return dirs, shift
-
-
-def test_a_dropped_ray_cache_is_overwritten_by_the_next_camera_of_its_shapes():
-    r'''The arrays of the camera that a new one evicts are reused when nothing holds them;
-the rays written over them equal a fresh cache, and a render's arrays are never reused'''
-    models = small_models()
-    r = RaycastRenderer(cache_bytes=0, shared_cache=False)
-    pointer = r.rays(models["cahv"])[1].ctypes.data
-    held = r.rays(models["cahvor"])          # reuses the CAHV arrays (same shapes)
-    assert held[1].ctypes.data == pointer and len(r._rays) == 1
-    for name in ("cahv", "cahvor"):          # held by us: not overwritten
-        m = models[name]
-        entry = r.rays(m)
-        assert entry[1].ctypes.data != held[1].ctypes.data
-        fresh = _fresh_rays(m)
-        assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
-        held = entry
-    fresh = _fresh_rays(models["cahvor"])
-    assert np.array_equal(held[1], fresh[0])  # still the CAHVOR rays it was given
-    pointer = held[1].ctypes.data
-    del held, entry
-    m = models["cahv"]
-    entry = r.rays(m)
-    assert entry[1].ctypes.data == pointer
-    fresh = _fresh_rays(m)
-    assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
-    assert entry[2].shape == (1, 1) and entry[2][0, 0] == 0.0
-    # a noncentral camera of the same size reuses the directions, not the (1,1) shift
-    nc = models["cahvore-noncentral"]
-    pointer = entry[1].ctypes.data
-    del entry
-    entry = r.rays(nc)
-    assert entry[1].ctypes.data == pointer and entry[2].shape == (152, 202)
-    fresh = _fresh_rays(nc)
-    assert np.array_equal(entry[1], fresh[0]) and np.array_equal(entry[2], fresh[1])
-    del entry
-    entry = r.rays(m)
-    assert entry[1].ctypes.data == pointer and entry[2].shape == (1, 1)
-    assert entry[2][0, 0] == 0.0 and np.array_equal(entry[1], _fresh_rays(m)[0])
-
-
-def test_renderers_share_the_ray_cache_by_default():
-    model = small_models()["cahvore-fisheye"].replace(width=97, height=61)
-    Rt = board_pose(model, 1.0)
-    first = get_renderer("raycast").render(model, dot_pattern(), Rt, RenderSettings(spp=1))
-    again = get_renderer("raycast").render(model, dot_pattern(), Rt, RenderSettings(spp=1))
-    assert (first.metadata["ray_cache"], again.metadata["ray_cache"]) == ("cold", "warm")
-    assert np.array_equal(first.image, again.image)
 
 
 # --- bad input ----------------------------------------------------------------------------------
@@ -475,42 +412,137 @@ def test_non_finite_pixels_are_counted_per_band():
     assert kern._count_nonfinite(out, 0, 6) == 3
 
 
-# --- the lazy ray cache ---------------------------------------------------------------------------
-@pytest.mark.parametrize("name", ["cahvor", "cahvore-noncentral", "cahvore-fisheye"])
-def test_lazy_rays_render_the_cached_pixels_bit_for_bit(name):
-    r'''A camera rendered without a ray cache (lazy_above_bytes=0: each tile traces the
-centre rays it reads) gives the pixels of the cached render, bit for bit, in area and
-point coverage, whatever was rendered before in the process: the traced rays are the
-cached ones (runs of RAY_RUN from fixed columns)'''
+# --- edge pixels from the projected outlines ------------------------------------------------
+@pytest.mark.parametrize("name", ["cahv", "cahvor", "cahvore-noncentral", "cahvore-fisheye"])
+def test_outline_edges_render_the_pixels_of_tested_edges(name):
+    r'''Edge pixels found from the projected outlines (the default) against edge pixels
+found by testing pixels (outlines=False): in point sampling the same pixels bit for bit
+(where either looks closer it counts the K x K subsamples exactly); in area coverage the
+same integrals from the same rays up to the last bits of their Newton solves (1e-15), so
+within a few roundings of float32 values <= 1 (6e-8 each)'''
     model = small_models()[name]
-    cached = RaycastRenderer(shared_cache=False)
-    lazy = RaycastRenderer(shared_cache=False, lazy_above_bytes=0)
+    outlines = RaycastRenderer()
+    tested = RaycastRenderer(outlines=False)
     for Rt in (board_pose(model, 0.7, (25, -20, 5)),
                board_pose(model, 1.2, (-40, 30, 60), offset=(0.2, -0.1))):
-        for pattern in (dot_pattern(), load_target("chessboard").pattern()):
+        for pattern in (dot_pattern(), load_target("chessboard").pattern(),
+                        load_target("apriltag").pattern()):
             for settings in (RenderSettings(spp=4), point(spp=4)):
-                a = cached.render(model, pattern, Rt, settings)
-                b = lazy.render(model, pattern, Rt, settings)
-                assert b.metadata["ray_cache"] == "lazy"
-                assert a.metadata["ray_cache"] in ("cold", "warm")
-                assert np.array_equal(a.image, b.image)
-                assert a.metadata["pixels_tested"] == b.metadata["pixels_tested"]
+                a = outlines.render(model, pattern, Rt, settings)
+                b = tested.render(model, pattern, Rt, settings)
+                assert (a.metadata["edges"], b.metadata["edges"]) == ("outlines", "tested")
+                if settings.options:
+                    assert np.array_equal(a.image, b.image)
+                else:
+                    assert np.abs(a.image - b.image).max() <= 2e-7
                 assert a.metadata["board_fraction"] == b.metadata["board_fraction"]
-    assert not lazy._rays
+                # fewer pixels looked at closely than the tests look at
+                assert a.metadata["pixels_tested"] < b.metadata["pixels_tested"]
 
 
-@pytest.mark.parametrize("name", ["cahv", "cahvor", "cahvore-noncentral", "cahvore-fisheye"])
-def test_renderer_ray_cache_equals_model_unproject(name):
-    r'''The renderer's cache (fill_centre_rays: runs of RAY_RUN along a row) to the same
-level as reference_models.kernels.build_ray_cache's'''
+def _circle_crossings(cx, cy, r, n=20000):
+    r'''The pixels (ix, iy) a circle in the image passes through (dense points)'''
+    t = np.linspace(0, 2 * math.pi, n, endpoint=False)
+    return np.unique(np.floor(np.stack((cx + r * np.cos(t), cy + r * np.sin(t)), -1)
+                              + 0.5).astype(int), axis=0)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_mark_outlines_marks_every_pixel_a_polyline_comes_near(seed):
+    r'''Circles in the image as closed polylines with their sagitta as margin: every pixel
+the circle passes through is marked, with its tile; the marked pixels are not many more
+than the crossed ones (a band about 2 px wide)'''
+    rng = np.random.default_rng(seed)
+    W, H, T = 120, 90, 32
+    for _ in range(20):
+        cx, cy = rng.uniform([-10, -10], [W + 10, H + 10])
+        r = rng.uniform(0.3, 40.0)
+        n = max(8, int(2 * math.pi * r / 1.5))
+        a = np.arange(n) * 2 * math.pi / n
+        q = np.stack((cx + r * np.cos(a), cy + r * np.sin(a)), -1)
+        sagitta = r * (1 - math.cos(math.pi / n))
+        mask = np.zeros((H, W), np.uint8)
+        tiles = np.zeros((3, 4), np.uint8)
+        kern.mark_outlines(q, np.array([0, n]), np.array([1], np.uint8),
+                           np.array([sagitta + 1e-9]), mask, tiles, T)
+        px = _circle_crossings(cx, cy, r)
+        px = px[(px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)]
+        assert np.all(mask[px[:, 1], px[:, 0]] == 1)
+        iy, ix = np.nonzero(mask)
+        assert tiles.sum() == len(np.unique(np.stack((iy // T, ix // T), -1), axis=0))
+        assert mask.sum() <= 3 * len(px) + 8
+
+
+@pytest.mark.parametrize("name", ["cahvor", "cahvore-noncentral", "cahvore-fisheye"])
+def test_projected_outlines_hold_the_projected_curves_within_their_margins(name):
+    r'''Points of each dot's outline between the polyline's samples, projected by the
+reference model, lie within the polyline's margin of its chord (the chord-error bound
+of renderers.raycast_outlines); the margins are small (<= MAX_SAGITTA_PX + slop)'''
+    from renderers.raycast_outlines import MAX_SAGITTA_PX, MAX_STEP_PX, PROJECTION_SLOP_PX
     model = small_models()[name]
-    W, H = model.width, model.height
-    cam, dirs, shift, noncentral, cold = RaycastRenderer(shared_cache=False).rays(model)
-    assert cold and noncentral == (not model.is_central) and dirs.shape == (H + 2, W + 2, 3)
-    q = np.stack(np.meshgrid(np.arange(-1.0, W + 1), np.arange(-1.0, H + 1)), axis=-1)
-    origin, v = model.unproject(q)
-    np.testing.assert_allclose(dirs / np.linalg.norm(dirs, axis=-1, keepdims=True), v,
-                               rtol=0, atol=1e-12)
-    if noncentral:
-        np.testing.assert_allclose(model.C + shift[..., None] * model.O, origin, rtol=0,
-                                   atol=1e-12)
+    pattern = dot_pattern()
+    Rt = board_pose(model, 0.5, (35, -30, 10))
+    ol = project_outlines(model, Rt, compile_pattern(pattern))
+    assert ol is not None
+    assert ol.margin.max() <= MAX_SAGITTA_PX + PROJECTION_SLOP_PX
+    # the board rectangle's 4 sides come first, then the circles (no cells)
+    for k, (cx, cy, r) in enumerate(pattern.circles):
+        i = 4 + k
+        q = ol.q[ol.starts[i]:ol.starts[i + 1]]
+        n = len(q)
+        assert np.linalg.norm(np.diff(q, axis=0), axis=-1).max() <= MAX_STEP_PX
+        a = (np.arange(16 * n) + 0.5) * 2 * math.pi / (16 * n)
+        p = np.stack((cx + r * np.cos(a), cy + r * np.sin(a), 0 * a), -1)
+        dense = model.project(board_to_ref(model, Rt, p))
+        j = np.arange(16 * n) // 16
+        A, B = q[j], q[(j + 1) % n]
+        d = B - A
+        t = np.clip(np.sum((dense - A) * d, -1) / np.sum(d * d, -1), 0, 1)
+        dist = np.linalg.norm(dense - (A + t[:, None] * d), axis=-1)
+        assert dist.max() <= ol.margin[i]
+        # the margin is not vacuous: the chords do bow away from the curve
+        assert dist.max() > 0.05 * ol.margin[i]
+
+
+def test_a_board_reaching_behind_a_fisheye_tests_its_pixels():
+    r'''A wide-angle CAHVORE sees a board whose far part lies behind the camera: its image
+is not known to be bounded by the projected outline, so the pixels are tested (edges
+"tested"), as with outlines=False'''
+    model = small_models()["cahvore-fisheye"]
+    big = dot_pattern(n=20, spacing=0.1, r=0.03)
+    Rt = board_pose(model, 0.3, (100, 0, 0), centre=(0.95, 0.95))
+    a = RaycastRenderer().render(model, big, Rt, RenderSettings(spp=4))
+    b = RaycastRenderer(outlines=False).render(model, big, Rt, RenderSettings(spp=4))
+    assert a.metadata["edges"] == "tested"
+    assert np.array_equal(a.image, b.image)
+    assert a.metadata["board_fraction"] > 0.01
+
+
+def test_a_board_past_a_folding_distortion_tests_its_pixels(monkeypatch):
+    r'''A wide CAHVORE (E != 0) whose distortion polynomial chi (1 + R1 chi^2 + R2 chi^4)
+has its maximum (u = 2.02 at chi = 2.14, 667 px from the centre) inside the image: board
+points beyond it project back into the image, where the pixels' rays see other points,
+so the outline does not bound the board's image; the pixels are tested (edges
+"tested"), as with outlines=False. Without that check (_round_trip) the outline path
+paints board over background here'''
+    from renderers import raycast_outlines
+    from targets.poses import plan_poses
+    f = 330.0
+    t = math.radians(1.2)
+    O = np.array([math.sin(t), 0.3 * math.sin(t), math.cos(t)])
+    A = np.array([0.0, 0.0, 1.0])
+    model = CAHVORE(C=[0.0, 0.0, 0.0], A=A, H=np.array([f, 0, 0]) + 642.1 * A,
+                    V=np.array([0, f, 0]) + 478.7 * A, O=O / np.linalg.norm(O),
+                    R=[0.0, 0.08, -0.02], E=[0.004, 0.012, -0.003], model_type=3,
+                    linearity=0.6, width=1280, height=960)
+    target = load_target("dots")
+    Rt = plan_poses(model, target, n=6, seed=0)[4]
+    a = RaycastRenderer().render(model, target.pattern(), Rt, RenderSettings(spp=4))
+    b = RaycastRenderer(outlines=False).render(model, target.pattern(), Rt,
+                                               RenderSettings(spp=4))
+    assert a.metadata["edges"] == "tested"
+    assert np.array_equal(a.image, b.image)
+    monkeypatch.setattr(raycast_outlines, "_round_trip", lambda *args: True)
+    c = RaycastRenderer().render(model, target.pattern(), Rt, RenderSettings(spp=4))
+    assert c.metadata["edges"] == "outlines"
+    assert (np.abs(c.image - b.image) > 0.5).sum() > 100

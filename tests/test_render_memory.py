@@ -46,17 +46,14 @@ def _cahvore(W, H, E):
                    model_type=1, linearity=1.0, width=W, height=H)
 
 
-def test_raycast_needs_its_image_and_its_ray_cache():
-    # the image (float32) and the pixel-centre rays with a one-pixel ring (renderers/raycast.py)
+def test_raycast_needs_its_image():
+    # the float32 image; no ray cache (renderers/raycast.py traces the rays it reads)
     W, H = 640, 480
     need = render_memory("raycast", _cahv(W, H), RenderSettings(spp=16))
-    assert need.parts == {"image": 4 * W * H, "ray cache": 24 * (W + 2) * (H + 2)}
-    assert need.total == 4 * W * H + 24 * 642 * 482
-    # a noncentral CAHVORE caches an origin shift per pixel too; K costs nothing
+    assert need.parts == {"image": 4 * W * H}
+    # a noncentral CAHVORE the same; K costs nothing
     nc = render_memory("raycast", _cahvore(W, H, [0.001, 0.002, 0.0]), RenderSettings(spp=1))
-    assert nc.parts["ray cache"] == 32 * (W + 2) * (H + 2)
-    assert render_memory("raycast", _cahvore(W, H, [0, 0, 0]),
-                         RenderSettings(spp=4)).parts["ray cache"] == 24 * 642 * 482
+    assert nc.parts == {"image": 4 * W * H}
 
 
 def test_supersampling_and_warp_settings_count_where_they_allocate():
@@ -92,14 +89,14 @@ def test_the_limit_is_the_machine_and_the_check_says_both_figures():
     assert source in ("MemTotal", "cgroup memory limit", "RLIMIT_AS")
     assert 0 < limit <= 1 << 50
     m = _cahv(1000, 1000)
-    need = check_render_memory("raycast", m, limit=29_000_000)
-    assert need.total == 4_000_000 + 24 * 1002 * 1002
+    need = check_render_memory("raycast", m, limit=5_000_000)
+    assert need.total == 4_000_000
     with pytest.raises(RenderTooLargeError) as e:
         check_render_memory("raycast", m, limit=need.total - 1)
     msg = str(e.value)
     assert isinstance(e.value, RendererError) and "\n" not in msg
-    assert msg.startswith("a 1000x1000 image needs at least 0.0281 GB to render with raycast")
-    assert msg.endswith("this machine has 0.0281 GB (the limit given)")
+    assert msg.startswith("a 1000x1000 image needs at least 0.004 GB to render with raycast")
+    assert msg.endswith("this machine has 0.004 GB (the limit given)")
 
 
 def test_camval_render_refuses_a_huge_model_in_one_line(tmp_path, capsys):
@@ -110,7 +107,7 @@ def test_camval_render_refuses_a_huge_model_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2
     assert err.count("\n") == 1 and "Traceback" not in err
-    # the image alone: its 240 GB ray cache is above lazy_above_bytes (traced per tile)
+    # the image alone (no ray cache)
     assert err.startswith("camval render: error: a 100000x100000 image needs at least 40 GB "
                           "to render with raycast (image 40 GB)")
     assert not (tmp_path / "x.png").exists() and not (tmp_path / "x.json").exists()
@@ -126,7 +123,7 @@ def test_a_campaign_job_on_a_huge_model_is_a_failed_render_record(tmp_path):
         "renderer": [{"name": "raycast", "spp": 4}], "calibrator": [{"name": "jpl"}]}))
     (rec,) = run_job(job)["records"]
     assert (rec["status"], rec["stage"]) == ("failed", "render")
-    # its image alone: its ray cache (240 GB) is far above lazy_above_bytes, so it has none
+    # its image alone
     assert rec["reason"].startswith("a 100000x100000 image needs at least 40 GB to render "
                                     "with raycast")
 
@@ -134,10 +131,7 @@ def test_a_campaign_job_on_a_huge_model_is_a_failed_render_record(tmp_path):
 def test_an_ordinary_camera_passes_the_check():
     r = get_renderer("raycast")
     need = check_render_memory(r, _cahv(5120, 3840), RenderSettings(spp=16))
-    # camera 1's size: 79 MB of image; its rays (0.47 GB cached) are traced per tile
-    # (renderers.raycast.LAZY_ABOVE_BYTES), far below any machine of this kind
+    # camera 1's size: 79 MB of image, far below any machine of this kind
     assert need.total == 4 * 5120 * 3840
-    assert "ray cache" not in need.parts
-    kept = RaycastRenderer(lazy_above_bytes=1 << 30)
-    assert check_render_memory(kept, _cahv(5120, 3840), RenderSettings(spp=16)).total == \
-        4 * 5120 * 3840 + 24 * 5122 * 3842
+    assert check_render_memory(RaycastRenderer(), _cahv(5120, 3840),
+                               RenderSettings(spp=16)).total == 4 * 5120 * 3840

@@ -250,6 +250,9 @@ def test_renderer_gate_passes_the_exact_renderer_and_flags_a_half_pixel_shift(tm
     jpl = next(r for k, r in recs.items() if "/jpl[" in k)
     assert jpl["verdict"]["floor"]["projection"]["rms"] < 1e-5     # jpl is exact on exact data
     assert jpl["seconds"]["exact_fit"] > 0
+    # the exact observations are computed once per job, by its first calibrator (jpl), and
+    # their cost is counted there (job_records: exact_observations), not left out
+    assert jpl["seconds"]["exact_observations"] > 0
     # the exact fits start from each job's image fit (harness.job_records): not shared
     assert run["minimum_detectable_faults"]["cameras"]["15"]["Hc shift"]["value"] < 0.01
     opencv = next(r for k, r in recs.items() if "/opencv[" in k)
@@ -412,3 +415,71 @@ def test_corner_targets_are_judged_against_the_detector_on_exact_renders():
                      R=truth.R, width=W, height=H)
     dx = (observe(shifted).q - obs_x.q)[..., 0][obs.found]
     assert abs(np.median(dx) - 0.01) < 0.002
+
+
+@pytest.mark.parametrize("cal, model", [("jpl", "CAHVOR"), ("mrcal", "CAHVOR"),
+                                        ("opencv", "OPENCV5")])
+def test_one_pass_model_jacobians_are_the_separate_ones(navcam, cal, model):
+    r'''scatter() differences the quantities, the image grid and (jpl) the fit's own
+projections on one set of stepped models (Linearisation.model_jacobians): the same
+numbers as differencing each on its own, bit for bit (the same models, the same steps)'''
+    truth, target, poses, obs = navcam
+    res = stages.calibrate_stage(cal, obs, target, model, truth, {})
+    lin = verdict.linearisation(res, obs)
+    P = verdict.projection_points(truth)
+    grid = verdict._grid_projector(P)
+    rest = lin.x0[lin.n_model:]
+    Jg, = lin.model_jacobians([grid])
+    sep = verdict._central_jacobian(lambda y: grid(lin.model(np.concatenate((y, rest)))),
+                                    lin.x0[:lin.n_model], lin.steps[:lin.n_model])
+    assert Jg.shape == (2 * len(P), lin.n_model) and np.array_equal(Jg, sep)
+    if lin.project_model is not None:           # jpl: the fit's own Jacobian too
+        J, = lin.model_jacobians([lin.project_model])
+        assert np.array_equal(J, lin.jacobian())
+
+
+def test_is_reference_render_names_the_reference_settings_only():
+    # the default ray caster at K=16 adaptive (area coverage by default, given or not) is the
+    # reference render; any other sampling, renderer or a camera response is not
+    assert verdict.is_reference_render("raycast", {"spp": 16, "adaptive": True, "options": {}})
+    assert verdict.is_reference_render(
+        "raycast", {"spp": 16, "adaptive": True, "options": {"coverage": "area"},
+                    "label": "mine"}, {})
+    assert not verdict.is_reference_render(
+        "raycast", {"spp": 16, "adaptive": True, "options": {"coverage": "point"}})
+    assert not verdict.is_reference_render("raycast", {"spp": 4, "adaptive": True,
+                                                       "options": {}})
+    assert not verdict.is_reference_render("command", {"spp": 16, "adaptive": True,
+                                                       "options": {}})
+    assert not verdict.is_reference_render(
+        "raycast", {"spp": 16, "adaptive": True, "options": {}}, {"psf": {"sigma_px": 0.7}})
+
+
+@pytest.mark.slow
+def test_a_reference_render_job_is_not_rendered_again_for_its_corners(tmp_path, monkeypatch):
+    # a job whose images are the reference render gives its own detections as the reference
+    # corners; the records are those of a job that renders them again (the same render and
+    # detector, the poses' round trip through the world frame aside: ~1e-9 px)
+    from harness.campaign import parse_campaign
+    from harness.runner import run_campaign
+    doc = {"name": "ref", "cameras": [17], "models": ["CAHVOR"], "targets": ["apriltag"],
+           "poses": {"n": 3, "seed": 0}, "renderer": [{"name": "raycast", "spp": 16}],
+           "calibrator": [{"name": "jpl"}]}
+    calls = []
+    real = verdict.reference_corners
+    monkeypatch.setattr(verdict, "reference_corners",
+                        lambda *a: calls.append(1) or real(*a))
+    reused = run_campaign(parse_campaign(doc), tmp_path / "reused", progress=False, workers=1)
+    assert calls == []
+    verdict._EXACT_FITS.clear()
+    monkeypatch.setattr(verdict, "is_reference_render", lambda *a: False)
+    rendered = run_campaign(parse_campaign(doc), tmp_path / "rendered", progress=False,
+                            workers=1)
+    assert calls == [1]
+    (a,), (b,) = reused["records"].values(), rendered["records"].values()
+    assert a["status"] == b["status"] == "ok"
+    # the renderer share of the job's own reference is nil; re-rendered, float rounding only
+    assert a["verdict"]["renderer"]["projection"]["rms"] < 1e-9
+    assert b["verdict"]["renderer"]["projection"]["rms"] < 1e-6
+    assert a["verdict"]["floor"]["projection"]["rms"] == pytest.approx(
+        b["verdict"]["floor"]["projection"]["rms"], rel=1e-3, abs=1e-7)

@@ -1,0 +1,159 @@
+r'''The mrcal calibrator on rendered paper jobs: CPU seconds of its fit and of the exact fit
+
+SYNOPSIS
+
+    OPENBLAS_NUM_THREADS=1 uv run python benchmarks/bench_mrcal.py \
+        [--jobs 15/CAHVOR,17/CAHVORE,...] [--obs /tmp/camval_bench_mrcal_obs.pkl] [--profile]
+
+For each job (camera/family of --campaign, default the paper campaign) the
+images are rendered and the dots detected once and kept in the --obs pickle
+(bench_stages.observations). Then, as a campaign record does
+(harness.job_records): the mrcal fit (calibrate_stage), the comparison with the
+truth (compare_stage) and the verdict with its exact fit warm-started from the
+image fit. Each job is timed in process CPU seconds (time.process_time; set
+OPENBLAS_NUM_THREADS=1) for the fit and the exact fit separately, with the number
+of mrcal.optimize calls and their CPU seconds, and the figures a record keeps:
+projection difference RMS (rotation mode), residual RMS, the exact fit's
+residual RMS, the verdict's floor and renderer differences. --profile prints the
+top functions of a cProfile of each job (cumulative time).
+
+Records: mrcal/<camera>/<family>.
+'''
+
+import sys
+import time
+import types
+from pathlib import Path
+
+import common
+
+SCRIPT = "bench_mrcal"
+DEFAULT_JOBS = ("1/CAHVOR,1/CAHVORE,2/CAHVOR,2/CAHVORE,3/CAHVOR,3/CAHVORE,4/CAHVOR,4/CAHVORE,"
+                "5/CAHVOR,5/CAHVORE,9/CAHVOR,9/CAHVORE,13/CAHVOR,15/CAHVOR,16/CAHVOR,"
+                "17/CAHVOR,17/CAHVORE,19/CAHVOR,19/CAHVORE,20/CAHVOR,20/CAHVORE,"
+                "21/CAHVOR,21/CAHVORE,22/CAHVOR,22/CAHVORE")
+
+
+class _Counted:
+    r'''mrcal.optimize wrapped: calls and CPU seconds'''
+
+    def __init__(self, mrcal):
+        self.mrcal, self.inner = mrcal, mrcal.optimize
+        self.calls, self.cpu = 0, 0.0
+
+    def __call__(self, *a, **kw):
+        c0 = time.process_time()
+        try:
+            return self.inner(*a, **kw)
+        finally:
+            self.calls += 1
+            self.cpu += time.process_time() - c0
+
+    def take(self):
+        out = (self.calls, self.cpu)
+        self.calls, self.cpu = 0, 0.0
+        return out
+
+
+def _figure(d, *keys):
+    for k in keys:
+        if not isinstance(d, dict):
+            return None
+        d = d.get(k)
+    return d
+
+
+def run(args, out):
+    import cProfile
+    import io
+    import pstats
+
+    import mrcal
+    from bench_stages import observations
+    from common import calibrate_stage, compare_stage
+
+    import harness.stages
+    from harness.job_records import _verdict
+
+    stages = types.SimpleNamespace(calibrate_stage=harness.stages.calibrate_stage)
+
+    counted = _Counted(mrcal)
+    mrcal.optimize = counted
+    data = observations(args.campaign, args.jobs, args.obs)
+    head = (f"{'job':<12} {'fit s':>6} {'n':>3} {'opt s':>6} {'exact s':>7} {'n':>3} "
+            f"{'proj rms':>9} {'resid rms':>9} {'x resid':>9} {'floor':>9} {'renderer':>9}")
+    print(head)
+    tot = [0.0, 0.0]
+    for spec in args.jobs:
+        obs, truth, target = data[spec]
+        prof = cProfile.Profile() if args.profile else None
+        if prof:
+            prof.enable()
+        c0 = time.process_time()
+        res = calibrate_stage("mrcal", obs, target, truth.family, truth, {})
+        fit_cpu = time.process_time() - c0
+        fit_calls, fit_opt = counted.take()
+        if res.status != "ok":
+            out.add(f"mrcal/{spec}", status="failed", reason=res.reason)
+            print(f"{spec:<12} failed: {res.reason}")
+            continue
+        params, projection, _ = compare_stage(truth, res)
+        sec, exact_cpu = {}, []
+
+        def timed_stage(*a, exact_cpu=exact_cpu, **kw):   # the verdict's exact fit, CPU s
+            c0 = time.process_time()
+            try:
+                return stages.calibrate_stage(*a, **kw)
+            finally:
+                exact_cpu.append(time.process_time() - c0)
+        c0 = time.process_time()
+        harness.stages.calibrate_stage = timed_stage
+        try:
+            verdict, _ = _verdict("mrcal", truth.family, {}, obs, target, truth, res, params,
+                                  projection, None, {}, sec)
+        finally:
+            harness.stages.calibrate_stage = stages.calibrate_stage
+        verdict_cpu = time.process_time() - c0
+        x_calls, x_opt = counted.take()
+        if prof:
+            prof.disable()
+        rec = out.add(
+            f"mrcal/{spec}", job=spec, fit_cpu_s=fit_cpu, fit_optimize_calls=fit_calls,
+            fit_optimize_cpu_s=fit_opt, exact_fit_cpu_s=sum(exact_cpu),
+            exact_fit_wall_s=sec.get("exact_fit"),
+            verdict_cpu_s=verdict_cpu, exact_optimize_calls=x_calls,
+            exact_optimize_cpu_s=x_opt, iterations=res.iterations,
+            projection_rms_px=projection["rms"], residual_rms_px=res.residual_stats()["rms"],
+            exact_residual_rms_px=_figure(verdict, "exact_fit", "residuals", "rms"),
+            floor_rms_px=_figure(verdict, "floor", "projection", "rms"),
+            renderer_rms_px=_figure(verdict, "renderer", "projection", "rms"),
+            verdict_error=verdict.get("error"))
+        tot[0] += fit_cpu
+        tot[1] += rec["exact_fit_cpu_s"]
+        print(f"{spec:<12} {fit_cpu:>6.2f} {fit_calls:>3} {fit_opt:>6.2f} "
+              f"{rec['exact_fit_cpu_s']:>7.3f} {x_calls:>3} {rec['projection_rms_px']:>9.3e} "
+              f"{rec['residual_rms_px']:>9.3e} {rec['exact_residual_rms_px'] or 0:>9.3e} "
+              f"{rec['floor_rms_px'] or 0:>9.3e} {rec['renderer_rms_px'] or 0:>9.3e}"
+              + (f"  verdict error: {rec['verdict_error']}" if rec["verdict_error"] else ""),
+              flush=True)
+        if prof:
+            s = io.StringIO()
+            pstats.Stats(prof, stream=s).sort_stats("cumulative").print_stats(25)
+            print(s.getvalue())
+    out.add("mrcal/total", fit_cpu_s=tot[0], exact_fit_cpu_s=tot[1])
+    print(f"total CPU s: fit {tot[0]:.2f}, exact fit {tot[1]:.2f}")
+
+
+def arguments(ap):
+    ap.add_argument("--campaign", default="paper", help="a campaign name or TOML path")
+    ap.add_argument("--jobs", type=common.ids, default=common.ids(DEFAULT_JOBS))
+    ap.add_argument("--obs", type=Path, default=Path("/tmp/camval_bench_mrcal_obs.pkl"),
+                    help="where the observations are kept between runs")
+    ap.add_argument("--profile", action="store_true", help="cProfile each job")
+    return ap
+
+
+if __name__ == "__main__":
+    ap = arguments(common.parser(__doc__, repeats=1, warmup=0))
+    ap.set_defaults(run=run)
+    sys.exit(common.main(SCRIPT, ap))

@@ -1,0 +1,394 @@
+r'''Compiled per-dot centroid of targets.detect_dots (numba): window, ring, board plane, weights
+
+SYNOPSIS
+
+    from targets import _dot_kernels as K
+
+    rows = K.element_rows(win_kernel) + K.element_rows(ring_kernel)   # (lo, hi) twice
+    status, cx, cy = K.dot_centroid(crop, mask, free, has_free, *rows, xa, ya, min_ring)
+    # status 1: centroid (cx, cy); 0: no weight (no centroid); -1: a degenerate plane fit
+    # (a zero pivot): the caller computes this dot the numpy way (detect_dots._dot_centroid)
+    is_mark = K.mark_flags(ab, node, area, ratio_threshold, R)     # detect_dots.mark_flags
+    counts = K.histogram_counts(v, edges, lo, scale)               # detect_dots._histogram
+
+One call per dot instead of about forty numpy and OpenCV calls (their overhead was most
+of the detector's time: ~250 us a dot). The arithmetic is detect_dots._dot_centroid's
+(the numpy reference, kept as the fallback and the tests' oracle), pixel by pixel:
+
+- window = the mask dilated by win_kernel, ring = dilated by ring_kernel, minus the
+  window, minus pixels of other blobs (free; has_free False: none come near). The
+  dilations (dilations()) are those of cv2.dilate for a symmetric element whose rows are
+  intervals (cv2's MORPH_ELLIPSE; element_rows() returns None for another element, and
+  the detector then takes the numpy path), crop borders clipped as cv2's border does.
+- board level: the plane a + b x + c y fitted by normal equations to the ring's pixels
+  (raster order, centred coordinates), refitted without pixels beyond 5 x 1.4826 x the
+  median residual; the ring's median if it has fewer than min_ring pixels, the window's
+  maximum if it has none. The 3x3 systems are solved by Gaussian elimination with
+  partial pivoting (LAPACK's gesv for one right-hand side); a zero pivot returns -1.
+- weights max(1 - I/B, 0) over the window, a non-finite weight counted 0; the centroid
+  is (sum w x, sum w y) / sum w.
+
+Sums run in raster order (numpy sums pairwise), the weighted coordinates in the crop's
+frame (numpy's in the image's: its rounding grows with the coordinates, ~1e-9 px on
+5120x3840): the centroids agree with the numpy path to rounding, well below the 1e-5 px
+that matters (tests/test_detect_dots_kernels.py).
+
+Compilation: few small functions without np.sort or array expressions, as their
+compile time (paid once per source change, cache=True) grows with the code numba
+generates; a process loads the cached kernels in ~0.4 s CPU.
+'''
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+def element_rows(kernel):
+    r"""(lo, hi): the columns lo..hi of each row of a structuring element (uint8, odd
+square) relative to its centre, lo > hi for an empty row, as dilations() takes them;
+None unless every row's elements are one interval (cv2's MORPH_ELLIPSE elements are)"""
+    k = np.asarray(kernel) != 0
+    r = k.shape[1] // 2
+    lo = np.ones(len(k), np.int64)
+    hi = np.zeros(len(k), np.int64)
+    for i, row in enumerate(k):
+        cols = np.flatnonzero(row)
+        if len(cols):
+            if cols[-1] - cols[0] + 1 != len(cols):
+                return None
+            lo[i], hi[i] = cols[0] - r, cols[-1] - r
+    return lo, hi
+
+
+@njit(cache=True, error_model="numpy")
+def dilations(mask, lo_w, hi_w, lo_r, hi_r):
+    r"""(window, outer): mask (uint8, 0/1) dilated by two symmetric structuring elements
+given by their rows (element_rows()), as cv2.dilate gives them (bool)
+
+Run by run: a run of mask pixels [s, e) of row y covers, in row y + dy, the columns
+[s + lo, e + hi) of the element's row dy (lo..hi); the runs' intervals are summed into
+difference arrays, one pass over the crop for the runs and one for the prefix sums.
+Crop borders clip the intervals, as cv2's constant border adds nothing."""
+    h, w = mask.shape
+    d = np.zeros((2, h, w + 1), np.int32)
+    for y in range(h):
+        x = 0
+        while x < w:
+            if not mask[y, x]:
+                x += 1
+                continue
+            s = x
+            while x < w and mask[y, x]:
+                x += 1
+            for which in range(2):
+                lo, hi = (lo_w, hi_w) if which == 0 else (lo_r, hi_r)
+                r = len(lo) // 2
+                for i in range(len(lo)):
+                    Y = y + i - r
+                    if lo[i] > hi[i] or Y < 0 or Y >= h:
+                        continue
+                    a, b = max(s + lo[i], 0), min(x + hi[i], w)
+                    if a < b:
+                        d[which, Y, a] += 1
+                        d[which, Y, b] -= 1
+    window = np.zeros((h, w), np.bool_)
+    outer = np.zeros((h, w), np.bool_)
+    for y in range(h):
+        cw = cr = 0
+        for x in range(w):
+            cw += d[0, y, x]
+            cr += d[1, y, x]
+            window[y, x] = cw > 0
+            outer[y, x] = cr > 0
+    return window, outer
+
+
+@njit(cache=True, error_model="numpy")
+def _solve3(N, b):
+    r'''N^-1 b by Gaussian elimination with partial pivoting (N and b overwritten);
+ok False at a zero pivot'''
+    for k in range(3):
+        p = k
+        for i in range(k + 1, 3):
+            if abs(N[i, k]) > abs(N[p, k]):
+                p = i
+        if N[p, k] == 0.0:
+            return False
+        if p != k:
+            for j in range(3):
+                N[k, j], N[p, j] = N[p, j], N[k, j]
+            b[k], b[p] = b[p], b[k]
+        for i in range(k + 1, 3):
+            f = N[i, k] / N[k, k]
+            for j in range(k + 1, 3):
+                N[i, j] -= f * N[k, j]
+            b[i] -= f * b[k]
+    for k in range(2, -1, -1):
+        s = b[k]
+        for j in range(k + 1, 3):
+            s -= N[k, j] * b[j]
+        b[k] = s / N[k, k]
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _median(v, n):
+    r"""The median of v[:n] (n > 0) as np.median takes it: the middle order statistic, or
+the mean of the two middle ones; v[:n] is reordered (a quickselect: compiles in a
+fraction of np.sort's time)"""
+    k = n // 2
+    lo, hi = 0, n - 1
+    while lo < hi:
+        pivot = v[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while v[i] < pivot:
+                i += 1
+            while v[j] > pivot:
+                j -= 1
+            if i <= j:
+                v[i], v[j] = v[j], v[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    m = v[k]
+    if n % 2:
+        return m
+    below = v[0]    # v[:k] holds the k smallest: the largest of them is the (k-1)th
+    for i in range(1, k):
+        if v[i] > below:
+            below = v[i]
+    return (below + m) / 2
+
+
+@njit(cache=True, error_model="numpy")
+def dot_centroid(crop, mask, free, has_free, lo_w, hi_w, lo_r, hi_r, xa, ya, min_ring):
+    r"""(status, x, y): the centroid of the blob mask (uint8) in crop (float64, not
+written), crop[0, 0] being pixel (xa, ya); free (bool, read only if has_free) the
+pixels of no blob; the elements' rows from element_rows(); see the module docstring"""
+    h, w = crop.shape
+    window, outer = dilations(mask, lo_w, hi_w, lo_r, hi_r)
+    n = 0
+    for y in range(h):
+        for x in range(w):
+            ring = outer[y, x] and not window[y, x] and (not has_free or free[y, x])
+            outer[y, x] = ring
+            n += ring
+    v = np.empty(n)
+    rx = np.empty(n, np.int64)
+    ry = np.empty(n, np.int64)
+    k = 0
+    sx, sy = 0, 0
+    for y in range(h):
+        for x in range(w):
+            if outer[y, x]:
+                v[k] = crop[y, x]
+                rx[k] = x + xa
+                ry[k] = y + ya
+                sx += x + xa
+                sy += y + ya
+                k += 1
+    plane = n >= min_ring
+    level = 0.0
+    coef = np.zeros(3)
+    xm = ym = 0.0
+    if plane:
+        xm, ym = sx / n, sy / n
+        dx = np.empty(n)
+        dy = np.empty(n)
+        for k in range(n):
+            dx[k] = rx[k] - xm
+            dy[k] = ry[k] - ym
+        use = np.ones(n, np.bool_)
+        N = np.empty((3, 3))
+        for fit in range(2):
+            # least squares v = a + b dx + c dy over the used pixels: normal equations
+            N[:, :] = 0.0
+            coef[:] = 0.0
+            for k in range(n):
+                if not use[k]:
+                    continue
+                x, y = dx[k], dy[k]
+                N[0, 0] += 1.0
+                N[0, 1] += x
+                N[0, 2] += y
+                N[1, 1] += x * x
+                N[1, 2] += x * y
+                N[2, 2] += y * y
+                coef[0] += v[k]
+                coef[1] += x * v[k]
+                coef[2] += y * v[k]
+            N[1, 0], N[2, 0], N[2, 1] = N[0, 1], N[0, 2], N[1, 2]
+            if not _solve3(N, coef):
+                return -1, 0.0, 0.0
+            if fit == 0:
+                # again without the pixels beyond 5 sigma (MAD) of the first fit
+                r = np.empty(n)
+                for k in range(n):
+                    r[k] = abs(v[k] - (coef[0] + dx[k] * coef[1] + dy[k] * coef[2]))
+                limit = 5 * 1.4826 * (_median(r, n) + 1e-12) + 1e-9
+                for k in range(n):
+                    use[k] = abs(v[k] - (coef[0] + dx[k] * coef[1] + dy[k] * coef[2])) < limit
+    elif n:
+        level = _median(v.copy(), n)
+    else:
+        level = -np.inf
+        for y in range(h):
+            for x in range(w):
+                if window[y, x] and crop[y, x] > level:
+                    level = crop[y, x]
+    s = sxw = syw = 0.0
+    for y in range(h):
+        Y = float(y + ya)
+        for x in range(w):
+            if not window[y, x]:
+                continue
+            X = float(x + xa)
+            b = coef[0] + coef[1] * (X - xm) + coef[2] * (Y - ym) if plane else level
+            wgt = 1.0 - crop[y, x] / b
+            if not math.isfinite(wgt) or wgt <= 0.0:
+                continue
+            s += wgt
+            sxw += wgt * x      # crop coordinates: sums of smaller terms, less rounding
+            syw += wgt * y
+    if not s > 0:
+        return 0, 0.0, 0.0
+    return 1, xa + sxw / s, ya + syw / s
+
+
+@njit(cache=True, error_model="numpy")
+def mark_flags(ab, node, area, ratio_threshold, R):
+    r'''detect_dots.mark_flags on arrays: ab (n,2) lattice coordinates of the nodes, node
+(n,) their blob indices into area; R the neighbourhood (lattice steps each way)
+
+The same fits in the same order: per node, its neighbours' log areas (da outer, db
+inner) and a plane by normal equations, up to three rounds leaving out neighbours far
+above it; the 8 adjacent neighbours' median when the plane is singular (its normal
+matrix has small integer entries: its determinant is exact here, numpy's by LU).'''
+    n = len(node)
+    is_mark = np.zeros(len(area), np.bool_)
+    log_thr = math.log(ratio_threshold)
+    la = np.empty(len(area))
+    for k in range(len(area)):
+        la[k] = math.log(max(area[k], 1e-300))
+    a0, b0, a1, b1 = ab[0, 0], ab[0, 1], ab[0, 0], ab[0, 1]
+    for i in range(n):
+        a0, a1 = min(a0, ab[i, 0]), max(a1, ab[i, 0])
+        b0, b1 = min(b0, ab[i, 1]), max(b1, ab[i, 1])
+    na, nb = a1 - a0 + 1, b1 - b0 + 1
+    grid = np.zeros((na + 2 * R, nb + 2 * R), np.int64) - 1
+    for i in range(n):
+        grid[ab[i, 0] - a0 + R, ab[i, 1] - b0 + R] = node[i]
+    m = (2 * R + 1) ** 2 - 1
+    offa = np.empty(m)
+    offb = np.empty(m)
+    y = np.empty(m)
+    keep = np.empty(m, np.bool_)
+    neigh = np.empty(8)
+    N = np.empty((3, 3))
+    c = np.empty(3)
+    for i in range(n):
+        j = node[i]
+        ga, gb = ab[i, 0] - a0 + R, ab[i, 1] - b0 + R
+        cnt = 0
+        for da in range(-R, R + 1):
+            for db in range(-R, R + 1):
+                k = grid[ga + da, gb + db]
+                if (da or db) and k >= 0:
+                    offa[cnt] = da
+                    offb[cnt] = db
+                    y[cnt] = la[k]
+                    keep[cnt] = True
+                    cnt += 1
+        if cnt == 0:
+            continue
+        have = False
+        pred = 0.0
+        for _ in range(3):
+            nk = 0
+            for u in range(3):
+                c[u] = 0.0
+                for t in range(3):
+                    N[u, t] = 0.0
+            for k in range(cnt):
+                if keep[k]:
+                    nk += 1
+                    x1, x2 = offa[k], offb[k]
+                    N[0, 0] += 1.0
+                    N[0, 1] += x1
+                    N[0, 2] += x2
+                    N[1, 1] += x1 * x1
+                    N[1, 2] += x1 * x2
+                    N[2, 2] += x2 * x2
+                    c[0] += y[k]
+                    c[1] += x1 * y[k]
+                    c[2] += x2 * y[k]
+            N[1, 0], N[2, 0], N[2, 1] = N[0, 1], N[0, 2], N[1, 2]
+            det = (N[0, 0] * (N[1, 1] * N[2, 2] - N[1, 2] * N[2, 1])
+                   - N[0, 1] * (N[1, 0] * N[2, 2] - N[1, 2] * N[2, 0])
+                   + N[0, 2] * (N[1, 0] * N[2, 1] - N[1, 1] * N[2, 0]))
+            if nk < 3 or abs(det) < 0.5 or not _solve3(N, c):
+                have = False
+                break
+            have = True
+            pred = c[0]
+            any_high = False
+            for k in range(cnt):
+                high = (y[k] - (c[0] + offa[k] * c[1] + offb[k] * c[2])) > 0.5 * log_thr
+                if high and keep[k]:
+                    any_high = True
+                if high:
+                    keep[k] = False
+            if not any_high:
+                break
+        if not have:
+            nn = 0
+            for da in range(-1, 2):
+                for db in range(-1, 2):
+                    k = grid[ga + da, gb + db]
+                    if (da or db) and k >= 0:
+                        neigh[nn] = area[k]
+                        nn += 1
+            if nn:
+                is_mark[j] = area[j] / _median(neigh, nn) > ratio_threshold
+            continue
+        is_mark[j] = la[j] - pred > log_thr
+    return is_mark
+
+
+@njit(cache=True, error_model="numpy")
+def histogram_counts(v, edges, lo, scale):
+    r'''The counts of detect_dots._histogram (np.histogram's) in one pass over v: each
+value's bin estimated as min((v - lo) scale, bins - 1) in v's precision (lo and scale
+of the edges' type), then moved one bin down or up against its edges, so that it counts
+in the bin [edges[i], edges[i+1]) that holds it, the last bin closed'''
+    bins = len(edges) - 1
+    n = np.zeros(bins, np.intp)
+    for k in range(len(v)):
+        b = v[k]
+        f = (b - lo) * scale
+        if f > bins - 1:
+            f = bins - 1
+        i = int(f)
+        if b < edges[i]:
+            i -= 1
+        elif i < bins - 1 and b >= edges[i + 1]:
+            i += 1
+        n[i] += 1
+    return n
+
+
+@njit(cache=True, error_model="numpy")
+def label_counts(labels, n):
+    r'''np.bincount(labels.ravel(), minlength=n) of a (H,W) label image (int32, values in
+0..n-1) in one pass, without bincount's int64 copy of the labels'''
+    counts = np.zeros(n, np.int64)
+    for v in labels.ravel():
+        counts[v] += 1
+    return counts
