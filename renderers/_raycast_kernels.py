@@ -71,7 +71,7 @@ F_RECT, F_CELLS, F_BUCKETS, F_CIRCLES = 0, 4, 9, 15
 I_IDS, I_OFFSETS, I_DATA = 0, 3, 7
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _hit(xf, s, vx, vy, vz):
     r"""Intersect a ray (origin C + s O, direction v; reference frame) with the board plane
 
@@ -90,7 +90,7 @@ xf: R_board_ref (9, row-major), R C + t (3), R O (3). Returns (ok, x, y) in the 
     return True, x, y
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _material(x, y, pat):
     r"""Material index at a board point, in the painting order of targets.pattern.Pattern"""
     f, ii = pat
@@ -209,7 +209,7 @@ pixel is then only supersampled needlessly), never "clear" where it is not."""
     return True, m
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _sample(cam, xf, x, y, warm, pat):
     s, vx, vy, vz = ray_warm(cam, x, y, warm)
     ok, bx, by = _hit(xf, s, vx, vy, vz)
@@ -218,7 +218,7 @@ def _sample(cam, xf, x, y, warm, pat):
     return _material(bx, by, pat)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _sample_block(cam, xf, ix, iy, i0, i1, j0, j1, offs, counts, warm, pat):
     r"""Trace every subsample of a block; returns the number of rays"""
     for j in range(j0, j1):
@@ -228,7 +228,7 @@ def _sample_block(cam, xf, ix, iy, i0, i1, j0, j1, offs, counts, warm, pat):
     return (i1 - i0) * (j1 - j0)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _pixel_value(counts, values, K2):
     r"""The area average from the counts of materials; a uniform pixel is its value
 exactly. Resets counts."""
@@ -246,7 +246,7 @@ exactly. Resets counts."""
     return total / K2
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _push(stack, n, a0, a1, b0, b1):
     if a1 > a0 and b1 > b0:
         stack[n, 0] = a0
@@ -257,7 +257,7 @@ def _push(stack, n, a0, a1, b0, b1):
     return n
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _push_quadrants(stack, n, i0, i1, j0, j1):
     im = (i0 + i1) // 2
     jm = (j0 + j1) // 2
@@ -265,6 +265,17 @@ def _push_quadrants(stack, n, i0, i1, j0, j1):
     n = _push(stack, n, i0, im, jm, j1)
     n = _push(stack, n, im, i1, j0, jm)
     return _push(stack, n, i0, im, j0, jm)
+
+
+# Literal arguments: numba compiles a callee once per literal value at a call site (False,
+# True, 1 are Literal types, and a trivial function returning them is constant-propagated
+# too), and _supersample and _board_points are the largest kernels here: their literal
+# variants cost a fresh clone's first render ~45 of its ~105 CPU-s of compilation. The call
+# sites pass run-time expressions of those values instead (K < 0 is False, K > 0 True: K
+# >= 1; nk - nk + 1 is 1). Nor does any kernel here ask numba to inline a callee
+# (inline="always" types the callee's body again at every call site): LLVM inlines what
+# pays, and the first render compiles in ~33 CPU-s instead of ~57 (warm renders within
+# 2-5%, the images bit-identical).
 
 
 @njit(cache=True, error_model="numpy")
@@ -361,7 +372,7 @@ meets another edge (board rectangle, cells) or too many circles"""
     return n, base
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _classify_local(x, y, r, cand, ncand, base, pat):
     r"""_classify() against the circles of _local_circles() alone"""
     f, ii = pat
@@ -480,7 +491,7 @@ AREA_MAX_CELLS = 16
 AREA_MAX_VERTICES = 16
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _seg_moments(px, py, qx, qy):
     r"""Green's-theorem integrals along the segment p -> q: (area, int x dA, int y dA)"""
     dx = qx - px
@@ -491,7 +502,7 @@ def _seg_moments(px, py, qx, qy):
     return a, mx, my
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _arc_moments(ax, ay, bx, by, r):
     r"""Green's-theorem integrals along the arc of the circle of radius r about the
 origin from the direction of a to the direction of b (the shorter way)"""
@@ -767,7 +778,7 @@ w0 + g . (p - o); NaN when its cells are too many"""
     return total / wq
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _disc_weight(xs, ys, n, w0, gx, gy, ox, oy, k, f):
     r"""The integral of the density w0 + g . (p - o) over circle k x the polygon"""
     c = F_CIRCLES + 3 * k
@@ -854,7 +865,7 @@ at n = 1."""
     return acc * inv * inv, nrays
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _area_error(jac, hess):
     r"""The bound on the error of a pixel's area coverage (fraction of its area) at n = 1:
 the slivers between the polygon's straight sides and the bowed preimage of the
@@ -891,7 +902,7 @@ footprint radius R): the subdivision n from the error bound, then _area_pixel;
                        pat, corners, r0)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _ring_side(xs, ys, px, py):
     r"""(max |P_i - p|^2, max |P_i - P_i-1|^2) of the points (xs, ys) of one side of a ring"""
     d2max = 0.0
@@ -908,7 +919,7 @@ def _ring_side(xs, ys, px, py):
     return d2max, s2max
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _block_uniform(hx, hy, hok, k0, k1, c0, c1, pat):
     r"""(uniform, material) of the block of pixels whose ring of neighbouring pixel
 centres is band rows k0, k1 and band columns c0, c1
@@ -944,7 +955,7 @@ the longest step between neighbouring ring points for the curve between them."""
     return _classify(px, py, r, pat)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, jac, cand,
                   values, pat, area, tol, hess, grid, poly, corners):
     r"""Adaptive value of pixel (ix, iy) (band row k, column c); returns (value, rays, how):
@@ -958,7 +969,7 @@ mode where area coverage is not computed"""
         # the pixel and its neighbours miss the board plane
         return values[pat[1][0]], 0, 0
     if nok < 9:
-        v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, False, jac, values, pat)
+        v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, K < 0, jac, values, pat)
         return v, n, 3 if area else 1
     # the footprint of the pixel from its neighbours' board points: the
     # Jacobian, and a bound on the quadratic part over the pixel
@@ -1001,7 +1012,7 @@ mode where area coverage is not computed"""
                 # a mean of albedos in [0, 1]: the sum of signed moments can round past the
                 # ends (-2e-16 where a pixel is all background 0)
                 return min(max(v, 0.0), 1.0), n, 2
-            v, n2 = _supersample(cam, xf, ix, iy, K, offs, counts, stack, True, jac, values,
+            v, n2 = _supersample(cam, xf, ix, iy, K, offs, counts, stack, K > 0, jac, values,
                                  pat)
             return v, n + n2, 3
         if quad <= PREDICT_NONLINEARITY * lin and K * K > 1:
@@ -1017,7 +1028,7 @@ mode where area coverage is not computed"""
     return v, n, 3 if area else 1
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _centre_ray(cam, central, gx, y, warm):
     r"""(s, vx, vy, vz, warm): the centre ray of grid column gx (image x = gx - 1) in the
 image row y, and the warm start of the next column of its run (see RAY_RUN)"""
@@ -1064,7 +1075,7 @@ c0, c1 between) and of its centre ((k0+k1)//2, (c0+c1)//2): what _block_uniform 
                   hx, hy, hok)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _on_board(x, y, rect):
     return x >= rect[0] and x < rect[1] and y >= rect[2] and y < rect[3]
 
@@ -1080,7 +1091,7 @@ def _count_board(hx, hy, hok, k0, k1, c0, c1, rect):
     return n
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _centre_on_board(hx, hy, hok, k0, k1, c0, c1, rect):
     r"""Whether the centre point of the block with ring k0, k1, c0, c1 hits the board;
 for a block _block_uniform calls uniform, then so do all its pixel centres (its
@@ -1104,7 +1115,7 @@ def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats
     nboard = 0
     if not adaptive:
         # every pixel is supersampled; the board points only count board pixels
-        _board_points(cam, xf, noncentral, r0, 1, nk - 1, 1, W + 1, hx, hy,
+        _board_points(cam, xf, noncentral, r0, nk - nk + 1, nk - 1, nk - nk + 1, W + 1, hx, hy,
                       hok)
         nboard = _count_board(hx, hy, hok, 1, nk - 1, 1, W + 1, rect)
 
@@ -1132,7 +1143,7 @@ def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats
         if not adaptive:
             for iy in range(r0, r1):
                 for ix in range(x0, x1):
-                    v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, False, jac,
+                    v, n = _supersample(cam, xf, ix, iy, K, offs, counts, stack, K < 0, jac,
                                         values, pat)
                     out[iy, ix] = v
                     nrays += n
@@ -1162,7 +1173,7 @@ def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats
                 nblocks += 1
                 if tile:
                     if not uniform:
-                        _board_points(cam, xf, noncentral, r0, 1, nk - 1,
+                        _board_points(cam, xf, noncentral, r0, nk - nk + 1, nk - 1,
                                       x0 + 1, x1 + 1, hx, hy, hok)
                         nboard += _count_board(hx, hy, hok, 1, nk - 1, x0 + 1, x1 + 1, rect)
                     elif _centre_on_board(hx, hy, hok, 0, nk - 1, x0, x1 + 1, rect):
