@@ -1200,15 +1200,8 @@ def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats
                     nsuper += how != 0
                     narea += how == 2
                     nfallback += how == 3
-    stats[0] = nrays
-    stats[1] = nsuper
-    stats[2] = nboard
-    stats[3] = nblocks
-    stats[4] = ntested
-    stats[5] = _count_nonfinite(out, r0, r1)
-    if stats.shape[0] > 6:
-        stats[6] = narea
-        stats[7] = nfallback
+    _band_stats(stats, nrays, nsuper, nboard, nblocks, ntested,
+                _count_nonfinite(out, r0, r1), narea, nfallback)
 
 
 # ---------------------------------------------------------------------------
@@ -1416,15 +1409,8 @@ connected and no outline meets it: one material), else of its own centre ray."""
                 code[iy - r0, ix - x0] = cd
                 out[iy, ix] = values[cd // 2]
                 nboard += cd % 2
-    stats[0] = nrays
-    stats[1] = nsuper
-    stats[2] = nboard
-    stats[3] = ntiles
-    stats[4] = nedge
-    stats[5] = _count_nonfinite(out, r0, r1)
-    if stats.shape[0] > 6:
-        stats[6] = narea
-        stats[7] = nfallback
+    _band_stats(stats, nrays, nsuper, nboard, ntiles, nedge, _count_nonfinite(out, r0, r1),
+                narea, nfallback)
 
 
 @njit(cache=True, error_model="numpy")
@@ -1436,6 +1422,20 @@ def _count_nonfinite(out, r0, r1):
             v = out[iy, ix]
             n += not (v - v == 0.0)
     return n
+
+
+@njit(cache=True, error_model="numpy")
+def _band_stats(stats, nrays, nsuper, nboard, nblocks, ntested, nonfinite, narea, nfallback):
+    r"""A band's row of render_kernel's stats (its docstring says what each column is)"""
+    stats[0] = nrays
+    stats[1] = nsuper
+    stats[2] = nboard
+    stats[3] = nblocks
+    stats[4] = ntested
+    stats[5] = nonfinite
+    if stats.shape[0] > 6:
+        stats[6] = narea
+        stats[7] = nfallback
 
 
 @njit(parallel=True, cache=True, error_model="numpy")

@@ -133,6 +133,21 @@ ok False at a zero pivot'''
 
 
 @njit(cache=True, error_model="numpy")
+def _add_plane_point(N, b, x, y, v):
+    r"""One point's share of the normal equations of the plane v = a + b x + c y: the upper
+triangle of N (3,3) and b (3,)"""
+    N[0, 0] += 1.0
+    N[0, 1] += x
+    N[0, 2] += y
+    N[1, 1] += x * x
+    N[1, 2] += x * y
+    N[2, 2] += y * y
+    b[0] += v
+    b[1] += x * v
+    b[2] += y * v
+
+
+@njit(cache=True, error_model="numpy")
 def _median(v, n):
     r"""The median of v[:n] (n > 0) as np.median takes it: the middle order statistic, or
 the mean of the two middle ones; v[:n] is reordered (a quickselect: compiles in a
@@ -214,16 +229,7 @@ pixels of no blob; the elements' rows from element_rows(); see the module docstr
             for k in range(n):
                 if not use[k]:
                     continue
-                x, y = dx[k], dy[k]
-                N[0, 0] += 1.0
-                N[0, 1] += x
-                N[0, 2] += y
-                N[1, 1] += x * x
-                N[1, 2] += x * y
-                N[2, 2] += y * y
-                coef[0] += v[k]
-                coef[1] += x * v[k]
-                coef[2] += y * v[k]
+                _add_plane_point(N, coef, dx[k], dy[k], v[k])
             N[1, 0], N[2, 0], N[2, 1] = N[0, 1], N[0, 2], N[1, 2]
             if not _solve3(N, coef):
                 return -1, 0.0, 0.0
@@ -319,16 +325,7 @@ matrix has small integer entries: its determinant is exact here, numpy's by LU).
             for k in range(cnt):
                 if keep[k]:
                     nk += 1
-                    x1, x2 = offa[k], offb[k]
-                    N[0, 0] += 1.0
-                    N[0, 1] += x1
-                    N[0, 2] += x2
-                    N[1, 1] += x1 * x1
-                    N[1, 2] += x1 * x2
-                    N[2, 2] += x2 * x2
-                    c[0] += y[k]
-                    c[1] += x1 * y[k]
-                    c[2] += x2 * y[k]
+                    _add_plane_point(N, c, offa[k], offb[k], y[k])
             N[1, 0], N[2, 0], N[2, 1] = N[0, 1], N[0, 2], N[1, 2]
             det = (N[0, 0] * (N[1, 1] * N[2, 2] - N[1, 2] * N[2, 1])
                    - N[0, 1] * (N[1, 0] * N[2, 2] - N[1, 2] * N[2, 0])
