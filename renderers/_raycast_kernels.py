@@ -1102,6 +1102,26 @@ disc lies inside the board rectangle or wholly outside it)"""
 
 
 @njit(cache=True, error_model="numpy")
+def _pixel_scratch(K, nvalues, nrows, W, area):
+    r"""The work arrays _render_pixel needs, for a band of nrows image rows of width W:
+(counts, offs (the K subsample offsets), stack, jac, cand, hess, grid, poly, corners);
+corners (2, nrows + 1, W + 1) in area mode holds the board points of the band's pixel
+corners, NaN until traced"""
+    counts = np.zeros(nvalues, dtype=np.int64)
+    offs = np.empty(K)
+    for i in range(K):
+        offs[i] = (i + 0.5) / K - 0.5
+    stack = np.empty((4 * (int(math.log2(K)) + 3), 4), dtype=np.int64)
+    jac = np.zeros(9)
+    cand = np.empty(MAX_LOCAL_CIRCLES, dtype=np.int64)
+    hess = np.zeros(6)
+    grid = np.empty((2, AREA_MAX_SUBDIVISION + 1, AREA_MAX_SUBDIVISION + 1))
+    poly = np.empty((8, AREA_MAX_VERTICES))
+    corners = np.full((2, nrows + 1, W + 1) if area else (2, 1, 1), math.nan)
+    return counts, offs, stack, jac, cand, hess, grid, poly, corners
+
+
+@njit(cache=True, error_model="numpy")
 def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats, pat, qbox,
                  area, tol):
     H, W = out.shape
@@ -1119,19 +1139,9 @@ def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats
                       hok)
         nboard = _count_board(hx, hy, hok, 1, nk - 1, 1, W + 1, rect)
 
-    counts = np.zeros(values.shape[0], dtype=np.int64)
-    offs = np.empty(K)
-    for i in range(K):
-        offs[i] = (i + 0.5) / K - 0.5
-    stack = np.empty((4 * (int(math.log2(K)) + 3), 4), dtype=np.int64)
+    counts, offs, stack, jac, cand, hess, grid, poly, corners = _pixel_scratch(
+        K, values.shape[0], r1 - r0, W, area)
     blocks = np.empty((4 * (int(math.log2(T)) + 3), 4), dtype=np.int64)
-    jac = np.zeros(9)
-    cand = np.empty(MAX_LOCAL_CIRCLES, dtype=np.int64)
-    hess = np.zeros(6)
-    grid = np.empty((2, AREA_MAX_SUBDIVISION + 1, AREA_MAX_SUBDIVISION + 1))
-    poly = np.empty((8, AREA_MAX_VERTICES))
-    # the board points of the pixel corners of the band's rows, traced once (area mode)
-    corners = np.full((2, r1 - r0 + 1, W + 1) if area else (2, 1, 1), math.nan)
     narea = 0
     nfallback = 0
     nrays = 0
@@ -1314,17 +1324,8 @@ connected and no outline meets it: one material), else of its own centre ray."""
     code = np.empty((r1 - r0, T), dtype=np.int64)
     rect = pat[0]
     bg = pat[1][0]
-    counts = np.zeros(values.shape[0], dtype=np.int64)
-    offs = np.empty(K)
-    for i in range(K):
-        offs[i] = (i + 0.5) / K - 0.5
-    stack = np.empty((4 * (int(math.log2(K)) + 3), 4), dtype=np.int64)
-    jac = np.zeros(9)
-    cand = np.empty(MAX_LOCAL_CIRCLES, dtype=np.int64)
-    hess = np.zeros(6)
-    grid = np.empty((2, AREA_MAX_SUBDIVISION + 1, AREA_MAX_SUBDIVISION + 1))
-    poly = np.empty((8, AREA_MAX_VERTICES))
-    corners = np.empty((2, r1 - r0 + 1, W + 1) if area else (2, 1, 1))
+    counts, offs, stack, jac, cand, hess, grid, poly, corners = _pixel_scratch(
+        K, values.shape[0], r1 - r0, W, area)
     narea = 0
     nfallback = 0
     nrays = 0
