@@ -95,6 +95,8 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
     from . import verdict as vd
     records = []
     exact_caches = {}   # per pose count: this camera's exact observations and detection
+    # the job's detections are the verdict's reference corners: not rendered again
+    own_reference = vd.is_reference_render(job.renderer, job.settings, job.response)
     for cal, model, options in job.calibrators:     # noise (verdict)
         choice = options.get(MODEL_CHOICE)   # why "best" chose this model: the record's, not
         n_poses = options.get(POSE_COUNT)    # the fit's; so is its pose count
@@ -102,8 +104,7 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
         res, info = None, shared
         cctx = pose_subset(ctx, n_poses)
         exact_cache = exact_caches.setdefault(cctx["poses_used"]["n"], {})
-        if vd.is_reference_render(job.renderer, job.settings, job.response):
-            # the job's detections are the verdict's reference corners: not rendered again
+        if own_reference:
             exact_cache.setdefault("reference", cctx["obs"].q)
         try:
             if fits is not None and not uses_world_frame(cal, options):
