@@ -78,7 +78,8 @@ SYNOPSIS
     # force=True: warm even when numba's cache is up to date
 
 Renders one image per model family used by the jobs' numba renderers (the
-job's own camera and first planned pose, K=1), and runs the blooming kernel if a job's response uses it.
+job's own camera and first planned pose, K=1), and runs the blooming kernel if a
+job's response uses it.
 numba writes what it compiles to its cache directory, so worker processes
 started afterwards load the kernels instead of each compiling them (after a
 kernel change that is minutes per worker on a loaded machine). A renderer
