@@ -217,7 +217,8 @@ class PSF(_Stage):
     r'''Defocus / lens point-spread function: a normalised convolution
 
 kind = "gaussian": a Gaussian of std sigma_px integrated over each pixel (the
-blurred image of a point has variance sigma_px^2 + 1/12 px^2 per axis).
+kernel has variance sigma_px^2 + 1/12 px^2 per axis; applied to an area-sampled
+render, whose pixels already integrate a box, a point's image has sigma_px^2 + 1/6).
 kind = "disc": a uniform disc of radius radius_px (defocus of a circular
 aperture), the kernel being each pixel's covered area.
 The kernel sums to 1 and the image is zero-padded, so total light is kept

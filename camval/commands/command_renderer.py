@@ -2,7 +2,6 @@ r'''The `--command` / `--setup` options of the commands that can render through 
 program (`camval render`, `camval stereo`): defined and read in one place'''
 
 
-
 def add_arguments(parser):
     parser.add_argument("--command", default=None, metavar="'PROGRAM ARGS...'",
                         help="--renderer command: the external renderer to run (split as a "
