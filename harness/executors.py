@@ -32,6 +32,40 @@ from .warmup import warm_up
 EXECUTORS = ("local", "dask")
 
 
+def _die_with_campaign(pid):
+    r'''Worker initializer: end this worker when the campaign's process `pid` ends
+
+Local workers are children of multiprocessing's fork server, and the fork server
+lives as long as any of its workers does (each holds its "alive" pipe), so a worker
+waiting for its next job would outlive a killed campaign forever. A daemon thread
+waits on a pidfd of the campaign's process (Linux >= 5.3; elsewhere it polls the pid
+every second) and ends the worker with os._exit: a worker has nothing to save, its
+finished jobs' records are already stored by the campaign.'''
+    import threading
+
+    def watch():
+        try:
+            fd = os.pidfd_open(pid)
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            import select
+            select.select([fd], [], [])
+        else:
+            import time
+            while True:
+                try:
+                    os.kill(pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:
+                    pass
+                time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="camval-campaign-watch", daemon=True).start()
+
+
 def _local_results(fn, jobs, workers):
     r'''Yield (job, result or exception) as jobs finish, in local processes'''
     if workers <= 1:
@@ -46,7 +80,9 @@ def _local_results(fn, jobs, workers):
     # forkserver, not fork: the parent may hold threads (the progress bar, BLAS)
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(["harness.runner"])
-    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
+    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                                initializer=_die_with_campaign,
+                                initargs=(os.getpid(),)) as ex:
         futs = {ex.submit(fn, job): job for job in jobs}
         try:
             for fut in cf.as_completed(futs):

@@ -1,0 +1,86 @@
+r'''Local executor: workers do not outlive the campaign's process'''
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# Two workers each sleep 60 s in a job; the parent then dies by SIGKILL (no cleanup of its own)
+_CAMPAIGN = '''
+from harness.executors import _local_results
+import time
+for _ in _local_results(time.sleep, [60.0, 60.0, 60.0], 2):
+    pass
+'''
+
+
+def _children():
+    r'''{pid: ppid} of every process now alive'''
+    out = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                stat = (d / "stat").read_text()
+            except OSError:
+                continue
+            out[int(d.name)] = int(stat.rsplit(")", 1)[1].split()[1])
+    return out
+
+
+def _descendants(pid):
+    tree = _children()
+    found, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        kids = [c for c, pp in tree.items() if pp == p]
+        found.update(kids)
+        todo.extend(kids)
+    return found
+
+
+def _alive(pids):
+    alive = set()
+    for p in pids:
+        try:
+            state = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if state != "Z":
+            alive.add(p)
+    return alive
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc (Linux)")
+def test_workers_end_when_the_campaign_process_is_killed():
+    p = subprocess.Popen([sys.executable, "-c", _CAMPAIGN], cwd=ROOT)
+    try:
+        # the fork server, its two workers (and multiprocessing's resource tracker)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            desc = _descendants(p.pid)
+            if len(desc) >= 3:
+                break
+            time.sleep(0.2)
+        time.sleep(1.0)                    # the workers have passed their initializer
+        desc = _descendants(p.pid)
+        assert len(desc) >= 3, f"workers did not start: {desc}"
+        os.kill(p.pid, signal.SIGKILL)
+        p.wait(timeout=30)
+        # Without the guard the workers sleep out their 60 s job and then wait for the
+        # next forever; with it they end as soon as the fork server does (at once)
+        deadline = time.monotonic() + 20
+        while _alive(desc) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        left = _alive(desc)
+        for q in left:
+            os.kill(q, signal.SIGKILL)
+        assert not left, f"processes outlived the campaign: {sorted(left)}"
+    finally:
+        if p.poll() is None:
+            p.kill()
