@@ -306,24 +306,36 @@ seeded noise). Measured warm - cold projection RMS: jpl 4e-12 px, OpenCV 3e-9 px
 fit stops where the image fit's minimum is: floor 5e-8 px against 8e-7 px). Held to
 1e-5 px, 1% of the detection noise: the renderer verdict resolves the noise's scatter
 (sigma of the projection RMS > 1e-4 px: test_scatter_of_seeded_noise), so a difference
-a hundred times below it cannot move a verdict.'''
+a hundred times below it cannot move a verdict. The cold fit's bias passes run to a
+tolerance of 1e-10 px: at the calibrators' 1e-5 px (the warm fit's) the cold OpenCV fit
+is itself 1.1e-5 px (max) from its converged value.
+jpl and OpenCV start from the image fit's bias (skeleton.start_bias): a solve or two
+instead of a solve without the bias and the passes that bring it back (3-5 solves).'''
     truth, target, poses, obs = navcam
     rng = np.random.default_rng(11)
     img = obs.replace(q=obs.q + rng.normal(0, 0.001 / np.sqrt(2), obs.q.shape))
     res = stages.calibrate_stage(cal, img, target, model, truth, {})
     verdict._EXACT_FITS.clear()
-    cold, noise, _ = verdict.exact_fit(cal, model, {}, img, target, truth, {})
+    tight = {"bias_tolerance": 1e-10, "bias_passes": 12}
+    cold, noise, _ = verdict.exact_fit(cal, model, tight, img, target, truth, {})
     warm, _, reused = verdict.exact_fit(cal, model, {}, img, target, truth, {}, start=res)
     assert not reused and warm is not cold          # another start: not the memo's fit
     assert warm.ok and warm.info["warm_start"] is True
+    if cal != "mrcal":
+        assert warm.info["bias"] is not None and len(warm.info["passes"]) <= 2
     d = verdict.fit_projection_difference(cold.model, warm.model, truth)
-    assert d["rms"] < 1e-5 and d["max"] < 1e-5
+    # OpenCV fits float32 points: each coordinate rounded by up to 6e-5 px at 1000 px (RMS
+    # 3.5e-5), and two fits to points 1e-5 px apart round them differently: the fitted
+    # projection moves by ~3.5e-5 sqrt(n / N) = 6e-6 px RMS (n = 40 numbers, N = 1200
+    # coordinates); measured warm - tight cold 7e-6 px RMS, 1.2e-5 px max
+    tol = (2e-5, 5e-5) if cal == "opencv" else (1e-5, 1e-5)
+    assert d["rms"] < tol[0] and d["max"] < tol[1]
     params, proj, _ = stages.compare_stage(truth, res)
     vc = verdict.assess(truth, res, cold, noise, params, proj)
     vw = verdict.assess(truth, res, warm, noise, params, proj)
     for part in ("floor", "renderer"):
         assert vw[part]["projection"]["rms"] == pytest.approx(vc[part]["projection"]["rms"],
-                                                              abs=1e-5)
+                                                              abs=tol[0])
     assert vw["floor_far"] == vc["floor_far"]
     # the same start again: the memo's fit
     again, _, reused = verdict.exact_fit(cal, model, {}, img, target, truth, {}, start=res)
