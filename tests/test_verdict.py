@@ -495,3 +495,19 @@ def test_a_reference_render_job_is_not_rendered_again_for_its_corners(tmp_path, 
     assert b["verdict"]["renderer"]["projection"]["rms"] < 1e-6
     assert a["verdict"]["floor"]["projection"]["rms"] == pytest.approx(
         b["verdict"]["floor"]["projection"]["rms"], rel=1e-3, abs=1e-7)
+
+
+def test_start_bias_is_the_bias_the_start_was_fitted_with(navcam):
+    r'''A fit keeps the bias it applied last (info["bias"] = obs.q - the detections it
+fitted); start_bias hands it on only for an ok start of observations of the same shape'''
+    from harness.calibrators.skeleton import start_bias
+    truth, target, poses, obs = navcam
+    res = stages.calibrate_stage("jpl", obs, target, "CAHVOR", truth, {})
+    b = res.info["bias"]
+    # the dot-centroid bias of a navcam: 0.1 px mean, 0.3 px max (harness.calibrators.bias)
+    assert b.shape == obs.q.shape and 0.01 < np.nanmax(np.abs(b)) < 1.0
+    assert np.array_equal(start_bias(res, obs), b)
+    assert start_bias(res, obs.replace(q=obs.q[:3], p_board=obs.p_board[:3],
+                                       Rt_ref_board=obs.Rt_ref_board[:3])) is None
+    assert start_bias(res.replace(status="failed"), obs) is None
+    assert start_bias(None, obs) is None
