@@ -604,8 +604,8 @@ the 6 planned poses rendered noise-free by the ray-cast renderer (--spp x
 and the error of the detections against the truth - the exact expected
 centroids for dots, the exact projections of the corners for tags and
 chessboards - as RMS and max over all points of the 6 poses.
-expected_centroids() seconds per pose (100 dots, 1440 outline points each) are
-reported too.
+expected_centroids() seconds per pose (100 dots, outline points from its error
+bound: targets.centroids.CENTROID_TOLERANCE_PX) are reported too.
 
 Records: targets/plan/<camera>, targets/detect/<camera>/<target>/K=<spp>.
 '''

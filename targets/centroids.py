@@ -12,13 +12,17 @@ The image of a circular dot is not centred on the projection of the dot's
 centre: perspective and lens distortion stretch one side of the dot more than
 the other. A detector that takes the centroid of a dot's image measures the
 CENTROID OF THE PROJECTED DOT, which expected_centroids() computes exactly:
-the dot's circle outline is projected point by point (1440 points by default)
-and the area centroid of the resulting polygon is taken with the shoelace
-formula (polygon_centroid()). The inscribed polygon's centroid errs by
-O(1/Noutline^2) (5e-6 px for a 50 px dot at 1440 points); a Richardson step
-with the polygon of every other vertex removes that term, leaving < 1e-8 px
-(tests/test_centroids.py checks against the exact conic centre for a
-pinhole).
+the dot's circle outline is projected point by point and the area centroid
+of the resulting polygon is taken with the shoelace formula
+(polygon_centroid()). The inscribed polygon's centroid errs by O(1/Noutline^2)
+(5e-6 px for a 50 px dot at 1440 points); a Richardson step with the polygon of
+every other vertex removes that term, leaving an error c/Noutline^4
+(tests/test_centroids.py checks against the exact conic centre for a pinhole).
+By default the number of outline points follows from an error bound
+(CENTROID_TOLERANCE_PX): the same projected points give the Richardson value
+of half as many points, whose error is 16 times as large, so their difference
+/ 15 estimates the error; the points double until it is below the bound
+(128 points on the catalogue's cameras, within 4e-7 px of 5760).
 
 What this centroid means: it is the centroid of the dot's image when the dot
 is uniformly dark on a uniform board and each pixel records the area average
@@ -40,7 +44,17 @@ from reference_models.poseutils import compose_Rt, transform_point_Rt
 
 from .boards import TargetError
 
-NOUTLINE_DEFAULT = 1440
+# The error bound of expected_centroids() (px) when no Noutline is given: a hundredth of the
+# smallest detection scatter harness.verdict resolves (DETECTION_RESOLUTION_PX, 1e-4 px),
+# whose exact observations these are, and far below a renderer's sampling error on a dot
+# centroid (~1e-3 px: module docstring)
+CENTROID_TOLERANCE_PX = 1e-6
+# the first number of outline points tried (a multiple of 4: the error estimate takes the
+# Richardson value of half as many, from a polygon of a quarter), and the most: the error
+# goes as 1/Noutline^4, 3.6e-6 px at 64 points on the widest catalogue camera (Rocky8
+# hazcam CAHVOR), so 8192 points reach 1e-6 px for dots some 70 times as distorted
+NOUTLINE_START = 128
+NOUTLINE_MAX = 8192
 
 
 def _check_Rt(Rt_cam_board):
@@ -110,32 +124,56 @@ origin. A degenerate polygon (zero area) or a non-finite vertex gives NaN.
     return c
 
 
-def expected_centroids(model, target, Rt_cam_board, Noutline=NOUTLINE_DEFAULT):
+def expected_centroids(model, target, Rt_cam_board, Noutline=None,
+                       tolerance=CENTROID_TOLERANCE_PX):
     r'''Exact image centroid of each projected dot
 
 SYNOPSIS
 
     q = expected_centroids(model, target, Rt_cam_board)   # (N,2), kind "dots" only
 
-The area centroid of each dot's projected circle outline (Noutline points, even);
-see the module docstring for when this equals the centroid a detector
-measures. NaN for a dot any of whose outline points is not imaged.
+The area centroid of each dot's projected circle outline; see the module
+docstring for when this equals the centroid a detector measures. Noutline
+(even): that many outline points. None: NOUTLINE_START points, doubled until
+the estimated error of every dot's centroid is below tolerance px (module
+docstring; at most NOUTLINE_MAX points). NaN for a dot any of whose outline
+points is not imaged.
 '''
     if target.kind != "dots":
         raise TargetError(f"expected_centroids() is defined for dot targets; target "
                           f"{target.name!r} is {target.kind!r}: use projected_points()")
-    if int(Noutline) < 8 or int(Noutline) % 2:
-        raise TargetError(f"Noutline must be an even number >= 8; got {Noutline}")
-    outline = target.dot_outlines(Noutline)
-    q = model.project(board_to_ref(model, Rt_cam_board, outline))
-    # the inscribed polygon's centroid errs by c/Noutline^2: Richardson-extrapolate from
-    # the polygon of every other vertex
+    if Noutline is not None:
+        if int(Noutline) < 8 or int(Noutline) % 2:
+            raise TargetError(f"Noutline must be an even number >= 8; got {Noutline}")
+        return _richardson_centroid(_projected_outlines(model, target, Rt_cam_board,
+                                                        Noutline))
+    N = NOUTLINE_START
+    while True:
+        q = _projected_outlines(model, target, Rt_cam_board, N)
+        c = _richardson_centroid(q)
+        # the Richardson value of N/2 points errs 16 times as much as that of N (error
+        # c/N^4): their difference is 15 times the error of c
+        err = np.abs(c - _richardson_centroid(q[..., ::2, :])) / 15.0
+        if not np.any(err > tolerance) or N >= NOUTLINE_MAX:
+            return c
+        N *= 2
+
+
+def _projected_outlines(model, target, Rt_cam_board, Noutline):
+    r'''(Ndots,Noutline,2) the projected outline points of every dot'''
+    return model.project(board_to_ref(model, Rt_cam_board, target.dot_outlines(Noutline)))
+
+
+def _richardson_centroid(q):
+    r'''(...,2) the polygons' centroids Richardson-extrapolated from every other vertex'''
+    # the inscribed polygon's centroid errs by c/Noutline^2: the polygon of every other
+    # vertex errs 4 times as much
     c = polygon_centroid(q)
     c_half = polygon_centroid(q[..., ::2, :])
     return c + (c - c_half) / 3.0
 
 
-def centroid_bias(model, target, Rt_cam_board, Noutline=NOUTLINE_DEFAULT):
+def centroid_bias(model, target, Rt_cam_board, Noutline=None):
     r'''expected_centroids() - projected_points(): the correction of the paper's second pass
 
 SYNOPSIS

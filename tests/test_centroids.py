@@ -10,6 +10,7 @@ from targets_render import pinhole
 from reference_models.catalogue import load_catalogue
 from targets.boards import TargetError, load_target, target_from_dict
 from targets.centroids import (
+    CENTROID_TOLERANCE_PX,
     centroid_bias,
     expected_centroids,
     polygon_centroid,
@@ -62,7 +63,10 @@ def test_centroid_is_the_conic_centre_for_a_pinhole():
     Hi = np.linalg.inv(Hb)
     C = Hi.T @ np.diag([1.0, 1.0, -r * r]) @ Hi
     centre = -np.linalg.solve(C[:2, :2], C[:2, 2])
-    assert np.allclose(q, centre, atol=1e-8, rtol=0)
+    # the default's error bound (a 42 px dot seen 40 deg off-axis), and 1e-8 px at 1440 points
+    assert np.allclose(q, centre, atol=CENTROID_TOLERANCE_PX, rtol=0)
+    assert np.allclose(expected_centroids(m, t, Rt, Noutline=1440)[0], centre, atol=1e-8,
+                       rtol=0)
     # ... and it is not the projection of the dot's centre
     assert np.linalg.norm(q - projected_points(m, t, Rt)[0]) > 0.05
 
@@ -72,13 +76,32 @@ def test_centroid_converges_with_outline_points():
     t = load_target("dots")
     Rt = plan_poses(m, t)[1]
     q360 = expected_centroids(m, t, Rt, Noutline=360)
-    q1440 = expected_centroids(m, t, Rt)
+    q1440 = expected_centroids(m, t, Rt, Noutline=1440)
     q5760 = expected_centroids(m, t, Rt, Noutline=5760)
     e1440 = np.abs(q1440 - q5760).max()
     e360 = np.abs(q360 - q5760).max()
     assert e1440 < 1e-8
     # fourth-order convergence after the Richardson step: 4x the points, ~256x smaller error
     assert e360 / e1440 > 100
+
+
+@pytest.mark.parametrize("tolerance", [CENTROID_TOLERANCE_PX, 1e-9])
+def test_outline_points_follow_the_error_bound(tolerance):
+    # the default picks its outline points from an error estimate: every dot within the
+    # bound of a 5760-point outline (itself ~1e-13 px from the limit: error ~ 1/N^4),
+    # on the fisheye hazcam and on that camera's poses moved to half their distance
+    # (dots twice as large and more distorted: c/N^4 grows)
+    m = load_catalogue().get(8).model     # a CAHVORE fisheye hazcam
+    t = load_target("dots")
+    for Rt in plan_poses(m, t)[:3]:
+        for scale in (1.0, 0.5):
+            Rt_near = np.vstack((Rt[:3], Rt[3] * scale))
+            q = expected_centroids(m, t, Rt_near, tolerance=tolerance)
+            q5760 = expected_centroids(m, t, Rt_near, Noutline=5760)
+            ok = np.all(np.isfinite(q5760), axis=-1)
+            assert ok.sum() > 50
+            assert np.array_equal(np.isfinite(q[:, 0]), ok)
+            assert np.abs(q[ok] - q5760[ok]).max() < tolerance
 
 
 def test_symmetric_view_has_no_bias():

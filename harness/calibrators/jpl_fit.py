@@ -69,7 +69,7 @@ from reference_models.poseutils import compose_Rt, invert_Rt
 from ..least_squares import forward_steps, remembering
 from ._jpl_kernels import jacobian_chart, pack_chart
 from .base import CalibrationFailed
-from .skeleton import fitted_result, iterate_bias
+from .skeleton import applied_bias, fitted_result, iterate_bias, start_bias
 
 NAME = "jpl"
 LIBRARY = "scipy"
@@ -357,14 +357,18 @@ fit_model: the last stage only, no DLT); a start of another family is ignored.
         raise CalibrationFailed(f"too few points: {nfound} found, a {model_name} fit needs at "
                                 f"least {max(6, (nparams + 1) // 2 + 1)}")
     p_ref = obs.p_ref()
-    p = p_ref[found]
     q_obs = obs.q
     m_start = getattr(start, "model", None) if getattr(start, "status", None) == "ok" \
         else None
     if getattr(m_start, "family", None) != model_name:
         m_start = None
-    model, info = fit_model(p, q_obs[found], model_name, W, H, mtype, lin, m0=m_start, R0=R0)
-    r_first = np.linalg.norm(project(model, p) - q_obs[found], axis=-1)
+    # a warm start's bias (start_bias): the first fit is made to the detections it corrects
+    b_start = start_bias(start, obs) if m_start is not None and bias_correction else None
+    q_first = q_obs if b_start is None else q_obs - b_start
+    first = found & np.all(np.isfinite(q_first), axis=-1)
+    model, info = fit_model(p_ref[first], q_first[first], model_name, W, H, mtype, lin,
+                            m0=m_start, R0=R0)
+    r_first = np.linalg.norm(project(model, p_ref[first]) - q_first[first], axis=-1)
     passes = [{"pass": 1, "rms": float(np.sqrt(np.mean(r_first ** 2))),
                "max": float(r_first.max()), **info}]
 
@@ -383,7 +387,8 @@ fit_model: the last stage only, no DLT); a start of another family is ignored.
     q_used, bias_applied = iterate_bias(
         obs, target, current, refit, passes,
         bias_passes=bias_passes if bias_correction else 0, bias_tolerance=bias_tolerance,
-        no_dots="the target has no dots: no centroid bias to correct")
+        no_dots="the target has no dots: no centroid bias to correct",
+        b_start=b_start)
     return fitted_result(
         NAME, LIBRARY, library_version(), model_name, t0, model=model,
         residuals=q_used - model.project(p_ref), found=found, max_rms=max_rms,
@@ -393,4 +398,5 @@ fit_model: the last stage only, no DLT); a start of another family is ignored.
               "world_points_known": True, "world_frame": True, "theta_estimated": True,
               "model_type": mtype, "linearity": lin,
               "R0_held": R0 if model_name != "CAHV" else None,
+              "bias": applied_bias(obs, q_used, bias_applied),
               **({} if start is None else {"warm_start": m_start is not None})})

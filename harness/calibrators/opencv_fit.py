@@ -41,7 +41,7 @@ from .base import (
     check_homography_conditioning,
     check_pose_diversity,
 )
-from .skeleton import board_residuals, fitted_result, iterate_bias
+from .skeleton import applied_bias, board_residuals, fitted_result, iterate_bias, start_bias
 
 NAME = "opencv"
 LIBRARY = "opencv"
@@ -227,7 +227,10 @@ distortion (CALIB_USE_INTRINSIC_GUESS, as the bias passes do); another model is 
             start.model.family == model_name:
         K0 = np.array(start.info["K"], dtype=np.float64)
         D0 = np.array(start.info["dist"], dtype=np.float64)
-    rms, K, D, rvecs, tvecs = run(obs.q, K0, D0)
+    # a warm start's bias (start_bias): the first fit is made to the detections it corrects
+    b_start = start_bias(start, obs) if K0 is not None and bias_correction \
+        and target is not None else None
+    rms, K, D, rvecs, tvecs = run(obs.q if b_start is None else obs.q - b_start, K0, D0)
     if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D))):
         raise CalibrationFailed("diverged: OpenCV returned non-finite intrinsics")
     model, Rts = state(K, D, rvecs, tvecs)
@@ -243,12 +246,12 @@ distortion (CALIB_USE_INTRINSIC_GUESS, as the bias passes do); another model is 
     q_used, bias_applied = iterate_bias(
         obs, target, lambda: (model, Rts), refit, passes,
         bias_passes=bias_passes if bias_correction and target is not None else 0,
-        bias_tolerance=bias_tolerance, views=views)
+        bias_tolerance=bias_tolerance, views=views, b_start=b_start)
     return fitted_result(
         NAME, LIBRARY, library_version(), model_name, t0, model=model,
         residuals=board_residuals(model, Rts, obs.p_board, q_used), found=found,
         max_rms=max_rms, Rt_cam_board=Rts, iterations=len(passes),
         info={"K": K, "dist": D, "max_abs_coefficient": float(np.max(np.abs(D))),
               "passes": passes, "bias_corrected": bias_applied, "world_frame": False,
-              "known_poses": False,
+              "known_poses": False, "bias": applied_bias(obs, q_used, bias_applied),
               **({} if start is None else {"warm_start": K0 is not None})})

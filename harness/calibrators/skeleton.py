@@ -37,8 +37,39 @@ from .base import CalibrationFailed, CalibrationResult
 from .bias import bias_step
 
 
+def start_bias(start, obs):
+    r'''The bias a warm start's last fit was made to (Nposes,Npoints,2), or None
+
+SYNOPSIS
+
+    b0 = start_bias(start, obs)      # start: the image fit (harness.verdict.exact_fit)
+    q_first = obs.q if b0 is None else obs.q - b0   # the first fit's detections
+    iterate_bias(..., b_start=b0)
+
+A fit of the exact observations from the image fit (harness.verdict) starts its
+bias from the image fit's (its info["bias"]: applied_bias, the bias its last model
+was fitted with; the same observations then give the same fit): the two
+models differ by the detection error (~1e-3 px), which moves a dot's bias by far
+less than the bias tolerance, so the first bias pass finds it settled and the fit
+ends after one solve instead of a solve without bias and the passes that bring it
+back. None when start is not an ok fit of observations of this shape.
+'''
+    if getattr(start, "status", None) != "ok":
+        return None
+    b = (start.info or {}).get("bias")
+    if b is None or np.shape(b) != obs.q.shape:
+        return None
+    return np.asarray(b, dtype=np.float64)
+
+
+def applied_bias(obs, q_used, bias_applied):
+    r'''obs.q - q_used: the bias iterate_bias applied last (what start_bias reads from a
+fit's info["bias"]), or None'''
+    return obs.q - q_used if bias_applied else None
+
+
 def iterate_bias(obs, target, current, refit, passes, *, bias_passes, bias_tolerance,
-                 views=None, no_dots=None, tolerance=None, settled=None):
+                 views=None, no_dots=None, tolerance=None, settled=None, b_start=None):
     r'''The iterated dot-centroid bias correction; returns (q_used, bias_applied)
 
 SYNOPSIS
@@ -65,10 +96,12 @@ ARGUMENTS
 - settled: None (the bias has settled: stop), or settled(change, q_used) ->
   the figures of a pass that refits without a new bias (appended to passes,
   and the passes go on), or None to stop
+- b_start: None, or the bias the first fit was made with (start_bias: obs.q -
+  b_start were its detections); the first pass compares with it
 '''
-    q_used = obs.q
-    bias_applied = False
-    b_prev = None
+    q_used = obs.q if b_start is None else obs.q - b_start
+    bias_applied = b_start is not None
+    b_prev = b_start
     for ipass in range(bias_passes):
         model, Rt_cam_board = current()
         b, change = bias_step(model, target, Rt_cam_board, obs.p_board, b_prev, views)
