@@ -211,6 +211,7 @@ def part_diff(args, out):
     missing = sorted(set(a) ^ set(b))
     worst = {}        # (calibrator, part) -> (z, fullname, quantity, before, after)
     nosigma = {}      # calibrator -> (|change|, fullname, quantity, before, after)
+    per_record = []   # (z, fullname, part, quantity, before, after, projection z)
     n = 0
     for k in sorted(set(a) & set(b)):
         ra, rb = a[k], b[k]
@@ -220,6 +221,8 @@ def part_diff(args, out):
         sigma = _get(ra, "verdict", "renderer", "sigma") or {}
         qa, qb = _quantities(ra), _quantities(rb)
         cal = ra.get("calibrator")
+        mine = (0.0, None, None, None, None)
+        proj_z = 0.0
         for key in sorted(set(qa) | set(qb)):
             part, q = key
             if key not in qa or key not in qb:
@@ -235,10 +238,16 @@ def part_diff(args, out):
                 w = worst.get((cal, part))
                 if w is None or z > w[0]:
                     worst[(cal, part)] = (z, k, q, qa[key], qb[key])
+                if z > mine[0]:
+                    mine = (z, part, q, qa[key], qb[key])
+                if q == "projection_rms":
+                    proj_z = max(proj_z, z)
             elif d > 0:
                 w = nosigma.get(cal)
                 if w is None or d > w[0]:
                     nosigma[cal] = (d, k, q, qa[key], qb[key])
+        if mine[0] > 0:
+            per_record.append((mine[0], k, *mine[1:], proj_z))
     print(f"{n} records ok in both; {len(missing)} in one run only; "
           f"{len(status)} changed status")
     for k, sa, sb in status:
@@ -252,6 +261,11 @@ def part_diff(args, out):
             overall = (z, k)
     for cal, (d, k, q, x, y) in sorted(nosigma.items()):
         print(f"{cal:<7} without sigma: max |change| {d:.3g}  {k} {q}: {x!r} -> {y!r}")
+    if per_record and args.top:
+        print(f"the {args.top} records that moved most (their largest |change|/sigma; "
+              f"proj z: the largest of their projection RMS figures)")
+        for z, k, part, q, x, y, pz in sorted(per_record, reverse=True)[:args.top]:
+            print(f"  {z:9.3g}  proj z {pz:9.3g}  {k} {part} {q}: {x!r} -> {y!r}")
     print(f"largest change over every record: {overall[0]:.3g} sigma ({overall[1]})")
     out.add("diff/max", max_z=overall[0] if math.isfinite(overall[0]) else None,
             worst_record=overall[1], records=n, status_changed=len(status), missing=len(missing))
@@ -270,6 +284,7 @@ def _run_arguments(ap):
 def _diff_arguments(ap):
     ap.add_argument("before", type=Path, help="run directory or --records-out JSON")
     ap.add_argument("after", type=Path, help="run directory or --records-out JSON")
+    ap.add_argument("--top", type=int, default=10, help="list the N records that moved most")
 
 
 PARTS = {"run": (part_run, _run_arguments), "diff": (part_diff, _diff_arguments)}
