@@ -133,7 +133,7 @@ def part_run(args, out):
         recs = result["records"]
         job_cpu = next(((r.get("seconds") or {}).get("cpu") or {} for r in recs
                         if "cpu" in (r.get("seconds") or {})), {})
-        cc = float(job_cpu.get("calibrate_compare", math.nan))
+        cc = float(job_cpu.get("calibrate_compare", 0.0))   # 0: the job failed earlier
         by_part = {}
         for (c, part), x in cpu.items():
             by_part.setdefault(c, [0.0] * 4)[PARTS_TIMED.index(part)] += x
