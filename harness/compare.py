@@ -156,10 +156,10 @@ reference_models.kernels (the equations of reference_models.cahvore
 point by point, within 1e-10 px of fit.project; the maps of 42 jpl/mrcal
 records of paper jobs within 1.1e-10 px, their rms and max within 1e-11 px);
 any other fit (OpenCV, COLMAP) with its own project(). projection_difference
-projects with it; _fit_rotation does not: the rotation's least-squares path
-is sensitive to the last bits of the residuals (the compiled projection there
-moved the maps by up to 8e-8 px), so it keeps fit.project and the fitted
-rotation is unchanged.
+projects with it, and so does _fit_rotation (_residuals_of): the rotation's
+least-squares path is sensitive to the last bits of the residuals: the
+compiled projection moved the paper campaign's 172 ok records by at most
+5.5e-7 of their sigma (benchmarks/bench_fits.py diff), compare() 12-15% faster.
 '''
     from reference_models.kernels import KINDS, pack_model, project_packed
     if getattr(fit, "family", None) not in KINDS:
@@ -175,6 +175,23 @@ rotation is unchanged.
 # steps or a step that does not lower the sum of squares
 ROTATION_SETTLED_PX = 1e-8
 ROTATION_GN_STEPS = 8
+
+# the residual of a point the fit cannot project, px (the rotation fit's)
+UNPROJECTABLE_PX = 1e3
+
+
+def _residuals_of(fit):
+    r'''residuals(p, q) -> (fit.project(p) - q).ravel(), UNPROJECTABLE_PX where not finite;
+compiled for a JPL-family fit (reference_models.kernels.residuals_packed)'''
+    from reference_models.kernels import KINDS, pack_model, residuals_packed
+    if getattr(fit, "family", None) in KINDS:
+        cam = pack_model(fit)
+        return lambda p, q: residuals_packed(cam, np.ascontiguousarray(p), q, UNPROJECTABLE_PX)
+
+    def residuals(p, q):
+        d = fit.project(p) - q
+        return np.where(np.isfinite(d), d, UNPROJECTABLE_PX).ravel()
+    return residuals
 
 
 def _fit_rotation(fit, p_cam, q, nmax=2000):
@@ -195,12 +212,12 @@ px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
     idx = np.flatnonzero(ok)
     if len(idx) > nmax:
         idx = idx[np.linspace(0, len(idx) - 1, nmax).astype(int)]
-    P, Q = p_cam[idx], q[idx]
+    P, Q = p_cam[idx], np.ascontiguousarray(q[idx])
     Rt_ref_cam = fit.Rt_ref_cam()
+    residuals = _residuals_of(fit)
 
     def res(r):
-        d = fit.project(transform_point_Rt(Rt_ref_cam, P @ R_from_r(r).T)) - Q
-        return np.where(np.isfinite(d), d, 1e3).ravel()
+        return residuals(transform_point_Rt(Rt_ref_cam, P @ R_from_r(r).T), Q)
 
     from harness.least_squares import forward_difference, remembering
     r = np.zeros(3)

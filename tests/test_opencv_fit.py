@@ -35,6 +35,24 @@ def test_numpy_projection_is_opencvs(family, dist):
     np.testing.assert_allclose(m.project(p), m.project_cv2(p), rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("family", ["OPENCV5", "RATIONAL", "FISHEYE"])
+def test_projection_keeps_shapes_and_refuses_points_behind(family):
+    dist = {"OPENCV5": [-0.1, 0.02, 1e-3, -2e-3, 0.01], "FISHEYE": [0.03, -0.007, 1e-3, -5e-4],
+            "RATIONAL": [-0.1, 0.02, 1e-3, -2e-3, 0.01, 0.3, -0.05, 0.02]}[family]
+    K = np.array([[1200.0, 0, 510.0], [0, 1210.0, 500.0], [0, 0, 1]])
+    m = OpenCVModel(family, K, dist, 1024, 1024)
+    rng = np.random.default_rng(1)
+    p = np.concatenate((rng.uniform(-1, 1, (4, 5, 2)), rng.uniform(-2, 3, (4, 5, 1))), axis=-1)
+    q = m.project(p)
+    assert q.shape == (4, 5, 2)
+    behind = ~(p[..., 2] > 0)
+    assert behind.any() and np.all(np.isnan(q[behind]))
+    ahead = p[~behind]
+    # a point alone projects as in a batch (the same formulas, point by point)
+    np.testing.assert_allclose(m.project(ahead[0]), q[~behind][0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(q[~behind], m.project_cv2(ahead), rtol=0, atol=1e-9)
+
+
 def test_opencv5_on_a_navcam():
     truth, obs = _obs("15")
     r = calibrate("opencv", obs, TARGET, "OPENCV5")

@@ -76,6 +76,18 @@ EXACT_RMS = 1e-7
 # at its iteration limit: the R0 / focal-length valley makes its Hessian singular, "CHOLMOD
 # warning: not positive definite", and its dogleg falls back to gradient steps): 0.1% everywhere
 # took 119 s on 14 jobs of the paper campaign.
+# Where the CPU goes (benchmarks/bench_fits.py on the paper campaign, session 8): 32 CPU s of
+# image fits over 39 jobs, 85% of it inside mrcal.optimize, mostly restarts that end at
+# libdogleg's iteration limit (CAHVOR: 0.037 s on the coarse grid, 0.145 s on the full one).
+# 78% of it is in the 18 jobs whose floor is far (verdict floor_far: theta != 90 deg, or a
+# CAHVORE that mrcal's LENSMODEL_CAHVORE does not reach; floors 0.015-12.7 px), where the
+# restarts crawl until max_restarts. The crawl is the problem's, not libdogleg's: MINPACK's
+# LM on mrcal.optimizer_callback's Jacobian took 1000-2000+ evaluations in the same valleys
+# (5 and 15 CAHVOR) and stopped elsewhere (5 CAHVOR: 5.205e-4 vs 5.127e-4 px). And these fits
+# are chaotic: the bias correction computed 1e-10 px differently (the compiled projection)
+# moved the gauge figures R0 and R0_frac by 1e4-1e9 sigma (17 and 21 CAHVOR, 2 CAHVORE) and 17
+# CAHVOR's projection difference by 0.4 sigma, and doubled 5 CAHVOR's CPU (0.75 -> 1.53 s). So
+# any change of this recipe moves those records by more than their sigma.
 POLISH_GAIN = 0.99
 POLISH_GAIN_FINE = 0.999
 FINE_RMS = 5e-4
