@@ -1,0 +1,444 @@
+r'''AprilTag corners from the tags' whole border edges, for blurred images
+
+SYNOPSIS
+
+    from targets.tag_edges import refine_tag_edges
+
+    fit = refine_tag_edges(img, Q, sigma, kind, bits=bits)
+    # Q (Ntags,4,2) corners round each tag (coarse: pupil_apriltags', or refined);
+    # sigma, kind: the image's blur (targets.corners.estimate_blur); bits (Ntags,8,8) each
+    # tag's cells (targets.boards.tag36h11_bits: True = white), None: data bits unknown
+    fit.q          # (Ntags*4,2) corners, NaN where dropped
+    fit.reasons    # (Ntags*4,) "" or why the corner was dropped
+
+Why. Blurred (the `realistic` response profile: a PSF of sigma 0.7 px) and noisy, a
+corner fitted in its own window (targets.corners.refine_tag_corners) sees two edges of
+about half a tag bit each: its error is the noise over a few px of edge (0.02-0.03 px RMS
+on the quick cameras against the dots' 0.004-0.006), and on tags of 3-4 px bits no window
+is left once it keeps 3 sigma of blur from the data bits. The tag's black border is a full
+square: each of its four edges is 8 bits long. Here each edge is fitted along its whole
+length, and each corner is where its two edges meet.
+
+The model. Along edge k (from corner k to corner k+1, length L px), with t the position
+along the chord and s the signed distance from it into the tag, the edge is the curve
+s(t) = d0 + d1 tau + d2 tau^2, tau = 2 t / L - 1 in [-1, 1]: straight under a homography,
+bent by lens distortion (a quadratic takes the curvature; what it leaves is the change of
+curvature along the edge). A pixel at distance x from the curve (into the dark side) is
+
+    v = a + b * F(x),  F(x) = P(n . (U + z) <= x)
+
+U uniform on the pixel's square (the area it integrates), z the blur's offset (a Gaussian
+PSF of sigma on the scene, or the "sampled" kernel on the pixel image: blur_kernel's two
+kinds) and n the edge's normal: F is the blurred pixel's dark fraction next to a straight
+edge, exact but for the curve's bend within a pixel (kappa/2 px, kappa ~1e-3/px). F is
+tabulated per blur on a grid of x and of the edge's angle (the pixel's projected width
+depends on it) and interpolated linearly (errors below 1e-6 of the contrast).
+
+The pixels. Each edge uses the pixels that see no other feature of the board through the
+blur: a pixel at distance x and position t is kept where the light gap outside the tag
+(the board's tag spacing) and the dark cells inside it (the 1-bit border, and the data
+bit next to it where that is dark too) reach at least BLUR_REACH_SIGMAS sigma plus the
+pixel's half-diagonal beyond it, and where t is that far from both ends (the corner's
+other edge). The tag's cells are placed by the homography of its four current corners
+(SAFETY_PX more margin for their error and the edges' bend).
+
+The fit: Levenberg-Marquardt on (a, b, d0, d1, d2) of every edge at once, twice: the
+second pass places its pixels with the first pass's corners. A corner is dropped, with the
+reason, when either of its edges has too few pixels, did not converge, misfits by more
+than MAX_MISFIT of its contrast, has too little contrast, or when the two curves do not
+meet within MAX_CORNER_SHIFT_PX of the corner they started from.
+
+Sharp images keep the corner window model (targets.corners): it is exact there to 1e-7 px
+on the ray caster's area renders, which this model is not built to match (its F ignores
+the edge's bend and the tabulation's rounding at sigma 0).
+'''
+
+import functools
+
+import numpy as np
+
+from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, CornerFit, blur_kernel
+
+# px added to every clearance: the coarse corners' error and the bend of an edge between
+# them (a homography of the 4 corners places the cells; the sagitta of a hazcam's 60 px
+# tag edge is ~0.1-0.3 px)
+SAFETY_PX = 0.3
+# fewest pixels an edge's fit needs: 5 parameters, each wants tens of edge pixels to
+# average the noise rather than follow it
+MIN_EDGE_PIXELS = 40
+# the band's half-width beyond the blur's reach (px): plateau pixels fix a and b; more of
+# them add nothing to the edge's position
+PLATEAU_PX = 2.0
+MAX_ITERATIONS = 30
+# converged when no curve coefficient moves by more than this (px): a tenth of 1e-3 px
+CONVERGED_PX = 1e-4
+# the most the meeting point of two fitted edges may move from the corner it started at
+MAX_CORNER_SHIFT_PX = 2.0
+# the tabulation of F: step in x (px) and the angle bins over [0, pi/4]
+TABLE_STEP_PX = 0.01
+TABLE_ANGLES = 9
+# the blur is tabulated to this (px): a sigma off by half of it changes the symmetric edge
+# profile by ~1e-4 of the contrast and moves no edge
+TABLE_SIGMA_STEP_PX = 1e-3
+
+
+def _trapezoid_cdf(x, u, w):
+    r'''P(u U1 + w U2 <= x), U1, U2 uniform on [-1/2, 1/2], u >= w >= 0, u > 0'''
+    a = 0.5 * (u + w)
+    b = 0.5 * (u - w)
+    x = np.asarray(x, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lo = np.where(w > 0, (x + a) ** 2 / (2 * u * w), 0.0)
+        hi = np.where(w > 0, 1.0 - (a - x) ** 2 / (2 * u * w), 1.0)
+    mid = 0.5 + x / u
+    return np.where(x <= -a, 0.0, np.where(x < -b, lo, np.where(x <= b, mid,
+                                                               np.where(x < a, hi, 1.0))))
+
+
+@functools.lru_cache(maxsize=8)
+def _edge_table(sigma, kind):
+    r'''(x0, F (A,X), dF/dx (A,X)): the blurred dark fraction at x px into the dark side, per
+angle bin phi_m = m pi/4 / (A-1) of the normal (folded: |n_x| >= |n_y|)'''
+    from scipy.special import ndtr
+    Z, W, _, _ = blur_kernel([sigma], kind)
+    Z, W = Z[0], W[0]
+    reach = BLUR_REACH_SIGMAS * max(sigma, 0.3) + 2.0
+    x = np.arange(-reach, reach + TABLE_STEP_PX / 2, TABLE_STEP_PX)
+    phi = np.linspace(0.0, np.pi / 4, TABLE_ANGLES)
+    F = np.zeros((len(phi), len(x)))
+    for m, p in enumerate(phi):
+        u, w = np.cos(p), np.sin(p)
+        if kind == "gaussian":
+            # a Gaussian on the scene: E over the pixel's square of Phi((x - n.U) / sigma),
+            # smooth in U: Gauss-Legendre over the square
+            g, gw = np.polynomial.legendre.leggauss(12)
+            nu = (u * g[:, None] + w * g[None, :]).ravel() / 2.0
+            wu = (gw[:, None] * gw[None, :]).ravel() / 4.0
+            F[m] = (wu[:, None] * ndtr((x[None, :] - nu[:, None]) / sigma)).sum(0)
+        else:
+            # the sampled kernel's taps on the pixel image: the exact pixel fraction at
+            # each tap's offset
+            proj = Z @ np.array([u, w])
+            F[m] = (W[:, None] * _trapezoid_cdf(x[None, :] - proj[:, None], u, w)).sum(0)
+    dF = np.gradient(F, TABLE_STEP_PX, axis=1)
+    return float(x[0]), F, dF
+
+
+def _lookup(table, x, phi):
+    r'''F(x) and F'(x) for the folded angles phi (same shape as x), linear in both'''
+    x0, F, dF = table
+    A, X = F.shape
+    fi = np.clip((x - x0) / TABLE_STEP_PX, 0.0, X - 1.000001)
+    i = fi.astype(np.int64)
+    fx = fi - i
+    fa = np.clip(phi / (np.pi / 4) * (A - 1), 0.0, A - 1.000001)
+    j = fa.astype(np.int64)
+    fy = fa - j
+    out = []
+    for T in (F, dF):
+        t0 = T[j, i] * (1 - fx) + T[j, i + 1] * fx
+        t1 = T[j + 1, i] * (1 - fx) + T[j + 1, i + 1] * fx
+        out.append(t0 * (1 - fy) + t1 * fy)
+    # beyond the table the fraction is 0 or 1 and flat
+    below, above = x < x0, x > x0 + (X - 1) * TABLE_STEP_PX
+    out[0] = np.where(below, 0.0, np.where(above, 1.0, out[0]))
+    out[1] = np.where(below | above, 0.0, out[1])
+    return out
+
+
+def _homography(src, dst):
+    r'''(3,3) H with dst ~ H src for 4 point pairs (src, dst (4,2))'''
+    A = []
+    for (x, y), (u, v) in zip(src, dst, strict=True):
+        A.append([x, y, 1, 0, 0, 0, -u * x, -u * y, -u])
+        A.append([0, 0, 0, x, y, 1, -v * x, -v * y, -v])
+    _, _, Vt = np.linalg.svd(np.asarray(A, dtype=np.float64))
+    return Vt[-1].reshape(3, 3)
+
+
+# the tag's corners in its cell coordinates (col, row), pupil_apriltags' order:
+# bottom-left, bottom-right, top-right, top-left of the upright tag (row 0 at the top)
+_TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
+
+
+def _edge_pixels(Qt, bits, k, curve, reach, gap_bits, safety):
+    r'''The pixels of edge k of one tag: (ix, iy, t, s) with s measured from the chord, or
+None; curve (4,) the edge's current (d0, d1, d2, d3)'''
+    P0, P1 = Qt[k], Qt[(k + 1) % 4]
+    e = P1 - P0
+    L = float(np.hypot(*e))
+    if not L > 0:
+        return None
+    e = e / L
+    n = np.array([-e[1], e[0]])
+    if n @ (Qt.mean(0) - P0) < 0:
+        n = -n
+    bit_px = L / 8.0
+    clear = reach + safety
+    out_px = min(gap_bits * bit_px - clear, clear + PLATEAU_PX)
+    t_lo, t_hi = clear, L - clear
+    if not (out_px > 0 and t_hi > t_lo):
+        return None
+    in_max = 2.0 * bit_px - clear            # a dark data bit next to the border
+    in_px = min(in_max, clear + PLATEAU_PX)
+    if not in_px > -out_px:
+        return None
+    # the band's bounding box in pixels
+    smax = float(np.abs(curve).sum())
+    pts = np.array([P0 + t * e + s * n for t in (t_lo, t_hi)
+                    for s in (-out_px - smax, in_px + smax)])
+    x0, y0 = np.floor(pts.min(0)).astype(int)
+    x1, y1 = np.ceil(pts.max(0)).astype(int)
+    from ._tag_edge_kernels import edge_pixels
+    if bits is None:
+        # no data bits known: every cell past the border may be light
+        H = np.eye(3)
+        cells = np.ones((8, 8), bool)
+        in_px = min(in_px, bit_px - clear)
+        if not in_px > -out_px:
+            return None
+    else:
+        H = _homography(Qt, _TAG_CORNERS)
+        cells = np.ascontiguousarray(bits, dtype=np.bool_)
+    # the cells within the reach of a pixel deeper than the border: sampled at steps of at
+    # most one cell
+    rb = clear / bit_px
+    offs = np.linspace(-rb, rb, 2 * int(np.ceil(rb)) + 1)
+    ix, iy, t, s = edge_pixels(P0, e, n, L, np.asarray(curve, dtype=np.float64), t_lo, t_hi,
+                               out_px, in_px, bit_px - clear, H, cells, offs, x0, y0, x1, y1)
+    if len(ix) < MIN_EDGE_PIXELS:
+        return None
+    return ix, iy, t, s, L, e, n
+
+
+def _neighbours(grid, N):
+    r'''{(i, k): [(i2, k)]}: the edges on the same board line in the adjacent tags'''
+    out = {}
+    if grid is None:
+        return out
+    where = {(int(c), int(r)): i for i, (c, r) in enumerate(np.asarray(grid).reshape(N, 2))}
+    for (c, r), i in where.items():
+        for k in range(4):
+            # edges 0 and 2 lie on rows of the board (y = const), 1 and 3 on columns
+            dc, dr = ((1, 0) if k % 2 == 0 else (0, 1))
+            out[(i, k)] = [(where[(c + sgn * dc, r + sgn * dr)], k) for sgn in (-1, 1)
+                           if (c + sgn * dc, r + sgn * dr) in where]
+    return out
+
+
+def refine_tag_edges(image, Q, sigma, kind="gaussian", *, bits=None, grid=None, gap_bits=2.4,
+                     value_range=None, passes=2, max_misfit=MAX_MISFIT,
+                     min_contrast=MIN_CONTRAST):
+    r'''Corners of AprilTags from their four whole border edges; see the module docstring
+
+ARGUMENTS
+
+- image: (H,W) float image, linear in albedo
+- Q: (Ntags,4,2) corners round each tag (NaN: not detected)
+- sigma, kind: the blur (targets.corners.blur_kernel), px; sigma > 0
+- bits: (Ntags,8,8) bool cells of each tag, True = white (None: every data bit light)
+- grid: (Ntags,2) each tag's (column, row) on the board (None: tags fitted alone); an
+  edge is fitted together with the edges on the same board line of the adjacent tags
+- gap_bits: tag bits of light board between a tag and its neighbour (tag_spacing x 8)
+- value_range: the image's max - min (the contrast test's scale; default computed)
+
+RETURNED VALUE: a targets.corners.CornerFit of the Ntags*4 corners (info: "corner_model",
+the edge fits' median misfit)
+'''
+    img = np.asarray(image)
+    H, W = img.shape
+    Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
+    N = len(Q)
+    if bits is not None:
+        bits = np.asarray(bits, dtype=bool).reshape(N, 8, 8)
+    rng = float(value_range) if value_range is not None else float(np.nanmax(img) - np.nanmin(img))
+    table = _edge_table(round(float(sigma) / TABLE_SIGMA_STEP_PX) * TABLE_SIGMA_STEP_PX, kind)
+    reach = BLUR_REACH_SIGMAS * float(sigma) + np.sqrt(0.5)
+    nbrs = _neighbours(grid, N)
+    q = Q.copy()
+    # each edge's current curve as image points (None: the chord)
+    shapes = {}
+    why_edge = np.full((N, 4), "", dtype=object)
+    lost = np.full(N, "", dtype=object)
+    mis_edge = np.full((N, 4), np.nan)
+    for _ in range(passes):
+        why_edge = np.full((N, 4), "", dtype=object)
+        own = {}
+        for i in range(N):
+            if not np.all(np.isfinite(q[i])):
+                why_edge[i] = lost[i] or "not detected"
+                continue
+            for k in range(4):
+                curve = _curve_in_frame(q[i], k, shapes.get((i, k)))
+                px = _edge_pixels(q[i], None if bits is None else bits[i], k, curve,
+                                  reach, gap_bits, SAFETY_PX)
+                if px is None:
+                    why_edge[i, k] = "edge too short for its blur"
+                    continue
+                ix, iy = px[0], px[1]
+                if ix.min() < 0 or iy.min() < 0 or ix.max() >= W or iy.max() >= H:
+                    why_edge[i, k] = "edge off the image"
+                    continue
+                own[(i, k)] = px
+        if not own:
+            break
+        # each edge with the pixels of its board line's neighbours, in its own frame
+        geo = []
+        for (i, k), (ix, iy, t, s, L, e, n) in own.items():
+            members = [own[m] for m in nbrs.get((i, k), []) if m in own]
+            if members:
+                ix = np.concatenate([ix] + [m[0] for m in members])
+                iy = np.concatenate([iy] + [m[1] for m in members])
+                r = np.stack((ix, iy), -1) - q[i, k]
+                t, s = r @ e, r @ n
+            cubic = bool(members)
+            geo.append((i, k, ix, iy, t, s, L, e, n, cubic))
+        fits = _fit_edges(img, geo, table)
+        curves = {}
+        for (i, k, *_rest), (p, ok, mis) in zip(geo, fits, strict=True):
+            mis_edge[i, k] = mis
+            if not ok:
+                why_edge[i, k] = f"edge fit not converged in {MAX_ITERATIONS} iterations"
+            elif not abs(p[1]) > min_contrast * rng:
+                why_edge[i, k] = "no contrast"
+            elif not mis <= max_misfit:
+                why_edge[i, k] = f"misfit: {mis:.3g} of the contrast"
+            curves[(i, k)] = p[2:]
+        frames = {(g[0], g[1]): (g[6], g[7], g[8]) for g in geo}
+        qn = np.full((N, 4, 2), np.nan)
+        for i in range(N):
+            for k in range(4):
+                a, b = (k - 1) % 4, k           # edge a ends at corner k, edge b starts there
+                if why_edge[i, a] or why_edge[i, b]:
+                    continue
+                qn[i, k] = _meet(q[i, a], frames[(i, a)], curves[(i, a)],
+                                 q[i, b], frames[(i, b)], curves[(i, b)])
+        # the next pass places its pixels about these curves, its chords through these corners
+        shapes = {}
+        for (i, k), c in curves.items():
+            L, e, n = frames[(i, k)]
+            tt = np.linspace(0.0, L, 9)
+            shapes[(i, k)] = np.array([_curve_point(q[i, k], frames[(i, k)], c, x)[0]
+                                       for x in tt])
+        moved = np.linalg.norm(qn - q, axis=-1)
+        far = ~(moved <= MAX_CORNER_SHIFT_PX)
+        for i in np.flatnonzero(far.any(-1) & np.isfinite(qn).all((-1, -2))):
+            lost[i] = "edges meet far from the corner"
+        q = np.where(far[..., None], np.nan, qn)
+        q[far.any(-1)] = np.nan
+    reasons = np.full((N, 4), "", dtype=object)
+    for i in range(N):
+        for k in range(4):
+            a, b = (k - 1) % 4, k
+            r = why_edge[i, a] or why_edge[i, b]
+            if r:
+                reasons[i, k] = r
+            elif not np.all(np.isfinite(q[i, k])):
+                reasons[i, k] = lost[i] or "edges do not meet near the corner"
+    q = np.where((reasons == "")[..., None], q, np.nan)
+    good = np.isfinite(mis_edge)
+    return CornerFit(q=q.reshape(-1, 2), reasons=reasons.ravel(),
+                     misfit=np.repeat(np.nanmax(np.where(good, mis_edge, -1.0), axis=1), 4),
+                     npixels=np.zeros(N * 4, np.int64),
+                     info={"corner_model": "tag edges",
+                           "edge_misfit_median": float(np.median(mis_edge[good]))
+                           if good.any() else float("nan")})
+
+
+def _curve_in_frame(Qt, k, points):
+    r'''(d0, d1, d2, d3) of a curve through points (M,2) in the frame of edge k's chord
+(zeros for None)'''
+    if points is None:
+        return np.zeros(4)
+    P0, P1 = Qt[k], Qt[(k + 1) % 4]
+    e = P1 - P0
+    L = float(np.hypot(*e))
+    e = e / L
+    n = np.array([-e[1], e[0]])
+    if n @ (Qt.mean(0) - P0) < 0:
+        n = -n
+    r = points - P0
+    tau = 2.0 * (r @ e) / L - 1.0
+    return np.concatenate((np.polynomial.polynomial.polyfit(tau, r @ n, 2), [0.0]))
+
+
+def _curve_point(P0, frame, curve, t):
+    L, e, n = frame
+    tau = 2.0 * t / L - 1.0
+    s = curve[0] + tau * (curve[1] + tau * (curve[2] + tau * curve[3]))
+    ds = (curve[1] + tau * (2.0 * curve[2] + 3.0 * tau * curve[3])) * 2.0 / L
+    return P0 + t * e + s * n, e + ds * n
+
+
+def _meet(Pa, fa, ca, Pb, fb, cb, iterations=8):
+    r'''Where curve a (near its end t = L) meets curve b (near its start t = 0): Newton'''
+    ta, tb = fa[0], 0.0
+    for _ in range(iterations):
+        pa, ga = _curve_point(Pa, fa, ca, ta)
+        pb, gb = _curve_point(Pb, fb, cb, tb)
+        J = np.stack((ga, -gb), axis=-1)
+        try:
+            d = np.linalg.solve(J, pb - pa)
+        except np.linalg.LinAlgError:
+            return np.full(2, np.nan)
+        ta, tb = ta + d[0], tb + d[1]
+        if np.abs(d).max() < 1e-10:
+            break
+    return _curve_point(Pa, fa, ca, ta)[0]
+
+
+def _fit_edges(img, geo, table):
+    r'''Levenberg-Marquardt of every edge's (a, b, d0..d3) at once, d3 = 0 unless the
+edge has its neighbours' pixels: [(p (6,), converged, misfit RMS / contrast)] per edge'''
+    m = len(geo)
+    P = max(len(g[2]) for g in geo)
+    v = np.zeros((m, P))
+    w = np.zeros((m, P))
+    tau = np.zeros((m, P))
+    s = np.zeros((m, P))
+    phi = np.zeros(m)
+    cubic = np.zeros(m)
+    for j, (_i, _k, ix, iy, t, sj, L, _e, n, cub) in enumerate(geo):
+        c = len(ix)
+        v[j, :c] = img[iy, ix]
+        w[j, :c] = 1.0
+        tau[j, :c] = 2.0 * t / L - 1.0
+        s[j, :c] = sj
+        u_, w_ = abs(n[0]), abs(n[1])
+        phi[j] = np.arctan2(min(u_, w_), max(u_, w_))
+        cubic[j] = float(cub)
+    from ._tag_edge_kernels import edge_normal
+    x0, F, dF = table
+    A = F.shape[0]
+    fa = np.clip(phi / (np.pi / 4) * (A - 1), 0.0, A - 1.000001)
+    j0 = fa.astype(np.int64)
+    fy = fa - j0
+    d = np.zeros((m, 4))
+
+    def evaluate(d):
+        return edge_normal(v, w, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF)
+
+    a, b, S, JtJ, Jtr = evaluate(d)
+    lam = np.full(m, 1e-3)
+    done = np.zeros(m, bool)
+    eye = np.eye(6)
+    for _ in range(MAX_ITERATIONS):
+        if done.all():
+            break
+        diag = np.einsum("nii->ni", JtJ)
+        step = np.linalg.solve(JtJ + (lam[:, None] * diag)[:, :, None] * eye + 1e-12 * eye,
+                               Jtr[..., None])[..., 0]
+        d1 = d + np.where(done[:, None], 0.0, step[:, 2:])
+        a1, b1, S1, JtJ1, Jtr1 = evaluate(d1)
+        better = (S1 <= S) & ~done
+        d = np.where(better[:, None], d1, d)
+        a, b, S = np.where(better, a1, a), np.where(better, b1, b), np.where(better, S1, S)
+        JtJ = np.where(better[:, None, None], JtJ1, JtJ)
+        Jtr = np.where(better[:, None], Jtr1, Jtr)
+        lam = np.where(better, np.maximum(lam * 0.3, 1e-7), lam * 10.0)
+        small = np.abs(step[:, 2:]).max(-1) < CONVERGED_PX
+        done |= (better & small) | (lam > 1e6)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mis = np.sqrt(S / w.sum(-1)) / np.abs(b)
+    p = np.concatenate((a[:, None], b[:, None], d), axis=-1)
+    return [(p[j], bool(done[j]), float(mis[j])) for j in range(m)]
