@@ -102,13 +102,17 @@ def edge_normal(v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF):
 
 @njit(cache=True, error_model="numpy")
 def edge_pixels(P0, e, n, L, curve, t_lo, t_hi, out_px, in_px, deep_px, H, bits, offs,
-                x0, y0, x1, y1):
+                x0, y0, x1, y1, k, bit_px, Pa, na, Pb, nb):
     r'''The pixels of one tag edge's band (targets.tag_edges._edge_pixels): (ix, iy, t, s)
 
 Pixels with centre at t in [t_lo, t_hi] along the chord and x = s - curve(tau) in
 [-out_px, in_px]; those deeper than deep_px must see only dark cells of bits (8,8, True =
-light) at the offsets offs (cells) about their position in the tag's cells (H: image ->
-cells homography).'''
+light) at the offsets offs (cells) about their position in the tag's cells: along edge k
+by the homography H (image -> cells) of the tag's corners, across it by the depth x /
+bit_px from the curve (lens distortion bends the edge away from the homography's line by
+up to a px on a fisheye's tag). A pixel keeps the clearance t_lo from the lines of the two
+adjacent edges too (through Pa, Pb with normals na, nb into the tag): a tag seen obliquely
+meets them at an angle off 90 deg.'''
     cap = (x1 - x0 + 1) * (y1 - y0 + 1)
     oix = np.empty(cap, np.int64)
     oiy = np.empty(cap, np.int64)
@@ -128,10 +132,25 @@ cells homography).'''
             x = s - (curve[0] + tau * (curve[1] + tau * (curve[2] + tau * curve[3])))
             if x < -out_px or x > in_px:
                 continue
+            if (xx - Pa[0]) * na[0] + (yy - Pa[1]) * na[1] < t_lo:
+                continue
+            if (xx - Pb[0]) * nb[0] + (yy - Pb[1]) * nb[1] < t_lo:
+                continue
             if x > deep_px:
                 w = H[2, 0] * xx + H[2, 1] * yy + H[2, 2]
                 u = (H[0, 0] * xx + H[0, 1] * yy + H[0, 2]) / w
                 v = (H[1, 0] * xx + H[1, 1] * yy + H[1, 2]) / w
+                depth = x / bit_px
+                # edges 0..3 of pupil_apriltags' order: bottom (v = 8), right (u = 8),
+                # top (v = 0), left (u = 0) of the upright tag
+                if k == 0:
+                    v = 8.0 - depth
+                elif k == 1:
+                    u = 8.0 - depth
+                elif k == 2:
+                    v = depth
+                else:
+                    u = depth
                 ok = True
                 for a in range(no):
                     for b in range(no):

@@ -173,13 +173,16 @@ None; curve (4,) the edge's current (d0, d1, d2, d3)'''
     n = np.array([-e[1], e[0]])
     if n @ (Qt.mean(0) - P0) < 0:
         n = -n
+    # a bit along the edge, and across it (the adjacent edges' bits: a tag seen obliquely
+    # has bits of different sizes along its two axes)
     bit_px = L / 8.0
+    deep_bit = min(np.hypot(*(Qt[(k - 1) % 4] - P0)), np.hypot(*(Qt[(k + 2) % 4] - P1))) / 8.0
     clear = reach + safety
-    out_px = min(gap_bits * bit_px - clear, clear + PLATEAU_PX)
+    out_px = min(gap_bits * deep_bit - clear, clear + PLATEAU_PX)
     t_lo, t_hi = clear, L - clear
     if not (out_px > 0 and t_hi > t_lo):
         return None
-    in_max = 2.0 * bit_px - clear            # a dark data bit next to the border
+    in_max = 2.0 * deep_bit - clear          # a dark data bit next to the border
     in_px = min(in_max, clear + PLATEAU_PX)
     if not in_px > -out_px:
         return None
@@ -194,7 +197,7 @@ None; curve (4,) the edge's current (d0, d1, d2, d3)'''
         # no data bits known: every cell past the border may be light
         H = np.eye(3)
         cells = np.ones((8, 8), bool)
-        in_px = min(in_px, bit_px - clear)
+        in_px = min(in_px, deep_bit - clear)
         if not in_px > -out_px:
             return None
     else:
@@ -202,10 +205,18 @@ None; curve (4,) the edge's current (d0, d1, d2, d3)'''
         cells = np.ascontiguousarray(bits, dtype=np.bool_)
     # the cells within the reach of a pixel deeper than the border: sampled at steps of at
     # most one cell
-    rb = clear / bit_px
+    rb = clear / min(bit_px, deep_bit)
     offs = np.linspace(-rb, rb, 2 * int(np.ceil(rb)) + 1)
+    # the adjacent edges' lines, their normals into the tag
+    centre = Qt.mean(0)
+    adj = []
+    for A, B in ((Qt[(k - 1) % 4], P0), (P1, Qt[(k + 2) % 4])):
+        g = (B - A) / np.hypot(*(B - A))
+        m = np.array([-g[1], g[0]])
+        adj.append((A, m if m @ (centre - A) > 0 else -m))
     ix, iy, t, s = edge_pixels(P0, e, n, L, np.asarray(curve, dtype=np.float64), t_lo, t_hi,
-                               out_px, in_px, bit_px - clear, H, cells, offs, x0, y0, x1, y1)
+                               out_px, in_px, deep_bit - clear, H, cells, offs, x0, y0, x1, y1, k,
+                               deep_bit, adj[0][0], adj[0][1], adj[1][0], adj[1][1])
     if len(ix) < MIN_EDGE_PIXELS:
         return None
     return ix, iy, t, s, L, e, n
