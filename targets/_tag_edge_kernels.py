@@ -4,12 +4,13 @@ SYNOPSIS
 
     from targets._tag_edge_kernels import edge_normal
 
-    a, b, S, JtJ, Jtr = edge_normal(v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF)
-    # v, w, tau, s (m,P): each edge's pixel values, weights (0: padding), positions along
-    # the chord (tau) and distances from it (s, px); cubic (m,) 1.0 where d3 is fitted;
-    # j0, fy (m,): the angle bin and fraction of each edge's normal; d (m,4) the curves;
-    # x0, h, F, dF (A,X): targets.tag_edges._edge_table; a, b, S (m,) the light level,
-    # contrast and weighted squared misfit at d; JtJ (m,6,6), Jtr (m,6) the normal
+    a, b, S, JtJ, Jtr = edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF)
+    # rows (m,) the edges to evaluate (of n); d (m,4) their curves; v, w, tau, s (n,P):
+    # each edge's pixel values, weights (0: padding), positions along the chord (tau) and
+    # distances from it (s, px); cubic (n,) 1.0 where d3 is fitted; j0, fy (n,): the angle
+    # bin and fraction of each edge's normal; x0, h, F, dF (A,X):
+    # targets.tag_edges._edge_table; a, b, S (m,) the light level, contrast and weighted
+    # squared misfit at d; JtJ (m,6,6), Jtr (m,6) the normal
     # equations in (a, b, d0, d1, d2, d3)
 
 The model of pixel p of edge j: v = a + b F(x), x = s - (d0 + d1 tau + d2 tau^2 + d3 tau^3),
@@ -22,8 +23,9 @@ from numba import njit
 
 
 @njit(cache=True, error_model="numpy")
-def edge_normal(v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF):
-    m, P = v.shape
+def edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF):
+    m = len(rows)
+    P = v.shape[1]
     X = F.shape[1]
     a = np.zeros(m)
     b = np.zeros(m)
@@ -33,7 +35,8 @@ def edge_normal(v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF):
     Fv = np.zeros(P)
     dFv = np.zeros(P)
     J = np.zeros(6)
-    for j in range(m):
+    for jj in range(m):
+        j = rows[jj]
         ja = j0[j]
         fa = fy[j]
         sw = 0.0
@@ -46,7 +49,7 @@ def edge_normal(v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF):
             if wp == 0.0:
                 continue
             t = tau[j, p]
-            x = s[j, p] - (d[j, 0] + t * (d[j, 1] + t * (d[j, 2] + t * d[j, 3] * cubic[j])))
+            x = s[j, p] - (d[jj, 0] + t * (d[jj, 1] + t * (d[jj, 2] + t * d[jj, 3] * cubic[j])))
             fi = (x - x0) / h
             if fi <= 0.0:
                 f, df = 0.0, 0.0
@@ -72,8 +75,8 @@ def edge_normal(v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF):
         det = sw * sff - sf * sf
         bj = (sw * sfv - sf * sv) / det
         aj = (sv - bj * sf) / sw
-        a[j] = aj
-        b[j] = bj
+        a[jj] = aj
+        b[jj] = bj
         acc = 0.0
         for p in range(P):
             wp = w[j, p]
@@ -90,13 +93,13 @@ def edge_normal(v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF):
             J[4] = g * t * t
             J[5] = g * t * t * t * cubic[j]
             for k in range(6):
-                Jtr[j, k] += wp * J[k] * r
+                Jtr[jj, k] += wp * J[k] * r
                 for l in range(k + 1):
-                    JtJ[j, k, l] += wp * J[k] * J[l]
-        S[j] = acc
+                    JtJ[jj, k, l] += wp * J[k] * J[l]
+        S[jj] = acc
         for k in range(6):
             for l in range(k):
-                JtJ[j, l, k] = JtJ[j, k, l]
+                JtJ[jj, l, k] = JtJ[jj, k, l]
     return a, b, S, JtJ, Jtr
 
 

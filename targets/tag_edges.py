@@ -68,7 +68,7 @@ SAFETY_PX = 0.3
 MIN_EDGE_PIXELS = 40
 # the band's half-width beyond the blur's reach (px): plateau pixels fix a and b; more of
 # them add nothing to the edge's position
-PLATEAU_PX = 2.0
+PLATEAU_PX = 1.0
 MAX_ITERATIONS = 30
 # converged when no curve coefficient moves by more than this (px): a tenth of 1e-3 px
 CONVERGED_PX = 1e-4
@@ -272,9 +272,9 @@ the edge fits' median misfit)
     why_edge = np.full((N, 4), "", dtype=object)
     lost = np.full(N, "", dtype=object)
     mis_edge = np.full((N, 4), np.nan)
-    for _ in range(passes):
+    for npass in range(passes):
         why_edge = np.full((N, 4), "", dtype=object)
-        own = {}
+        own, start = {}, {}
         for i in range(N):
             if not np.all(np.isfinite(q[i])):
                 why_edge[i] = lost[i] or "not detected"
@@ -291,19 +291,21 @@ the edge fits' median misfit)
                     why_edge[i, k] = "edge off the image"
                     continue
                 own[(i, k)] = px
+                start[(i, k)] = curve
         if not own:
             break
         # each edge with the pixels of its board line's neighbours, in its own frame
         geo = []
         for (i, k), (ix, iy, t, s, L, e, n) in own.items():
-            members = [own[m] for m in nbrs.get((i, k), []) if m in own]
+            # the first pass only places the second's pixels: each edge alone
+            members = [own[m] for m in nbrs.get((i, k), []) if m in own] if npass else []
             if members:
                 ix = np.concatenate([ix] + [m[0] for m in members])
                 iy = np.concatenate([iy] + [m[1] for m in members])
                 r = np.stack((ix, iy), -1) - q[i, k]
                 t, s = r @ e, r @ n
             cubic = bool(members)
-            geo.append((i, k, ix, iy, t, s, L, e, n, cubic))
+            geo.append((i, k, ix, iy, t, s, L, e, n, cubic, start[(i, k)]))
         fits = _fit_edges(img, geo, table)
         curves = {}
         for (i, k, *_rest), (p, ok, mis) in zip(geo, fits, strict=True):
@@ -409,7 +411,7 @@ edge has its neighbours' pixels: [(p (6,), converged, misfit RMS / contrast)] pe
     s = np.zeros((m, P))
     phi = np.zeros(m)
     cubic = np.zeros(m)
-    for j, (_i, _k, ix, iy, t, sj, L, _e, n, cub) in enumerate(geo):
+    for j, (_i, _k, ix, iy, t, sj, L, _e, n, cub, _d) in enumerate(geo):
         c = len(ix)
         v[j, :c] = img[iy, ix]
         w[j, :c] = 1.0
@@ -424,31 +426,33 @@ edge has its neighbours' pixels: [(p (6,), converged, misfit RMS / contrast)] pe
     fa = np.clip(phi / (np.pi / 4) * (A - 1), 0.0, A - 1.000001)
     j0 = fa.astype(np.int64)
     fy = fa - j0
-    d = np.zeros((m, 4))
+    # the start: each edge's current curve (cubic term 0)
+    d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
 
-    def evaluate(d):
-        return edge_normal(v, w, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF)
+    def evaluate(rows, d):
+        return edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF)
 
-    a, b, S, JtJ, Jtr = evaluate(d)
+    a, b, S, JtJ, Jtr = evaluate(np.arange(m), d)
     lam = np.full(m, 1e-3)
     done = np.zeros(m, bool)
     eye = np.eye(6)
     for _ in range(MAX_ITERATIONS):
-        if done.all():
+        rows = np.flatnonzero(~done)
+        if not len(rows):
             break
-        diag = np.einsum("nii->ni", JtJ)
-        step = np.linalg.solve(JtJ + (lam[:, None] * diag)[:, :, None] * eye + 1e-12 * eye,
-                               Jtr[..., None])[..., 0]
-        d1 = d + np.where(done[:, None], 0.0, step[:, 2:])
-        a1, b1, S1, JtJ1, Jtr1 = evaluate(d1)
-        better = (S1 <= S) & ~done
-        d = np.where(better[:, None], d1, d)
-        a, b, S = np.where(better, a1, a), np.where(better, b1, b), np.where(better, S1, S)
-        JtJ = np.where(better[:, None, None], JtJ1, JtJ)
-        Jtr = np.where(better[:, None], Jtr1, Jtr)
-        lam = np.where(better, np.maximum(lam * 0.3, 1e-7), lam * 10.0)
+        A_ = JtJ[rows]
+        diag = np.einsum("nii->ni", A_)
+        step = np.linalg.solve(A_ + (lam[rows, None] * diag)[:, :, None] * eye + 1e-12 * eye,
+                               Jtr[rows][..., None])[..., 0]
+        d1 = d[rows] + step[:, 2:]
+        a1, b1, S1, JtJ1, Jtr1 = evaluate(rows, d1)
+        better = S1 <= S[rows]
+        rb = rows[better]
+        d[rb], a[rb], b[rb], S[rb] = d1[better], a1[better], b1[better], S1[better]
+        JtJ[rb], Jtr[rb] = JtJ1[better], Jtr1[better]
+        lam[rows] = np.where(better, np.maximum(lam[rows] * 0.3, 1e-7), lam[rows] * 10.0)
         small = np.abs(step[:, 2:]).max(-1) < CONVERGED_PX
-        done |= (better & small) | (lam > 1e6)
+        done[rows] = (better & small) | (lam[rows] > 1e6)
     with np.errstate(divide="ignore", invalid="ignore"):
         mis = np.sqrt(S / w.sum(-1)) / np.abs(b)
     p = np.concatenate((a[:, None], b[:, None], d), axis=-1)
