@@ -4,13 +4,15 @@ SYNOPSIS
 
     from targets._tag_edge_kernels import edge_normal
 
-    a, b, S, JtJ, Jtr = edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF)
+    a, b, S, JtJ, Jtr = edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF,
+                                    bfix)
     # rows (m,) the edges to evaluate (of n); d (m,4) their curves; v, w, tau, s (n,P):
     # each edge's pixel values, weights (0: padding), positions along the chord (tau) and
     # distances from it (s, px); cubic (n,) 1.0 where d3 is fitted; j0, fy (n,): the angle
     # bin and fraction of each edge's normal; x0, h, F, dF (A,X):
     # targets.tag_edges._edge_table; a, b, S (m,) the light level, contrast and weighted
-    # squared misfit at d; JtJ (m,6,6), Jtr (m,6) the normal
+    # squared misfit at d; JtJ (m,6,6), Jtr (m,6) the normal equations; bfix (n,) the
+    # contrast of an edge whose b is given (NaN: fitted)
     # equations in (a, b, d0, d1, d2, d3)
 
 The model of pixel p of edge j: v = a + b F(x), x = s - (d0 + d1 tau + d2 tau^2 + d3 tau^3),
@@ -23,7 +25,7 @@ from numba import njit
 
 
 @njit(cache=True, error_model="numpy")
-def edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF):
+def edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix):
     m = len(rows)
     P = v.shape[1]
     X = F.shape[1]
@@ -72,8 +74,11 @@ def edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF):
             sff += wp * f * f
             sv += wp * vp
             sfv += wp * f * vp
-        det = sw * sff - sf * sf
-        bj = (sw * sfv - sf * sv) / det
+        if np.isnan(bfix[j]):
+            det = sw * sff - sf * sf
+            bj = (sw * sfv - sf * sv) / det
+        else:
+            bj = bfix[j]
         aj = (sv - bj * sf) / sw
         a[jj] = aj
         b[jj] = bj
@@ -87,7 +92,7 @@ def edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF):
             acc += wp * r * r
             g = -bj * dFv[p]
             J[0] = 1.0
-            J[1] = Fv[p]
+            J[1] = Fv[p] if np.isnan(bfix[j]) else 0.0
             J[2] = g
             J[3] = g * t
             J[4] = g * t * t

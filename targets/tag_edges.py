@@ -64,12 +64,16 @@ from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, CornerFit, blu
 # tag edge is ~0.1-0.3 px)
 SAFETY_PX = 0.3
 # fewest pixels an edge's fit needs: 5 parameters, each wants tens of edge pixels to
-# average the noise rather than follow it
+# average the noise rather than follow it; half of them on the edge's dark side (a band
+# that sees only the light side's tail of the blurred edge places it 5-20x worse)
 MIN_EDGE_PIXELS = 40
 # the band's half-width beyond the blur's reach (px): plateau pixels fix a and b; more of
 # them add nothing to the edge's position
 PLATEAU_PX = 1.0
 MAX_ITERATIONS = 30
+# pixels on the dark plateau (beyond the blur's reach inside the edge) an edge needs for its
+# own contrast; with fewer it takes its tag's (_fit_contrast_first)
+MIN_PLATEAU_PIXELS = 10
 # converged when no curve coefficient moves by more than this (px): a tenth of 1e-3 px
 CONVERGED_PX = 1e-4
 # the most the meeting point of two fitted edges may move from the corner it started at
@@ -219,6 +223,9 @@ None; curve (4,) the edge's current (d0, d1, d2, d3)'''
                                deep_bit, adj[0][0], adj[0][1], adj[1][0], adj[1][1])
     if len(ix) < MIN_EDGE_PIXELS:
         return None
+    tau = 2.0 * t / L - 1.0
+    if np.count_nonzero(s - _curve_s(curve, tau) >= 0.0) < MIN_EDGE_PIXELS // 2:
+        return "edge seen from its light side only (tag bits too small for the blur)"
     return ix, iy, t, s, L, e, n
 
 
@@ -270,21 +277,22 @@ the edge fits' median misfit)
     # each edge's current curve as image points (None: the chord)
     shapes = {}
     why_edge = np.full((N, 4), "", dtype=object)
-    lost = np.full(N, "", dtype=object)
     mis_edge = np.full((N, 4), np.nan)
+    far = np.zeros((N, 4), bool)
+    found = np.full((N, 4, 2), np.nan)
     for npass in range(passes):
         why_edge = np.full((N, 4), "", dtype=object)
         own, start = {}, {}
         for i in range(N):
             if not np.all(np.isfinite(q[i])):
-                why_edge[i] = lost[i] or "not detected"
+                why_edge[i] = "not detected"
                 continue
             for k in range(4):
                 curve = _curve_in_frame(q[i], k, shapes.get((i, k)))
                 px = _edge_pixels(q[i], None if bits is None else bits[i], k, curve,
                                   reach, gap_bits, SAFETY_PX)
-                if px is None:
-                    why_edge[i, k] = "edge too short for its blur"
+                if px is None or isinstance(px, str):
+                    why_edge[i, k] = px or "edge too short for its blur"
                     continue
                 ix, iy = px[0], px[1]
                 if ix.min() < 0 or iy.min() < 0 or ix.max() >= W or iy.max() >= H:
@@ -306,7 +314,7 @@ the edge fits' median misfit)
                 t, s = r @ e, r @ n
             cubic = bool(members)
             geo.append((i, k, ix, iy, t, s, L, e, n, cubic, start[(i, k)]))
-        fits = _fit_edges(img, geo, table)
+        fits = _fit_contrast_first(img, geo, table, reach)
         curves = {}
         for (i, k, *_rest), (p, ok, mis) in zip(geo, fits, strict=True):
             mis_edge[i, k] = mis
@@ -333,12 +341,11 @@ the edge fits' median misfit)
             tt = np.linspace(0.0, L, 9)
             shapes[(i, k)] = np.array([_curve_point(q[i, k], frames[(i, k)], c, x)[0]
                                        for x in tt])
-        moved = np.linalg.norm(qn - q, axis=-1)
-        far = ~(moved <= MAX_CORNER_SHIFT_PX)
-        for i in np.flatnonzero(far.any(-1) & np.isfinite(qn).all((-1, -2))):
-            lost[i] = "edges meet far from the corner"
-        q = np.where(far[..., None], np.nan, qn)
-        q[far.any(-1)] = np.nan
+        far = np.linalg.norm(qn - q, axis=-1) > MAX_CORNER_SHIFT_PX
+        found = np.where(far[..., None], np.nan, qn)
+        # a corner not found keeps its place for the next pass's chords (its edges are
+        # fitted again, and judged there)
+        q = np.where(np.isfinite(found), found, q)
     reasons = np.full((N, 4), "", dtype=object)
     for i in range(N):
         for k in range(4):
@@ -346,9 +353,11 @@ the edge fits' median misfit)
             r = why_edge[i, a] or why_edge[i, b]
             if r:
                 reasons[i, k] = r
-            elif not np.all(np.isfinite(q[i, k])):
-                reasons[i, k] = lost[i] or "edges do not meet near the corner"
-    q = np.where((reasons == "")[..., None], q, np.nan)
+            elif far[i, k]:
+                reasons[i, k] = "edges meet far from the corner"
+            elif not np.all(np.isfinite(found[i, k])):
+                reasons[i, k] = "edges do not meet near the corner"
+    q = np.where((reasons == "")[..., None], found, np.nan)
     good = np.isfinite(mis_edge)
     return CornerFit(q=q.reshape(-1, 2), reasons=reasons.ravel(),
                      misfit=np.repeat(np.nanmax(np.where(good, mis_edge, -1.0), axis=1), 4),
@@ -356,6 +365,43 @@ the edge fits' median misfit)
                      info={"corner_model": "tag edges",
                            "edge_misfit_median": float(np.median(mis_edge[good]))
                            if good.any() else float("nan")})
+
+
+def _fit_contrast_first(img, geo, table, reach):
+    r'''_fit_edges: first the edges whose band reaches the dark plateau (MIN_PLATEAU_PIXELS
+at least reach px inside the curve), then the others with the contrast b given, the median
+of their tag's plateau edges (else of the image's): a band that sees only the light side of
+an edge (bits of 2-3 px across, a tag seen obliquely) cannot tell the contrast from the
+edge's position'''
+    deep = np.array([np.count_nonzero(g[5] - _curve_s(g[10], 2.0 * g[4] / g[6] - 1.0) >= reach)
+                     >= MIN_PLATEAU_PIXELS for g in geo])
+    fits = [None] * len(geo)
+    first = np.flatnonzero(deep)
+    if len(first):
+        for j, f in zip(first, _fit_edges(img, [geo[j] for j in first], table), strict=True):
+            fits[j] = f
+    rest = np.flatnonzero(~deep)
+    if not len(rest):
+        return fits
+    bs = {}
+    for j in first:
+        if fits[j][1]:
+            bs.setdefault(geo[j][0], []).append(fits[j][0][1])
+    every = [b for v in bs.values() for b in v]
+    if not every:
+        # no edge sees its plateau: fit them all free (poorly conditioned, judged by misfit)
+        for j, f in zip(rest, _fit_edges(img, [geo[j] for j in rest], table), strict=True):
+            fits[j] = f
+        return fits
+    ball = float(np.median(every))
+    bfix = [float(np.median(bs[geo[j][0]])) if geo[j][0] in bs else ball for j in rest]
+    for j, f in zip(rest, _fit_edges(img, [geo[j] for j in rest], table, bfix), strict=True):
+        fits[j] = f
+    return fits
+
+
+def _curve_s(d, tau):
+    return d[0] + tau * (d[1] + tau * (d[2] + tau * d[3]))
 
 
 def _curve_in_frame(Qt, k, points):
@@ -400,9 +446,10 @@ def _meet(Pa, fa, ca, Pb, fb, cb, iterations=8):
     return _curve_point(Pa, fa, ca, ta)[0]
 
 
-def _fit_edges(img, geo, table):
+def _fit_edges(img, geo, table, bfix=None):
     r'''Levenberg-Marquardt of every edge's (a, b, d0..d3) at once, d3 = 0 unless the
-edge has its neighbours' pixels: [(p (6,), converged, misfit RMS / contrast)] per edge'''
+edge has its neighbours' pixels; bfix (m,) the contrast of the edges whose b is given (NaN:
+fitted): [(p (6,), converged, misfit RMS / contrast)] per edge'''
     m = len(geo)
     P = max(len(g[2]) for g in geo)
     v = np.zeros((m, P))
@@ -426,11 +473,13 @@ edge has its neighbours' pixels: [(p (6,), converged, misfit RMS / contrast)] pe
     fa = np.clip(phi / (np.pi / 4) * (A - 1), 0.0, A - 1.000001)
     j0 = fa.astype(np.int64)
     fy = fa - j0
+    bf = np.full(m, np.nan) if bfix is None else np.asarray(bfix, dtype=np.float64)
     # the start: each edge's current curve (cubic term 0)
     d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
 
     def evaluate(rows, d):
-        return edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF)
+        return edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF,
+                           bf)
 
     a, b, S, JtJ, Jtr = evaluate(np.arange(m), d)
     lam = np.full(m, 1e-3)
