@@ -165,9 +165,10 @@ def _homography(src, dst):
 _TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
 
 
-def _edge_pixels(Qt, bits, k, curve, reach, gap_bits, safety):
+def _edge_pixels(Qt, bits, k, curve, reach, gap_bits, safety, H=None):
     r'''The pixels of edge k of one tag: (ix, iy, t, s) with s measured from the chord, or
-None; curve (4,) the edge's current (d0, d1, d2, d3)'''
+None; curve (4,) the edge's current (d0, d1, d2, d3); H the tag's image -> cells
+homography (default: from Qt)'''
     P0, P1 = Qt[k], Qt[(k + 1) % 4]
     e = P1 - P0
     L = float(np.hypot(*e))
@@ -205,7 +206,7 @@ None; curve (4,) the edge's current (d0, d1, d2, d3)'''
         if not in_px > -out_px:
             return None
     else:
-        H = _homography(Qt, _TAG_CORNERS)
+        H = _homography(Qt, _TAG_CORNERS) if H is None else H
         cells = np.ascontiguousarray(bits, dtype=np.bool_)
     # the cells within the reach of a pixel deeper than the border: sampled at steps of at
     # most one cell
@@ -287,10 +288,11 @@ the edge fits' median misfit)
             if not np.all(np.isfinite(q[i])):
                 why_edge[i] = "not detected"
                 continue
+            Hc = None if bits is None else _homography(q[i], _TAG_CORNERS)
             for k in range(4):
                 curve = _curve_in_frame(q[i], k, shapes.get((i, k)))
                 px = _edge_pixels(q[i], None if bits is None else bits[i], k, curve,
-                                  reach, gap_bits, SAFETY_PX)
+                                  reach, gap_bits, SAFETY_PX, Hc)
                 if px is None or isinstance(px, str):
                     why_edge[i, k] = px or "edge too short for its blur"
                     continue
@@ -336,11 +338,11 @@ the edge fits' median misfit)
                                  q[i, b], frames[(i, b)], curves[(i, b)])
         # the next pass places its pixels about these curves, its chords through these corners
         shapes = {}
+        tau9 = np.linspace(-1.0, 1.0, 9)
         for (i, k), c in curves.items():
             L, e, n = frames[(i, k)]
-            tt = np.linspace(0.0, L, 9)
-            shapes[(i, k)] = np.array([_curve_point(q[i, k], frames[(i, k)], c, x)[0]
-                                       for x in tt])
+            shapes[(i, k)] = q[i, k] + (0.5 * L * (tau9 + 1.0))[:, None] * e \
+                + _curve_s(c, tau9)[:, None] * n
         far = np.linalg.norm(qn - q, axis=-1) > MAX_CORNER_SHIFT_PX
         found = np.where(far[..., None], np.nan, qn)
         # a corner not found keeps its place for the next pass's chords (its edges are
@@ -418,7 +420,8 @@ def _curve_in_frame(Qt, k, points):
         n = -n
     r = points - P0
     tau = 2.0 * (r @ e) / L - 1.0
-    return np.concatenate((np.polynomial.polynomial.polyfit(tau, r @ n, 2), [0.0]))
+    V = np.stack((np.ones(len(tau)), tau, tau * tau), axis=-1)
+    return np.concatenate((np.linalg.solve(V.T @ V, V.T @ (r @ n)), [0.0]))
 
 
 def _curve_point(P0, frame, curve, t):
@@ -435,13 +438,15 @@ def _meet(Pa, fa, ca, Pb, fb, cb, iterations=8):
     for _ in range(iterations):
         pa, ga = _curve_point(Pa, fa, ca, ta)
         pb, gb = _curve_point(Pb, fb, cb, tb)
-        J = np.stack((ga, -gb), axis=-1)
-        try:
-            d = np.linalg.solve(J, pb - pa)
-        except np.linalg.LinAlgError:
+        # solve [ga, -gb] (dta, dtb) = pb - pa (Cramer's rule)
+        r = pb - pa
+        det = -ga[0] * gb[1] + gb[0] * ga[1]
+        if not abs(det) > 1e-12:
             return np.full(2, np.nan)
-        ta, tb = ta + d[0], tb + d[1]
-        if np.abs(d).max() < 1e-10:
+        da = (-r[0] * gb[1] + gb[0] * r[1]) / det
+        db = (ga[0] * r[1] - ga[1] * r[0]) / det
+        ta, tb = ta + da, tb + db
+        if max(abs(da), abs(db)) < 1e-9:
             break
     return _curve_point(Pa, fa, ca, ta)[0]
 
