@@ -30,8 +30,13 @@ error; 0.000013-0.004 px on the ray caster's exact area-coverage renders, where
 what is left is the hazcams' edge curvature that corner_bias removes;
 benchmarks/bench_corners.py). A corner the fit cannot refine (a tag bit
 of a few px gives too small a window) is dropped, never kept at the coarse
-position (info["corners_dropped"]: {reason: count}). refine="subpix" is the
-older polish described next, kept for comparison.
+position (info["corners_dropped"]: {reason: count}). On a blurred image (the blur
+estimate of targets.corners finds one, e.g. the `realistic` response profile) the corners
+come instead from the tags' whole border edges, each fitted with the edges of its board
+line's neighbours, where two edges meet (targets.tag_edges: 0.003-0.008 px RMS against
+0.014-0.03 for the corner windows on the quick cameras' realistic renders,
+benchmarks/bench_corners.py --response realistic); info["corner_model"] = "tag edges".
+refine="subpix" is the older polish described next, kept for comparison.
 
 The AprilTag corners come from straight-line fits to each tag edge
 (refine_edges): under strong lens distortion the edges are curved and the
