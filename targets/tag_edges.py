@@ -71,6 +71,11 @@ MIN_EDGE_PIXELS = 40
 # them add nothing to the edge's position
 PLATEAU_PX = 1.0
 MAX_ITERATIONS = 30
+# the longest edge (px) fitted with its board line's neighbours: a cubic over three tags
+# (~3.6 edges) follows a fisheye's bent board line to ~0.01 px only while the span stays
+# within ~200 px (MER hazcam 8, tags of 90-120 px: 0.018 px RMS with neighbours, 0.009
+# alone), and an edge this long has the pixels to average the noise alone
+MAX_GROUP_EDGE_PX = 64.0
 # pixels on the dark plateau (beyond the blur's reach inside the edge) an edge needs for its
 # own contrast; with fewer it takes its tag's (_fit_contrast_first)
 MIN_PLATEAU_PIXELS = 10
@@ -308,13 +313,15 @@ the edge fits' median misfit)
         geo = []
         for (i, k), (ix, iy, t, s, L, e, n) in own.items():
             # the first pass only places the second's pixels: each edge alone
-            members = [own[m] for m in nbrs.get((i, k), []) if m in own] if npass else []
+            members = [own[m] for m in nbrs.get((i, k), []) if m in own] \
+                if npass and L <= MAX_GROUP_EDGE_PX else []
             if members:
                 ix = np.concatenate([ix] + [m[0] for m in members])
                 iy = np.concatenate([iy] + [m[1] for m in members])
                 r = np.stack((ix, iy), -1) - q[i, k]
                 t, s = r @ e, r @ n
-            cubic = bool(members)
+            # a long edge alone bends more than a quadratic follows on a fisheye
+            cubic = bool(members) or (npass > 0 and L > MAX_GROUP_EDGE_PX)
             geo.append((i, k, ix, iy, t, s, L, e, n, cubic, start[(i, k)]))
         fits = _fit_contrast_first(img, geo, table, reach)
         curves = {}
