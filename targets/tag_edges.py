@@ -71,11 +71,11 @@ MIN_EDGE_PIXELS = 40
 # them add nothing to the edge's position
 PLATEAU_PX = 1.0
 MAX_ITERATIONS = 30
-# the longest edge (px) fitted with its board line's neighbours: a cubic over three tags
-# (~3.6 edges) follows a fisheye's bent board line to ~0.01 px only while the span stays
-# within ~200 px (MER hazcam 8, tags of 90-120 px: 0.018 px RMS with neighbours, 0.009
-# alone), and an edge this long has the pixels to average the noise alone
-MAX_GROUP_EDGE_PX = 64.0
+# an edge fitted alone longer than this (px) gets a cubic: on a fisheye (MER hazcam 8,
+# tags of 90-120 px) a quadratic missed the bent edge's ends by 0.009 px RMS, a cubic by
+# 0.0007 (noise-free blur, K = 16 renders); shorter edges are noise-limited, and a cubic's
+# end point is noisier than a quadratic's
+CUBIC_EDGE_PX = 64.0
 # pixels on the dark plateau (beyond the blur's reach inside the edge) an edge needs for its
 # own contrast; with fewer it takes its tag's (_fit_contrast_first)
 MIN_PLATEAU_PIXELS = 10
@@ -309,44 +309,59 @@ the edge fits' median misfit)
                 start[(i, k)] = curve
         if not own:
             break
-        # each edge with the pixels of its board line's neighbours, in its own frame
+        # each corner's two board lines: the edge with the pixels of its board line's
+        # neighbour beyond that corner (the corner then lies inside the fitted span, near
+        # its middle), in the edge's own frame; an end without a neighbour (the board's
+        # border, a tag not found) takes the edge alone (end 2)
         geo = []
         for (i, k), (ix, iy, t, s, L, e, n) in own.items():
+            ends = {}
             # the first pass only places the second's pixels: each edge alone
-            members = [own[m] for m in nbrs.get((i, k), []) if m in own] \
-                if npass and L <= MAX_GROUP_EDGE_PX else []
-            if members:
-                ix = np.concatenate([ix] + [m[0] for m in members])
-                iy = np.concatenate([iy] + [m[1] for m in members])
-                r = np.stack((ix, iy), -1) - q[i, k]
-                t, s = r @ e, r @ n
-            # a long edge alone bends more than a quadratic follows on a fisheye
-            cubic = bool(members) or (npass > 0 and L > MAX_GROUP_EDGE_PX)
-            geo.append((i, k, ix, iy, t, s, L, e, n, cubic, start[(i, k)]))
+            for m in (nbrs.get((i, k), []) if npass else []):
+                if m not in own:
+                    continue
+                mid = 0.5 * (q[m[0], m[1]] + q[m[0], (m[1] + 1) % 4])
+                ends[0 if (mid - q[i, k]) @ e < 0 else 1] = m
+            for end, m in ends.items():
+                jx = np.concatenate((ix, own[m][0]))
+                jy = np.concatenate((iy, own[m][1]))
+                r = np.stack((jx, jy), -1) - q[i, k]
+                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], end))
+            if len(ends) < 2:
+                # a long edge alone bends more than a quadratic follows on a fisheye
+                geo.append((i, k, ix, iy, t, s, L, e, n, npass > 0 and L > CUBIC_EDGE_PX,
+                            start[(i, k)], 2))
         fits = _fit_contrast_first(img, geo, table, reach)
         curves = {}
         for (i, k, *_rest), (p, ok, mis) in zip(geo, fits, strict=True):
-            mis_edge[i, k] = mis
+            end = _rest[-1]
+            mis_edge[i, k] = np.fmax(mis_edge[i, k], mis) if npass else mis
             if not ok:
                 why_edge[i, k] = f"edge fit not converged in {MAX_ITERATIONS} iterations"
             elif not abs(p[1]) > min_contrast * rng:
                 why_edge[i, k] = "no contrast"
             elif not mis <= max_misfit:
                 why_edge[i, k] = f"misfit: {mis:.3g} of the contrast"
-            curves[(i, k)] = p[2:]
+            curves[(i, k, end)] = p[2:]
         frames = {(g[0], g[1]): (g[6], g[7], g[8]) for g in geo}
+
+        def curve(i, k, end, curves=curves):
+            return curves[(i, k, end)] if (i, k, end) in curves else curves[(i, k, 2)]
+
         qn = np.full((N, 4, 2), np.nan)
         for i in range(N):
             for k in range(4):
                 a, b = (k - 1) % 4, k           # edge a ends at corner k, edge b starts there
                 if why_edge[i, a] or why_edge[i, b]:
                     continue
-                qn[i, k] = _meet(q[i, a], frames[(i, a)], curves[(i, a)],
-                                 q[i, b], frames[(i, b)], curves[(i, b)])
+                qn[i, k] = _meet(q[i, a], frames[(i, a)], curve(i, a, 1),
+                                 q[i, b], frames[(i, b)], curve(i, b, 0))
         # the next pass places its pixels about these curves, its chords through these corners
         shapes = {}
         tau9 = np.linspace(-1.0, 1.0, 9)
-        for (i, k), c in curves.items():
+        for (i, k, end), c in curves.items():
+            if end != 2 and (i, k, 2) in curves:
+                continue
             L, e, n = frames[(i, k)]
             shapes[(i, k)] = q[i, k] + (0.5 * L * (tau9 + 1.0))[:, None] * e \
                 + _curve_s(c, tau9)[:, None] * n
@@ -470,7 +485,7 @@ fitted): [(p (6,), converged, misfit RMS / contrast)] per edge'''
     s = np.zeros((m, P))
     phi = np.zeros(m)
     cubic = np.zeros(m)
-    for j, (_i, _k, ix, iy, t, sj, L, _e, n, cub, _d) in enumerate(geo):
+    for j, (_i, _k, ix, iy, t, sj, L, _e, n, cub, _d, _end) in enumerate(geo):
         c = len(ix)
         v[j, :c] = img[iy, ix]
         w[j, :c] = 1.0
