@@ -291,6 +291,8 @@ the edge fits' median misfit)
     far = np.zeros((N, 4), bool)
     found = np.full((N, 4, 2), np.nan)
     for npass in range(passes):
+        # the passes before the last only place its pixels: each edge alone
+        last = npass == passes - 1
         why_edge = np.full((N, 4), "", dtype=object)
         own, start = {}, {}
         for i in range(N):
@@ -323,7 +325,7 @@ the edge fits' median misfit)
         for (i, k), (ix, iy, t, s, L, e, n) in own.items():
             ends = {}
             # the first pass only places the second's pixels: each edge alone
-            members = [m for m in (nbrs.get((i, k), []) if npass else []) if m in own]
+            members = [m for m in (nbrs.get((i, k), []) if last else []) if m in own]
             bend = abs(start[(i, k)][2])
             if members and (L <= CUBIC_EDGE_PX or bend <= STRAIGHT_BEND_PX):
                 # a short edge (noise-limited): one cubic through it and both neighbours'
@@ -342,13 +344,13 @@ the edge fits' median misfit)
                 geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], end))
             if len(ends) < 2:
                 # a long edge alone bends more than a quadratic follows on a fisheye
-                geo.append((i, k, ix, iy, t, s, L, e, n, npass > 0 and L > CUBIC_EDGE_PX,
+                geo.append((i, k, ix, iy, t, s, L, e, n, last and L > CUBIC_EDGE_PX,
                             start[(i, k)], 2))
         fits = _fit_contrast_first(img, geo, table, reach)
         curves = {}
         for (i, k, *_rest), (p, ok, mis) in zip(geo, fits, strict=True):
             end = _rest[-1]
-            mis_edge[i, k] = np.fmax(mis_edge[i, k], mis) if npass else mis
+            mis_edge[i, k] = np.fmax(mis_edge[i, k], mis) if last else mis
             if not ok:
                 why_edge[i, k] = f"edge fit not converged in {MAX_ITERATIONS} iterations"
             elif not abs(p[1]) > min_contrast * rng:
