@@ -376,7 +376,7 @@ or (N,) per corner)'''
 
 
 def refine_corners(image, q0, directions, wedges, steps, half_box, *, psf_sigma_px=None,
-                   psf_kind=None, clearance=None, lines=(), **options):
+                   psf_kind=None, clearance=None, lines=(), stop_if_blurred=False, **options):
     r'''Refine corners by fitting the area-sampled wedge model; see the module docstring
 
 SYNOPSIS
@@ -404,6 +404,9 @@ ARGUMENTS
   feature stays out of it (blurred_half_box)
 - lines: pairs of rays (i, j) that are one straight line through the corner (a
   chessboard's); fitted as one angle when the image is blurred
+- stop_if_blurred: return after the blur estimate when it finds a blur (fit.q: the first
+  pass's sharp-model corners, info["stopped"]): for a caller with its own blurred model
+  (targets.tag_edges)
 - options: max_window_px, max_misfit, min_contrast (module constants by default);
   value_range: the image's max - min when the caller has it (the contrast test's scale;
   default: computed here, a pass over the image); kernel:
@@ -470,6 +473,10 @@ the estimate's spread.
     if added_blur_px(sigma, options.get("psf_kind", "gaussian")) < BLUR_NEGLIGIBLE_PX:
         info = dict(info, psf_sigma_px=0.0, psf_sigma_estimated_px=sigma)
         sigma = 0.0
+    elif stop_if_blurred:
+        return CornerFit(q=fit.q, reasons=fit.reasons, misfit=fit.misfit, npixels=fit.npixels,
+                         iterations=fit.iterations, directions=fit.directions,
+                         info=dict(info, stopped="blurred: first pass only"))
     hb2 = blurred_half_box(steps2, half_box, clearance, sigma)
     fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, hb2, sigma=sigma, **options)
     q, reasons = fit.q.copy(), fit.reasons.copy()

@@ -30,8 +30,13 @@ error; 0.000013-0.004 px on the ray caster's exact area-coverage renders, where
 what is left is the hazcams' edge curvature that corner_bias removes;
 benchmarks/bench_corners.py). A corner the fit cannot refine (a tag bit
 of a few px gives too small a window) is dropped, never kept at the coarse
-position (info["corners_dropped"]: {reason: count}). refine="subpix" is the
-older polish described next, kept for comparison.
+position (info["corners_dropped"]: {reason: count}). On a blurred image (the blur
+estimate of targets.corners finds one, e.g. the `realistic` response profile) the corners
+come instead from the tags' whole border edges, each fitted with the edges of its board
+line's neighbours, where two edges meet (targets.tag_edges: 0.003-0.008 px RMS against
+0.014-0.03 for the corner windows on the quick cameras' realistic renders,
+benchmarks/bench_corners.py --response realistic); info["corner_model"] = "tag edges".
+refine="subpix" is the older polish described next, kept for comparison.
 
 The AprilTag corners come from straight-line fits to each tag edge
 (refine_edges): under strong lens distortion the edges are curved and the
@@ -148,6 +153,29 @@ its window, keeps pupil_apriltags' position'''
     return out
 
 
+def _refine_blurred(img, used, refined, blur, target, value_range):
+    r'''The corners of a blurred image from the tags' whole border edges
+(targets.tag_edges), started from the window fit's corners where it kept them and from
+pupil_apriltags' elsewhere; the CornerFit, its info the blur's and the edge model's'''
+    from .boards import tag36h11_bits
+    from .tag_edges import refine_tag_edges
+    coarse = np.array([c for _, c in used])
+    start = coarse if refined is None else np.where(np.isfinite(refined), refined, coarse)
+    bits = np.array([tag36h11_bits(tag_id) for tag_id, _ in used])
+    spec = target.spec
+    bit = float(spec["tag_size"]) / 8.0
+    gap_bits = min(8.0 * float(spec.get("tag_spacing", 0.3)),
+                   float(spec.get("margin", np.inf)) / bit)
+    # each tag's (column, row) on the board: its edges share board lines with its neighbours
+    nx = int(spec["nx"])
+    first = int(spec.get("first_id", 0))
+    grid = np.array([((t - first) % nx, (t - first) // nx) for t, _ in used])
+    fit = refine_tag_edges(img, start, blur["psf_sigma_px"], blur.get("psf_kind", "gaussian"),
+                           bits=bits, grid=grid, gap_bits=gap_bits, value_range=value_range)
+    fit.info.update({k: v for k, v in blur.items() if k.startswith("psf_")})
+    return fit
+
+
 def detect_apriltags(image, target, *, max_hamming=1, min_found=4, quad_decimate=None,
                      quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25, refine=True,
                      psf_sigma_px=None):
@@ -220,8 +248,15 @@ ARGUMENTS
         used.append((tag_id, c))
     if refine is True and used:
         from .corners import refine_tag_corners
-        fit = refine_tag_corners(img, np.array([c for _, c in used]), value_range=hi - lo,
-                                 psf_sigma_px=psf_sigma_px)
+        if psf_sigma_px:
+            fit = _refine_blurred(img, used, None, {"psf_sigma_px": float(psf_sigma_px),
+                                                    "psf_source": "given"}, target, hi - lo)
+        else:
+            fit = refine_tag_corners(img, np.array([c for _, c in used]), value_range=hi - lo,
+                                     psf_sigma_px=psf_sigma_px, stop_if_blurred=True)
+            if fit.info.get("stopped"):
+                fit = _refine_blurred(img, used, fit.q.reshape(-1, 4, 2), fit.info, target,
+                                      hi - lo)
         refined = fit.q.reshape(-1, 4, 2)
         used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
     for tag_id, c in used:

@@ -1,0 +1,569 @@
+r'''AprilTag corners from the tags' whole border edges, for blurred images
+
+SYNOPSIS
+
+    from targets.tag_edges import refine_tag_edges
+
+    fit = refine_tag_edges(img, Q, sigma, kind, bits=bits)
+    # Q (Ntags,4,2) corners round each tag (coarse: pupil_apriltags', or refined);
+    # sigma, kind: the image's blur (targets.corners.estimate_blur); bits (Ntags,8,8) each
+    # tag's cells (targets.boards.tag36h11_bits: True = white), None: data bits unknown
+    fit.q          # (Ntags*4,2) corners, NaN where dropped
+    fit.reasons    # (Ntags*4,) "" or why the corner was dropped
+
+Why. Blurred (the `realistic` response profile: a PSF of sigma 0.7 px) and noisy, a
+corner fitted in its own window (targets.corners.refine_tag_corners) sees two edges of
+about half a tag bit each: its error is the noise over a few px of edge (0.02-0.03 px RMS
+on the quick cameras against the dots' 0.004-0.006), and on tags of 3-4 px bits no window
+is left once it keeps 3 sigma of blur from the data bits. The tag's black border is a full
+square: each of its four edges is 8 bits long. Here each edge is fitted along its whole
+length, and each corner is where its two edges meet.
+
+The model. Along edge k (from corner k to corner k+1, length L px), with t the position
+along the chord and s the signed distance from it into the tag, the edge is the curve
+s(t) = d0 + d1 tau + d2 tau^2 (+ d3 tau^3), tau = 2 t / L - 1: straight under a
+homography, bent by lens distortion. A pixel at distance x from the curve (into the dark
+side) is
+
+    v = a + b * F(x),  F(x) = P(n . (U + z) <= x)
+
+U uniform on the pixel's square (the area it integrates), z the blur's offset (a Gaussian
+PSF of sigma on the scene, or the "sampled" kernel on the pixel image: blur_kernel's two
+kinds) and n the edge's normal: F is the blurred pixel's dark fraction next to a straight
+edge, exact but for the curve's bend within a pixel (kappa/2 px, kappa ~1e-3/px). F is
+tabulated per blur on a grid of x and of the edge's angle (the pixel's projected width
+depends on it) and interpolated linearly (errors ~1e-5 of the contrast).
+
+Board lines. An AprilGrid's tags stand in rows and columns: edge k of a tag lies on the
+same board line as edge k of its row's (k = 0, 2) or column's (k = 1, 3) neighbours
+(`grid`). A short (L <= CUBIC_EDGE_PX) or nearly straight (first-pass bend <=
+STRAIGHT_BEND_PX) edge is fitted as one cubic through its own and both neighbours' pixels
+(~3.6 edge lengths: the noise averaged over 3x the pixels, the corner inside the span);
+a long bent one (a fisheye's big tags: a cubic over that span misses the line by 0.02 px)
+once per corner, with the neighbour's edge beyond that corner. An end without a
+neighbour takes the edge alone (a cubic when longer than CUBIC_EDGE_PX).
+
+The pixels. Each edge uses the pixels that see no other feature of the board through the
+blur: a pixel at distance x and position t is kept where the light gap outside the tag
+(the board's tag spacing) and the dark cells inside it (the 1-bit border, and the data
+bit next to it where that is dark too) reach at least BLUR_REACH_SIGMAS sigma plus the
+pixel's half-diagonal beyond it, and where it is that far from the adjacent edges' lines.
+The cells are placed along the edge by the homography of the tag's four current corners,
+across it by the depth from the fitted curve, in the adjacent edges' bits (an oblique tag
+has bits of two sizes), with SAFETY_PX more margin. An edge whose band has no dark
+plateau (bits of 2-3 px across) takes its tag's contrast b from the edges that have one
+(_fit_contrast_first); an edge that sees only its light side is dropped.
+
+The fit: Levenberg-Marquardt on (a, b, d0..d3) of every edge at once (compiled:
+targets._tag_edge_kernels), twice: the first pass fits each edge alone and places the
+second's pixels. A corner is dropped, with the reason, when either of its edges has too
+few pixels or sees only its light side, did not converge, misfits by more than MAX_MISFIT
+of its contrast, has too little contrast, or when the two curves do not meet within
+MAX_CORNER_SHIFT_PX of the corner they started from.
+
+Measured (benchmarks/bench_corners.py --targets apriltag --methods camval --response
+realistic; K = 16 renders, 6 poses; load 18): corner error RMS 0.0034 px (navcam 15),
+0.0075 (hazcam 17, 551 of 864 corners: the rest's bits are too small for the blur), 0.0065
+(hazcam 8 fisheye); the corner windows gave 0.014-0.03. CPU per 1024x1024 image, whole
+detection: 0.29 s median (this fit ~0.15 s of it).
+
+Sharp images keep the corner window model (targets.corners): it is exact there to 1e-7 px
+on the ray caster's area renders, which this model is not built to match (its F ignores
+the edge's bend and the tabulation's rounding at sigma 0).
+'''
+
+import functools
+
+import numpy as np
+
+from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, CornerFit, blur_kernel
+
+# px added to every clearance: the coarse corners' error and the bend of an edge between
+# them (a homography of the 4 corners places the cells; the sagitta of a hazcam's 60 px
+# tag edge is ~0.1-0.3 px)
+SAFETY_PX = 0.3
+# fewest pixels an edge's fit needs: 5 parameters, each wants tens of edge pixels to
+# average the noise rather than follow it; half of them on the edge's dark side (a band
+# that sees only the light side's tail of the blurred edge places it 5-20x worse)
+MIN_EDGE_PIXELS = 40
+# the band's half-width beyond the blur's reach (px): plateau pixels fix a and b; more of
+# them add nothing to the edge's position
+PLATEAU_PX = 1.0
+MAX_ITERATIONS = 30
+# an edge fitted alone longer than this (px) gets a cubic: on a fisheye (MER hazcam 8,
+# tags of 90-120 px) a quadratic missed the bent edge's ends by 0.009 px RMS, a cubic by
+# 0.0007 (noise-free blur, K = 16 renders); shorter edges are noise-limited, and a cubic's
+# end point is noisier than a quadratic's
+CUBIC_EDGE_PX = 64.0
+# the bend (px: the first pass's quadratic term, the edge's sagitta) below which a long edge
+# still takes both neighbours (navcam 15's realistic corners 0.0047 -> 0.0034 px RMS with
+# them; hazcam 8's tags, bent 0.2-0.4 px, unchanged)
+STRAIGHT_BEND_PX = 0.05
+# pixels on the dark plateau (beyond the blur's reach inside the edge) an edge needs for its
+# own contrast; with fewer it takes its tag's (_fit_contrast_first)
+MIN_PLATEAU_PIXELS = 10
+# converged when no curve coefficient moves by more than this (px): a tenth of 1e-3 px
+CONVERGED_PX = 1e-4
+# the most the meeting point of two fitted edges may move from the corner it started at
+MAX_CORNER_SHIFT_PX = 2.0
+# the tabulation of F: step in x (px) and the angle bins over [0, pi/4]
+TABLE_STEP_PX = 0.01
+TABLE_ANGLES = 9
+# the blur is tabulated to this (px): a sigma off by half of it changes the symmetric edge
+# profile by ~1e-4 of the contrast and moves no edge
+TABLE_SIGMA_STEP_PX = 1e-3
+
+
+def _trapezoid_cdf(x, u, w):
+    r'''P(u U1 + w U2 <= x), U1, U2 uniform on [-1/2, 1/2], u >= w >= 0, u > 0'''
+    a = 0.5 * (u + w)
+    b = 0.5 * (u - w)
+    x = np.asarray(x, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lo = np.where(w > 0, (x + a) ** 2 / (2 * u * w), 0.0)
+        hi = np.where(w > 0, 1.0 - (a - x) ** 2 / (2 * u * w), 1.0)
+    mid = 0.5 + x / u
+    return np.where(x <= -a, 0.0, np.where(x < -b, lo, np.where(x <= b, mid,
+                                                               np.where(x < a, hi, 1.0))))
+
+
+@functools.lru_cache(maxsize=8)
+def _edge_table(sigma, kind):
+    r'''(x0, F (A,X), dF/dx (A,X)): the blurred dark fraction at x px into the dark side, per
+angle bin phi_m = m pi/4 / (A-1) of the normal (folded: |n_x| >= |n_y|)'''
+    from scipy.special import ndtr
+    Z, W, _, _ = blur_kernel([sigma], kind)
+    Z, W = Z[0], W[0]
+    reach = BLUR_REACH_SIGMAS * max(sigma, 0.3) + 2.0
+    x = np.arange(-reach, reach + TABLE_STEP_PX / 2, TABLE_STEP_PX)
+    phi = np.linspace(0.0, np.pi / 4, TABLE_ANGLES)
+    F = np.zeros((len(phi), len(x)))
+    for m, p in enumerate(phi):
+        u, w = np.cos(p), np.sin(p)
+        if kind == "gaussian":
+            # a Gaussian on the scene: E over the pixel's square of Phi((x - n.U) / sigma),
+            # smooth in U: Gauss-Legendre over the square
+            g, gw = np.polynomial.legendre.leggauss(12)
+            nu = (u * g[:, None] + w * g[None, :]).ravel() / 2.0
+            wu = (gw[:, None] * gw[None, :]).ravel() / 4.0
+            F[m] = (wu[:, None] * ndtr((x[None, :] - nu[:, None]) / sigma)).sum(0)
+        else:
+            # the sampled kernel's taps on the pixel image: the exact pixel fraction at
+            # each tap's offset
+            proj = Z @ np.array([u, w])
+            F[m] = (W[:, None] * _trapezoid_cdf(x[None, :] - proj[:, None], u, w)).sum(0)
+    dF = np.gradient(F, TABLE_STEP_PX, axis=1)
+    return float(x[0]), F, dF
+
+
+def _lookup(table, x, phi):
+    r'''F(x) and F'(x) for the folded angles phi (same shape as x), linear in both'''
+    x0, F, dF = table
+    A, X = F.shape
+    fi = np.clip((x - x0) / TABLE_STEP_PX, 0.0, X - 1.000001)
+    i = fi.astype(np.int64)
+    fx = fi - i
+    fa = np.clip(phi / (np.pi / 4) * (A - 1), 0.0, A - 1.000001)
+    j = fa.astype(np.int64)
+    fy = fa - j
+    out = []
+    for T in (F, dF):
+        t0 = T[j, i] * (1 - fx) + T[j, i + 1] * fx
+        t1 = T[j + 1, i] * (1 - fx) + T[j + 1, i + 1] * fx
+        out.append(t0 * (1 - fy) + t1 * fy)
+    # beyond the table the fraction is 0 or 1 and flat
+    below, above = x < x0, x > x0 + (X - 1) * TABLE_STEP_PX
+    out[0] = np.where(below, 0.0, np.where(above, 1.0, out[0]))
+    out[1] = np.where(below | above, 0.0, out[1])
+    return out
+
+
+def _homography(src, dst):
+    r'''(3,3) H with dst ~ H src for 4 point pairs (src, dst (4,2))'''
+    A = []
+    for (x, y), (u, v) in zip(src, dst, strict=True):
+        A.append([x, y, 1, 0, 0, 0, -u * x, -u * y, -u])
+        A.append([0, 0, 0, x, y, 1, -v * x, -v * y, -v])
+    _, _, Vt = np.linalg.svd(np.asarray(A, dtype=np.float64))
+    return Vt[-1].reshape(3, 3)
+
+
+# the tag's corners in its cell coordinates (col, row), pupil_apriltags' order:
+# bottom-left, bottom-right, top-right, top-left of the upright tag (row 0 at the top)
+_TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
+
+
+def _edge_pixels(Qt, bits, k, curve, reach, gap_bits, safety, H=None):
+    r'''The pixels of edge k of one tag: (ix, iy, t, s) with s measured from the chord, or
+None; curve (4,) the edge's current (d0, d1, d2, d3); H the tag's image -> cells
+homography (default: from Qt)'''
+    P0, P1 = Qt[k], Qt[(k + 1) % 4]
+    e = P1 - P0
+    L = float(np.hypot(*e))
+    if not L > 0:
+        return None
+    e = e / L
+    n = np.array([-e[1], e[0]])
+    if n @ (Qt.mean(0) - P0) < 0:
+        n = -n
+    # a bit along the edge, and across it (the adjacent edges' bits: a tag seen obliquely
+    # has bits of different sizes along its two axes)
+    bit_px = L / 8.0
+    deep_bit = min(np.hypot(*(Qt[(k - 1) % 4] - P0)), np.hypot(*(Qt[(k + 2) % 4] - P1))) / 8.0
+    clear = reach + safety
+    out_px = min(gap_bits * deep_bit - clear, clear + PLATEAU_PX)
+    t_lo, t_hi = clear, L - clear
+    if not (out_px > 0 and t_hi > t_lo):
+        return None
+    in_max = 2.0 * deep_bit - clear          # a dark data bit next to the border
+    in_px = min(in_max, clear + PLATEAU_PX)
+    if not in_px > -out_px:
+        return None
+    # the band's bounding box in pixels
+    smax = float(np.abs(curve).sum())
+    pts = np.array([P0 + t * e + s * n for t in (t_lo, t_hi)
+                    for s in (-out_px - smax, in_px + smax)])
+    x0, y0 = np.floor(pts.min(0)).astype(int)
+    x1, y1 = np.ceil(pts.max(0)).astype(int)
+    from ._tag_edge_kernels import edge_pixels
+    if bits is None:
+        # no data bits known: every cell past the border may be light
+        H = np.eye(3)
+        cells = np.ones((8, 8), bool)
+        in_px = min(in_px, deep_bit - clear)
+        if not in_px > -out_px:
+            return None
+    else:
+        H = _homography(Qt, _TAG_CORNERS) if H is None else H
+        cells = np.ascontiguousarray(bits, dtype=np.bool_)
+    # the cells within the reach of a pixel deeper than the border: sampled at steps of at
+    # most one cell
+    rb = clear / min(bit_px, deep_bit)
+    offs = np.linspace(-rb, rb, 2 * int(np.ceil(rb)) + 1)
+    # the adjacent edges' lines, their normals into the tag
+    centre = Qt.mean(0)
+    adj = []
+    for A, B in ((Qt[(k - 1) % 4], P0), (P1, Qt[(k + 2) % 4])):
+        g = (B - A) / np.hypot(*(B - A))
+        m = np.array([-g[1], g[0]])
+        adj.append((A, m if m @ (centre - A) > 0 else -m))
+    ix, iy, t, s = edge_pixels(P0, e, n, L, np.asarray(curve, dtype=np.float64), t_lo, t_hi,
+                               out_px, in_px, deep_bit - clear, H, cells, offs, x0, y0, x1, y1, k,
+                               deep_bit, adj[0][0], adj[0][1], adj[1][0], adj[1][1])
+    if len(ix) < MIN_EDGE_PIXELS:
+        return None
+    tau = 2.0 * t / L - 1.0
+    if np.count_nonzero(s - _curve_s(curve, tau) >= 0.0) < MIN_EDGE_PIXELS // 2:
+        return "edge seen from its light side only (tag bits too small for the blur)"
+    return ix, iy, t, s, L, e, n
+
+
+def _neighbours(grid, N):
+    r'''{(i, k): [(i2, k)]}: the edges on the same board line in the adjacent tags'''
+    out = {}
+    if grid is None:
+        return out
+    where = {(int(c), int(r)): i for i, (c, r) in enumerate(np.asarray(grid).reshape(N, 2))}
+    for (c, r), i in where.items():
+        for k in range(4):
+            # edges 0 and 2 lie on rows of the board (y = const), 1 and 3 on columns
+            dc, dr = ((1, 0) if k % 2 == 0 else (0, 1))
+            out[(i, k)] = [(where[(c + sgn * dc, r + sgn * dr)], k) for sgn in (-1, 1)
+                           if (c + sgn * dc, r + sgn * dr) in where]
+    return out
+
+
+def refine_tag_edges(image, Q, sigma, kind="gaussian", *, bits=None, grid=None, gap_bits=2.4,
+                     value_range=None, passes=2, max_misfit=MAX_MISFIT,
+                     min_contrast=MIN_CONTRAST):
+    r'''Corners of AprilTags from their four whole border edges; see the module docstring
+
+ARGUMENTS
+
+- image: (H,W) float image, linear in albedo
+- Q: (Ntags,4,2) corners round each tag (NaN: not detected)
+- sigma, kind: the blur (targets.corners.blur_kernel), px; sigma > 0
+- bits: (Ntags,8,8) bool cells of each tag, True = white (None: every data bit light)
+- grid: (Ntags,2) each tag's (column, row) on the board (None: tags fitted alone); an
+  edge is fitted together with the edges on the same board line of the adjacent tags
+- gap_bits: tag bits of light board between a tag and its neighbour (tag_spacing x 8)
+- value_range: the image's max - min (the contrast test's scale; default computed)
+
+RETURNED VALUE: a targets.corners.CornerFit of the Ntags*4 corners (info: "corner_model",
+the edge fits' median misfit)
+'''
+    img = np.asarray(image)
+    H, W = img.shape
+    Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
+    N = len(Q)
+    if bits is not None:
+        bits = np.asarray(bits, dtype=bool).reshape(N, 8, 8)
+    rng = float(value_range) if value_range is not None else float(np.nanmax(img) - np.nanmin(img))
+    table = _edge_table(round(float(sigma) / TABLE_SIGMA_STEP_PX) * TABLE_SIGMA_STEP_PX, kind)
+    reach = BLUR_REACH_SIGMAS * float(sigma) + np.sqrt(0.5)
+    nbrs = _neighbours(grid, N)
+    q = Q.copy()
+    # each edge's current curve as image points (None: the chord)
+    shapes = {}
+    why_edge = np.full((N, 4), "", dtype=object)
+    mis_edge = np.full((N, 4), np.nan)
+    far = np.zeros((N, 4), bool)
+    found = np.full((N, 4, 2), np.nan)
+    for npass in range(passes):
+        # the passes before the last only place its pixels: each edge alone
+        last = npass == passes - 1
+        why_edge = np.full((N, 4), "", dtype=object)
+        own, start = {}, {}
+        for i in range(N):
+            if not np.all(np.isfinite(q[i])):
+                why_edge[i] = "not detected"
+                continue
+            Hc = None if bits is None else _homography(q[i], _TAG_CORNERS)
+            for k in range(4):
+                curve = _curve_in_frame(q[i], k, shapes.get((i, k)))
+                px = _edge_pixels(q[i], None if bits is None else bits[i], k, curve,
+                                  reach, gap_bits, SAFETY_PX, Hc)
+                if px is None or isinstance(px, str):
+                    why_edge[i, k] = px or "edge too short for its blur"
+                    continue
+                ix, iy = px[0], px[1]
+                if ix.min() < 0 or iy.min() < 0 or ix.max() >= W or iy.max() >= H:
+                    why_edge[i, k] = "edge off the image"
+                    continue
+                own[(i, k)] = px
+                start[(i, k)] = curve
+        if not own:
+            break
+        # each corner's two board lines, in the edge's own frame: a short or nearly straight
+        # edge with both its board line's neighbours (3 edges, ~3.6 edge lengths); a long
+        # bent one (such a span would outgrow a cubic on a fisheye) per corner, with
+        # the neighbour beyond that corner (the corner inside the span, near its middle);
+        # an end without a neighbour (the board's border, a tag not found) takes the edge
+        # alone (end 2)
+        geo = []
+        for (i, k), (ix, iy, t, s, L, e, n) in own.items():
+            ends = {}
+            # the first pass only places the second's pixels: each edge alone
+            members = [m for m in (nbrs.get((i, k), []) if last else []) if m in own]
+            bend = abs(start[(i, k)][2])
+            if members and (L <= CUBIC_EDGE_PX or bend <= STRAIGHT_BEND_PX):
+                # a short edge (noise-limited): one cubic through it and both neighbours'
+                jx = np.concatenate([ix] + [own[m][0] for m in members])
+                jy = np.concatenate([iy] + [own[m][1] for m in members])
+                r = np.stack((jx, jy), -1) - q[i, k]
+                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], 2))
+                continue
+            for m in members:
+                mid = 0.5 * (q[m[0], m[1]] + q[m[0], (m[1] + 1) % 4])
+                ends[0 if (mid - q[i, k]) @ e < 0 else 1] = m
+            for end, m in ends.items():
+                jx = np.concatenate((ix, own[m][0]))
+                jy = np.concatenate((iy, own[m][1]))
+                r = np.stack((jx, jy), -1) - q[i, k]
+                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], end))
+            if len(ends) < 2:
+                # a long edge alone bends more than a quadratic follows on a fisheye
+                geo.append((i, k, ix, iy, t, s, L, e, n, last and L > CUBIC_EDGE_PX,
+                            start[(i, k)], 2))
+        fits = _fit_contrast_first(img, geo, table, reach)
+        curves = {}
+        for (i, k, *_rest), (p, ok, mis) in zip(geo, fits, strict=True):
+            end = _rest[-1]
+            mis_edge[i, k] = np.fmax(mis_edge[i, k], mis) if last else mis
+            if not ok:
+                why_edge[i, k] = f"edge fit not converged in {MAX_ITERATIONS} iterations"
+            elif not abs(p[1]) > min_contrast * rng:
+                why_edge[i, k] = "no contrast"
+            elif not mis <= max_misfit:
+                why_edge[i, k] = f"misfit: {mis:.3g} of the contrast"
+            curves[(i, k, end)] = p[2:]
+        frames = {(g[0], g[1]): (g[6], g[7], g[8]) for g in geo}
+
+        def curve(i, k, end, curves=curves):
+            return curves[(i, k, end)] if (i, k, end) in curves else curves[(i, k, 2)]
+
+        qn = np.full((N, 4, 2), np.nan)
+        for i in range(N):
+            for k in range(4):
+                a, b = (k - 1) % 4, k           # edge a ends at corner k, edge b starts there
+                if why_edge[i, a] or why_edge[i, b]:
+                    continue
+                qn[i, k] = _meet(q[i, a], frames[(i, a)], curve(i, a, 1),
+                                 q[i, b], frames[(i, b)], curve(i, b, 0))
+        # the next pass places its pixels about these curves, its chords through these corners
+        shapes = {}
+        tau9 = np.linspace(-1.0, 1.0, 9)
+        for (i, k, end), c in curves.items():
+            if end != 2 and (i, k, 2) in curves:
+                continue
+            L, e, n = frames[(i, k)]
+            shapes[(i, k)] = q[i, k] + (0.5 * L * (tau9 + 1.0))[:, None] * e \
+                + _curve_s(c, tau9)[:, None] * n
+        far = np.linalg.norm(qn - q, axis=-1) > MAX_CORNER_SHIFT_PX
+        found = np.where(far[..., None], np.nan, qn)
+        # a corner not found keeps its place for the next pass's chords (its edges are
+        # fitted again, and judged there)
+        q = np.where(np.isfinite(found), found, q)
+    reasons = np.full((N, 4), "", dtype=object)
+    for i in range(N):
+        for k in range(4):
+            a, b = (k - 1) % 4, k
+            r = why_edge[i, a] or why_edge[i, b]
+            if r:
+                reasons[i, k] = r
+            elif far[i, k]:
+                reasons[i, k] = "edges meet far from the corner"
+            elif not np.all(np.isfinite(found[i, k])):
+                reasons[i, k] = "edges do not meet near the corner"
+    q = np.where((reasons == "")[..., None], found, np.nan)
+    good = np.isfinite(mis_edge)
+    return CornerFit(q=q.reshape(-1, 2), reasons=reasons.ravel(),
+                     misfit=np.repeat(np.nanmax(np.where(good, mis_edge, -1.0), axis=1), 4),
+                     npixels=np.zeros(N * 4, np.int64),
+                     info={"corner_model": "tag edges",
+                           "edge_misfit_median": float(np.median(mis_edge[good]))
+                           if good.any() else float("nan")})
+
+
+def _fit_contrast_first(img, geo, table, reach):
+    r'''_fit_edges: first the edges whose band reaches the dark plateau (MIN_PLATEAU_PIXELS
+at least reach px inside the curve), then the others with the contrast b given, the median
+of their tag's plateau edges (else of the image's): a band that sees only the light side of
+an edge (bits of 2-3 px across, a tag seen obliquely) cannot tell the contrast from the
+edge's position'''
+    deep = np.array([np.count_nonzero(g[5] - _curve_s(g[10], 2.0 * g[4] / g[6] - 1.0) >= reach)
+                     >= MIN_PLATEAU_PIXELS for g in geo])
+    fits = [None] * len(geo)
+    first = np.flatnonzero(deep)
+    if len(first):
+        for j, f in zip(first, _fit_edges(img, [geo[j] for j in first], table), strict=True):
+            fits[j] = f
+    rest = np.flatnonzero(~deep)
+    if not len(rest):
+        return fits
+    bs = {}
+    for j in first:
+        if fits[j][1]:
+            bs.setdefault(geo[j][0], []).append(fits[j][0][1])
+    every = [b for v in bs.values() for b in v]
+    if not every:
+        # no edge sees its plateau: fit them all free (poorly conditioned, judged by misfit)
+        for j, f in zip(rest, _fit_edges(img, [geo[j] for j in rest], table), strict=True):
+            fits[j] = f
+        return fits
+    ball = float(np.median(every))
+    bfix = [float(np.median(bs[geo[j][0]])) if geo[j][0] in bs else ball for j in rest]
+    for j, f in zip(rest, _fit_edges(img, [geo[j] for j in rest], table, bfix), strict=True):
+        fits[j] = f
+    return fits
+
+
+def _curve_s(d, tau):
+    return d[0] + tau * (d[1] + tau * (d[2] + tau * d[3]))
+
+
+def _curve_in_frame(Qt, k, points):
+    r'''(d0, d1, d2, d3) of a curve through points (M,2) in the frame of edge k's chord
+(zeros for None)'''
+    if points is None:
+        return np.zeros(4)
+    P0, P1 = Qt[k], Qt[(k + 1) % 4]
+    e = P1 - P0
+    L = float(np.hypot(*e))
+    e = e / L
+    n = np.array([-e[1], e[0]])
+    if n @ (Qt.mean(0) - P0) < 0:
+        n = -n
+    r = points - P0
+    tau = 2.0 * (r @ e) / L - 1.0
+    V = np.stack((np.ones(len(tau)), tau, tau * tau), axis=-1)
+    return np.concatenate((np.linalg.solve(V.T @ V, V.T @ (r @ n)), [0.0]))
+
+
+def _curve_point(P0, frame, curve, t):
+    L, e, n = frame
+    tau = 2.0 * t / L - 1.0
+    s = curve[0] + tau * (curve[1] + tau * (curve[2] + tau * curve[3]))
+    ds = (curve[1] + tau * (2.0 * curve[2] + 3.0 * tau * curve[3])) * 2.0 / L
+    return P0 + t * e + s * n, e + ds * n
+
+
+def _meet(Pa, fa, ca, Pb, fb, cb, iterations=8):
+    r'''Where curve a (near its end t = L) meets curve b (near its start t = 0): Newton'''
+    ta, tb = fa[0], 0.0
+    for _ in range(iterations):
+        pa, ga = _curve_point(Pa, fa, ca, ta)
+        pb, gb = _curve_point(Pb, fb, cb, tb)
+        # solve [ga, -gb] (dta, dtb) = pb - pa (Cramer's rule)
+        r = pb - pa
+        det = -ga[0] * gb[1] + gb[0] * ga[1]
+        if not abs(det) > 1e-12:
+            return np.full(2, np.nan)
+        da = (-r[0] * gb[1] + gb[0] * r[1]) / det
+        db = (ga[0] * r[1] - ga[1] * r[0]) / det
+        ta, tb = ta + da, tb + db
+        if max(abs(da), abs(db)) < 1e-9:
+            break
+    return _curve_point(Pa, fa, ca, ta)[0]
+
+
+def _fit_edges(img, geo, table, bfix=None):
+    r'''Levenberg-Marquardt of every edge's (a, b, d0..d3) at once, d3 = 0 unless the
+edge has its neighbours' pixels; bfix (m,) the contrast of the edges whose b is given (NaN:
+fitted): [(p (6,), converged, misfit RMS / contrast)] per edge'''
+    m = len(geo)
+    P = max(len(g[2]) for g in geo)
+    v = np.zeros((m, P))
+    w = np.zeros((m, P))
+    tau = np.zeros((m, P))
+    s = np.zeros((m, P))
+    phi = np.zeros(m)
+    cubic = np.zeros(m)
+    for j, (_i, _k, ix, iy, t, sj, L, _e, n, cub, _d, _end) in enumerate(geo):
+        c = len(ix)
+        v[j, :c] = img[iy, ix]
+        w[j, :c] = 1.0
+        tau[j, :c] = 2.0 * t / L - 1.0
+        s[j, :c] = sj
+        u_, w_ = abs(n[0]), abs(n[1])
+        phi[j] = np.arctan2(min(u_, w_), max(u_, w_))
+        cubic[j] = float(cub)
+    from ._tag_edge_kernels import edge_normal
+    x0, F, dF = table
+    A = F.shape[0]
+    fa = np.clip(phi / (np.pi / 4) * (A - 1), 0.0, A - 1.000001)
+    j0 = fa.astype(np.int64)
+    fy = fa - j0
+    bf = np.full(m, np.nan) if bfix is None else np.asarray(bfix, dtype=np.float64)
+    # the start: each edge's current curve (cubic term 0)
+    d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
+
+    def evaluate(rows, d):
+        return edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF,
+                           bf)
+
+    a, b, S, JtJ, Jtr = evaluate(np.arange(m), d)
+    lam = np.full(m, 1e-3)
+    done = np.zeros(m, bool)
+    eye = np.eye(6)
+    for _ in range(MAX_ITERATIONS):
+        rows = np.flatnonzero(~done)
+        if not len(rows):
+            break
+        A_ = JtJ[rows]
+        diag = np.einsum("nii->ni", A_)
+        step = np.linalg.solve(A_ + (lam[rows, None] * diag)[:, :, None] * eye + 1e-12 * eye,
+                               Jtr[rows][..., None])[..., 0]
+        d1 = d[rows] + step[:, 2:]
+        a1, b1, S1, JtJ1, Jtr1 = evaluate(rows, d1)
+        better = S1 <= S[rows]
+        rb = rows[better]
+        d[rb], a[rb], b[rb], S[rb] = d1[better], a1[better], b1[better], S1[better]
+        JtJ[rb], Jtr[rb] = JtJ1[better], Jtr1[better]
+        lam[rows] = np.where(better, np.maximum(lam[rows] * 0.3, 1e-7), lam[rows] * 10.0)
+        small = np.abs(step[:, 2:]).max(-1) < CONVERGED_PX
+        done[rows] = (better & small) | (lam[rows] > 1e6)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mis = np.sqrt(S / w.sum(-1)) / np.abs(b)
+    p = np.concatenate((a[:, None], b[:, None], d), axis=-1)
+    return [(p[j], bool(done[j]), float(mis[j])) for j in range(m)]
