@@ -113,6 +113,7 @@ In-process faults and clean runs, measured (2026-11-25, 2 shared cores, K=16, 6 
 '''
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -175,6 +176,16 @@ the spec on this record, largest ratio first'''
         out.append((abs(v) / allowed if allowed else float("inf"),
                     f"{lim.field.rsplit('.', 1)[-1]} {abs(v):.3g} (sigma {sig}{z}) "
                     f"vs {allowed:.3g}"))
+    for lim in spec.joint:
+        j = _lookup(rec, lim.field)
+        if not _matches(name, lim.match) or not isinstance(j, dict) or not j.get("dof") \
+                or j.get("chi2") is None:
+            continue
+        allowed, _ = lim.allowed(j["dof"])
+        # as an amplitude (sqrt chi2 over sqrt of its limit), comparable with the ratios above
+        out.append((math.sqrt(j["chi2"] / allowed),
+                    f"joint chi2 {j['chi2']:.3g} (dof {j['dof']}, z {j['z']:.3g}) "
+                    f"vs {allowed:.3g}"))
     return sorted(out, reverse=True)
 
 
@@ -208,12 +219,25 @@ that move one judged parameter by a known amount, else None'''
 
 
 def parameter_limit(name, rec, spec, p):
+    r'''(the smallest move of parameter p alone the spec flags on this record, its sigma):
+the [[scatter]] limit on p, or the [[joint]] one (sqrt of the chi2 limit x the sigma the
+joint test sees that move by: harness.gate.minimum_detectable_faults)'''
     from harness.gate import _matches
+    best = (None, None)
     for lim in spec.scatter:
         if lim.field == f"verdict.renderer.params.{p}" and _matches(name, lim.match):
             s = _lookup(rec, lim.sigma)
-            return lim.allowed(abs(s) if s else None)[0], s
-    return None, None
+            best = (lim.allowed(abs(s) if s else None)[0], s)
+    for lim in spec.joint:
+        j = _lookup(rec, lim.field)
+        if not _matches(name, lim.match) or not isinstance(j, dict) or not j.get("dof"):
+            continue
+        s = (j.get("fault_sigma") or {}).get(p)
+        if s:
+            allowed = math.sqrt(lim.allowed(j["dof"])[0]) * s
+            if best[0] is None or allowed < best[0]:
+                best = (allowed, s)
+    return best
 
 
 def classify(fault, cal, name, rec, flagged, spec, size, model):
