@@ -888,7 +888,8 @@ SYNOPSIS
     s = scatter(res, exact_res, obs, truth)
     s["sigma"]["Hc"], s["sigma"]["theta_deg"], s["sigma"]["projection_rms"]
     s["noise_per_pose"]     # sigma px per image (the model's input)
-    s["joint"]["chi2"], s["joint"]["dof"], s["joint"]["z"]   # joint_of_fit
+    s["joint"]["chi2"], s["joint"]["dof"], s["joint"]["z"]   # joint_of_fit (with the
+                                                             # resolution term)
 
 None when the fit cannot be linearised here (see linearisation()). Sigma of a
 vector parameter (C_mm, A_deg, O_deg) is that of its length: sqrt of the trace.
@@ -963,7 +964,9 @@ projection difference (the rotation's own freedom projected out).
         if k in sigma:
             sigma[k] = math.sqrt(sigma[k])
     sigma["projection_rms"] = _projection_sigma(m0, P, Jg, cov)
-    return {"sigma": sigma, "joint": joint_of_fit(names, q0, G, cov, ref),
+    # the joint test's covariance adds the renderer resolution (joint_resolution_cov)
+    res_cov = joint_resolution_cov(Ninv, s_col, len(lin.pose))[:lin.n_model, :lin.n_model]
+    return {"sigma": sigma, "joint": joint_of_fit(names, q0, G, cov + res_cov, ref),
             "noise_per_pose": [None if not np.isfinite(s) else float(s)
                                for s in sig_pose],
             "n_params": n, "n_points": int(len(lin.pose))}
@@ -1037,6 +1040,17 @@ def z_scores(renderer, sigma):
 # eigenvalues ~m x 1e-10 (m ~ 25 quantities): ~3e-9. The cut sits a factor 3 above that:
 # a kept direction's conditional sigma is at least 1e-4 of the marginal ones.
 JOINT_EIGEN_CUT = 1e-8
+# The renderer resolution in the joint test. DETECTION_RESOLUTION_PX (1e-4 px: what float32
+# model vectors move a projection by) floors the noise per image, but as independent noise
+# per point, which averages away over a fit's ~600 points; a renderer's sub-resolution
+# errors are coherent (float32 rounding of C moves every point alike), and the joint test,
+# which sees coherent moves by their conditional sigma (1.2e-5 px of Hc on pancam 13),
+# flagged float32 model vectors on pancam 13 at z 8.1 without it. So its covariance adds a
+# coherent resolution term: any move of the fit's parameters dx costs
+# (RMS over the observed points of its projection change / r)^2, r = DETECTION_RESOLUTION_PX
+# / JOINT_RESOLUTION_Z: a coherent 1e-4 px alone is a 6-sigma event, as the [[scatter]]
+# floors of campaigns/gate-renderer.toml put 1e-4 px (or what moves pixels by it) at z 6.
+JOINT_RESOLUTION_Z = 6.0
 
 
 def joint_statistic(d, S, cut=JOINT_EIGEN_CUT):
@@ -1070,6 +1084,14 @@ Returns {"chi2", "dof", "z", "n"} (n quantities taken), chi2 and z None when dof
     chi2 = float(np.sum(u * u / w[keep]))
     dof = int(keep.sum())
     return {"chi2": chi2, "dof": dof, "z": joint_z(chi2, dof), "n": out["n"]}
+
+
+def joint_resolution_cov(Ninv, s_col, n_points):
+    r'''The resolution covariance of the fit's parameters (see JOINT_RESOLUTION_Z):
+r^2 n_points (J^T J)^+, from _scatter's Ninv = (Js^T Js)^+ of the column-scaled Jacobian
+Js = J / s_col; under it a move dx has Mahalanobis distance^2 = |J dx|^2 / (n_points r^2)'''
+    r = DETECTION_RESOLUTION_PX / JOINT_RESOLUTION_Z
+    return r * r * n_points * Ninv / np.outer(s_col, s_col)
 
 
 def joint_fault_sigma(v, S, cut=JOINT_EIGEN_CUT):
@@ -1134,8 +1156,9 @@ def _joint_fault_directions(names, ref):
 
 def joint_of_fit(names, q0, G, cov, ref):
     r'''verdict.renderer.joint: joint_statistic of the renderer differences q0 (the signed
-reported quantities names, image fit minus exact fit ref) under G cov G^T, with the
-sigma each minimum-detectable fault is seen by ("fault_sigma", joint_fault_sigma)'''
+reported quantities names, image fit minus exact fit ref) under G cov G^T (_scatter passes
+the fit's covariance plus the resolution term joint_resolution_cov), with the sigma each
+minimum-detectable fault is seen by ("fault_sigma", joint_fault_sigma)'''
     S = G @ cov @ G.T
     d = np.array([q0[k] for k in names], dtype=np.float64)
     out = joint_statistic(d, S)

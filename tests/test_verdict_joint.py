@@ -140,3 +140,19 @@ than 10x smaller (41x on its rendered images: 1.4e-5 px against 5.6e-4) and flag
     r = _verdict(navcam, 0.003, 3)
     assert r["z"]["Hc"] < 6
     assert r["joint"]["z"] > 6
+
+
+def test_resolution_term_charges_a_move_by_its_rms_over_the_points_in_units_of_r():
+    from harness.verdict import DETECTION_RESOLUTION_PX, JOINT_RESOLUTION_Z, \
+        joint_resolution_cov
+    rng = np.random.default_rng(3)
+    n_points, n = 300, 6
+    J = rng.normal(size=(2 * n_points, n)) * np.logspace(-3, 3, n)   # badly scaled columns
+    s_col = np.linalg.norm(J, axis=0)
+    Js = J / s_col
+    w, V = np.linalg.eigh(Js.T @ Js)
+    F = joint_resolution_cov((V / w) @ V.T, s_col, n_points)
+    dx = rng.normal(size=n) / s_col
+    rms = math.sqrt(np.sum((J @ dx) ** 2) / n_points)       # RMS of |dq| over the points
+    r = DETECTION_RESOLUTION_PX / JOINT_RESOLUTION_Z
+    assert joint_statistic(dx, F)["chi2"] == pytest.approx((rms / r) ** 2, rel=1e-8)
