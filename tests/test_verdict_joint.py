@@ -7,7 +7,15 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from harness.verdict import joint_fault_sigma, joint_limit, joint_statistic, joint_z
+from harness.verdict import (
+    DETECTION_RESOLUTION_PX,
+    JOINT_RESOLUTION_Z,
+    joint_fault_sigma,
+    joint_limit,
+    joint_resolution_cov,
+    joint_statistic,
+    joint_z,
+)
 
 
 def test_independent_quantities_sum_their_squared_z():
@@ -143,8 +151,6 @@ than 10x smaller (41x on its rendered images: 1.4e-5 px against 5.6e-4) and flag
 
 
 def test_resolution_term_charges_a_move_by_its_rms_over_the_points_in_units_of_r():
-    from harness.verdict import DETECTION_RESOLUTION_PX, JOINT_RESOLUTION_Z, \
-        joint_resolution_cov
     rng = np.random.default_rng(3)
     n_points, n = 300, 6
     J = rng.normal(size=(2 * n_points, n)) * np.logspace(-3, 3, n)   # badly scaled columns
