@@ -40,11 +40,13 @@ A gate spec is TOML:
     # exceed the chi-square(dof) quantile whose tail probability is that of a two-sided
     # Gaussian at z (z = 6: p = 2e-9, as strict as [[scatter]] z = 6 per quantity).
     # field: the record's table holding "chi2" and "dof". Not judged where the [[scatter]]
-    # limits are not (far floor, fits in different minima).
+    # limits are not (far floor, fits in different minima). optional = true: matching no
+    # record is not a failure (a run of other models is judged by the other limits).
     [[joint]]
     field = "verdict.renderer.joint"
     z = 6
     match = "*/jpl[*]"
+    optional = false
 
     # regressions against a stored baseline (joined on fullname): the value may
     # grow by at most `abs` or `N%` of the baseline's value
@@ -76,7 +78,7 @@ from .records import STATUSES
 SPEC_KEYS = ("statuses", "status_match", "limits", "limit", "regressions", "regression",
              "description", "scatter", "judge_far_floor", "joint")
 SCATTER_KEYS = ("field", "sigma", "z", "floor", "cap", "match")
-JOINT_KEYS = ("field", "z", "match")
+JOINT_KEYS = ("field", "z", "match", "optional")
 LIMIT_KEYS = ("field", "max", "match")
 REGRESSION_KEYS = ("field", "tolerance", "match")
 
@@ -123,6 +125,7 @@ chi2 and dof are read from the record's table at field (harness.verdict.joint_st
     field: str
     z: float
     match: tuple = ("*",)
+    optional: bool = False      # matching no record is not a failure
 
     def allowed(self, dof):
         r'''(limit on chi2, its description) for dof degrees of freedom'''
@@ -338,7 +341,8 @@ def _parse_joint(tables, source):
         z = _number(source, key + ".z", t["z"])
         if not z > 0:
             raise GateUsageError(f"{source}: {key}.z: expected a positive number; got {z!r}")
-        out.append(JointLimit(t["field"], z, _match(source, key + ".match", t.get("match"))))
+        out.append(JointLimit(t["field"], z, _match(source, key + ".match", t.get("match")),
+                              _bool(source, key + ".optional", t.get("optional", False))))
     return tuple(out)
 
 
@@ -401,7 +405,7 @@ GateUsageError when the spec has regressions and baseline is None.
     records = run["records"]
     failures = []
     # a limit whose globs select no record would pass silently: that is a failure
-    for lim in spec.limits + spec.scatter + spec.joint:
+    for lim in spec.limits + spec.scatter + tuple(j for j in spec.joint if not j.optional):
         if not any(_matches(name, lim.match) for name in records):
             failures.append(Failure("(gate spec)", lim.field, "matched no record",
                                     "match " + " or ".join(lim.match), "unmatched"))

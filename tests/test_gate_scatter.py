@@ -140,6 +140,12 @@ def test_joint_limit_is_the_chi_square_quantile_of_the_gaussian_tail_at_z():
     # other calibrators are not matched by this entry
     fails = check({"records": {NAME: _joint(1e4), "15/x/mrcal[CAHVOR]": _joint(1e4)}}, spec)
     assert [f.fullname for f in fails] == [NAME]
+    # an entry matching no record fails, unless it is optional (a CAHVORE-only run)
+    other = {"records": {"15/x/mrcal[CAHVOR]": _joint(1e4)}}
+    (f,) = check(other, spec)
+    assert f.kind == "unmatched"
+    optional = {"joint": [dict(JOINT["joint"][0], optional=True)]}
+    assert check(other, parse_gate_spec(optional)) == []
 
 
 @pytest.mark.parametrize("doc, message", [
@@ -147,6 +153,7 @@ def test_joint_limit_is_the_chi_square_quantile_of_the_gaussian_tail_at_z():
     ({"joint": [{"field": "x", "z": 6, "sigma": "y"}]}, r"joint\[0\]\.sigma: unknown"),
     ({"joint": [{"field": "x", "z": 0}]}, "positive"),
     ({"joint": {"field": "x"}}, r"\[\[joint\]\] tables"),
+    ({"joint": [{"field": "x", "z": 6, "optional": "yes"}]}, "true or false"),
 ])
 def test_bad_joint_specs(doc, message):
     with pytest.raises(GateUsageError, match=message):
