@@ -1028,12 +1028,17 @@ def z_scores(renderer, sigma):
 # parameters are correlated (R1 with the focal length, O with A and Hc) that direction's
 # sigma, given the others, is far below each marginal sigma, and only the Mahalanobis
 # distance d^T S^+ d sees it at that size. Under the noise model (the notes above
-# scatter()) it is chi-square distributed with dof = the rank of S kept.
+# scatter()) it is chi-square distributed with dof = the rank of S kept; the resolution
+# term (JOINT_RESOLUTION_Z) only adds to S, so with it chi2 is smaller (a test at most as
+# likely to alarm as its chi-square threshold says). Measured on clean jpl fits of every
+# catalogue slot and extra (benchmarks/renderer_gate.py): without the term CAHV and CAHVOR
+# are near chi-square (chi2/dof 0.89), CAHVORE is over-dispersed (1.65); with it chi2/dof
+# is ~0.2 where the detection noise sits at the 1e-4 px floor (most slots, area coverage).
 #
 # JOINT_EIGEN_CUT: directions of the correlation matrix (S scaled to unit diagonal) whose
 # eigenvalue is below this fraction of the largest are left out of the statistic and of
 # its dof. Two kinds sit there: exact redundancies of the reported quantities (R1 and
-# R1_frac, Hs and Hs*(1+R0), the three components of the unit vector O: eigenvalue 0 up to
+# R1_frac, Hs and Hs*(1+R0), the third component of the unit vectors A and O: 0 up to
 # rounding) and what the covariance cannot resolve. G's columns are central differences
 # with steps 1e-6 of each parameter, so they carry a relative rounding error of about
 # 2.2e-16 / 1e-6 = 2e-10; the correlation matrix inherits ~1e-10 per entry and its
