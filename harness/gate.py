@@ -35,6 +35,19 @@ A gate spec is TOML:
     cap = 0.005
     match = "*"
 
+    # every renderer difference at once, by its full covariance (harness.verdict
+    # joint_statistic): the record's chi2 = d^T S^+ d with dof degrees of freedom must not
+    # exceed the chi-square(dof) quantile whose tail probability is that of a two-sided
+    # Gaussian at z (z = 6: p = 2e-9, as strict as [[scatter]] z = 6 per quantity).
+    # field: the record's table holding "chi2" and "dof". Not judged where the [[scatter]]
+    # limits are not (far floor, fits in different minima). optional = true: matching no
+    # record is not a failure (a run of other models is judged by the other limits).
+    [[joint]]
+    field = "verdict.renderer.joint"
+    z = 6
+    match = "*/jpl[*]"
+    optional = false
+
     # regressions against a stored baseline (joined on fullname): the value may
     # grow by at most `abs` or `N%` of the baseline's value
     regressions = ["projection.rms:0.0005", "residuals.rms:10%"]
@@ -52,6 +65,7 @@ baseline has and the run lacks fails; a baseline record that was ok and is
 not ok now fails.
 '''
 
+import math
 import re
 import tomllib
 from dataclasses import dataclass
@@ -62,8 +76,9 @@ from reference_models.errors import CamvalError
 from .records import STATUSES
 
 SPEC_KEYS = ("statuses", "status_match", "limits", "limit", "regressions", "regression",
-             "description", "scatter", "judge_far_floor")
+             "description", "scatter", "judge_far_floor", "joint")
 SCATTER_KEYS = ("field", "sigma", "z", "floor", "cap", "match")
+JOINT_KEYS = ("field", "z", "match", "optional")
 LIMIT_KEYS = ("field", "max", "match")
 REGRESSION_KEYS = ("field", "tolerance", "match")
 
@@ -103,6 +118,26 @@ a record written before verdicts) is judged by cap alone.'''
 
 
 @dataclass(frozen=True)
+class JointLimit:
+    r'''chi2 <= the chi-square(dof) quantile at the two-sided Gaussian tail probability of z
+
+chi2 and dof are read from the record's table at field (harness.verdict.joint_statistic).'''
+    field: str
+    z: float
+    match: tuple = ("*",)
+    optional: bool = False      # matching no record is not a failure
+
+    def allowed(self, dof):
+        r'''(limit on chi2, its description) for dof degrees of freedom'''
+        from scipy import stats
+
+        from .verdict import joint_limit
+        lim = joint_limit(self.z, dof)
+        p = 2.0 * stats.norm.sf(self.z)
+        return lim, f"<= {lim:.4g} (chi-square dof {dof} at p {p:.3g} = {self.z:g} sigma)"
+
+
+@dataclass(frozen=True)
 class Regression:
     field: str
     tolerance: float
@@ -123,6 +158,7 @@ class GateSpec:
     source: str = ""
     scatter: tuple = ()
     judge_far_floor: bool = False
+    joint: tuple = ()
 
     @property
     def needs_baseline(self):
@@ -253,7 +289,8 @@ def parse_gate_spec(doc, source="gate spec"):
                     limits=tuple(limits), regressions=tuple(regressions), source=source,
                     scatter=_parse_scatter(doc.get("scatter", []), source),
                     judge_far_floor=_bool(source, "judge_far_floor",
-                                          doc.get("judge_far_floor", False)))
+                                          doc.get("judge_far_floor", False)),
+                    joint=_parse_joint(doc.get("joint", []), source))
 
 
 def _bool(source, key, v):
@@ -283,6 +320,29 @@ def _parse_scatter(tables, source):
             _number(source, key + ".floor", t.get("floor", 0.0)),
             _number(source, key + ".cap", t.get("cap", float("inf"))),
             _match(source, key + ".match", t.get("match"))))
+    return tuple(out)
+
+
+def _parse_joint(tables, source):
+    if not isinstance(tables, list):
+        raise GateUsageError(f"{source}: joint: expected [[joint]] tables")
+    out = []
+    for i, t in enumerate(tables):
+        key = f"joint[{i}]"
+        if not isinstance(t, dict):
+            raise GateUsageError(f"{source}: {key}: expected a table")
+        for k in t:
+            if k not in JOINT_KEYS:
+                raise GateUsageError(f"{source}: {key}.{k}: unknown key; known keys: "
+                                     f"{', '.join(JOINT_KEYS)}")
+        if not isinstance(t.get("field"), str) or "z" not in t:
+            raise GateUsageError(f"{source}: {key}: needs field = \"...\" (the dotted path of "
+                                 f"the record's table with chi2 and dof) and z = number")
+        z = _number(source, key + ".z", t["z"])
+        if not z > 0:
+            raise GateUsageError(f"{source}: {key}.z: expected a positive number; got {z!r}")
+        out.append(JointLimit(t["field"], z, _match(source, key + ".match", t.get("match")),
+                              _bool(source, key + ".optional", t.get("optional", False))))
     return tuple(out)
 
 
@@ -345,7 +405,7 @@ GateUsageError when the spec has regressions and baseline is None.
     records = run["records"]
     failures = []
     # a limit whose globs select no record would pass silently: that is a failure
-    for lim in spec.limits + spec.scatter:
+    for lim in spec.limits + spec.scatter + tuple(j for j in spec.joint if not j.optional):
         if not any(_matches(name, lim.match) for name in records):
             failures.append(Failure("(gate spec)", lim.field, "matched no record",
                                     "match " + " or ".join(lim.match), "unmatched"))
@@ -370,6 +430,7 @@ GateUsageError when the spec has regressions and baseline is None.
                 failures.append(Failure(name, lim.field, _fmt(v), f"<= {lim.max:g}", "limit"))
         if spec.judge_far_floor or not _unjudged(r):
             failures += _scatter_failures(name, r, spec.scatter)
+            failures += _joint_failures(name, r, spec.joint)
     if baseline is not None and spec.regressions:
         failures += _regressions(records, baseline["records"], spec)
     return failures
@@ -401,6 +462,33 @@ def _scatter_failures(name, r, limits):
             z = f", z {m / s:.3g}" if s and m is not None else ""
             sig = f"sigma {s:.3g}" if s else "no sigma"
             out.append(Failure(name, lim.field, f"{_fmt(v)} ({sig}{z})", text, "scatter"))
+    return out
+
+
+def _joint_failures(name, r, limits):
+    r'''The [[joint]] failures of one ok record: "chi2 (dof k, z)" against the limit'''
+    out = []
+    for lim in limits:
+        if not _matches(name, lim.match):
+            continue
+        j = _lookup(r, lim.field)
+        field = lim.field + ".chi2"
+        if not isinstance(j, dict):
+            # no covariance (a fit scatter() cannot linearise: its sigmas are absent too,
+            # and [[scatter]] judges it by its caps); a record without the verdict at all
+            # is missing it
+            if _lookup(r, lim.field.rpartition(".")[0]) is _ABSENT:
+                out.append(Failure(name, field, "missing",
+                                   f"<= chi-square quantile at {lim.z:g} sigma", "missing"))
+            continue
+        chi2, dof = _magnitude(j.get("chi2")), j.get("dof")
+        if chi2 is None or isinstance(dof, bool) or not isinstance(dof, int) or dof < 1:
+            continue        # no direction the fit determines: nothing to judge
+        allowed, text = lim.allowed(dof)
+        if not chi2 <= allowed:
+            z = j.get("z")
+            zt = f", z {z:.3g}" if isinstance(z, (int, float)) else ""
+            out.append(Failure(name, field, f"{chi2:.6g} (dof {dof}{zt})", text, "joint"))
     return out
 
 
@@ -485,6 +573,13 @@ d exceeds its limit on verdict.renderer.params.p: min(cap, max(floor, z * sigma)
 The camera's figure is the smallest over its ok records (the calibrator and model
 that see the fault best). A fault no limit of the spec judges, or no record has the
 sigma of, is left out.
+
+A [[joint]] limit sees a fault of size d by the sigma the record's joint table gives
+it (fault_sigma[p]: harness.verdict.joint_fault_sigma, the fault's sigma given every
+other judged quantity, far below the marginal one where the parameters are
+correlated): alone it adds (d / that sigma)^2 to chi2, so it is flagged at
+d = sqrt(the chi2 limit) x that sigma. The camera's figure is the smaller of the two
+tests' figures.
 '''
     out = {}
     for name, r in run["records"].items():
@@ -506,6 +601,20 @@ sigma of, is left out.
                 if best is None or allowed < best["value"]:
                     cam[fault] = {"value": allowed, "unit": unit, "record": name,
                                   "sigma": s, "limit": text}
+            for lim in spec.joint:
+                j = _lookup(r, lim.field)
+                if not _matches(name, lim.match) or not isinstance(j, dict):
+                    continue
+                s = _magnitude((j.get("fault_sigma") or {}).get(p))
+                dof = j.get("dof")
+                if not s or not isinstance(dof, int) or isinstance(dof, bool) or dof < 1:
+                    continue
+                chi2_max, text = lim.allowed(dof)
+                allowed = math.sqrt(chi2_max) * s
+                best = cam.get(fault)
+                if best is None or allowed < best["value"]:
+                    cam[fault] = {"value": allowed, "unit": unit, "record": name,
+                                  "sigma": s, "limit": f"joint chi2 {text}"}
     return dict(sorted(out.items()))
 
 
@@ -518,6 +627,9 @@ detectable fault of each camera (minimum_detectable_faults)'''
     for lim in spec.scatter:
         lines.append(f"  |{lim.field}| <= min(cap {lim.cap:g}, max(floor {lim.floor:g}, "
                      f"{lim.z:g} x {lim.sigma}))  on {' or '.join(lim.match)}")
+    for lim in spec.joint:
+        lines.append(f"  {lim.field}.chi2 <= the chi-square(dof) quantile at {lim.z:g} "
+                     f"sigma (two-sided Gaussian tail)  on {' or '.join(lim.match)}")
     mdf = minimum_detectable_faults(run, spec)
     if not mdf:
         lines.append("minimum detectable faults: none (no record has a verdict with sigma)")

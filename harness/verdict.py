@@ -40,7 +40,9 @@ the world frames identified ("world", both fits in the world frame).
 Expected scatter (scatter()): the covariance of the image fit from its
 Jacobian at the solution, under the detection noise of each image, gives a
 sigma for every reported parameter and for the projection RMS over the image;
-verdict.renderer.z holds each renderer difference over its sigma. The notes
+verdict.renderer.z holds each renderer difference over its sigma, and
+verdict.renderer.joint all of them at once by their full covariance (chi2, dof
+and its equivalent Gaussian z: joint_statistic). The notes
 above scatter() say where that noise model stops holding.
 
 The exact fit is computed per camera, also for twins (harness.jobs): their
@@ -449,6 +451,8 @@ def _assess(truth, res, exact_res, noise, total_params, total_projection, second
         if "sigma" in sc:
             out["renderer"]["sigma"] = sc.pop("sigma")
             out["renderer"]["z"] = z_scores(out["renderer"], out["renderer"]["sigma"])
+        if "joint" in sc:
+            out["renderer"]["joint"] = sc.pop("joint")
         out["scatter"] = sc
     return jsonable(out)
 
@@ -884,6 +888,8 @@ SYNOPSIS
     s = scatter(res, exact_res, obs, truth)
     s["sigma"]["Hc"], s["sigma"]["theta_deg"], s["sigma"]["projection_rms"]
     s["noise_per_pose"]     # sigma px per image (the model's input)
+    s["joint"]["chi2"], s["joint"]["dof"], s["joint"]["z"]   # joint_of_fit (with the
+                                                             # resolution term)
 
 None when the fit cannot be linearised here (see linearisation()). Sigma of a
 vector parameter (C_mm, A_deg, O_deg) is that of its length: sqrt of the trace.
@@ -958,8 +964,11 @@ projection difference (the rotation's own freedom projected out).
         if k in sigma:
             sigma[k] = math.sqrt(sigma[k])
     sigma["projection_rms"] = _projection_sigma(m0, P, Jg, cov)
-    return {"sigma": sigma, "noise_per_pose": [None if not np.isfinite(s) else float(s)
-                                               for s in sig_pose],
+    # the joint test's covariance adds the renderer resolution (joint_resolution_cov)
+    res_cov = joint_resolution_cov(Ninv, s_col, len(lin.pose))[:lin.n_model, :lin.n_model]
+    return {"sigma": sigma, "joint": joint_of_fit(names, q0, G, cov + res_cov, ref),
+            "noise_per_pose": [None if not np.isfinite(s) else float(s)
+                               for s in sig_pose],
             "n_params": n, "n_points": int(len(lin.pose))}
 
 
@@ -1009,4 +1018,155 @@ def z_scores(renderer, sigma):
         if v is None or s is None or not s > 0:
             continue
         out[k] = float(abs(v) / s)
+    return out
+
+
+# --- the joint test: every renderer difference at once, by its full covariance -----------
+#
+# The marginal test judges each difference against its own sigma. A fault the fit can
+# represent moves the differences along one direction of parameter space; where the
+# parameters are correlated (R1 with the focal length, O with A and Hc) that direction's
+# sigma, given the others, is far below each marginal sigma, and only the Mahalanobis
+# distance d^T S^+ d sees it at that size. Under the noise model (the notes above
+# scatter()) it is chi-square distributed with dof = the rank of S kept; the resolution
+# term (JOINT_RESOLUTION_Z) only adds to S, so with it chi2 is smaller (a test at most as
+# likely to alarm as its chi-square threshold says). Measured on clean jpl fits of every
+# catalogue slot and extra (benchmarks/renderer_gate.py): without the term CAHV and CAHVOR
+# are near chi-square (chi2/dof 0.89), CAHVORE is over-dispersed (1.65); with it chi2/dof
+# is ~0.2 where the detection noise sits at the 1e-4 px floor (most slots, area coverage).
+#
+# JOINT_EIGEN_CUT: directions of the correlation matrix (S scaled to unit diagonal) whose
+# eigenvalue is below this fraction of the largest are left out of the statistic and of
+# its dof. Two kinds sit there: exact redundancies of the reported quantities (R1 and
+# R1_frac, Hs and Hs*(1+R0), the third component of the unit vectors A and O: 0 up to
+# rounding) and what the covariance cannot resolve. G's columns are central differences
+# with steps 1e-6 of each parameter, so they carry a relative rounding error of about
+# 2.2e-16 / 1e-6 = 2e-10; the correlation matrix inherits ~1e-10 per entry and its
+# eigenvalues ~m x 1e-10 (m ~ 25 quantities): ~3e-9. The cut sits a factor 3 above that:
+# a kept direction's conditional sigma is at least 1e-4 of the marginal ones.
+JOINT_EIGEN_CUT = 1e-8
+# The renderer resolution in the joint test. DETECTION_RESOLUTION_PX (1e-4 px: what float32
+# model vectors move a projection by) floors the noise per image, but as independent noise
+# per point, which averages away over a fit's ~600 points; a renderer's sub-resolution
+# errors are coherent (float32 rounding of C moves every point alike), and the joint test,
+# which sees coherent moves by their conditional sigma (1.2e-5 px of Hc on pancam 13),
+# flagged float32 model vectors on pancam 13 at z 8.1 without it. So its covariance adds a
+# coherent resolution term: any move of the fit's parameters dx costs
+# (RMS over the observed points of its projection change / r)^2, r = DETECTION_RESOLUTION_PX
+# / JOINT_RESOLUTION_Z: a coherent 1e-4 px alone is a 6-sigma event, as the [[scatter]]
+# floors of campaigns/gate-renderer.toml put 1e-4 px (or what moves pixels by it) at z 6.
+JOINT_RESOLUTION_Z = 6.0
+
+
+def joint_statistic(d, S, cut=JOINT_EIGEN_CUT):
+    r'''The Mahalanobis distance of differences d under their covariance S
+
+SYNOPSIS
+
+    j = joint_statistic(d, S)      # d has shape (m,); S (m,m)
+    j["chi2"], j["dof"], j["z"]    # d^T S^+ d, rank kept, equivalent Gaussian z
+
+S is scaled to unit diagonal (the quantities' units drop out) and inverted on the
+eigen-directions above cut x its largest eigenvalue (JOINT_EIGEN_CUT): the gauge,
+exact redundancies and directions the fit does not determine are left out, and dof
+counts the directions kept. A quantity with zero variance (one the fit holds: R0)
+is left out with its difference. z: the Gaussian z whose two-sided tail has the
+probability of chi2 under the chi-square distribution with dof degrees of freedom
+(joint_z), so z = 6 is as strict as the per-quantity gate's z = 6.
+Returns {"chi2", "dof", "z", "n"} (n quantities taken), chi2 and z None when dof is 0.
+'''
+    d = np.asarray(d, dtype=np.float64)
+    S = np.asarray(S, dtype=np.float64)
+    s = np.sqrt(np.maximum(np.diag(S), 0.0))
+    ok = (s > 0) & np.isfinite(s) & np.isfinite(d)
+    out = {"chi2": None, "dof": 0, "z": None, "n": int(ok.sum())}
+    if not ok.any():
+        return out
+    y = d[ok] / s[ok]
+    w, V = np.linalg.eigh(S[np.ix_(ok, ok)] / np.outer(s[ok], s[ok]))
+    keep = w > cut * w[-1]
+    u = V[:, keep].T @ y
+    chi2 = float(np.sum(u * u / w[keep]))
+    dof = int(keep.sum())
+    return {"chi2": chi2, "dof": dof, "z": joint_z(chi2, dof), "n": out["n"]}
+
+
+def joint_resolution_cov(Ninv, s_col, n_points):
+    r'''The resolution covariance of the fit's parameters (see JOINT_RESOLUTION_Z):
+r^2 n_points (J^T J)^+, from _scatter's Ninv = (Js^T Js)^+ of the column-scaled Jacobian
+Js = J / s_col; under it a move dx has Mahalanobis distance^2 = |J dx|^2 / (n_points r^2)'''
+    r = DETECTION_RESOLUTION_PX / JOINT_RESOLUTION_Z
+    return r * r * n_points * Ninv / np.outer(s_col, s_col)
+
+
+def joint_fault_sigma(v, S, cut=JOINT_EIGEN_CUT):
+    r'''The sigma the joint statistic sees a fault by: a fault moving the quantities by
+d x v (v (m,): the move per unit fault) adds (d / sigma)^2 to chi2; None when v lies in
+the directions left out (joint_statistic's cut) or has no component in S's support'''
+    v = np.asarray(v, dtype=np.float64)
+    s = np.sqrt(np.maximum(np.diag(np.asarray(S, dtype=np.float64)), 0.0))
+    ok = (s > 0) & np.isfinite(s)
+    if not ok.any():
+        return None
+    w, V = np.linalg.eigh(S[np.ix_(ok, ok)] / np.outer(s[ok], s[ok]))
+    keep = w > cut * w[-1]
+    u = V[:, keep].T @ (v[ok] / s[ok])
+    q = float(np.sum(u * u / w[keep]))
+    return 1.0 / math.sqrt(q) if q > 0 else None
+
+
+def joint_z(chi2, dof):
+    r'''The Gaussian z with the two-sided tail probability of chi2 under chi-square(dof)
+
+Far in the tail (chi2 of a gross fault: scipy's log survival underflows) the upper
+incomplete gamma function's leading term is used: log Q(a, x) ~ (a - 1) log x - x -
+log Gamma(a), x = chi2 / 2, a = dof / 2, relative error ~(a - 1) / x.'''
+    from scipy import special, stats
+    if chi2 is None or dof < 1:
+        return None
+    logp = float(stats.chi2.logsf(chi2, dof))
+    if not np.isfinite(logp):
+        a, x = dof / 2.0, chi2 / 2.0
+        logp = (a - 1) * math.log(x) - x - math.lgamma(a)
+    return float(-special.ndtri_exp(logp - math.log(2.0)))
+
+
+def joint_limit(z, dof):
+    r'''chi2 at which joint_z reaches z: the chi-square(dof) quantile at the two-sided
+Gaussian tail probability of z'''
+    from scipy import stats
+    return float(stats.chi2.isf(2.0 * stats.norm.sf(z), dof))
+
+
+# The faults of the minimum detectable fault (harness.gate.MDF_FAULTS), each as the move of
+# the reported quantities per unit fault: a focal scale moves every focal fraction alike,
+# an R1 scale R1_frac by 1 and R1 by |R1| of the exact fit.
+def _joint_fault_directions(names, ref):
+    idx = {k: i for i, k in enumerate(names)}
+    R1 = abs(float(ref.R[1])) if _is_jpl(ref) and ref.family != "CAHV" else 0.0
+    faults = {"Hc": {"Hc": 1.0}, "Vc": {"Vc": 1.0}, "theta_deg": {"theta_deg": 1.0},
+              "Hs": {"Hs": 1.0, "Vs": 1.0, "Hs*(1+R0)": 1.0, "Vs*(1+R0)": 1.0},
+              "R1_frac": {"R1_frac": 1.0, "R1": R1}}
+    out = {}
+    for p, move in faults.items():
+        if p not in idx:
+            continue
+        v = np.zeros(len(names))
+        for k, x in move.items():
+            if k in idx:
+                v[idx[k]] = x
+        out[p] = v
+    return out
+
+
+def joint_of_fit(names, q0, G, cov, ref):
+    r'''verdict.renderer.joint: joint_statistic of the renderer differences q0 (the signed
+reported quantities names, image fit minus exact fit ref) under G cov G^T (_scatter passes
+the fit's covariance plus the resolution term joint_resolution_cov), with the sigma each
+minimum-detectable fault is seen by ("fault_sigma", joint_fault_sigma)'''
+    S = G @ cov @ G.T
+    d = np.array([q0[k] for k in names], dtype=np.float64)
+    out = joint_statistic(d, S)
+    out["fault_sigma"] = {p: joint_fault_sigma(v, S)
+                          for p, v in _joint_fault_directions(names, ref).items()}
     return out

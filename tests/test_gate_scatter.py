@@ -1,6 +1,7 @@
 r'''The gate's [[scatter]] limits (thresholds read from each record), the renderer spec
 and the minimum detectable fault'''
 
+import math
 from pathlib import Path
 
 import pytest
@@ -98,3 +99,79 @@ def test_records_whose_fits_disagree_are_not_judged():
     r = _rec(0.05)
     r["verdict"]["fits_disagree"] = True
     assert check({"records": {NAME: r}}, parse_gate_spec(SPEC)) == []
+
+
+def _joint(chi2, dof=14, fault_sigma=None):
+    r = _rec(0.0)
+    r["verdict"]["renderer"]["joint"] = {
+        "chi2": chi2, "dof": dof, "z": None if chi2 is None else float(math.sqrt(chi2)),
+        "fault_sigma": fault_sigma or {}}
+    return r
+
+
+JOINT = {"joint": [{"field": "verdict.renderer.joint", "z": 6, "match": "*/jpl[*]"}]}
+
+
+def test_joint_limit_is_the_chi_square_quantile_of_the_gaussian_tail_at_z():
+    from scipy import stats
+    spec = parse_gate_spec(JOINT)
+    lim = stats.chi2.isf(2 * stats.norm.sf(6), 14)      # 69.9: p 1.97e-9, as z 6 alone
+    assert check({"records": {NAME: _joint(0.99 * lim)}}, spec) == []
+    (f,) = check({"records": {NAME: _joint(1.01 * lim)}}, spec)
+    # the failure line says the quantity, its value with its dof, and the limit
+    assert f.field == "verdict.renderer.joint.chi2" and f.kind == "joint"
+    assert f.value.startswith(f"{1.01 * lim:.6g} (dof 14, z ")
+    assert f.limit.startswith(f"<= {lim:.4g} (chi-square dof 14 at p 1.97e-09 = 6 sigma")
+    # dof 1: the limit is z^2
+    (f,) = check({"records": {NAME: _joint(36.5, dof=1)}}, spec)
+    assert f.limit.startswith("<= 36 (")
+    assert check({"records": {NAME: _joint(35.5, dof=1)}}, spec) == []
+    # nothing the fit determines: nothing to judge; a far floor: not judged
+    assert check({"records": {NAME: _joint(None, dof=0)}}, spec) == []
+    far = _joint(1e4)
+    far["verdict"]["floor_far"] = True
+    assert check({"records": {NAME: far}}, spec) == []
+    # a fit without covariance has no joint table (its sigmas are absent too): not judged;
+    # a record without the renderer verdict is missing it
+    assert check({"records": {NAME: _rec(0.0)}}, spec) == []
+    bare = {k: v for k, v in _rec(0.0).items() if k != "verdict"}
+    (f,) = check({"records": {NAME: bare}}, spec)
+    assert f.kind == "missing"
+    # other calibrators are not matched by this entry
+    fails = check({"records": {NAME: _joint(1e4), "15/x/mrcal[CAHVOR]": _joint(1e4)}}, spec)
+    assert [f.fullname for f in fails] == [NAME]
+    # an entry matching no record fails, unless it is optional (a CAHVORE-only run)
+    other = {"records": {"15/x/mrcal[CAHVOR]": _joint(1e4)}}
+    (f,) = check(other, spec)
+    assert f.kind == "unmatched"
+    optional = {"joint": [dict(JOINT["joint"][0], optional=True)]}
+    assert check(other, parse_gate_spec(optional)) == []
+
+
+@pytest.mark.parametrize("doc, message", [
+    ({"joint": [{"z": 6}]}, "needs field"),
+    ({"joint": [{"field": "x", "z": 6, "sigma": "y"}]}, r"joint\[0\]\.sigma: unknown"),
+    ({"joint": [{"field": "x", "z": 0}]}, "positive"),
+    ({"joint": {"field": "x"}}, r"\[\[joint\]\] tables"),
+    ({"joint": [{"field": "x", "z": 6, "optional": "yes"}]}, "true or false"),
+])
+def test_bad_joint_specs(doc, message):
+    with pytest.raises(GateUsageError, match=message):
+        parse_gate_spec(doc)
+
+
+def test_minimum_detectable_fault_takes_the_joint_test_where_it_sees_further():
+    from scipy import stats
+    spec = load_gate_spec(ROOT / "campaigns" / "gate-renderer.toml")
+    assert any(j.field == "verdict.renderer.joint" and j.z == 6 for j in spec.joint)
+    lim = stats.chi2.isf(2 * stats.norm.sf(6), 14)
+    # Hc's marginal sigma 0.001 px (limit 0.006 px); the joint test sees an Hc shift by
+    # 2e-5 px (A held: the noise moves Hc with A, the fault does not): sqrt(69.9) x 2e-5
+    run = {"records": {NAME: _joint(3.0, fault_sigma={"Hc": 2e-5, "R1_frac": 1.0})}}
+    mdf = minimum_detectable_faults(run, spec)["15"]
+    assert mdf["Hc shift"]["value"] == pytest.approx(math.sqrt(lim) * 2e-5, rel=1e-9)
+    assert "joint" in mdf["Hc shift"]["limit"]
+    # where the marginal limit is smaller it stays (focal scale: 6 x 5e-7; R1: 6 x 1.0 > ...)
+    assert mdf["focal scale"]["value"] == pytest.approx(3e-6)
+    text = "\n".join(explain(run, spec))
+    assert "verdict.renderer.joint.chi2 <= the chi-square(dof) quantile at 6 sigma" in text

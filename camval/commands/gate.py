@@ -51,7 +51,7 @@ def run(args):
               f"(spec {args.spec}{', baseline ' + args.baseline if args.baseline else ''})")
         return 1
     print(f"camval gate: passed: {n} records, {len(spec.limits)} limits, "
-          f"{len(spec.scatter)} scatter limits, "
+          f"{len(spec.scatter)} scatter limits, {len(spec.joint)} joint limits, "
           f"{len(spec.regressions)} regression checks"
           f"{' against ' + args.baseline if args.baseline else ''}")
     return 0
