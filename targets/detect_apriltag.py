@@ -219,9 +219,9 @@ ARGUMENTS
             c = _refine(img32, c)
         used.append((tag_id, c))
     if refine is True and used:
-        from .corners import refine_tag_corners
+        from .corners import refine_tag_corners, tag_window
         fit = refine_tag_corners(img, np.array([c for _, c in used]), value_range=hi - lo,
-                                 psf_sigma_px=psf_sigma_px)
+                                 psf_sigma_px=psf_sigma_px, **tag_window(target))
         refined = fit.q.reshape(-1, 4, 2)
         used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
     for tag_id, c in used:
