@@ -11,6 +11,7 @@ from targets.corners import (
     refine_chessboard_corners,
     refine_corners,
     refine_tag_corners,
+    tag_window,
     wedge_area,
 )
 
@@ -98,6 +99,28 @@ def test_tag_corners_to_the_renders_accuracy(R):
     rms, worst = _exact_error(fit, truth)
     # measured 0.0017 / 0.0058 px (pinhole), 0.0017 / 0.0079 (CAHVOR): windows of 0.8 tag
     # bit (~5 px) average the render's sampling error less than a chessboard's
+    assert rms < 0.0025 and worst < 0.012, (rms, worst)
+
+
+@pytest.mark.slow
+def test_small_tags_keep_their_corners_in_the_l_shaped_window():
+    r'''Tag bits of 2.8 px: the box inside the 1-bit border (0.8 bit, ~5 pixels) holds
+fewer than MIN_WINDOW_PIXELS and drops every corner; tag_window's L-shaped window (out to
+the gap to the next tag, the tag's inside cut out) refines them all'''
+    t = load_target("apriltag")
+    m = pinhole(320, 320, 260.0)
+    Rt = _rolled_pose(-23.0, 20.0, [-0.5, -0.45, 1.45])
+    img = render(m, t.pattern(), Rt, K=K_TEST)
+    truth = projected_points(m, t, Rt)
+    rng = np.random.default_rng(1)
+    q0 = truth + 0.3 * _unit(rng.uniform(0, 2 * np.pi, len(truth))).T
+    box = refine_tag_corners(img, q0.reshape(-1, 4, 2))
+    assert box.dropped() == {"window too small": len(truth)}
+    fit = refine_tag_corners(img, q0.reshape(-1, 4, 2), **tag_window(t))
+    assert fit.dropped() == {}
+    rms, worst = _exact_error(fit, truth)
+    # measured 0.0013 / 0.0066 px: the K=32 render's sampling error, as on larger tags
+    # (test_tag_corners_to_the_renders_accuracy)
     assert rms < 0.0025 and worst < 0.012, (rms, worst)
 
 
