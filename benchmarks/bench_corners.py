@@ -27,7 +27,9 @@ refiner a known blur (px; default: it estimates the blur from the image); --meth
 the methods whose name contains one of the comma-separated words.
 
 The truth is targets.centroids.projected_points: the board's corner points projected
-through the camera. Prints the table method x camera (corner error RMS / max px,
+through the camera; camval's rows also give the error after subtracting the refiner's
+curvature bias under the true model and pose (harness.calibrators.bias.corner_bias, what
+jpl's bias loop converges to). Prints the table method x camera (corner error RMS / max px,
 corners found, median seconds per image), then the detection time per image of each
 method and image size (median and max over the images: the bars are 0.1 s on 1024x1024
 and 0.5 s on 5120x3840, issue 16; loaded-machine figures, the load average is
@@ -58,7 +60,10 @@ FAMILY_ORDER = ("CAHV", "CAHVOR", "CAHVORE")
 
 
 def render_images(directory, camera, tname, spp, nposes, coverage="point"):
-    r'''[(image, truth (N,2))] of one camera and target, rendered once into directory'''
+    r'''family, target, [(image, truth (N,2), bias (N,2))] of one camera and target, rendered
+once into directory; bias: harness.calibrators.bias.corner_bias under the true model and
+pose (what jpl's bias loop subtracts once it has converged)'''
+    from harness.calibrators.bias import corner_bias
     from harness.campaign import load_campaign
     from harness.jobs import expand_jobs
     from harness.stages import StageFailed, camera_stage, poses_stage, render_stage
@@ -94,7 +99,8 @@ def render_images(directory, camera, tname, spp, nposes, coverage="point"):
             np.save(directory / f"cam{camera}_{tname}_{tag}_{i}.npy", np.asarray(r.image))
     for i, Rt in enumerate(poses):
         img = np.load(directory / f"cam{camera}_{tname}_{tag}_{i}.npy")
-        out.append((img, projected_points(truth, target, Rt)))
+        out.append((img, projected_points(truth, target, Rt),
+                    corner_bias(truth, target, Rt, target.points())))
     return job.family, target, out
 
 
@@ -157,13 +163,13 @@ def main():
             family, target, images = render_images(args.images, cam, tname, args.spp,
                                                    args.poses, args.coverage)
             if chain is not None:
-                images = [(chain.apply(img, seed=i).image, truth)
-                          for i, (img, truth) in enumerate(images)]
+                images = [(chain.apply(img, seed=i).image, truth, b)
+                          for i, (img, truth, b) in enumerate(images)]
             for method, refine in METHODS[tname]:
                 if args.methods and not any(w in method for w in args.methods.split(",")):
                     continue
-                errs, secs, cpus, found, dropped, sig = [], [], [], 0, {}, []
-                for img, truth in images:
+                errs, cerrs, secs, cpus, found, dropped, sig = [], [], [], [], 0, {}, []
+                for img, truth, bias in images:
                     opts = {}
                     if refine is True and args.psf_sigma is not None:
                         opts["psf_sigma_px"] = args.psf_sigma
@@ -173,12 +179,15 @@ def main():
                     cpus.append(time.process_time() - c0)
                     e = np.linalg.norm(det.q - truth, axis=-1)
                     errs.append(e[np.isfinite(e)])
+                    ec = np.linalg.norm(det.q - bias - truth, axis=-1)
+                    cerrs.append(ec[np.isfinite(ec)])
                     found += int(det.n_found)
                     if "psf_sigma_px" in det.info:
                         sig.append(det.info["psf_sigma_px"])
                     for k, v in det.info.get("corners_dropped", {}).items():
                         dropped[k] = dropped.get(k, 0) + v
                 e = np.concatenate(errs)
+                ec = np.concatenate(cerrs)
                 row = {"fullname": f"{cam}/{family}/{tname}/{method}", "camera": cam,
                        "family": family, "target": tname, "method": method,
                        "spp": args.spp, "coverage": args.coverage, "images": len(images),
@@ -189,12 +198,18 @@ def main():
                        "corners_found": found, "corners_dropped": dropped,
                        "error_rms_px": float(np.sqrt(np.mean(e ** 2))) if len(e) else None,
                        "error_max_px": float(e.max()) if len(e) else None,
+                       "corrected_error_rms_px": float(np.sqrt(np.mean(ec ** 2)))
+                       if len(ec) else None,
+                       "corrected_error_max_px": float(ec.max()) if len(ec) else None,
                        "seconds_median": float(np.median(secs)),
                        "seconds": [float(x) for x in secs],
                        "cpu_seconds": [float(x) for x in cpus]}
                 rows.append(row)
                 print(f"{cam:>3s} {family:8s} {tname:10s} {method:38s} "
                       f"rms {row['error_rms_px']:.4f} max {row['error_max_px']:.4f} px  "
+                      + (f"bias-corrected rms {row['corrected_error_rms_px']:.4f} max "
+                         f"{row['corrected_error_max_px']:.4f}  " if refine is True else "")
+                      +
                       f"{found:4d}/{row['corners_expected']} found  "
                       f"{row['seconds_median']:.3f} s/image"
                       + (f"  blur {np.median(sig):.3f} px" if sig else "")

@@ -219,6 +219,8 @@ extra poses; the seconds stay those of the job). ctx["poses_used"] =
         det["per_pose"] = per_pose[:n]
         det["n_found"] = int(sum(per_pose[:n]))
         det["failed_poses"] = [i for i in det.get("failed_poses", []) if i < n]
+        if "corners_dropped" in det:
+            det["corners_dropped"] = det["corners_dropped"][:n]
     out["detections"] = det
     metas = ctx.get("render_metadata")
     if metas is not None and len(metas) == total:

@@ -113,6 +113,10 @@ A job with twins (group_twins) gives the records of each of its cameras.
                       "n_found": int(sum(d.n_found for d in dets)),
                       "per_pose": [int(d.n_found) for d in dets],
                       "failed_poses": [i for i, d in enumerate(dets) if d.status != "ok"]}
+        # corner targets: the corners the refiner dropped, {reason: count} per pose
+        dropped = [dict(d.info.get("corners_dropped") or {}) for d in dets]
+        if any(dropped):
+            detections["corners_dropped"] = dropped
         if keep:
             artifacts["detections"] = save_detections(job, dets, poses)
         obs = observations_from(truth, target, poses, dets)

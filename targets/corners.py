@@ -38,7 +38,11 @@ normal, turning a ray by dtheta by (s1^2 - s0^2)/2 over the ray's stretch
 Gauss-Newton (Levenberg-Marquardt damping) over (c, theta, a, b), in a window
 of the pixels whose whole square lies within half_box board units of the
 coarse corner along both board axes (the local affine map `steps`), and at
-most MAX_WINDOW_PX pixels from it.
+most MAX_WINDOW_PX pixels from it. An AprilTag's outer corner is dark only along its
+1-bit border, light outside as far as the gap to the next tag: its window (tag_window)
+is L-shaped, the box out to that gap with the tag's inside past the border cut out
+(the box inside the border alone, 0.8 bit, left fewer than MIN_WINDOW_PIXELS on bits of
+3 px and dropped half of the tag corners of a 640x480 hazcam, catalogue slot 17).
 
 The model has no lens distortion: an edge of curvature kappa (1/px) crossing
 a window of half-width w px is fitted by a straight ray, which moves the
@@ -64,8 +68,9 @@ runs wedge_area instead (the reference, equal within 1e-12 px, tested). Detectio
 with refinement, CPU seconds per image (median; benchmarks/bench_corners.py timing
 table, a machine at load 13-17 where the wall time is several times that): AprilTag
 0.054 s on 1024x1024, 0.023 s on 640x480, 0.38-0.48 s on 5120x3840 (pupil_apriltags'
-own search 0.26 s of it); chessboard 0.045 s on 1024x1024 (this fit 0.037 s of it),
-0.043 s on 640x480, 0.19 s on 5120x3840.
+own search 0.26 s of it) before the L-shaped tag window, 0.086 s on 1024x1024 and 0.071 s
+on 640x480 with it (load 11-17; docs/corners.md); chessboard 0.045 s on 1024x1024 (this
+fit 0.037 s of it), 0.043 s on 640x480, 0.19 s on 5120x3840.
 
 Blur. A camera's optics blur the image (the `realistic` response profile of
 campaigns/response.toml: a Gaussian PSF of sigma 0.7 px), and a sharp-edged model fitted
@@ -348,9 +353,10 @@ is (that / the smallest image step of one board unit) board units. Never above h
     return np.minimum(float(half_box), np.where(np.isfinite(hb), hb, float(half_box)))
 
 
-def _window(q0, steps, half_box, shape, max_px):
+def _window(q0, steps, half_box, shape, max_px, notch=None):
     r'''(N,P) pixel indices ix, iy and mask of each corner's window (half_box: a number
-or (N,) per corner)'''
+or (N,) per corner; notch: None, or a number or (N,): the pixels reaching past notch board
+units along both axes at once are left out, an L-shaped window)'''
     half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (len(q0),))
     half_box = half_box[:, None, None]
     H, W = shape
@@ -368,15 +374,22 @@ or (N,) per corner)'''
     rx = (ix - q0[:, 0:1])[:, :, None] + _SQUARE[:, 0]
     ry = (iy - q0[:, 1:2])[:, :, None] + _SQUARE[:, 1]
     a = Ainv[:, None, None, :, :]
-    inside = np.all((np.abs(a[..., 0, 0] * rx + a[..., 0, 1] * ry) <= half_box)
-                    & (np.abs(a[..., 1, 0] * rx + a[..., 1, 1] * ry) <= half_box), axis=-1)
+    bu = a[..., 0, 0] * rx + a[..., 0, 1] * ry
+    bv = a[..., 1, 0] * rx + a[..., 1, 1] * ry
+    inside = np.all((np.abs(bu) <= half_box) & (np.abs(bv) <= half_box), axis=-1)
+    if notch is not None:
+        # conservative: a square with one corner past the notch along u and one (maybe
+        # another) past it along v is out
+        notch = np.broadcast_to(np.asarray(notch, dtype=np.float64), (len(q0),))[:, None]
+        inside &= ~((bu.max(-1) > notch) & (bv.max(-1) > notch))
     inside &= (np.abs(ix - q0[:, 0:1]) <= max_px) & (np.abs(iy - q0[:, 1:2]) <= max_px)
     on_image = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
     return ix, iy, inside, on_image
 
 
 def refine_corners(image, q0, directions, wedges, steps, half_box, *, psf_sigma_px=None,
-                   psf_kind=None, clearance=None, lines=(), stop_if_blurred=False, **options):
+                   psf_kind=None, clearance=None, lines=(), notch=None, notch_clearance=None,
+                   stop_if_blurred=False, **options):
     r'''Refine corners by fitting the area-sampled wedge model; see the module docstring
 
 SYNOPSIS
@@ -404,6 +417,12 @@ ARGUMENTS
   feature stays out of it (blurred_half_box)
 - lines: pairs of rays (i, j) that are one straight line through the corner (a
   chessboard's); fitted as one angle when the image is blurred
+- notch: None (the window is the box), or board units: the pixels reaching past notch
+  along both axes at once (the quadrant the steps' columns point into) are left out, an
+  L-shaped window about a corner whose model holds only in a strip along its edges there
+  (an AprilTag's border: its data bits start one bit in); notch_clearance: board units
+  from the corner to that feature (default notch), the notch shrinks for the blur as the
+  box does for clearance
 - stop_if_blurred: return after the blur estimate when it finds a blur (fit.q: the first
   pass's sharp-model corners, info["stopped"]): for a caller with its own blurred model
   (targets.tag_edges)
@@ -435,6 +454,11 @@ and takes the median; fit.info has "psf_sigma_px", "psf_source" (given / estimat
 the estimate's spread.
 '''
     clearance = float(half_box) if clearance is None else float(clearance)
+    if notch is not None:
+        notch_clearance = float(notch) if notch_clearance is None else float(notch_clearance)
+
+    def notched(steps, sigma):
+        return None if notch is None else blurred_half_box(steps, notch, notch_clearance, sigma)
     q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
     steps = np.asarray(steps, dtype=np.float64).reshape(len(q0), 2, 2)
     info = {}
@@ -449,7 +473,8 @@ the estimate's spread.
         opts1 = options
         info = {"psf_sigma_px": sigma1, "psf_source": "given", "psf_kind": kind}
     hb1 = blurred_half_box(steps, half_box, clearance, sigma1)
-    fit = _fit(image, q0, directions, wedges, steps, hb1, widen=JACOBIAN_WIDEN,
+    fit = _fit(image, q0, directions, wedges, steps, hb1, notch=notched(steps, sigma1),
+               widen=JACOBIAN_WIDEN,
                converged_px=FIRST_PASS_CONVERGED_PX, sigma=sigma1, **opts1)
     ok = np.all(np.isfinite(fit.q), axis=-1)
     if not ok.any():
@@ -463,11 +488,12 @@ the estimate's spread.
         kinds = PSF_KINDS if psf_kind is None else (psf_kind,)
         # a sharp image (every clean render) is told by a few corners and one kind: the
         # full estimate (both kinds, BLUR_SAMPLE corners) only when they see a blur
+        notches = {} if notch is None else {"notch": notch, "notch_clearance": notch_clearance}
         info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box, clearance,
-                             kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE, **options)
+                             kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE, **notches, **options)
         if added_blur_px(info["psf_sigma_px"], info["psf_kind"]) >= BLUR_NEGLIGIBLE_PX:
             info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box,
-                                 clearance, kinds=kinds, **options)
+                                 clearance, kinds=kinds, **notches, **options)
         options["psf_kind"] = info["psf_kind"]
     sigma = info["psf_sigma_px"]
     if added_blur_px(sigma, options.get("psf_kind", "gaussian")) < BLUR_NEGLIGIBLE_PX:
@@ -478,9 +504,19 @@ the estimate's spread.
                          iterations=fit.iterations, directions=fit.directions,
                          info=dict(info, stopped="blurred: first pass only"))
     hb2 = blurred_half_box(steps2, half_box, clearance, sigma)
-    fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, hb2, sigma=sigma, **options)
+    nb2 = notched(steps2, sigma)
+    fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, hb2, notch=nb2, sigma=sigma, **options)
     q, reasons = fit.q.copy(), fit.reasons.copy()
     misfit, npix, directions = fit.misfit.copy(), fit.npixels.copy(), fit.directions.copy()
+    if nb2 is not None:
+        # the strip along the edges inside the notch must hold pixels that neither blurred
+        # edge reaches (its own, the feature's past it: nb2 keeps that one out), else the
+        # model sees no dark level there and trades contrast for corner position (0.3-0.7
+        # px off on 2.8 px tag bits at sigma 0.7 px, hazcam 17)
+        smin = np.linalg.svd(steps2, compute_uv=False)[:, -1]
+        thin = ~(nb2 * smin >= BLUR_REACH_SIGMAS * sigma + 0.5)
+        fit2.q[thin] = np.nan
+        fit2.reasons[thin] = "edge strip too thin for the blur"
     q[ok], reasons[ok], misfit[ok] = fit2.q, fit2.reasons, fit2.misfit
     npix[ok], directions[ok] = fit2.npixels, fit2.directions
     return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix,
@@ -498,7 +534,7 @@ while it blurs nothing'''
 
 
 def estimate_blur(image, q, directions, wedges, steps, half_box, clearance, kinds=PSF_KINDS,
-                  sample=None, **options):
+                  sample=None, notch=None, notch_clearance=None, **options):
     r'''The image's Gaussian blur (px) from the edge profiles at its corners
 
 SYNOPSIS
@@ -522,14 +558,19 @@ sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1
     pick = np.unique(np.linspace(0, n - 1, min(n, sample)).round().astype(np.int64))
     steps = np.asarray(steps, dtype=np.float64).reshape(n, 2, 2)[pick]
     hb = blurred_half_box(steps, half_box, clearance, BLUR_PROBE_PX)
+    if notch is not None and notch_clearance is None:
+        notch_clearance = notch
+    nb = None if notch is None else blurred_half_box(steps, notch, notch_clearance,
+                                                      BLUR_PROBE_PX)
     options.pop("psf_kind", None)
     best, misfits = None, {}
     # small features (AprilTag bits of 3-4 px) leave no window of MIN_WINDOW_PIXELS once
     # shrunk for BLUR_PROBE_PX: then the sharp image's windows (a blurred neighbour may
     # reach into them; a blur estimate slightly high beats none: 0.3 px errors, camera 17)
-    for box in (hb, np.full(len(pick), float(half_box))):
+    for box, nbox in ((hb, nb), (np.full(len(pick), float(half_box)), notch)):
         for kind in kinds:
             fit = _fit(image, q[pick], np.asarray(directions)[pick], wedges, steps, box,
+                       notch=nbox,
                        sigma=BLUR_START_PX, fit_sigma=True, psf_kind=kind, **options)
             good = fit.reasons == ""
             est = np.abs(fit.info.get("sigma", np.full(len(good), np.nan))[good])
@@ -551,7 +592,8 @@ sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1
             "psf_sigma_spread_px": float(1.4826 * np.median(np.abs(est - med)))}
 
 
-def _fit(image, q0, directions, wedges, steps, half_box, *, max_window_px=MAX_WINDOW_PX,
+def _fit(image, q0, directions, wedges, steps, half_box, *, notch=None,
+         max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
          converged_px=CONVERGED_PX, kernel="numba", value_range=None, sigma=0.0,
          fit_sigma=False, lines=(), psf_kind="gaussian"):
@@ -583,8 +625,10 @@ line through the corner when sigma > 0)'''
         return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix)
     idx = np.flatnonzero(ok)
     half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (N,))
+    if notch is not None:
+        notch = np.broadcast_to(np.asarray(notch, dtype=np.float64), (N,))[idx]
     ix, iy, inside, on_image = _window(q0[idx], steps[idx], half_box[idx], img.shape,
-                                       max_window_px)
+                                       max_window_px, notch)
     off = (inside & ~on_image).any(axis=-1)
     n_in = (inside & on_image).sum(axis=-1)
     npix[idx] = n_in
@@ -772,6 +816,9 @@ line through the corner when sigma > 0)'''
 # border; the window keeps to 0.8 bit, leaving 0.2 bit for the coarse corner's error and for
 # the local affine map's error (the tag's edges are 8 bits long, distortion bends them)
 TAG_HALF_BOX_BITS = 0.8
+# the slack (tag bits) a tag's window keeps from the features its model does not have: the
+# coarse corner's error and the local affine map's (as TAG_HALF_BOX_BITS keeps from 1 bit)
+TAG_SLACK_BITS = 0.2
 # a chessboard corner: the next grid lines are a square away; keep to 0.45 square
 CHESSBOARD_HALF_BOX = 0.45
 # board units from a corner to the nearest feature its model does not have, along the box's
@@ -787,11 +834,13 @@ def refine_tag_corners(image, Q, half_box=TAG_HALF_BOX_BITS, clearance=TAG_CLEAR
 
 SYNOPSIS
 
-    fit = refine_tag_corners(img, Q)   # Q (Ntags,4,2) corners in order round each tag
-    fit.q                              # (Ntags*4,2), NaN where dropped
+    fit = refine_tag_corners(img, Q, **tag_window(target))
+    # Q (Ntags,4,2) corners in order round each tag; fit.q (Ntags*4,2), NaN where dropped
 
 Corner k of a tag is the apex of the tag's black border between the edges to corners
 k-1 and k+1; one bit of a tag is its side / 8 (tag36h11: 6x6 data bits in a 1-bit border).
+Without tag_window's options the window is the box of TAG_HALF_BOX_BITS, inside the
+border: 30 pixels (MIN_WINDOW_PIXELS) need bits of 3.4 px or more.
 '''
     Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
     nxt = np.roll(Q, -1, axis=1) - Q
@@ -800,6 +849,27 @@ k-1 and k+1; one bit of a tag is its side / 8 (tag36h11: 6x6 data bits in a 1-bi
     steps = np.stack((nxt, prv), axis=-1).reshape(-1, 2, 2) / 8.0
     return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box,
                           clearance=clearance, **options)
+
+
+def tag_window(target):
+    r'''The window of an AprilGrid's tag corners: {half_box, clearance, notch,
+notch_clearance} (tag bits) for refine_tag_corners / refine_corners
+
+Around an outer corner the tag is dark only in its 1-bit border strips; outside it the
+board is light as far as the gap to the next tag (tag_spacing x 8 bits) or the board's
+edge (margin). The window is the box up to that light region's end less TAG_SLACK_BITS,
+with the tag's inside beyond its border (both tag axes past 1 bit less the slack) cut
+out: an L-shaped window of ~15 bits^2 at tag_spacing 0.3 against the 2.6 of the box
+inside the border, so that small tags (bits of 3 px: a 640x480 fisheye's far tags)
+keep MIN_WINDOW_PIXELS (MAX_WINDOW_PX still caps it on large tags).
+'''
+    spec = target.spec
+    if "tag_spacing" not in spec:
+        return {"half_box": TAG_HALF_BOX_BITS, "clearance": TAG_CLEARANCE_BITS}
+    bit = float(spec["tag_size"]) / 8.0
+    light = min(float(spec["tag_spacing"]) * 8.0, float(spec.get("margin", np.inf)) / bit)
+    return {"half_box": max(TAG_HALF_BOX_BITS, light - TAG_SLACK_BITS), "clearance": light,
+            "notch": TAG_CLEARANCE_BITS - TAG_SLACK_BITS, "notch_clearance": TAG_CLEARANCE_BITS}
 
 
 def chessboard_half_box(target):
@@ -872,27 +942,31 @@ def corner_rays(target):
 
 SYNOPSIS
 
-    rays, unit, wedges, half_box = corner_rays(target)
+    rays, unit, wedges, window = corner_rays(target)
     # rays (N,R,3) unit board directions of the edges leaving each of target.points();
-    # unit: board length of one window unit (a square, a tag bit); wedges, half_box as
-    # refine_chessboard_corners / refine_tag_corners use them
+    # unit: board length of one window unit (a square, a tag bit); wedges as
+    # refine_chessboard_corners / refine_tag_corners use them; window {"half_box",
+    # "notch"}: the window the detector fits (curvature_bias's keywords)
 '''
     p = target.points()
     if target.kind == "chessboard":
         ex, ey = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
         rays = np.broadcast_to(np.stack((ex, ey, -ex, -ey)), (len(p), 4, 3)).copy()
-        return rays, float(target.spec["square"]), [(0, 1), (2, 3)], chessboard_half_box(target)
+        return rays, float(target.spec["square"]), [(0, 1), (2, 3)], {
+            "half_box": chessboard_half_box(target), "notch": None}
     if target.kind == "apriltag":
         Q = p.reshape(-1, 4, 3)
         nxt = np.roll(Q, -1, axis=1) - Q
         prv = np.roll(Q, 1, axis=1) - Q
         rays = np.stack((nxt, prv), axis=2).reshape(-1, 2, 3)
         rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-        return rays, float(target.spec["tag_size"]) / 8.0, [(0, 1)], TAG_HALF_BOX_BITS
+        w = tag_window(target)
+        return rays, float(target.spec["tag_size"]) / 8.0, [(0, 1)], {
+            "half_box": w["half_box"], "notch": w.get("notch")}
     raise ValueError(f"corner_rays() needs a chessboard or apriltag target; got {target.kind!r}")
 
 
-def curvature_bias(q, tangents, curvatures, wedges, steps, half_box,
+def curvature_bias(q, tangents, curvatures, wedges, steps, half_box, notch=None,
                    max_window_px=MAX_WINDOW_PX):
     r'''Where refine_corners puts a corner whose edges are curved, minus the corner: px
 
@@ -923,7 +997,7 @@ the neglected terms are k^2 w^3 (1e-6 px for k = 1e-3/px, w = 8 px).
         return out
     idx = np.flatnonzero(ok)
     big = (1 << 40, 1 << 40)
-    ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px)
+    ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px, notch)
     centres = np.stack((ix, iy), axis=-1).astype(np.float64)
     d = centres - q[idx, None, :]
     w = inside.astype(np.float64)

@@ -247,13 +247,14 @@ ARGUMENTS
             c = _refine(img32, c)
         used.append((tag_id, c))
     if refine is True and used:
-        from .corners import refine_tag_corners
+        from .corners import refine_tag_corners, tag_window
         if psf_sigma_px:
             fit = _refine_blurred(img, used, None, {"psf_sigma_px": float(psf_sigma_px),
                                                     "psf_source": "given"}, target, hi - lo)
         else:
             fit = refine_tag_corners(img, np.array([c for _, c in used]), value_range=hi - lo,
-                                     psf_sigma_px=psf_sigma_px, stop_if_blurred=True)
+                                     psf_sigma_px=psf_sigma_px, stop_if_blurred=True,
+                                     **tag_window(target))
             if fit.info.get("stopped"):
                 fit = _refine_blurred(img, used, fit.q.reshape(-1, 4, 2), fit.info, target,
                                       hi - lo)

@@ -141,7 +141,7 @@ curvature; targets.corners.curvature_bias turns them into the shift of the
 refiner's fit. NaN where a point does not project.
 '''
     from targets.corners import corner_rays, curvature_bias
-    rays, unit, wedges, half_box = corner_rays(target)
+    rays, unit, wedges, window = corner_rays(target)
     if len(rays) != len(p_board):
         return np.full((len(p_board), 2), np.nan)
     h = CORNER_DIFF_STEP * unit
@@ -156,7 +156,7 @@ refiner's fit. NaN where a point does not project.
     tangents = d1 / speed[..., None]
     curvatures = (d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]) / speed ** 3
     steps = np.stack((d1[:, 0], d1[:, 1]), axis=-1) * unit
-    return curvature_bias(q0[:, 0], tangents, curvatures, wedges, steps, half_box)
+    return curvature_bias(q0[:, 0], tangents, curvatures, wedges, steps, **window)
 
 
 def bias_step(model, target, Rt_cam_board, p_board, b_prev=None, views=None):
