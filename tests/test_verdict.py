@@ -483,7 +483,7 @@ def test_a_reference_render_job_is_not_rendered_again_for_its_corners(tmp_path, 
     # re-rendered, float rounding only
     # (a model against itself: the fitted rotation's rounding at most)
     assert a["verdict"]["renderer"]["projection"]["rms"] < 1e-12
-    assert a["seconds"]["exact_fit"] == 0.0 and b["seconds"]["exact_fit"] > 0
+    assert a["seconds"]["exact_fit"] == 0.0
     assert b["verdict"]["renderer"]["projection"]["rms"] < 1e-6
     assert a["verdict"]["floor"]["projection"]["rms"] == pytest.approx(
         b["verdict"]["floor"]["projection"]["rms"], rel=1e-3, abs=1e-7)
