@@ -6,7 +6,8 @@ SYNOPSIS
         [--repeats 1] [--first] [--keep DIR]
 
 Runs each campaign (campaigns/quick.toml: target <= 20 s; campaigns/paper.toml:
-22 cameras x CAHV/CAHVOR/CAHVORE x 6 poses, jpl/mrcal/opencv, target <= 90 s;
+22 cameras x CAHV/CAHVOR/CAHVORE x 6 poses of the dots (jpl/mrcal/opencv) and of the
+AprilTag grid (jpl), target <= 90 s (set for the dots alone: the AprilTag grid doubles its CPU);
 or any campaign TOML) with the local process executor, each run in a fresh
 child process and a fresh run directory (a temporary one unless --keep),
 without the report.

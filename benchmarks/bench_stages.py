@@ -59,7 +59,7 @@ def part_poses(args, out):
     r'''Pose planning: CPU seconds of harness poses_stage over every job of a campaign
 
 poses_stage (targets.poses.plan_poses) runs for every job of --campaign (the
-paper: 66 jobs; a job whose camera cannot give its family is skipped, as the
+paper: 132 jobs; a job whose camera cannot give its family is skipped, as the
 campaign does), --repeats times after --warmup untimed passes over the first
 job. Records: poses/all (the total per repetition: CPU and wall seconds, min
 and median) and poses/<job key> (CPU seconds of each job, min over repeats).

@@ -49,6 +49,7 @@ from .tables import (
     summary_tables,
     sweep_level_rows,
     sweep_rows,
+    target_tables,
 )
 from .tables import verdict_rows as tables_verdict_rows
 
@@ -278,6 +279,12 @@ VERDICT_NOTE = ("Each ok record fits the exact observations of its poses too (th
                 "beside its expected scatter (sigma); total = the image fit against the "
                 "truth. Projection-difference RMS in px. A flag says why a floor is far "
                 "from the truth.")
+TARGETS_NOTE = ("Each calibrator that fitted several targets, its targets side by side under "
+                "each model family: the renderer verdict first (image fit vs the fit of the "
+                "exact observations: exact dot centroids; for corner targets the corners the "
+                "detector finds on the reference render, so a job rendered by the reference "
+                "render itself has a renderer difference of 0), then the fits against the "
+                "truth. The figure 'Targets side by side' plots them per camera.")
 DETECTABLE_NOTE = ("The smallest fault of each kind the renderer gate would flag on each "
                    "camera, from the expected scatter of its records (the smallest over "
                    "them): an Hc/Vc shift in px, a focal scale and an R1 scale as fractions, a "
@@ -301,6 +308,7 @@ gate_spec: the gate whose result opens the report (see verdict()).
     sweeps = find_sweeps(run_dir)
     sweep_figs = fig_sweeps(sweeps, fig_dir) if sweeps else []
     tables = summary_tables(records)
+    by_target = target_tables(records)
     failures = failure_rows(records)
     not_app = failure_rows(records, statuses=("not-applicable",))
     facts = run_facts(doc)
@@ -323,7 +331,8 @@ gate_spec: the gate whose result opens the report (see verdict()).
         h.append(f"<details><summary>gate failures{more}</summary>" +
                  _html_table(("fullname", "field", "value", "limit"), shown) + "</details>")
     h.append(_html_table(("", ""), facts))
-    sections = [("detectable", "Minimum detectable faults"),
+    sections = ([("targets", "Targets side by side")] if by_target else []) + [
+                ("detectable", "Minimum detectable faults"),
                 ("renderer-verdict", "Renderer verdict per record"),
                 ("summary", "Summary per calibrator"), ("figures", "Figures")]
     if legacy_fig:
@@ -333,6 +342,12 @@ gate_spec: the gate whose result opens the report (see verdict()).
     sections += [("failures", "Failures"), ("not-applicable", "Not applicable")]
     h.append("<p>" + " | ".join(f"<a href=\"#{k}\">{_e(t)}</a>" for k, t in sections) +
              "</p>")
+    if by_target:
+        h.append("<h2 id=\"targets\">Targets side by side</h2>")
+        h.append(f"<p>{_e(TARGETS_NOTE)}</p>")
+        for t in by_target:
+            h.append(f"<h3>{_e(t.title)}</h3><p>{_e(t.note)}</p>")
+            h.append(_html_table(t.header, t.rows))
     h.append("<h2 id=\"detectable\">Minimum detectable faults</h2>")
     h.append(f"<p>{_e(DETECTABLE_NOTE)}</p>")
     h.append(_html_table(DETECTABLE_HEADER, detectable) if detectable else "<p>None judged.</p>")
@@ -378,8 +393,12 @@ gate_spec: the gate whose result opens the report (see verdict()).
     if verdict_rows:
         m += [_md_table(("fullname", "field", "value", "limit"), verdict_rows[:VERDICT_ROWS]),
               ""]
-    m += [_md_table(("run", ""), facts), "",
-          "## Minimum detectable faults", "", DETECTABLE_NOTE, "",
+    m += [_md_table(("run", ""), facts), ""]
+    if by_target:
+        m += ["## Targets side by side", "", TARGETS_NOTE, ""]
+        for t in by_target:
+            m += [f"### {t.title}", "", t.note, "", _md_table(t.header, t.rows), ""]
+    m += ["## Minimum detectable faults", "", DETECTABLE_NOTE, "",
           _md_table(DETECTABLE_HEADER, detectable) if detectable else "None judged.", "",
           "## Renderer verdict per record", "", VERDICT_NOTE, "",
           _md_table(VERDICT_HEADER, vrows) if vrows else "No record has a verdict.", "",

@@ -299,6 +299,98 @@ def fig_projection(records, out):
         "between the camera frames fitted).", logy=True)
 
 
+TARGET_MARKERS = {"dots": "o", "apriltag": "s", "chessboard": "D"}
+
+
+def _gate_z():
+    r'''The default gate's z (harness.gate.DEFAULT_SPEC's [[scatter]]), or None'''
+    try:
+        from harness.gate import DEFAULT_SPEC, load_gate_spec
+        zs = {s.z for s in load_gate_spec(DEFAULT_SPEC).scatter}
+    except Exception:   # no spec in this tree: the figure without the line
+        return None
+    return max(zs) if zs else None
+
+
+def _worst_z(r):
+    z = ((r.get("verdict") or {}).get("renderer") or {}).get("z") or {}
+    vals = [abs(v) for v in z.values() if isinstance(v, (int, float)) and math.isfinite(v)]
+    return max(vals) if vals else None
+
+
+def fig_targets(records, out):
+    r'''The targets side by side: per camera, the renderer verdict (the largest |z| of a
+record's judged quantities) and the total projection difference RMS, one row of panels per
+calibrator (and render variant) that ran on several targets, a marker per target; None
+for a run of one target'''
+    from .tables import render_variant, render_variants
+    if len({r.get("target") for r in records.values()}) < 2:
+        return None
+    renders = len(render_variants(records)) > 1
+    groups = {}
+    for r in records.values():
+        if r["status"] == "ok":
+            label = r["calibrator"] + ("" if _calmodel(r) == "family" else f" [{_calmodel(r)}]")
+            label += f" on {render_variant(r)}" if renders else ""
+            groups.setdefault(label, []).append(r)
+    groups = {k: v for k, v in groups.items() if len({r["target"] for r in v}) > 1}
+    if not groups:
+        return None
+    cams = camera_order(records)
+    xpos = {c: i for i, c in enumerate(cams)}
+    gate_z = _gate_z()
+    plt = _plt()
+    fig, axes = plt.subplots(len(groups), 2, figsize=(max(12.0, 0.6 * len(cams) + 4),
+                                                      2.8 * len(groups) + 0.6), squeeze=False)
+    for (label, recs), (axz, axp) in zip(sorted(groups.items()), axes, strict=True):
+        series = {}
+        for r in recs:
+            x = xpos[r["camera"]] + FAMILY_OFFSET.get(r["model"], 0)
+            series.setdefault((r["model"], r["target"]), []).append(
+                (x, _worst_z(r), (r.get("projection") or {}).get("rms")))
+        for (fam, tg), pts in sorted(series.items()):
+            kw = dict(color=FAMILY_COLOURS.get(fam, "k"), ls="none", ms=5,
+                      marker=TARGET_MARKERS.get(tg, "x"),
+                      mfc="none" if tg != "dots" else None, label=f"{fam} {tg}")
+            z = [(x, v) for x, v, _ in pts if v is not None]
+            p = [(x, v) for x, _, v in pts if v is not None and v > 0]
+            if z:
+                axz.plot(*zip(*z, strict=True), **kw)
+            if p:
+                axp.plot(*zip(*p, strict=True), **kw)
+        if gate_z is not None:
+            axz.axhline(gate_z, color="tab:red", ls="--", lw=0.8, label=f"gate z = {gate_z:g}")
+        axz.set_ylim(bottom=0)
+        axz.set_title(f"{label}: renderer verdict, largest |z|", fontsize=9)
+        axz.set_ylabel("|renderer difference| / sigma", fontsize=8)
+        axp.set_yscale("log")
+        axp.set_title(f"{label}: total projection difference RMS", fontsize=9)
+        axp.set_ylabel("px", fontsize=8)
+        for ax in (axz, axp):
+            ax.set_xticks(range(len(cams)))
+            ax.set_xticklabels(cams, fontsize=7, rotation=90 if len(cams) > 30 else 0)
+            ax.set_xlim(-0.6, len(cams) - 0.4)
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=6, ncol=3, loc="best")
+    for ax in axes[-1]:
+        ax.set_xlabel("camera (catalogue slot)", fontsize=8)
+    fig.suptitle("Targets side by side", fontsize=10)
+    fig.tight_layout()
+    path = Path(out) / "fig_targets.png"
+    save_png(fig, path, dpi=90)
+    plt.close(fig)
+    gate_text = "" if gate_z is None else f"; the default renderer gate fails above {gate_z:g}"
+    return Figure("fig_targets", "Targets side by side: renderer verdict and total error",
+                  "Per camera, for each calibrator that fitted several targets: left, the "
+                  "renderer verdict (the largest |z| of the record's judged quantities: its "
+                  "image fit minus its fit of the exact observations, over the expected "
+                  f"scatter{gate_text}); right, the total "
+                  "projection difference RMS against the truth. Filled circles: dots; open "
+                  "markers: corner targets. A corner target rendered by the reference render "
+                  "itself (harness.verdict.REFERENCE_RENDER) has a renderer difference of 0 by "
+                  "construction: its detections are the reference corners.", str(path))
+
+
 def fig_maps(records, run_dir, out, limit=72):
     r'''Small multiples of the stored projection-difference maps (keep_maps), per calibrator'''
     figs = []
@@ -697,7 +789,7 @@ def make_figures(records, run_dir, out):
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     figs = []
-    for f in (fig_residuals, fig_center, fig_focal, fig_theta, fig_C, fig_A, fig_O,
+    for f in (fig_targets, fig_residuals, fig_center, fig_focal, fig_theta, fig_C, fig_A, fig_O,
               fig_R_abs, fig_R_frac, fig_projection):
         fig = f(records, out)
         if fig is not None:

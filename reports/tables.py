@@ -3,8 +3,10 @@ failures
 
 SYNOPSIS
 
-    from reports.tables import summary_tables, failure_rows
+    from reports.tables import summary_tables, target_tables, failure_rows
 
+    for t in target_tables(records):  # a calibrator's targets side by side (several targets)
+        t.title, t.header, t.rows
     for t in summary_tables(records):
         t.title, t.header, t.rows     # rows of strings
     failure_rows(records)             # [(fullname, status, stage, reason), ...]
@@ -179,6 +181,81 @@ A run with several targets (dots, AprilTag grid, chessboard) or several render v
             note += (f"; {far} ok with a floor far from the truth (the calibrator's own "
                      f"error: see verdict_rows)")
         tables.append(Table(f"Calibrator {cal}", header, tuple(rows), note))
+    return tables
+
+
+# the targets' side-by-side table (target_tables): the renderer's verdict first, then
+# what the fits reach against the truth
+TARGET_ROWS = (
+    ("renderer: image fit vs exact fit, projection RMS, median",
+     ("verdict", "renderer", "projection", "rms"), "median", "px"),
+    ("renderer: image fit vs exact fit, projection RMS, worst",
+     ("verdict", "renderer", "projection", "rms"), "max", "px"),
+    ("renderer: its expected scatter (sigma), projection RMS, median",
+     ("verdict", "renderer", "sigma", "projection_rms"), "median", "px"),
+    ("renderer: projection RMS / its sigma, worst",
+     ("verdict", "renderer", "z", "projection_rms"), "max", ""),
+    ("detected minus exact positions, RMS, worst", ("verdict", "detection_noise", "rms"),
+     "max", "px"),
+    ("floor: exact-observation fit vs truth, projection RMS, worst",
+     ("verdict", "floor", "projection", "rms"), "max", "px"),
+    ("total: projection difference RMS, median", ("projection", "rms"), "median", "px"),
+    ("total: projection difference RMS, worst", ("projection", "rms"), "max", "px"),
+    ("RMS residual, median", ("residuals", "rms"), "median", "px"),
+    ("|Hc| error, worst", ("params", "Hc"), "absmax", "px"),
+    ("|Vc| error, worst", ("params", "Vc"), "absmax", "px"),
+    ("|theta| error, worst", ("params", "theta_deg"), "absmax", "deg"),
+    ("points found per record, median", ("detections", "n_found"), "median", ""),
+)
+
+
+def target_tables(records):
+    r'''One Table per calibrator (and render variant) that ran on several targets: its
+targets side by side under each model family, the renderer verdict's rows first
+
+SYNOPSIS
+
+    for t in target_tables(records):   # [] for a run of one target
+        t.title        # "jpl: dots and apriltag side by side"
+        t.header       # ("quantity", "unit", "CAHV dots (20 ok)", "CAHV apriltag (20 ok)", ...)
+
+The same statistics as summary_tables() (TARGET_ROWS: worst values, or medians), over the
+ok records of one target and family each.'''
+    if len({r.get("target") for r in records.values()}) < 2:
+        return []
+    renders = len(render_variants(records)) > 1
+    groups = {}
+    for r in records.values():
+        label = _cal_label(r) + (f" on {render_variant(r)}" if renders else "")
+        groups.setdefault(label, []).append(r)
+    tables = []
+    for label in sorted(groups):
+        recs = groups[label]
+        targets = sorted({r["target"] for r in recs}, key=lambda x: (x != "dots", x))
+        if len(targets) < 2:
+            continue
+        fams = [f for f in FAMILIES if any(r["model"] == f for r in recs)]
+        fams += sorted({r["model"] for r in recs} - set(fams))
+        cols = [(f, tg) for f in fams for tg in targets]
+        ok = {c: [r for r in recs if (r["model"], r["target"]) == c and r["status"] == "ok"]
+              for c in cols}
+        header = ("quantity", "unit") + tuple(f"{f} {tg} ({len(ok[(f, tg)])} ok)"
+                                              for f, tg in cols)
+        rows = []
+        for name, key, how, unit in TARGET_ROWS:
+            cells = [_stat(_values(ok[c], key), how) for c in cols]
+            if all(c is None for c in cells):
+                continue
+            rows.append((name, unit) + tuple(_fmt(c) for c in cells))
+        counts = []
+        for tg in targets:
+            n = {}
+            for r in recs:
+                if r["target"] == tg:
+                    n[r["status"]] = n.get(r["status"], 0) + 1
+            counts.append(f"{tg}: " + ", ".join(f"{k} {s}" for s, k in sorted(n.items())))
+        tables.append(Table(f"{label}: {' and '.join(targets)} side by side", header,
+                            tuple(rows), "; ".join(counts)))
     return tables
 
 

@@ -26,13 +26,15 @@ def test_shipped_campaigns_load_and_validate():
     assert paper.cameras == tuple(str(i) for i in range(1, 23))
     assert (paper.poses_n, paper.poses_seed) == (6, 0)
     jobs = expand_jobs(paper)
-    assert len(jobs) == 22 * 3
+    assert len(jobs) == 22 * 3 * 2
     assert jobs[0].key == "1/CAHV/dots/raycast[spp=16,adaptive,coverage=area]"
-    # the quick campaign has the AprilTag grid beside the dots, fitted by jpl alone (mrcal's
-    # object is a regular grid; OpenCV's model, not the target, limits it)
-    cals = {j.target: sorted({name for name, _, _ in j.calibrators})
-            for j in expand_jobs(quick)}
-    assert cals == {"dots": ["jpl", "mrcal", "opencv"], "apriltag": ["jpl"]}
+    assert jobs[1].key == "1/CAHV/apriltag/raycast[spp=16,adaptive,coverage=area]"
+    # the quick and the paper campaigns have the AprilTag grid beside the dots, fitted by jpl
+    # alone (mrcal's object is a regular grid; OpenCV's model, not the target, limits it)
+    for c in (quick, paper):
+        cals = {j.target: sorted({name for name, _, _ in j.calibrators})
+                for j in expand_jobs(c)}
+        assert cals == {"dots": ["jpl", "mrcal", "opencv"], "apriltag": ["jpl"]}, c.name
     assert jobs[0].fullname("jpl", "CAHV") == \
         "1/CAHV/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHV]"
     assert len({j.key for j in jobs}) == len(jobs)

@@ -451,3 +451,44 @@ def test_legacy_campaign_file():
     assert modes == ["clean", "legacy"]
     assert [r.name for r in c.renderers] == ["raycast", "faulty"]
     assert [cal.name for cal in c.calibrators] == ["jpl"]
+
+
+def test_targets_side_by_side_table_and_figure(run_dir, tmp_path):
+    r'''A calibrator that fitted dots and an AprilTag grid gets one table with its targets
+side by side under each family, the renderer verdict's rows first, and one figure'''
+    import copy
+
+    from harness.records import load_run
+    from reports.figures import fig_targets
+    from reports.tables import target_tables
+    records = {k: r for k, r in load_run(run_dir)["records"].items()
+               if r["settings"]["spp"] == 16}
+    assert target_tables(records) == [] and fig_targets(records, tmp_path) is None
+    tags = {}
+    for k, r in records.items():
+        t = copy.deepcopy(r)
+        t["target"] = "apriltag"
+        t["fullname"] = k.replace("/dots/", "/apriltag/")
+        t["projection"]["rms"] = 0.5     # told apart from the dots' 0.001-level values
+        t["verdict"] = {"renderer": {"projection": {"rms": 0.0},
+                                     "z": {"projection_rms": 0.0, "Hc": 2.5}}}
+        tags[t["fullname"]] = t
+    both = dict(records, **tags)
+    (table,) = target_tables(both)
+    assert table.title == "jpl: dots and apriltag side by side"
+    ok = {f: sum(r["status"] == "ok" and r["model"] == f for r in records.values())
+          for f in ("CAHV", "CAHVOR")}
+    assert table.header == ("quantity", "unit", f"CAHV dots ({ok['CAHV']} ok)",
+                            f"CAHV apriltag ({ok['CAHV']} ok)",
+                            f"CAHVOR dots ({ok['CAHVOR']} ok)",
+                            f"CAHVOR apriltag ({ok['CAHVOR']} ok)")
+    rows = {r[0]: r for r in table.rows}
+    # the verdict first
+    assert table.rows[0][0].startswith("renderer:")
+    assert rows["total: projection difference RMS, median"][3::2] == ("0.5", "0.5")
+    assert all(float(v) < 0.01 for v in rows["total: projection difference RMS, median"][2::2])
+    assert rows["renderer: image fit vs exact fit, projection RMS, worst"][3::2] == ("0", "0")
+    assert rows["renderer: projection RMS / its sigma, worst"][3::2] == ("0", "0")
+    fig = fig_targets(both, tmp_path)
+    assert fig.key == "fig_targets" and Path(fig.path).read_bytes()[:4] == b"\x89PNG"
+    assert "gate fails above 6" in fig.caption

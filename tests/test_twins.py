@@ -57,16 +57,17 @@ def test_paper_campaign_folds_the_derived_slots():
     jobs = expand_jobs(load_campaign("campaigns/paper.toml"))
     grouped = group_twins(jobs)
     twins = {j.key: [k for _, k in j.twins] for j in grouped if j.twins}
-    assert len(jobs) == 66 and len(grouped) == 43
+    # the dots and the AprilTag grid: 22 cameras x 3 families each, folded alike
+    assert len(jobs) == 132 and len(grouped) == 86
     assert twins == {
-        **{f"5/{f}/dots/raycast[spp=16,adaptive,coverage=area]": ["6", "7", "8"]
-           for f in ("CAHV", "CAHVOR", "CAHVORE")},
-        **{f"9/{f}/dots/raycast[spp=16,adaptive,coverage=area]": ["10", "11", "12"]
-           for f in ("CAHV", "CAHVOR", "CAHVORE")},
-        **{f"13/{f}/dots/raycast[spp=16,adaptive,coverage=area]": ["14"]
-           for f in ("CAHV", "CAHVOR")},
-        **{f"17/{f}/dots/raycast[spp=16,adaptive,coverage=area]": ["18"]
-           for f in ("CAHV", "CAHVOR", "CAHVORE")}}
+        **{f"5/{f}/{t}/raycast[spp=16,adaptive,coverage=area]": ["6", "7", "8"]
+           for f in ("CAHV", "CAHVOR", "CAHVORE") for t in ("dots", "apriltag")},
+        **{f"9/{f}/{t}/raycast[spp=16,adaptive,coverage=area]": ["10", "11", "12"]
+           for f in ("CAHV", "CAHVOR", "CAHVORE") for t in ("dots", "apriltag")},
+        **{f"13/{f}/{t}/raycast[spp=16,adaptive,coverage=area]": ["14"]
+           for f in ("CAHV", "CAHVOR") for t in ("dots", "apriltag")},
+        **{f"17/{f}/{t}/raycast[spp=16,adaptive,coverage=area]": ["18"]
+           for f in ("CAHV", "CAHVOR", "CAHVORE") for t in ("dots", "apriltag")}}
     # every job is there once, as itself or as a twin
     members = [m.key for j in grouped for m in j.members()]
     assert sorted(members) == sorted(j.key for j in jobs)
