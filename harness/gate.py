@@ -579,11 +579,17 @@ it (fault_sigma[p]: harness.verdict.joint_fault_sigma, the fault's sigma given e
 other judged quantity, far below the marginal one where the parameters are
 correlated): alone it adds (d / that sigma)^2 to chi2, so it is flagged at
 d = sqrt(the chi2 limit) x that sigma. The camera's figure is the smaller of the two
-tests' figures.
+tests' figures. Records that measured no detection noise at all (the reference render's
+own detections) are left out: their sigma is zero by construction.
 '''
     out = {}
     for name, r in run["records"].items():
         if r.get("status") != "ok" or (_unjudged(r) and not spec.judge_far_floor):
+            continue
+        if _lookup(r, "verdict.detection_noise.rms") == 0:
+            # its images are the reference render (a corner target on the exact ray caster:
+            # harness.job_records._exact_fit): no noise was measured, so its sigmas sit at
+            # zero and say nothing of what a renderer under test would scatter by
             continue
         sigma = _lookup(r, "verdict.renderer.sigma")
         if not isinstance(sigma, dict):

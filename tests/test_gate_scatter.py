@@ -83,6 +83,21 @@ def test_renderer_spec_and_minimum_detectable_faults():
     assert "camera 15:" in text and "Hc shift" in text and "theta change  not judged" in text
 
 
+def test_minimum_detectable_fault_leaves_out_records_that_measured_no_noise():
+    # a corner target on the reference render: its detections ARE the exact observations,
+    # so its detection noise and sigmas are 0; the camera's figure comes from the dots
+    spec = load_gate_spec(ROOT / "campaigns" / "gate-renderer.toml")
+    own = _rec(0.0, sigma_hc=0.0, name="15/x/apriltag/jpl[CAHVOR]")
+    own["verdict"]["detection_noise"] = {"rms": 0.0}
+    dots = _rec(0.0)
+    dots["verdict"]["detection_noise"] = {"rms": 7e-5}
+    mdf = minimum_detectable_faults({"records": {"15/x/apriltag/jpl[CAHVOR]": own,
+                                                 NAME: dots}}, spec)
+    assert mdf["15"]["Hc shift"]["record"] == NAME
+    assert mdf["15"]["Hc shift"]["value"] == pytest.approx(0.006)     # 6 x 0.001 px
+    assert minimum_detectable_faults({"records": {"a": own}}, spec) == {}
+
+
 def test_run_document_and_report_carry_the_minimum_detectable_faults(tmp_path):
     from harness.records import RunStore
     from reports.tables import detectable_fault_rows
