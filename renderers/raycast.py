@@ -478,12 +478,12 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
             outlines = project_outlines(model, Rt_cam_board, cp)
         cam, noncentral = kernels.pack_model(model), not model.is_central
         if outlines is not None:
-            mask = np.zeros((H, W), dtype=np.uint8)
-            tiles = np.zeros((-(-H // TILE), -(-W // TILE)), dtype=np.uint8)
-            kern.mark_outlines(outlines.q, outlines.starts, outlines.closed, outlines.margin,
-                               mask, tiles, TILE)
+            bstart, chords = kern.band_chords(outlines.q, outlines.starts, outlines.closed,
+                                              outlines.margin, TILE, H, W)
+            outline = (outlines.q, outlines.margin, bstart, chords)
         else:
-            mask = tiles = np.zeros((1, 1), dtype=np.uint8)
+            outline = (np.zeros((0, 2)), np.zeros(0), np.zeros(1, dtype=np.int64),
+                       np.zeros((0, 3), dtype=np.int64))
         t_outlines = time.perf_counter() - t1
 
         R = Rt[:3]
@@ -494,7 +494,7 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
         stats = np.zeros((-(-H // TILE), 8 if area else 6), dtype=np.int64)
         kern.render_kernel(cam, noncentral, xf, K, adaptive, TILE, cp.values, out, stats,
                            cp.kernel_args(), qbox, numba.get_num_threads(), area, tol,
-                           outlines is not None, mask, tiles)
+                           outlines is not None, outline)
         total = stats.sum(axis=0)
         if total[5] != 0:
             raise RendererError(f"the ray-cast renderer produced {int(total[5])} non-finite "
