@@ -522,15 +522,16 @@ origin from the direction of a to the direction of b (the shorter way)"""
 
 
 @njit(cache=True, error_model="numpy")
-def _poly_moments(xs, ys, n, ox, oy):
-    r"""(area, int x dA, int y dA) of the polygon xs[:n], ys[:n] about (ox, oy), signed by
+def _poly_moments(poly, row, n, ox, oy):
+    r"""(area, int x dA, int y dA) of the polygon poly[row:row + 2, :n] about (ox, oy), signed by
 its orientation"""
     a = 0.0
     mx = 0.0
     my = 0.0
     for k in range(n):
         kn = k + 1 if k + 1 < n else 0
-        da, dmx, dmy = _seg_moments(xs[k] - ox, ys[k] - oy, xs[kn] - ox, ys[kn] - oy)
+        da, dmx, dmy = _seg_moments(poly[row, k] - ox, poly[row + 1, k] - oy,
+                                    poly[row, kn] - ox, poly[row + 1, kn] - oy)
         a += da
         mx += dmx
         my += dmy
@@ -538,9 +539,9 @@ its orientation"""
 
 
 @njit(cache=True, error_model="numpy")
-def _disc_poly_moments(xs, ys, n, cx, cy, r):
+def _disc_poly_moments(poly, row, n, cx, cy, r):
     r"""(area, int x dA, int y dA) of the disc (cx, cy, r) intersected with the polygon
-xs[:n], ys[:n] (signed by its orientation), about the circle's centre
+poly[row:row + 2, :n] (signed by its orientation), about the circle's centre
 
 The polygon is a fan of triangles (centre, p_k, p_k+1); each triangle meets the
 disc in a region bounded by two radii (which cancel between neighbouring
@@ -552,10 +553,10 @@ and the arc where it is outside."""
     r2 = r * r
     for k in range(n):
         kn = k + 1 if k + 1 < n else 0
-        px = xs[k] - cx
-        py = ys[k] - cy
-        qx = xs[kn] - cx
-        qy = ys[kn] - cy
+        px = poly[row, k] - cx
+        py = poly[row + 1, k] - cy
+        qx = poly[row, kn] - cx
+        qy = poly[row + 1, kn] - cy
         dx = qx - px
         dy = qy - py
         dd = dx * dx + dy * dy
@@ -605,33 +606,33 @@ and the arc where it is outside."""
 
 
 @njit(cache=True, error_model="numpy")
-def _clip(xs, ys, n, axis, value, keep_above, ox, oy):
-    r"""Sutherland-Hodgman: the part of the convex polygon xs[:n], ys[:n] where
-coordinate `axis` is >= value (keep_above) or <= value, into ox, oy; returns its
+def _clip(poly, src, n, axis, value, keep_above, dst):
+    r"""Sutherland-Hodgman: the part of the convex polygon poly[src:src + 2, :n] where
+coordinate `axis` is >= value (keep_above) or <= value, into poly[dst:dst + 2]; returns its
 number of vertices"""
     m = 0
     if n == 0:
         return 0
     for k in range(n):
         kp = k - 1 if k > 0 else n - 1
-        a = (xs[kp] if axis == 0 else ys[kp]) - value
-        b = (xs[k] if axis == 0 else ys[k]) - value
+        a = (poly[src, kp] if axis == 0 else poly[src + 1, kp]) - value
+        b = (poly[src, k] if axis == 0 else poly[src + 1, k]) - value
         if not keep_above:
             a = -a
             b = -b
         if b >= 0.0:
             if a < 0.0:
                 t = a / (a - b)
-                ox[m] = xs[kp] + t * (xs[k] - xs[kp])
-                oy[m] = ys[kp] + t * (ys[k] - ys[kp])
+                poly[dst, m] = poly[src, kp] + t * (poly[src, k] - poly[src, kp])
+                poly[dst + 1, m] = poly[src + 1, kp] + t * (poly[src + 1, k] - poly[src + 1, kp])
                 m += 1
-            ox[m] = xs[k]
-            oy[m] = ys[k]
+            poly[dst, m] = poly[src, k]
+            poly[dst + 1, m] = poly[src + 1, k]
             m += 1
         elif a >= 0.0:
             t = a / (a - b)
-            ox[m] = xs[kp] + t * (xs[k] - xs[kp])
-            oy[m] = ys[kp] + t * (ys[k] - ys[kp])
+            poly[dst, m] = poly[src, kp] + t * (poly[src, k] - poly[src, kp])
+            poly[dst + 1, m] = poly[src + 1, kp] + t * (poly[src + 1, k] - poly[src + 1, kp])
             m += 1
     return m
 
@@ -640,10 +641,10 @@ number of vertices"""
 def _clip_box(poly, n, x0, x1, y0, y1):
     r"""Clip the polygon poly[0:2, :n] to the box [x0, x1] x [y0, y1] (result in poly[0:2],
 poly[2:4] is scratch); returns its number of vertices"""
-    n = _clip(poly[0], poly[1], n, 0, x0, True, poly[2], poly[3])
-    n = _clip(poly[2], poly[3], n, 0, x1, False, poly[0], poly[1])
-    n = _clip(poly[0], poly[1], n, 1, y0, True, poly[2], poly[3])
-    return _clip(poly[2], poly[3], n, 1, y1, False, poly[0], poly[1])
+    n = _clip(poly, 0, n, 0, x0, True, 2)
+    n = _clip(poly, 2, n, 0, x1, False, 0)
+    n = _clip(poly, 0, n, 1, y0, True, 2)
+    return _clip(poly, 2, n, 1, y1, False, 0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -708,19 +709,19 @@ material is not uniform near here (cells)"""
 
 
 @njit(cache=True, error_model="numpy")
-def _quad_value(qx, qy, w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat):
-    r"""The mean albedo over the quadrilateral qx[:4], qy[:4] (board) under the density
+def _quad_value(w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat):
+    r"""The mean albedo over the quadrilateral poly[6:8, :4] (board) under the density
 w0 + g . (p - o); NaN when its cells are too many"""
     f, ii = pat
     for k in range(4):
-        poly[0, k] = qx[k]
-        poly[1, k] = qy[k]
-    aq, mxq, myq = _poly_moments(poly[0], poly[1], 4, ox, oy)
+        poly[0, k] = poly[6, k]
+        poly[1, k] = poly[7, k]
+    aq, mxq, myq = _poly_moments(poly, 0, 4, ox, oy)
     wq = w0 * aq + gx * mxq + gy * myq
     n = _clip_box(poly, 4, f[0], f[1], f[2], f[3])
     if n < 3:
         return values[ii[0]]
-    ap, mxp, myp = _poly_moments(poly[0], poly[1], n, ox, oy)
+    ap, mxp, myp = _poly_moments(poly, 0, n, ox, oy)
     wp = w0 * ap + gx * mxp + gy * myp
     total = values[ii[0]] * (wq - wp)
     if base != ii[1]:
@@ -729,7 +730,7 @@ w0 + g . (p - o); NaN when its cells are too many"""
     # the circles over the polygon
     wdisc = 0.0
     for k in range(ncand):
-        wdisc += _disc_weight(poly[0], poly[1], n, w0, gx, gy, ox, oy, cand[k], f)
+        wdisc += _disc_weight(poly, 0, n, w0, gx, gy, ox, oy, cand[k], f)
     rest = wp - wdisc
     total += values[ii[2]] * wdisc
     cs = f[F_CELLS + 2]
@@ -762,16 +763,16 @@ w0 + g . (p - o); NaN when its cells are too many"""
                     poly[5, k] = poly[1, k]
                 x0 = f[F_CELLS] + cx * cs
                 y0 = f[F_CELLS + 1] + cy * cs
-                m = _clip(poly[4], poly[5], n, 0, x0, True, poly[2], poly[3])
-                m = _clip(poly[2], poly[3], m, 0, x0 + cs, False, poly[4], poly[5])
-                m = _clip(poly[4], poly[5], m, 1, y0, True, poly[2], poly[3])
-                m = _clip(poly[2], poly[3], m, 1, y0 + cs, False, poly[4], poly[5])
+                m = _clip(poly, 4, n, 0, x0, True, 2)
+                m = _clip(poly, 2, m, 0, x0 + cs, False, 4)
+                m = _clip(poly, 4, m, 1, y0, True, 2)
+                m = _clip(poly, 2, m, 1, y0 + cs, False, 4)
                 if m < 3:
                     continue
-                ac, mxc, myc = _poly_moments(poly[4], poly[5], m, ox, oy)
+                ac, mxc, myc = _poly_moments(poly, 4, m, ox, oy)
                 wc = w0 * ac + gx * mxc + gy * myc
                 for k in range(ncand):
-                    wc -= _disc_weight(poly[4], poly[5], m, w0, gx, gy, ox, oy, cand[k], f)
+                    wc -= _disc_weight(poly, 4, m, w0, gx, gy, ox, oy, cand[k], f)
                 total += values[mat] * wc
                 rest -= wc
     total += values[ii[1]] * rest
@@ -779,10 +780,11 @@ w0 + g . (p - o); NaN when its cells are too many"""
 
 
 @njit(cache=True, error_model="numpy")
-def _disc_weight(xs, ys, n, w0, gx, gy, ox, oy, k, f):
-    r"""The integral of the density w0 + g . (p - o) over circle k x the polygon"""
+def _disc_weight(poly, row, n, w0, gx, gy, ox, oy, k, f):
+    r"""The integral of the density w0 + g . (p - o) over circle k x the polygon
+poly[row:row + 2, :n]"""
     c = F_CIRCLES + 3 * k
-    a, mx, my = _disc_poly_moments(xs, ys, n, f[c], f[c + 1], f[c + 2])
+    a, mx, my = _disc_poly_moments(poly, row, n, f[c], f[c + 1], f[c + 2])
     return (w0 + gx * (f[c] - ox) + gy * (f[c + 1] - oy)) * a + gx * mx + gy * my
 
 
@@ -828,24 +830,22 @@ at n = 1. warm0: the warm start of the pixel's centre (NaN: not known, solved he
             if n == 1:
                 corners[0, iy - r0 + j, ix + i] = bx
                 corners[1, iy - r0 + j, ix + i] = by
-    qx = poly[6]
-    qy = poly[7]
     acc = 0.0
     for j in range(n):
         dv = (j + 0.5) * inv - 0.5
         for i in range(n):
             du = (i + 0.5) * inv - 0.5
             # the quadrilateral, in the order of the pixel's corners (0,0) (1,0) (1,1) (0,1)
-            qx[0] = grid[0, j, i]
-            qy[0] = grid[1, j, i]
-            qx[1] = grid[0, j, i + 1]
-            qy[1] = grid[1, j, i + 1]
-            qx[2] = grid[0, j + 1, i + 1]
-            qy[2] = grid[1, j + 1, i + 1]
-            qx[3] = grid[0, j + 1, i]
-            qy[3] = grid[1, j + 1, i]
-            ox = 0.25 * (qx[0] + qx[1] + qx[2] + qx[3])
-            oy = 0.25 * (qy[0] + qy[1] + qy[2] + qy[3])
+            poly[6, 0] = grid[0, j, i]
+            poly[7, 0] = grid[1, j, i]
+            poly[6, 1] = grid[0, j, i + 1]
+            poly[7, 1] = grid[1, j, i + 1]
+            poly[6, 2] = grid[0, j + 1, i + 1]
+            poly[7, 2] = grid[1, j + 1, i + 1]
+            poly[6, 3] = grid[0, j + 1, i]
+            poly[7, 3] = grid[1, j + 1, i]
+            ox = 0.25 * (poly[6, 0] + poly[6, 1] + poly[6, 2] + poly[6, 3])
+            oy = 0.25 * (poly[7, 0] + poly[7, 1] + poly[7, 2] + poly[7, 3])
             # the Jacobian of the quadratic model at the quadrilateral's centre, and its
             # derivatives: the density w = 1/|D| and its gradient on the board
             bux = jac[0] + hess[0] * du + hess[2] * dv
@@ -861,7 +861,7 @@ at n = 1. warm0: the warm start of the pixel's centre (NaN: not known, solved he
             w0 = sgn / D
             gx = -sgn * gDx / (D * D)
             gy = -sgn * gDy / (D * D)
-            v = _quad_value(qx, qy, w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat)
+            v = _quad_value(w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat)
             if not (v - v == 0.0):
                 return math.nan, nrays
             acc += v
