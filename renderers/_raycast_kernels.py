@@ -713,16 +713,24 @@ def _quad_value(w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat):
     r"""The mean albedo over the quadrilateral poly[6:8, :4] (board) under the density
 w0 + g . (p - o); NaN when its cells are too many"""
     f, ii = pat
+    inside = True
     for k in range(4):
-        poly[0, k] = poly[6, k]
-        poly[1, k] = poly[7, k]
+        x = poly[6, k]
+        y = poly[7, k]
+        poly[0, k] = x
+        poly[1, k] = y
+        inside = inside and x >= f[0] and x <= f[1] and y >= f[2] and y <= f[3]
     aq, mxq, myq = _poly_moments(poly, 0, 4, ox, oy)
     wq = w0 * aq + gx * mxq + gy * myq
-    n = _clip_box(poly, 4, f[0], f[1], f[2], f[3])
-    if n < 3:
-        return values[ii[0]]
-    ap, mxp, myp = _poly_moments(poly, 0, n, ox, oy)
-    wp = w0 * ap + gx * mxp + gy * myp
+    n = 4
+    wp = wq
+    if not inside:
+        # (clipping a quadrilateral inside the box returns it unchanged, vertex for vertex)
+        n = _clip_box(poly, n, f[0], f[1], f[2], f[3])
+        if n < 3:
+            return values[ii[0]]
+        ap, mxp, myp = _poly_moments(poly, 0, n, ox, oy)
+        wp = w0 * ap + gx * mxp + gy * myp
     total = values[ii[0]] * (wq - wp)
     if base != ii[1]:
         # the polygon lies inside a circle
