@@ -215,8 +215,13 @@ project finitely, -2 where the polylines would need more than max_points points"
                 cap = max(2 * cap, pos + npts)
                 xy2 = np.empty((cap, 2))
                 q2 = np.empty((cap, 2))
-                xy2[:pos] = xy[:pos]
-                q2[:pos] = q[:pos]
+                # element by element: an array-to-slice copy compiles numba's shape-mismatch
+                # message formatting (~5 CPU-s on a fresh clone)
+                for i in range(pos):
+                    xy2[i, 0] = xy[i, 0]
+                    xy2[i, 1] = xy[i, 1]
+                    q2[i, 0] = q[i, 0]
+                    q2[i, 1] = q[i, 1]
                 xy = xy2
                 q = q2
                 d2 = np.empty(cap)
