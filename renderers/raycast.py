@@ -34,7 +34,8 @@ rendering, renderers.raycast_outlines): every boundary of the pattern (board
 rectangle, cell edges between different albedos, circles) is projected through
 the camera model, sampled finely enough that its chords stay within a stated
 margin of the curve, and every pixel whose square comes within that margin of
-a chord is an edge pixel (renderers._raycast_kernels.mark_outlines; the
+a chord is an edge pixel (renderers._raycast_kernels._mark_chord, band by band in
+the render kernel from the chords band_chords lists for each band; the
 proof-style argument why that is all of them is raycast_outlines' docstring).
 A tile of 32 x 32 pixels without an edge pixel is one ray and a fill; in the
 other tiles, the pixels that are not edge pixels take the material of a
@@ -438,7 +439,7 @@ centre ray sees the board; 0 for a board behind the camera, which renders as
 blank background), edges ("outlines": edge pixels from the projected outlines,
 "tested": pixels tested), blocks_tested and pixels_tested (outlines: tiles with
 edge pixels and edge pixels; tested: blocks and pixels tested), outline_seconds
-(projecting and marking the outlines), threads; under area coverage
+(projecting the outlines and listing their chords by band), threads; under area coverage
 also area_tolerance, area_fraction (pixels integrated exactly / pixels) and
 area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
 '''

@@ -13,7 +13,7 @@ is sampled on the board plane and projected through the camera's exact
 3D -> 2D projection (reference_models.kernels.project_packed: the model's own
 projection, CAHVORE's iterative one included, noncentral pupil and all). A
 pixel whose closed square comes within `margin` of a polyline is an edge pixel
-(renderers._raycast_kernels.mark_outlines); every other pixel lies in a region
+(renderers._raycast_kernels._mark_chord); every other pixel lies in a region
 of the image that no outline crosses, so its whole area is one material.
 
 Why that is enough. The pixels that see the board are the image of the board
