@@ -522,15 +522,16 @@ origin from the direction of a to the direction of b (the shorter way)"""
 
 
 @njit(cache=True, error_model="numpy")
-def _poly_moments(xs, ys, n, ox, oy):
-    r"""(area, int x dA, int y dA) of the polygon xs[:n], ys[:n] about (ox, oy), signed by
+def _poly_moments(poly, row, n, ox, oy):
+    r"""(area, int x dA, int y dA) of the polygon poly[row:row + 2, :n] about (ox, oy), signed by
 its orientation"""
     a = 0.0
     mx = 0.0
     my = 0.0
     for k in range(n):
         kn = k + 1 if k + 1 < n else 0
-        da, dmx, dmy = _seg_moments(xs[k] - ox, ys[k] - oy, xs[kn] - ox, ys[kn] - oy)
+        da, dmx, dmy = _seg_moments(poly[row, k] - ox, poly[row + 1, k] - oy,
+                                    poly[row, kn] - ox, poly[row + 1, kn] - oy)
         a += da
         mx += dmx
         my += dmy
@@ -538,9 +539,9 @@ its orientation"""
 
 
 @njit(cache=True, error_model="numpy")
-def _disc_poly_moments(xs, ys, n, cx, cy, r):
+def _disc_poly_moments(poly, row, n, cx, cy, r):
     r"""(area, int x dA, int y dA) of the disc (cx, cy, r) intersected with the polygon
-xs[:n], ys[:n] (signed by its orientation), about the circle's centre
+poly[row:row + 2, :n] (signed by its orientation), about the circle's centre
 
 The polygon is a fan of triangles (centre, p_k, p_k+1); each triangle meets the
 disc in a region bounded by two radii (which cancel between neighbouring
@@ -552,10 +553,10 @@ and the arc where it is outside."""
     r2 = r * r
     for k in range(n):
         kn = k + 1 if k + 1 < n else 0
-        px = xs[k] - cx
-        py = ys[k] - cy
-        qx = xs[kn] - cx
-        qy = ys[kn] - cy
+        px = poly[row, k] - cx
+        py = poly[row + 1, k] - cy
+        qx = poly[row, kn] - cx
+        qy = poly[row + 1, kn] - cy
         dx = qx - px
         dy = qy - py
         dd = dx * dx + dy * dy
@@ -605,33 +606,33 @@ and the arc where it is outside."""
 
 
 @njit(cache=True, error_model="numpy")
-def _clip(xs, ys, n, axis, value, keep_above, ox, oy):
-    r"""Sutherland-Hodgman: the part of the convex polygon xs[:n], ys[:n] where
-coordinate `axis` is >= value (keep_above) or <= value, into ox, oy; returns its
+def _clip(poly, src, n, axis, value, keep_above, dst):
+    r"""Sutherland-Hodgman: the part of the convex polygon poly[src:src + 2, :n] where
+coordinate `axis` is >= value (keep_above) or <= value, into poly[dst:dst + 2]; returns its
 number of vertices"""
     m = 0
     if n == 0:
         return 0
     for k in range(n):
         kp = k - 1 if k > 0 else n - 1
-        a = (xs[kp] if axis == 0 else ys[kp]) - value
-        b = (xs[k] if axis == 0 else ys[k]) - value
+        a = (poly[src, kp] if axis == 0 else poly[src + 1, kp]) - value
+        b = (poly[src, k] if axis == 0 else poly[src + 1, k]) - value
         if not keep_above:
             a = -a
             b = -b
         if b >= 0.0:
             if a < 0.0:
                 t = a / (a - b)
-                ox[m] = xs[kp] + t * (xs[k] - xs[kp])
-                oy[m] = ys[kp] + t * (ys[k] - ys[kp])
+                poly[dst, m] = poly[src, kp] + t * (poly[src, k] - poly[src, kp])
+                poly[dst + 1, m] = poly[src + 1, kp] + t * (poly[src + 1, k] - poly[src + 1, kp])
                 m += 1
-            ox[m] = xs[k]
-            oy[m] = ys[k]
+            poly[dst, m] = poly[src, k]
+            poly[dst + 1, m] = poly[src + 1, k]
             m += 1
         elif a >= 0.0:
             t = a / (a - b)
-            ox[m] = xs[kp] + t * (xs[k] - xs[kp])
-            oy[m] = ys[kp] + t * (ys[k] - ys[kp])
+            poly[dst, m] = poly[src, kp] + t * (poly[src, k] - poly[src, kp])
+            poly[dst + 1, m] = poly[src + 1, kp] + t * (poly[src + 1, k] - poly[src + 1, kp])
             m += 1
     return m
 
@@ -640,10 +641,10 @@ number of vertices"""
 def _clip_box(poly, n, x0, x1, y0, y1):
     r"""Clip the polygon poly[0:2, :n] to the box [x0, x1] x [y0, y1] (result in poly[0:2],
 poly[2:4] is scratch); returns its number of vertices"""
-    n = _clip(poly[0], poly[1], n, 0, x0, True, poly[2], poly[3])
-    n = _clip(poly[2], poly[3], n, 0, x1, False, poly[0], poly[1])
-    n = _clip(poly[0], poly[1], n, 1, y0, True, poly[2], poly[3])
-    return _clip(poly[2], poly[3], n, 1, y1, False, poly[0], poly[1])
+    n = _clip(poly, 0, n, 0, x0, True, 2)
+    n = _clip(poly, 2, n, 0, x1, False, 0)
+    n = _clip(poly, 0, n, 1, y0, True, 2)
+    return _clip(poly, 2, n, 1, y1, False, 0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -708,20 +709,28 @@ material is not uniform near here (cells)"""
 
 
 @njit(cache=True, error_model="numpy")
-def _quad_value(qx, qy, w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat):
-    r"""The mean albedo over the quadrilateral qx[:4], qy[:4] (board) under the density
+def _quad_value(w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat):
+    r"""The mean albedo over the quadrilateral poly[6:8, :4] (board) under the density
 w0 + g . (p - o); NaN when its cells are too many"""
     f, ii = pat
+    inside = True
     for k in range(4):
-        poly[0, k] = qx[k]
-        poly[1, k] = qy[k]
-    aq, mxq, myq = _poly_moments(poly[0], poly[1], 4, ox, oy)
+        x = poly[6, k]
+        y = poly[7, k]
+        poly[0, k] = x
+        poly[1, k] = y
+        inside = inside and x >= f[0] and x <= f[1] and y >= f[2] and y <= f[3]
+    aq, mxq, myq = _poly_moments(poly, 0, 4, ox, oy)
     wq = w0 * aq + gx * mxq + gy * myq
-    n = _clip_box(poly, 4, f[0], f[1], f[2], f[3])
-    if n < 3:
-        return values[ii[0]]
-    ap, mxp, myp = _poly_moments(poly[0], poly[1], n, ox, oy)
-    wp = w0 * ap + gx * mxp + gy * myp
+    n = 4
+    wp = wq
+    if not inside:
+        # (clipping a quadrilateral inside the box returns it unchanged, vertex for vertex)
+        n = _clip_box(poly, n, f[0], f[1], f[2], f[3])
+        if n < 3:
+            return values[ii[0]]
+        ap, mxp, myp = _poly_moments(poly, 0, n, ox, oy)
+        wp = w0 * ap + gx * mxp + gy * myp
     total = values[ii[0]] * (wq - wp)
     if base != ii[1]:
         # the polygon lies inside a circle
@@ -729,7 +738,7 @@ w0 + g . (p - o); NaN when its cells are too many"""
     # the circles over the polygon
     wdisc = 0.0
     for k in range(ncand):
-        wdisc += _disc_weight(poly[0], poly[1], n, w0, gx, gy, ox, oy, cand[k], f)
+        wdisc += _disc_weight(poly, 0, n, w0, gx, gy, ox, oy, cand[k], f)
     rest = wp - wdisc
     total += values[ii[2]] * wdisc
     cs = f[F_CELLS + 2]
@@ -762,16 +771,16 @@ w0 + g . (p - o); NaN when its cells are too many"""
                     poly[5, k] = poly[1, k]
                 x0 = f[F_CELLS] + cx * cs
                 y0 = f[F_CELLS + 1] + cy * cs
-                m = _clip(poly[4], poly[5], n, 0, x0, True, poly[2], poly[3])
-                m = _clip(poly[2], poly[3], m, 0, x0 + cs, False, poly[4], poly[5])
-                m = _clip(poly[4], poly[5], m, 1, y0, True, poly[2], poly[3])
-                m = _clip(poly[2], poly[3], m, 1, y0 + cs, False, poly[4], poly[5])
+                m = _clip(poly, 4, n, 0, x0, True, 2)
+                m = _clip(poly, 2, m, 0, x0 + cs, False, 4)
+                m = _clip(poly, 4, m, 1, y0, True, 2)
+                m = _clip(poly, 2, m, 1, y0 + cs, False, 4)
                 if m < 3:
                     continue
-                ac, mxc, myc = _poly_moments(poly[4], poly[5], m, ox, oy)
+                ac, mxc, myc = _poly_moments(poly, 4, m, ox, oy)
                 wc = w0 * ac + gx * mxc + gy * myc
                 for k in range(ncand):
-                    wc -= _disc_weight(poly[4], poly[5], m, w0, gx, gy, ox, oy, cand[k], f)
+                    wc -= _disc_weight(poly, 4, m, w0, gx, gy, ox, oy, cand[k], f)
                 total += values[mat] * wc
                 rest -= wc
     total += values[ii[1]] * rest
@@ -779,16 +788,17 @@ w0 + g . (p - o); NaN when its cells are too many"""
 
 
 @njit(cache=True, error_model="numpy")
-def _disc_weight(xs, ys, n, w0, gx, gy, ox, oy, k, f):
-    r"""The integral of the density w0 + g . (p - o) over circle k x the polygon"""
+def _disc_weight(poly, row, n, w0, gx, gy, ox, oy, k, f):
+    r"""The integral of the density w0 + g . (p - o) over circle k x the polygon
+poly[row:row + 2, :n]"""
     c = F_CIRCLES + 3 * k
-    a, mx, my = _disc_poly_moments(xs, ys, n, f[c], f[c + 1], f[c + 2])
+    a, mx, my = _disc_poly_moments(poly, row, n, f[c], f[c + 1], f[c + 2])
     return (w0 + gx * (f[c] - ox) + gy * (f[c + 1] - oy)) * a + gx * mx + gy * my
 
 
 @njit(cache=True, error_model="numpy")
 def _area_pixel(cam, xf, ix, iy, n, jac, hess, cand, ncand, base, values, grid, poly, pat,
-                corners, r0):
+                corners, r0, warm0):
     r"""The area coverage value of pixel (ix, iy) from an (n+1) x (n+1) grid of exact rays
 (see above); returns (value, rays), value NaN where it cannot be computed
 
@@ -797,7 +807,8 @@ jac[0:4] = (dx/dqx, dy/dqx, dx/dqy, dy/dqy) at the pixel centre, hess[0:6] =
 neighbouring pixel centres, for the density.
 corners[0:2, k, c]: the board points of the pixel corners (c - 0.5, r0 + k - 0.5)
 traced so far in this band (NaN: not yet), shared between neighbouring pixels
-at n = 1."""
+at n = 1. warm0: the warm start of the pixel's centre (NaN: not known, solved here).
+"""
     warm = (math.nan, 0.0, 0.0, 0.0)
     have_warm = False
     nrays = 0
@@ -812,9 +823,11 @@ at n = 1."""
                     grid[1, j, i] = corners[1, iy - r0 + j, ix + i]
                     continue
             if not have_warm:
-                warm = warm_start(cam, ix, iy)
+                warm = warm0
+                if not math.isfinite(warm[0]):
+                    warm = warm_start(cam, ix, iy)
+                    nrays += 1
                 have_warm = True
-                nrays += 1
             s, vx, vy, vz = ray_warm(cam, ix - 0.5 + i * inv, y, warm)
             nrays += 1
             ok, bx, by = _hit(xf, s, vx, vy, vz)
@@ -825,24 +838,22 @@ at n = 1."""
             if n == 1:
                 corners[0, iy - r0 + j, ix + i] = bx
                 corners[1, iy - r0 + j, ix + i] = by
-    qx = poly[6]
-    qy = poly[7]
     acc = 0.0
     for j in range(n):
         dv = (j + 0.5) * inv - 0.5
         for i in range(n):
             du = (i + 0.5) * inv - 0.5
             # the quadrilateral, in the order of the pixel's corners (0,0) (1,0) (1,1) (0,1)
-            qx[0] = grid[0, j, i]
-            qy[0] = grid[1, j, i]
-            qx[1] = grid[0, j, i + 1]
-            qy[1] = grid[1, j, i + 1]
-            qx[2] = grid[0, j + 1, i + 1]
-            qy[2] = grid[1, j + 1, i + 1]
-            qx[3] = grid[0, j + 1, i]
-            qy[3] = grid[1, j + 1, i]
-            ox = 0.25 * (qx[0] + qx[1] + qx[2] + qx[3])
-            oy = 0.25 * (qy[0] + qy[1] + qy[2] + qy[3])
+            poly[6, 0] = grid[0, j, i]
+            poly[7, 0] = grid[1, j, i]
+            poly[6, 1] = grid[0, j, i + 1]
+            poly[7, 1] = grid[1, j, i + 1]
+            poly[6, 2] = grid[0, j + 1, i + 1]
+            poly[7, 2] = grid[1, j + 1, i + 1]
+            poly[6, 3] = grid[0, j + 1, i]
+            poly[7, 3] = grid[1, j + 1, i]
+            ox = 0.25 * (poly[6, 0] + poly[6, 1] + poly[6, 2] + poly[6, 3])
+            oy = 0.25 * (poly[7, 0] + poly[7, 1] + poly[7, 2] + poly[7, 3])
             # the Jacobian of the quadratic model at the quadrilateral's centre, and its
             # derivatives: the density w = 1/|D| and its gradient on the board
             bux = jac[0] + hess[0] * du + hess[2] * dv
@@ -858,7 +869,7 @@ at n = 1."""
             w0 = sgn / D
             gx = -sgn * gDx / (D * D)
             gy = -sgn * gDy / (D * D)
-            v = _quad_value(qx, qy, w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat)
+            v = _quad_value(w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat)
             if not (v - v == 0.0):
                 return math.nan, nrays
             acc += v
@@ -884,7 +895,7 @@ change across the pixel); both fall as 1/n^2 with n x n quadrilaterals"""
 
 @njit(cache=True, error_model="numpy")
 def _area_value(cam, xf, ix, iy, px, py, R, tol, jac, hess, cand, values, grid, poly, pat,
-                corners, r0):
+                corners, r0, warm0):
     r"""The area coverage value of an edge pixel (board point (px, py) of its centre,
 footprint radius R): the subdivision n from the error bound, then _area_pixel;
 (NaN, rays) where it is not computed (the pixel is then point sampled)"""
@@ -899,7 +910,7 @@ footprint radius R): the subdivision n from the error bound, then _area_pixel;
         if n > AREA_MAX_SUBDIVISION:
             return math.nan, 0
     return _area_pixel(cam, xf, ix, iy, n, jac, hess, cand, ncand, base, values, grid, poly,
-                       pat, corners, r0)
+                       pat, corners, r0, warm0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -957,10 +968,11 @@ the longest step between neighbouring ring points for the curve between them."""
 
 @njit(cache=True, error_model="numpy")
 def _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs, counts, stack, jac, cand,
-                  values, pat, area, tol, hess, grid, poly, corners):
+                  values, pat, area, tol, hess, grid, poly, corners, warm0):
     r"""Adaptive value of pixel (ix, iy) (band row k, column c); returns (value, rays, how):
 how 0 uniform, 1 point sampled, 2 area coverage (area mode), 3 point sampled in area
-mode where area coverage is not computed"""
+mode where area coverage is not computed. warm0: the warm start of the pixel's centre
+ray (reference_models.kernels.warm_start; NaN: solved where needed)"""
     nok = 0
     for dk in range(-1, 2):
         for dc in range(-1, 2):
@@ -1007,7 +1019,7 @@ mode where area coverage is not computed"""
             hess[4] = d2yx
             hess[5] = d2yy
             v, n = _area_value(cam, xf, ix, iy, px, py, r, tol, jac, hess, cand, values, grid,
-                               poly, pat, corners, iy - k + 1)
+                               poly, pat, corners, iy - k + 1, warm0)
             if v - v == 0.0:
                 # a mean of albedos in [0, 1]: the sum of signed moments can round past the
                 # ends (-2e-16 where a pixel is all background 0)
@@ -1102,11 +1114,25 @@ disc lies inside the board rectangle or wholly outside it)"""
 
 
 @njit(cache=True, error_model="numpy")
-def _pixel_scratch(K, nvalues, nrows, W, area):
-    r"""The work arrays _render_pixel needs, for a band of nrows image rows of width W:
-(counts, offs (the K subsample offsets), stack, jac, cand, hess, grid, poly, corners);
-corners (2, nrows + 1, W + 1) in area mode holds the board points of the band's pixel
-corners, NaN until traced"""
+def _band_scratch(K, nvalues, T, W, area):
+    r"""The work arrays of a band of at most T image rows of width W, allocated once per
+thread and reused for each of its bands: (hx, hy, hok, hu, hchi, need, code, blocks,
+bmask, counts, offs (the K subsample offsets), stack, jac, cand, hess, grid, poly,
+corners). hx, hy, hok (T + 2, W + 2): the board points of the band's centre rays (band
+row k = iy - r0 + 1, column c = ix + 1), hu, hchi the u, chi of their Newton solves
+(_trace_needed); need, code: a tile's (_render_band_outline); blocks:
+_render_band's stack; bmask (T, W): the band's edge pixels; corners (2, T + 1, W + 1)
+in area mode: the board points of the band's pixel corners, NaN until traced (each
+band and tile resets what it reads)"""
+    hx = np.empty((T + 2, W + 2))
+    hy = np.empty((T + 2, W + 2))
+    hok = np.zeros((T + 2, W + 2), dtype=np.uint8)
+    hu = np.empty((T + 2, W + 2))
+    hchi = np.empty((T + 2, W + 2))
+    need = np.zeros((T + 2, T + 2), dtype=np.uint8)
+    code = np.empty((T, T), dtype=np.int64)
+    blocks = np.empty((4 * (int(math.log2(T)) + 3), 4), dtype=np.int64)
+    bmask = np.zeros((T, W), dtype=np.uint8)
     counts = np.zeros(nvalues, dtype=np.int64)
     offs = np.empty(K)
     for i in range(K):
@@ -1117,20 +1143,23 @@ corners, NaN until traced"""
     hess = np.zeros(6)
     grid = np.empty((2, AREA_MAX_SUBDIVISION + 1, AREA_MAX_SUBDIVISION + 1))
     poly = np.empty((8, AREA_MAX_VERTICES))
-    corners = np.full((2, nrows + 1, W + 1) if area else (2, 1, 1), math.nan)
-    return counts, offs, stack, jac, cand, hess, grid, poly, corners
+    corners = np.full((2, T + 1, W + 1) if area else (2, 1, 1), math.nan)
+    return (hx, hy, hok, hu, hchi, need, code, blocks, bmask, counts, offs, stack, jac, cand,
+            hess, grid, poly, corners)
 
 
 @njit(cache=True, error_model="numpy")
 def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats, pat, qbox,
-                 area, tol):
+                 area, tol, scratch):
     H, W = out.shape
     nk = r1 - r0 + 2
     # board points of the centre rays of image rows r0-1 .. r1 (band row k = iy - r0 + 1)
     # and columns -1 .. W (band column c = ix + 1)
-    hx = np.empty((nk, W + 2))
-    hy = np.empty((nk, W + 2))
-    hok = np.zeros((nk, W + 2), dtype=np.uint8)
+    (hx, hy, hok, _, _, _, _, blocks, _, counts, offs, stack, jac, cand, hess, grid, poly,
+     corners) = scratch
+    hok[:nk] = 0
+    if area:
+        corners[:, :r1 - r0 + 1] = math.nan
     rect = pat[0]
     nboard = 0
     if not adaptive:
@@ -1139,9 +1168,6 @@ def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats
                       hok)
         nboard = _count_board(hx, hy, hok, 1, nk - 1, 1, W + 1, rect)
 
-    counts, offs, stack, jac, cand, hess, grid, poly, corners = _pixel_scratch(
-        K, values.shape[0], r1 - r0, W, area)
-    blocks = np.empty((4 * (int(math.log2(T)) + 3), 4), dtype=np.int64)
     narea = 0
     nfallback = 0
     nrays = 0
@@ -1204,7 +1230,8 @@ def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats
                     ntested += 1
                     v, n, how = _render_pixel(cam, xf, ix, iy, iy - r0 + 1, ix + 1, hx, hy,
                                               hok, K, offs, counts, stack, jac, cand, values,
-                                              pat, area, tol, hess, grid, poly, corners)
+                                              pat, area, tol, hess, grid, poly, corners,
+                                              (math.nan, 0.0, 0.0, 0.0))
                     out[iy, ix] = v
                     nrays += n
                     nsuper += how != 0
@@ -1217,72 +1244,124 @@ def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats
 # ---------------------------------------------------------------------------
 # Edge pixels from the projected outlines (renderers.raycast_outlines)
 #
-# mark_outlines marks every pixel whose closed square [ix-0.5, ix+0.5] x [iy-0.5, iy+0.5]
+# A pixel is an edge pixel when its closed square [ix-0.5, ix+0.5] x [iy-0.5, iy+0.5]
 # comes within a polyline's margin of one of its chords (split into pieces <= MARK_PIECE_PX:
 # a piece of a chord is the chord), by the separating-axis test of the square against the
 # piece grown by the margin: its bounding box (the x and y axes) and its normal. The
 # test keeps every pixel that the grown piece meets (it meets at most the pixels of its
-# oriented box) and a few more near the piece's ends. _render_band_outline then renders
-# a tile without edge pixels from one ray, and in the other tiles the edge pixels as
-# _render_pixel does and the others from a neighbour of the same region.
+# oriented box) and a few more near the piece's ends (_mark_chord). band_chords lists
+# the chords that reach each band of T rows; _render_band_outline marks its band's edge
+# pixels from them, renders a tile without edge pixels from one ray, and in the other
+# tiles the edge pixels as _render_pixel does and the others from a neighbour of the same
+# region.
 MARK_PIECE_PX = 2.0
+# band_chords lists a chord in the bands of its rows widened by this (px): the pieces'
+# ends, computed from the chord's, may round past it
+BAND_SLACK_PX = 1e-6
+
+
+@njit(cache=True, error_model="numpy")
+def _mark_chord(ax, ay, bx, by, m, mask, row0, rlo, rhi):
+    r"""Mark in mask (rows row0.., W columns) the pixels of image rows rlo..rhi whose
+square comes within m of the chord (ax, ay) - (bx, by)"""
+    W = mask.shape[1]
+    dx = bx - ax
+    dy = by - ay
+    length = math.sqrt(dx * dx + dy * dy)
+    npieces = max(1, int(math.ceil(length / MARK_PIECE_PX)))
+    nx = 0.0
+    ny = 0.0
+    if length > 0.0:
+        nx = -dy / length
+        ny = dx / length
+    reach = m + 0.5 * (abs(nx) + abs(ny))
+    for piece in range(npieces):
+        u0 = piece / npieces
+        u1 = (piece + 1) / npieces
+        px0 = ax + u0 * dx
+        py0 = ay + u0 * dy
+        px1 = ax + u1 * dx
+        py1 = ay + u1 * dy
+        fx0 = math.ceil(min(px0, px1) - m - 0.5)
+        fx1 = math.floor(max(px0, px1) + m + 0.5)
+        fy0 = math.ceil(min(py0, py1) - m - 0.5)
+        fy1 = math.floor(max(py0, py1) + m + 0.5)
+        if fx1 < 0.0 or fy1 < rlo or fx0 > W - 1.0 or fy0 > rhi:
+            continue
+        ix0 = int(max(fx0, 0.0))
+        ix1 = int(min(fx1, W - 1.0))
+        iy0 = int(max(fy0, rlo))
+        iy1 = int(min(fy1, rhi))
+        for iy in range(iy0, iy1 + 1):
+            for ix in range(ix0, ix1 + 1):
+                if abs(nx * (ix - ax) + ny * (iy - ay)) <= reach:
+                    mask[iy - row0, ix] = 1
 
 
 @njit(cache=True, error_model="numpy")
 def mark_outlines(q, starts, closed, margin, mask, tiles, T):
     r"""Mark the edge pixels of the polylines q[starts[i]:starts[i+1]] in mask (H,W) and
-their tiles (of T x T pixels) in tiles"""
+their tiles (of T x T pixels) in tiles (the whole image at once; a render marks band
+by band, _render_band_outline)"""
     H, W = mask.shape
     for p in range(starts.shape[0] - 1):
         a0 = starts[p]
         n = starts[p + 1] - a0
-        m = margin[p]
-        nseg = n if closed[p] else n - 1
-        for i in range(nseg):
+        for i in range(n if closed[p] else n - 1):
             j = a0 + i
             k = a0 + i + 1 if i + 1 < n else a0
-            ax = q[j, 0]
-            ay = q[j, 1]
-            dx = q[k, 0] - ax
-            dy = q[k, 1] - ay
-            length = math.sqrt(dx * dx + dy * dy)
-            npieces = max(1, int(math.ceil(length / MARK_PIECE_PX)))
-            nx = 0.0
-            ny = 0.0
-            if length > 0.0:
-                nx = -dy / length
-                ny = dx / length
-            reach = m + 0.5 * (abs(nx) + abs(ny))
-            for piece in range(npieces):
-                u0 = piece / npieces
-                u1 = (piece + 1) / npieces
-                px0 = ax + u0 * dx
-                py0 = ay + u0 * dy
-                px1 = ax + u1 * dx
-                py1 = ay + u1 * dy
-                fx0 = math.ceil(min(px0, px1) - m - 0.5)
-                fx1 = math.floor(max(px0, px1) + m + 0.5)
-                fy0 = math.ceil(min(py0, py1) - m - 0.5)
-                fy1 = math.floor(max(py0, py1) + m + 0.5)
-                if fx1 < 0.0 or fy1 < 0.0 or fx0 > W - 1.0 or fy0 > H - 1.0:
-                    continue
-                ix0 = int(max(fx0, 0.0))
-                ix1 = int(min(fx1, W - 1.0))
-                iy0 = int(max(fy0, 0.0))
-                iy1 = int(min(fy1, H - 1.0))
-                for iy in range(iy0, iy1 + 1):
-                    for ix in range(ix0, ix1 + 1):
-                        if abs(nx * (ix - ax) + ny * (iy - ay)) <= reach:
-                            mask[iy, ix] = 1
-                            tiles[iy // T, ix // T] = 1
+            _mark_chord(q[j, 0], q[j, 1], q[k, 0], q[k, 1], margin[p], mask, 0, 0, H - 1)
+    for iy in range(H):
+        for ix in range(W):
+            if mask[iy, ix]:
+                tiles[iy // T, ix // T] = 1
 
 
 @njit(cache=True, error_model="numpy")
-def _trace_needed(cam, xf, noncentral, r0, x0, x1, nk, need, hx, hy, hok):
+def band_chords(q, starts, closed, margin, T, H, W):
+    r"""The chords of the polylines that can mark pixels of each band of T image rows:
+(bstart (Nbands+1,), chords (N,3): first point, second point, polyline), band b's at
+chords[bstart[b]:bstart[b+1]]"""
+    nbands = -(-H // T)
+    bstart = np.zeros(nbands + 1, dtype=np.int64)
+    chords = np.empty((0, 3), dtype=np.int64)
+    for count in range(2):
+        fill = bstart[:-1].copy()
+        for p in range(starts.shape[0] - 1):
+            a0 = starts[p]
+            n = starts[p + 1] - a0
+            m = margin[p] + 0.5 + BAND_SLACK_PX
+            for i in range(n if closed[p] else n - 1):
+                j = a0 + i
+                k = a0 + i + 1 if i + 1 < n else a0
+                if (max(q[j, 0], q[k, 0]) + m < 0.0 or min(q[j, 0], q[k, 0]) - m > W - 1.0
+                        or max(q[j, 1], q[k, 1]) + m < 0.0
+                        or min(q[j, 1], q[k, 1]) - m > H - 1.0):
+                    continue
+                b0 = int(max(math.ceil(min(q[j, 1], q[k, 1]) - m), 0.0)) // T
+                b1 = int(min(math.floor(max(q[j, 1], q[k, 1]) + m), H - 1.0)) // T
+                for b in range(b0, b1 + 1):
+                    if count == 0:
+                        bstart[b + 1] += 1
+                    else:
+                        chords[fill[b], 0] = j
+                        chords[fill[b], 1] = k
+                        chords[fill[b], 2] = p
+                        fill[b] += 1
+        if count == 0:
+            for b in range(nbands):
+                bstart[b + 1] += bstart[b]
+            chords = np.empty((bstart[nbands], 3), dtype=np.int64)
+    return bstart, chords
+
+
+@njit(cache=True, error_model="numpy")
+def _trace_needed(cam, xf, noncentral, r0, x0, x1, nk, need, hx, hy, hok, hu, hchi):
     r"""The board points of the centre rays of the band grid points (k, c) marked in need
 (band rows 0..nk-1, columns x0..x1+1: need[k, c - x0]), traced along each row's runs
 of marked points (each next ray's Newton started from the previous one's
-prediction); returns the number of rays"""
+prediction), and the u, chi of their Newton solves (the warm starts of their pixels'
+other rays); returns the number of rays"""
     central = cam[_KIND] == KIND_CAHV
     nrays = 0
     for k in range(nk):
@@ -1299,33 +1378,41 @@ prediction); returns the number of rays"""
             hok[k, c] = ok
             hx[k, c] = x
             hy[k, c] = yb
+            hu[k, c] = u
+            hchi[k, c] = chi
             nrays += 1
     return nrays
 
 
 @njit(cache=True, error_model="numpy")
 def _render_band_outline(r0, r1, T, cam, noncentral, xf, K, values, out, stats, pat, qbox,
-                         area, tol, mask, tiles):
-    r"""_render_band where the edge pixels are known (mask, tiles: mark_outlines)
+                         area, tol, outline, scratch):
+    r"""_render_band where the edge pixels are known from the outlines: outline = (q,
+margin, bstart, chords) (band_chords)
 
-A tile without edge pixels is one region of one material: the board point of one
-centre ray (none outside qbox) decides it, and it is filled. In a tile with edge
-pixels, the centre rays of the edge pixels and of their 8 neighbours are traced,
-each edge pixel is rendered as _render_pixel renders it (area coverage or K x K
-point samples), and every other pixel takes the material of its left or upper
-neighbour when that one is not an edge pixel either (the union of their squares is
-connected and no outline meets it: one material), else of its own centre ray."""
+The band's edge pixels are marked first (_mark_chord). A tile without edge pixels is
+one region of one material: the board point of one centre ray (none outside qbox)
+decides it, and it is filled. In a tile with edge pixels, the centre rays of the edge
+pixels and of their 8 neighbours are traced, each edge pixel is rendered as
+_render_pixel renders it (area coverage or K x K point samples), and every other pixel
+takes the material of its left or upper neighbour when that one is not an edge pixel
+either (the union of their squares is connected and no outline meets it: one
+material), else of its own centre ray."""
     H, W = out.shape
     nk = r1 - r0 + 2
-    hx = np.empty((nk, W + 2))
-    hy = np.empty((nk, W + 2))
-    hok = np.zeros((nk, W + 2), dtype=np.uint8)
-    need = np.zeros((nk, T + 2), dtype=np.uint8)
-    code = np.empty((r1 - r0, T), dtype=np.int64)
+    (hx, hy, hok, hu, hchi, need, code, _, mask, counts, offs, stack, jac, cand, hess, grid,
+     poly, corners) = scratch
+    central = cam[_KIND] == KIND_CAHV
+    q, margin, bstart, chords = outline
+    b = r0 // T
+    mask[:r1 - r0] = 0
+    for i in range(bstart[b], bstart[b + 1]):
+        j = chords[i, 0]
+        k = chords[i, 1]
+        _mark_chord(q[j, 0], q[j, 1], q[k, 0], q[k, 1], margin[chords[i, 2]], mask, r0, r0,
+                    r1 - 1)
     rect = pat[0]
     bg = pat[1][0]
-    counts, offs, stack, jac, cand, hess, grid, poly, corners = _pixel_scratch(
-        K, values.shape[0], r1 - r0, W, area)
     narea = 0
     nfallback = 0
     nrays = 0
@@ -1333,10 +1420,13 @@ connected and no outline meets it: one material), else of its own centre ray."""
     nboard = 0
     ntiles = 0
     nedge = 0
-    ty = r0 // T
     for x0 in range(0, W, T):
         x1 = min(W, x0 + T)
-        if tiles[ty, x0 // T] == 0:
+        edges = False
+        for iy in range(r1 - r0):
+            for ix in range(x0, x1):
+                edges = edges or mask[iy, ix] != 0
+        if not edges:
             m = bg
             onboard = False
             if not (x1 - 0.5 < qbox[0] or x0 - 0.5 > qbox[1]
@@ -1361,13 +1451,14 @@ connected and no outline meets it: one material), else of its own centre ray."""
                 need[k, c] = 0
         for iy in range(r0, r1):
             for ix in range(x0, x1):
-                if mask[iy, ix]:
+                if mask[iy - r0, ix]:
                     k = iy - r0
                     c = ix - x0
                     for dk in range(3):
                         for dc in range(3):
                             need[k + dk, c + dc] = 1
-        nrays += _trace_needed(cam, xf, noncentral, r0, x0, x1, nk, need, hx, hy, hok)
+        nrays += _trace_needed(cam, xf, noncentral, r0, x0, x1, nk, need, hx, hy, hok, hu,
+                               hchi)
         if area:
             for j in range(r1 - r0 + 1):
                 for i in range(x0, x1 + 1):
@@ -1376,13 +1467,17 @@ connected and no outline meets it: one material), else of its own centre ray."""
             for ix in range(x0, x1):
                 k = iy - r0 + 1
                 c = ix + 1
-                if mask[iy, ix]:
+                if mask[iy - r0, ix]:
                     nedge += 1
                     if hok[k, c] and _on_board(hx[k, c], hy[k, c], rect):
                         nboard += 1
+                    # the centre ray's Newton solve, traced above, starts the corners'
+                    warm0 = (0.0, 0.0, 0.0, 0.0)
+                    if not central:
+                        warm0 = _warm_coefficients(cam, hu[k, c], hchi[k, c])
                     v, n, how = _render_pixel(cam, xf, ix, iy, k, c, hx, hy, hok, K, offs,
                                               counts, stack, jac, cand, values, pat, area, tol,
-                                              hess, grid, poly, corners)
+                                              hess, grid, poly, corners, warm0)
                     out[iy, ix] = v
                     nrays += n
                     nsuper += how != 0
@@ -1390,9 +1485,9 @@ connected and no outline meets it: one material), else of its own centre ray."""
                     nfallback += how == 3
                     continue
                 # 2 m + on board, from a neighbour of the same region or the centre ray
-                if ix > x0 and not mask[iy, ix - 1]:
+                if ix > x0 and not mask[iy - r0, ix - 1]:
                     cd = code[iy - r0, ix - 1 - x0]
-                elif iy > r0 and not mask[iy - 1, ix]:
+                elif iy > r0 and not mask[iy - r0 - 1, ix]:
                     cd = code[iy - r0 - 1, ix - x0]
                 else:
                     if need[k, c - x0]:
@@ -1441,7 +1536,7 @@ def _band_stats(stats, nrays, nsuper, nboard, nblocks, ntested, nonfinite, narea
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def render_kernel(cam, noncentral, xf, K, adaptive, T, values, out, stats, pat, qbox, nthreads,
-                  area, tol, outline, mask, tiles):
+                  area, tol, outline_known, outline):
     r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
 
 stats (Nbands,6) receives per band: rays traced, supersampled pixels, pixels
@@ -1451,33 +1546,30 @@ non-finite pixels (a bug); with 8 columns also: pixels of area coverage, pixels
 point sampled in area mode where area coverage was not computed.
 area: edge pixels get their exact covered area (to within tol of the pixel's
 area; see "Area coverage") instead of K x K point samples (adaptive only).
-outline (adaptive only): the edge pixels are mask (H,W) and the tiles that hold one
-tiles (mark_outlines): _render_band_outline; else every tile is tested
-(_render_band: its ring's centre rays, its interior's when the ring does not
-show it uniform, traced in it).
+outline_known (adaptive only): the edge pixels are those of the projected outlines,
+outline = (q, margin, bstart, chords) (band_chords): _render_band_outline; else
+every tile is tested (_render_band: its ring's centre rays, its interior's when the
+ring does not show it uniform, traced in it).
 qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
 not known); adaptive mode fills the pixels outside with the background.
-nthreads: numba's thread count (bands are dealt out round-robin among them)."""
-    H = out.shape[0]
+nthreads: numba's thread count; thread i renders bands i, i + nthreads, ... (a
+board in one part of the image is shared), with work arrays allocated once."""
+    H, W = out.shape
     nb = stats.shape[0]
-    # prange hands each thread a contiguous run of iterations; deal the bands out
-    # round-robin instead, so that a board in one part of the image is shared
     nthreads = max(1, min(nthreads, nb))
-    run = -(-nb // nthreads)
-    for i in prange(run * nthreads):
-        b = (i % run) * nthreads + i // run
-        if b >= nb:
-            continue
-        r0 = b * T
-        r1 = min(H, r0 + T)
-        if r1 <= r0:
-            continue
-        if outline and adaptive:
-            _render_band_outline(r0, r1, T, cam, noncentral, xf, K, values, out, stats[b], pat,
-                                 qbox, area, tol, mask, tiles)
-        else:
-            _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats[b],
-                         pat, qbox, area, tol)
+    for i in prange(nthreads):
+        scratch = _band_scratch(K, values.shape[0], T, W, area)
+        for b in range(i, nb, nthreads):
+            r0 = b * T
+            r1 = min(H, r0 + T)
+            if r1 <= r0:
+                continue
+            if outline_known and adaptive:
+                _render_band_outline(r0, r1, T, cam, noncentral, xf, K, values, out, stats[b],
+                                     pat, qbox, area, tol, outline, scratch)
+            else:
+                _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out,
+                             stats[b], pat, qbox, area, tol, scratch)
 
 
 def compiled_entry_points():
@@ -1488,7 +1580,7 @@ SYNOPSIS
     for kernel in compiled_entry_points():
         kernel.signatures     # what numba has compiled (or loaded from its cache)
 
-render_kernel and mark_outlines: what a warm-up compiles (harness.warmup) and a
+render_kernel and band_chords: what a warm-up compiles (harness.warmup) and a
 cache check looks for.
 '''
-    return (render_kernel, mark_outlines)
+    return (render_kernel, band_chords)

@@ -34,7 +34,8 @@ rendering, renderers.raycast_outlines): every boundary of the pattern (board
 rectangle, cell edges between different albedos, circles) is projected through
 the camera model, sampled finely enough that its chords stay within a stated
 margin of the curve, and every pixel whose square comes within that margin of
-a chord is an edge pixel (renderers._raycast_kernels.mark_outlines; the
+a chord is an edge pixel (renderers._raycast_kernels._mark_chord, band by band in
+the render kernel from the chords band_chords lists for each band; the
 proof-style argument why that is all of them is raycast_outlines' docstring).
 A tile of 32 x 32 pixels without an edge pixel is one ray and a fill; in the
 other tiles, the pixels that are not edge pixels take the material of a
@@ -438,7 +439,7 @@ centre ray sees the board; 0 for a board behind the camera, which renders as
 blank background), edges ("outlines": edge pixels from the projected outlines,
 "tested": pixels tested), blocks_tested and pixels_tested (outlines: tiles with
 edge pixels and edge pixels; tested: blocks and pixels tested), outline_seconds
-(projecting and marking the outlines), threads; under area coverage
+(projecting the outlines and listing their chords by band), threads; under area coverage
 also area_tolerance, area_fraction (pixels integrated exactly / pixels) and
 area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
 '''
@@ -478,12 +479,12 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
             outlines = project_outlines(model, Rt_cam_board, cp)
         cam, noncentral = kernels.pack_model(model), not model.is_central
         if outlines is not None:
-            mask = np.zeros((H, W), dtype=np.uint8)
-            tiles = np.zeros((-(-H // TILE), -(-W // TILE)), dtype=np.uint8)
-            kern.mark_outlines(outlines.q, outlines.starts, outlines.closed, outlines.margin,
-                               mask, tiles, TILE)
+            bstart, chords = kern.band_chords(outlines.q, outlines.starts, outlines.closed,
+                                              outlines.margin, TILE, H, W)
+            outline = (outlines.q, outlines.margin, bstart, chords)
         else:
-            mask = tiles = np.zeros((1, 1), dtype=np.uint8)
+            outline = (np.zeros((0, 2)), np.zeros(0), np.zeros(1, dtype=np.int64),
+                       np.zeros((0, 3), dtype=np.int64))
         t_outlines = time.perf_counter() - t1
 
         R = Rt[:3]
@@ -494,7 +495,7 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
         stats = np.zeros((-(-H // TILE), 8 if area else 6), dtype=np.int64)
         kern.render_kernel(cam, noncentral, xf, K, adaptive, TILE, cp.values, out, stats,
                            cp.kernel_args(), qbox, numba.get_num_threads(), area, tol,
-                           outlines is not None, mask, tiles)
+                           outlines is not None, outline)
         total = stats.sum(axis=0)
         if total[5] != 0:
             raise RendererError(f"the ray-cast renderer produced {int(total[5])} non-finite "

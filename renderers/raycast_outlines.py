@@ -13,7 +13,7 @@ is sampled on the board plane and projected through the camera's exact
 3D -> 2D projection (reference_models.kernels.project_packed: the model's own
 projection, CAHVORE's iterative one included, noncentral pupil and all). A
 pixel whose closed square comes within `margin` of a polyline is an edge pixel
-(renderers._raycast_kernels.mark_outlines); every other pixel lies in a region
+(renderers._raycast_kernels._mark_chord); every other pixel lies in a region
 of the image that no outline crosses, so its whole area is one material.
 
 Why that is enough. The pixels that see the board are the image of the board
@@ -65,7 +65,13 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from reference_models.kernels import _KIND, KIND_CAHV, _ray_warm_chi, _warm_coefficients
+from reference_models.kernels import (
+    _KIND,
+    KIND_CAHV,
+    _ray_warm_chi,
+    _warm_coefficients,
+    project_point,
+)
 from renderers._raycast_kernels import _hit
 
 # the largest step between neighbouring outline points (px): keeps the second differences
@@ -124,52 +130,117 @@ def _runs(differ):
     return zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True)
 
 
-def _sample(segs, circles, nseg, ncirc):
-    r"""Board points of every feature at its number of intervals, in one array: segment k
-nseg[k] + 1 points (open), circle k ncirc[k] points (closed); returns (xy, sizes)"""
-    sizes = np.concatenate((nseg + 1, ncirc))
-    feature = np.repeat(np.arange(len(sizes)), sizes)
-    starts = np.concatenate(([0], np.cumsum(sizes)))
-    i = np.arange(starts[-1]) - starts[feature]
-    xy = np.empty((starts[-1], 2))
-    ns = starts[len(segs)]
-    if ns:
-        k = feature[:ns]
-        t = i[:ns] / nseg[k]
-        s = segs[k]
-        xy[:ns, 0] = s[:, 0] + t * (s[:, 2] - s[:, 0])
-        xy[:ns, 1] = s[:, 1] + t * (s[:, 3] - s[:, 1])
-    if len(circles):
-        k = feature[ns:] - len(segs)
-        a = i[ns:] * (2.0 * math.pi / ncirc[k])
-        c = circles[k]
-        xy[ns:, 0] = c[:, 0] + c[:, 2] * np.cos(a)
-        xy[ns:, 1] = c[:, 1] + c[:, 2] * np.sin(a)
-    return xy, sizes
+@njit(cache=True, error_model="numpy")
+def _feature_points(segs, circles, k, n, Rt_ref_board, cam, xy, q):
+    r"""The points of feature k (segment k: n + 1 points from end to end; circle k - Nsegs:
+n points around) on the board, into xy, and projected into the image, into q; returns
+whether every point projects finitely"""
+    ns = segs.shape[0]
+    finite = True
+    npts = n + 1 if k < ns else n
+    for i in range(npts):
+        if k < ns:
+            t = i / n
+            x = segs[k, 0] + t * (segs[k, 2] - segs[k, 0])
+            y = segs[k, 1] + t * (segs[k, 3] - segs[k, 1])
+        else:
+            a = i * (2.0 * math.pi / n)
+            x = circles[k - ns, 0] + circles[k - ns, 2] * math.cos(a)
+            y = circles[k - ns, 1] + circles[k - ns, 2] * math.sin(a)
+        xy[i, 0] = x
+        xy[i, 1] = y
+        qx, qy = project_point(cam,
+                               Rt_ref_board[0, 0] * x + Rt_ref_board[0, 1] * y + Rt_ref_board[3, 0],
+                               Rt_ref_board[1, 0] * x + Rt_ref_board[1, 1] * y + Rt_ref_board[3, 1],
+                               Rt_ref_board[2, 0] * x + Rt_ref_board[2, 1] * y + Rt_ref_board[3, 2])
+        q[i, 0] = qx
+        q[i, 1] = qy
+        finite = finite and math.isfinite(qx) and math.isfinite(qy)
+    return finite
 
 
-def _chord_bounds(q, sizes, closed):
-    r"""(largest step, largest chord bound) of each polyline (see the module docstring)"""
-    feature = np.repeat(np.arange(len(sizes)), sizes)
-    starts = np.concatenate(([0], np.cumsum(sizes)))
-    g = np.arange(len(q))
-    first = starts[feature]
-    last = starts[feature + 1] - 1
-    cl = closed[feature].astype(bool)
-    nxt = np.where(g < last, g + 1, np.where(cl, first, last))
-    prv = np.where(g > first, g - 1, np.where(cl, last, first))
-    step = np.linalg.norm(q[nxt] - q, axis=-1)
-    d2 = np.linalg.norm(q[nxt] - 2.0 * q + q[prv], axis=-1)
-    # an open polyline's ends have no second difference: their neighbour's
-    ends = ~cl & ((g == first) | (g == last))
-    d2[ends & (g == first)] = d2[np.minimum(nxt, last)][ends & (g == first)]
-    d2[ends & (g == last)] = d2[prv][ends & (g == last)]
-    # chord g (points g, nxt): the second differences at its points and their neighbours
-    w = np.maximum(np.maximum(d2[prv], d2), np.maximum(d2[nxt], d2[nxt[nxt]]))
-    return np.maximum.reduceat(step, starts[:-1]), np.maximum.reduceat(w, starts[:-1]) / 4.0
+@njit(cache=True, error_model="numpy")
+def _chord_bound(q, closed, d2):
+    r"""(largest step, largest chord bound) of the polyline q (see the module docstring);
+d2: scratch of q's length"""
+    N = q.shape[0]
+    last = N - 1
+    step = 0.0
+    for g in range(N):
+        nxt = g + 1 if g < last else (0 if closed else last)
+        prv = g - 1 if g > 0 else (last if closed else 0)
+        ax = q[nxt, 0] - q[g, 0]
+        ay = q[nxt, 1] - q[g, 1]
+        step = max(step, math.sqrt(ax * ax + ay * ay))
+        bx = q[nxt, 0] - 2.0 * q[g, 0] + q[prv, 0]
+        by = q[nxt, 1] - 2.0 * q[g, 1] + q[prv, 1]
+        d2[g] = math.sqrt(bx * bx + by * by)
+    if not closed:
+        # an open polyline's ends have no second difference: their neighbour's
+        d2[0] = d2[min(1, last)]
+        d2[last] = d2[max(last - 1, 0)]
+    w = 0.0
+    for g in range(N):
+        # chord g (points g, g + 1): the second differences at its points and their
+        # neighbours
+        nxt = g + 1 if g < last else (0 if closed else last)
+        prv = g - 1 if g > 0 else (last if closed else 0)
+        nn = nxt + 1 if nxt < last else (0 if closed else last)
+        w = max(w, max(max(d2[prv], d2[g]), max(d2[nxt], d2[nn])))
+    return step, w / 4.0
 
 
-def _round_trip(cam, Rt_ref_board, q, xy):
+@njit(cache=True, error_model="numpy")
+def _outline_polylines(segs, circles, Rt_ref_board, cam, max_points):
+    r"""The polyline of each feature (segments, then circles), sampled from 16 (segments)
+and 32 (circles) intervals up, growing by the shortfall, until it meets MAX_STEP_PX and
+MAX_SAGITTA_PX: (status, xy, q, starts, margin), status 0, or -1 where a point does not
+project finitely, -2 where the polylines would need more than max_points points"""
+    ns = segs.shape[0]
+    nf = ns + circles.shape[0]
+    starts = np.zeros(nf + 1, dtype=np.int64)
+    margin = np.empty(nf)
+    cap = 64 * nf + 64
+    xy = np.empty((cap, 2))
+    q = np.empty((cap, 2))
+    d2 = np.empty(cap)
+    pos = 0
+    for k in range(nf):
+        n = 16 if k < ns else 32
+        while True:
+            npts = n + 1 if k < ns else n
+            if pos + npts > max_points:
+                return -2, xy, q, starts, margin
+            if pos + npts > cap:
+                cap = max(2 * cap, pos + npts)
+                xy2 = np.empty((cap, 2))
+                q2 = np.empty((cap, 2))
+                # element by element: an array-to-slice copy compiles numba's shape-mismatch
+                # message formatting (~5 CPU-s on a fresh clone)
+                for i in range(pos):
+                    xy2[i, 0] = xy[i, 0]
+                    xy2[i, 1] = xy[i, 1]
+                    q2[i, 0] = q[i, 0]
+                    q2[i, 1] = q[i, 1]
+                xy = xy2
+                q = q2
+                d2 = np.empty(cap)
+            if not _feature_points(segs, circles, k, n, Rt_ref_board, cam, xy[pos:pos + npts],
+                                   q[pos:pos + npts]):
+                return -1, xy, q, starts, margin
+            step, bound = _chord_bound(q[pos:pos + npts], k >= ns, d2)
+            # a step or a sagitta too large: more points (the sagitta falls as 1/n^2)
+            grow = max(step / MAX_STEP_PX, math.sqrt(bound / MAX_SAGITTA_PX))
+            if not grow > 1.0:
+                margin[k] = bound + PROJECTION_SLOP_PX
+                pos += npts
+                starts[k + 1] = pos
+                break
+            n = int(math.ceil(n * grow * 1.1))
+    return 0, xy[:pos], q[:pos], starts, margin
+
+
+def _round_trip(cam, Rt_ref_board, q, xy, starts):
     r"""Whether the ray of each pixel q meets the board plane at the board point xy it
 was projected from (to ROUND_TRIP_TOLERANCE of the board's size): false where the
 projection folds (a distortion polynomial past its maximum maps points beyond it
@@ -179,29 +250,34 @@ back into the image, where the pixels' rays see other points)"""
     R, t = Rt[:3], Rt[3]
     xf = np.concatenate((R.ravel(), R @ cam[0:3] + t, R @ cam[12:15]))
     size = float(np.ptp(xy, axis=0).max())
-    return bool(_round_trip_kernel(cam, xf, q, xy, ROUND_TRIP_TOLERANCE * size))
+    return bool(_round_trip_kernel(cam, xf, q, xy, starts, ROUND_TRIP_TOLERANCE * size))
 
 
 @njit(cache=True, error_model="numpy")
-def _round_trip_kernel(cam, xf, q, xy, tolerance):
-    r"""_round_trip's test, point by point: exact rays (each Newton solve started from the
-previous point's prediction: the same rays, renderers._raycast_kernels)"""
+def _round_trip_kernel(cam, xf, q, xy, starts, tolerance):
+    r"""_round_trip's test, polyline by polyline, point by point: exact rays (each Newton
+solve started from the previous point's prediction: the same rays,
+renderers._raycast_kernels)"""
     central = cam[_KIND] == KIND_CAHV
-    warm = (math.nan, 0.0, 0.0, 0.0)
-    for i in range(q.shape[0]):
-        s, vx, vy, vz, u, chi = _ray_warm_chi(cam, q[i, 0], q[i, 1], warm)
-        if not central:
-            warm = _warm_coefficients(cam, u, chi)
-        ok, x, y = _hit(xf, s, vx, vy, vz)
-        if not (ok and abs(x - xy[i, 0]) <= tolerance and abs(y - xy[i, 1]) <= tolerance):
-            return False
-    return True
+    npoly = starts.shape[0] - 1
+    bad = np.zeros(npoly, dtype=np.uint8)
+    for p in range(npoly):
+        warm = (math.nan, 0.0, 0.0, 0.0)
+        for i in range(starts[p], starts[p + 1]):
+            s, vx, vy, vz, u, chi = _ray_warm_chi(cam, q[i, 0], q[i, 1], warm)
+            if not central:
+                warm = _warm_coefficients(cam, u, chi)
+            ok, x, y = _hit(xf, s, vx, vy, vz)
+            if not (ok and abs(x - xy[i, 0]) <= tolerance and abs(y - xy[i, 1]) <= tolerance):
+                bad[p] = 1
+                break
+    return not np.any(bad)
 
 
 def compiled_entry_points():
     r"""The compiled kernels here (numba dispatchers): what harness.warmup's cache checks
 read"""
-    return (_round_trip_kernel,)
+    return (_outline_polylines, _round_trip_kernel)
 
 
 def project_outlines(model, Rt_cam_board, cp):
@@ -212,28 +288,12 @@ the board is not known to be bounded by them (see the module docstring)"""
     from reference_models import kernels
     segs, circles = board_features(cp)
     Rt_ref_board = mrcal.compose_Rt(model.Rt_ref_cam(), np.asarray(Rt_cam_board, float))
-    R, t = Rt_ref_board[:3], Rt_ref_board[3]
     cam = kernels.pack_model(model)
-    nseg = np.full(len(segs), 16, dtype=np.int64)
-    ncirc = np.full(len(circles), 32, dtype=np.int64)
+    status, xy, q, starts, margin = _outline_polylines(segs, circles, Rt_ref_board, cam,
+                                                       MAX_POINTS)
+    if status != 0:
+        return None
     closed = np.concatenate((np.zeros(len(segs), np.uint8), np.ones(len(circles), np.uint8)))
-    while True:
-        xy, sizes = _sample(segs, circles, nseg, ncirc)
-        if len(xy) > MAX_POINTS:
-            return None
-        p = xy @ R[:, :2].T + t
-        q = kernels.project_packed(cam, p)
-        if not np.all(np.isfinite(q)):
-            return None
-        step, bound = _chord_bounds(q, sizes, closed)
-        # a step or a sagitta too large: more points (the sagitta falls as 1/n^2)
-        grow = np.maximum(step / MAX_STEP_PX, np.sqrt(bound / MAX_SAGITTA_PX))
-        if not np.any(grow > 1.0):
-            if not (model.family == "CAHV" or _round_trip(cam, Rt_ref_board, q, xy)):
-                return None
-            return Outlines(q=q, starts=np.concatenate(([0], np.cumsum(sizes))),
-                            closed=closed, margin=bound + PROJECTION_SLOP_PX)
-        intervals = sizes - 1 + closed
-        n = np.where(grow > 1.0, np.ceil(intervals * grow * 1.1), intervals).astype(np.int64)
-        nseg = n[:len(segs)]
-        ncirc = n[len(segs):]
+    if not (model.family == "CAHV" or _round_trip(cam, Rt_ref_board, q, xy, starts)):
+        return None
+    return Outlines(q=q, starts=starts, closed=closed, margin=margin)
