@@ -26,6 +26,10 @@ A campaign is a TOML file (tomllib):
 
     seed = 0                 # the campaign's noise seed (camera-response stages)
 
+    [target_models]          # optional: the model families a target renders under
+    apriltag = ["own"]       # (default: every one of models); "own" = the camera's own
+                             # catalogue family, so each camera is seen once by that target
+
     [poses]
     n = 6
     seed = 0
@@ -98,6 +102,8 @@ from reference_models.cahvore import FAMILIES
 from reference_models.errors import CamvalError
 
 JOB_FAMILY = "family"
+# [target_models]: the camera's own catalogue family
+OWN_FAMILY = "own"
 
 # [poses] cover: how the poses beyond the first six are planned
 # (targets.poses.plan_poses): "corners" reaches the image's corners and edges, which a
@@ -106,7 +112,8 @@ JOB_FAMILY = "family"
 POSES_COVER = "corners"
 POSES_COVERS = ("paper", "corners")
 
-TOP_KEYS = ("name", "description", "cameras", "models", "targets", "keep_images", "keep_maps",
+TOP_KEYS = ("name", "description", "cameras", "models", "targets", "target_models",
+            "keep_images", "keep_maps",
             "share_identical_cameras", "catalogue", "seed", "poses", "renderer", "calibrator",
             "response")
 POSE_KEYS = ("n", "seed", "cover")
@@ -315,6 +322,14 @@ class Campaign:
     seed: int = 0
     responses: tuple = ()
     share_identical_cameras: bool = True
+    target_models: tuple = ()     # ((target, (family or OWN_FAMILY, ...)), ...)
+
+    def renders(self, target, family, own_family):
+        r'''Whether the target is rendered under this model family ([target_models])'''
+        for t, fams in self.target_models:
+            if t == target:
+                return family in fams or (OWN_FAMILY in fams and family == own_family)
+        return True
 
     def response(self, name):
         r'''The ResponseSpec called name (KeyError if there is none)'''
@@ -336,7 +351,9 @@ class Campaign:
                 "keep_images": self.keep_images, "keep_maps": self.keep_maps,
                 "catalogue": self.catalogue, "seed": self.seed,
                 "response": [r.as_dict() for r in self.responses],
-                "share_identical_cameras": self.share_identical_cameras}
+                "share_identical_cameras": self.share_identical_cameras,
+                **({"target_models": {t: list(f) for t, f in self.target_models}}
+                   if self.target_models else {})}
 
     @classmethod
     def from_dict(cls, d):
@@ -361,7 +378,9 @@ class Campaign:
                    catalogue=d.get("catalogue"), seed=d.get("seed", 0),
                    responses=tuple(ResponseSpec(r["name"], r["config"])
                                    for r in d.get("response", ())),
-                   share_identical_cameras=d.get("share_identical_cameras", True))
+                   share_identical_cameras=d.get("share_identical_cameras", True),
+                   target_models=tuple((t, tuple(f)) for t, f
+                                       in (d.get("target_models") or {}).items()))
 
     def replace(self, **kw):
         import dataclasses
@@ -603,6 +622,7 @@ Relative model-file paths among the cameras are taken from base_dir.
             raise CampaignError(f"{_where(source, 'targets')}: unknown target {t!r}; known: "
                                 f"{', '.join(known)} or a target .toml file (its key "
                                 f"detector names any registered detector, plug-ins too)")
+    target_models = _target_models(source, doc.get("target_models", {}), targets)
     poses = doc.get("poses", {})
     if not isinstance(poses, dict):
         raise CampaignError(f"{_where(source, 'poses')}: expected a table with n and seed")
@@ -719,7 +739,28 @@ Relative model-file paths among the cameras are taken from base_dir.
                     keep_maps=_bool(source, "keep_maps", doc.get("keep_maps", True)),
                     catalogue=cat, seed=noise_seed, responses=responses,
                     share_identical_cameras=_bool(source, "share_identical_cameras",
-                                                  doc.get("share_identical_cameras", True)))
+                                                  doc.get("share_identical_cameras", True)),
+                    target_models=target_models)
+
+
+def _target_models(source, table, targets):
+    r'''[target_models] -> ((target, (family or "own", ...)), ...), checked'''
+    if not isinstance(table, dict):
+        raise CampaignError(f"{_where(source, 'target_models')}: expected a table of "
+                            f"target = [families]")
+    out = []
+    for t, fams in table.items():
+        if t not in targets:
+            raise CampaignError(f"{_where(source, 'target_models.' + t)}: {t!r} is not among "
+                                f"the campaign's targets ({', '.join(targets)})")
+        fams = _list_of(source, "target_models." + t, fams, (str,), "model families")
+        for f in fams:
+            if f not in FAMILIES and f != OWN_FAMILY:
+                raise CampaignError(f"{_where(source, 'target_models.' + t)}: unknown model "
+                                    f"family {f!r}; known: {', '.join(FAMILIES)} or "
+                                    f"{OWN_FAMILY!r} (the camera's own)")
+        out.append((t, tuple(fams)))
+    return tuple(out)
 
 
 def load_campaign(path):

@@ -115,6 +115,9 @@ entries: {camera spec: CatalogueEntry} from campaign.validate() (validated here 
         w, h = entry.model.width, entry.model.height
         for family in campaign.models:
             for target in campaign.targets:
+                if not getattr(campaign, "renders", lambda *a: True)(target, family,
+                                                                       entry.model.family):
+                    continue
                 for r in campaign.renderers:
                     for s, prof in zip(r.settings(campaign.responses),
                                        r.profiles(campaign.responses), strict=True):

@@ -26,9 +26,12 @@ def test_shipped_campaigns_load_and_validate():
     assert paper.cameras == tuple(str(i) for i in range(1, 23))
     assert (paper.poses_n, paper.poses_seed) == (6, 0)
     jobs = expand_jobs(paper)
-    assert len(jobs) == 22 * 3 * 2
+    # the dots under 3 families, the AprilTag grid under each camera's own ([target_models])
+    assert len(jobs) == 22 * 3 + 22
     assert jobs[0].key == "1/CAHV/dots/raycast[spp=16,adaptive,coverage=area]"
-    assert jobs[1].key == "1/CAHV/apriltag/raycast[spp=16,adaptive,coverage=area]"
+    assert jobs[3].key == "1/CAHVORE/apriltag/raycast[spp=16,adaptive,coverage=area]"
+    assert {(j.camera, j.family) for j in jobs if j.target == "apriltag"} == \
+        {(c, e.model.family) for c, e in paper.validate().items()}
     # the quick and the paper campaigns have the AprilTag grid beside the dots, fitted by jpl
     # alone (mrcal's object is a regular grid; OpenCV's model, not the target, limits it)
     for c in (quick, paper):
@@ -38,6 +41,34 @@ def test_shipped_campaigns_load_and_validate():
     assert jobs[0].fullname("jpl", "CAHV") == \
         "1/CAHV/dots/raycast[spp=16,adaptive,coverage=area]/jpl[CAHV]"
     assert len({j.key for j in jobs}) == len(jobs)
+
+
+def test_target_models_choose_the_families_a_target_renders_under(tmp_path):
+    c = load_campaign(_write(tmp_path, '''
+cameras = [17, 15]
+models = ["CAHV", "CAHVOR", "CAHVORE"]
+targets = ["dots", "apriltag", "chessboard"]
+[target_models]
+apriltag = ["own"]
+chessboard = ["CAHV", "own"]
+'''))
+    got = {(j.camera, j.family, j.target) for j in expand_jobs(c)}
+    fam = {"17": "CAHVORE", "15": "CAHVOR"}
+    assert got == ({(k, f, "dots") for k in fam for f in ("CAHV", "CAHVOR", "CAHVORE")}
+                   | {(k, fam[k], "apriltag") for k in fam}
+                   | {(k, f, "chessboard") for k in fam for f in ("CAHV", fam[k])})
+    assert Campaign.from_dict(c.as_dict()) == c      # what a resumed run re-reads
+
+
+@pytest.mark.parametrize("body, message", [
+    ('targets = ["dots"]\n[target_models]\napriltag = ["own"]', "not among the campaign"),
+    ('targets = ["dots"]\n[target_models]\ndots = ["CAHVX"]', "unknown model family"),
+    ('targets = ["dots"]\n[target_models]\ndots = []', "non-empty list"),
+    ('targets = ["dots"]\ntarget_models = 3', "expected a table"),
+])
+def test_bad_target_models(tmp_path, body, message):
+    with pytest.raises(CampaignError, match=message):
+        load_campaign(_write(tmp_path, "cameras = [15]\n" + body))
 
 
 def test_settings_expand_to_jobs_and_family_models(tmp_path):
