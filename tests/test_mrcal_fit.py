@@ -28,7 +28,12 @@ def _check(truth, r):
     assert r.model.family == truth.family
     d = projection_difference(truth, r.model, mode="rotation", step=64)
     assert d["n_invalid"] == 0
-    assert d["max"] <= 1e-6, d["max"]
+    # mrcal's solver stops on its own convergence test, not at rounding: the recovered
+    # projection lies within ~1e-6 px of the truth, and where exactly depends on the CPU's
+    # floating-point path (1.13e-6 px on MCAM_Z_RIGHT-Z034 on one machine of this kind,
+    # < 1e-6 on another). 1e-5 px is still ten times below the smallest detection scatter
+    # the verdict resolves (harness.verdict.DETECTION_RESOLUTION_PX, 1e-4 px)
+    assert d["max"] <= 1e-5, d["max"]
 
 
 @pytest.mark.parametrize("key", ["15", "8", "17"])
