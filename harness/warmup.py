@@ -121,7 +121,7 @@ def _warm_renders(jobs):
     import dataclasses
 
     from .stages import render_detect_stage
-    done, failed, seen = [], [], set()
+    done, failed, seen = [], {}, set()
     for job in jobs:
         key = (job.renderer, job.family, job.target)
         if key in seen:
@@ -134,10 +134,11 @@ def _warm_renders(jobs):
                                       truth, target, [Rt])
             seen.add(key)
             done.append("/".join(key))
+            failed[key] = []    # the other jobs' failures to warm it no longer matter
             if out.failure is not None:
-                failed.append(f"{job.key}: {out.failure.stage}: {out.failure.reason}")
+                failed[key].append(f"{job.key}: {out.failure.stage}: {out.failure.reason}")
         except Exception as e:  # not-applicable family, invisible target: try the next job
-            failed.append(f"{job.key}: {failure_reason(e)}")
+            failed.setdefault(key, []).append(f"{job.key}: {failure_reason(e)}")
     if any((j.response or {}).get("saturation", {}).get("blooming") for j in jobs):
         try:
             import numpy as np
@@ -147,8 +148,8 @@ def _warm_renders(jobs):
                 np.full((4, 4), 2.0))
             done.append("response/blooming")
         except Exception as e:
-            failed.append(f"response/blooming: {failure_reason(e)}")
-    return done, failed
+            failed[("response",)] = [f"response/blooming: {failure_reason(e)}"]
+    return done, [f for fs in failed.values() for f in fs]
 
 
 class _Exact:
@@ -166,7 +167,7 @@ needed) -> (done, failed)'''
 
     from .campaign import MODEL_CHOICE, POSE_COUNT
     from .stages import calibrate_stage, observations_from
-    done, failed, seen = [], [], set()
+    done, failed, seen = [], {}, set()
     for job in jobs:
         todo = [c for c in _numba_calibrators(job) if (c[0], job.family) not in seen]
         if not todo:
@@ -179,7 +180,9 @@ needed) -> (done, failed)'''
             obs = observations_from(truth, target, poses,
                                     [_Exact(exact(truth, target, Rt)) for Rt in poses])
         except Exception as e:
-            failed.append(f"{job.key}: {failure_reason(e)}")
+            for cal, _, _ in todo:
+                failed.setdefault((cal, job.family), []).append(
+                    f"{job.key}: {failure_reason(e)}")
             continue
         for cal, model, options in todo:
             options = {k: v for k, v in options.items() if k not in (MODEL_CHOICE, POSE_COUNT)}
@@ -187,9 +190,10 @@ needed) -> (done, failed)'''
             if res.status == "ok":
                 seen.add((cal, job.family))
                 done.append(f"{cal}/{job.family}")
+                failed[(cal, job.family)] = []
             elif res.status == "failed":
-                failed.append(f"{job.key}/{cal}: {res.reason}")
-    return done, failed
+                failed.setdefault((cal, job.family), []).append(f"{job.key}/{cal}: {res.reason}")
+    return done, [f for fs in failed.values() for f in fs]
 
 
 def _timed(fn, jobs):

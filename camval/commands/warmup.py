@@ -44,7 +44,9 @@ def run(args):
     info = warm_up(jobs, force=args.force, workers=args.jobs)
     what = ", ".join(info["renders"] + info["fits"]) or "nothing to compile"
     cached = f"; cached already: {', '.join(info['cached'])}" if info["cached"] else ""
-    print(f"camval warm-up: {what}{cached} ({time.perf_counter() - t0:.1f} s)",
+    parts = "".join(f"; {name} {t['seconds']:.1f} s wall, {t['cpu']:.1f} CPU s"
+                    for name, t in info["parts"].items() if t)
+    print(f"camval warm-up: {what}{cached} ({time.perf_counter() - t0:.1f} s{parts})",
           file=sys.stderr)
     for f in info["failed"]:
         print(f"camval warm-up: not warmed: {f}", file=sys.stderr)
