@@ -115,15 +115,24 @@ def _kind(target_name):
         return None
 
 
+def _render_kinds(jobs):
+    r'''(kind, job) in the order _warm_renders tries them: each (renderer, family, target)
+with its jobs from the smallest image up (by job.cost: the cheapest render), then each
+(renderer, target) with its largest image first: a detector may take another path, with
+other types, for a large image (targets.detect_dots reads one above 4.5 Mpx as float32)'''
+    ordered = sorted(jobs, key=lambda j: j.cost)
+    return ([((j.renderer, j.family, j.target), j) for j in ordered]
+            + [((j.renderer, j.target, "largest"), j) for j in reversed(ordered)])
+
+
 def _warm_renders(jobs):
-    r'''Render, respond and detect one image of each (renderer, family, target) of the jobs
-(the job's own settings and first pose) -> (done, failed)'''
+    r'''Render, respond and detect one image of each kind of job (_render_kinds; the job's own
+settings and first pose) -> (done, failed)'''
     import dataclasses
 
     from .stages import render_detect_stage
     done, failed, seen = [], {}, set()
-    for job in jobs:
-        key = (job.renderer, job.family, job.target)
+    for key, job in _render_kinds(jobs):
         if key in seen:
             continue
         try:
@@ -234,14 +243,14 @@ SYNOPSIS
     #  "parts": {"renders": {"seconds", "cpu"}, "fits": {...}}}   (the warmed sets' times)
     # force=True: warm even when numba's cache is up to date
 
-The render set (per renderer, model family and target of the jobs: one image
-of the job's own settings and first pose rendered, put through the job's
-camera response and detected) and the fit set (per numba calibrator and
-family: the job's poses planned and the calibrator fitted to their exact
-observations) run in two processes at once (workers=1: one after the other,
-in this process). numba writes what it compiles to its cache directory, so
-worker processes started afterwards load the kernels instead of each
-compiling them (after a kernel change that is minutes per worker on a loaded
+The render set (per renderer, model family and target of the jobs, and per
+renderer and target the largest image: one image of the job's own settings and
+first pose rendered, put through the job's camera response and detected) and
+the fit set (per numba calibrator and family: the job's poses planned and the
+calibrator fitted to their exact observations) run in two processes at once
+(workers=1: one after the other, in this process). numba writes what it compiles
+to its cache directory, so worker processes started afterwards load the kernels
+instead of each compiling them (after a kernel change that is minutes per worker on a loaded
 machine). A set whose kernels are all cached for their source
 (kernels_cached; for the render set also the detectors' kernels) is not
 warmed: loading them here too would only add the loading time (seconds under

@@ -20,7 +20,8 @@ def test_warm_up_renders_each_kind_once_unless_cached(tmp_path):
                                        "models": ["CAHV", "CAHVORE"],
                                        "renderer": [{"name": "raycast", "spp": [1, 4]}]}))
     info = warm_up(jobs, force=True, workers=1)
-    assert info["renders"] == ["raycast/CAHV/dots", "raycast/CAHVORE/dots"]
+    assert info["renders"] == ["raycast/CAHV/dots", "raycast/CAHVORE/dots",
+                               "raycast/dots/largest"]
     assert info["fits"] == ["jpl/CAHV", "jpl/CAHVORE"] and info["cached"] == []
     assert set(info["parts"]) == {"renders", "fits"}
     # SuperCam sees no board, camera 15 has no CAHVORE: cameras 15 and 17 warmed those kinds
@@ -50,17 +51,20 @@ def test_warm_up_renders_each_kind_once_unless_cached(tmp_path):
 # dispatcher stats count a compilation as a cache miss, so a kernel the warm-up left out is
 # one with misses here
 _COVERAGE = r'''
-import json, sys
+import json, sys, tomllib
 from numba.core.dispatcher import Dispatcher
-from harness.campaign import load_campaign
+from harness.campaign import parse_campaign
 from harness.jobs import expand_jobs
 from harness.runner import run_job
 from harness.warmup import warm_up
 
 def main():
-    want = {("15", "CAHV", "dots"), ("15", "CAHVOR", "dots"), ("17", "CAHVORE", "dots"),
-            ("17", "CAHVORE", "apriltag")}
-    jobs = [j for j in expand_jobs(load_campaign("campaigns/quick.toml"))
+    # camera 1 (5120x3840): the dot detector's large-image path (float32)
+    want = {("1", "CAHV", "dots"), ("15", "CAHV", "dots"), ("15", "CAHVOR", "dots"),
+            ("17", "CAHVORE", "dots"), ("17", "CAHVORE", "apriltag")}
+    with open("campaigns/quick.toml", "rb") as f:
+        quick = tomllib.load(f)
+    jobs = [j for j in expand_jobs(parse_campaign(dict(quick, cameras=[1, 15, 17])))
             if (j.camera_key, j.family, j.target) in want]
     info = warm_up(jobs, workers=2)
     statuses = [r["status"] for j in jobs for r in run_job(j)["records"]]
@@ -91,8 +95,9 @@ def test_warm_up_compiles_every_kernel_the_jobs_call(tmp_path):
                          cwd=ROOT, timeout=3600, env=env)
     assert out.returncode == 0, out.stderr[-3000:]
     doc = json.loads(out.stdout.strip().splitlines()[-1])
-    assert doc["warm_up"]["renders"] == ["raycast/CAHV/dots", "raycast/CAHVOR/dots",
-                                         "raycast/CAHVORE/dots", "raycast/CAHVORE/apriltag"]
+    assert doc["warm_up"]["renders"] == [
+        "raycast/CAHVORE/dots", "raycast/CAHVORE/apriltag", "raycast/CAHV/dots",
+        "raycast/CAHVOR/dots", "raycast/dots/largest", "raycast/apriltag/largest"]
     assert doc["warm_up"]["fits"] == ["jpl/CAHV", "jpl/CAHVOR", "jpl/CAHVORE"]
     assert set(doc["statuses"]) == {"ok"}
     assert doc["missed"] == {}
