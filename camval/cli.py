@@ -30,6 +30,7 @@ COMMANDS = {
     "stereo": "camval.commands.stereo",
     "sweep": "camval.commands.sweep",
     "models": "camval.commands.models",
+    "warm-up": "camval.commands.warmup",
 }
 
 

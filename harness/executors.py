@@ -66,6 +66,26 @@ finished jobs' records are already stored by the campaign.'''
     threading.Thread(target=watch, name="camval-campaign-watch", daemon=True).start()
 
 
+def local_context():
+    r'''The multiprocessing context of local worker processes (the warm-up's too)
+
+forkserver, not fork: the parent may hold threads (the progress bar, BLAS). The
+server imports harness.runner once; each worker forks from it, and the warm-up's
+processes and the jobs' workers share it.'''
+    import multiprocessing
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["harness.runner"])
+    return ctx
+
+
+def local_pool(workers):
+    r'''A ProcessPoolExecutor of `workers` local processes (local_context) that end when
+this process does (_die_with_campaign): the jobs' workers and the warm-up's'''
+    import concurrent.futures as cf
+    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=local_context(),
+                                  initializer=_die_with_campaign, initargs=(os.getpid(),))
+
+
 def _local_results(fn, jobs, workers):
     r'''Yield (job, result or exception) as jobs finish, in local processes'''
     if workers <= 1:
@@ -76,13 +96,7 @@ def _local_results(fn, jobs, workers):
                 yield job, e
         return
     import concurrent.futures as cf
-    import multiprocessing
-    # forkserver, not fork: the parent may hold threads (the progress bar, BLAS)
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["harness.runner"])
-    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
-                                initializer=_die_with_campaign,
-                                initargs=(os.getpid(),)) as ex:
+    with local_pool(workers) as ex:
         futs = {ex.submit(fn, job): job for job in jobs}
         try:
             for fut in cf.as_completed(futs):
@@ -161,8 +175,8 @@ number of jobs run (a job with twins counts each of its cameras).
 fn: the function run on each job (None: harness.runner.run_job); in worker
 processes or on Dask, a module-level function (it travels by reference).
 warm: before starting local worker processes (workers > 1, fn = run_job),
-compile the renderer's kernels once here (warm_up) so that the workers load
-them from numba's cache. report: a dict that receives {"warm_up": {...}}.
+compile every numba kernel of the jobs once (warm_up, on `workers` processes)
+so that the workers load them from numba's cache. report: a dict that receives {"warm_up": {...}}.
 progress: True (a harness.progress.Progress of its own on stderr), False, or the
 campaign's Progress (its "jobs" stage shows the running jobs' stages on a terminal).
 '''
@@ -181,7 +195,7 @@ campaign's Progress (its "jobs" stage shows the running jobs' stages on a termin
     bar = Progress(enabled=bool(progress)) if own else progress
     if (warm and executor == "local" and workers > 1 and fn is run_job and todo):
         bar.stage("warm-up")
-        info = warm_up(todo)
+        info = warm_up(todo, workers=workers)
         if report is not None:
             report["warm_up"] = info
     watch = None

@@ -245,7 +245,10 @@ The pixels (...,2) float64; NaN (both coordinates) outside the model's domain.
     if p.ndim < 1 or p.shape[-1] != 3:
         raise ValueError(f"p must have shape (...,3); got {p.shape}")
     out = np.empty(p.shape[:-1] + (2,), dtype=np.float64)
-    project_points(cam, np.ascontiguousarray(p.reshape(-1, 3)), out.reshape(-1, 2))
+    # writable: numba compiles a read-only array (a frozen model's grid) as another type,
+    # i.e. a second signature, compiled again by each process that meets it
+    project_points(cam, np.require(p.reshape(-1, 3), requirements=("C", "W")),
+                   out.reshape(-1, 2))
     return out
 
 

@@ -23,3 +23,9 @@ fi
 # --compile-bytecode: the environment sets PYTHONDONTWRITEBYTECODE, so without .pyc files every
 # process (each campaign worker, each test subprocess) would compile numba, scipy... again (~3 s)
 uv sync --frozen --quiet --compile-bytecode
+# numba's kernels, compiled once as an install step (as --compile-bytecode does for .pyc): into
+# numba's cache (__pycache__ beside the sources, or NUMBA_CACHE_DIR), on two cores. A fresh
+# clone's first campaign then loads them (~60 CPU s of compilation otherwise, before the workers
+# start); when the cache is current this only reads numba's cache index (~3 s).
+uv run --frozen camval warm-up campaigns/paper.toml campaigns/quick.toml \
+    || echo "camval setup: the numba warm-up failed; campaigns compile their kernels on first use" >&2

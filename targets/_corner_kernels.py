@@ -209,3 +209,9 @@ matmul to rounding, not bit for bit)'''
             for ll in range(k):
                 JtJ[j, k, ll] = JtJ[j, ll, k]
     return JtJ, Jtr
+
+
+def compiled_entry_points():
+    r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
+warm-up's check of numba's cache (harness.warmup)'''
+    return (wedge_model, normal_equations)

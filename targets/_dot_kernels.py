@@ -389,3 +389,9 @@ def label_counts(labels, n):
     for v in labels.ravel():
         counts[v] += 1
     return counts
+
+
+def compiled_entry_points():
+    r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
+warm-up's check of numba's cache (harness.warmup)'''
+    return (dilations, dot_centroid, mark_flags, histogram_counts, label_counts)

@@ -357,30 +357,6 @@ def test_a_renderer_that_cannot_render_the_camera_is_not_applicable():
     assert (rec["status"], rec["stage"]) == ("failed", "render")
 
 
-def test_warm_up_renders_each_family_once_unless_cached(tmp_path):
-    from harness.warmup import kernels_cached, warm_up
-    jobs = expand_jobs(parse_campaign({"cameras": ["SuperCam", 15, 17],
-                                       "models": ["CAHV", "CAHVORE"],
-                                       "renderer": [{"name": "raycast", "spp": [1, 4]}]}))
-    info = warm_up(jobs, force=True)
-    assert info["renders"] == ["raycast/CAHV", "raycast/CAHVORE"] and info["cached"] == []
-    # SuperCam sees no board; camera 15 has no CAHVORE: each says so
-    assert any(f.startswith("SuperCam/CAHV/") for f in info["failed"])
-    assert any(f.startswith("15/CAHVORE/") and "cannot be derived" in f
-               for f in info["failed"])
-    # now numba's cache holds the kernels: nothing to warm
-    assert kernels_cached("raycast")
-    again = warm_up(jobs)
-    assert again["cached"] == ["raycast"] and again["renders"] == []
-    assert warm_up([])["renders"] == []
-    # an empty cache directory (as after a kernel change): not cached
-    out = subprocess.run([sys.executable, "-c", "from harness.warmup import kernels_cached; "
-                          "print(kernels_cached('raycast'))"], capture_output=True, text=True,
-                         cwd=ROOT, timeout=300,
-                         env=dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba")))
-    assert out.stdout.strip() == "False", out.stderr
-
-
 def _die(job):
     os._exit(3)   # a worker killed mid-job (out of memory, SIGKILL)
 

@@ -1,0 +1,109 @@
+r'''harness.warmup: every kernel a campaign's jobs call is compiled before the workers start'''
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from harness.campaign import parse_campaign
+from harness.jobs import expand_jobs
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_warm_up_renders_each_kind_once_unless_cached(tmp_path):
+    from harness.warmup import kernels_cached, warm_up
+    jobs = expand_jobs(parse_campaign({"cameras": ["SuperCam", 15, 17],
+                                       "models": ["CAHV", "CAHVORE"],
+                                       "renderer": [{"name": "raycast", "spp": [1, 4]}]}))
+    info = warm_up(jobs, force=True, workers=1)
+    assert info["renders"] == ["raycast/CAHV/dots", "raycast/CAHVORE/dots",
+                               "raycast/dots/largest"]
+    assert info["fits"] == ["jpl/CAHV", "jpl/CAHVORE"] and info["cached"] == []
+    assert set(info["parts"]) == {"renders", "fits"}
+    # SuperCam sees no board, camera 15 has no CAHVORE: cameras 15 and 17 warmed those kinds
+    assert info["failed"] == []
+    # a kind no job can warm: each job says why
+    none = warm_up(expand_jobs(parse_campaign({"cameras": ["SuperCam", 15],
+                                               "models": ["CAHVORE"]})), workers=1, force=True)
+    assert none["renders"] == none["fits"] == []
+    assert any(f.startswith("SuperCam/CAHVORE/") for f in none["failed"])
+    assert any(f.startswith("15/CAHVORE/") and "cannot be derived" in f
+               for f in none["failed"])
+    # now numba's cache holds the kernels: nothing to warm
+    assert kernels_cached("raycast") and kernels_cached("jpl") and kernels_cached("mrcal")
+    again = warm_up(jobs)
+    assert again["cached"] == ["raycast", "jpl"]
+    assert again["renders"] == again["fits"] == [] and again["parts"] == {}
+    assert warm_up([])["renders"] == []
+    # an empty cache directory (as after a kernel change): not cached
+    out = subprocess.run([sys.executable, "-c", "from harness.warmup import kernels_cached; "
+                          "print(kernels_cached('raycast'), kernels_cached('jpl'))"],
+                         capture_output=True, text=True, cwd=ROOT, timeout=300,
+                         env=dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba")))
+    assert out.stdout.strip() == "False False", out.stderr
+
+
+# In a fresh numba cache: the warm-up (two processes), then the jobs in this process; numba's
+# dispatcher stats count a compilation as a cache miss, so a kernel the warm-up left out is
+# one with misses here
+_COVERAGE = r'''
+import json, sys, tomllib
+from numba.core.dispatcher import Dispatcher
+from harness.campaign import parse_campaign
+from harness.jobs import expand_jobs
+from harness.runner import run_job
+from harness.warmup import warm_up
+
+def main():
+    # camera 1 (5120x3840): the dot detector's large-image path (float32)
+    want = {("1", "CAHV", "dots"), ("15", "CAHV", "dots"), ("15", "CAHVOR", "dots"),
+            ("17", "CAHVORE", "dots"), ("17", "CAHVORE", "apriltag")}
+    with open("campaigns/quick.toml", "rb") as f:
+        quick = tomllib.load(f)
+    jobs = [j for j in expand_jobs(parse_campaign(dict(quick, cameras=[1, 15, 17])))
+            if (j.camera_key, j.family, j.target) in want]
+    info = warm_up(jobs, workers=2)
+    statuses = [r["status"] for j in jobs for r in run_job(j)["records"]]
+    missed = {f"{name}.{k}": [str(s) for s in v.stats.cache_misses]
+              for name, mod in list(sys.modules.items())
+              if name.split(".")[0] in ("harness", "targets", "renderers", "reference_models")
+              for k, v in list(vars(mod).items())
+              if isinstance(v, Dispatcher) and v.stats.cache_misses}
+    # the kernels both warm-up processes call: one signature each, so that the two never add
+    # different entries to one cache index at once (harness.warmup says why)
+    import reference_models.kernels as K
+    shared = {k: [str(s) for s in v.signatures] for k, v in vars(K).items()
+              if isinstance(v, Dispatcher) and len(v.signatures) > 1}
+    print(json.dumps({"warm_up": info, "statuses": statuses, "missed": missed,
+                      "shared": shared}))
+
+if __name__ == "__main__":
+    main()
+'''
+
+
+@pytest.mark.slow
+def test_warm_up_compiles_every_kernel_the_jobs_call(tmp_path):
+    script = tmp_path / "coverage.py"
+    script.write_text(_COVERAGE)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         cwd=ROOT, timeout=3600, env=env)
+    assert out.returncode == 0, out.stderr[-3000:]
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    assert doc["warm_up"]["renders"] == [
+        "raycast/CAHVORE/dots", "raycast/CAHVORE/apriltag", "raycast/CAHV/dots",
+        "raycast/CAHVOR/dots", "raycast/dots/largest", "raycast/apriltag/largest"]
+    assert doc["warm_up"]["fits"] == ["jpl/CAHV", "jpl/CAHVOR", "jpl/CAHVORE"]
+    assert set(doc["statuses"]) == {"ok"}
+    assert doc["missed"] == {}
+    assert doc["shared"] == {}
+    # the install step: the cache is current now, so it compiles nothing
+    cli = subprocess.run([sys.executable, "-m", "camval.cli", "warm-up", "campaigns/quick.toml"],
+                         capture_output=True, text=True, cwd=ROOT, timeout=600, env=env)
+    assert cli.returncode == 0, cli.stderr
+    assert "nothing to compile; cached already: raycast, jpl" in cli.stderr
