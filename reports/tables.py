@@ -236,7 +236,9 @@ ok records of one target and family each.'''
             continue
         fams = [f for f in FAMILIES if any(r["model"] == f for r in recs)]
         fams += sorted({r["model"] for r in recs} - set(fams))
-        cols = [(f, tg) for f in fams for tg in targets]
+        # a family a target was not run under ([target_models]) has no column
+        cols = [(f, tg) for f in fams for tg in targets
+                if any((r["model"], r["target"]) == (f, tg) for r in recs)]
         ok = {c: [r for r in recs if (r["model"], r["target"]) == c and r["status"] == "ok"]
               for c in cols}
         header = ("quantity", "unit") + tuple(f"{f} {tg} ({len(ok[(f, tg)])} ok)"

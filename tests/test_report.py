@@ -489,6 +489,11 @@ side by side under each family, the renderer verdict's rows first, and one figur
     assert all(float(v) < 0.01 for v in rows["total: projection difference RMS, median"][2::2])
     assert rows["renderer: image fit vs exact fit, projection RMS, worst"][3::2] == ("0", "0")
     assert rows["renderer: projection RMS / its sigma, worst"][3::2] == ("0", "0")
+    # a family the AprilTag grid was not run under ([target_models]) has no column
+    cahv_tags = {k for k, r in tags.items() if r["model"] == "CAHV"}
+    (table,) = target_tables({k: r for k, r in both.items() if k not in cahv_tags})
+    assert table.header[2:4] == (f"CAHV dots ({ok['CAHV']} ok)",
+                                 f"CAHVOR dots ({ok['CAHVOR']} ok)")
     fig = fig_targets(both, tmp_path)
     assert fig.key == "fig_targets" and Path(fig.path).read_bytes()[:4] == b"\x89PNG"
     assert "gate fails above 6" in fig.caption
