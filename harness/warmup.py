@@ -44,7 +44,8 @@ NUMBA_RENDERERS = {"raycast": ("renderers._raycast_kernels", "renderers.raycast_
 NUMBA_DETECTORS = {"dots": "targets._dot_kernels", "apriltag": "targets._corner_kernels",
                    "chessboard": "targets._corner_kernels"}
 # calibrators whose fit calls numba kernels -> their module
-NUMBA_CALIBRATORS = {"jpl": "harness.calibrators._jpl_kernels"}
+NUMBA_CALIBRATORS = {"jpl": "harness.calibrators._jpl_kernels",
+                     "opencv": "harness.calibrators.opencv_fit"}
 # every module with @njit(cache=True) kernels that call reference_models.kernels: numba
 # checks a cached kernel against its own source file only (reference_models.kernels.
 # drop_stale_caches says why), so a warm-up drops their stale caches first

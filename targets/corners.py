@@ -686,6 +686,9 @@ line through the corner when sigma > 0)'''
             W, dW = np.ones((len(s), 1)), np.zeros((len(s), 1))
         if kernel == "numba":
             from ._corner_kernels import wedge_model
+            # writable C arrays always (blur_kernel's cached kernels are read-only): one
+            # compiled signature, the one harness.warmup compiles
+            Z, W, dZ, dW = (np.require(a, np.float64, ("C", "W")) for a in (Z, W, dZ, dW))
             D, dD_dc, dD_dt, dD_ds = wedge_model(
                 centres, np.ascontiguousarray(s, dtype=np.int64), np.ascontiguousarray(c),
                 uu, first, second, float(widen), Z, W, dZ, dW)

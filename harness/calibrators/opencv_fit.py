@@ -163,6 +163,11 @@ random models and point sets; 2.4x faster on 19200 points), without numpy's temp
         q[i, 1] = fy * y + cy
 
 
+def compiled_entry_points():
+    r'''The numba kernels this module calls from Python (harness.warmup compiles them)'''
+    return (_project_rational,)
+
+
 def _Rt(rvec, tvec):
     import cv2
     R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3))
