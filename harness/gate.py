@@ -299,18 +299,24 @@ def _bool(source, key, v):
     return v
 
 
-def _parse_scatter(tables, source):
+def _tables(tables, source, kind, known):
+    r'''Yield (key, table) of a spec's [[kind]] tables, each checked for unknown keys'''
     if not isinstance(tables, list):
-        raise GateUsageError(f"{source}: scatter: expected [[scatter]] tables")
-    out = []
+        raise GateUsageError(f"{source}: {kind}: expected [[{kind}]] tables")
     for i, t in enumerate(tables):
-        key = f"scatter[{i}]"
+        key = f"{kind}[{i}]"
         if not isinstance(t, dict):
             raise GateUsageError(f"{source}: {key}: expected a table")
         for k in t:
-            if k not in SCATTER_KEYS:
+            if k not in known:
                 raise GateUsageError(f"{source}: {key}.{k}: unknown key; known keys: "
-                                     f"{', '.join(SCATTER_KEYS)}")
+                                     f"{', '.join(known)}")
+        yield key, t
+
+
+def _parse_scatter(tables, source):
+    out = []
+    for key, t in _tables(tables, source, "scatter", SCATTER_KEYS):
         if not isinstance(t.get("field"), str) or not isinstance(t.get("sigma"), str) \
                 or "z" not in t:
             raise GateUsageError(f"{source}: {key}: needs field = \"...\", sigma = \"...\" "
@@ -324,17 +330,8 @@ def _parse_scatter(tables, source):
 
 
 def _parse_joint(tables, source):
-    if not isinstance(tables, list):
-        raise GateUsageError(f"{source}: joint: expected [[joint]] tables")
     out = []
-    for i, t in enumerate(tables):
-        key = f"joint[{i}]"
-        if not isinstance(t, dict):
-            raise GateUsageError(f"{source}: {key}: expected a table")
-        for k in t:
-            if k not in JOINT_KEYS:
-                raise GateUsageError(f"{source}: {key}.{k}: unknown key; known keys: "
-                                     f"{', '.join(JOINT_KEYS)}")
+    for key, t in _tables(tables, source, "joint", JOINT_KEYS):
         if not isinstance(t.get("field"), str) or "z" not in t:
             raise GateUsageError(f"{source}: {key}: needs field = \"...\" (the dotted path of "
                                  f"the record's table with chi2 and dof) and z = number")
