@@ -295,7 +295,8 @@ be computed says why in verdict["error"] and leaves the record ok.'''
         # not shared with twins (fits=None): their exact observations agree to ~1e-12 px,
         # not bit for bit, and an ill-conditioned fit (mrcal CAHVOR of camera 17) lands
         # px apart from such differences: shared records must equal unshared ones
-        exact, noise, reused = _exact_fit(cal, model, options, obs, target, truth, res, cache)
+        exact, noise, reused = vd.exact_fit(cal, model, options, obs, target, truth, cache,
+                                            None, start=res)
         t1 = time.perf_counter()
         sec["exact_fit"] = 0.0 if reused else float(exact.seconds)
         sec["exact_observations"] = max(0.0, t1 - t0 - sec["exact_fit"])
@@ -306,28 +307,6 @@ be computed says why in verdict["error"] and leaves the record ok.'''
         sec["verdict"] = time.perf_counter() - t0
         return {"error": f"{failure_reason(e)} ({Path(tb.filename).name}:{tb.lineno})"}, ""
     return v, "; ".join(x for x in (v.get("floor_reason"), v.get("disagree_reason")) if x)
-
-
-def _exact_fit(cal, model, options, obs, target, truth, res, cache):
-    r'''harness.verdict.exact_fit from the image fit -> (fit, noise, reused), or the image fit
-itself when the exact observations ARE the image observations, bit for bit
-
-That is the case of a corner target on a job whose images are the reference render
-(is_reference_render): its detections are the reference corners, so the exact
-observations are its own. The calibrators are deterministic: fitting the same
-observations again from the image fit's solution lands on that solution (the renderer
-difference measured 0 to 1e-12 px on every AprilTag record of the paper campaign), at the
-cost of a second fit (jpl on an AprilGrid: ~0.4 CPU-s a record, mostly its corner bias
-correction). reused is then True (the record's seconds.exact_fit is 0).'''
-    import numpy as np
-
-    from . import verdict as vd
-    if "obs" not in cache:     # exact_fit's cache: computed once per camera and pose count
-        cache["obs"] = vd.exact_observations(obs, truth, target, cache.get("reference"))
-        cache["noise"] = vd.detection_noise(obs, cache["obs"])
-    if np.array_equal(cache["obs"].q, obs.q, equal_nan=True):
-        return res, cache["noise"], True
-    return vd.exact_fit(cal, model, options, obs, target, truth, cache, None, start=res)
 
 
 def save_images(job, images):
