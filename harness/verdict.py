@@ -1090,13 +1090,19 @@ Returns {"chi2", "dof", "z", "n"} (n quantities taken), chi2 and z None when dof
     out = {"chi2": None, "dof": 0, "z": None, "n": int(ok.sum())}
     if not ok.any():
         return out
-    y = d[ok] / s[ok]
+    V, w = _joint_basis(S, s, ok, cut)
+    u = V.T @ (d[ok] / s[ok])
+    chi2 = float(np.sum(u * u / w))
+    dof = len(w)
+    return {"chi2": chi2, "dof": dof, "z": joint_z(chi2, dof), "n": out["n"]}
+
+
+def _joint_basis(S, s, ok, cut):
+    r'''(V, w): the eigen-directions of the correlation matrix of S on the quantities ok
+(s: their sigmas) whose eigenvalue w is above cut x the largest (joint_statistic)'''
     w, V = np.linalg.eigh(S[np.ix_(ok, ok)] / np.outer(s[ok], s[ok]))
     keep = w > cut * w[-1]
-    u = V[:, keep].T @ y
-    chi2 = float(np.sum(u * u / w[keep]))
-    dof = int(keep.sum())
-    return {"chi2": chi2, "dof": dof, "z": joint_z(chi2, dof), "n": out["n"]}
+    return V[:, keep], w[keep]
 
 
 def joint_resolution_cov(Ninv, s_col, n_points):
@@ -1116,10 +1122,9 @@ the directions left out (joint_statistic's cut) or has no component in S's suppo
     ok = (s > 0) & np.isfinite(s)
     if not ok.any():
         return None
-    w, V = np.linalg.eigh(S[np.ix_(ok, ok)] / np.outer(s[ok], s[ok]))
-    keep = w > cut * w[-1]
-    u = V[:, keep].T @ (v[ok] / s[ok])
-    q = float(np.sum(u * u / w[keep]))
+    V, w = _joint_basis(S, s, ok, cut)
+    u = V.T @ (v[ok] / s[ok])
+    q = float(np.sum(u * u / w))
     return 1.0 / math.sqrt(q) if q > 0 else None
 
 
