@@ -718,18 +718,13 @@ def _choose_rows(rows, calibrator, tol, crit, how=None):
 # parts of the image unobserved; its records' floors are then larger where it extrapolates.
 
 
-class _Exact:
-    def __init__(self, q):
-        self.q = q
-
-
 def floor_observations(truth, n=FLOOR_POSES, target_name=FLOOR_TARGET, cover=FLOOR_COVER):
     r'''(obs, target): exact observations of n whole-image poses (targets.poses's planner)'''
     from harness import stages
     from targets.centroids import projected_points
     target = stages.cached_target(target_name)
     poses = stages.poses_stage(truth, target, n, 0, cover)
-    dets = [_Exact(projected_points(truth, target, Rt)) for Rt in poses]
+    dets = [projected_points(truth, target, Rt) for Rt in poses]
     return stages.observations_from(truth, target, poses, dets), target
 
 

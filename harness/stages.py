@@ -442,12 +442,15 @@ def _none_found(dets):
 
 
 def observations_from(truth, target, poses, detections):
-    r'''Detections -> harness.calibrators Observations (board poses surveyed, as the paper)'''
+    r'''Detections -> harness.calibrators Observations (board poses surveyed, as the paper)
+
+detections: one per pose, each a Detection (its .q) or the (Npoints,2) image points
+themselves (exact observations: the warm-up, the model benchmark's floors)'''
     import mrcal
     import numpy as np
 
     from harness.calibrators.base import Observations
-    q = np.stack([np.asarray(d.q, dtype=np.float64) for d in detections])
+    q = np.stack([np.asarray(getattr(d, "q", d), dtype=np.float64) for d in detections])
     Rt_ref_cam = truth.Rt_ref_cam()
     Rt_ref_board = np.stack([mrcal.compose_Rt(Rt_ref_cam, np.asarray(Rt, dtype=np.float64))
                              for Rt in poses])

@@ -162,13 +162,6 @@ settings and first pose) -> (done, failed)'''
     return done, [f for fs in failed.values() for f in fs]
 
 
-class _Exact:
-    r'''A detection that found every point at its exact image position (for _warm_fits)'''
-
-    def __init__(self, q):
-        self.q = q
-
-
 def _warm_fits(jobs):
     r'''Plan each job's poses and fit its numba calibrators, once per (calibrator, family),
 to the exact image positions of the target's points in those poses (no image
@@ -188,7 +181,7 @@ needed) -> (done, failed)'''
             poses = poses_stage(truth, target, job.poses_n, job.poses_seed, job.poses_cover)
             exact = expected_centroids if target.kind == "dots" else projected_points
             obs = observations_from(truth, target, poses,
-                                    [_Exact(exact(truth, target, Rt)) for Rt in poses])
+                                    [exact(truth, target, Rt) for Rt in poses])
         except Exception as e:
             for cal, _, _ in todo:
                 failed.setdefault((cal, job.family), []).append(

@@ -158,7 +158,7 @@ the exact dot centroids of the campaign's poses (30, cover "corners", bias corre
     target = stages.cached_target("dots")
     poses = stages.poses_stage(truth, target, 30, 0, "corners")
     obs = stages.observations_from(truth, target, poses,
-                                   [mb._Exact(expected_centroids(truth, target, Rt))
+                                   [expected_centroids(truth, target, Rt)
                                     for Rt in poses])
     exact, _, _ = verdict.exact_fit(cal, model, {}, obs, target, truth, {})
     assert exact.status == "ok", exact.reason
