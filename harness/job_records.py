@@ -249,6 +249,8 @@ def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, s
         info["model_choice"] = choice
     if (res.info or {}).get("diagnostics"):   # library messages (harness.quiet)
         info["diagnostics"] = res.info["diagnostics"]
+    if (res.info or {}).get("crawl"):   # the fit's restarts ran out in a misfit (mrcal)
+        info["crawl"] = res.info["crawl"]
     if shared is not None:
         info["shared"] = shared
     common = dict(residuals=res.residual_stats(), seconds=sec, detections=detections,

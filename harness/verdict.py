@@ -424,7 +424,9 @@ def _assess(truth, res, exact_res, noise, total_params, total_projection, second
                      "projection": {k: (total_projection or {}).get(k)
                                     for k in ("rms", "max")}},
            "exact_fit": {"status": exact_res.status, "reason": exact_res.reason,
-                         "residuals": exact_res.residual_stats()},
+                         "residuals": exact_res.residual_stats(),
+                         **{k: (exact_res.info or {})[k] for k in ("moved_from_start",)
+                            if k in (exact_res.info or {})}},
            "detection_noise": noise, "floor": None, "renderer": None,
            "floor_far": False, "floor_reason": "", "fits_disagree": False,
            "disagree_reason": ""}

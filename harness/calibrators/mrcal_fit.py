@@ -290,7 +290,12 @@ the same poses (harness.verdict: the image fit, to fit the exact observations): 
 intrinsics and board poses are the starting point; the pinhole seed, the staged model and
 the race of two starts are skipped, and each solve is one mrcal.optimize without restarts
 (see WARM_RESTARTS): the fit stays in the start's minimum. A start of another lens model
-or without every board pose is ignored (info["warm_start"] says which).
+or without every board pose is ignored (info["warm_start"] says which);
+info["moved_from_start"] says whether the warm fit moved from it at all.
+
+info["crawl"], when present: the restarts of a polish ran out of their budget
+(max_restarts) still gaining, with residuals far above the noise (crawl_verdict): from
+then on every polish restarts once, and the entry says why in words.
 '''
     import mrcal
 
@@ -358,6 +363,7 @@ or without every board pose is ignored (info["warm_start"] says which).
     problem["intrinsics"][0, :4] = seed
     if warm is not None:
         problem["intrinsics"][0] = warm[0]
+        warm_state = _snapshot(problem)
     unpolished = False   # the race's winner still needs its full polish
     iterations = 0
     stages = []
@@ -371,7 +377,9 @@ or without every board pose is ignored (info["warm_start"] says which).
     if coarse > 1 and (observations[:, ::coarse, ::coarse, 2] > 0).sum(axis=(1, 2)).min() < 8:
         coarse = 1
 
-    def problem_rms(step=1):
+    def problem_residuals(step=1):
+        # (observed - projected) on the grid of every step-th row and column, and the
+        # mask of the points observed: (Nposes, ny', nx', 2), (Nposes, ny', nx')
         Rt_f = mrcal.Rt_from_rt(problem["rt_ref_frame"])
         if problem["rt_cam_ref"] is not None:
             Rt_cr = mrcal.Rt_from_rt(problem["rt_cam_ref"][0])
@@ -381,8 +389,11 @@ or without every board pose is ignored (info["warm_start"] says which).
         p = mrcal.transform_point_Rt(Rt_f[:, None, None], p_grid[None, ::step, ::step])
         q = mrcal.project(p, problem["lensmodel"], problem["intrinsics"][0])
         ob = problem["observations_board"][:, ::step, ::step]
-        w = ob[..., 2] > 0
-        d = (q - ob[..., :2])[w]
+        return ob[..., :2] - q, ob[..., 2] > 0
+
+    def problem_rms(step=1):
+        d, w = problem_residuals(step)
+        d = d[w]
         return float(np.sqrt(np.mean((d * d).sum(axis=-1))))
 
     def solve(step=1, **flags):
@@ -415,6 +426,10 @@ or without every board pose is ignored (info["warm_start"] says which).
     else:
         solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=False)
 
+    # crawl: set once a restarts() run with the full budget ends still gaining, far above
+    # the detection noise (crawl_verdict): every later polish restarts once only
+    crawl = None
+
     def polish(limit=None, full=True):
         # mrcal's solver stops early in flat valleys (narrow lenses: focal length vs range;
         # R0 vs focal length); restarting it keeps making progress. Stop when a restart gains
@@ -423,7 +438,7 @@ or without every board pose is ignored (info["warm_start"] says which).
         # (R0 -> -0.94 for a MER hazcam, theta 90.018 deg), exactly, after ~20 restarts.
         # The restarts run on the coarse grid first, then on the full one (full=False: the
         # coarse grid only).
-        limit = min(limit or max_restarts, max_restarts)
+        limit = 1 if crawl is not None else min(limit or max_restarts, max_restarts)
         restarts(coarse, limit)
         if full and coarse > 1:
             restarts(1, limit)
@@ -431,6 +446,7 @@ or without every board pose is ignored (info["warm_start"] says which).
     def restarts(step, limit):
         # restarts on the grid of every step-th row and column while each gains (the first
         # one too, over the state it starts from); returns the RMS
+        nonlocal crawl
         rms_prev = problem_rms(step)
         for _ in range(limit):
             solve(step, do_optimize_intrinsics_core=True,
@@ -438,8 +454,12 @@ or without every board pose is ignored (info["warm_start"] says which).
             r = problem_rms(step)
             gain = POLISH_GAIN_FINE if r < FINE_RMS else POLISH_GAIN
             if r < 1e-10 or r > gain * rms_prev:
-                break
-            rms_prev = r
+                return r
+            last_gain, rms_prev = 1.0 - r / rms_prev, r
+        # every restart of the budget still gained: a crawl (a warm fit's single restart is
+        # no budget, and a capped polish is not the full one)
+        if crawl is None and warm is None and limit == max_restarts > 1:
+            crawl = crawl_verdict(*problem_residuals(1), last_gain, limit)
         return r
 
     if warm is not None:
@@ -543,6 +563,12 @@ or without every board pose is ignored (info["warm_start"] says which).
     if unpolished:   # no bias pass ran (no dots), or they ran out before the bias settled
         polish()
         cm, model, Rt_cam_board = current()
+    if warm is not None:
+        # mrcal may take no step at all from a start in a flat valley (21 CAHVORE: a fit of
+        # the exact observations bit for bit the image fit, renderer difference exactly 0):
+        # say so, so that such a 0 is not read as agreement
+        start_info["moved_from_start"] = not all(
+            np.array_equal(problem[k], warm_state[k]) for k in ("intrinsics", "rt_ref_frame"))
     return fitted_result(
         NAME, LIBRARY, library_version(), model_name, t0, model=model,
         residuals=_residuals(model, obs, Rt_cam_board, q_used), found=found, max_rms=max_rms,
@@ -550,7 +576,73 @@ or without every board pose is ignored (info["warm_start"] says which).
         info={"lensmodel": lensmodel, "known_poses": bool(known_poses),
               "world_frame": bool(known_poses), "regularization": bool(regularization),
               "bias_corrected": bias_applied, "passes": passes, "seed_pinhole": seed,
-              "intrinsics": cm.intrinsics()[1], "cameramodel": cm, **start_info})
+              "intrinsics": cm.intrinsics()[1], "cameramodel": cm,
+              **({"crawl": crawl} if crawl is not None else {}), **start_info})
+
+
+def grid_noise_rms(d, ok):
+    r'''The detection noise (RMS of the 2-vector, px) estimated from residuals on the grid
+
+SYNOPSIS
+
+    noise = grid_noise_rms(d, ok)   # d (..., ny, nx, 2) residuals, ok (..., ny, nx) observed
+
+The second difference x[i-1] - 2 x[i] + x[i+1] of independent errors of variance s2 has
+variance 6 s2, while a smooth misfit of the model (a wrong distortion, a skew the model
+lacks) contributes only its curvature over two grid spacings: the mean square second
+difference along the rows and the columns, / 6, estimates s2 per coordinate. A misfit
+that varies from dot to dot counts as noise (the estimate errs high, the safe side for
+crawl_verdict); errors correlated between neighbouring dots (a renderer's sampling error
+follows the dot's sub-pixel phase: harness.verdict's notes on its noise model) count
+less than they are. None when no three consecutive points of a row or column were seen.
+'''
+    d = np.asarray(d, dtype=np.float64)
+    ok = np.asarray(ok, dtype=bool)
+    sq, n = 0.0, 0
+    for axis in (-2, -1):   # ok's axes: along y (down a column), then along x (a row)
+        a = np.moveaxis(d, axis - 1, -2)
+        m = np.moveaxis(ok, axis, -1)
+        dd = a[..., 2:, :] - 2.0 * a[..., 1:-1, :] + a[..., :-2, :]
+        v = m[..., 2:] & m[..., 1:-1] & m[..., :-2]
+        sq += float((dd[v] ** 2).sum())
+        n += int(v.sum())
+    if n == 0:
+        return None
+    return math.sqrt(2.0 * sq / (6.0 * 2 * n))
+
+
+def crawl_verdict(d, ok, gain, restarts):
+    r'''A crawl's verdict: a dict saying why no later polish should crawl again, or None
+
+d, ok: the residuals on the full grid (grid_noise_rms) after a restarts() run whose
+`restarts` restarts all gained more than POLISH_GAIN; gain: the last one's fractional
+gain in RMS on the grid it ran on. A fit that converges to its observations ends at
+residuals of the size of their noise; one still gaining at the end of its budget with
+residuals MISFIT_FACTOR times the noise (harness.verdict's factor for a fit that cannot
+represent the camera) is far from any noise-limited optimum: the model misfits (mrcal
+CAHVOR for theta != 90 deg whose optimum lies at infinity; a CAHVORE mrcal does not
+reach), its parameters run along a flat valley, and where the restarts stop is the
+budget's choice (a 1e-10 px change of the bias moved R0 by 1e4 sigma). Restarting again
+buys nothing the verdict can use. None when the residuals are within MISFIT_FACTOR of the
+noise (a slow convergence: more restarts may still reach the noise) or the noise cannot
+be estimated.
+'''
+    from harness.verdict import MISFIT_FACTOR
+    ok = np.asarray(ok, dtype=bool)
+    dd = np.asarray(d, dtype=np.float64)[ok]
+    if dd.size == 0:
+        return None
+    rms = float(np.sqrt(np.mean((dd * dd).sum(axis=-1))))
+    noise = grid_noise_rms(d, ok)
+    if noise is None or rms <= MISFIT_FACTOR * noise:
+        return None
+    return {"restarts": int(restarts), "rms": rms, "noise_rms": noise,
+            "reason": f"all {restarts} restarts gained (the last one {gain:.2%} on the "
+                      f"grid it ran on) with the residual RMS at {rms:.3g} px, "
+                      f"{rms / noise if noise > 0 else math.inf:.3g} x the detection noise "
+                      f"estimated from the residuals ({noise:.3g} px): the model misfits "
+                      f"these observations and where the restarts stop is the budget's "
+                      f"choice; each later polish restarts once"}
 
 
 def _warm_start(start, lensmodel, nint, Nposes, origin):
