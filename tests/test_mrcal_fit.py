@@ -211,3 +211,117 @@ def test_a_pose_without_detections_is_left_out_not_a_failure():
     assert [(d["pose"], d["found"]) for d in r.info["poses_dropped"]] == [(2, 0), (4, 3)]
     assert np.all(np.isnan(r.residuals[[2, 4]])) and np.all(np.isnan(r.Rt_cam_board[[2, 4]]))
     assert np.all(np.isfinite(r.Rt_cam_board[[0, 1, 3, 5]]))
+
+
+# --- the restarts' stopping rule: a crawl far above the noise ------------------------------
+
+def _board_grid(shape=(6, 10, 10), seed=0, sigma=1e-3):
+    rng = np.random.default_rng(seed)
+    return rng.normal(scale=sigma, size=shape + (2,)), np.ones(shape, dtype=bool)
+
+
+def test_grid_noise_rms_reads_the_noise_through_a_smooth_misfit():
+    sigma = 1e-3
+    d, ok = _board_grid(sigma=sigma)
+    # an affine field 100x the noise (a residual rotation or scale of the board): its second
+    # differences vanish, so it adds nothing to the estimate
+    y, x = np.mgrid[0:10, 0:10]
+    d = d + 0.1 * np.stack((0.3 * x + 0.1 * y, -0.2 * x + 0.05 * y), axis=-1)[None] / 10
+    ok[2, 4, 4] = False   # a point not found: the triples through it are left out
+    est = mrcal_fit.grid_noise_rms(d, ok)
+    # sqrt(2) sigma is the RMS of the 2-vector; ~1700 overlapping second differences give the
+    # variance to ~5% (1 sigma), the RMS to ~2.5%: 10% is four standard errors
+    assert abs(est / (np.sqrt(2) * sigma) - 1) < 0.1, est
+    assert mrcal_fit.grid_noise_rms(d[:, :2, :2], ok[:, :2, :2]) is None
+
+
+def test_crawl_verdict_needs_residuals_far_above_the_noise():
+    sigma = 1e-3
+    d, ok = _board_grid(sigma=sigma)
+    # residuals that are the noise: a slow convergence, not a misfit
+    assert mrcal_fit.crawl_verdict(d, ok, 0.02, 25) is None
+    # a smooth misfit 30x the noise (a quadratic over the board, the shape of a wrong
+    # distortion): its second differences are 2 * 0.03 / 4.5^2 px, below the noise's
+    y, x = np.mgrid[0:10, 0:10] - 4.5
+    misfit = 0.03 * np.stack((x * x, x * y), axis=-1) / 4.5 ** 2
+    v = mrcal_fit.crawl_verdict(d + misfit[None], ok, 0.02, 25)
+    assert v is not None and v["restarts"] == 25
+    assert v["rms"] > 3 * v["noise_rms"]
+    assert "misfits" in v["reason"] and "25 restarts" in v["reason"]
+
+
+def _crawling(monkeypatch, max_restarts=3):
+    # every restart that does not lose counts as a gain (the stop is r > gain x previous):
+    # each restarts() run spends its whole budget, as a crawl along a flat valley does
+    monkeypatch.setattr(mrcal_fit, "POLISH_GAIN", 1.0)
+    monkeypatch.setattr(mrcal_fit, "POLISH_GAIN_FINE", 1.0)
+    return _grid_shapes(monkeypatch)
+
+
+def _tilted(key, tilt_deg):
+    import math
+    base = dict(MODELS)[key]
+    ph = base.photogrammetric()
+    a = math.radians(tilt_deg)
+    Vp = math.cos(a) * np.asarray(ph.Vp) + math.sin(a) * np.asarray(ph.Hp)
+    return base.with_photogrammetric(dataclasses.replace(ph, Vp=Vp / np.linalg.norm(Vp)))
+
+
+def _noisy(truth, sigma, seed=1):
+    obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET))
+    rng = np.random.default_rng(seed)
+    return obs.replace(q=obs.q + rng.normal(scale=sigma, size=obs.q.shape))
+
+
+def test_a_misfit_that_spends_its_restarts_restarts_once_afterwards(monkeypatch):
+    # camera 21's CAHVOR with theta 89.98 deg: mrcal's frame holds theta at 90 and this
+    # camera's O offers no gauge to absorb the skew (residuals ~0.7 px, far above the 1e-3 px
+    # noise added here)
+    truth = _tilted("21", 0.02)
+    obs = _noisy(truth, 1e-3)
+    shapes = _crawling(monkeypatch)
+    r = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False,
+                  max_restarts=3)
+    assert r.ok, r.reason
+    crawl = r.info["crawl"]
+    # the estimate errs high (a rough misfit's second differences count as noise: 0.15 px
+    # here against the 1.4e-3 px RMS added), and the misfit is still 3x above it
+    assert crawl["rms"] > 3 * crawl["noise_rms"] > 3 * np.sqrt(2) * 1e-3
+    assert crawl["restarts"] == 3
+    full_on = sum(s[1] == 10 for s in shapes)
+    # the same fit without the rule: the full-grid polish after the coarse crawl spends its
+    # 3 restarts instead of 1
+    shapes.clear()
+    monkeypatch.setattr(mrcal_fit, "crawl_verdict", lambda *a: None)
+    off = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False,
+                    max_restarts=3)
+    assert off.ok and "crawl" not in off.info
+    assert sum(s[1] == 10 for s in shapes) == full_on + 2, shapes
+
+
+def test_a_fit_at_its_noise_is_no_crawl(monkeypatch):
+    # navcam 15 at theta 90 (representable): with every restart counted as a gain the budget
+    # runs out, but the residuals are the 1e-3 px noise: no crawl, every polish keeps its
+    # budget
+    truth = dict(MODELS)["15"]
+    shapes = _crawling(monkeypatch)
+    r = calibrate("mrcal", _noisy(truth, 1e-3), TARGET, "CAHVOR", truth=truth,
+                  bias_correction=False, max_restarts=3)
+    assert r.ok, r.reason
+    assert "crawl" not in r.info
+    assert len([s for s in shapes if s[1] == 10]) == 2 + 3
+
+
+def test_a_warm_fit_says_whether_it_moved_from_its_start(monkeypatch):
+    import mrcal
+    truth = dict(MODELS)["15"]
+    image = calibrate("mrcal", _noisy(truth, 1e-3, seed=1), TARGET, "CAHVOR", truth=truth,
+                      bias_correction=False)
+    other = _noisy(truth, 1e-3, seed=2)
+    moved = calibrate("mrcal", other, TARGET, "CAHVOR", truth=truth, bias_correction=False,
+                      start=image)
+    assert moved.info["warm_start"] and moved.info["moved_from_start"]
+    monkeypatch.setattr(mrcal, "optimize", lambda **kw: {})   # a solver that takes no step
+    still = calibrate("mrcal", other, TARGET, "CAHVOR", truth=truth, bias_correction=False,
+                      start=image)
+    assert still.info["warm_start"] and not still.info["moved_from_start"]

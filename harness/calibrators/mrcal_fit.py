@@ -438,10 +438,10 @@ then on every polish restarts once, and the entry says why in words.
         # (R0 -> -0.94 for a MER hazcam, theta 90.018 deg), exactly, after ~20 restarts.
         # The restarts run on the coarse grid first, then on the full one (full=False: the
         # coarse grid only).
-        limit = 1 if crawl is not None else min(limit or max_restarts, max_restarts)
-        restarts(coarse, limit)
-        if full and coarse > 1:
-            restarts(1, limit)
+        limit = min(limit or max_restarts, max_restarts)
+        restarts(coarse, 1 if crawl is not None else limit)
+        if full and coarse > 1:   # a crawl the coarse grid just found limits this one too
+            restarts(1, 1 if crawl is not None else limit)
 
     def restarts(step, limit):
         # restarts on the grid of every step-th row and column while each gains (the first
