@@ -455,9 +455,12 @@ themselves (exact observations: the warm-up, the model benchmark's floors)'''
     Rt_ref_board = np.stack([mrcal.compose_Rt(Rt_ref_cam, np.asarray(Rt, dtype=np.float64))
                              for Rt in poses])
     ids = target.point_ids() if hasattr(target, "point_ids") else None
+    # the corner model of each detection travels to the calibrators' bias step
+    models = [getattr(d, "corner_model", None) for d in detections]
     return Observations(q=q, p_board=np.asarray(target.points(), dtype=np.float64),
                         imagersize=(truth.width, truth.height), Rt_ref_board=Rt_ref_board,
-                        point_ids=ids)
+                        point_ids=ids,
+                        corner_model=None if any(m is None for m in models) else np.stack(models))
 
 
 def calibrate_stage(name, obs, target, model, truth, options):

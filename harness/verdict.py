@@ -162,17 +162,33 @@ reference render: is_reference_render), else they are rendered here.
     Rts = Rt_cam_board_from(obs, truth)
     exact = expected_centroids if target.kind == "dots" else projected_points
     q = np.stack([exact(truth, target, Rt) for Rt in Rts])
+    model = None
     if target.kind != "dots":
-        ref = (reference_corners(truth, target, Rts) if reference is None
-               else np.asarray(reference, dtype=np.float64))
+        if reference is None:
+            ref, model = reference_corners(truth, target, Rts)
+        else:
+            # the job's own detections: their corner models are obs's
+            ref, model = np.asarray(reference, dtype=np.float64), obs.corner_model
         q = np.where(np.isfinite(ref), ref, q)
+        # a corner the reference render did not give takes its exact projection, which
+        # has no corner bias to correct
+        if model is not None:
+            model = np.where(np.isfinite(ref[..., 0]), model, EXACT_PROJECTION)
+            model = np.where(obs.found, model, "")
     q = np.where(obs.found[..., None], q, np.nan)
-    return obs.replace(q=q)
+    return obs.replace(q=q, corner_model=model)
+
+
+# the corner model of an exact observation that is the corner's projection (Observations
+# .corner_model): not a detector's, no corner bias
+EXACT_PROJECTION = "exact projection"
 
 
 def reference_corners(truth, target, Rts):
-    r'''(Nposes,Npoints,2) the detector's points on camval's exact renders of the poses
-(REFERENCE_RENDER), NaN where it finds none; one image in memory at a time'''
+    r'''The detector's points on camval's exact renders of the poses (REFERENCE_RENDER):
+(Nposes,Npoints,2), NaN where it finds none, and their corner models (Nposes,Npoints) str
+(Detection.corner_model; None when the detector does not record them); one image in
+memory at a time'''
     from renderers.base import RenderSettings
     from targets.detect import detect
 
@@ -181,12 +197,14 @@ def reference_corners(truth, target, Rts):
     rs = RenderSettings(spp=REFERENCE_RENDER["spp"], adaptive=REFERENCE_RENDER["adaptive"],
                         options=dict(REFERENCE_RENDER["options"]))
     pattern = target.pattern()
-    out = []
+    out, models = [], []
     for Rt in Rts:
         image = renderer.render(truth, pattern, Rt, rs).image
-        out.append(np.asarray(detect(image, target).q, dtype=np.float64))
+        det = detect(image, target)
+        out.append(np.asarray(det.q, dtype=np.float64))
+        models.append(det.corner_model)
         del image
-    return np.stack(out)
+    return np.stack(out), None if any(m is None for m in models) else np.stack(models)
 
 
 def detection_noise(obs, obs_exact):

@@ -35,7 +35,8 @@ estimate of targets.corners finds one, e.g. the `realistic` response profile) th
 come instead from the tags' whole border edges, each fitted with the edges of its board
 line's neighbours, where two edges meet (targets.tag_edges: 0.003-0.008 px RMS against
 0.014-0.03 for the corner windows on the quick cameras' realistic renders,
-benchmarks/bench_corners.py --response realistic); info["corner_model"] = "tag edges".
+benchmarks/bench_corners.py --response realistic); det.corner_model says which model
+gave each corner (targets.detection: CORNER_WINDOW or TAG_EDGES).
 refine="subpix" is the older polish described next, kept for comparison.
 
 The AprilTag corners come from straight-line fits to each tag edge
@@ -51,7 +52,7 @@ import functools
 
 import numpy as np
 
-from .detection import failed, result, working_image
+from .detection import CORNER_WINDOW, failed, result, working_image
 
 DETECTOR = "apriltag"
 # AprilTag pixel coordinates minus camval's for the same point
@@ -268,6 +269,9 @@ ARGUMENTS
     if refine is True and used:
         info["corners_dropped"] = fit.dropped()
         info.update({k: v for k, v in fit.info.items() if k.startswith("psf_")})
+    # which corner model gave the corners: the calibrators correct the window's bias only
+    corner_model = (fit.info.get("corner_model", CORNER_WINDOW) if refine is True and used
+                    else "cornerSubPix" if refine == "subpix" else "pupil_apriltags")
     if not np.isfinite(q).any():
         if used:
             return failed(target, f"every corner of the {len(used)} tags of the board decoded was "
@@ -275,4 +279,5 @@ ARGUMENTS
                           DETECTOR, info)
         return failed(target, f"no tag of the board decoded ({len(tags)} tags decoded in all)",
                       DETECTOR, info)
-    return result(target, q, DETECTOR, min_found=min_found, info=info)
+    return result(target, q, DETECTOR, min_found=min_found, info=info,
+                  corner_model=corner_model)

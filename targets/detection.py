@@ -9,6 +9,7 @@ SYNOPSIS
     det = failed(target, "no blobs", "mydetector")
     det.status                               # "ok" | "failed"
     det.q[det.found]                         # (Nfound,2) pixel positions, camval's convention
+    det.corner_model                         # (N,) str: the corner model of each point, or None
 
 A detector (targets.detect: the registry) never raises because the target was
 not found: it returns status "failed" with the reason. Only input that is not
@@ -45,6 +46,11 @@ n_found:    number of points found
 point_ids:  (N,) ids of the points (target.point_ids())
 detector:   name of the detector
 info:       detector-specific figures (JSON-able)
+corner_model: (N,) str, the model each found corner's position comes from (CORNER_WINDOW,
+            TAG_EDGES, or the detector's own name for its unrefined corners; "" where not
+            found), or None when the detector does not say (dots; a corner detector that
+            leaves it None has its corners taken as CORNER_WINDOW's). The calibrators' bias
+            step (harness.calibrators.bias.corner_bias) corrects only CORNER_WINDOW's.
 '''
 
     q: np.ndarray
@@ -56,6 +62,7 @@ info:       detector-specific figures (JSON-able)
     point_ids: np.ndarray = None
     detector: str = ""
     info: dict = dataclasses.field(default_factory=dict)
+    corner_model: np.ndarray = None
 
     def as_dict(self):
         return {"status": self.status, "reason": self.reason, "n_expected": self.n_expected,
@@ -63,7 +70,28 @@ info:       detector-specific figures (JSON-able)
                 "q": [[float(v) if np.isfinite(v) else None for v in row] for row in self.q],
                 "found": self.found.tolist(),
                 "point_ids": None if self.point_ids is None else self.point_ids.tolist(),
-                "info": self.info}
+                "info": self.info,
+                "corner_model": None if self.corner_model is None else
+                self.corner_model.tolist()}
+
+
+# The corner models a detector's corners come from (Detection.corner_model):
+# targets.corners.refine_corners: straight edges meeting in a window about each corner; on
+# edges that distortion bends its corner moves by the curvature bias that
+# harness.calibrators.bias.corner_bias computes and the calibrators subtract
+CORNER_WINDOW = "corner window"
+# targets.tag_edges (blurred images): the meeting point of a tag's two whole border edges,
+# each fitted as a curve; no window, no curvature bias
+TAG_EDGES = "tag edges"
+
+
+def corner_models(corner_model, found):
+    r'''(N,) str: corner_model (a str for every point, or (N,) str) where found, "" elsewhere;
+None for None'''
+    if corner_model is None:
+        return None
+    m = np.broadcast_to(np.asarray(corner_model, dtype=str), found.shape)
+    return np.where(found, m, "")
 
 
 def failed(target, reason, detector, info=None):
@@ -90,11 +118,13 @@ def on_one_line(p_board, tol=1e-9):
     return bool(s[1] <= tol * max(s[0], 1e-300))
 
 
-def result(target, q, detector, min_found=None, info=None):
+def result(target, q, detector, min_found=None, info=None, corner_model=None):
     r'''A Detection from (N,2) positions with NaN for missing points
 
 min_found: fewest points for status "ok" (None: all of them). Found points that lie on
-one line of the board give no pose (MIN_POINTS_FOR_POSE): "failed" with that reason.'''
+one line of the board give no pose (MIN_POINTS_FOR_POSE): "failed" with that reason.
+corner_model: the corner model of every point (a str) or of each ((N,) str), or None
+(Detection.corner_model).'''
     q = np.asarray(q, dtype=np.float64)
     found = np.all(np.isfinite(q), axis=-1)
     n = int(found.sum())
@@ -109,10 +139,11 @@ one line of the board give no pose (MIN_POINTS_FOR_POSE): "failed" with that rea
     if why:
         return Detection(q=q, found=found, status="failed", reason=why,
                          n_expected=target.Npoints, n_found=n, point_ids=target.point_ids(),
-                         detector=detector, info=info or {})
+                         detector=detector, info=info or {},
+                         corner_model=corner_models(corner_model, found))
     return Detection(q=q, found=found, status="ok", reason="", n_expected=target.Npoints,
                      n_found=n, point_ids=target.point_ids(), detector=detector,
-                     info=info or {})
+                     info=info or {}, corner_model=corner_models(corner_model, found))
 
 
 def as_float_image(image, dtype=np.float64):

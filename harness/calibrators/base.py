@@ -76,6 +76,8 @@ p_board:      (Npoints,3) or (Nposes,Npoints,3) float64 target points, board fra
 imagersize:   (width, height)
 Rt_ref_board: (Nposes,4,3) surveyed board poses in the world frame, or None
 point_ids:    (Npoints,) ids of the points (for the record), or None
+corner_model: (Nposes,Npoints) str, the corner model of each detection
+              (targets.detection.Detection.corner_model), or None (not recorded)
 '''
 
     q: np.ndarray
@@ -83,6 +85,7 @@ point_ids:    (Npoints,) ids of the points (for the record), or None
     imagersize: tuple
     Rt_ref_board: np.ndarray = None
     point_ids: np.ndarray = None
+    corner_model: np.ndarray = None
 
     def __post_init__(self):
         q = np.array(self.q, dtype=np.float64)
@@ -110,6 +113,12 @@ point_ids:    (Npoints,) ids of the points (for the record), or None
                 raise CalibratorError(f"Rt_ref_board must have shape (Nposes,4,3) = "
                                       f"({q.shape[0]},4,3); got {Rt.shape}")
             object.__setattr__(self, "Rt_ref_board", Rt)
+        if self.corner_model is not None:
+            m = np.asarray(self.corner_model, dtype=str)
+            if m.shape != q.shape[:2]:
+                raise CalibratorError(f"corner_model must have shape (Nposes,Npoints) = "
+                                      f"{q.shape[:2]}; got {m.shape}")
+            object.__setattr__(self, "corner_model", m)
 
     @property
     def Nposes(self):

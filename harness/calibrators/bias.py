@@ -24,12 +24,16 @@ Corner targets (AprilTag, chessboard) have a bias too: targets.corners fits
 straight edges to edges that lens distortion bends, which moves a refined
 corner by about k w^2 / 10 (0.004-0.007 px RMS on a MER hazcam fisheye,
 0.0005-0.001 after correction; corner_bias). centroid_bias returns it for them,
-so the same loop corrects both.
+so the same loop corrects both. It belongs to that window model only: a corner
+found otherwise (targets.tag_edges on a blurred image fits each whole border edge
+as a curve; an exact projection) has none, and bias_step leaves it uncorrected
+where the observations' corner_model says so (WINDOW_BIASED).
 '''
 
 import numpy as np
 
 from reference_models.poseutils import transform_point_Rt
+from targets.detection import CORNER_WINDOW
 
 NOUTLINE = 1440
 # outline points per dot for the bias of a JPL model (targets.centroids.expected_centroids):
@@ -124,6 +128,8 @@ SYNOPSIS
 
 # targets whose points are corners refined by targets.corners
 CORNER_KINDS = ("apriltag", "chessboard")
+# the corner models (Observations.corner_model) whose corners carry corner_bias
+WINDOW_BIASED = (CORNER_WINDOW,)
 # the edges' tangents and curvatures from projections this far along them (window units)
 CORNER_DIFF_STEP = 0.05
 
@@ -159,18 +165,22 @@ refiner's fit. NaN where a point does not project.
     return curvature_bias(q0[:, 0], tangents, curvatures, wedges, steps, **window)
 
 
-def bias_step(model, target, Rt_cam_board, p_board, b_prev=None, views=None):
+def bias_step(model, target, Rt_cam_board, p_board, b_prev=None, views=None,
+              corner_model=None):
     r'''One pass of the iterated bias correction the calibrators share
 
 SYNOPSIS
 
-    b, change = bias_step(model, target, Rts, obs.p_board, b_prev, views)
+    b, change = bias_step(model, target, Rts, obs.p_board, b_prev, views, obs.corner_model)
     # b has shape (Nposes,Npoints,2), or is None when the target has no dots
     q_used = obs.q - b
 
 The bias of every dot under the current model and poses Rt_cam_board
-(Nposes,4,3); poses outside `views` (when given) get none. `change` is the
-largest change of the bias since b_prev (its largest value on the first pass).
+(Nposes,4,3); poses outside `views` (when given) get none. For a corner target,
+corner_model (Nposes,Npoints) str (Observations.corner_model) gives the corner
+model of each detection: only the WINDOW_BIASED ones get corner_bias, the rest
+0 (None: every corner is the window model's). `change` is the largest change of
+the bias since b_prev (its largest value on the first pass).
 '''
     if target is None:
         return None, None
@@ -180,5 +190,7 @@ largest change of the bias since b_prev (its largest value on the first pass).
     if any(x is None for x in b):
         return None, None
     b = np.array(b)
+    if corner_model is not None and getattr(target, "kind", "dots") in CORNER_KINDS:
+        b[~np.isin(corner_model, WINDOW_BIASED)] = 0.0
     change = float(np.nanmax(np.abs(b if b_prev is None else b - b_prev)))
     return b, change

@@ -36,6 +36,10 @@ import numpy as np
 from .base import CalibrationFailed, CalibrationResult
 from .bias import bias_step
 
+# iterate_bias's pass record when every point's bias is 0 (Observations.corner_model: no
+# corner of the window model)
+NO_BIAS = "no point has a bias to correct (no corner of the window model)"
+
 
 def start_bias(start, obs):
     r'''The bias a warm start's last fit was made to (Nposes,Npoints,2), or None
@@ -81,8 +85,11 @@ SYNOPSIS
 
 Each pass computes the bias b (Nposes,Npoints,2) of every dot under the fit
 current() -> (model, Rt_cam_board (Nposes,4,3)) (poses outside `views`, when
-given, get none). The passes stop when the bias changes by less than the
-tolerance since the previous pass, or after bias_passes passes (0: none).
+given, get none; corners that obs.corner_model says are not the window model's
+get none: bias.bias_step). A first bias that is 0 everywhere ends the passes
+({"pass": i, "skipped": NO_BIAS}): the fit is already the fit to obs.q. The
+passes stop when the bias changes by less than the tolerance since the previous
+pass, or after bias_passes passes (0: none).
 Otherwise the detections are corrected, q_used = obs.q - b, and
 refit(q_used, change) fits again and returns the pass's figures: passes gets
 {"pass": i, **figures} (the first fit is pass 1).
@@ -104,10 +111,15 @@ ARGUMENTS
     b_prev = b_start
     for ipass in range(bias_passes):
         model, Rt_cam_board = current()
-        b, change = bias_step(model, target, Rt_cam_board, obs.p_board, b_prev, views)
+        b, change = bias_step(model, target, Rt_cam_board, obs.p_board, b_prev, views,
+                              obs.corner_model)
         if b is None:
             if no_dots is not None:
                 passes.append({"pass": ipass + 2, "skipped": no_dots})
+            break
+        if b_prev is None and not np.any(b):
+            # no point carries a bias (corners of a model without one): the fit stands
+            passes.append({"pass": ipass + 2, "skipped": NO_BIAS})
             break
         if b_prev is not None and change < (bias_tolerance if tolerance is None
                                             else tolerance(passes)):
