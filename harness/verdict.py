@@ -1057,8 +1057,10 @@ def z_scores(renderer, sigma):
 # term (JOINT_RESOLUTION_Z) only adds to S, so with it chi2 is smaller (a test at most as
 # likely to alarm as its chi-square threshold says). Measured on clean jpl fits of every
 # catalogue slot and extra (benchmarks/renderer_gate.py): without the term CAHV and CAHVOR
-# are near chi-square (chi2/dof 0.89), CAHVORE is over-dispersed (1.65); with it chi2/dof
-# is ~0.2 where the detection noise sits at the 1e-4 px floor (most slots, area coverage).
+# are near chi-square (chi2/dof 0.89), CAHVORE was over-dispersed (1.65: hazcam 17's A along
+# the world z axis, _unit_components; the wide hazcams, campaigns/gate-renderer.toml); with
+# it chi2/dof is ~0.2 where the detection noise sits at the 1e-4 px floor (most slots, area
+# coverage).
 #
 # JOINT_EIGEN_CUT: directions of the correlation matrix (S scaled to unit diagonal) whose
 # eigenvalue is below this fraction of the largest are left out of the statistic and of
