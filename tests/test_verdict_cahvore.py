@@ -87,3 +87,30 @@ z) 1.7 over 40.'''
     for j in _joint_draws(truth, "CAHVORE", seeds=range(6)):
         assert j["dof"] == 17
         assert lo < j["chi2"] < hi
+
+
+def test_a_one_percent_change_of_E_is_seen_by_the_joint_test_alone():
+    r'''Hazcam 12 CAHVORE, 0.002 px of Gaussian noise, the "images" drawn by the camera with
+E x 1.01 (a renderer's CAHVORE pupil term 1% off: exact centroids moved by 0.0076 px at
+most): no marginal z reaches 6 (E's sigmas are ~1-2% of E: a move along E is mostly
+absorbed by R, C and the focal lengths), but E scaled moves the differences along a
+direction whose sigma given the others is ~60x smaller (rendered camera 12: 9e-5 of E
+against 0.006 for the best marginal), so the joint test flags it. Noise seeds 5, 6, 7:
+marginal z at most 1.2 / 2.0 / 1.4, joint z 31 / 31 / 32 (without the fault 0.1 / 0.9 /
+2.2).'''
+    from targets.centroids import expected_centroids
+    _, truth = stages.camera_truth("12", "CAHVORE")
+    faulty = truth.replace(E=1.01 * truth.E)
+    target = stages.cached_target("dots")
+    poses = stages.poses_stage(truth, target, 6, 0)
+    q = np.stack([expected_centroids(faulty, target, Rt) for Rt in poses])
+    rng = np.random.default_rng(5)
+    q = q + rng.normal(0, 0.002 / math.sqrt(2), q.shape)
+    img = stages.observations_from(truth, target, poses, list(q))
+    res = stages.calibrate_stage("jpl", img, target, "CAHVORE", truth, {})
+    exact, noise, _ = verdict.exact_fit("jpl", "CAHVORE", {}, img, target, truth, {},
+                                        start=res)
+    params, proj, _ = stages.compare_stage(truth, res)
+    r = verdict.assess(truth, res, exact, noise, params, proj, obs=img)["renderer"]
+    assert max(r["z"].values()) < 6
+    assert r["joint"]["dof"] == 17 and r["joint"]["z"] > 6
