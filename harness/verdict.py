@@ -811,7 +811,9 @@ def _ref_O_in_cam(ref, R0):
 def _signed_quantities(ref, m, theta, world, ref_O=_ref_O_in_cam):
     r'''The reported parameter differences m - ref as signed numbers (vectors by component)
 
-ref_O(ref, R0): _ref_O_in_cam, or a memo of it (scatter() asks for one ref, mostly at one R0)'''
+ref_O(ref, R0): _ref_O_in_cam, or a memo of it (scatter() asks for one ref, mostly at one R0).
+The unit vectors A and O by their two components in the plane perpendicular to ref's
+(_unit_components), C by its three.'''
     d = fit_parameter_differences(ref, m, theta_estimated=theta, world_frame=world)
     out = {k: v for k, v in d.items() if v is not None and k not in VECTOR_PARAMS}
     if _is_jpl(ref) and _is_jpl(m):
@@ -820,13 +822,28 @@ ref_O(ref, R0): _ref_O_in_cam, or a memo of it (scatter() asks for one ref, most
             for i, v in enumerate(1e3 * (m.C - ref.C)):
                 out[f"C_mm[{i}]"] = float(v)
         if d.get("A_deg") is not None:
-            for i, v in enumerate(np.degrees(m.A - ref.A)):
-                out[f"A_deg[{i}]"] = float(v)
+            for i, v in enumerate(_unit_components(ref.A, m.A)):
+                out[f"A_deg[{i}]"] = v
         if d.get("O_deg") is not None:
-            dv = _in_cam(m, m.O) - ref_O(ref, float(m.R[0]))
-            for i, v in enumerate(np.degrees(dv)):
-                out[f"O_deg[{i}]"] = float(v)
+            for i, v in enumerate(_unit_components(ref_O(ref, float(m.R[0])), _in_cam(m, m.O))):
+                out[f"O_deg[{i}]"] = v
     return out
+
+
+def _unit_components(u_ref, u):
+    r'''The move u - u_ref of a unit vector, deg, as its two components in the plane
+perpendicular to u_ref (harness.calibrators.jpl_fit._tangent_basis, the fit's own chart)
+
+Its component along u_ref is -|u - u_ref|^2 / 2: second order, which the linear covariance
+gives no variance. In world components it is spread over the three when u_ref is oblique
+(the eigen cut of joint_statistic drops it), but it IS a component when u_ref lies along
+an axis: camera 17's A = (0, 0, 1) gave A_deg[2] a sigma of 1e-10 deg (rounding of the
+Jacobian's differences), a mean of -12 standard errors and a clean jpl chi2/dof of 1.7-1.9
+under the noise model's own Gaussian noise (CAHVOR and CAHVORE; 0.97-1.07 without it).'''
+    from harness.calibrators.jpl_fit import _tangent_basis
+    e1, e2 = _tangent_basis(np.asarray(u_ref, dtype=np.float64))
+    dv = np.asarray(u, dtype=np.float64) - u_ref
+    return [float(np.degrees(e1 @ dv)), float(np.degrees(e2 @ dv))]
 
 
 # The smallest detection scatter the model assumes, px: differences below it are below
@@ -1060,15 +1077,18 @@ def z_scores(renderer, sigma):
 # term (JOINT_RESOLUTION_Z) only adds to S, so with it chi2 is smaller (a test at most as
 # likely to alarm as its chi-square threshold says). Measured on clean jpl fits of every
 # catalogue slot and extra (benchmarks/renderer_gate.py): without the term CAHV and CAHVOR
-# are near chi-square (chi2/dof 0.89), CAHVORE is over-dispersed (1.65); with it chi2/dof
-# is ~0.2 where the detection noise sits at the 1e-4 px floor (most slots, area coverage).
+# are near chi-square (chi2/dof 0.89), CAHVORE was over-dispersed (1.65: hazcam 17's A along
+# the world z axis, _unit_components; the wide hazcams, campaigns/gate-renderer.toml); with
+# it chi2/dof is ~0.2 where the detection noise sits at the 1e-4 px floor (most slots, area
+# coverage).
 #
 # JOINT_EIGEN_CUT: directions of the correlation matrix (S scaled to unit diagonal) whose
 # eigenvalue is below this fraction of the largest are left out of the statistic and of
 # its dof. Two kinds sit there: exact redundancies of the reported quantities (R1 and
-# R1_frac, Hs and Hs*(1+R0), the third component of the unit vectors A and O: 0 up to
-# rounding) and what the covariance cannot resolve. G's columns are central differences
-# with steps 1e-6 of each parameter, so they carry a relative rounding error of about
+# R1_frac, Hs and Hs*(1+R0): 0 up to rounding; the unit vectors A and O are reported by
+# their two tangent components, _unit_components) and what the covariance cannot
+# resolve. G's columns are central differences with steps 1e-6 of each parameter, so
+# they carry a relative rounding error of about
 # 2.2e-16 / 1e-6 = 2e-10; the correlation matrix inherits ~1e-10 per entry and its
 # eigenvalues ~m x 1e-10 (m ~ 25 quantities): ~3e-9. The cut sits a factor 3 above that:
 # a kept direction's conditional sigma is at least 1e-4 of the marginal ones.
