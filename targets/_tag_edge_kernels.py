@@ -1,111 +1,156 @@
-r'''Compiled edge-profile fit of targets.tag_edges (numba): the hot loop
+r'''Compiled edge-profile fit of targets.tag_edges (numba): the hot loops
 
 SYNOPSIS
 
-    from targets._tag_edge_kernels import edge_normal
+    from targets._tag_edge_kernels import fit_edges, edge_pixels
 
-    a, b, S, JtJ, Jtr = edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF,
-                                    bfix)
-    # rows (m,) the edges to evaluate (of n); d (m,4) their curves; v, w, tau, s (n,P):
-    # each edge's pixel values, weights (0: padding), positions along the chord (tau) and
-    # distances from it (s, px); cubic (n,) 1.0 where d3 is fitted; j0, fy (n,): the angle
-    # bin and fraction of each edge's normal; x0, h, F, dF (A,X):
-    # targets.tag_edges._edge_table; a, b, S (m,) the light level, contrast and weighted
-    # squared misfit at d; JtJ (m,6,6), Jtr (m,6) the normal equations; bfix (n,) the
-    # contrast of an edge whose b is given (NaN: fitted)
-    # equations in (a, b, d0, d1, d2, d3)
+    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix,
+                             max_iterations, converged_px)
+    # the m edges' pixels one after another: edge j's are [off[j], off[j+1]) of v (values),
+    # tau (positions along the chord, -1..1) and s (distances from it, px); cubic (m,) 1.0
+    # where d3 is fitted; j0, fy (m,): the angle bin and fraction of each edge's normal;
+    # d (m,4) the start curves; x0, h, F, dF (A,X): targets.tag_edges._edge_table; bfix
+    # (m,) the contrast of an edge whose b is given (NaN: fitted)
+    # p (m,6) the fitted (a, b, d0, d1, d2, d3); done (m,) converged; mis (m,) the RMS
+    # misfit over the contrast
 
 The model of pixel p of edge j: v = a + b F(x), x = s - (d0 + d1 tau + d2 tau^2 + d3 tau^3),
 F linear in x and in the angle between the table's entries (targets.tag_edges._lookup is the
-numpy reference). a and b solve the weighted least squares for the current curve.
+numpy reference). a and b solve the least squares for the current curve; the curve is
+fitted by Levenberg-Marquardt, each edge on its own (targets.tag_edges._fit_edges).
 '''
 
 import numpy as np
 from numba import njit
 
 
-@njit(cache=True, error_model="numpy")
-def edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix):
-    m = len(rows)
-    P = v.shape[1]
+@njit(cache=True, error_model="numpy", inline="always")
+def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, dFv):
+    # F and F' at every pixel of one edge (into Fv, dFv), and the light level a, contrast
+    # b and squared misfit S that fit them
     X = F.shape[1]
-    a = np.zeros(m)
-    b = np.zeros(m)
-    S = np.zeros(m)
-    JtJ = np.zeros((m, 6, 6))
-    Jtr = np.zeros((m, 6))
+    sw = 0.0
+    sf = 0.0
+    sff = 0.0
+    sv = 0.0
+    sfv = 0.0
+    for p in range(o0, o1):
+        t = tau[p]
+        x = s[p] - (d[0] + t * (d[1] + t * (d[2] + t * d[3] * cubic)))
+        fi = (x - x0) / h
+        if fi <= 0.0:
+            f, df = 0.0, 0.0
+        elif fi >= X - 1:
+            f, df = 1.0, 0.0
+        else:
+            i = int(fi)
+            fx = fi - i
+            f0 = F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx
+            f1 = F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx
+            f = f0 * (1.0 - fa) + f1 * fa
+            g0 = dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx
+            g1 = dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx
+            df = g0 * (1.0 - fa) + g1 * fa
+        Fv[p - o0] = f
+        dFv[p - o0] = df
+        vp = v[p]
+        sw += 1.0
+        sf += f
+        sff += f * f
+        sv += vp
+        sfv += f * vp
+    if np.isnan(bfix):
+        b = (sw * sfv - sf * sv) / (sw * sff - sf * sf)
+    else:
+        b = bfix
+    a = (sv - b * sf) / sw
+    S = 0.0
+    for p in range(o0, o1):
+        r = v[p] - a - b * Fv[p - o0]
+        S += r * r
+    return a, b, S
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _normal(v, tau, o0, o1, cubic, a, b, bfree, Fv, dFv, JtJ, Jtr):
+    # the normal equations of one edge in (a, b, d0, d1, d2, d3) at its profile Fv, dFv
+    J = np.zeros(6)
+    JtJ[:, :] = 0.0
+    Jtr[:] = 0.0
+    for p in range(o0, o1):
+        t = tau[p]
+        r = v[p] - a - b * Fv[p - o0]
+        g = -b * dFv[p - o0]
+        J[0] = 1.0
+        J[1] = Fv[p - o0] if bfree else 0.0
+        J[2] = g
+        J[3] = g * t
+        J[4] = g * t * t
+        J[5] = g * t * t * t * cubic
+        for k in range(6):
+            Jtr[k] += J[k] * r
+            for l in range(k + 1):
+                JtJ[k, l] += J[k] * J[l]
+    for k in range(6):
+        for l in range(k):
+            JtJ[l, k] = JtJ[k, l]
+
+
+@njit(cache=True, error_model="numpy")
+def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iterations,
+              converged_px):
+    m = len(off) - 1
+    p_out = np.zeros((m, 6))
+    done = np.zeros(m, np.bool_)
+    mis = np.zeros(m)
+    P = 0
+    for j in range(m):
+        P = max(P, off[j + 1] - off[j])
     Fv = np.zeros(P)
     dFv = np.zeros(P)
-    J = np.zeros(6)
-    for jj in range(m):
-        j = rows[jj]
-        ja = j0[j]
-        fa = fy[j]
-        sw = 0.0
-        sf = 0.0
-        sff = 0.0
-        sv = 0.0
-        sfv = 0.0
-        for p in range(P):
-            wp = w[j, p]
-            if wp == 0.0:
-                continue
-            t = tau[j, p]
-            x = s[j, p] - (d[jj, 0] + t * (d[jj, 1] + t * (d[jj, 2] + t * d[jj, 3] * cubic[j])))
-            fi = (x - x0) / h
-            if fi <= 0.0:
-                f, df = 0.0, 0.0
-            elif fi >= X - 1:
-                f, df = 1.0, 0.0
-            else:
-                i = int(fi)
-                fx = fi - i
-                f0 = F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx
-                f1 = F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx
-                f = f0 * (1.0 - fa) + f1 * fa
-                g0 = dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx
-                g1 = dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx
-                df = g0 * (1.0 - fa) + g1 * fa
-            Fv[p] = f
-            dFv[p] = df
-            vp = v[j, p]
-            sw += wp
-            sf += wp * f
-            sff += wp * f * f
-            sv += wp * vp
-            sfv += wp * f * vp
-        if np.isnan(bfix[j]):
-            det = sw * sff - sf * sf
-            bj = (sw * sfv - sf * sv) / det
-        else:
-            bj = bfix[j]
-        aj = (sv - bj * sf) / sw
-        a[jj] = aj
-        b[jj] = bj
-        acc = 0.0
-        for p in range(P):
-            wp = w[j, p]
-            if wp == 0.0:
-                continue
-            t = tau[j, p]
-            r = v[j, p] - aj - bj * Fv[p]
-            acc += wp * r * r
-            g = -bj * dFv[p]
-            J[0] = 1.0
-            J[1] = Fv[p] if np.isnan(bfix[j]) else 0.0
-            J[2] = g
-            J[3] = g * t
-            J[4] = g * t * t
-            J[5] = g * t * t * t * cubic[j]
+    F1 = np.zeros(P)
+    dF1 = np.zeros(P)
+    JtJ = np.zeros((6, 6))
+    Jtr = np.zeros(6)
+    A = np.zeros((6, 6))
+    eye = np.eye(6)
+    for j in range(m):
+        o0, o1 = off[j], off[j + 1]
+        ja, fa, cj, bj = j0[j], fy[j], cubic[j], bfix[j]
+        bfree = np.isnan(bj)
+        dj = d[j].copy()
+        a, b, S = _profile(v, tau, s, o0, o1, cj, ja, fa, dj, x0, h, F, dF, bj, Fv, dFv)
+        _normal(v, tau, o0, o1, cj, a, b, bfree, Fv, dFv, JtJ, Jtr)
+        lam = 1e-3
+        ok = False
+        for _ in range(max_iterations):
             for k in range(6):
-                Jtr[jj, k] += wp * J[k] * r
-                for l in range(k + 1):
-                    JtJ[jj, k, l] += wp * J[k] * J[l]
-        S[jj] = acc
-        for k in range(6):
-            for l in range(k):
-                JtJ[jj, l, k] = JtJ[jj, k, l]
-    return a, b, S, JtJ, Jtr
+                for l in range(6):
+                    A[k, l] = JtJ[k, l] + 1e-12 * eye[k, l]
+                A[k, k] += lam * JtJ[k, k]
+            step = np.linalg.solve(A, Jtr)
+            d1 = dj + step[2:]
+            a1, b1, S1 = _profile(v, tau, s, o0, o1, cj, ja, fa, d1, x0, h, F, dF, bj, F1,
+                                  dF1)
+            better = S1 <= S
+            if better:
+                dj, a, b, S = d1, a1, b1, S1
+                Fv, F1 = F1, Fv
+                dFv, dF1 = dF1, dFv
+                _normal(v, tau, o0, o1, cj, a, b, bfree, Fv, dFv, JtJ, Jtr)
+                lam = max(lam * 0.3, 1e-7)
+            else:
+                lam = lam * 10.0
+            small = np.abs(step[2:]).max() < converged_px
+            if (better and small) or lam > 1e6:
+                ok = True
+                break
+        p_out[j, 0] = a
+        p_out[j, 1] = b
+        p_out[j, 2:] = dj
+        done[j] = ok
+        mis[j] = np.sqrt(S / (o1 - o0)) / abs(b)
+    return p_out, done, mis
 
 
 @njit(cache=True, error_model="numpy")

@@ -507,28 +507,24 @@ def _meet(Pa, fa, ca, Pb, fb, cb, iterations=8):
     return _curve_point(Pa, fa, ca, ta)[0]
 
 
-def _fit_edges(img, geo, table, bfix=None):
-    r'''Levenberg-Marquardt of every edge's (a, b, d0..d3) at once, d3 = 0 unless the
-edge has its neighbours' pixels; bfix (m,) the contrast of the edges whose b is given (NaN:
-fitted): [(p (6,), converged, misfit RMS / contrast)] per edge'''
+def _fit_edges(img, geo, table, bfix=None, converged_px=CONVERGED_PX):
+    r'''Levenberg-Marquardt of every edge's (a, b, d0..d3), each on its own (compiled:
+targets._tag_edge_kernels.fit_edges), d3 = 0 unless the edge has its neighbours' pixels;
+bfix (m,) the contrast of the edges whose b is given (NaN: fitted): [(p (6,), converged,
+misfit RMS / contrast)] per edge'''
     m = len(geo)
-    P = max(len(g[2]) for g in geo)
-    v = np.zeros((m, P))
-    w = np.zeros((m, P))
-    tau = np.zeros((m, P))
-    s = np.zeros((m, P))
-    phi = np.zeros(m)
-    cubic = np.zeros(m)
-    for j, (_i, _k, ix, iy, t, sj, L, _e, n, cub, _d, _end) in enumerate(geo):
-        c = len(ix)
-        v[j, :c] = img[iy, ix]
-        w[j, :c] = 1.0
-        tau[j, :c] = 2.0 * t / L - 1.0
-        s[j, :c] = sj
-        u_, w_ = abs(n[0]), abs(n[1])
-        phi[j] = np.arctan2(min(u_, w_), max(u_, w_))
-        cubic[j] = float(cub)
-    from ._tag_edge_kernels import edge_normal
+    counts = np.array([len(g[2]) for g in geo], dtype=np.int64)
+    off = np.zeros(m + 1, np.int64)
+    np.cumsum(counts, out=off[1:])
+    ix = np.concatenate([g[2] for g in geo])
+    iy = np.concatenate([g[3] for g in geo])
+    v = img[iy, ix].astype(np.float64)
+    tau = np.concatenate([2.0 * g[4] / g[6] - 1.0 for g in geo])
+    s = np.concatenate([g[5] for g in geo]).astype(np.float64)
+    n = np.abs(np.array([g[8] for g in geo], dtype=np.float64).reshape(m, 2))
+    phi = np.arctan2(n.min(-1), n.max(-1))
+    cubic = np.array([float(g[9]) for g in geo])
+    from ._tag_edge_kernels import fit_edges
     x0, F, dF = table
     A = F.shape[0]
     fa = np.clip(phi / (np.pi / 4) * (A - 1), 0.0, A - 1.000001)
@@ -537,33 +533,6 @@ fitted): [(p (6,), converged, misfit RMS / contrast)] per edge'''
     bf = np.full(m, np.nan) if bfix is None else np.asarray(bfix, dtype=np.float64)
     # the start: each edge's current curve (cubic term 0)
     d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
-
-    def evaluate(rows, d):
-        return edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF,
-                           bf)
-
-    a, b, S, JtJ, Jtr = evaluate(np.arange(m), d)
-    lam = np.full(m, 1e-3)
-    done = np.zeros(m, bool)
-    eye = np.eye(6)
-    for _ in range(MAX_ITERATIONS):
-        rows = np.flatnonzero(~done)
-        if not len(rows):
-            break
-        A_ = JtJ[rows]
-        diag = np.einsum("nii->ni", A_)
-        step = np.linalg.solve(A_ + (lam[rows, None] * diag)[:, :, None] * eye + 1e-12 * eye,
-                               Jtr[rows][..., None])[..., 0]
-        d1 = d[rows] + step[:, 2:]
-        a1, b1, S1, JtJ1, Jtr1 = evaluate(rows, d1)
-        better = S1 <= S[rows]
-        rb = rows[better]
-        d[rb], a[rb], b[rb], S[rb] = d1[better], a1[better], b1[better], S1[better]
-        JtJ[rb], Jtr[rb] = JtJ1[better], Jtr1[better]
-        lam[rows] = np.where(better, np.maximum(lam[rows] * 0.3, 1e-7), lam[rows] * 10.0)
-        small = np.abs(step[:, 2:]).max(-1) < CONVERGED_PX
-        done[rows] = (better & small) | (lam[rows] > 1e6)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mis = np.sqrt(S / w.sum(-1)) / np.abs(b)
-    p = np.concatenate((a[:, None], b[:, None], d), axis=-1)
+    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF, bf,
+                             MAX_ITERATIONS, float(converged_px))
     return [(p[j], bool(done[j]), float(mis[j])) for j in range(m)]
