@@ -154,9 +154,10 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iteratio
 
 
 @njit(cache=True, error_model="numpy")
-def edge_pixels(P0, e, n, L, curve, t_lo, t_hi, out_px, in_px, deep_px, H, bits, offs,
-                x0, y0, x1, y1, k, bit_px, Pa, na, Pb, nb):
-    r'''The pixels of one tag edge's band (targets.tag_edges._edge_pixels): (ix, iy, t, s)
+def _band(P0, e, n, L, curve, t_lo, t_hi, out_px, in_px, deep_px, H, bits, offs,
+          x0, y0, x1, y1, k, bit_px, Pa, na, Pb, nb, oix, oiy, ot, os_, c):
+    r'''The pixels of one tag edge's band, written from index c of oix, oiy, ot, os_
+(ix, iy, t, s); returns the index after the last
 
 Pixels with centre at t in [t_lo, t_hi] along the chord and x = s - curve(tau) in
 [-out_px, in_px]; those deeper than deep_px must see only dark cells of bits (8,8, True =
@@ -166,12 +167,6 @@ bit_px from the curve (lens distortion bends the edge away from the homography's
 up to a px on a fisheye's tag). A pixel keeps the clearance t_lo from the lines of the two
 adjacent edges too (through Pa, Pb with normals na, nb into the tag): a tag seen obliquely
 meets them at an angle off 90 deg.'''
-    cap = (x1 - x0 + 1) * (y1 - y0 + 1)
-    oix = np.empty(cap, np.int64)
-    oiy = np.empty(cap, np.int64)
-    ot = np.empty(cap)
-    os_ = np.empty(cap)
-    c = 0
     no = len(offs)
     for yy in range(y0, y1 + 1):
         for xx in range(x0, x1 + 1):
@@ -218,4 +213,156 @@ meets them at an angle off 90 deg.'''
             ot[c] = t
             os_[c] = s
             c += 1
-    return oix[:c], oiy[:c], ot[:c], os_[:c]
+    return c
+
+
+_TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
+
+
+@njit(cache=True, error_model="numpy")
+def _edge_geometry(Qt, k, reach, gap_bits, safety, plateau_px):
+    # edge k's frame and band limits (targets.tag_edges._edge_pixels); ok False: too short
+    P0 = Qt[k]
+    P1 = Qt[(k + 1) % 4]
+    ex = P1[0] - P0[0]
+    ey = P1[1] - P0[1]
+    L = np.hypot(ex, ey)
+    e = np.array([ex / L, ey / L]) if L > 0 else np.zeros(2)
+    n = np.array([-e[1], e[0]])
+    cx = (Qt[0, 0] + Qt[1, 0] + Qt[2, 0] + Qt[3, 0]) / 4.0
+    cy = (Qt[0, 1] + Qt[1, 1] + Qt[2, 1] + Qt[3, 1]) / 4.0
+    if n[0] * (cx - P0[0]) + n[1] * (cy - P0[1]) < 0:
+        n = -n
+    Pm = Qt[(k - 1) % 4]
+    Pp = Qt[(k + 2) % 4]
+    deep_bit = min(np.hypot(Pm[0] - P0[0], Pm[1] - P0[1]),
+                   np.hypot(Pp[0] - P1[0], Pp[1] - P1[1])) / 8.0
+    clear = reach + safety
+    out_px = min(gap_bits * deep_bit - clear, clear + plateau_px)
+    t_lo = clear
+    t_hi = L - clear
+    in_px = min(2.0 * deep_bit - clear, clear + plateau_px)
+    ok = L > 0 and out_px > 0 and t_hi > t_lo and in_px > -out_px
+    return ok, L, e, n, deep_bit, clear, out_px, t_lo, t_hi, in_px
+
+
+@njit(cache=True, error_model="numpy")
+def tag_edge_pixels(Q, live, bits, have_bits, H, curves, reach, gap_bits, safety,
+                    plateau_px, min_pixels, width, height):
+    r'''The pixels of every edge of every tag (targets.tag_edges._edge_pixels)
+
+Q (N,4,2) the tags' corners, live (N,) those to do; bits (N,8,8) their cells (True = light;
+have_bits False: unknown, every data bit may be light); H (N,3,3) each tag's image -> cells
+homography; curves (N,4,4) each edge's (d0..d3) in its chord's frame. Returns status (N,4)
+(0: pixels found; 1: edge too short for its blur or too few pixels; 2: seen from its light
+side only; 3: off the image; 4: tag not live), L (N,4), e, n (N,4,2) each edge's chord
+length, direction and normal into the tag, off (N*4+1,) and the pixels (ix, iy, t, s):
+edge (i, k)'s are [off[4i+k], off[4i+k+1]).'''
+    N = Q.shape[0]
+    status = np.full((N, 4), 4, np.int64)
+    Ls = np.zeros((N, 4))
+    es = np.zeros((N, 4, 2))
+    ns = np.zeros((N, 4, 2))
+    # the bands' bounding boxes first: the output's capacity
+    box = np.zeros((N, 4, 4), np.int64)
+    cap = 0
+    for i in range(N):
+        if not live[i]:
+            continue
+        for k in range(4):
+            ok, L, e, n, deep_bit, clear, out_px, t_lo, t_hi, in_px = _edge_geometry(
+                Q[i], k, reach, gap_bits, safety, plateau_px)
+            if ok and not have_bits:
+                in_px = min(in_px, deep_bit - clear)
+                ok = in_px > -out_px
+            status[i, k] = 0 if ok else 1
+            if not ok:
+                continue
+            smax = 0.0
+            for j in range(4):
+                smax += abs(curves[i, k, j])
+            xlo, ylo, xhi, yhi = np.inf, np.inf, -np.inf, -np.inf
+            for t in (t_lo, t_hi):
+                for sd in (-out_px - smax, in_px + smax):
+                    px = Q[i, k, 0] + t * e[0] + sd * n[0]
+                    py = Q[i, k, 1] + t * e[1] + sd * n[1]
+                    xlo, ylo = min(xlo, px), min(ylo, py)
+                    xhi, yhi = max(xhi, px), max(yhi, py)
+            box[i, k, 0] = int(np.floor(xlo))
+            box[i, k, 1] = int(np.floor(ylo))
+            box[i, k, 2] = int(np.ceil(xhi))
+            box[i, k, 3] = int(np.ceil(yhi))
+            cap += (box[i, k, 2] - box[i, k, 0] + 1) * (box[i, k, 3] - box[i, k, 1] + 1)
+    oix = np.empty(cap, np.int64)
+    oiy = np.empty(cap, np.int64)
+    ot = np.empty(cap)
+    os_ = np.empty(cap)
+    off = np.zeros(4 * N + 1, np.int64)
+    ones = np.ones((8, 8), np.bool_)
+    eye = np.eye(3)
+    c = 0
+    for i in range(N):
+        Qt = Q[i]
+        for k in range(4):
+            off[4 * i + k] = c
+            if status[i, k] != 0:
+                continue
+            ok, L, e, n, deep_bit, clear, out_px, t_lo, t_hi, in_px = _edge_geometry(
+                Qt, k, reach, gap_bits, safety, plateau_px)
+            Ls[i, k] = L
+            es[i, k] = e
+            ns[i, k] = n
+            if have_bits:
+                Hk = H[i]
+                cells = bits[i]
+            else:
+                Hk = eye
+                cells = ones
+                in_px = min(in_px, deep_bit - clear)
+            # the cells within the reach of a pixel deeper than the border, at steps of at
+            # most one cell (numpy's linspace)
+            rb = clear / min(L / 8.0, deep_bit)
+            no = 2 * int(np.ceil(rb)) + 1
+            offs = np.empty(no)
+            step = 2.0 * rb / (no - 1)
+            for a in range(no):
+                offs[a] = a * step + -rb
+            offs[no - 1] = rb
+            # the adjacent edges' lines, their normals into the tag
+            cx = (Qt[0, 0] + Qt[1, 0] + Qt[2, 0] + Qt[3, 0]) / 4.0
+            cy = (Qt[0, 1] + Qt[1, 1] + Qt[2, 1] + Qt[3, 1]) / 4.0
+            A0, B0 = Qt[(k - 1) % 4], Qt[k]
+            A1, B1 = Qt[(k + 1) % 4], Qt[(k + 2) % 4]
+            g0 = (B0 - A0) / np.hypot(B0[0] - A0[0], B0[1] - A0[1])
+            m0 = np.array([-g0[1], g0[0]])
+            if not m0[0] * (cx - A0[0]) + m0[1] * (cy - A0[1]) > 0:
+                m0 = -m0
+            g1 = (B1 - A1) / np.hypot(B1[0] - A1[0], B1[1] - A1[1])
+            m1 = np.array([-g1[1], g1[0]])
+            if not m1[0] * (cx - A1[0]) + m1[1] * (cy - A1[1]) > 0:
+                m1 = -m1
+            c1 = _band(Qt[k], e, n, L, curves[i, k], t_lo, t_hi, out_px, in_px,
+                       deep_bit - clear, Hk, cells, offs, box[i, k, 0], box[i, k, 1],
+                       box[i, k, 2], box[i, k, 3], k, deep_bit, A0, m0, A1, m1,
+                       oix, oiy, ot, os_, c)
+            if c1 - c < min_pixels:
+                status[i, k] = 1
+                continue
+            dark = 0
+            lo_x, lo_y, hi_x, hi_y = oix[c], oiy[c], oix[c], oiy[c]
+            d = curves[i, k]
+            for p in range(c, c1):
+                tau = 2.0 * ot[p] / L - 1.0
+                if os_[p] - (d[0] + tau * (d[1] + tau * (d[2] + tau * d[3]))) >= 0.0:
+                    dark += 1
+                lo_x, hi_x = min(lo_x, oix[p]), max(hi_x, oix[p])
+                lo_y, hi_y = min(lo_y, oiy[p]), max(hi_y, oiy[p])
+            if dark < min_pixels // 2:
+                status[i, k] = 2
+                continue
+            if lo_x < 0 or lo_y < 0 or hi_x >= width or hi_y >= height:
+                status[i, k] = 3
+                continue
+            c = c1
+    off[4 * N] = c
+    return status, Ls, es, ns, off, oix[:c], oiy[:c], ot[:c], os_[:c]
