@@ -366,3 +366,47 @@ edge (i, k)'s are [off[4i+k], off[4i+k+1]).'''
             c = c1
     off[4 * N] = c
     return status, Ls, es, ns, off, oix[:c], oiy[:c], ot[:c], os_[:c]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _curve_point(P0, L, e, n, d, t):
+    # the point of a curve (d0..d3 in the frame of the chord from P0, length L, direction e,
+    # normal n) at t along the chord, and its tangent per unit t
+    tau = 2.0 * t / L - 1.0
+    s = d[0] + tau * (d[1] + tau * (d[2] + tau * d[3]))
+    ds = (d[1] + tau * (2.0 * d[2] + 3.0 * tau * d[3])) * 2.0 / L
+    return (P0[0] + t * e[0] + s * n[0], P0[1] + t * e[1] + s * n[1],
+            e[0] + ds * n[0], e[1] + ds * n[1])
+
+
+@njit(cache=True, error_model="numpy")
+def meet_curves(Pa, La, ea, na, da, Pb, Lb, eb, nb, db, iterations):
+    r'''(M,2) where each curve a (near its end t = La) meets its curve b (near its start
+t = 0): Newton, NaN where the tangents are parallel. Curves as _curve_point's, one per row
+of Pa (M,2), La (M,), ea, na (M,2), da (M,4) and of the b ones.'''
+    M = len(La)
+    out = np.full((M, 2), np.nan)
+    for j in range(M):
+        ta = La[j]
+        tb = 0.0
+        ok = True
+        for _ in range(iterations):
+            pax, pay, gax, gay = _curve_point(Pa[j], La[j], ea[j], na[j], da[j], ta)
+            pbx, pby, gbx, gby = _curve_point(Pb[j], Lb[j], eb[j], nb[j], db[j], tb)
+            # solve [ga, -gb] (dta, dtb) = pb - pa (Cramer's rule)
+            rx = pbx - pax
+            ry = pby - pay
+            det = -gax * gby + gbx * gay
+            if not abs(det) > 1e-12:
+                ok = False
+                break
+            dta = (-rx * gby + gbx * ry) / det
+            dtb = (gax * ry - gay * rx) / det
+            ta, tb = ta + dta, tb + dtb
+            if max(abs(dta), abs(dtb)) < 1e-9:
+                break
+        if ok:
+            pax, pay, _, _ = _curve_point(Pa[j], La[j], ea[j], na[j], da[j], ta)
+            out[j, 0] = pax
+            out[j, 1] = pay
+    return out

@@ -76,7 +76,7 @@ import functools
 
 import numpy as np
 
-from ._tag_edge_kernels import fit_edges, tag_edge_pixels
+from ._tag_edge_kernels import fit_edges, meet_curves, tag_edge_pixels
 from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, CornerFit, blur_kernel
 
 # px added to every clearance: the coarse corners' error and the bend of an edge between
@@ -107,6 +107,8 @@ MIN_PLATEAU_PIXELS = 10
 CONVERGED_PX = 1e-4
 # the most the meeting point of two fitted edges may move from the corner it started at
 MAX_CORNER_SHIFT_PX = 2.0
+# the most Newton steps to where two fitted edges meet (they stop at a step below 1e-9 px)
+MEET_ITERATIONS = 8
 # the tabulation of F: step in x (px) and the angle bins over [0, pi/4]
 TABLE_STEP_PX = 0.01
 TABLE_ANGLES = 9
@@ -326,13 +328,21 @@ the edge fits' median misfit)
             return curves[(i, k, end)] if (i, k, end) in curves else curves[(i, k, 2)]
 
         qn = np.full((N, 4, 2), np.nan)
-        for i in range(N):
-            for k in range(4):
-                a, b = (k - 1) % 4, k           # edge a ends at corner k, edge b starts there
-                if why_edge[i, a] or why_edge[i, b]:
-                    continue
-                qn[i, k] = _meet(q[i, a], frames[(i, a)], curve(i, a, 1),
-                                 q[i, b], frames[(i, b)], curve(i, b, 0))
+        # edge a ends at corner k, edge b starts there
+        meets = [(i, k) for i in range(N) for k in range(4)
+                 if not (why_edge[i, (k - 1) % 4] or why_edge[i, k])]
+        if meets:
+            mi, mk = np.array(meets).T
+            ma = (mk - 1) % 4
+            fa = [frames[(i, a)] for i, a in zip(mi, ma, strict=True)]
+            fb = [frames[(i, k)] for i, k in meets]
+            qn[mi, mk] = meet_curves(
+                q[mi, ma], np.array([f[0] for f in fa]), np.array([f[1] for f in fa]),
+                np.array([f[2] for f in fa]),
+                np.array([curve(i, a, 1) for i, a in zip(mi, ma, strict=True)]),
+                q[mi, mk], np.array([f[0] for f in fb]), np.array([f[1] for f in fb]),
+                np.array([f[2] for f in fb]), np.array([curve(i, k, 0) for i, k in meets]),
+                MEET_ITERATIONS)
         # the next pass places its pixels about these curves, its chords through these corners
         shapes = {}
         tau9 = np.linspace(-1.0, 1.0, 9)
@@ -425,33 +435,6 @@ the frame of its chord in Q (N,4,2), d3 = 0 (zeros where shapes has none)'''
     Vt = V.transpose(0, 2, 1)
     out[i, k, :3] = np.linalg.solve(Vt @ V, Vt @ (r * n[:, None, :]).sum(-1)[..., None])[..., 0]
     return out
-
-
-def _curve_point(P0, frame, curve, t):
-    L, e, n = frame
-    tau = 2.0 * t / L - 1.0
-    s = curve[0] + tau * (curve[1] + tau * (curve[2] + tau * curve[3]))
-    ds = (curve[1] + tau * (2.0 * curve[2] + 3.0 * tau * curve[3])) * 2.0 / L
-    return P0 + t * e + s * n, e + ds * n
-
-
-def _meet(Pa, fa, ca, Pb, fb, cb, iterations=8):
-    r'''Where curve a (near its end t = L) meets curve b (near its start t = 0): Newton'''
-    ta, tb = fa[0], 0.0
-    for _ in range(iterations):
-        pa, ga = _curve_point(Pa, fa, ca, ta)
-        pb, gb = _curve_point(Pb, fb, cb, tb)
-        # solve [ga, -gb] (dta, dtb) = pb - pa (Cramer's rule)
-        r = pb - pa
-        det = -ga[0] * gb[1] + gb[0] * ga[1]
-        if not abs(det) > 1e-12:
-            return np.full(2, np.nan)
-        da = (-r[0] * gb[1] + gb[0] * r[1]) / det
-        db = (ga[0] * r[1] - ga[1] * r[0]) / det
-        ta, tb = ta + da, tb + db
-        if max(abs(da), abs(db)) < 1e-9:
-            break
-    return _curve_point(Pa, fa, ca, ta)[0]
 
 
 def _fit_edges(img, geo, table, bfix=None, converged_px=CONVERGED_PX):
