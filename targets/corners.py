@@ -370,10 +370,12 @@ units along both axes at once are left out, an L-shaped window)'''
     from ._corner_kernels import window_mask
     notch = np.full(len(q0), np.nan) if notch is None else \
         np.broadcast_to(np.asarray(notch, dtype=np.float64), (len(q0),))
-    inside, on_image = window_mask(ix, iy, np.ascontiguousarray(q0, dtype=np.float64),
-                                   np.linalg.inv(steps), np.ascontiguousarray(half_box),
-                                   np.ascontiguousarray(notch, dtype=np.float64),
-                                   float(max_px), int(shape[0]), int(shape[1]))
+    # writable C arrays always (broadcast_to's are read-only): one compiled signature, the
+    # one harness.warmup compiles
+    q0, Ainv, half_box, notch = (np.require(a, np.float64, ("C", "W"))
+                                 for a in (q0, np.linalg.inv(steps), half_box, notch))
+    inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, float(max_px),
+                                   int(shape[0]), int(shape[1]))
     return ix, iy, inside, on_image
 
 
