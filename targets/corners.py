@@ -69,7 +69,10 @@ with refinement, CPU seconds per image (median; benchmarks/bench_corners.py timi
 table, a machine at load 13-17 where the wall time is several times that): AprilTag
 0.054 s on 1024x1024, 0.023 s on 640x480, 0.38-0.48 s on 5120x3840 (pupil_apriltags'
 own search 0.26 s of it) before the L-shaped tag window, 0.086 s on 1024x1024 and 0.071 s
-on 640x480 with it (load 11-17; docs/corners.md); chessboard 0.045 s on 1024x1024 (this
+on 640x480 with it (load 11-17; docs/corners.md); with the window's pixel mask compiled
+(targets._corner_kernels.window_mask) 0.064 s on 640x480, 0.081 s on 1024x1024, 0.21 s on
+5120x3840 against 0.080, 0.099 and 0.33 s before it on the same images and load (14-16);
+chessboard 0.045 s on 1024x1024 (this
 fit 0.037 s of it), 0.043 s on 640x480, 0.19 s on 5120x3840.
 
 Blur. A camera's optics blur the image (the `realistic` response profile of
