@@ -66,7 +66,7 @@ realistic; K = 16 renders, 6 poses; load 18): corner error RMS 0.0034 px (navcam
 0.0075 (hazcam 17, 551 of 864 corners: the rest's bits are too small for the blur), 0.0065
 (hazcam 8 fisheye); the corner windows gave 0.014-0.03. CPU per image, whole detection
 (median, same benchmark, load 14-16): 0.19 s on 640x480, 0.24 s on 1024x1024 (this fit
-~0.08 s of it), 0.74 s on 5120x3840 (0.3 s of it the edges' Levenberg-Marquardt over their
+~0.1 s of it), 0.74 s on 5120x3840 (0.3 s of it the edges' Levenberg-Marquardt over their
 ~10^6 pixels); the pixels, the fit and the edges' meeting points run compiled
 (targets._tag_edge_kernels), where a Python loop per edge and per corner took 0.27, 0.33
 and 0.83 s.
