@@ -2,7 +2,12 @@ r'''Compiled edge-profile fit of targets.tag_edges (numba): the hot loops
 
 SYNOPSIS
 
-    from targets._tag_edge_kernels import fit_edges, edge_pixels
+    from targets._tag_edge_kernels import fit_edges, meet_curves, tag_edge_pixels
+
+    status, L, e, n, off, ix, iy, t, s = tag_edge_pixels(Q, live, bits, True, H, curves,
+                                                         reach, gap_bits, safety, plateau,
+                                                         min_pixels, W, H_img)
+    # every edge's band of pixels (targets.tag_edges._EDGE_STATUS says why an edge has none)
 
     p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix,
                              max_iterations, converged_px)
@@ -13,6 +18,8 @@ SYNOPSIS
     # (m,) the contrast of an edge whose b is given (NaN: fitted)
     # p (m,6) the fitted (a, b, d0, d1, d2, d3); done (m,) converged; mis (m,) the RMS
     # misfit over the contrast
+    q = meet_curves(Pa, La, ea, na, da, Pb, Lb, eb, nb, db, iterations)
+    # (M,2) where each edge a meets its edge b near a's end and b's start
 
 The model of pixel p of edge j: v = a + b F(x), x = s - (d0 + d1 tau + d2 tau^2 + d3 tau^3),
 F linear in x and in the angle between the table's entries (targets.tag_edges._lookup is the
