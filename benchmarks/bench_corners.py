@@ -34,7 +34,10 @@ corners found, median seconds per image), then the detection time per image of e
 method and image size (median and max over the images: the bars are 0.1 s on 1024x1024
 and 0.5 s on 5120x3840, issue 16; loaded-machine figures, the load average is
 recorded), and writes one JSON document to --out/<UTC stamp>-corners.json (never
-overwriting).
+overwriting). --save-q F.npz keeps every method's corners per image; --compare-q F.npz
+(a file --save-q wrote, e.g. before a change to a detector) prints, per method and
+camera, the corners lost and gained, the largest corner move and the largest growth of a
+corner's error against it (a corner-by-corner before/after on the same images).
 '''
 
 import argparse
@@ -145,7 +148,13 @@ def main():
     ap.add_argument("--methods", default=None, help="comma-separated words: keep the methods "
                     "whose name contains one")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    ap.add_argument("--save-q", type=Path, default=None,
+                    help="write every method's corners per image to this .npz")
+    ap.add_argument("--compare-q", type=Path, default=None,
+                    help="a --save-q file: print each method's corner changes against it")
     args = ap.parse_args()
+    saved = {}
+    before = dict(np.load(args.compare_q)) if args.compare_q else None
     chain = None
     if args.response:
         import tomllib
@@ -169,7 +178,8 @@ def main():
                 if args.methods and not any(w in method for w in args.methods.split(",")):
                     continue
                 errs, cerrs, secs, cpus, found, dropped, sig = [], [], [], [], 0, {}, []
-                for img, truth, bias in images:
+                changes = []
+                for n_img, (img, truth, bias) in enumerate(images):
                     opts = {}
                     if refine is True and args.psf_sigma is not None:
                         opts["psf_sigma_px"] = args.psf_sigma
@@ -179,6 +189,10 @@ def main():
                     cpus.append(time.process_time() - c0)
                     e = np.linalg.norm(det.q - truth, axis=-1)
                     errs.append(e[np.isfinite(e)])
+                    key = f"{cam}/{tname}/{method}/{n_img}"
+                    saved[key] = det.q
+                    if before is not None and key in before:
+                        _compare_q(before[key], det.q, truth, changes)
                     ec = np.linalg.norm(det.q - bias - truth, axis=-1)
                     cerrs.append(ec[np.isfinite(ec)])
                     found += int(det.n_found)
@@ -214,6 +228,13 @@ def main():
                       f"{row['seconds_median']:.3f} s/image"
                       + (f"  blur {np.median(sig):.3f} px" if sig else "")
                       + (f"  dropped {dropped}" if dropped else ""), flush=True)
+                if changes:
+                    c = np.array(changes)
+                    row["against_saved_q"] = {
+                        "lost": int(c[:, 0].sum()), "gained": int(c[:, 1].sum()),
+                        "max_move_px": float(c[:, 2].max()),
+                        "max_error_growth_px": float(c[:, 3].max())}
+                    print(f"    against {args.compare_q.name}: {row['against_saved_q']}")
     timing = timing_rows(rows)
     print(f"\ndetection seconds per image, wall and CPU of this process (median / max over "
           f"the images; the 1024x1024 bar is 0.1 s, the 5120x3840 one 0.5 s; load average "
@@ -239,6 +260,22 @@ def main():
         k += 1
     path.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
     print("wrote", path)
+    if args.save_q:
+        np.savez(args.save_q, **saved)
+        print("wrote", args.save_q)
+
+
+def _compare_q(q0, q1, truth, changes):
+    r'''Append (corners lost, corners gained, largest move px, largest error growth px) of
+one image's corners q1 against the saved q0 (same truth)'''
+    f0, f1 = np.isfinite(q0[:, 0]), np.isfinite(q1[:, 0])
+    both = f0 & f1
+    move = np.linalg.norm(q1[both] - q0[both], axis=-1)
+    grow = (np.linalg.norm(q1[both] - truth[both], axis=-1)
+            - np.linalg.norm(q0[both] - truth[both], axis=-1))
+    changes.append((int((f0 & ~f1).sum()), int((f1 & ~f0).sum()),
+                    float(move.max()) if len(move) else 0.0,
+                    float(grow.max()) if len(grow) else 0.0))
 
 
 if __name__ == "__main__":

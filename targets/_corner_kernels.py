@@ -211,7 +211,48 @@ matmul to rounding, not bit for bit)'''
     return JtJ, Jtr
 
 
+@njit(cache=True, error_model="numpy")
+def window_mask(ix, iy, q0, Ainv, half_box, notch, max_px, H, W):
+    r'''inside, on_image (n,P) of each corner's window (targets.corners._window, whose
+numpy arithmetic this repeats pixel by pixel in the same order): pixel (ix, iy) is inside
+when every corner of its square maps by Ainv (n,2,2) to board offsets within half_box (n,)
+of q0 (n,2) along both axes, not past notch (n,; NaN: no notch) along both at once, and
+its centre is within max_px of q0; on_image when it lies in the (H, W) image'''
+    n, P = ix.shape
+    inside = np.zeros((n, P), np.bool_)
+    on_image = np.zeros((n, P), np.bool_)
+    for j in range(n):
+        a00, a01, a10, a11 = Ainv[j, 0, 0], Ainv[j, 0, 1], Ainv[j, 1, 0], Ainv[j, 1, 1]
+        hb = half_box[j]
+        nt = notch[j]
+        for p in range(P):
+            x = ix[j, p]
+            y = iy[j, p]
+            on_image[j, p] = x >= 0 and x < W and y >= 0 and y < H
+            dx = x - q0[j, 0]
+            dy = y - q0[j, 1]
+            if not (abs(dx) <= max_px and abs(dy) <= max_px):
+                continue
+            ok = True
+            umax = -np.inf
+            vmax = -np.inf
+            for k in range(4):
+                rx = dx + _SX[k]
+                ry = dy + _SY[k]
+                bu = a00 * rx + a01 * ry
+                bv = a10 * rx + a11 * ry
+                if not (abs(bu) <= hb and abs(bv) <= hb):
+                    ok = False
+                    break
+                umax = max(umax, bu)
+                vmax = max(vmax, bv)
+            if ok and not np.isnan(nt):
+                ok = not (umax > nt and vmax > nt)
+            inside[j, p] = ok
+    return inside, on_image
+
+
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup)'''
-    return (wedge_model, normal_equations)
+    return (wedge_model, normal_equations, window_mask)

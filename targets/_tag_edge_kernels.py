@@ -1,117 +1,170 @@
-r'''Compiled edge-profile fit of targets.tag_edges (numba): the hot loop
+r'''Compiled edge-profile fit of targets.tag_edges (numba): the hot loops
 
 SYNOPSIS
 
-    from targets._tag_edge_kernels import edge_normal
+    from targets._tag_edge_kernels import fit_edges, meet_curves, tag_edge_pixels
 
-    a, b, S, JtJ, Jtr = edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF,
-                                    bfix)
-    # rows (m,) the edges to evaluate (of n); d (m,4) their curves; v, w, tau, s (n,P):
-    # each edge's pixel values, weights (0: padding), positions along the chord (tau) and
-    # distances from it (s, px); cubic (n,) 1.0 where d3 is fitted; j0, fy (n,): the angle
-    # bin and fraction of each edge's normal; x0, h, F, dF (A,X):
-    # targets.tag_edges._edge_table; a, b, S (m,) the light level, contrast and weighted
-    # squared misfit at d; JtJ (m,6,6), Jtr (m,6) the normal equations; bfix (n,) the
-    # contrast of an edge whose b is given (NaN: fitted)
-    # equations in (a, b, d0, d1, d2, d3)
+    status, L, e, n, off, ix, iy, t, s = tag_edge_pixels(Q, live, bits, True, H, curves,
+                                                         reach, gap_bits, safety, plateau,
+                                                         min_pixels, W, H_img)
+    # every edge's band of pixels (targets.tag_edges._EDGE_STATUS says why an edge has none)
+
+    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix,
+                             max_iterations, converged_px)
+    # the m edges' pixels one after another: edge j's are [off[j], off[j+1]) of v (values),
+    # tau (positions along the chord, -1..1) and s (distances from it, px); cubic (m,) 1.0
+    # where d3 is fitted; j0, fy (m,): the angle bin and fraction of each edge's normal;
+    # d (m,4) the start curves; x0, h, F, dF (A,X): targets.tag_edges._edge_table; bfix
+    # (m,) the contrast of an edge whose b is given (NaN: fitted)
+    # p (m,6) the fitted (a, b, d0, d1, d2, d3); done (m,) converged; mis (m,) the RMS
+    # misfit over the contrast
+    q = meet_curves(Pa, La, ea, na, da, Pb, Lb, eb, nb, db, iterations)
+    # (M,2) where each edge a meets its edge b near a's end and b's start
 
 The model of pixel p of edge j: v = a + b F(x), x = s - (d0 + d1 tau + d2 tau^2 + d3 tau^3),
 F linear in x and in the angle between the table's entries (targets.tag_edges._lookup is the
-numpy reference). a and b solve the weighted least squares for the current curve.
+numpy reference). a and b solve the least squares for the current curve; the curve is
+fitted by Levenberg-Marquardt, each edge on its own (targets.tag_edges._fit_edges).
 '''
 
 import numpy as np
 from numba import njit
 
 
-@njit(cache=True, error_model="numpy")
-def edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix):
-    m = len(rows)
-    P = v.shape[1]
+@njit(cache=True, error_model="numpy", inline="always")
+def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, dFv):
+    # F and F' at every pixel of one edge (into Fv, dFv), and the light level a, contrast
+    # b and squared misfit S that fit them
     X = F.shape[1]
-    a = np.zeros(m)
-    b = np.zeros(m)
-    S = np.zeros(m)
-    JtJ = np.zeros((m, 6, 6))
-    Jtr = np.zeros((m, 6))
+    sw = 0.0
+    sf = 0.0
+    sff = 0.0
+    sv = 0.0
+    sfv = 0.0
+    for p in range(o0, o1):
+        t = tau[p]
+        x = s[p] - (d[0] + t * (d[1] + t * (d[2] + t * d[3] * cubic)))
+        fi = (x - x0) / h
+        if fi <= 0.0:
+            f, df = 0.0, 0.0
+        elif fi >= X - 1:
+            f, df = 1.0, 0.0
+        else:
+            i = int(fi)
+            fx = fi - i
+            f0 = F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx
+            f1 = F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx
+            f = f0 * (1.0 - fa) + f1 * fa
+            g0 = dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx
+            g1 = dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx
+            df = g0 * (1.0 - fa) + g1 * fa
+        Fv[p - o0] = f
+        dFv[p - o0] = df
+        vp = v[p]
+        sw += 1.0
+        sf += f
+        sff += f * f
+        sv += vp
+        sfv += f * vp
+    if np.isnan(bfix):
+        b = (sw * sfv - sf * sv) / (sw * sff - sf * sf)
+    else:
+        b = bfix
+    a = (sv - b * sf) / sw
+    S = 0.0
+    for p in range(o0, o1):
+        r = v[p] - a - b * Fv[p - o0]
+        S += r * r
+    return a, b, S
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _normal(v, tau, o0, o1, cubic, a, b, bfree, Fv, dFv, JtJ, Jtr):
+    # the normal equations of one edge in (a, b, d0, d1, d2, d3) at its profile Fv, dFv
+    J = np.zeros(6)
+    JtJ[:, :] = 0.0
+    Jtr[:] = 0.0
+    for p in range(o0, o1):
+        t = tau[p]
+        r = v[p] - a - b * Fv[p - o0]
+        g = -b * dFv[p - o0]
+        J[0] = 1.0
+        J[1] = Fv[p - o0] if bfree else 0.0
+        J[2] = g
+        J[3] = g * t
+        J[4] = g * t * t
+        J[5] = g * t * t * t * cubic
+        for k in range(6):
+            Jtr[k] += J[k] * r
+            for l in range(k + 1):
+                JtJ[k, l] += J[k] * J[l]
+    for k in range(6):
+        for l in range(k):
+            JtJ[l, k] = JtJ[k, l]
+
+
+@njit(cache=True, error_model="numpy")
+def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iterations,
+              converged_px):
+    m = len(off) - 1
+    p_out = np.zeros((m, 6))
+    done = np.zeros(m, np.bool_)
+    mis = np.zeros(m)
+    P = 0
+    for j in range(m):
+        P = max(P, off[j + 1] - off[j])
     Fv = np.zeros(P)
     dFv = np.zeros(P)
-    J = np.zeros(6)
-    for jj in range(m):
-        j = rows[jj]
-        ja = j0[j]
-        fa = fy[j]
-        sw = 0.0
-        sf = 0.0
-        sff = 0.0
-        sv = 0.0
-        sfv = 0.0
-        for p in range(P):
-            wp = w[j, p]
-            if wp == 0.0:
-                continue
-            t = tau[j, p]
-            x = s[j, p] - (d[jj, 0] + t * (d[jj, 1] + t * (d[jj, 2] + t * d[jj, 3] * cubic[j])))
-            fi = (x - x0) / h
-            if fi <= 0.0:
-                f, df = 0.0, 0.0
-            elif fi >= X - 1:
-                f, df = 1.0, 0.0
-            else:
-                i = int(fi)
-                fx = fi - i
-                f0 = F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx
-                f1 = F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx
-                f = f0 * (1.0 - fa) + f1 * fa
-                g0 = dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx
-                g1 = dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx
-                df = g0 * (1.0 - fa) + g1 * fa
-            Fv[p] = f
-            dFv[p] = df
-            vp = v[j, p]
-            sw += wp
-            sf += wp * f
-            sff += wp * f * f
-            sv += wp * vp
-            sfv += wp * f * vp
-        if np.isnan(bfix[j]):
-            det = sw * sff - sf * sf
-            bj = (sw * sfv - sf * sv) / det
-        else:
-            bj = bfix[j]
-        aj = (sv - bj * sf) / sw
-        a[jj] = aj
-        b[jj] = bj
-        acc = 0.0
-        for p in range(P):
-            wp = w[j, p]
-            if wp == 0.0:
-                continue
-            t = tau[j, p]
-            r = v[j, p] - aj - bj * Fv[p]
-            acc += wp * r * r
-            g = -bj * dFv[p]
-            J[0] = 1.0
-            J[1] = Fv[p] if np.isnan(bfix[j]) else 0.0
-            J[2] = g
-            J[3] = g * t
-            J[4] = g * t * t
-            J[5] = g * t * t * t * cubic[j]
+    F1 = np.zeros(P)
+    dF1 = np.zeros(P)
+    JtJ = np.zeros((6, 6))
+    Jtr = np.zeros(6)
+    A = np.zeros((6, 6))
+    eye = np.eye(6)
+    for j in range(m):
+        o0, o1 = off[j], off[j + 1]
+        ja, fa, cj, bj = j0[j], fy[j], cubic[j], bfix[j]
+        bfree = np.isnan(bj)
+        dj = d[j].copy()
+        a, b, S = _profile(v, tau, s, o0, o1, cj, ja, fa, dj, x0, h, F, dF, bj, Fv, dFv)
+        _normal(v, tau, o0, o1, cj, a, b, bfree, Fv, dFv, JtJ, Jtr)
+        lam = 1e-3
+        ok = False
+        for _ in range(max_iterations):
             for k in range(6):
-                Jtr[jj, k] += wp * J[k] * r
-                for l in range(k + 1):
-                    JtJ[jj, k, l] += wp * J[k] * J[l]
-        S[jj] = acc
-        for k in range(6):
-            for l in range(k):
-                JtJ[jj, l, k] = JtJ[jj, k, l]
-    return a, b, S, JtJ, Jtr
+                for l in range(6):
+                    A[k, l] = JtJ[k, l] + 1e-12 * eye[k, l]
+                A[k, k] += lam * JtJ[k, k]
+            step = np.linalg.solve(A, Jtr)
+            d1 = dj + step[2:]
+            a1, b1, S1 = _profile(v, tau, s, o0, o1, cj, ja, fa, d1, x0, h, F, dF, bj, F1,
+                                  dF1)
+            better = S1 <= S
+            if better:
+                dj, a, b, S = d1, a1, b1, S1
+                Fv, F1 = F1, Fv
+                dFv, dF1 = dF1, dFv
+                _normal(v, tau, o0, o1, cj, a, b, bfree, Fv, dFv, JtJ, Jtr)
+                lam = max(lam * 0.3, 1e-7)
+            else:
+                lam = lam * 10.0
+            small = np.abs(step[2:]).max() < converged_px
+            if (better and small) or lam > 1e6:
+                ok = True
+                break
+        p_out[j, 0] = a
+        p_out[j, 1] = b
+        p_out[j, 2:] = dj
+        done[j] = ok
+        mis[j] = np.sqrt(S / (o1 - o0)) / abs(b)
+    return p_out, done, mis
 
 
 @njit(cache=True, error_model="numpy")
-def edge_pixels(P0, e, n, L, curve, t_lo, t_hi, out_px, in_px, deep_px, H, bits, offs,
-                x0, y0, x1, y1, k, bit_px, Pa, na, Pb, nb):
-    r'''The pixels of one tag edge's band (targets.tag_edges._edge_pixels): (ix, iy, t, s)
+def _band(P0, e, n, L, curve, t_lo, t_hi, out_px, in_px, deep_px, H, bits, offs,
+          x0, y0, x1, y1, k, bit_px, Pa, na, Pb, nb, oix, oiy, ot, os_, c):
+    r'''The pixels of one tag edge's band, written from index c of oix, oiy, ot, os_
+(ix, iy, t, s); returns the index after the last
 
 Pixels with centre at t in [t_lo, t_hi] along the chord and x = s - curve(tau) in
 [-out_px, in_px]; those deeper than deep_px must see only dark cells of bits (8,8, True =
@@ -121,12 +174,6 @@ bit_px from the curve (lens distortion bends the edge away from the homography's
 up to a px on a fisheye's tag). A pixel keeps the clearance t_lo from the lines of the two
 adjacent edges too (through Pa, Pb with normals na, nb into the tag): a tag seen obliquely
 meets them at an angle off 90 deg.'''
-    cap = (x1 - x0 + 1) * (y1 - y0 + 1)
-    oix = np.empty(cap, np.int64)
-    oiy = np.empty(cap, np.int64)
-    ot = np.empty(cap)
-    os_ = np.empty(cap)
-    c = 0
     no = len(offs)
     for yy in range(y0, y1 + 1):
         for xx in range(x0, x1 + 1):
@@ -173,4 +220,200 @@ meets them at an angle off 90 deg.'''
             ot[c] = t
             os_[c] = s
             c += 1
-    return oix[:c], oiy[:c], ot[:c], os_[:c]
+    return c
+
+
+_TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
+
+
+@njit(cache=True, error_model="numpy")
+def _edge_geometry(Qt, k, reach, gap_bits, safety, plateau_px):
+    # edge k's frame and band limits (targets.tag_edges._edge_pixels); ok False: too short
+    P0 = Qt[k]
+    P1 = Qt[(k + 1) % 4]
+    ex = P1[0] - P0[0]
+    ey = P1[1] - P0[1]
+    L = np.hypot(ex, ey)
+    e = np.array([ex / L, ey / L]) if L > 0 else np.zeros(2)
+    n = np.array([-e[1], e[0]])
+    cx = (Qt[0, 0] + Qt[1, 0] + Qt[2, 0] + Qt[3, 0]) / 4.0
+    cy = (Qt[0, 1] + Qt[1, 1] + Qt[2, 1] + Qt[3, 1]) / 4.0
+    if n[0] * (cx - P0[0]) + n[1] * (cy - P0[1]) < 0:
+        n = -n
+    Pm = Qt[(k - 1) % 4]
+    Pp = Qt[(k + 2) % 4]
+    deep_bit = min(np.hypot(Pm[0] - P0[0], Pm[1] - P0[1]),
+                   np.hypot(Pp[0] - P1[0], Pp[1] - P1[1])) / 8.0
+    clear = reach + safety
+    out_px = min(gap_bits * deep_bit - clear, clear + plateau_px)
+    t_lo = clear
+    t_hi = L - clear
+    in_px = min(2.0 * deep_bit - clear, clear + plateau_px)
+    ok = L > 0 and out_px > 0 and t_hi > t_lo and in_px > -out_px
+    return ok, L, e, n, deep_bit, clear, out_px, t_lo, t_hi, in_px
+
+
+@njit(cache=True, error_model="numpy")
+def tag_edge_pixels(Q, live, bits, have_bits, H, curves, reach, gap_bits, safety,
+                    plateau_px, min_pixels, width, height):
+    r'''The pixels of every edge of every tag (targets.tag_edges._edge_pixels)
+
+Q (N,4,2) the tags' corners, live (N,) those to do; bits (N,8,8) their cells (True = light;
+have_bits False: unknown, every data bit may be light); H (N,3,3) each tag's image -> cells
+homography; curves (N,4,4) each edge's (d0..d3) in its chord's frame. Returns status (N,4)
+(0: pixels found; 1: edge too short for its blur or too few pixels; 2: seen from its light
+side only; 3: off the image; 4: tag not live), L (N,4), e, n (N,4,2) each edge's chord
+length, direction and normal into the tag, off (N*4+1,) and the pixels (ix, iy, t, s):
+edge (i, k)'s are [off[4i+k], off[4i+k+1]).'''
+    N = Q.shape[0]
+    status = np.full((N, 4), 4, np.int64)
+    Ls = np.zeros((N, 4))
+    es = np.zeros((N, 4, 2))
+    ns = np.zeros((N, 4, 2))
+    # the bands' bounding boxes first: the output's capacity
+    box = np.zeros((N, 4, 4), np.int64)
+    cap = 0
+    for i in range(N):
+        if not live[i]:
+            continue
+        for k in range(4):
+            ok, L, e, n, deep_bit, clear, out_px, t_lo, t_hi, in_px = _edge_geometry(
+                Q[i], k, reach, gap_bits, safety, plateau_px)
+            if ok and not have_bits:
+                in_px = min(in_px, deep_bit - clear)
+                ok = in_px > -out_px
+            status[i, k] = 0 if ok else 1
+            if not ok:
+                continue
+            smax = 0.0
+            for j in range(4):
+                smax += abs(curves[i, k, j])
+            xlo, ylo, xhi, yhi = np.inf, np.inf, -np.inf, -np.inf
+            for t in (t_lo, t_hi):
+                for sd in (-out_px - smax, in_px + smax):
+                    px = Q[i, k, 0] + t * e[0] + sd * n[0]
+                    py = Q[i, k, 1] + t * e[1] + sd * n[1]
+                    xlo, ylo = min(xlo, px), min(ylo, py)
+                    xhi, yhi = max(xhi, px), max(yhi, py)
+            box[i, k, 0] = int(np.floor(xlo))
+            box[i, k, 1] = int(np.floor(ylo))
+            box[i, k, 2] = int(np.ceil(xhi))
+            box[i, k, 3] = int(np.ceil(yhi))
+            cap += (box[i, k, 2] - box[i, k, 0] + 1) * (box[i, k, 3] - box[i, k, 1] + 1)
+    oix = np.empty(cap, np.int64)
+    oiy = np.empty(cap, np.int64)
+    ot = np.empty(cap)
+    os_ = np.empty(cap)
+    off = np.zeros(4 * N + 1, np.int64)
+    ones = np.ones((8, 8), np.bool_)
+    eye = np.eye(3)
+    c = 0
+    for i in range(N):
+        Qt = Q[i]
+        for k in range(4):
+            off[4 * i + k] = c
+            if status[i, k] != 0:
+                continue
+            ok, L, e, n, deep_bit, clear, out_px, t_lo, t_hi, in_px = _edge_geometry(
+                Qt, k, reach, gap_bits, safety, plateau_px)
+            Ls[i, k] = L
+            es[i, k] = e
+            ns[i, k] = n
+            if have_bits:
+                Hk = H[i]
+                cells = bits[i]
+            else:
+                Hk = eye
+                cells = ones
+                in_px = min(in_px, deep_bit - clear)
+            # the cells within the reach of a pixel deeper than the border, at steps of at
+            # most one cell (numpy's linspace)
+            rb = clear / min(L / 8.0, deep_bit)
+            no = 2 * int(np.ceil(rb)) + 1
+            offs = np.empty(no)
+            step = 2.0 * rb / (no - 1)
+            for a in range(no):
+                offs[a] = a * step + -rb
+            offs[no - 1] = rb
+            # the adjacent edges' lines, their normals into the tag
+            cx = (Qt[0, 0] + Qt[1, 0] + Qt[2, 0] + Qt[3, 0]) / 4.0
+            cy = (Qt[0, 1] + Qt[1, 1] + Qt[2, 1] + Qt[3, 1]) / 4.0
+            A0, B0 = Qt[(k - 1) % 4], Qt[k]
+            A1, B1 = Qt[(k + 1) % 4], Qt[(k + 2) % 4]
+            g0 = (B0 - A0) / np.hypot(B0[0] - A0[0], B0[1] - A0[1])
+            m0 = np.array([-g0[1], g0[0]])
+            if not m0[0] * (cx - A0[0]) + m0[1] * (cy - A0[1]) > 0:
+                m0 = -m0
+            g1 = (B1 - A1) / np.hypot(B1[0] - A1[0], B1[1] - A1[1])
+            m1 = np.array([-g1[1], g1[0]])
+            if not m1[0] * (cx - A1[0]) + m1[1] * (cy - A1[1]) > 0:
+                m1 = -m1
+            c1 = _band(Qt[k], e, n, L, curves[i, k], t_lo, t_hi, out_px, in_px,
+                       deep_bit - clear, Hk, cells, offs, box[i, k, 0], box[i, k, 1],
+                       box[i, k, 2], box[i, k, 3], k, deep_bit, A0, m0, A1, m1,
+                       oix, oiy, ot, os_, c)
+            if c1 - c < min_pixels:
+                status[i, k] = 1
+                continue
+            dark = 0
+            lo_x, lo_y, hi_x, hi_y = oix[c], oiy[c], oix[c], oiy[c]
+            d = curves[i, k]
+            for p in range(c, c1):
+                tau = 2.0 * ot[p] / L - 1.0
+                if os_[p] - (d[0] + tau * (d[1] + tau * (d[2] + tau * d[3]))) >= 0.0:
+                    dark += 1
+                lo_x, hi_x = min(lo_x, oix[p]), max(hi_x, oix[p])
+                lo_y, hi_y = min(lo_y, oiy[p]), max(hi_y, oiy[p])
+            if dark < min_pixels // 2:
+                status[i, k] = 2
+                continue
+            if lo_x < 0 or lo_y < 0 or hi_x >= width or hi_y >= height:
+                status[i, k] = 3
+                continue
+            c = c1
+    off[4 * N] = c
+    return status, Ls, es, ns, off, oix[:c], oiy[:c], ot[:c], os_[:c]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _curve_point(P0, L, e, n, d, t):
+    # the point of a curve (d0..d3 in the frame of the chord from P0, length L, direction e,
+    # normal n) at t along the chord, and its tangent per unit t
+    tau = 2.0 * t / L - 1.0
+    s = d[0] + tau * (d[1] + tau * (d[2] + tau * d[3]))
+    ds = (d[1] + tau * (2.0 * d[2] + 3.0 * tau * d[3])) * 2.0 / L
+    return (P0[0] + t * e[0] + s * n[0], P0[1] + t * e[1] + s * n[1],
+            e[0] + ds * n[0], e[1] + ds * n[1])
+
+
+@njit(cache=True, error_model="numpy")
+def meet_curves(Pa, La, ea, na, da, Pb, Lb, eb, nb, db, iterations):
+    r'''(M,2) where each curve a (near its end t = La) meets its curve b (near its start
+t = 0): Newton, NaN where the tangents are parallel. Curves as _curve_point's, one per row
+of Pa (M,2), La (M,), ea, na (M,2), da (M,4) and of the b ones.'''
+    M = len(La)
+    out = np.full((M, 2), np.nan)
+    for j in range(M):
+        ta = La[j]
+        tb = 0.0
+        ok = True
+        for _ in range(iterations):
+            pax, pay, gax, gay = _curve_point(Pa[j], La[j], ea[j], na[j], da[j], ta)
+            pbx, pby, gbx, gby = _curve_point(Pb[j], Lb[j], eb[j], nb[j], db[j], tb)
+            # solve [ga, -gb] (dta, dtb) = pb - pa (Cramer's rule)
+            rx = pbx - pax
+            ry = pby - pay
+            det = -gax * gby + gbx * gay
+            if not abs(det) > 1e-12:
+                ok = False
+                break
+            dta = (-rx * gby + gbx * ry) / det
+            dtb = (gax * ry - gay * rx) / det
+            ta, tb = ta + dta, tb + dtb
+            if max(abs(dta), abs(dtb)) < 1e-9:
+                break
+        if ok:
+            pax, pay, _, _ = _curve_point(Pa[j], La[j], ea[j], na[j], da[j], ta)
+            out[j, 0] = pax
+            out[j, 1] = pay
+    return out

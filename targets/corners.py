@@ -69,7 +69,10 @@ with refinement, CPU seconds per image (median; benchmarks/bench_corners.py timi
 table, a machine at load 13-17 where the wall time is several times that): AprilTag
 0.054 s on 1024x1024, 0.023 s on 640x480, 0.38-0.48 s on 5120x3840 (pupil_apriltags'
 own search 0.26 s of it) before the L-shaped tag window, 0.086 s on 1024x1024 and 0.071 s
-on 640x480 with it (load 11-17; docs/corners.md); chessboard 0.045 s on 1024x1024 (this
+on 640x480 with it (load 11-17; docs/corners.md); with the window's pixel mask compiled
+(targets._corner_kernels.window_mask) 0.064 s on 640x480, 0.081 s on 1024x1024, 0.21 s on
+5120x3840 against 0.080, 0.099 and 0.33 s before it on the same images and load (14-16);
+chessboard 0.045 s on 1024x1024 (this
 fit 0.037 s of it), 0.043 s on 640x480, 0.19 s on 5120x3840.
 
 Blur. A camera's optics blur the image (the `realistic` response profile of
@@ -358,8 +361,6 @@ def _window(q0, steps, half_box, shape, max_px, notch=None):
 or (N,) per corner; notch: None, or a number or (N,): the pixels reaching past notch board
 units along both axes at once are left out, an L-shaped window)'''
     half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (len(q0),))
-    half_box = half_box[:, None, None]
-    H, W = shape
     r = int(max_px)
     off = np.arange(-r, r + 1)
     oy, ox = np.meshgrid(off, off, indexing="ij")
@@ -367,23 +368,17 @@ units along both axes at once are left out, an L-shaped window)'''
     c0 = np.round(q0).astype(np.int64)
     ix = c0[:, 0:1] + ox
     iy = c0[:, 1:2] + oy
-    # board offsets of the pixel squares' corners (local affine map)
-    Ainv = np.linalg.inv(steps)                                      # (N,2,2)
-    # each square corner's offset from q0, (N,P,4) per axis, mapped by Ainv (written out:
-    # einsum on these shapes was most of a detection's refinement time)
-    rx = (ix - q0[:, 0:1])[:, :, None] + _SQUARE[:, 0]
-    ry = (iy - q0[:, 1:2])[:, :, None] + _SQUARE[:, 1]
-    a = Ainv[:, None, None, :, :]
-    bu = a[..., 0, 0] * rx + a[..., 0, 1] * ry
-    bv = a[..., 1, 0] * rx + a[..., 1, 1] * ry
-    inside = np.all((np.abs(bu) <= half_box) & (np.abs(bv) <= half_box), axis=-1)
-    if notch is not None:
-        # conservative: a square with one corner past the notch along u and one (maybe
-        # another) past it along v is out
-        notch = np.broadcast_to(np.asarray(notch, dtype=np.float64), (len(q0),))[:, None]
-        inside &= ~((bu.max(-1) > notch) & (bv.max(-1) > notch))
-    inside &= (np.abs(ix - q0[:, 0:1]) <= max_px) & (np.abs(iy - q0[:, 1:2]) <= max_px)
-    on_image = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
+    # board offsets of the pixel squares' corners (local affine map), compiled: the numpy
+    # arrays of every square corner's offset were a fifth of a sharp image's detection
+    from ._corner_kernels import window_mask
+    notch = np.full(len(q0), np.nan) if notch is None else \
+        np.broadcast_to(np.asarray(notch, dtype=np.float64), (len(q0),))
+    # writable C arrays always (broadcast_to's are read-only): one compiled signature, the
+    # one harness.warmup compiles
+    q0, Ainv, half_box, notch = (np.require(a, np.float64, ("C", "W"))
+                                 for a in (q0, np.linalg.inv(steps), half_box, notch))
+    inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, float(max_px),
+                                   int(shape[0]), int(shape[1]))
     return ix, iy, inside, on_image
 
 

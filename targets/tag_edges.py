@@ -64,8 +64,12 @@ MAX_CORNER_SHIFT_PX of the corner they started from.
 Measured (benchmarks/bench_corners.py --targets apriltag --methods camval --response
 realistic; K = 16 renders, 6 poses; load 18): corner error RMS 0.0034 px (navcam 15),
 0.0075 (hazcam 17, 551 of 864 corners: the rest's bits are too small for the blur), 0.0065
-(hazcam 8 fisheye); the corner windows gave 0.014-0.03. CPU per 1024x1024 image, whole
-detection: 0.29 s median (this fit ~0.15 s of it).
+(hazcam 8 fisheye); the corner windows gave 0.014-0.03. CPU per image, whole detection
+(median, same benchmark, load 14-16): 0.19 s on 640x480, 0.24 s on 1024x1024 (this fit
+~0.1 s of it), 0.74 s on 5120x3840 (0.3 s of it the edges' Levenberg-Marquardt over their
+~10^6 pixels); the pixels, the fit and the edges' meeting points run compiled
+(targets._tag_edge_kernels), where a Python loop per edge and per corner took 0.27, 0.33
+and 0.83 s.
 
 Sharp images keep the corner window model (targets.corners): it is exact there to 1e-7 px
 on the ray caster's area renders, which this model is not built to match (its F ignores
@@ -76,6 +80,7 @@ import functools
 
 import numpy as np
 
+from ._tag_edge_kernels import fit_edges, meet_curves, tag_edge_pixels
 from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, CornerFit, blur_kernel
 
 # px added to every clearance: the coarse corners' error and the bend of an edge between
@@ -106,6 +111,8 @@ MIN_PLATEAU_PIXELS = 10
 CONVERGED_PX = 1e-4
 # the most the meeting point of two fitted edges may move from the corner it started at
 MAX_CORNER_SHIFT_PX = 2.0
+# the most Newton steps to where two fitted edges meet (they stop at a step below 1e-9 px)
+MEET_ITERATIONS = 8
 # the tabulation of F: step in x (px) and the angle bins over [0, pi/4]
 TABLE_STEP_PX = 0.01
 TABLE_ANGLES = 9
@@ -178,84 +185,28 @@ def _lookup(table, x, phi):
     return out
 
 
-def _homography(src, dst):
-    r'''(3,3) H with dst ~ H src for 4 point pairs (src, dst (4,2))'''
-    A = []
-    for (x, y), (u, v) in zip(src, dst, strict=True):
-        A.append([x, y, 1, 0, 0, 0, -u * x, -u * y, -u])
-        A.append([0, 0, 0, x, y, 1, -v * x, -v * y, -v])
-    _, _, Vt = np.linalg.svd(np.asarray(A, dtype=np.float64))
-    return Vt[-1].reshape(3, 3)
-
-
 # the tag's corners in its cell coordinates (col, row), pupil_apriltags' order:
 # bottom-left, bottom-right, top-right, top-left of the upright tag (row 0 at the top)
 _TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
 
 
-def _edge_pixels(Qt, bits, k, curve, reach, gap_bits, safety, H=None):
-    r'''The pixels of edge k of one tag: (ix, iy, t, s) with s measured from the chord, or
-None; curve (4,) the edge's current (d0, d1, d2, d3); H the tag's image -> cells
-homography (default: from Qt)'''
-    P0, P1 = Qt[k], Qt[(k + 1) % 4]
-    e = P1 - P0
-    L = float(np.hypot(*e))
-    if not L > 0:
-        return None
-    e = e / L
-    n = np.array([-e[1], e[0]])
-    if n @ (Qt.mean(0) - P0) < 0:
-        n = -n
-    # a bit along the edge, and across it (the adjacent edges' bits: a tag seen obliquely
-    # has bits of different sizes along its two axes)
-    bit_px = L / 8.0
-    deep_bit = min(np.hypot(*(Qt[(k - 1) % 4] - P0)), np.hypot(*(Qt[(k + 2) % 4] - P1))) / 8.0
-    clear = reach + safety
-    out_px = min(gap_bits * deep_bit - clear, clear + PLATEAU_PX)
-    t_lo, t_hi = clear, L - clear
-    if not (out_px > 0 and t_hi > t_lo):
-        return None
-    in_max = 2.0 * deep_bit - clear          # a dark data bit next to the border
-    in_px = min(in_max, clear + PLATEAU_PX)
-    if not in_px > -out_px:
-        return None
-    # the band's bounding box in pixels
-    smax = float(np.abs(curve).sum())
-    pts = np.array([P0 + t * e + s * n for t in (t_lo, t_hi)
-                    for s in (-out_px - smax, in_px + smax)])
-    x0, y0 = np.floor(pts.min(0)).astype(int)
-    x1, y1 = np.ceil(pts.max(0)).astype(int)
-    from ._tag_edge_kernels import edge_pixels
-    if bits is None:
-        # no data bits known: every cell past the border may be light
-        H = np.eye(3)
-        cells = np.ones((8, 8), bool)
-        in_px = min(in_px, deep_bit - clear)
-        if not in_px > -out_px:
-            return None
-    else:
-        H = _homography(Qt, _TAG_CORNERS) if H is None else H
-        cells = np.ascontiguousarray(bits, dtype=np.bool_)
-    # the cells within the reach of a pixel deeper than the border: sampled at steps of at
-    # most one cell
-    rb = clear / min(bit_px, deep_bit)
-    offs = np.linspace(-rb, rb, 2 * int(np.ceil(rb)) + 1)
-    # the adjacent edges' lines, their normals into the tag
-    centre = Qt.mean(0)
-    adj = []
-    for A, B in ((Qt[(k - 1) % 4], P0), (P1, Qt[(k + 2) % 4])):
-        g = (B - A) / np.hypot(*(B - A))
-        m = np.array([-g[1], g[0]])
-        adj.append((A, m if m @ (centre - A) > 0 else -m))
-    ix, iy, t, s = edge_pixels(P0, e, n, L, np.asarray(curve, dtype=np.float64), t_lo, t_hi,
-                               out_px, in_px, deep_bit - clear, H, cells, offs, x0, y0, x1, y1, k,
-                               deep_bit, adj[0][0], adj[0][1], adj[1][0], adj[1][1])
-    if len(ix) < MIN_EDGE_PIXELS:
-        return None
-    tau = 2.0 * t / L - 1.0
-    if np.count_nonzero(s - _curve_s(curve, tau) >= 0.0) < MIN_EDGE_PIXELS // 2:
-        return "edge seen from its light side only (tag bits too small for the blur)"
-    return ix, iy, t, s, L, e, n
+# targets._tag_edge_kernels.tag_edge_pixels's status of an edge: why it has no pixels
+_EDGE_STATUS = {1: "edge too short for its blur",
+                2: "edge seen from its light side only (tag bits too small for the blur)",
+                3: "edge off the image"}
+
+
+def _homographies(Q):
+    r'''(N,3,3) each tag's image -> cells homography from its corners Q (N,4,2)'''
+    N = len(Q)
+    A = np.zeros((N, 8, 9))
+    u, v = _TAG_CORNERS[:, 0], _TAG_CORNERS[:, 1]
+    x, y = Q[..., 0], Q[..., 1]
+    A[:, 0::2, 0], A[:, 0::2, 1], A[:, 0::2, 2] = x, y, 1.0
+    A[:, 0::2, 6], A[:, 0::2, 7], A[:, 0::2, 8] = -u * x, -u * y, -u
+    A[:, 1::2, 3], A[:, 1::2, 4], A[:, 1::2, 5] = x, y, 1.0
+    A[:, 1::2, 6], A[:, 1::2, 7], A[:, 1::2, 8] = -v * x, -v * y, -v
+    return np.linalg.svd(A)[2][:, -1].reshape(N, 3, 3)
 
 
 def _neighbours(grid, N):
@@ -314,24 +265,22 @@ the edge fits' median misfit)
         last = npass == passes - 1
         why_edge = np.full((N, 4), "", dtype=object)
         own, start = {}, {}
-        for i in range(N):
-            if not np.all(np.isfinite(q[i])):
-                why_edge[i] = "not detected"
+        live = np.all(np.isfinite(q), axis=(1, 2))
+        why_edge[~live] = "not detected"
+        curves = _curves_in_frames(q, live, shapes)
+        Hc = np.zeros((N, 3, 3))
+        if bits is not None and live.any():
+            Hc[live] = _homographies(q[live])
+        status, Ls, es, ns, off, pix, piy, pt, ps = tag_edge_pixels(
+            q, live, np.zeros((N, 8, 8), bool) if bits is None else bits, bits is not None,
+            Hc, curves, reach, gap_bits, SAFETY_PX, PLATEAU_PX, MIN_EDGE_PIXELS, W, H)
+        for i, k in zip(*np.nonzero(status < 4), strict=True):
+            if status[i, k]:
+                why_edge[i, k] = _EDGE_STATUS[status[i, k]]
                 continue
-            Hc = None if bits is None else _homography(q[i], _TAG_CORNERS)
-            for k in range(4):
-                curve = _curve_in_frame(q[i], k, shapes.get((i, k)))
-                px = _edge_pixels(q[i], None if bits is None else bits[i], k, curve,
-                                  reach, gap_bits, SAFETY_PX, Hc)
-                if px is None or isinstance(px, str):
-                    why_edge[i, k] = px or "edge too short for its blur"
-                    continue
-                ix, iy = px[0], px[1]
-                if ix.min() < 0 or iy.min() < 0 or ix.max() >= W or iy.max() >= H:
-                    why_edge[i, k] = "edge off the image"
-                    continue
-                own[(i, k)] = px
-                start[(i, k)] = curve
+            a, b = off[4 * i + k], off[4 * i + k + 1]
+            own[(i, k)] = (pix[a:b], piy[a:b], pt[a:b], ps[a:b], Ls[i, k], es[i, k], ns[i, k])
+            start[(i, k)] = curves[i, k]
         if not own:
             break
         # each corner's two board lines, in the edge's own frame: a short or nearly straight
@@ -383,13 +332,21 @@ the edge fits' median misfit)
             return curves[(i, k, end)] if (i, k, end) in curves else curves[(i, k, 2)]
 
         qn = np.full((N, 4, 2), np.nan)
-        for i in range(N):
-            for k in range(4):
-                a, b = (k - 1) % 4, k           # edge a ends at corner k, edge b starts there
-                if why_edge[i, a] or why_edge[i, b]:
-                    continue
-                qn[i, k] = _meet(q[i, a], frames[(i, a)], curve(i, a, 1),
-                                 q[i, b], frames[(i, b)], curve(i, b, 0))
+        # edge a ends at corner k, edge b starts there
+        meets = [(i, k) for i in range(N) for k in range(4)
+                 if not (why_edge[i, (k - 1) % 4] or why_edge[i, k])]
+        if meets:
+            mi, mk = np.array(meets).T
+            ma = (mk - 1) % 4
+            fa = [frames[(i, a)] for i, a in zip(mi, ma, strict=True)]
+            fb = [frames[(i, k)] for i, k in meets]
+            qn[mi, mk] = meet_curves(
+                q[mi, ma], np.array([f[0] for f in fa]), np.array([f[1] for f in fa]),
+                np.array([f[2] for f in fa]),
+                np.array([curve(i, a, 1) for i, a in zip(mi, ma, strict=True)]),
+                q[mi, mk], np.array([f[0] for f in fb]), np.array([f[1] for f in fb]),
+                np.array([f[2] for f in fb]), np.array([curve(i, k, 0) for i, k in meets]),
+                MEET_ITERATIONS)
         # the next pass places its pixels about these curves, its chords through these corners
         shapes = {}
         tau9 = np.linspace(-1.0, 1.0, 9)
@@ -462,73 +419,45 @@ def _curve_s(d, tau):
     return d[0] + tau * (d[1] + tau * (d[2] + tau * d[3]))
 
 
-def _curve_in_frame(Qt, k, points):
-    r'''(d0, d1, d2, d3) of a curve through points (M,2) in the frame of edge k's chord
-(zeros for None)'''
-    if points is None:
-        return np.zeros(4)
-    P0, P1 = Qt[k], Qt[(k + 1) % 4]
+def _curves_in_frames(Q, live, shapes):
+    r'''(N,4,4): (d0, d1, d2, d3) of each edge's curve shapes[(i, k)] (points (M,2)) in
+the frame of its chord in Q (N,4,2), d3 = 0 (zeros where shapes has none)'''
+    out = np.zeros((len(Q), 4, 4))
+    keys = [(i, k) for (i, k) in shapes if live[i]]
+    if not keys:
+        return out
+    i, k = np.array(keys).T
+    P0, P1 = Q[i, k], Q[i, (k + 1) % 4]
     e = P1 - P0
-    L = float(np.hypot(*e))
-    e = e / L
-    n = np.array([-e[1], e[0]])
-    if n @ (Qt.mean(0) - P0) < 0:
-        n = -n
-    r = points - P0
-    tau = 2.0 * (r @ e) / L - 1.0
-    V = np.stack((np.ones(len(tau)), tau, tau * tau), axis=-1)
-    return np.concatenate((np.linalg.solve(V.T @ V, V.T @ (r @ n)), [0.0]))
+    L = np.hypot(e[:, 0], e[:, 1])
+    e = e / L[:, None]
+    n = np.stack((-e[:, 1], e[:, 0]), axis=-1)
+    n = np.where(((Q[i].mean(1) - P0) * n).sum(-1)[:, None] < 0, -n, n)
+    r = np.stack([shapes[key] for key in keys]) - P0[:, None, :]
+    tau = 2.0 * (r * e[:, None, :]).sum(-1) / L[:, None] - 1.0
+    V = np.stack((np.ones(tau.shape), tau, tau * tau), axis=-1)
+    Vt = V.transpose(0, 2, 1)
+    out[i, k, :3] = np.linalg.solve(Vt @ V, Vt @ (r * n[:, None, :]).sum(-1)[..., None])[..., 0]
+    return out
 
 
-def _curve_point(P0, frame, curve, t):
-    L, e, n = frame
-    tau = 2.0 * t / L - 1.0
-    s = curve[0] + tau * (curve[1] + tau * (curve[2] + tau * curve[3]))
-    ds = (curve[1] + tau * (2.0 * curve[2] + 3.0 * tau * curve[3])) * 2.0 / L
-    return P0 + t * e + s * n, e + ds * n
-
-
-def _meet(Pa, fa, ca, Pb, fb, cb, iterations=8):
-    r'''Where curve a (near its end t = L) meets curve b (near its start t = 0): Newton'''
-    ta, tb = fa[0], 0.0
-    for _ in range(iterations):
-        pa, ga = _curve_point(Pa, fa, ca, ta)
-        pb, gb = _curve_point(Pb, fb, cb, tb)
-        # solve [ga, -gb] (dta, dtb) = pb - pa (Cramer's rule)
-        r = pb - pa
-        det = -ga[0] * gb[1] + gb[0] * ga[1]
-        if not abs(det) > 1e-12:
-            return np.full(2, np.nan)
-        da = (-r[0] * gb[1] + gb[0] * r[1]) / det
-        db = (ga[0] * r[1] - ga[1] * r[0]) / det
-        ta, tb = ta + da, tb + db
-        if max(abs(da), abs(db)) < 1e-9:
-            break
-    return _curve_point(Pa, fa, ca, ta)[0]
-
-
-def _fit_edges(img, geo, table, bfix=None):
-    r'''Levenberg-Marquardt of every edge's (a, b, d0..d3) at once, d3 = 0 unless the
-edge has its neighbours' pixels; bfix (m,) the contrast of the edges whose b is given (NaN:
-fitted): [(p (6,), converged, misfit RMS / contrast)] per edge'''
+def _fit_edges(img, geo, table, bfix=None, converged_px=CONVERGED_PX):
+    r'''Levenberg-Marquardt of every edge's (a, b, d0..d3), each on its own (compiled:
+targets._tag_edge_kernels.fit_edges), d3 = 0 unless the edge has its neighbours' pixels;
+bfix (m,) the contrast of the edges whose b is given (NaN: fitted): [(p (6,), converged,
+misfit RMS / contrast)] per edge'''
     m = len(geo)
-    P = max(len(g[2]) for g in geo)
-    v = np.zeros((m, P))
-    w = np.zeros((m, P))
-    tau = np.zeros((m, P))
-    s = np.zeros((m, P))
-    phi = np.zeros(m)
-    cubic = np.zeros(m)
-    for j, (_i, _k, ix, iy, t, sj, L, _e, n, cub, _d, _end) in enumerate(geo):
-        c = len(ix)
-        v[j, :c] = img[iy, ix]
-        w[j, :c] = 1.0
-        tau[j, :c] = 2.0 * t / L - 1.0
-        s[j, :c] = sj
-        u_, w_ = abs(n[0]), abs(n[1])
-        phi[j] = np.arctan2(min(u_, w_), max(u_, w_))
-        cubic[j] = float(cub)
-    from ._tag_edge_kernels import edge_normal
+    counts = np.array([len(g[2]) for g in geo], dtype=np.int64)
+    off = np.zeros(m + 1, np.int64)
+    np.cumsum(counts, out=off[1:])
+    ix = np.concatenate([g[2] for g in geo])
+    iy = np.concatenate([g[3] for g in geo])
+    v = img[iy, ix].astype(np.float64)
+    tau = np.concatenate([2.0 * g[4] / g[6] - 1.0 for g in geo])
+    s = np.concatenate([g[5] for g in geo]).astype(np.float64)
+    n = np.abs(np.array([g[8] for g in geo], dtype=np.float64).reshape(m, 2))
+    phi = np.arctan2(n.min(-1), n.max(-1))
+    cubic = np.array([float(g[9]) for g in geo])
     x0, F, dF = table
     A = F.shape[0]
     fa = np.clip(phi / (np.pi / 4) * (A - 1), 0.0, A - 1.000001)
@@ -537,33 +466,6 @@ fitted): [(p (6,), converged, misfit RMS / contrast)] per edge'''
     bf = np.full(m, np.nan) if bfix is None else np.asarray(bfix, dtype=np.float64)
     # the start: each edge's current curve (cubic term 0)
     d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
-
-    def evaluate(rows, d):
-        return edge_normal(rows, v, w, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF,
-                           bf)
-
-    a, b, S, JtJ, Jtr = evaluate(np.arange(m), d)
-    lam = np.full(m, 1e-3)
-    done = np.zeros(m, bool)
-    eye = np.eye(6)
-    for _ in range(MAX_ITERATIONS):
-        rows = np.flatnonzero(~done)
-        if not len(rows):
-            break
-        A_ = JtJ[rows]
-        diag = np.einsum("nii->ni", A_)
-        step = np.linalg.solve(A_ + (lam[rows, None] * diag)[:, :, None] * eye + 1e-12 * eye,
-                               Jtr[rows][..., None])[..., 0]
-        d1 = d[rows] + step[:, 2:]
-        a1, b1, S1, JtJ1, Jtr1 = evaluate(rows, d1)
-        better = S1 <= S[rows]
-        rb = rows[better]
-        d[rb], a[rb], b[rb], S[rb] = d1[better], a1[better], b1[better], S1[better]
-        JtJ[rb], Jtr[rb] = JtJ1[better], Jtr1[better]
-        lam[rows] = np.where(better, np.maximum(lam[rows] * 0.3, 1e-7), lam[rows] * 10.0)
-        small = np.abs(step[:, 2:]).max(-1) < CONVERGED_PX
-        done[rows] = (better & small) | (lam[rows] > 1e6)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mis = np.sqrt(S / w.sum(-1)) / np.abs(b)
-    p = np.concatenate((a[:, None], b[:, None], d), axis=-1)
+    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF, bf,
+                             MAX_ITERATIONS, float(converged_px))
     return [(p[j], bool(done[j]), float(mis[j])) for j in range(m)]

@@ -9,7 +9,7 @@ from renderers.response import ResponseChain
 from targets.boards import load_target, tag36h11_bits
 from targets.centroids import projected_points
 from targets.corners import refine_tag_corners
-from targets.tag_edges import _TAG_CORNERS, _homography, refine_tag_edges
+from targets.tag_edges import _TAG_CORNERS, _homographies, refine_tag_edges
 
 # campaigns/response.toml's `realistic` profile
 REALISTIC = {"full_well_e": 20000, "psf": {"kind": "gaussian", "sigma_px": 0.7},
@@ -37,7 +37,7 @@ subsamples per pixel: (image, corners (n*n,4,2), (col, row) of each tag)'''
     sub = (np.arange(K) + 0.5) / K - 0.5
     for tid, Qt in enumerate(Q):
         bits = tag36h11_bits(tid)
-        Hc = _homography(Qt, _TAG_CORNERS)
+        Hc = _homographies(Qt[None])[0]
         x0, y0 = np.floor(Qt.min(0)).astype(int) - 2
         x1, y1 = np.ceil(Qt.max(0)).astype(int) + 2
         yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
