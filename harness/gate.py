@@ -129,11 +129,11 @@ chi2 and dof are read from the record's table at field (harness.verdict.joint_st
 
     def allowed(self, dof):
         r'''(limit on chi2, its description) for dof degrees of freedom'''
-        from scipy import stats
+        from scipy import special
 
         from .verdict import joint_limit
         lim = joint_limit(self.z, dof)
-        p = 2.0 * stats.norm.sf(self.z)
+        p = 2.0 * special.ndtr(-self.z)
         return lim, f"<= {lim:.4g} (chi-square dof {dof} at p {p:.3g} = {self.z:g} sigma)"
 
 
