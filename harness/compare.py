@@ -93,26 +93,23 @@ C and A are in the truth's world frame) defaults to False.
     if theta_estimated is None:
         theta_estimated = jpl
     world_frame = bool(world_frame)
-    t = truth
-    if jpl and fam != "CAHV" and t.family != "CAHV":
-        t = with_R0(truth, float(fit.R[0]))
-    if jpl and fam == "CAHV":
-        t = truth.to_cahv()
-    Hc, Vc, Hs, Vs = _intrinsics(fit)
-    tHc, tVc, tHs, tVs = _intrinsics(t)
-    out = {"Hc": Hc - tHc, "Vc": Vc - tVc, "Hs": _frac(Hs, tHs), "Vs": _frac(Vs, tVs)}
+    has_O = jpl and fam != "CAHV" and truth.family != "CAHV"
     fit_R0 = float(fit.R[0]) if jpl and fam != "CAHV" else 0.0
+    t, t_ph, traw, t_O = _truth_side(truth, fit_R0 if has_O else None, jpl and fam == "CAHV")
+    fit_ph = fit.photogrammetric() if jpl else None
+    Hc, Vc, Hs, Vs = ((fit_ph.Hc, fit_ph.Vc, fit_ph.Hs, fit_ph.Vs) if jpl
+                      else _intrinsics(fit))
+    out = {"Hc": Hc - t_ph.Hc, "Vc": Vc - t_ph.Vc, "Hs": _frac(Hs, t_ph.Hs),
+           "Vs": _frac(Vs, t_ph.Vs)}
     truth_R0 = float(truth.R[0]) if truth.family != "CAHV" else 0.0
-    traw = truth.photogrammetric()
-    out["Hs*(1+R0)"] = _frac(_intrinsics(fit)[2] * (1 + fit_R0), traw.Hs * (1 + truth_R0))
-    out["Vs*(1+R0)"] = _frac(_intrinsics(fit)[3] * (1 + fit_R0), traw.Vs * (1 + truth_R0))
-    out["theta_deg"] = (fit.photogrammetric().theta_deg - t.photogrammetric().theta_deg
+    out["Hs*(1+R0)"] = _frac(Hs * (1 + fit_R0), traw.Hs * (1 + truth_R0))
+    out["Vs*(1+R0)"] = _frac(Vs * (1 + fit_R0), traw.Vs * (1 + truth_R0))
+    out["theta_deg"] = (fit_ph.theta_deg - t_ph.theta_deg
                         if theta_estimated and jpl else None)
     out["C_mm"] = (1e3 * float(np.linalg.norm(fit.C - t.C))
                    if world_frame and jpl else None)
     out["A_deg"] = _angle_deg(fit.A, t.A) if world_frame and jpl else None
-    has_O = jpl and fam != "CAHV" and t.family != "CAHV"
-    out["O_deg"] = _angle_deg(_in_cam(fit, fit.O), _in_cam(t, t.O)) if has_O else None
+    out["O_deg"] = _angle_deg(_in_cam(fit, fit.O), t_O) if has_O else None
     for i in range(3):
         name = f"R{i}"
         # R0 against the raw truth (how far the fit slid along the R0 gauge); R1, R2
@@ -127,6 +124,31 @@ C and A are in the truth's world frame) defaults to False.
     for i in range(3):
         out[f"E{i}"] = float(fit.E[i] - t.E[i]) if has_E else None
     return {k: (None if v is None else float(v)) for k, v in out.items()}
+
+
+# parameter_errors' side of the truth, for the truth and R0 gauge asked last: the scatter's
+# Jacobian (harness.verdict) compares ~40 stepped models with one truth, mostly at one R0
+_TRUTH_SIDE = [None]
+
+
+def _truth_side(truth, R0, cahv):
+    r'''(t, t.photogrammetric(), truth.photogrammetric(), t's O in its camera frame or
+None) for parameter_errors: t is the truth moved to R0 (R0 None: not moved, no O) or,
+cahv, truncated to CAHV; the last one asked is kept (keyed on the truth object itself:
+models are frozen)'''
+    hit = _TRUTH_SIDE[0]
+    if hit is not None and hit[0] is truth and hit[1] == (R0, cahv):
+        return hit[2]
+    t = truth
+    if R0 is not None:
+        t = with_R0(truth, R0)
+    if cahv:
+        t = truth.to_cahv()
+    traw = truth.photogrammetric()
+    side = (t, t.photogrammetric() if t is not truth else traw, traw,
+            None if R0 is None else _in_cam(t, t.O))
+    _TRUTH_SIDE[0] = (truth, (R0, cahv), side)     # one tuple: atomic for a worker's threads
+    return side
 
 
 def image_grid(width, height, step=DEFAULT_GRID_STEP):
@@ -245,9 +267,9 @@ px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
     return R_from_r(sol.x)
 
 
-# the truth's side of projection_difference(), for the few truths compared last: the
-# records of one job compare 2-3 modes each against at most 3 truths (raw, and moved
-# to the jpl and mrcal fits' R0)
+# the truth's side of projection_difference(), for the few truths compared last (each with
+# the camera frames of the R0 gauges it was compared in: raw, and moved to the jpl and
+# mrcal image and exact fits' R0)
 _TRUTH_POINTS = {}
 _TRUTH_POINTS_LOCK = threading.Lock()   # a Dask worker may compare in several threads
 TRUTH_POINTS_MEMO = 4
@@ -260,7 +282,7 @@ def _model_key(model):
         for f in dataclasses.fields(model) for v in (getattr(model, f.name),))
 
 
-def truth_points(truth, range_m=DEFAULT_RANGE_M, step=DEFAULT_GRID_STEP):
+def truth_points(truth, range_m=DEFAULT_RANGE_M, step=DEFAULT_GRID_STEP, R0=None):
     r'''The image grid, and points at range_m along the truth's rays through it
 
 SYNOPSIS
@@ -268,28 +290,41 @@ SYNOPSIS
     q, p_ref, p_cam = truth_points(truth, range_m=2.0, step=16)
     # q (ny,nx,2) px; p_ref (ny,nx,3) in the truth's world frame, p_cam the same
     # points in its camera frame (Rt_ref_cam); all three read-only
+    q, p_ref, p_cam = truth_points(truth, R0=fit.R[0])
+    # the same q and p_ref; p_cam in the camera frame of with_R0(truth, R0)
 
 The same for every fit compared with this truth, so the last few are
 memoised (keyed on every parameter of the truth, exactly): unprojecting the
-grid of a 5120x3840 CAHVORE costs as much as projecting it.
+grid of a 5120x3840 CAHVORE costs as much as projecting it. R0 (CAHVOR and
+CAHVORE truths): the truth moved to another R0 gauge (with_R0) images the
+same rays, so it shares the grid's points and only changes the camera frame:
+a record's comparisons move the truth to each fit's R0 (the image fit's and
+the exact fit's: harness.verdict), each of them one frame, not one
+unprojection of the grid.
 '''
     key = (_model_key(truth), float(range_m), step)
+    frame = None if R0 is None or truth.family not in ("CAHVOR", "CAHVORE") else float(R0)
     with _TRUTH_POINTS_LOCK:
         hit = _TRUTH_POINTS.pop(key, None)
     if hit is None:
         q = image_grid(truth.width, truth.height, step)
         o, v = truth.unproject(q)
         p_ref = o + range_m * v
-        Rt = truth.Rt_ref_cam()
-        p_cam = (p_ref - Rt[3]) @ Rt[:3]
-        for a in (q, p_ref, p_cam):
+        for a in (q, p_ref):
             a.setflags(write=False)
-        hit = (q, p_ref, p_cam)
+        hit = (q, p_ref, {})
+    q, p_ref, frames = hit
+    p_cam = frames.get(frame)
+    if p_cam is None:
+        Rt = (truth if frame is None else with_R0(truth, frame)).Rt_ref_cam()
+        p_cam = (p_ref - Rt[3]) @ Rt[:3]
+        p_cam.setflags(write=False)
     with _TRUTH_POINTS_LOCK:
+        frames[frame] = p_cam
         _TRUTH_POINTS[key] = hit      # the most recently used last
         while len(_TRUTH_POINTS) > TRUTH_POINTS_MEMO:
             del _TRUTH_POINTS[next(iter(_TRUTH_POINTS))]
-    return hit
+    return q, p_ref, p_cam
 
 
 def projection_difference(truth, fit, mode="rotation", range_m=DEFAULT_RANGE_M,
@@ -310,11 +345,9 @@ mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
         from reference_models.errors import CamvalError
         raise CamvalError(f"projection-difference mode {mode!r}; expected rotation, "
                           "intrinsics or world")
-    if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
-            truth.family in ("CAHVOR", "CAHVORE"):
-        # the same projection, in the camera frame matching the fit's R0 gauge
-        truth = with_R0(truth, float(fit.R[0]))
-    q, p_ref, p_cam = truth_points(truth, range_m, step)
+    # the same projection, in the camera frame matching the fit's R0 gauge
+    R0 = float(fit.R[0]) if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") else None
+    q, p_ref, p_cam = truth_points(truth, range_m, step, R0=R0)
     project = _projector(fit)
     if mode == "world":
         qf = project(p_ref)
