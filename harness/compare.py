@@ -197,6 +197,13 @@ compiled projection moved the paper campaign's 172 ok records by at most
 # steps or a step that does not lower the sum of squares
 ROTATION_SETTLED_PX = 1e-8
 ROTATION_GN_STEPS = 8
+# ... or when a step does not lower the sum of squares and moves no pixel by more than
+# this (px: a hundredth of DETECTION_RESOLUTION_PX): the step is then the rounding of a
+# differenced Jacobian at the minimum, which grows with the residuals (far floors: residuals
+# of px, steps of 4e-8 to 1.2e-7 px on the paper campaign's), not a way down; stopping
+# there moves the maximum by at most this and the RMS by its square (the minimum's
+# gradient is zero), where MINPACK took ~43 more projections to wander as far
+ROTATION_ROUNDING_PX = 1e-6
 
 # the residual of a point the fit cannot project, px (the rotation fit's)
 UNPROJECTABLE_PX = 1e3
@@ -221,11 +228,13 @@ def _fit_rotation(fit, p_cam, q, nmax=2000):
 
 Gauss-Newton from no rotation, with scipy's forward-difference Jacobian: the two
 frames differ by a small rotation on which the pixels depend almost linearly, so it
-reaches the minimum in 2-3 steps (4 projections each). MINPACK's Levenberg-Marquardt
-(scipy least_squares "lm", tolerances 1e-15) takes over from where it stopped if a
-step does not lower the sum of squares or the steps do not settle (1 fit in 10 on the
-paper campaign: far floors, where rounding hides the last steps): its path to 1e-15
-took ~43 projections. Both stop at the same minimum: on 32 paper records (cameras 5,
+reaches the minimum in 2-3 steps (4 projections each). A step that does not lower
+the sum of squares ends it where it is when that step is rounding
+(ROTATION_ROUNDING_PX: far floors, whose px residuals round the last steps);
+MINPACK's Levenberg-Marquardt (scipy least_squares "lm", tolerances 1e-15) takes
+over from where it stopped if a larger step does not lower it or the steps do not
+settle (a fit whose points leave the model's domain): its path to 1e-15 took ~43
+projections. Both stop at the same minimum: on 32 paper records (cameras 5,
 15, 17, 21; benchmarks/bench_verdict.py) the verdict's projection RMS moved by < 1e-12
 px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
 '''
@@ -249,7 +258,8 @@ px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
         for _ in range(ROTATION_GN_STEPS):
             J = forward_difference(res, r, f)
             step = np.linalg.lstsq(J, -f, rcond=None)[0]
-            if np.max(np.abs(J @ step)) <= ROTATION_SETTLED_PX:
+            moved = np.max(np.abs(J @ step))
+            if moved <= ROTATION_SETTLED_PX:
                 # settled: at the minimum the steps are the rounding of f and of the
                 # differenced J (~1e-12 rad where the fits differ by px), and comparing sums
                 # of squares there would only compare rounding
@@ -257,6 +267,8 @@ px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
             f1 = res(r + step)
             cost1 = f1 @ f1
             if not cost1 <= cost:
+                if moved <= ROTATION_ROUNDING_PX:
+                    return R_from_r(r)
                 break
             r, f, cost = r + step, f1, cost1
         # scipy's 2-point Jacobian, bit for bit, remembering the last point's residuals and
