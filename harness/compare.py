@@ -55,10 +55,8 @@ DEFAULT_GRID_STEP = 16
 
 
 def _angle_deg(u, v):
-    u = np.asarray(u, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
-    c = np.cross(u, v)
-    return math.degrees(math.atan2(np.linalg.norm(c), float(u @ v)))
+    c = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
+    return math.degrees(math.atan2(math.hypot(*c), u[0] * v[0] + u[1] * v[1] + u[2] * v[2]))
 
 
 def _intrinsics(model):
@@ -69,15 +67,22 @@ def _intrinsics(model):
     return model.cx, model.cy, model.fx, model.fy
 
 
-def _in_cam(model, v):
-    return model.Rt_ref_cam()[:3].T @ v
+def _in_cam(model, v, ph=None):
+    r'''v (3,) in model's camera frame (Rt_ref_cam: x = H', y = A x H', z = A); ph: model's
+photogrammetric() when the caller has it'''
+    Hp = (model.photogrammetric() if ph is None else ph).Hp
+    A = model.A
+    y = (A[1] * Hp[2] - A[2] * Hp[1], A[2] * Hp[0] - A[0] * Hp[2], A[0] * Hp[1] - A[1] * Hp[0])
+    return np.array((Hp[0] * v[0] + Hp[1] * v[1] + Hp[2] * v[2],
+                     y[0] * v[0] + y[1] * v[1] + y[2] * v[2],
+                     A[0] * v[0] + A[1] * v[1] + A[2] * v[2]))
 
 
 def _frac(a, b):
     return None if b == 0 else (a - b) / abs(b)
 
 
-def parameter_errors(truth, fit, theta_estimated=None, world_frame=None):
+def parameter_errors(truth, fit, theta_estimated=None, world_frame=None, signed=False):
     r'''Errors of the fitted parameters against the truth (fit - truth)
 
 SYNOPSIS
@@ -86,7 +91,10 @@ SYNOPSIS
     # dict of floats; None where the fit does not estimate the parameter
 
 theta_estimated defaults to True for JPL-family fits; world_frame (the fit's
-C and A are in the truth's world frame) defaults to False.
+C and A are in the truth's world frame) defaults to False. signed: C_mm, A_deg
+and O_deg as their signed components (fit - truth, (3,) each: C in mm, A and O
+(in each camera frame) in deg per axis, the truth moved to the fit's R0), not
+their magnitudes: the scatter's Jacobian (harness.verdict).
 '''
     fam = getattr(fit, "family", None)
     jpl = fam in FAMILIES
@@ -106,10 +114,16 @@ C and A are in the truth's world frame) defaults to False.
     out["Vs*(1+R0)"] = _frac(Vs * (1 + fit_R0), traw.Vs * (1 + truth_R0))
     out["theta_deg"] = (fit_ph.theta_deg - t_ph.theta_deg
                         if theta_estimated and jpl else None)
-    out["C_mm"] = (1e3 * float(np.linalg.norm(fit.C - t.C))
-                   if world_frame and jpl else None)
-    out["A_deg"] = _angle_deg(fit.A, t.A) if world_frame and jpl else None
-    out["O_deg"] = _angle_deg(_in_cam(fit, fit.O), t_O) if has_O else None
+    world_frame = world_frame and jpl
+    fit_O = _in_cam(fit, fit.O, fit_ph) if has_O else None
+    if signed:
+        out["C_mm"] = 1e3 * (fit.C - t.C) if world_frame else None
+        out["A_deg"] = np.degrees(fit.A - t.A) if world_frame else None
+        out["O_deg"] = np.degrees(fit_O - t_O) if has_O else None
+    else:
+        out["C_mm"] = 1e3 * float(np.linalg.norm(fit.C - t.C)) if world_frame else None
+        out["A_deg"] = _angle_deg(fit.A, t.A) if world_frame else None
+        out["O_deg"] = _angle_deg(fit_O, t_O) if has_O else None
     for i in range(3):
         name = f"R{i}"
         # R0 against the raw truth (how far the fit slid along the R0 gauge); R1, R2
@@ -123,7 +137,8 @@ C and A are in the truth's world frame) defaults to False.
     has_E = jpl and fam == "CAHVORE" and t.family == "CAHVORE"
     for i in range(3):
         out[f"E{i}"] = float(fit.E[i] - t.E[i]) if has_E else None
-    return {k: (None if v is None else float(v)) for k, v in out.items()}
+    return {k: (None if v is None else v if isinstance(v, np.ndarray) else float(v))
+            for k, v in out.items()}
 
 
 # parameter_errors' side of the truth, for the truth and R0 gauge asked last: the scatter's

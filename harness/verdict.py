@@ -220,7 +220,7 @@ def _distortion(m):
     return np.zeros(0)
 
 
-def fit_parameter_differences(ref, fit, theta_estimated=None, world_frame=None):
+def fit_parameter_differences(ref, fit, theta_estimated=None, world_frame=None, signed=False):
     r'''fit - ref for two fits of one calibrator model (any model)
 
 SYNOPSIS
@@ -229,12 +229,13 @@ SYNOPSIS
                                   world_frame=True)
 
 JPL-family fits: harness.compare.parameter_errors with ref as the truth (ref
-moved to fit's R0 first). Others: Hc, Vc (px), Hs, Vs (fractional) and D0,
-D1, ... the differences of the distortion coefficients.
+moved to fit's R0 first; signed: its vectors by component). Others: Hc, Vc
+(px), Hs, Vs (fractional) and D0, D1, ... the differences of the distortion
+coefficients.
 '''
     if _is_jpl(ref) and _is_jpl(fit):
         return parameter_errors(ref, fit, theta_estimated=theta_estimated,
-                                world_frame=world_frame)
+                                world_frame=world_frame, signed=signed)
     Hc, Vc, Hs, Vs = _intrinsics(fit)
     rHc, rVc, rHs, rVs = _intrinsics(ref)
     out = {"Hc": float(Hc - rHc), "Vc": float(Vc - rVc), "Hs": _frac(Hs, rHs),
@@ -718,8 +719,9 @@ regularised, an unknown model type).'''
                 return from_mrcal(c)
             return MrcalModel(c, m.family)
 
-        def project_cam(theta, p_cam):
-            return mrcal.project(np.ascontiguousarray(p_cam), lensmodel, np.asarray(theta))
+        def projector(theta):
+            theta = np.asarray(theta)
+            return lambda p_cam: mrcal.project(np.ascontiguousarray(p_cam), lensmodel, theta)
     elif isinstance(m, OpenCVModel):
         intr0 = np.concatenate(([m.fx, m.fy, m.cx, m.cy], m.dist))
 
@@ -727,8 +729,8 @@ regularised, an unknown model type).'''
             K = np.array([[theta[0], 0, theta[2]], [0, theta[1], theta[3]], [0, 0, 1.0]])
             return OpenCVModel(m.family, K, theta[4:], m.width, m.height)
 
-        def project_cam(theta, p_cam):
-            return model_of(theta).project(p_cam)
+        def projector(theta):
+            return model_of(theta).project
     else:
         return None
     Rts = np.asarray(res.Rt_cam_board, dtype=np.float64)
@@ -741,12 +743,13 @@ regularised, an unknown model type).'''
     x0 = np.concatenate((intr0, np.zeros(6 * Np)))
     pb = [obs.p_board[i][found[i]] for i in range(Np)]
 
-    def project_pose(theta, i, d):
+    def pose_points(i, d):
         R = _rodrigues(d[:3]) @ Rts[i][:3]
-        return project_cam(theta, pb[i] @ R.T + Rts[i][3] + d[3:])
+        return pb[i] @ R.T + Rts[i][3] + d[3:]
 
     def project(x):
-        return np.concatenate([project_pose(x[:nth], i, x[nth + 6 * i: nth + 6 * i + 6])
+        cam = projector(x[:nth])
+        return np.concatenate([cam(pose_points(i, x[nth + 6 * i: nth + 6 * i + 6]))
                                for i in range(Np) if len(pb[i])], axis=0)
 
     h = np.concatenate((1e-6 * np.maximum(np.abs(intr0), 1.0), np.full(6 * Np, 1e-6)))
@@ -754,9 +757,14 @@ regularised, an unknown model type).'''
     def jacobian():
         # a pose's six numbers move its own points only: its columns are differenced on
         # those rows (the same numbers as differencing everything, at a sixth of the cost)
+        # and the intrinsics' columns project every pose's points at once: at the solution
+        # (no pose step: the identity rotation, exactly) they are the same camera-frame
+        # points for each intrinsics step, transformed once
         J = np.zeros((2 * len(pose), len(x0)))
-        J[:, :nth] = \
-            _central_jacobian(lambda t: project(np.concatenate((t, x0[nth:]))), intr0, h[:nth])
+        p0 = np.concatenate([pose_points(i, x0[nth + 6 * i: nth + 6 * i + 6])
+                             for i in range(Np) if len(pb[i])], axis=0)
+        J[:, :nth] = _central_jacobian(lambda t: projector(t)(p0), intr0, h[:nth])
+        cam0 = projector(intr0)
         row = 0
         for i in range(Np):
             n = len(pb[i])
@@ -764,7 +772,7 @@ regularised, an unknown model type).'''
                 continue
             cols = slice(nth + 6 * i, nth + 6 * i + 6)
             J[2 * row: 2 * (row + n), cols] = _central_jacobian(
-                lambda d, i=i: project_pose(intr0, i, d), x0[cols], h[cols])
+                lambda d, i=i: cam0(pose_points(i, d)), x0[cols], h[cols])
             row += n
         return J
 
@@ -781,31 +789,16 @@ def linearisation(res, obs):
     return None
 
 
-def _ref_O_in_cam(ref, R0):
-    r'''ref's O in its camera frame, ref moved to R0 (the frame O_deg compares in)'''
-    from .compare import _in_cam
-    rt = with_R0(ref, R0) if ref.family != "CAHV" else ref
-    return _in_cam(rt, rt.O)
-
-
-def _signed_quantities(ref, m, theta, world, ref_O=_ref_O_in_cam):
-    r'''The reported parameter differences m - ref as signed numbers (vectors by component)
-
-ref_O(ref, R0): _ref_O_in_cam, or a memo of it (scatter() asks for one ref, mostly at one R0)'''
-    d = fit_parameter_differences(ref, m, theta_estimated=theta, world_frame=world)
+def _signed_quantities(ref, m, theta, world):
+    r'''The reported parameter differences m - ref as signed numbers (vectors by component:
+C_mm[0], ..., O_deg[2]; fit_parameter_differences(signed=True))'''
+    d = fit_parameter_differences(ref, m, theta_estimated=theta, world_frame=world,
+                                  signed=True)
     out = {k: v for k, v in d.items() if v is not None and k not in VECTOR_PARAMS}
-    if _is_jpl(ref) and _is_jpl(m):
-        from .compare import _in_cam
-        if d.get("C_mm") is not None:
-            for i, v in enumerate(1e3 * (m.C - ref.C)):
-                out[f"C_mm[{i}]"] = float(v)
-        if d.get("A_deg") is not None:
-            for i, v in enumerate(np.degrees(m.A - ref.A)):
-                out[f"A_deg[{i}]"] = float(v)
-        if d.get("O_deg") is not None:
-            dv = _in_cam(m, m.O) - ref_O(ref, float(m.R[0]))
-            for i, v in enumerate(np.degrees(dv)):
-                out[f"O_deg[{i}]"] = float(v)
+    for k in VECTOR_PARAMS:
+        if d.get(k) is not None:
+            for i, v in enumerate(d[k]):
+                out[f"{k}[{i}]"] = float(v)
     return out
 
 
@@ -927,15 +920,8 @@ projection difference (the rotation's own freedom projected out).
     q0 = _signed_quantities(ref, m0, theta, world)
     names = list(q0)
 
-    ref_O = {}
-
-    def ref_O_memo(ref, R0):
-        if R0 not in ref_O:
-            ref_O[R0] = _ref_O_in_cam(ref, R0)
-        return ref_O[R0]
-
     def qvec(m):
-        q = _signed_quantities(ref, m, theta, world, ref_O_memo)
+        q = _signed_quantities(ref, m, theta, world)
         return np.array([q.get(k, 0.0) for k in names])
     P = projection_points(truth)
     # the model's Jacobians in one pass over its stepped models: the reported quantities
