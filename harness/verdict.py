@@ -75,15 +75,17 @@ import numpy as np
 
 from reference_models.cahvore import FAMILIES as JPL_FAMILIES
 from reference_models.cahvore import with_R0
-from reference_models.poseutils import transform_point_Rt as _transform
+from reference_models.poseutils import transform_point_Rt
 
 from .compare import (
     DEFAULT_GRID_STEP,
     DEFAULT_RANGE_M,
+    _distance,
     _fit_rotation,
     _frac,
     _intrinsics,
     _projector,
+    _rotated_into,
     parameter_errors,
     truth_points,
 )
@@ -280,14 +282,15 @@ camera-frame points, the same for rotation and intrinsics).
         else:
             qa = None if _ref_q is None else _ref_q.get("cam")
             if qa is None:
-                qa = _projector(ref)(_transform(ref.Rt_ref_cam(), p_cam))
+                qa = _projector(ref)(_rotated_into(ref.Rt_ref_cam(), p_cam))
                 if _ref_q is not None:
                     _ref_q["cam"] = qa
             R = np.eye(3)
             if mode == "rotation":
                 R = _fit_rotation(fit, p_cam.reshape(-1, 3), qa.reshape(-1, 2))
-            qb = _projector(fit)(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
-        d = np.linalg.norm(qb - qa, axis=-1)
+            qb = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam,
+                                               R if mode == "rotation" else None))
+        d = _distance(qa, qb)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "map": d,
            "n": int(finite.sum()), "n_invalid": int((~finite).sum()),
@@ -979,7 +982,7 @@ grid (harness.compare.truth_points), in its camera frame'''
 def _grid_projector(P):
     r'''m -> (M,2) m's projection of the points P of its own camera frame'''
     def grid(m):
-        return _projector(m)(_transform(m.Rt_ref_cam(), P))
+        return _projector(m)(_rotated_into(m.Rt_ref_cam(), P))
     return grid
 
 
@@ -989,7 +992,7 @@ Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covar
     project, Rt_ref_cam = _projector(m0), m0.Rt_ref_cam()
 
     def rotated(w):
-        return project(_transform(Rt_ref_cam, P @ _rodrigues(w).T))
+        return project(transform_point_Rt(Rt_ref_cam, P @ _rodrigues(w).T))
     with np.errstate(all="ignore"):
         Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
     ok = np.all(np.isfinite(Jg), axis=1) & np.all(np.isfinite(Jw), axis=1)
