@@ -150,26 +150,34 @@ points is not imaged.
     N = NOUTLINE_START
     while True:
         q = _projected_outlines(model, target, Rt_cam_board, N)
-        c = _richardson_centroid(q)
+        c_half = polygon_centroid(q[..., ::2, :])
+        c = _richardson_centroid(q, c_half)
         # the Richardson value of N/2 points errs 16 times as much as that of N (error
         # c/N^4): their difference is 15 times the error of c
-        err = np.abs(c - _richardson_centroid(q[..., ::2, :])) / 15.0
+        err = np.abs(c - _richardson_centroid(q[..., ::2, :], c=c_half)) / 15.0
         if not np.any(err > tolerance) or N >= NOUTLINE_MAX:
             return c
         N *= 2
 
 
 def _projected_outlines(model, target, Rt_cam_board, Noutline):
-    r'''(Ndots,Noutline,2) the projected outline points of every dot'''
-    return model.project(board_to_ref(model, Rt_cam_board, target.dot_outlines(Noutline)))
+    r'''(Ndots,Noutline,2) the projected outline points of every dot; a JPL-family model
+projects them compiled (reference_models.kernels: its equations point by point, within
+1e-10 px of model.project)'''
+    from reference_models.kernels import KINDS, project
+    p = board_to_ref(model, Rt_cam_board, target.dot_outlines(Noutline))
+    if getattr(model, "family", None) in KINDS:
+        return project(model, p)
+    return model.project(p)
 
 
-def _richardson_centroid(q):
-    r'''(...,2) the polygons' centroids Richardson-extrapolated from every other vertex'''
+def _richardson_centroid(q, c_half=None, c=None):
+    r'''(...,2) the polygons' centroids Richardson-extrapolated from every other vertex
+(c_half, c: the centroids of every other vertex and of all, when the caller has them)'''
     # the inscribed polygon's centroid errs by c/Noutline^2: the polygon of every other
     # vertex errs 4 times as much
-    c = polygon_centroid(q)
-    c_half = polygon_centroid(q[..., ::2, :])
+    c = polygon_centroid(q) if c is None else c
+    c_half = polygon_centroid(q[..., ::2, :]) if c_half is None else c_half
     return c + (c - c_half) / 3.0
 
 
