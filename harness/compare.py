@@ -373,6 +373,32 @@ def _distance(qa, qb):
     return np.hypot(d[..., 0], d[..., 1])
 
 
+# fit_pixels() of the last few (fit, points) asked: a record's comparison with the truth
+# (compare_stage) and its verdict's comparisons (harness.verdict: the exact fit with the
+# truth, the image fit with the exact fit) project the same fits on the same grid points:
+# the world points in every mode "world", and the truth's camera-frame points where the
+# fit has no R0 gauge (CAHV, OpenCV) in mode "intrinsics"
+_FIT_PIXELS = []
+FIT_PIXELS_MEMO = 6
+
+
+def fit_pixels(fit, points, frame):
+    r'''fit's pixels (...,2) of grid points (...,3): world points (frame False), or points of
+the truth's camera frame identified with fit's own (frame True: mode "intrinsics"); kept
+for the last FIT_PIXELS_MEMO (fit, points) objects (models and truth_points' arrays are
+not modified: keyed on the objects themselves). Read-only.'''
+    with _TRUTH_POINTS_LOCK:
+        for f, pts, fr, q in _FIT_PIXELS:
+            if f is fit and pts is points and fr == frame:
+                return q
+    q = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), points) if frame else points)
+    q.setflags(write=False)
+    with _TRUTH_POINTS_LOCK:
+        _FIT_PIXELS.append((fit, points, frame, q))
+        del _FIT_PIXELS[:-FIT_PIXELS_MEMO]
+    return q
+
+
 def projection_difference(truth, fit, mode="rotation", range_m=DEFAULT_RANGE_M,
                           step=DEFAULT_GRID_STEP):
     r'''|fit - truth| in projection over the whole image
@@ -394,15 +420,13 @@ mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
     # the same projection, in the camera frame matching the fit's R0 gauge
     R0 = float(fit.R[0]) if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") else None
     q, p_ref, p_cam = truth_points(truth, range_m, step, R0=R0)
-    project = _projector(fit)
-    if mode == "world":
-        qf = project(p_ref)
-        R = None
+    R = None
+    if mode == "rotation":
+        R = _fit_rotation(fit, p_cam.reshape(-1, 3), q.reshape(-1, 2))
+        qf = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam, R))
     else:
-        R = np.eye(3)
-        if mode == "rotation":
-            R = _fit_rotation(fit, p_cam.reshape(-1, 3), q.reshape(-1, 2))
-        qf = project(_rotated_into(fit.Rt_ref_cam(), p_cam, R if mode == "rotation" else None))
+        qf = fit_pixels(fit, p_cam if mode == "intrinsics" else p_ref, mode == "intrinsics")
+        R = np.eye(3) if mode == "intrinsics" else None
     d = _distance(q, qf)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "q": q, "map": d,

@@ -86,6 +86,7 @@ from .compare import (
     _intrinsics,
     _projector,
     _rotated_into,
+    fit_pixels,
     parameter_errors,
     truth_points,
 )
@@ -270,14 +271,15 @@ fits: _projector); the rotation is fitted as it fits it (_fit_rotation).
 _ref_q: a dict fit_comparison() shares between its modes (ref's pixels of the
 camera-frame points, the same for rotation and intrinsics).
 '''
+    world_ref = ref     # world points: the same pixels in any R0 gauge (fit_pixels' memo)
     if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
             getattr(ref, "family", None) in ("CAHVOR", "CAHVORE"):
         ref = with_R0(ref, float(fit.R[0]))   # the same projection in fit's R0 gauge
     _, p_ref, p_cam = truth_points(truth, range_m, step)
     with np.errstate(all="ignore"):
         if mode == "world":
-            qa = _projector(ref)(p_ref)
-            qb = _projector(fit)(p_ref)
+            qa = fit_pixels(world_ref, p_ref, False)
+            qb = fit_pixels(fit, p_ref, False)
             R = None
         else:
             qa = None if _ref_q is None else _ref_q.get("cam")
@@ -288,8 +290,9 @@ camera-frame points, the same for rotation and intrinsics).
             R = np.eye(3)
             if mode == "rotation":
                 R = _fit_rotation(fit, p_cam.reshape(-1, 3), qa.reshape(-1, 2))
-            qb = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam,
-                                               R if mode == "rotation" else None))
+                qb = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam, R))
+            else:
+                qb = fit_pixels(fit, p_cam, True)
         d = _distance(qa, qb)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "map": d,
