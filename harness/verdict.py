@@ -439,7 +439,12 @@ def _assess(truth, res, exact_res, noise, total_params, total_projection, second
         out["seconds"] = seconds
     if exact_res.status != "ok" or exact_res.model is None:
         return jsonable(out)
-    out["floor"] = floor_comparison(truth, exact_res)
+    if exact_res is res and total_params is not None and total_projection is not None:
+        # the exact observations were the image ones (exact_fit returned the image fit):
+        # the floor is the record's own comparison, the same function of the same fit
+        out["floor"] = {"params": total_params, "projection": total_projection}
+    else:
+        out["floor"] = floor_comparison(truth, exact_res)
     out["renderer"] = fit_comparison(exact_res.model, res.model, truth, theta,
                                      world and _world(exact_res))
     far, why = floor_judgement(truth, res.calibrator, res.model_name,
