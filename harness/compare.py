@@ -55,10 +55,8 @@ DEFAULT_GRID_STEP = 16
 
 
 def _angle_deg(u, v):
-    u = np.asarray(u, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
-    c = np.cross(u, v)
-    return math.degrees(math.atan2(np.linalg.norm(c), float(u @ v)))
+    c = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
+    return math.degrees(math.atan2(math.hypot(*c), u[0] * v[0] + u[1] * v[1] + u[2] * v[2]))
 
 
 def _intrinsics(model):
@@ -69,15 +67,22 @@ def _intrinsics(model):
     return model.cx, model.cy, model.fx, model.fy
 
 
-def _in_cam(model, v):
-    return model.Rt_ref_cam()[:3].T @ v
+def _in_cam(model, v, ph=None):
+    r'''v (3,) in model's camera frame (Rt_ref_cam: x = H', y = A x H', z = A); ph: model's
+photogrammetric() when the caller has it'''
+    Hp = (model.photogrammetric() if ph is None else ph).Hp
+    A = model.A
+    y = (A[1] * Hp[2] - A[2] * Hp[1], A[2] * Hp[0] - A[0] * Hp[2], A[0] * Hp[1] - A[1] * Hp[0])
+    return np.array((Hp[0] * v[0] + Hp[1] * v[1] + Hp[2] * v[2],
+                     y[0] * v[0] + y[1] * v[1] + y[2] * v[2],
+                     A[0] * v[0] + A[1] * v[1] + A[2] * v[2]))
 
 
 def _frac(a, b):
     return None if b == 0 else (a - b) / abs(b)
 
 
-def parameter_errors(truth, fit, theta_estimated=None, world_frame=None):
+def parameter_errors(truth, fit, theta_estimated=None, world_frame=None, signed=False):
     r'''Errors of the fitted parameters against the truth (fit - truth)
 
 SYNOPSIS
@@ -86,33 +91,39 @@ SYNOPSIS
     # dict of floats; None where the fit does not estimate the parameter
 
 theta_estimated defaults to True for JPL-family fits; world_frame (the fit's
-C and A are in the truth's world frame) defaults to False.
+C and A are in the truth's world frame) defaults to False. signed: C_mm, A_deg
+and O_deg as their signed components (fit - truth, (3,) each: C in mm, A and O
+(in each camera frame) in deg per axis, the truth moved to the fit's R0), not
+their magnitudes: the scatter's Jacobian (harness.verdict).
 '''
     fam = getattr(fit, "family", None)
     jpl = fam in FAMILIES
     if theta_estimated is None:
         theta_estimated = jpl
     world_frame = bool(world_frame)
-    t = truth
-    if jpl and fam != "CAHV" and t.family != "CAHV":
-        t = with_R0(truth, float(fit.R[0]))
-    if jpl and fam == "CAHV":
-        t = truth.to_cahv()
-    Hc, Vc, Hs, Vs = _intrinsics(fit)
-    tHc, tVc, tHs, tVs = _intrinsics(t)
-    out = {"Hc": Hc - tHc, "Vc": Vc - tVc, "Hs": _frac(Hs, tHs), "Vs": _frac(Vs, tVs)}
+    has_O = jpl and fam != "CAHV" and truth.family != "CAHV"
     fit_R0 = float(fit.R[0]) if jpl and fam != "CAHV" else 0.0
+    t, t_ph, traw, t_O = _truth_side(truth, fit_R0 if has_O else None, jpl and fam == "CAHV")
+    fit_ph = fit.photogrammetric() if jpl else None
+    Hc, Vc, Hs, Vs = ((fit_ph.Hc, fit_ph.Vc, fit_ph.Hs, fit_ph.Vs) if jpl
+                      else _intrinsics(fit))
+    out = {"Hc": Hc - t_ph.Hc, "Vc": Vc - t_ph.Vc, "Hs": _frac(Hs, t_ph.Hs),
+           "Vs": _frac(Vs, t_ph.Vs)}
     truth_R0 = float(truth.R[0]) if truth.family != "CAHV" else 0.0
-    traw = truth.photogrammetric()
-    out["Hs*(1+R0)"] = _frac(_intrinsics(fit)[2] * (1 + fit_R0), traw.Hs * (1 + truth_R0))
-    out["Vs*(1+R0)"] = _frac(_intrinsics(fit)[3] * (1 + fit_R0), traw.Vs * (1 + truth_R0))
-    out["theta_deg"] = (fit.photogrammetric().theta_deg - t.photogrammetric().theta_deg
+    out["Hs*(1+R0)"] = _frac(Hs * (1 + fit_R0), traw.Hs * (1 + truth_R0))
+    out["Vs*(1+R0)"] = _frac(Vs * (1 + fit_R0), traw.Vs * (1 + truth_R0))
+    out["theta_deg"] = (fit_ph.theta_deg - t_ph.theta_deg
                         if theta_estimated and jpl else None)
-    out["C_mm"] = (1e3 * float(np.linalg.norm(fit.C - t.C))
-                   if world_frame and jpl else None)
-    out["A_deg"] = _angle_deg(fit.A, t.A) if world_frame and jpl else None
-    has_O = jpl and fam != "CAHV" and t.family != "CAHV"
-    out["O_deg"] = _angle_deg(_in_cam(fit, fit.O), _in_cam(t, t.O)) if has_O else None
+    world_frame = world_frame and jpl
+    fit_O = _in_cam(fit, fit.O, fit_ph) if has_O else None
+    if signed:
+        out["C_mm"] = 1e3 * (fit.C - t.C) if world_frame else None
+        out["A_deg"] = np.degrees(fit.A - t.A) if world_frame else None
+        out["O_deg"] = np.degrees(fit_O - t_O) if has_O else None
+    else:
+        out["C_mm"] = 1e3 * float(np.linalg.norm(fit.C - t.C)) if world_frame else None
+        out["A_deg"] = _angle_deg(fit.A, t.A) if world_frame else None
+        out["O_deg"] = _angle_deg(fit_O, t_O) if has_O else None
     for i in range(3):
         name = f"R{i}"
         # R0 against the raw truth (how far the fit slid along the R0 gauge); R1, R2
@@ -126,7 +137,33 @@ C and A are in the truth's world frame) defaults to False.
     has_E = jpl and fam == "CAHVORE" and t.family == "CAHVORE"
     for i in range(3):
         out[f"E{i}"] = float(fit.E[i] - t.E[i]) if has_E else None
-    return {k: (None if v is None else float(v)) for k, v in out.items()}
+    return {k: (None if v is None else v if isinstance(v, np.ndarray) else float(v))
+            for k, v in out.items()}
+
+
+# parameter_errors' side of the truth, for the truth and R0 gauge asked last: the scatter's
+# Jacobian (harness.verdict) compares ~40 stepped models with one truth, mostly at one R0
+_TRUTH_SIDE = [None]
+
+
+def _truth_side(truth, R0, cahv):
+    r'''(t, t.photogrammetric(), truth.photogrammetric(), t's O in its camera frame or
+None) for parameter_errors: t is the truth moved to R0 (R0 None: not moved, no O) or,
+cahv, truncated to CAHV; the last one asked is kept (keyed on the truth object itself:
+models are frozen)'''
+    hit = _TRUTH_SIDE[0]
+    if hit is not None and hit[0] is truth and hit[1] == (R0, cahv):
+        return hit[2]
+    t = truth
+    if R0 is not None:
+        t = with_R0(truth, R0)
+    if cahv:
+        t = truth.to_cahv()
+    traw = truth.photogrammetric()
+    side = (t, t.photogrammetric() if t is not truth else traw, traw,
+            None if R0 is None else _in_cam(t, t.O))
+    _TRUTH_SIDE[0] = (truth, (R0, cahv), side)     # one tuple: atomic for a worker's threads
+    return side
 
 
 def image_grid(width, height, step=DEFAULT_GRID_STEP):
@@ -175,6 +212,13 @@ compiled projection moved the paper campaign's 172 ok records by at most
 # steps or a step that does not lower the sum of squares
 ROTATION_SETTLED_PX = 1e-8
 ROTATION_GN_STEPS = 8
+# ... or when a step does not lower the sum of squares and moves no pixel by more than
+# this (px: a hundredth of DETECTION_RESOLUTION_PX): the step is then the rounding of a
+# differenced Jacobian at the minimum, which grows with the residuals (far floors: residuals
+# of px, steps of 4e-8 to 1.2e-7 px on the paper campaign's), not a way down; stopping
+# there moves the maximum by at most this and the RMS by its square (the minimum's
+# gradient is zero), where MINPACK took ~43 more projections to wander as far
+ROTATION_ROUNDING_PX = 1e-6
 
 # the residual of a point the fit cannot project, px (the rotation fit's)
 UNPROJECTABLE_PX = 1e3
@@ -199,11 +243,13 @@ def _fit_rotation(fit, p_cam, q, nmax=2000):
 
 Gauss-Newton from no rotation, with scipy's forward-difference Jacobian: the two
 frames differ by a small rotation on which the pixels depend almost linearly, so it
-reaches the minimum in 2-3 steps (4 projections each). MINPACK's Levenberg-Marquardt
-(scipy least_squares "lm", tolerances 1e-15) takes over from where it stopped if a
-step does not lower the sum of squares or the steps do not settle (1 fit in 10 on the
-paper campaign: far floors, where rounding hides the last steps): its path to 1e-15
-took ~43 projections. Both stop at the same minimum: on 32 paper records (cameras 5,
+reaches the minimum in 2-3 steps (4 projections each). A step that does not lower
+the sum of squares ends it where it is when that step is rounding
+(ROTATION_ROUNDING_PX: far floors, whose px residuals round the last steps);
+MINPACK's Levenberg-Marquardt (scipy least_squares "lm", tolerances 1e-15) takes
+over from where it stopped if a larger step does not lower it or the steps do not
+settle (a fit whose points leave the model's domain): its path to 1e-15 took ~43
+projections. Both stop at the same minimum: on 32 paper records (cameras 5,
 15, 17, 21; benchmarks/bench_verdict.py) the verdict's projection RMS moved by < 1e-12
 px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
 '''
@@ -227,7 +273,8 @@ px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
         for _ in range(ROTATION_GN_STEPS):
             J = forward_difference(res, r, f)
             step = np.linalg.lstsq(J, -f, rcond=None)[0]
-            if np.max(np.abs(J @ step)) <= ROTATION_SETTLED_PX:
+            moved = np.max(np.abs(J @ step))
+            if moved <= ROTATION_SETTLED_PX:
                 # settled: at the minimum the steps are the rounding of f and of the
                 # differenced J (~1e-12 rad where the fits differ by px), and comparing sums
                 # of squares there would only compare rounding
@@ -235,6 +282,8 @@ px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
             f1 = res(r + step)
             cost1 = f1 @ f1
             if not cost1 <= cost:
+                if moved <= ROTATION_ROUNDING_PX:
+                    return R_from_r(r)
                 break
             r, f, cost = r + step, f1, cost1
         # scipy's 2-point Jacobian, bit for bit, remembering the last point's residuals and
@@ -245,9 +294,9 @@ px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
     return R_from_r(sol.x)
 
 
-# the truth's side of projection_difference(), for the few truths compared last: the
-# records of one job compare 2-3 modes each against at most 3 truths (raw, and moved
-# to the jpl and mrcal fits' R0)
+# the truth's side of projection_difference(), for the few truths compared last (each with
+# the camera frames of the R0 gauges it was compared in: raw, and moved to the jpl and
+# mrcal image and exact fits' R0)
 _TRUTH_POINTS = {}
 _TRUTH_POINTS_LOCK = threading.Lock()   # a Dask worker may compare in several threads
 TRUTH_POINTS_MEMO = 4
@@ -260,7 +309,7 @@ def _model_key(model):
         for f in dataclasses.fields(model) for v in (getattr(model, f.name),))
 
 
-def truth_points(truth, range_m=DEFAULT_RANGE_M, step=DEFAULT_GRID_STEP):
+def truth_points(truth, range_m=DEFAULT_RANGE_M, step=DEFAULT_GRID_STEP, R0=None):
     r'''The image grid, and points at range_m along the truth's rays through it
 
 SYNOPSIS
@@ -268,28 +317,86 @@ SYNOPSIS
     q, p_ref, p_cam = truth_points(truth, range_m=2.0, step=16)
     # q (ny,nx,2) px; p_ref (ny,nx,3) in the truth's world frame, p_cam the same
     # points in its camera frame (Rt_ref_cam); all three read-only
+    q, p_ref, p_cam = truth_points(truth, R0=fit.R[0])
+    # the same q and p_ref; p_cam in the camera frame of with_R0(truth, R0)
 
 The same for every fit compared with this truth, so the last few are
 memoised (keyed on every parameter of the truth, exactly): unprojecting the
-grid of a 5120x3840 CAHVORE costs as much as projecting it.
+grid of a 5120x3840 CAHVORE costs as much as projecting it. R0 (CAHVOR and
+CAHVORE truths): the truth moved to another R0 gauge (with_R0) images the
+same rays, so it shares the grid's points and only changes the camera frame:
+a record's comparisons move the truth to each fit's R0 (the image fit's and
+the exact fit's: harness.verdict), each of them one frame, not one
+unprojection of the grid.
 '''
     key = (_model_key(truth), float(range_m), step)
+    frame = None if R0 is None or truth.family not in ("CAHVOR", "CAHVORE") else float(R0)
     with _TRUTH_POINTS_LOCK:
         hit = _TRUTH_POINTS.pop(key, None)
     if hit is None:
         q = image_grid(truth.width, truth.height, step)
         o, v = truth.unproject(q)
         p_ref = o + range_m * v
-        Rt = truth.Rt_ref_cam()
-        p_cam = (p_ref - Rt[3]) @ Rt[:3]
-        for a in (q, p_ref, p_cam):
+        for a in (q, p_ref):
             a.setflags(write=False)
-        hit = (q, p_ref, p_cam)
+        hit = (q, p_ref, {})
+    q, p_ref, frames = hit
+    p_cam = frames.get(frame)
+    if p_cam is None:
+        Rt = (truth if frame is None else with_R0(truth, frame)).Rt_ref_cam()
+        p_cam = (p_ref - Rt[3]) @ Rt[:3]
+        p_cam.setflags(write=False)
     with _TRUTH_POINTS_LOCK:
+        frames[frame] = p_cam
         _TRUTH_POINTS[key] = hit      # the most recently used last
         while len(_TRUTH_POINTS) > TRUTH_POINTS_MEMO:
             del _TRUTH_POINTS[next(iter(_TRUTH_POINTS))]
-    return hit
+    return q, p_ref, p_cam
+
+
+def _rotated_into(Rt, p, R=None):
+    r'''transform_point_Rt(Rt, p @ R.T) (R None: not rotated) in one pass: p (...,3) ->
+(...,3), the image grid's points (77k of a 5120x3840 camera). Written out by coordinate:
+a (77k,3) x (3,3) matrix product goes to OpenBLAS's threads, 10x slower on two busy
+cores than the 9 multiply-adds (measured 2026-11-28 at load 15: 33 ms against 2 ms CPU)'''
+    M = Rt[:3] if R is None else Rt[:3] @ R
+    t = Rt[3]
+    out = np.empty(p.shape)
+    for i in range(3):
+        out[..., i] = p[..., 0] * M[i, 0] + p[..., 1] * M[i, 1] + p[..., 2] * M[i, 2] + t[i]
+    return out
+
+
+def _distance(qa, qb):
+    r'''|qb - qa| (...,) of pixels (...,2)'''
+    d = qb - qa
+    return np.hypot(d[..., 0], d[..., 1])
+
+
+# fit_pixels() of the last few (fit, points) asked: a record's comparison with the truth
+# (compare_stage) and its verdict's comparisons (harness.verdict: the exact fit with the
+# truth, the image fit with the exact fit) project the same fits on the same grid points:
+# the world points in every mode "world", and the truth's camera-frame points where the
+# fit has no R0 gauge (CAHV, OpenCV) in mode "intrinsics"
+_FIT_PIXELS = []
+FIT_PIXELS_MEMO = 6
+
+
+def fit_pixels(fit, points, frame):
+    r'''fit's pixels (...,2) of grid points (...,3): world points (frame False), or points of
+the truth's camera frame identified with fit's own (frame True: mode "intrinsics"); kept
+for the last FIT_PIXELS_MEMO (fit, points) objects (models and truth_points' arrays are
+not modified: keyed on the objects themselves). Read-only.'''
+    with _TRUTH_POINTS_LOCK:
+        for f, pts, fr, q in _FIT_PIXELS:
+            if f is fit and pts is points and fr == frame:
+                return q
+    q = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), points) if frame else points)
+    q.setflags(write=False)
+    with _TRUTH_POINTS_LOCK:
+        _FIT_PIXELS.append((fit, points, frame, q))
+        del _FIT_PIXELS[:-FIT_PIXELS_MEMO]
+    return q
 
 
 def projection_difference(truth, fit, mode="rotation", range_m=DEFAULT_RANGE_M,
@@ -310,21 +417,17 @@ mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
         from reference_models.errors import CamvalError
         raise CamvalError(f"projection-difference mode {mode!r}; expected rotation, "
                           "intrinsics or world")
-    if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
-            truth.family in ("CAHVOR", "CAHVORE"):
-        # the same projection, in the camera frame matching the fit's R0 gauge
-        truth = with_R0(truth, float(fit.R[0]))
-    q, p_ref, p_cam = truth_points(truth, range_m, step)
-    project = _projector(fit)
-    if mode == "world":
-        qf = project(p_ref)
-        R = None
+    # the same projection, in the camera frame matching the fit's R0 gauge
+    R0 = float(fit.R[0]) if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") else None
+    q, p_ref, p_cam = truth_points(truth, range_m, step, R0=R0)
+    R = None
+    if mode == "rotation":
+        R = _fit_rotation(fit, p_cam.reshape(-1, 3), q.reshape(-1, 2))
+        qf = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam, R))
     else:
-        R = np.eye(3)
-        if mode == "rotation":
-            R = _fit_rotation(fit, p_cam.reshape(-1, 3), q.reshape(-1, 2))
-        qf = project(transform_point_Rt(fit.Rt_ref_cam(), p_cam @ R.T))
-    d = np.linalg.norm(qf - q, axis=-1)
+        qf = fit_pixels(fit, p_cam if mode == "intrinsics" else p_ref, mode == "intrinsics")
+        R = np.eye(3) if mode == "intrinsics" else None
+    d = _distance(q, qf)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "q": q, "map": d,
            "n": int(finite.sum()), "n_invalid": int((~finite).sum()),

@@ -75,15 +75,18 @@ import numpy as np
 
 from reference_models.cahvore import FAMILIES as JPL_FAMILIES
 from reference_models.cahvore import with_R0
-from reference_models.poseutils import transform_point_Rt as _transform
+from reference_models.poseutils import transform_point_Rt
 
 from .compare import (
     DEFAULT_GRID_STEP,
     DEFAULT_RANGE_M,
+    _distance,
     _fit_rotation,
     _frac,
     _intrinsics,
     _projector,
+    _rotated_into,
+    fit_pixels,
     parameter_errors,
     truth_points,
 )
@@ -238,7 +241,7 @@ def _distortion(m):
     return np.zeros(0)
 
 
-def fit_parameter_differences(ref, fit, theta_estimated=None, world_frame=None):
+def fit_parameter_differences(ref, fit, theta_estimated=None, world_frame=None, signed=False):
     r'''fit - ref for two fits of one calibrator model (any model)
 
 SYNOPSIS
@@ -247,12 +250,13 @@ SYNOPSIS
                                   world_frame=True)
 
 JPL-family fits: harness.compare.parameter_errors with ref as the truth (ref
-moved to fit's R0 first). Others: Hc, Vc (px), Hs, Vs (fractional) and D0,
-D1, ... the differences of the distortion coefficients.
+moved to fit's R0 first; signed: its vectors by component). Others: Hc, Vc
+(px), Hs, Vs (fractional) and D0, D1, ... the differences of the distortion
+coefficients.
 '''
     if _is_jpl(ref) and _is_jpl(fit):
         return parameter_errors(ref, fit, theta_estimated=theta_estimated,
-                                world_frame=world_frame)
+                                world_frame=world_frame, signed=signed)
     Hc, Vc, Hs, Vs = _intrinsics(fit)
     rHc, rVc, rHs, rVs = _intrinsics(ref)
     out = {"Hc": float(Hc - rHc), "Vc": float(Vc - rVc), "Hs": _frac(Hs, rHs),
@@ -285,26 +289,29 @@ fits: _projector); the rotation is fitted as it fits it (_fit_rotation).
 _ref_q: a dict fit_comparison() shares between its modes (ref's pixels of the
 camera-frame points, the same for rotation and intrinsics).
 '''
+    world_ref = ref     # world points: the same pixels in any R0 gauge (fit_pixels' memo)
     if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
             getattr(ref, "family", None) in ("CAHVOR", "CAHVORE"):
         ref = with_R0(ref, float(fit.R[0]))   # the same projection in fit's R0 gauge
     _, p_ref, p_cam = truth_points(truth, range_m, step)
     with np.errstate(all="ignore"):
         if mode == "world":
-            qa = _projector(ref)(p_ref)
-            qb = _projector(fit)(p_ref)
+            qa = fit_pixels(world_ref, p_ref, False)
+            qb = fit_pixels(fit, p_ref, False)
             R = None
         else:
             qa = None if _ref_q is None else _ref_q.get("cam")
             if qa is None:
-                qa = _projector(ref)(_transform(ref.Rt_ref_cam(), p_cam))
+                qa = _projector(ref)(_rotated_into(ref.Rt_ref_cam(), p_cam))
                 if _ref_q is not None:
                     _ref_q["cam"] = qa
             R = np.eye(3)
             if mode == "rotation":
                 R = _fit_rotation(fit, p_cam.reshape(-1, 3), qa.reshape(-1, 2))
-            qb = _projector(fit)(_transform(fit.Rt_ref_cam(), p_cam @ R.T))
-        d = np.linalg.norm(qb - qa, axis=-1)
+                qb = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam, R))
+            else:
+                qb = fit_pixels(fit, p_cam, True)
+        d = _distance(qa, qb)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "map": d,
            "n": int(finite.sum()), "n_invalid": int((~finite).sum()),
@@ -452,7 +459,12 @@ def _assess(truth, res, exact_res, noise, total_params, total_projection, second
         out["seconds"] = seconds
     if exact_res.status != "ok" or exact_res.model is None:
         return jsonable(out)
-    out["floor"] = floor_comparison(truth, exact_res)
+    if exact_res is res and total_params is not None and total_projection is not None:
+        # the exact observations were the image ones (exact_fit returned the image fit):
+        # the floor is the record's own comparison, the same function of the same fit
+        out["floor"] = {"params": total_params, "projection": total_projection}
+    else:
+        out["floor"] = floor_comparison(truth, exact_res)
     out["renderer"] = fit_comparison(exact_res.model, res.model, truth, theta,
                                      world and _world(exact_res))
     far, why = floor_judgement(truth, res.calibrator, res.model_name,
@@ -738,8 +750,9 @@ regularised, an unknown model type).'''
                 return from_mrcal(c)
             return MrcalModel(c, m.family)
 
-        def project_cam(theta, p_cam):
-            return mrcal.project(np.ascontiguousarray(p_cam), lensmodel, np.asarray(theta))
+        def projector(theta):
+            theta = np.asarray(theta)
+            return lambda p_cam: mrcal.project(np.ascontiguousarray(p_cam), lensmodel, theta)
     elif isinstance(m, OpenCVModel):
         intr0 = np.concatenate(([m.fx, m.fy, m.cx, m.cy], m.dist))
 
@@ -747,8 +760,8 @@ regularised, an unknown model type).'''
             K = np.array([[theta[0], 0, theta[2]], [0, theta[1], theta[3]], [0, 0, 1.0]])
             return OpenCVModel(m.family, K, theta[4:], m.width, m.height)
 
-        def project_cam(theta, p_cam):
-            return model_of(theta).project(p_cam)
+        def projector(theta):
+            return model_of(theta).project
     else:
         return None
     Rts = np.asarray(res.Rt_cam_board, dtype=np.float64)
@@ -761,12 +774,13 @@ regularised, an unknown model type).'''
     x0 = np.concatenate((intr0, np.zeros(6 * Np)))
     pb = [obs.p_board[i][found[i]] for i in range(Np)]
 
-    def project_pose(theta, i, d):
+    def pose_points(i, d):
         R = _rodrigues(d[:3]) @ Rts[i][:3]
-        return project_cam(theta, pb[i] @ R.T + Rts[i][3] + d[3:])
+        return pb[i] @ R.T + Rts[i][3] + d[3:]
 
     def project(x):
-        return np.concatenate([project_pose(x[:nth], i, x[nth + 6 * i: nth + 6 * i + 6])
+        cam = projector(x[:nth])
+        return np.concatenate([cam(pose_points(i, x[nth + 6 * i: nth + 6 * i + 6]))
                                for i in range(Np) if len(pb[i])], axis=0)
 
     h = np.concatenate((1e-6 * np.maximum(np.abs(intr0), 1.0), np.full(6 * Np, 1e-6)))
@@ -774,9 +788,14 @@ regularised, an unknown model type).'''
     def jacobian():
         # a pose's six numbers move its own points only: its columns are differenced on
         # those rows (the same numbers as differencing everything, at a sixth of the cost)
+        # and the intrinsics' columns project every pose's points at once: at the solution
+        # (no pose step: the identity rotation, exactly) they are the same camera-frame
+        # points for each intrinsics step, transformed once
         J = np.zeros((2 * len(pose), len(x0)))
-        J[:, :nth] = \
-            _central_jacobian(lambda t: project(np.concatenate((t, x0[nth:]))), intr0, h[:nth])
+        p0 = np.concatenate([pose_points(i, x0[nth + 6 * i: nth + 6 * i + 6])
+                             for i in range(Np) if len(pb[i])], axis=0)
+        J[:, :nth] = _central_jacobian(lambda t: projector(t)(p0), intr0, h[:nth])
+        cam0 = projector(intr0)
         row = 0
         for i in range(Np):
             n = len(pb[i])
@@ -784,7 +803,7 @@ regularised, an unknown model type).'''
                 continue
             cols = slice(nth + 6 * i, nth + 6 * i + 6)
             J[2 * row: 2 * (row + n), cols] = _central_jacobian(
-                lambda d, i=i: project_pose(intr0, i, d), x0[cols], h[cols])
+                lambda d, i=i: cam0(pose_points(i, d)), x0[cols], h[cols])
             row += n
         return J
 
@@ -801,36 +820,33 @@ def linearisation(res, obs):
     return None
 
 
-def _ref_O_in_cam(ref, R0):
-    r'''ref's O in its camera frame, ref moved to R0 (the frame O_deg compares in)'''
-    from .compare import _in_cam
-    rt = with_R0(ref, R0) if ref.family != "CAHV" else ref
-    return _in_cam(rt, rt.O)
-
-
-def _signed_quantities(ref, m, theta, world, ref_O=_ref_O_in_cam):
+def _signed_quantities(ref, m, theta, world):
     r'''The reported parameter differences m - ref as signed numbers (vectors by component)
 
-ref_O(ref, R0): _ref_O_in_cam, or a memo of it (scatter() asks for one ref, mostly at one R0).
-The unit vectors A and O by their two components in the plane perpendicular to ref's
-(_unit_components), C by its three.'''
-    d = fit_parameter_differences(ref, m, theta_estimated=theta, world_frame=world)
+C by its three components (C_mm[0..2]); the unit vectors A and O by their two components in
+the plane perpendicular to ref's (_unit_components; O in the camera frame with ref moved to
+m's R0, as fit_parameter_differences(signed=True) compares it).'''
+    from .compare import _truth_side
+    d = fit_parameter_differences(ref, m, theta_estimated=theta, world_frame=world,
+                                  signed=True)
     out = {k: v for k, v in d.items() if v is not None and k not in VECTOR_PARAMS}
-    if _is_jpl(ref) and _is_jpl(m):
-        from .compare import _in_cam
-        if d.get("C_mm") is not None:
-            for i, v in enumerate(1e3 * (m.C - ref.C)):
-                out[f"C_mm[{i}]"] = float(v)
-        if d.get("A_deg") is not None:
-            for i, v in enumerate(_unit_components(ref.A, m.A)):
-                out[f"A_deg[{i}]"] = v
-        if d.get("O_deg") is not None:
-            for i, v in enumerate(_unit_components(ref_O(ref, float(m.R[0])), _in_cam(m, m.O))):
-                out[f"O_deg[{i}]"] = v
+    for k in VECTOR_PARAMS:
+        v = d.get(k)
+        if v is None:
+            continue
+        if k == "C_mm":
+            comps = [float(x) for x in v]
+        else:
+            # the vector the difference was taken from: ref's A (world frame), or ref's O in
+            # its camera frame at m's R0 (compare's memo of the truth side it just used)
+            u_ref = ref.A if k == "A_deg" else _truth_side(ref, float(m.R[0]), False)[3]
+            comps = _unit_components(u_ref, None, dv_deg=v)
+        for i, x in enumerate(comps):
+            out[f"{k}[{i}]"] = x
     return out
 
 
-def _unit_components(u_ref, u):
+def _unit_components(u_ref, u, dv_deg=None):
     r'''The move u - u_ref of a unit vector, deg, as its two components in the plane
 perpendicular to u_ref (harness.calibrators.jpl_fit._tangent_basis, the fit's own chart)
 
@@ -842,8 +858,9 @@ Jacobian's differences), a mean of -12 standard errors and a clean jpl chi2/dof 
 under the noise model's own Gaussian noise (CAHVOR and CAHVORE; 0.97-1.07 without it).'''
     from harness.calibrators.jpl_fit import _tangent_basis
     e1, e2 = _tangent_basis(np.asarray(u_ref, dtype=np.float64))
-    dv = np.asarray(u, dtype=np.float64) - u_ref
-    return [float(np.degrees(e1 @ dv)), float(np.degrees(e2 @ dv))]
+    if dv_deg is None:      # or the move given as its world components, deg
+        dv_deg = np.degrees(np.asarray(u, dtype=np.float64) - u_ref)
+    return [float(e1 @ dv_deg), float(e2 @ dv_deg)]
 
 
 # The smallest detection scatter the model assumes, px: differences below it are below
@@ -964,15 +981,8 @@ projection difference (the rotation's own freedom projected out).
     q0 = _signed_quantities(ref, m0, theta, world)
     names = list(q0)
 
-    ref_O = {}
-
-    def ref_O_memo(ref, R0):
-        if R0 not in ref_O:
-            ref_O[R0] = _ref_O_in_cam(ref, R0)
-        return ref_O[R0]
-
     def qvec(m):
-        q = _signed_quantities(ref, m, theta, world, ref_O_memo)
+        q = _signed_quantities(ref, m, theta, world)
         return np.array([q.get(k, 0.0) for k in names])
     P = projection_points(truth)
     # the model's Jacobians in one pass over its stepped models: the reported quantities
@@ -1030,7 +1040,7 @@ grid (harness.compare.truth_points), in its camera frame'''
 def _grid_projector(P):
     r'''m -> (M,2) m's projection of the points P of its own camera frame'''
     def grid(m):
-        return _projector(m)(_transform(m.Rt_ref_cam(), P))
+        return _projector(m)(_rotated_into(m.Rt_ref_cam(), P))
     return grid
 
 
@@ -1040,7 +1050,7 @@ Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covar
     project, Rt_ref_cam = _projector(m0), m0.Rt_ref_cam()
 
     def rotated(w):
-        return project(_transform(Rt_ref_cam, P @ _rodrigues(w).T))
+        return project(transform_point_Rt(Rt_ref_cam, P @ _rodrigues(w).T))
     with np.errstate(all="ignore"):
         Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
     ok = np.all(np.isfinite(Jg), axis=1) & np.all(np.isfinite(Jw), axis=1)

@@ -150,10 +150,11 @@ points is not imaged.
     N = NOUTLINE_START
     while True:
         q = _projected_outlines(model, target, Rt_cam_board, N)
-        c = _richardson_centroid(q)
+        c_half = polygon_centroid(q[..., ::2, :])
+        c = _richardson_centroid(q, c_half)
         # the Richardson value of N/2 points errs 16 times as much as that of N (error
         # c/N^4): their difference is 15 times the error of c
-        err = np.abs(c - _richardson_centroid(q[..., ::2, :])) / 15.0
+        err = np.abs(c - _richardson_centroid(q[..., ::2, :], c=c_half)) / 15.0
         if not np.any(err > tolerance) or N >= NOUTLINE_MAX:
             return c
         N *= 2
@@ -161,15 +162,20 @@ points is not imaged.
 
 def _projected_outlines(model, target, Rt_cam_board, Noutline):
     r'''(Ndots,Noutline,2) the projected outline points of every dot'''
+    # model.project, not the compiled kernel (reference_models.kernels, within 1e-10 px):
+    # the calibrators' bias correction takes these centroids, and mrcal's fits are chaotic
+    # in 1e-10 px of them (harness/calibrators/mrcal_fit.py): the kernel moved 9 CAHVORE's
+    # mrcal projection difference by 2.6 sigma
     return model.project(board_to_ref(model, Rt_cam_board, target.dot_outlines(Noutline)))
 
 
-def _richardson_centroid(q):
-    r'''(...,2) the polygons' centroids Richardson-extrapolated from every other vertex'''
+def _richardson_centroid(q, c_half=None, c=None):
+    r'''(...,2) the polygons' centroids Richardson-extrapolated from every other vertex
+(c_half, c: the centroids of every other vertex and of all, when the caller has them)'''
     # the inscribed polygon's centroid errs by c/Noutline^2: the polygon of every other
     # vertex errs 4 times as much
-    c = polygon_centroid(q)
-    c_half = polygon_centroid(q[..., ::2, :])
+    c = polygon_centroid(q) if c is None else c
+    c_half = polygon_centroid(q[..., ::2, :]) if c_half is None else c_half
     return c + (c - c_half) / 3.0
 
 
