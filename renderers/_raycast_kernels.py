@@ -27,7 +27,9 @@ Everything here is float64 and compiled without fastmath.
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from reference_models.kernels import (
     _KIND,
@@ -1534,6 +1536,75 @@ def _band_stats(stats, nrays, nsuper, nboard, nblocks, ntested, nonfinite, narea
         stats[7] = nfallback
 
 
+@intrinsic
+def _borrowed(typingctx, a):
+    r"""The array a without its reference count: the same data, shape and strides, no
+meminfo (numba's reference counting skips a null meminfo)
+
+Every array a compiled function receives or unpacks from a tuple is counted up on
+entry and down on exit, an atomic operation on the array's shared meminfo: the
+per-pixel callees of the render (_render_pixel, _area_value, _area_pixel,
+_quad_value, _clip_box, ...) took ~30% of an area-coverage render in them, and the
+two threads counting the same arrays (cam, xf, values, pat) contend for their cache
+lines. render_kernel hands its callees these borrowed arrays instead; its own
+arguments and each thread's scratch arrays, which they alias, outlive them."""
+    if not isinstance(a, types.Array):
+        return None
+
+    def codegen(context, builder, sig, args):
+        src = context.make_array(a)(context, builder, value=args[0])
+        dst = context.make_array(a)(context, builder)
+        for name in ("nitems", "itemsize", "data", "shape", "strides"):
+            setattr(dst, name, getattr(src, name))
+        dst.meminfo = cgutils.get_null_value(dst.meminfo.type)
+        dst.parent = cgutils.get_null_value(dst.parent.type)
+        return dst._getvalue()
+
+    return a(a), codegen
+
+
+@njit(cache=True, error_model="numpy")
+def _borrowed_scratch(scratch):
+    r"""_band_scratch's arrays, _borrowed"""
+    (hx, hy, hok, hu, hchi, need, code, blocks, bmask, counts, offs, stack, jac, cand, hess,
+     grid, poly, corners) = scratch
+    return (_borrowed(hx), _borrowed(hy), _borrowed(hok), _borrowed(hu), _borrowed(hchi),
+            _borrowed(need), _borrowed(code), _borrowed(blocks), _borrowed(bmask),
+            _borrowed(counts), _borrowed(offs), _borrowed(stack), _borrowed(jac),
+            _borrowed(cand), _borrowed(hess), _borrowed(grid), _borrowed(poly),
+            _borrowed(corners))
+
+
+@njit(cache=True, error_model="numpy")
+def _render_bands(i, nthreads, T, cam, noncentral, xf, K, adaptive, values, out, stats, pat,
+                  qbox, area, tol, outline_known, outline, owned):
+    r"""Render bands i, i + nthreads, ... (render_kernel) from _borrowed arrays: no
+reference counting per pixel; the caller holds the arrays they alias (its arguments
+and the thread's scratch arrays, owned) until this returns"""
+    H = out.shape[0]
+    scratch = _borrowed_scratch(owned)
+    bcam = _borrowed(cam)
+    bxf = _borrowed(xf)
+    bvalues = _borrowed(values)
+    bout = _borrowed(out)
+    bstats = _borrowed(stats)
+    bqbox = _borrowed(qbox)
+    bpat = (_borrowed(pat[0]), _borrowed(pat[1]))
+    boutline = (_borrowed(outline[0]), _borrowed(outline[1]), _borrowed(outline[2]),
+                _borrowed(outline[3]))
+    for b in range(i, stats.shape[0], nthreads):
+        r0 = b * T
+        r1 = min(H, r0 + T)
+        if r1 <= r0:
+            continue
+        if outline_known and adaptive:
+            _render_band_outline(r0, r1, T, bcam, noncentral, bxf, K, bvalues, bout,
+                                 bstats[b], bpat, bqbox, area, tol, boutline, scratch)
+        else:
+            _render_band(r0, r1, T, bcam, noncentral, bxf, K, adaptive, bvalues, bout,
+                         bstats[b], bpat, bqbox, area, tol, scratch)
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def render_kernel(cam, noncentral, xf, K, adaptive, T, values, out, stats, pat, qbox, nthreads,
                   area, tol, outline_known, outline):
@@ -1558,18 +1629,10 @@ board in one part of the image is shared), with work arrays allocated once."""
     nb = stats.shape[0]
     nthreads = max(1, min(nthreads, nb))
     for i in prange(nthreads):
-        scratch = _band_scratch(K, values.shape[0], T, W, area)
-        for b in range(i, nb, nthreads):
-            r0 = b * T
-            r1 = min(H, r0 + T)
-            if r1 <= r0:
-                continue
-            if outline_known and adaptive:
-                _render_band_outline(r0, r1, T, cam, noncentral, xf, K, values, out, stats[b],
-                                     pat, qbox, area, tol, outline, scratch)
-            else:
-                _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out,
-                             stats[b], pat, qbox, area, tol, scratch)
+        # the scratch arrays live until _render_bands returns
+        _render_bands(i, nthreads, T, cam, noncentral, xf, K, adaptive, values, out, stats,
+                      pat, qbox, area, tol, outline_known, outline,
+                      _band_scratch(K, values.shape[0], T, W, area))
 
 
 def compiled_entry_points():
