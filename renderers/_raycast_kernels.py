@@ -1563,6 +1563,23 @@ arguments and each thread's scratch arrays, which they alias, outlive them."""
     return a(a), codegen
 
 
+@intrinsic
+def _take(typingctx, counter):
+    r"""counter[0] += 1 atomically; returns its value before: the next band a thread
+renders (render_kernel)"""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64):
+        return None
+
+    def codegen(context, builder, sig, args):
+        ary = context.make_array(counter)(context, builder, value=args[0])
+        ptr = cgutils.get_item_pointer(context, builder, counter, ary,
+                                       [context.get_constant(types.intp, 0)])
+        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1),
+                                  "monotonic")
+
+    return types.int64(counter), codegen
+
+
 @njit(cache=True, error_model="numpy")
 def _borrowed_scratch(scratch):
     r"""_band_scratch's arrays, _borrowed"""
@@ -1576,11 +1593,11 @@ def _borrowed_scratch(scratch):
 
 
 @njit(cache=True, error_model="numpy")
-def _render_bands(i, nthreads, T, cam, noncentral, xf, K, adaptive, values, out, stats, pat,
+def _render_bands(taken, T, cam, noncentral, xf, K, adaptive, values, out, stats, pat,
                   qbox, area, tol, outline_known, outline, owned):
-    r"""Render bands i, i + nthreads, ... (render_kernel) from _borrowed arrays: no
-reference counting per pixel; the caller holds the arrays they alias (its arguments
-and the thread's scratch arrays, owned) until this returns"""
+    r"""Render the bands not taken yet, one at a time (taken[0]: the next band, _take), from
+_borrowed arrays: no reference counting per pixel; the caller holds the arrays they
+alias (its arguments and the thread's scratch arrays, owned) until this returns"""
     H = out.shape[0]
     scratch = _borrowed_scratch(owned)
     bcam = _borrowed(cam)
@@ -1592,7 +1609,10 @@ and the thread's scratch arrays, owned) until this returns"""
     bpat = (_borrowed(pat[0]), _borrowed(pat[1]))
     boutline = (_borrowed(outline[0]), _borrowed(outline[1]), _borrowed(outline[2]),
                 _borrowed(outline[3]))
-    for b in range(i, stats.shape[0], nthreads):
+    while True:
+        b = _take(taken)
+        if b >= stats.shape[0]:
+            break
         r0 = b * T
         r1 = min(H, r0 + T)
         if r1 <= r0:
@@ -1623,14 +1643,16 @@ every tile is tested (_render_band: its ring's centre rays, its interior's when 
 ring does not show it uniform, traced in it).
 qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
 not known); adaptive mode fills the pixels outside with the background.
-nthreads: numba's thread count; thread i renders bands i, i + nthreads, ... (a
-board in one part of the image is shared), with work arrays allocated once."""
-    H, W = out.shape
-    nb = stats.shape[0]
-    nthreads = max(1, min(nthreads, nb))
-    for i in prange(nthreads):
+nthreads: numba's thread count; each thread renders the next band no thread has
+taken yet until none is left (the bands cost what their edge pixels cost: a board in
+one part of the image is shared out as the bands are done), with work arrays
+allocated once. A band's pixels do not depend on which thread renders it."""
+    W = out.shape[1]
+    nthreads = max(1, min(nthreads, stats.shape[0]))
+    taken = np.zeros(1, dtype=np.int64)
+    for _ in prange(nthreads):
         # the scratch arrays live until _render_bands returns
-        _render_bands(i, nthreads, T, cam, noncentral, xf, K, adaptive, values, out, stats,
+        _render_bands(taken, T, cam, noncentral, xf, K, adaptive, values, out, stats,
                       pat, qbox, area, tol, outline_known, outline,
                       _band_scratch(K, values.shape[0], T, W, area))
 
