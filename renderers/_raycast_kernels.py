@@ -640,13 +640,18 @@ number of vertices"""
 
 
 @njit(cache=True, error_model="numpy")
-def _clip_box(poly, n, x0, x1, y0, y1):
-    r"""Clip the polygon poly[0:2, :n] to the box [x0, x1] x [y0, y1] (result in poly[0:2],
-poly[2:4] is scratch); returns its number of vertices"""
-    n = _clip(poly, 0, n, 0, x0, True, 2)
-    n = _clip(poly, 2, n, 0, x1, False, 0)
-    n = _clip(poly, 0, n, 1, y0, True, 2)
-    return _clip(poly, 2, n, 1, y1, False, 0)
+def _clip_box(poly, row, n, x0, x1, y0, y1):
+    r"""Clip the polygon poly[row:row + 2, :n] to the box [x0, x1] x [y0, y1] (result in
+poly[row:row + 2], poly[2:4] is scratch); returns its number of vertices
+
+The sides are clipped in a loop, so that _clip's arguments are run-time values: numba
+compiles a callee once per combination of literal arguments at its call sites (eight
+_clip variants when the four sides of the board and of a cell were four calls each)."""
+    for side in range(4):
+        first = side % 2 == 0
+        value = x0 if side == 0 else (x1 if side == 1 else (y0 if side == 2 else y1))
+        n = _clip(poly, row if first else 2, n, side // 2, value, first, 2 if first else row)
+    return n
 
 
 @njit(cache=True, error_model="numpy")
@@ -728,7 +733,7 @@ w0 + g . (p - o); NaN when its cells are too many"""
     wp = wq
     if not inside:
         # (clipping a quadrilateral inside the box returns it unchanged, vertex for vertex)
-        n = _clip_box(poly, n, f[0], f[1], f[2], f[3])
+        n = _clip_box(poly, 0, n, f[0], f[1], f[2], f[3])
         if n < 3:
             return values[ii[0]]
         ap, mxp, myp = _poly_moments(poly, 0, n, ox, oy)
@@ -773,10 +778,7 @@ w0 + g . (p - o); NaN when its cells are too many"""
                     poly[5, k] = poly[1, k]
                 x0 = f[F_CELLS] + cx * cs
                 y0 = f[F_CELLS + 1] + cy * cs
-                m = _clip(poly, 4, n, 0, x0, True, 2)
-                m = _clip(poly, 2, m, 0, x0 + cs, False, 4)
-                m = _clip(poly, 4, m, 1, y0, True, 2)
-                m = _clip(poly, 2, m, 1, y0 + cs, False, 4)
+                m = _clip_box(poly, 4, n, x0, x0 + cs, y0, y0 + cs)
                 if m < 3:
                     continue
                 ac, mxc, myc = _poly_moments(poly, 4, m, ox, oy)
