@@ -27,7 +27,9 @@ Everything here is float64 and compiled without fastmath.
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from reference_models.kernels import (
     _KIND,
@@ -638,13 +640,18 @@ number of vertices"""
 
 
 @njit(cache=True, error_model="numpy")
-def _clip_box(poly, n, x0, x1, y0, y1):
-    r"""Clip the polygon poly[0:2, :n] to the box [x0, x1] x [y0, y1] (result in poly[0:2],
-poly[2:4] is scratch); returns its number of vertices"""
-    n = _clip(poly, 0, n, 0, x0, True, 2)
-    n = _clip(poly, 2, n, 0, x1, False, 0)
-    n = _clip(poly, 0, n, 1, y0, True, 2)
-    return _clip(poly, 2, n, 1, y1, False, 0)
+def _clip_box(poly, row, n, x0, x1, y0, y1):
+    r"""Clip the polygon poly[row:row + 2, :n] to the box [x0, x1] x [y0, y1] (result in
+poly[row:row + 2], poly[2:4] is scratch); returns its number of vertices
+
+The sides are clipped in a loop, so that _clip's arguments are run-time values: numba
+compiles a callee once per combination of literal arguments at its call sites (eight
+_clip variants when the four sides of the board and of a cell were four calls each)."""
+    for side in range(4):
+        first = side % 2 == 0
+        value = x0 if side == 0 else (x1 if side == 1 else (y0 if side == 2 else y1))
+        n = _clip(poly, row if first else 2, n, side // 2, value, first, 2 if first else row)
+    return n
 
 
 @njit(cache=True, error_model="numpy")
@@ -726,7 +733,7 @@ w0 + g . (p - o); NaN when its cells are too many"""
     wp = wq
     if not inside:
         # (clipping a quadrilateral inside the box returns it unchanged, vertex for vertex)
-        n = _clip_box(poly, n, f[0], f[1], f[2], f[3])
+        n = _clip_box(poly, 0, n, f[0], f[1], f[2], f[3])
         if n < 3:
             return values[ii[0]]
         ap, mxp, myp = _poly_moments(poly, 0, n, ox, oy)
@@ -771,10 +778,7 @@ w0 + g . (p - o); NaN when its cells are too many"""
                     poly[5, k] = poly[1, k]
                 x0 = f[F_CELLS] + cx * cs
                 y0 = f[F_CELLS + 1] + cy * cs
-                m = _clip(poly, 4, n, 0, x0, True, 2)
-                m = _clip(poly, 2, m, 0, x0 + cs, False, 4)
-                m = _clip(poly, 4, m, 1, y0, True, 2)
-                m = _clip(poly, 2, m, 1, y0 + cs, False, 4)
+                m = _clip_box(poly, 4, n, x0, x0 + cs, y0, y0 + cs)
                 if m < 3:
                     continue
                 ac, mxc, myc = _poly_moments(poly, 4, m, ox, oy)
@@ -1534,6 +1538,96 @@ def _band_stats(stats, nrays, nsuper, nboard, nblocks, ntested, nonfinite, narea
         stats[7] = nfallback
 
 
+@intrinsic
+def _borrowed(typingctx, a):
+    r"""The array a without its reference count: the same data, shape and strides, no
+meminfo (numba's reference counting skips a null meminfo)
+
+Every array a compiled function receives or unpacks from a tuple is counted up on
+entry and down on exit, an atomic operation on the array's shared meminfo, in every
+per-pixel callee of the render (_render_pixel, _area_value, _area_pixel, _quad_value,
+_clip_box, ...), and two threads counting the same arrays (cam, xf, values, pat)
+contend for their cache lines. perf put ~28% of the compiled code's samples on those
+atomic operations (area coverage, navcam 15, one thread); without them a render takes
+~10% less CPU time. render_kernel hands its callees these borrowed arrays instead; its own
+arguments and each thread's scratch arrays, which they alias, outlive them."""
+    if not isinstance(a, types.Array):
+        return None
+
+    def codegen(context, builder, sig, args):
+        src = context.make_array(a)(context, builder, value=args[0])
+        dst = context.make_array(a)(context, builder)
+        for name in ("nitems", "itemsize", "data", "shape", "strides"):
+            setattr(dst, name, getattr(src, name))
+        dst.meminfo = cgutils.get_null_value(dst.meminfo.type)
+        dst.parent = cgutils.get_null_value(dst.parent.type)
+        return dst._getvalue()
+
+    return a(a), codegen
+
+
+@intrinsic
+def _take(typingctx, counter):
+    r"""counter[0] += 1 atomically; returns its value before: the next band a thread
+renders (render_kernel)"""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64):
+        return None
+
+    def codegen(context, builder, sig, args):
+        ary = context.make_array(counter)(context, builder, value=args[0])
+        ptr = cgutils.get_item_pointer(context, builder, counter, ary,
+                                       [context.get_constant(types.intp, 0)])
+        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1),
+                                  "monotonic")
+
+    return types.int64(counter), codegen
+
+
+@njit(cache=True, error_model="numpy")
+def _borrowed_scratch(scratch):
+    r"""_band_scratch's arrays, _borrowed"""
+    (hx, hy, hok, hu, hchi, need, code, blocks, bmask, counts, offs, stack, jac, cand, hess,
+     grid, poly, corners) = scratch
+    return (_borrowed(hx), _borrowed(hy), _borrowed(hok), _borrowed(hu), _borrowed(hchi),
+            _borrowed(need), _borrowed(code), _borrowed(blocks), _borrowed(bmask),
+            _borrowed(counts), _borrowed(offs), _borrowed(stack), _borrowed(jac),
+            _borrowed(cand), _borrowed(hess), _borrowed(grid), _borrowed(poly),
+            _borrowed(corners))
+
+
+@njit(cache=True, error_model="numpy")
+def _render_bands(taken, T, cam, noncentral, xf, K, adaptive, values, out, stats, pat,
+                  qbox, area, tol, outline_known, outline, owned):
+    r"""Render the bands not taken yet, one at a time (taken[0]: the next band, _take), from
+_borrowed arrays: no reference counting per pixel; the caller holds the arrays they
+alias (its arguments and the thread's scratch arrays, owned) until this returns"""
+    H = out.shape[0]
+    scratch = _borrowed_scratch(owned)
+    bcam = _borrowed(cam)
+    bxf = _borrowed(xf)
+    bvalues = _borrowed(values)
+    bout = _borrowed(out)
+    bstats = _borrowed(stats)
+    bqbox = _borrowed(qbox)
+    bpat = (_borrowed(pat[0]), _borrowed(pat[1]))
+    boutline = (_borrowed(outline[0]), _borrowed(outline[1]), _borrowed(outline[2]),
+                _borrowed(outline[3]))
+    while True:
+        b = _take(taken)
+        if b >= stats.shape[0]:
+            break
+        r0 = b * T
+        r1 = min(H, r0 + T)
+        if r1 <= r0:
+            continue
+        if outline_known and adaptive:
+            _render_band_outline(r0, r1, T, bcam, noncentral, bxf, K, bvalues, bout,
+                                 bstats[b], bpat, bqbox, area, tol, boutline, scratch)
+        else:
+            _render_band(r0, r1, T, bcam, noncentral, bxf, K, adaptive, bvalues, bout,
+                         bstats[b], bpat, bqbox, area, tol, scratch)
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def render_kernel(cam, noncentral, xf, K, adaptive, T, values, out, stats, pat, qbox, nthreads,
                   area, tol, outline_known, outline):
@@ -1552,24 +1646,18 @@ every tile is tested (_render_band: its ring's centre rays, its interior's when 
 ring does not show it uniform, traced in it).
 qbox (xmin, xmax, ymin, ymax): the image of the board lies inside (+-inf when
 not known); adaptive mode fills the pixels outside with the background.
-nthreads: numba's thread count; thread i renders bands i, i + nthreads, ... (a
-board in one part of the image is shared), with work arrays allocated once."""
-    H, W = out.shape
-    nb = stats.shape[0]
-    nthreads = max(1, min(nthreads, nb))
-    for i in prange(nthreads):
-        scratch = _band_scratch(K, values.shape[0], T, W, area)
-        for b in range(i, nb, nthreads):
-            r0 = b * T
-            r1 = min(H, r0 + T)
-            if r1 <= r0:
-                continue
-            if outline_known and adaptive:
-                _render_band_outline(r0, r1, T, cam, noncentral, xf, K, values, out, stats[b],
-                                     pat, qbox, area, tol, outline, scratch)
-            else:
-                _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out,
-                             stats[b], pat, qbox, area, tol, scratch)
+nthreads: numba's thread count; each thread renders the next band no thread has
+taken yet until none is left (the bands cost what their edge pixels cost: a board in
+one part of the image is shared out as the bands are done), with work arrays
+allocated once. A band's pixels do not depend on which thread renders it."""
+    W = out.shape[1]
+    nthreads = max(1, min(nthreads, stats.shape[0]))
+    taken = np.zeros(1, dtype=np.int64)
+    for _ in prange(nthreads):
+        # the scratch arrays live until _render_bands returns
+        _render_bands(taken, T, cam, noncentral, xf, K, adaptive, values, out, stats,
+                      pat, qbox, area, tol, outline_known, outline,
+                      _band_scratch(K, values.shape[0], T, W, area))
 
 
 def compiled_entry_points():

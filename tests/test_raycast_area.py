@@ -124,12 +124,14 @@ orientation only flips the sign'''
     assert sign * pmy == pytest.approx((x1 - x0) * (y1 - y0) * (y0 + y1) / 2, rel=1e-12)
 
 
-def test_clipping_a_quadrilateral_by_a_box():
+@pytest.mark.parametrize("row", [0, 4])
+def test_clipping_a_quadrilateral_by_a_box(row):
+    # rows 0 (the board rectangle) and 4 (a cell) are what _quad_value clips in
     poly = np.zeros((6, kern.AREA_MAX_VERTICES))
-    poly[0, :4] = [0.0, 2.0, 2.5, -0.5]
-    poly[1, :4] = [0.0, -0.5, 2.0, 1.5]
-    n = kern._clip_box(poly, 4, 0.0, 1.0, 0.0, 1.0)
-    a, _, _ = kern._poly_moments(poly, 0, n, 0.0, 0.0)
+    poly[row, :4] = [0.0, 2.0, 2.5, -0.5]
+    poly[row + 1, :4] = [0.0, -0.5, 2.0, 1.5]
+    n = kern._clip_box(poly, row, 4, 0.0, 1.0, 0.0, 1.0)
+    a, _, _ = kern._poly_moments(poly, row, n, 0.0, 0.0)
     # the unit square lies inside the quadrilateral
     assert a == pytest.approx(1.0, abs=1e-14)
 
