@@ -486,6 +486,92 @@ def summarise(rows, faults, cams):
     return out
 
 
+def clean_statistics(runs, spec):
+    r'''The z-scores of the clean runs [(seed, run document)] -> (lines, JSON-able dict)
+
+Per calibrator and family of the fit (calibrator_model): records by status, the ok ones
+the gate judges (floor near, fits in one minimum: harness.gate._unjudged), and over them
+every [[scatter]] quantity with a sigma (z = |value| / sigma: its count of tests, RMS z,
+largest z with its record, largest value / limit) and the joint statistic (records with a
+chi2, mean chi2/dof, largest joint z with its record; "judged" when a [[joint]] limit
+matches). "expected" is the number of tests times the spec's per-test false-alarm
+probability (two-sided Gaussian tail at the limit's z): what chance alone would give; it
+also counts z > 4 and z > 5 against that many times the tail at 4 and 5.'''
+    from scipy import stats
+
+    from harness.gate import _matches, _unjudged
+    groups = {}
+    for seed, r in runs:
+        for name, rec in r["records"].items():
+            g = groups.setdefault((rec["calibrator"], rec["calibrator_model"]), {
+                "records": 0, "status": {}, "judged": 0, "z": [], "ratio": (0.0, ""),
+                "zmax": (0.0, ""), "joint": [], "joint_judged": 0, "jmax": (0.0, "")})
+            g["records"] += 1
+            g["status"][rec["status"]] = g["status"].get(rec["status"], 0) + 1
+            if rec["status"] != "ok" or _unjudged(rec):
+                continue
+            g["judged"] += 1
+            where = f"camera {rec['camera']} {rec['model']} seed {seed}"
+            for lim in spec.scatter:
+                if not _matches(name, lim.match):
+                    continue
+                v, sg = _lookup(rec, lim.field), _lookup(rec, lim.sigma)
+                if not isinstance(v, (int, float)) or not isinstance(sg, (int, float)) \
+                        or not sg > 0:
+                    continue
+                z = abs(v) / sg
+                q = lim.field.rsplit(".", 1)[-1]
+                g["z"].append(z)
+                if z > g["zmax"][0]:
+                    g["zmax"] = (z, f"{q} {abs(v):.3g} sigma {sg:.3g}, {where}")
+                ratio = abs(v) / lim.allowed(sg)[0]
+                if ratio > g["ratio"][0]:
+                    g["ratio"] = (ratio, f"{q}, {where}")
+            j = _lookup(rec, "verdict.renderer.joint")
+            if isinstance(j, dict) and j.get("dof") and j.get("chi2") is not None:
+                g["joint"].append(j["chi2"] / j["dof"])
+                if any(_matches(name, lim.match) for lim in spec.joint):
+                    g["joint_judged"] += 1
+                if (j.get("z") or 0.0) > g["jmax"][0]:
+                    g["jmax"] = (j["z"], f"chi2 {j['chi2']:.3g} dof {j['dof']}, {where}")
+    zlim = spec.scatter[0].z if spec.scatter else 6.0
+    tail = {k: 2.0 * stats.norm.sf(k) for k in (4.0, 5.0, zlim)}
+    lines = [f"clean statistics over {len(runs)} pose seeds (z = |renderer difference| / "
+             f"sigma; expected: tests x {tail[zlim]:.2g}, the two-sided tail at z {zlim:g})"]
+    doc = {}
+    n_tests = n_joint = 0
+    for (cal, fam), g in sorted(groups.items()):
+        z = g["z"]
+        n_tests += len(z)
+        n_joint += g["joint_judged"]
+        st = ", ".join(f"{k} {v}" for k, v in sorted(g["status"].items()))
+        rms = math.sqrt(sum(x * x for x in z) / len(z)) if z else None
+        over = {k: sum(x > k for x in z) for k in (4.0, 5.0)}
+        lines.append(f"  {cal:6s} {fam:8s} {g['records']} records ({st}), {g['judged']} judged")
+        if z:
+            lines.append(
+                f"      marginal: {len(z)} tests, RMS z {rms:.2f}, z > 4: {over[4.0]} "
+                f"(expected {len(z) * tail[4.0]:.2g}), z > 5: {over[5.0]} (expected "
+                f"{len(z) * tail[5.0]:.2g}); max z {g['zmax'][0]:.2f} ({g['zmax'][1]}); max "
+                f"value/limit {g['ratio'][0]:.2f} ({g['ratio'][1]})")
+        jm = sum(g["joint"]) / len(g["joint"]) if g["joint"] else None
+        if g["joint"]:
+            lines.append(
+                f"      joint: {len(g['joint'])} records ({g['joint_judged']} judged), mean "
+                f"chi2/dof {jm:.2f}, max z {g['jmax'][0]:.2f} ({g['jmax'][1]})")
+        doc[f"{cal}[{fam}]"] = {
+            "records": g["records"], "status": g["status"], "judged": g["judged"],
+            "marginal_tests": len(z), "rms_z": rms, "z_over_4": over[4.0],
+            "z_over_5": over[5.0], "max_z": g["zmax"][0], "max_z_at": g["zmax"][1],
+            "max_ratio": g["ratio"][0], "max_ratio_at": g["ratio"][1],
+            "joint_records": len(g["joint"]), "joint_judged": g["joint_judged"],
+            "joint_mean_chi2_per_dof": jm, "joint_max_z": g["jmax"][0],
+            "joint_max_z_at": g["jmax"][1]}
+    lines.append(f"  all: {n_tests} marginal tests + {n_joint} joint tests: expected "
+                 f"exceedances by chance {(n_tests + n_joint) * tail[zlim]:.2g}")
+    return lines, doc
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -517,6 +603,7 @@ def main(argv=None):
 
     from harness.campaign import parse_campaign
     from harness.gate import DEFAULT_SPEC, check, explain, load_gate_spec
+    from harness.records import write_json_atomic
     from harness.runner import run_campaign
 
     spec = load_gate_spec(DEFAULT_SPEC)
@@ -526,7 +613,10 @@ def main(argv=None):
 
     def run(doc, tag, workers=1):
         t0 = time.perf_counter()
-        r = run_campaign(parse_campaign(doc), out / tag, progress=False, workers=workers)
+        # an existing run directory is resumed (its finished jobs kept): a long --seeds run
+        # interrupted or split over calls continues where it stopped
+        r = run_campaign(parse_campaign(doc), out / tag, progress=False, workers=workers,
+                         resume=(out / tag / "campaign.json").is_file())
         for rec in r["records"].values():
             s = rec.get("seconds") or {}
             if rec["status"] == "ok":
@@ -563,10 +653,12 @@ def main(argv=None):
     for a, b in (s.split("-") for s in args.seeds.split(",") if "-" in s):
         seeds += range(int(a), int(b) + 1)
     fams = [f for f in args.clean_families.split(",") if f]
+    clean_runs = []
     for seed in seeds if clean else []:
         renderer = {"name": "raycast", "spp": args.spp, "adaptive": True}
         doc = campaign(clean, fams[0], renderer, seed, "clean") | {"models": fams}
         r, failures, secs = run(doc, f"clean-{seed}", workers=args.jobs)
+        clean_runs.append((seed, r))
         ok &= not failures
         n_ok = sum(x["status"] == "ok" for x in r["records"].values())
         print(f"clean seed {seed} {'/'.join(fams)}: {len(r['records'])} records ({n_ok} ok), "
@@ -575,6 +667,11 @@ def main(argv=None):
             print(f"    {f.fullname}  {f.field}  {f.value}  {f.limit}", flush=True)
         if seed == seeds[0]:
             print("\n".join(explain(r, spec)), flush=True)
+    if clean_runs:
+        lines, stats_doc = clean_statistics(clean_runs, spec)
+        print("\n".join(lines), flush=True)
+        write_json_atomic(out / "clean-statistics.json",
+                          {"seeds": [sd for sd, _ in clean_runs], "groups": stats_doc})
     n = max(cost["records"], 1)
     print(f"cost per ok record: exact fit {cost['exact_fit'] / n:.3f} s, verdict "
           f"{cost['verdict'] / n:.3f} s, image fit {cost['calibrate'] / n:.3f} s "
