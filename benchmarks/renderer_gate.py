@@ -505,10 +505,15 @@ also counts z > 4 and z > 5 against that many times the tail at 4 and 5.'''
         for name, rec in r["records"].items():
             g = groups.setdefault((rec["calibrator"], rec["calibrator_model"]), {
                 "records": 0, "status": {}, "judged": 0, "z": [], "ratio": (0.0, ""),
-                "zmax": (0.0, ""), "joint": [], "joint_judged": 0, "jmax": (0.0, "")})
+                "zmax": (0.0, ""), "joint": [], "joint_judged": 0, "jmax": (0.0, ""),
+                "floor_far": 0, "fits_disagree": 0})
             g["records"] += 1
             g["status"][rec["status"]] = g["status"].get(rec["status"], 0) + 1
-            if rec["status"] != "ok" or _unjudged(rec):
+            if rec["status"] != "ok":
+                continue
+            for k in ("floor_far", "fits_disagree"):
+                g[k] += _lookup(rec, f"verdict.{k}") is True
+            if _unjudged(rec):
                 continue
             g["judged"] += 1
             where = f"camera {rec['camera']} {rec['model']} seed {seed}"
@@ -547,7 +552,9 @@ also counts z > 4 and z > 5 against that many times the tail at 4 and 5.'''
         st = ", ".join(f"{k} {v}" for k, v in sorted(g["status"].items()))
         rms = math.sqrt(sum(x * x for x in z) / len(z)) if z else None
         over = {k: sum(x > k for x in z) for k in (4.0, 5.0)}
-        lines.append(f"  {cal:6s} {fam:8s} {g['records']} records ({st}), {g['judged']} judged")
+        lines.append(f"  {cal:6s} {fam:8s} {g['records']} records ({st}), {g['judged']} judged "
+                     f"(not judged: floor far {g['floor_far']}, fits disagree "
+                     f"{g['fits_disagree']})")
         if z:
             lines.append(
                 f"      marginal: {len(z)} tests, RMS z {rms:.2f}, z > 4: {over[4.0]} "
@@ -561,6 +568,7 @@ also counts z > 4 and z > 5 against that many times the tail at 4 and 5.'''
                 f"chi2/dof {jm:.2f}, max z {g['jmax'][0]:.2f} ({g['jmax'][1]})")
         doc[f"{cal}[{fam}]"] = {
             "records": g["records"], "status": g["status"], "judged": g["judged"],
+            "floor_far": g["floor_far"], "fits_disagree": g["fits_disagree"],
             "marginal_tests": len(z), "rms_z": rms, "z_over_4": over[4.0],
             "z_over_5": over[5.0], "max_z": g["zmax"][0], "max_z_at": g["zmax"][1],
             "max_ratio": g["ratio"][0], "max_ratio_at": g["ratio"][1],
