@@ -153,12 +153,51 @@ marginal limit too, and by the joint z 3e3-1e5 whatever the term):
   term, chi2 sits well under chi-square on cameras at the noise floor: there the joint
   test flags coherent moves of the observed points above ~1.4e-4 px RMS.
   (jpl-only campaigns of the catalogue from a scratch script; the full bar, --clean all
-  --seeds 0-9 with all three calibrators, was not run.)
+  --seeds 0-9 with all three calibrators, is measured below.)
+
+Clean, every slot and extra, all three calibrators, WITH the joint test (issue 14 bar 1),
+measured 2026-11-28 05:00-06:07 UTC, 2 shared cores, load 4-20 (other helpers' runs;
+147-716 s a seed, 99 jobs, 297 records each):
+  uv run --frozen python benchmarks/renderer_gate.py OUT --faults '' --clean all --seeds 0-9 -j 2
+  (--faults '': without it the five in-process faults run on cameras 15 and 17 first;
+  an existing OUT/clean-SEED is resumed, so the statistics below reprint in 15 s)
+PASS on all 10 seeds, and `camval gate OUT/clean-SEED` (the default spec) passed each:
+0 false alarms in 2970 records (2320 ok). Twin cameras (same images) counted once:
+  fit            records  ok  judged  tests  RMS z  max z (quantity, camera, seed)
+  jpl CAHV         253   243   243    1944   0.96  3.13 (Vs, MCAM_Z_LEFT-Z079, 5)
+  jpl CAHVOR       252   242   242    2178   0.92  3.33 (R1_frac, MCAM_Z_LEFT-Z100, 6)
+  jpl CAHVORE      261   111   111     999   0.95  3.76 (R1_frac, 17, 3)
+  mrcal CAHV       253   243    12      12   1.01  1.91 (projection RMS, MCAM_Z_RIGHT-Z026, 0)
+  mrcal CAHVOR     252   242    66      66   0.89  2.16 (projection RMS, 13, 8)
+  mrcal CAHVORE    261   111    35      35   0.86  1.98 (projection RMS, 19, 1)
+  OPENCV5          825   515    22      22   1.04  2.29 (projection RMS, 17, 1)
+  joint statistic: records, mean chi2/dof, max joint z (camera, seed)
+  jpl CAHV    243 judged, 0.22, 2.44 (17, 3)     jpl CAHVOR 242 judged, 0.25, 2.62 (17, 0)
+  jpl CAHVORE 111 (not judged), 0.30, 3.81 (17, 9)   OPENCV5 22 (not judged), 0.73, 0.99
+  mrcal CAHV 12, 0.60, 1.23; CAHVOR 66, 1.7e10, 2.9e6 (17, 0); CAHVORE 35, 4.3, 39.5 (17, 4)
+  (tests: the [[scatter]] quantities with a sigma on the judged records: 8-9 a jpl record,
+  the projection RMS alone on mrcal and OpenCV.)
+  (not-applicable: SuperCam, and a family richer than the camera; OPENCV5 failed 140: it
+  diverges on the fisheye CAHVORE cameras, a calibrator status the spec does not judge.
+  Not judged: the floor far from the truth, 231 / 176 / 75 mrcal and 493 OpenCV ok records,
+  one mrcal CAHVORE fit pair in different minima.) Largest value / limit 0.63 (jpl CAHVORE
+  R1_frac, 17, seed 3). Chance: 5256 marginal + 485 joint tests at the spec's p = 1.97e-9
+  expect 1.1e-5 exceedances; the same tests expect 0.33 beyond z 4 and 0.003 beyond z 5,
+  and none is seen (max 3.76): consistent with chance, the sigmas slightly conservative
+  (RMS z 0.86-1.04). The joint test sits far below chi-square (chi2/dof 0.22-0.25): the
+  resolution term dominates at the 1e-4 px noise floor (harness/verdict.py), so its real
+  false-alarm rate is below its nominal one. Recorded but NOT judged by the spec, and
+  over-dispersed: mrcal CAHVOR's joint chi2 on hazcams 17/18 (1e13: no clear gap between
+  the R0 gauge valley and what the fit determines, gate-renderer.toml) and mrcal CAHVORE's
+  on 17 (chi2/dof up to 110): judging mrcal's joint statistic would need its gauge removed first.
+  Cost per ok record (the resumed summary of all 10 seeds): exact fit 0.42 s + verdict 0.27 s
+  against the image fit's 1.26 s.
 
 In-process faults and clean runs, measured (2026-11-25, 2 shared cores, K=16, 6 poses):
-- clean, --clean all --seeds 0-9 -j 2 (33 cameras x CAHV/CAHVOR/CAHVORE, 297 records a
-  seed): PASS on all 10 seeds (`camval gate` of each run too), 2310 ok records; RMS z
-  of every judged quantity 0.93-1.08, largest 4.34 of 7288; 128-1788 s a seed (load 4-27).
+- clean, before the joint test, --clean all --seeds 0-9 -j 2 (33 cameras x
+  CAHV/CAHVOR/CAHVORE, 297 records a seed): PASS on all 10 seeds (`camval gate` of each
+  run too), 2310 ok records; RMS z of every judged quantity 0.93-1.08, largest 4.34 of
+  7288; 128-1788 s a seed (load 4-27).
   Cost per ok record: exact fit 0.38 s + verdict 0.27 s against the image fit's 0.86 s.
 - clean, all 22 slots + 11 extras, CAHV + CAHVOR, jpl/mrcal/OPENCV5: pose seed 3, 198
   records, PASS (SuperCam not-applicable); also seeds 0-2 on 15, 17, MCAM_Z_LEFT-Z026/
