@@ -190,3 +190,32 @@ def test_minimum_detectable_fault_takes_the_joint_test_where_it_sees_further():
     assert mdf["focal scale"]["value"] == pytest.approx(3e-6)
     text = "\n".join(explain(run, spec))
     assert "verdict.renderer.joint.chi2 <= the chi-square(dof) quantile at 6 sigma" in text
+
+
+def test_clean_statistics_counts_twin_cameras_once_and_reports_the_largest_z():
+    # benchmarks/renderer_gate.py's summary of clean runs: z = |value| / sigma per judged
+    # quantity; twin cameras (the same images: equal detection noise) are one test
+    import importlib.util
+    spec_file = importlib.util.spec_from_file_location(
+        "renderer_gate", ROOT / "benchmarks" / "renderer_gate.py")
+    rg = importlib.util.module_from_spec(spec_file)
+    spec_file.loader.exec_module(rg)
+
+    def rec(camera, hc, noise_max, far=False):
+        r = _rec(hc, far=far, name=f"{camera}/CAHVOR/dots/raycast[spp=16]/jpl[CAHVOR]")
+        r.update(camera=camera, model="CAHVOR", calibrator_model="CAHVOR")
+        r["verdict"]["detection_noise"] = {"max": noise_max}
+        return r
+    recs = {r["fullname"]: r for r in (rec("13", 0.003, 1.5e-3), rec("14", 0.003, 1.5e-3),
+                                        rec("15", -0.002, 2.5e-3), rec("16", 0.5, 3e-3, True))}
+    lines, doc = rg.clean_statistics([(0, {"records": recs})], parse_gate_spec(SPEC))
+    g = doc["jpl[CAHVOR]"]
+    # 13 and 14 are twins (one record kept), 16's floor is far (not judged)
+    assert g["records"] == 3 and g["judged"] == 2 and g["floor_far"] == 1
+    # per judged record: Hc (sigma 0.001) and the projection RMS (2e-4 / 4e-4); theta is None
+    assert g["marginal_tests"] == 4
+    assert g["max_z"] == pytest.approx(3.0) and "Hc" in g["max_z_at"]
+    assert g["rms_z"] == pytest.approx(math.sqrt((9 + 4 + 2 * 0.25) / 4))
+    assert g["z_over_4"] == 0
+    # the two-sided Gaussian tail at z 5 (the spec's), times the 4 tests
+    assert "expected exceedances by chance 2.3e-06" in lines[-1]
