@@ -61,7 +61,7 @@ from harness.quiet import diagnostics_of
 from reference_models.cahvore import FAMILIES
 
 from .base import CalibrationFailed, check_homography_conditioning, check_pose_diversity
-from .skeleton import fitted_result, iterate_bias
+from .skeleton import applied_bias, fitted_result, iterate_bias, start_bias
 
 NAME = "mrcal"
 LIBRARY = "mrcal"
@@ -123,6 +123,9 @@ BIAS_RELATIVE = 0.05
 # within the detection error (~1e-3 px) of the exact observations' optimum of the same
 # minimum, and the restarts' crawl along the R0 / focal-length valley is what carried a
 # cold exact fit into another minimum than the image fit's (mrcal CAHVOR, cameras 5, 17).
+# Its first fit is made to the detections the start's bias corrects (skeleton.start_bias,
+# as jpl and OpenCV do), on the full grid only: the coarse grid's restarts buy a cheap
+# approach to the full grid's optimum, and the start is one detection error from it already.
 WARM_RESTARTS = 1
 
 
@@ -270,13 +273,21 @@ residuals and board poses are NaN. The rest as _fit_poses.
                       Rt_ref_board=None if obs.Rt_ref_board is None else obs.Rt_ref_board[views])
     if start is not None and getattr(start, "Rt_cam_board", None) is not None \
             and len(start.Rt_cam_board) == obs.Nposes:
-        start = start.replace(Rt_cam_board=start.Rt_cam_board[views])
+        b = (start.info or {}).get("bias")
+        start = start.replace(
+            Rt_cam_board=start.Rt_cam_board[views],
+            info={**(start.info or {}), "bias": None if b is None or len(b) != obs.Nposes
+                  else b[views]})
     res = _fit_poses(sub, target, model_name, truth=truth, start=start, **options)
     dropped = [{"pose": int(i), "found": int(counts[i]),
                 "reason": f"{int(counts[i])} points found; mrcal's pose seed needs "
                           f"{MIN_POSE_POINTS}"}
                for i in range(obs.Nposes) if i not in set(views.tolist())]
     changes = {"info": {**res.info, "poses_dropped": dropped}}
+    if res.info.get("bias") is not None:   # obs.q - the detections fitted: NaN where dropped
+        b = np.full(obs.q.shape, np.nan)
+        b[views] = res.info["bias"]
+        changes["info"]["bias"] = b
     if res.residuals is not None:
         r = np.full(obs.q.shape, np.nan)
         r[views] = res.residuals
@@ -299,7 +310,10 @@ intrinsics and board poses are the starting point; the pinhole seed, the staged 
 the race of two starts are skipped, and each solve is one mrcal.optimize without restarts
 (see WARM_RESTARTS): the fit stays in the start's minimum. A start of another lens model
 or without every board pose is ignored (info["warm_start"] says which);
-info["moved_from_start"] says whether the warm fit moved from it at all.
+info["moved_from_start"] says whether the warm fit moved from it at all. The start's bias
+(its info["bias"]: skeleton.start_bias) corrects the detections of the first fit, on the
+full grid (WARM_RESTARTS), so that a start whose bias still holds ends after that fit and
+one bias pass; info["bias"] is the bias the last fit was made with (skeleton.applied_bias).
 
 info["crawl"], when present: the restarts of a polish ran out of their budget
 (max_restarts) still gaining, with residuals far above the noise (crawl_verdict): from
@@ -376,12 +390,19 @@ then on every polish restarts once, and the entry says why in words.
     iterations = 0
     stages = []
     start_info = {"warm_start": warm is not None} if start is not None else {}
+    bias_runs = bias_correction and bias_passes > 0 and target is not None
+    b_start = None
     if warm is not None:
         max_restarts = WARM_RESTARTS
+        # the first fit is made to the detections the start's bias corrects
+        b_start = start_bias(start, obs) if bias_runs else None
+        if b_start is not None:
+            problem["observations_board"] = board_obs(obs.q - b_start)
 
     # every COARSE_STEP-th row and column of the grid: the coarse problem of polish(), used
-    # when it has 4 x 4 points or more and every pose keeps at least 8 of them
-    coarse = COARSE_STEP if min(nx, ny) >= 4 * COARSE_STEP > 0 else 1
+    # when it has 4 x 4 points or more and every pose keeps at least 8 of them (not from a
+    # warm start: see WARM_RESTARTS)
+    coarse = COARSE_STEP if min(nx, ny) >= 4 * COARSE_STEP > 0 and warm is None else 1
     if coarse > 1 and (observations[:, ::coarse, ::coarse, 2] > 0).sum(axis=(1, 2)).min() < 8:
         coarse = 1
 
@@ -471,9 +492,11 @@ then on every polish restarts once, and the entry says why in words.
         return r
 
     if warm is not None:
-        unpolished = nint > 4 and not regularization
+        unpolished = nint > 4 and not regularization and b_start is None
         if regularization:
             solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
+        elif b_start is not None:
+            polish()   # the first fit, to the detections the start's bias corrects
     elif nint > 4:
         if regularization:
             solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
@@ -533,12 +556,12 @@ then on every polish restarts once, and the entry says why in words.
         Rt_cam_board = np.array([mrcal.compose_Rt(Rt, Rt_grid_board) for Rt in Rt_cam_g])
         return cm, model, Rt_cam_board
 
-    bias_runs = bias_correction and bias_passes > 0 and target is not None
     if unpolished and not bias_runs:
         polish()
         unpolished = False
     cm, model, Rt_cam_board = current()
-    passes = [{"pass": 1, **_rms(model, obs, Rt_cam_board, obs.q, found)}]
+    q_first = obs.q if b_start is None else obs.q - b_start
+    passes = [{"pass": 1, **_rms(model, obs, Rt_cam_board, q_first, found)}]
 
     def refit(q_used, change):
         nonlocal cm, model, Rt_cam_board, unpolished
@@ -566,7 +589,7 @@ then on every polish restarts once, and the entry says why in words.
         bias_passes=bias_passes if bias_runs else 0, bias_tolerance=bias_tolerance,
         no_dots="no dots: no centroid bias",
         tolerance=lambda passes: max(bias_tolerance, BIAS_RELATIVE * passes[-1]["rms"]),
-        settled=settled)
+        settled=settled, b_start=b_start)
 
     if unpolished:   # no bias pass ran (no dots), or they ran out before the bias settled
         polish()
@@ -585,6 +608,7 @@ then on every polish restarts once, and the entry says why in words.
               "world_frame": bool(known_poses), "regularization": bool(regularization),
               "bias_corrected": bias_applied, "passes": passes, "seed_pinhole": seed,
               "intrinsics": cm.intrinsics()[1], "cameramodel": cm,
+              "bias": applied_bias(obs, q_used, bias_applied),
               **({"crawl": crawl} if crawl is not None else {}), **start_info})
 
 
