@@ -306,14 +306,15 @@ def _fit_poses(obs, target, model_name, truth=None, known_poses=False, bias_corr
 
 start: None, or an ok CalibrationResult of this calibrator and model on observations of
 the same poses (harness.verdict: the image fit, to fit the exact observations): its
-intrinsics and board poses are the starting point; the pinhole seed, the staged model and
-the race of two starts are skipped, and each solve is one mrcal.optimize without restarts
-(see WARM_RESTARTS): the fit stays in the start's minimum. A start of another lens model
-or without every board pose is ignored (info["warm_start"] says which);
-info["moved_from_start"] says whether the warm fit moved from it at all. The start's bias
-(its info["bias"]: skeleton.start_bias) corrects the detections of the first fit, on the
-full grid (WARM_RESTARTS), so that a start whose bias still holds ends after that fit and
-one bias pass; info["bias"] is the bias the last fit was made with (skeleton.applied_bias).
+intrinsics and board poses are the starting point; the board pose estimate, the pinhole
+solve, the staged model and the race of two starts are skipped, and each solve is one
+mrcal.optimize without restarts (see WARM_RESTARTS): the fit stays in the start's
+minimum. A start of another lens model or without every board pose is ignored
+(info["warm_start"] says which); info["moved_from_start"] says whether the warm fit moved
+from it at all. The start's bias (its info["bias"]: skeleton.start_bias) corrects the
+detections of the first fit, on the full grid (WARM_RESTARTS), so that a start whose bias
+still holds ends after that fit and one bias pass; info["bias"] is the bias the last fit
+was made with (skeleton.applied_bias).
 
 info["crawl"], when present: the restarts of a polish ran out of their budget
 (max_restarts) still gaining, with residuals far above the noise (crawl_verdict): from
@@ -353,17 +354,18 @@ then on every polish restarts once, and the entry says why in words.
     observations = board_obs(obs.q)
     indices = np.column_stack((np.arange(Nposes), np.zeros(Nposes), -np.ones(Nposes)))
     indices = indices.astype(np.int32)
-    Rt_cam_grid = mrcal.estimate_monocular_calobject_poses_Rt_tocam(
-        indices, observations, spacing, [("LENSMODEL_PINHOLE", seed)])
-    Rt_cam_grid = np.asarray(Rt_cam_grid, dtype=np.float64).reshape(Nposes, 4, 3)
-    if not np.all(np.isfinite(Rt_cam_grid)):
-        raise CalibrationFailed("degenerate poses: mrcal could not estimate the board poses")
-    check_pose_diversity(Rt_cam_grid)
-
     nint = mrcal.lensmodel_num_params(lensmodel)
     warm = _warm_start(start, lensmodel, nint, Nposes, origin)
-    if warm is not None:
+    if warm is not None:   # the start's board poses: no pose estimate to replace
         Rt_cam_grid = warm[1]
+    else:
+        Rt_cam_grid = mrcal.estimate_monocular_calobject_poses_Rt_tocam(
+            indices, observations, spacing, [("LENSMODEL_PINHOLE", seed)])
+        Rt_cam_grid = np.asarray(Rt_cam_grid, dtype=np.float64).reshape(Nposes, 4, 3)
+        if not np.all(np.isfinite(Rt_cam_grid)):
+            raise CalibrationFailed("degenerate poses: mrcal could not estimate the board "
+                                    "poses")
+    check_pose_diversity(Rt_cam_grid)
     problem = dict(
         intrinsics=np.zeros((1, nint)),
         rt_cam_ref=None,
