@@ -346,7 +346,7 @@ def test_a_warm_fit_starts_from_the_bias_of_its_start(monkeypatch):
     # differ by what the noise moves them, which moves the bias by ~1e-2 of the noise
     # (measured: 1.1e-5 px for 1e-3 px of noise on this navcam; the bias is ~0.1 px): at
     # 1e-4 px of noise, ~1e-6 px, below the 1e-5 px tolerance, so the first bias pass finds
-    # the bias settled: one solve, on the full grid (WARM_RESTARTS), and one bias pass
+    # the bias settled: one polish on the full grid (WARM_RESTARTS), and one bias pass
     truth = dict(MODELS)["15"]
     exact = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET), centroids=True)
     rng = np.random.default_rng(3)
@@ -361,7 +361,8 @@ def test_a_warm_fit_starts_from_the_bias_of_its_start(monkeypatch):
     biases = _bias_steps(monkeypatch)
     warm = calibrate("mrcal", exact, TARGET, "CAHVOR", truth=truth, start=image)
     assert warm.ok and warm.info["warm_start"] and warm.info["bias_corrected"]
-    assert shapes == [(6, 10, 10, 3)] and len(biases) == 1, (shapes, warm.info["passes"])
+    assert 1 <= len(shapes) <= mrcal_fit.WARM_RESTARTS and set(shapes) == {(6, 10, 10, 3)}
+    assert len(biases) == 1 and len(warm.info["passes"]) == 1, warm.info["passes"]
     # the bias it fitted with is the start's (obs.q - (obs.q - b): rounding at ~1000 px)
     np.testing.assert_allclose(warm.info["bias"], b, rtol=0, atol=1e-12)
     # the exact centroids with their bias corrected to the 1e-5 px tolerance: the truth,
@@ -374,5 +375,5 @@ def test_a_warm_fit_starts_from_the_bias_of_its_start(monkeypatch):
     biases.clear()
     bare = calibrate("mrcal", exact, TARGET, "CAHVOR", truth=truth,
                      start=image.replace(info={**image.info, "bias": None}))
-    assert bare.ok and shapes == [(6, 10, 10, 3)] and len(biases) == 2, bare.info["passes"]
+    assert bare.ok and set(shapes) == {(6, 10, 10, 3)} and len(biases) == 2, bare.info
     assert projection_difference(truth, bare.model, mode="rotation", step=64)["max"] < 1e-4
