@@ -119,18 +119,16 @@ COARSE_STEP = 2
 # BIAS_RELATIVE x the RMS residual (a change far below what the model cannot fit anyway).
 BIAS_RELATIVE = 0.05
 # A warm start (fit(start=...): harness.verdict's fit of the exact observations from the
-# image fit) restarts mrcal.optimize at most this many times per polish, while each restart
-# gains (POLISH_GAIN): the start is within the detection error (~1e-3 px) of the exact
-# observations' optimum of the same minimum, and the restarts' crawl along the R0 /
-# focal-length valley is what carried a cold exact fit into another minimum than the image
-# fit's (mrcal CAHVOR, cameras 5, 17). Its first fit is made to the detections the start's
-# bias corrects (skeleton.start_bias, as jpl and OpenCV do), on the full grid only: the
-# coarse grid buys a cheap approach to the full grid's optimum, and the start is one
-# detection error from it already. One restart is not enough: mrcal's solver stops early
-# (13 CAHVOR of the paper campaign: 1.6e-5 px RMS after one solve, 3e-9 px after three;
-# the verdict's floor moved by 0.25 sigma); 3 is what the warm fit spent before it started
-# from the start's bias (a coarse refit, then a coarse and a full-grid solve).
-WARM_RESTARTS = 3
+# image fit) restarts mrcal.optimize at most this many times per polish: the start is
+# within the detection error (~1e-3 px) of the exact observations' optimum of the same
+# minimum, and the restarts' crawl along the R0 / focal-length valley is what carried a
+# cold exact fit into another minimum than the image fit's (mrcal CAHVOR, cameras 5, 17).
+# (Up to 3 restarts while each gained, on the full grid: 13 CAHVOR's exact fit went from
+# 1.6e-5 to 3e-9 px RMS, but the misfits crawl through all 3 on every polish: 19 CAHVOR's
+# exact fit 0.29 -> 0.95 CPU s.) Its first fit is made to the detections corrected by the
+# bias the start computed at its final model (_start_bias): one polish and one bias pass
+# where that bias still holds for the exact observations' model.
+WARM_RESTARTS = 1
 
 
 def uses_world_frame(known_poses=False, **options):
@@ -277,21 +275,22 @@ residuals and board poses are NaN. The rest as _fit_poses.
                       Rt_ref_board=None if obs.Rt_ref_board is None else obs.Rt_ref_board[views])
     if start is not None and getattr(start, "Rt_cam_board", None) is not None \
             and len(start.Rt_cam_board) == obs.Nposes:
-        b = (start.info or {}).get("bias")
-        start = start.replace(
-            Rt_cam_board=start.Rt_cam_board[views],
-            info={**(start.info or {}), "bias": None if b is None or len(b) != obs.Nposes
-                  else b[views]})
+        info = dict(start.info or {})
+        for k in ("bias", "bias_settled"):
+            b = info.get(k)
+            info[k] = None if b is None or len(b) != obs.Nposes else b[views]
+        start = start.replace(Rt_cam_board=start.Rt_cam_board[views], info=info)
     res = _fit_poses(sub, target, model_name, truth=truth, start=start, **options)
     dropped = [{"pose": int(i), "found": int(counts[i]),
                 "reason": f"{int(counts[i])} points found; mrcal's pose seed needs "
                           f"{MIN_POSE_POINTS}"}
                for i in range(obs.Nposes) if i not in set(views.tolist())]
     changes = {"info": {**res.info, "poses_dropped": dropped}}
-    if res.info.get("bias") is not None:   # obs.q - the detections fitted: NaN where dropped
-        b = np.full(obs.q.shape, np.nan)
-        b[views] = res.info["bias"]
-        changes["info"]["bias"] = b
+    for k in ("bias", "bias_settled"):   # NaN where dropped
+        if res.info.get(k) is not None:
+            b = np.full(obs.q.shape, np.nan)
+            b[views] = res.info[k]
+            changes["info"][k] = b
     if res.residuals is not None:
         r = np.full(obs.q.shape, np.nan)
         r[views] = res.residuals
@@ -312,13 +311,16 @@ start: None, or an ok CalibrationResult of this calibrator and model on observat
 the same poses (harness.verdict: the image fit, to fit the exact observations): its
 intrinsics and board poses are the starting point; the board pose estimate, the pinhole
 solve, the staged model and the race of two starts are skipped, and each polish restarts
-mrcal.optimize at most WARM_RESTARTS times, on the full grid: the fit stays in the start's
-minimum. A start of another lens model or without every board pose is ignored
-(info["warm_start"] says which); info["moved_from_start"] says whether the warm fit moved
-from it at all. The start's bias (its info["bias"]: skeleton.start_bias) corrects the
-detections of the first fit, on the full grid (WARM_RESTARTS), so that a start whose bias
-still holds ends after that fit and one bias pass; info["bias"] is the bias the last fit
-was made with (skeleton.applied_bias).
+mrcal.optimize at most WARM_RESTARTS times: the fit stays in the start's minimum. A
+start of another lens model or without every board pose is ignored (info["warm_start"]
+says which); info["moved_from_start"] says whether the warm fit moved from it at all. The
+start's bias (_start_bias) corrects the detections of the first fit, so that a start
+whose bias still holds ends after that fit and one bias pass.
+info["bias"] is the bias the last fit was made with (skeleton.applied_bias);
+info["bias_settled"] the bias computed at the final model when the last bias pass found
+the bias settled (None otherwise): within the tolerance of info["bias"], which for mrcal
+is BIAS_RELATIVE x the RMS residual (~5e-5 px on a rendered image), and what a warm
+fit's first fit starts from.
 
 info["crawl"], when present: the restarts of a polish ran out of their budget
 (max_restarts) still gaining, with residuals far above the noise (crawl_verdict): from
@@ -401,14 +403,13 @@ then on every polish restarts once, and the entry says why in words.
     if warm is not None:
         max_restarts = WARM_RESTARTS
         # the first fit is made to the detections the start's bias corrects
-        b_start = start_bias(start, obs) if bias_runs else None
+        b_start = _start_bias(start, obs) if bias_runs else None
         if b_start is not None:
             problem["observations_board"] = board_obs(obs.q - b_start)
 
     # every COARSE_STEP-th row and column of the grid: the coarse problem of polish(), used
-    # when it has 4 x 4 points or more and every pose keeps at least 8 of them (not from a
-    # warm start: see WARM_RESTARTS)
-    coarse = COARSE_STEP if min(nx, ny) >= 4 * COARSE_STEP > 0 and warm is None else 1
+    # when it has 4 x 4 points or more and every pose keeps at least 8 of them
+    coarse = COARSE_STEP if min(nx, ny) >= 4 * COARSE_STEP > 0 else 1
     if coarse > 1 and (observations[:, ::coarse, ::coarse, 2] > 0).sum(axis=(1, 2)).min() < 8:
         coarse = 1
 
@@ -578,9 +579,12 @@ then on every polish restarts once, and the entry says why in words.
         cm, model, Rt_cam_board = current()
         return {"bias_change_max": change, **_rms(model, obs, Rt_cam_board, q_used, found)}
 
-    def settled(change, q_used):
-        nonlocal cm, model, Rt_cam_board, unpolished
+    b_settled = None   # the bias at the final model, when the last pass found it settled
+
+    def settled(change, q_used, b):
+        nonlocal cm, model, Rt_cam_board, unpolished, b_settled
         if not unpolished:
+            b_settled = b
             return None
         # the bias has settled on coarse polishes: polish on the full grid, then
         # check that the bias in use still holds for that model
@@ -614,7 +618,7 @@ then on every polish restarts once, and the entry says why in words.
               "world_frame": bool(known_poses), "regularization": bool(regularization),
               "bias_corrected": bias_applied, "passes": passes, "seed_pinhole": seed,
               "intrinsics": cm.intrinsics()[1], "cameramodel": cm,
-              "bias": applied_bias(obs, q_used, bias_applied),
+              "bias": applied_bias(obs, q_used, bias_applied), "bias_settled": b_settled,
               **({"crawl": crawl} if crawl is not None else {}), **start_info})
 
 
@@ -681,6 +685,24 @@ be estimated.
                       f"estimated from the residuals ({noise:.3g} px): the model misfits "
                       f"these observations and where the restarts stop is the budget's "
                       f"choice; each later polish restarts once"}
+
+
+def _start_bias(start, obs):
+    r'''The bias a warm fit's first fit is made with (Nposes,Npoints,2), or None
+
+The start's bias at its final model (info["bias_settled"]) where its last bias pass
+computed one, else the bias it applied (skeleton.start_bias). The first differs from the
+second by up to the start's own tolerance, BIAS_RELATIVE x its RMS residual (~5e-5 px on
+a rendered image), while the exact observations' model, one detection error from the
+start's, moves the bias by ~1e-5 px (1e-2 of the detection error: navcam 15): from the
+applied bias the warm fit's first pass found a change above the exact fit's 1e-5 px
+tolerance and refitted (13 and 15 CAHVOR of the paper campaign).
+'''
+    b = start_bias(start, obs)
+    s = (start.info or {}).get("bias_settled") if b is not None else None
+    if s is not None and np.shape(s) == obs.q.shape:
+        return np.asarray(s, dtype=np.float64)
+    return b
 
 
 def _warm_start(start, lensmodel, nint, Nposes, origin):
