@@ -325,3 +325,60 @@ def test_a_warm_fit_says_whether_it_moved_from_its_start(monkeypatch):
     still = calibrate("mrcal", other, TARGET, "CAHVOR", truth=truth, bias_correction=False,
                       start=image)
     assert still.info["warm_start"] and not still.info["moved_from_start"]
+
+
+def _bias_steps(monkeypatch):
+    from harness.calibrators import skeleton
+    calls = []
+    step = skeleton.bias_step
+
+    def spy(*args, **kw):
+        calls.append(1)
+        return step(*args, **kw)
+    monkeypatch.setattr(skeleton, "bias_step", spy)
+    return calls
+
+
+def test_a_warm_fit_starts_from_the_bias_of_its_start(monkeypatch):
+    # harness.verdict's exact fit from the image fit: the image fit records the bias it
+    # fitted last (info["bias"]) and the bias at its final model (info["bias_settled"]), and
+    # the warm fit corrects its first fit's detections with the latter (_start_bias). The two
+    # fits' models and board poses differ by what the noise moves them, which moves the bias
+    # by ~1e-2 of the noise (measured: 1.1e-5 px for 1e-3 px of noise on this navcam; the
+    # bias is ~0.1 px): at 1e-4 px of noise, ~1e-6 px, below the 1e-5 px tolerance, so the
+    # first bias pass finds the bias settled: one polish (a coarse and a full-grid solve,
+    # WARM_RESTARTS) and one bias pass
+    truth = dict(MODELS)["15"]
+    exact = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET), centroids=True)
+    rng = np.random.default_rng(3)
+    image = calibrate("mrcal", exact.replace(q=exact.q + rng.normal(scale=1e-4,
+                                                                    size=exact.q.shape)),
+                      TARGET, "CAHVOR", truth=truth)
+    assert image.ok, image.reason
+    b, b_final = image.info["bias"], image.info["bias_settled"]
+    # the dot-centroid bias of a navcam: ~0.1 px, under 1 px (harness.calibrators.bias)
+    assert b.shape == exact.q.shape and 0.01 < np.nanmax(np.abs(b)) < 1.0
+    # settled: within the image fit's tolerance of the bias it applied
+    tol = max(1e-5, mrcal_fit.BIAS_RELATIVE * image.info["passes"][-1]["rms"])
+    assert np.nanmax(np.abs(b_final - b)) < tol
+    shapes = _grid_shapes(monkeypatch)
+    biases = _bias_steps(monkeypatch)
+    warm = calibrate("mrcal", exact, TARGET, "CAHVOR", truth=truth, start=image)
+    assert warm.ok and warm.info["warm_start"] and warm.info["bias_corrected"]
+    assert shapes == [(6, 5, 5, 3), (6, 10, 10, 3)], shapes
+    assert len(biases) == 1 and len(warm.info["passes"]) == 1, warm.info["passes"]
+    # the bias it fitted with is the start's (obs.q - (obs.q - b): rounding at ~1000 px;
+    # NaN where a point was not seen)
+    seen = np.isfinite(exact.q)
+    np.testing.assert_allclose(warm.info["bias"][seen], b_final[seen], rtol=0, atol=1e-12)
+    # the exact centroids with their bias corrected to the 1e-5 px tolerance: the truth,
+    # to that tolerance (the bias passes' own limit; mrcal's convergence is ~1e-6 px)
+    d = projection_difference(truth, warm.model, mode="rotation", step=64)
+    assert d["n_invalid"] == 0 and d["max"] < 1e-4, d
+    # a start without a recorded bias: the bias at the start first, a solve to the
+    # detections it corrects, and the passes that find it settled (the same camera)
+    biases.clear()
+    bare = calibrate("mrcal", exact, TARGET, "CAHVOR", truth=truth,
+                     start=image.replace(info={**image.info, "bias": None}))
+    assert bare.ok and len(biases) >= 2, bare.info["passes"]
+    assert projection_difference(truth, bare.model, mode="rotation", step=64)["max"] < 1e-4

@@ -61,7 +61,7 @@ from harness.quiet import diagnostics_of
 from reference_models.cahvore import FAMILIES
 
 from .base import CalibrationFailed, check_homography_conditioning, check_pose_diversity
-from .skeleton import fitted_result, iterate_bias
+from .skeleton import applied_bias, fitted_result, iterate_bias, start_bias
 
 NAME = "mrcal"
 LIBRARY = "mrcal"
@@ -123,6 +123,11 @@ BIAS_RELATIVE = 0.05
 # within the detection error (~1e-3 px) of the exact observations' optimum of the same
 # minimum, and the restarts' crawl along the R0 / focal-length valley is what carried a
 # cold exact fit into another minimum than the image fit's (mrcal CAHVOR, cameras 5, 17).
+# (Up to 3 restarts while each gained, on the full grid: 13 CAHVOR's exact fit went from
+# 1.6e-5 to 3e-9 px RMS, but the misfits crawl through all 3 on every polish: 19 CAHVOR's
+# exact fit 0.29 -> 0.95 CPU s.) Its first fit is made to the detections corrected by the
+# bias the start computed at its final model (_start_bias): one polish and one bias pass
+# where that bias still holds for the exact observations' model.
 WARM_RESTARTS = 1
 
 
@@ -271,13 +276,22 @@ residuals and board poses are NaN. The rest as _fit_poses.
                       corner_model=None if obs.corner_model is None else obs.corner_model[views])
     if start is not None and getattr(start, "Rt_cam_board", None) is not None \
             and len(start.Rt_cam_board) == obs.Nposes:
-        start = start.replace(Rt_cam_board=start.Rt_cam_board[views])
+        info = dict(start.info or {})
+        for k in ("bias", "bias_settled"):
+            b = info.get(k)
+            info[k] = None if b is None or len(b) != obs.Nposes else b[views]
+        start = start.replace(Rt_cam_board=start.Rt_cam_board[views], info=info)
     res = _fit_poses(sub, target, model_name, truth=truth, start=start, **options)
     dropped = [{"pose": int(i), "found": int(counts[i]),
                 "reason": f"{int(counts[i])} points found; mrcal's pose seed needs "
                           f"{MIN_POSE_POINTS}"}
                for i in range(obs.Nposes) if i not in set(views.tolist())]
     changes = {"info": {**res.info, "poses_dropped": dropped}}
+    for k in ("bias", "bias_settled"):   # NaN where dropped
+        if res.info.get(k) is not None:
+            b = np.full(obs.q.shape, np.nan)
+            b[views] = res.info[k]
+            changes["info"][k] = b
     if res.residuals is not None:
         r = np.full(obs.q.shape, np.nan)
         r[views] = res.residuals
@@ -296,11 +310,18 @@ def _fit_poses(obs, target, model_name, truth=None, known_poses=False, bias_corr
 
 start: None, or an ok CalibrationResult of this calibrator and model on observations of
 the same poses (harness.verdict: the image fit, to fit the exact observations): its
-intrinsics and board poses are the starting point; the pinhole seed, the staged model and
-the race of two starts are skipped, and each solve is one mrcal.optimize without restarts
-(see WARM_RESTARTS): the fit stays in the start's minimum. A start of another lens model
-or without every board pose is ignored (info["warm_start"] says which);
-info["moved_from_start"] says whether the warm fit moved from it at all.
+intrinsics and board poses are the starting point; the board pose estimate, the pinhole
+solve, the staged model and the race of two starts are skipped, and each polish restarts
+mrcal.optimize at most WARM_RESTARTS times: the fit stays in the start's minimum. A
+start of another lens model or without every board pose is ignored (info["warm_start"]
+says which); info["moved_from_start"] says whether the warm fit moved from it at all. The
+start's bias (_start_bias) corrects the detections of the first fit, so that a start
+whose bias still holds ends after that fit and one bias pass.
+info["bias"] is the bias the last fit was made with (skeleton.applied_bias);
+info["bias_settled"] the bias computed at the final model when the last bias pass found
+the bias settled (None otherwise): within the tolerance of info["bias"], which for mrcal
+is BIAS_RELATIVE x the RMS residual (~5e-5 px on a rendered image), and what a warm
+fit's first fit starts from.
 
 info["crawl"], when present: the restarts of a polish ran out of their budget
 (max_restarts) still gaining, with residuals far above the noise (crawl_verdict): from
@@ -340,17 +361,18 @@ then on every polish restarts once, and the entry says why in words.
     observations = board_obs(obs.q)
     indices = np.column_stack((np.arange(Nposes), np.zeros(Nposes), -np.ones(Nposes)))
     indices = indices.astype(np.int32)
-    Rt_cam_grid = mrcal.estimate_monocular_calobject_poses_Rt_tocam(
-        indices, observations, spacing, [("LENSMODEL_PINHOLE", seed)])
-    Rt_cam_grid = np.asarray(Rt_cam_grid, dtype=np.float64).reshape(Nposes, 4, 3)
-    if not np.all(np.isfinite(Rt_cam_grid)):
-        raise CalibrationFailed("degenerate poses: mrcal could not estimate the board poses")
-    check_pose_diversity(Rt_cam_grid)
-
     nint = mrcal.lensmodel_num_params(lensmodel)
     warm = _warm_start(start, lensmodel, nint, Nposes, origin)
-    if warm is not None:
+    if warm is not None:   # the start's board poses: no pose estimate to replace
         Rt_cam_grid = warm[1]
+    else:
+        Rt_cam_grid = mrcal.estimate_monocular_calobject_poses_Rt_tocam(
+            indices, observations, spacing, [("LENSMODEL_PINHOLE", seed)])
+        Rt_cam_grid = np.asarray(Rt_cam_grid, dtype=np.float64).reshape(Nposes, 4, 3)
+        if not np.all(np.isfinite(Rt_cam_grid)):
+            raise CalibrationFailed("degenerate poses: mrcal could not estimate the board "
+                                    "poses")
+    check_pose_diversity(Rt_cam_grid)
     problem = dict(
         intrinsics=np.zeros((1, nint)),
         rt_cam_ref=None,
@@ -377,8 +399,14 @@ then on every polish restarts once, and the entry says why in words.
     iterations = 0
     stages = []
     start_info = {"warm_start": warm is not None} if start is not None else {}
+    bias_runs = bias_correction and bias_passes > 0 and target is not None
+    b_start = None
     if warm is not None:
         max_restarts = WARM_RESTARTS
+        # the first fit is made to the detections the start's bias corrects
+        b_start = _start_bias(start, obs) if bias_runs else None
+        if b_start is not None:
+            problem["observations_board"] = board_obs(obs.q - b_start)
 
     # every COARSE_STEP-th row and column of the grid: the coarse problem of polish(), used
     # when it has 4 x 4 points or more and every pose keeps at least 8 of them
@@ -472,9 +500,11 @@ then on every polish restarts once, and the entry says why in words.
         return r
 
     if warm is not None:
-        unpolished = nint > 4 and not regularization
+        unpolished = nint > 4 and not regularization and b_start is None
         if regularization:
             solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
+        elif b_start is not None:
+            polish()   # the first fit, to the detections the start's bias corrects
     elif nint > 4:
         if regularization:
             solve(do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=True)
@@ -534,12 +564,12 @@ then on every polish restarts once, and the entry says why in words.
         Rt_cam_board = np.array([mrcal.compose_Rt(Rt, Rt_grid_board) for Rt in Rt_cam_g])
         return cm, model, Rt_cam_board
 
-    bias_runs = bias_correction and bias_passes > 0 and target is not None
     if unpolished and not bias_runs:
         polish()
         unpolished = False
     cm, model, Rt_cam_board = current()
-    passes = [{"pass": 1, **_rms(model, obs, Rt_cam_board, obs.q, found)}]
+    q_first = obs.q if b_start is None else obs.q - b_start
+    passes = [{"pass": 1, **_rms(model, obs, Rt_cam_board, q_first, found)}]
 
     def refit(q_used, change):
         nonlocal cm, model, Rt_cam_board, unpolished
@@ -550,9 +580,12 @@ then on every polish restarts once, and the entry says why in words.
         cm, model, Rt_cam_board = current()
         return {"bias_change_max": change, **_rms(model, obs, Rt_cam_board, q_used, found)}
 
-    def settled(change, q_used):
-        nonlocal cm, model, Rt_cam_board, unpolished
+    b_settled = None   # the bias at the final model, when the last pass found it settled
+
+    def settled(change, q_used, b):
+        nonlocal cm, model, Rt_cam_board, unpolished, b_settled
         if not unpolished:
+            b_settled = b
             return None
         # the bias has settled on coarse polishes: polish on the full grid, then
         # check that the bias in use still holds for that model
@@ -567,7 +600,7 @@ then on every polish restarts once, and the entry says why in words.
         bias_passes=bias_passes if bias_runs else 0, bias_tolerance=bias_tolerance,
         no_dots="no dots: no centroid bias",
         tolerance=lambda passes: max(bias_tolerance, BIAS_RELATIVE * passes[-1]["rms"]),
-        settled=settled)
+        settled=settled, b_start=b_start)
 
     if unpolished:   # no bias pass ran (no dots), or they ran out before the bias settled
         polish()
@@ -586,6 +619,7 @@ then on every polish restarts once, and the entry says why in words.
               "world_frame": bool(known_poses), "regularization": bool(regularization),
               "bias_corrected": bias_applied, "passes": passes, "seed_pinhole": seed,
               "intrinsics": cm.intrinsics()[1], "cameramodel": cm,
+              "bias": applied_bias(obs, q_used, bias_applied), "bias_settled": b_settled,
               **({"crawl": crawl} if crawl is not None else {}), **start_info})
 
 
@@ -652,6 +686,24 @@ be estimated.
                       f"estimated from the residuals ({noise:.3g} px): the model misfits "
                       f"these observations and where the restarts stop is the budget's "
                       f"choice; each later polish restarts once"}
+
+
+def _start_bias(start, obs):
+    r'''The bias a warm fit's first fit is made with (Nposes,Npoints,2), or None
+
+The start's bias at its final model (info["bias_settled"]) where its last bias pass
+computed one, else the bias it applied (skeleton.start_bias). The first differs from the
+second by up to the start's own tolerance, BIAS_RELATIVE x its RMS residual (~5e-5 px on
+a rendered image), while the exact observations' model, one detection error from the
+start's, moves the bias by ~1e-5 px (1e-2 of the detection error: navcam 15): from the
+applied bias the warm fit's first pass found a change above the exact fit's 1e-5 px
+tolerance and refitted (13 and 15 CAHVOR of the paper campaign).
+'''
+    b = start_bias(start, obs)
+    s = (start.info or {}).get("bias_settled") if b is not None else None
+    if s is not None and np.shape(s) == obs.q.shape:
+        return np.asarray(s, dtype=np.float64)
+    return b
 
 
 def _warm_start(start, lensmodel, nint, Nposes, origin):

@@ -100,9 +100,9 @@ ARGUMENTS
   no_dots (a string) passes then gets {"pass": i, "skipped": no_dots}
 - tolerance: None (bias_tolerance), or tolerance(passes) -> px, the
   tolerance given the passes so far
-- settled: None (the bias has settled: stop), or settled(change, q_used) ->
+- settled: None (the bias has settled: stop), or settled(change, q_used, b) ->
   the figures of a pass that refits without a new bias (appended to passes,
-  and the passes go on), or None to stop
+  and the passes go on), or None to stop; b: the bias just computed (not applied)
 - b_start: None, or the bias the first fit was made with (start_bias: obs.q -
   b_start were its detections); the first pass compares with it
 '''
@@ -123,7 +123,7 @@ ARGUMENTS
             break
         if b_prev is not None and change < (bias_tolerance if tolerance is None
                                             else tolerance(passes)):
-            figures = None if settled is None else settled(change, q_used)
+            figures = None if settled is None else settled(change, q_used, b)
             if figures is None:
                 break
             passes.append({"pass": ipass + 2, **figures})
