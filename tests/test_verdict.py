@@ -309,8 +309,9 @@ fit stops where the image fit's minimum is: floor 5e-8 px against 8e-7 px). Held
 a hundred times below it cannot move a verdict. The cold fit's bias passes run to a
 tolerance of 1e-10 px: at the calibrators' 1e-5 px (the warm fit's) the cold OpenCV fit
 is itself 1.1e-5 px (max) from its converged value.
-jpl and OpenCV start from the image fit's bias (skeleton.start_bias): a solve or two
-instead of a solve without the bias and the passes that bring it back (3-5 solves).'''
+All three start from the image fit's bias (skeleton.start_bias; mrcal from the bias its
+image fit settled at): a solve or two instead of a solve without the bias and the passes
+that bring it back (3-5 solves).'''
     truth, target, poses, obs = navcam
     rng = np.random.default_rng(11)
     img = obs.replace(q=obs.q + rng.normal(0, 0.001 / np.sqrt(2), obs.q.shape))
@@ -321,8 +322,7 @@ instead of a solve without the bias and the passes that bring it back (3-5 solve
     warm, _, reused = verdict.exact_fit(cal, model, {}, img, target, truth, {}, start=res)
     assert not reused and warm is not cold          # another start: not the memo's fit
     assert warm.ok and warm.info["warm_start"] is True
-    if cal != "mrcal":
-        assert warm.info["bias"] is not None and len(warm.info["passes"]) <= 2
+    assert warm.info["bias"] is not None and len(warm.info["passes"]) <= 2
     d = verdict.fit_projection_difference(cold.model, warm.model, truth)
     # OpenCV fits float32 points: each coordinate rounded by up to 6e-5 px at 1000 px (RMS
     # 3.5e-5), and two fits to points 1e-5 px apart round them differently: the fitted
