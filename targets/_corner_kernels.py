@@ -252,7 +252,31 @@ its centre is within max_px of q0; on_image when it lies in the (H, W) image'''
     return inside, on_image
 
 
+@njit(cache=True, error_model="numpy")
+def image_range_u8(img, scale):
+    r'''One pass over a detector's image (targets.detection.working_image): (finite, lo, hi,
+img8); finite: no pixel is NaN or infinite; lo, hi: the smallest and largest pixel;
+img8 (H,W) uint8 = rint(scale * max(img, 0)) saturated at 255, in the image's own float
+type (scale of that type): what OpenCV's convertScaleAbs(max(img, 0), alpha=scale) gives
+(round half to even; float32 products stay float32) where it does not overflow'''
+    H, W = img.shape
+    out = np.empty((H, W), np.uint8)
+    zero = np.zeros(1, img.dtype)[0]          # the image's float type, not float64
+    lo = img[0, 0]
+    hi = img[0, 0]
+    finite = True
+    for i in range(H):
+        for j in range(W):
+            x = img[i, j]
+            if not (x - x == zero):           # NaN or +-inf
+                finite = False
+            lo = min(lo, x)
+            hi = max(hi, x)
+            out[i, j] = np.uint8(min(np.rint(max(x, zero) * scale), 255.0))
+    return finite, float(lo), float(hi), out
+
+
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup)'''
-    return (wedge_model, normal_equations, window_mask)
+    return (wedge_model, normal_equations, window_mask, image_range_u8)
