@@ -11,6 +11,10 @@ SYNOPSIS
     # of each wedge (counter-clockwise, below pi); Z (m,M,2) offsets (px) and W (m,M)
     # weights of each corner's blur kernel, dZ, dW their derivatives in the blur's sigma
     # (targets.corners.blur_kernel); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R), dD_ds (m,P)
+    JtJ, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r)  # the fit's normal equations
+    a, b, S, r = light_levels(s, D, w, v)   # light level, contrast, misfit, residuals
+    inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, max_px, H, W)
+    finite, lo, hi, img8 = image_range_u8(img, scale)   # targets.detection.working_image
 
 With M > 1 the dark area of each pixel is blurred: D = sum_q W_q A(d + Z_q), the
 kernel's expectation of the exact pixel area A; pixels far from every ray take A once
@@ -200,6 +204,21 @@ matmul to rounding, not bit for bit)'''
             for k in range(R):
                 J[4 + k] = bn * dD_dt[n, p, k]
             rp = r[n, p]
+            # a pixel no ray crosses (most of a sharp window) has no geometric derivative:
+            # its +-0 terms leave every sum as it is, so only (1, D) are accumulated
+            flat = rp - rp == 0.0
+            for k in range(2, K):
+                if J[k] != 0.0:
+                    flat = False
+                    break
+            if flat:
+                Jtr[j, 0] += wp * rp
+                JtJ[j, 0, 0] += wp
+                JtJ[j, 0, 1] += wp * J[1]
+                jw = J[1] * wp
+                Jtr[j, 1] += jw * rp
+                JtJ[j, 1, 1] += jw * J[1]
+                continue
             for k in range(K):
                 jw = J[k] * wp
                 Jtr[j, k] += jw * rp
