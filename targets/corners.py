@@ -73,8 +73,9 @@ on 640x480 with it (load 11-17; docs/corners.md); with the window's pixel mask c
 (targets._corner_kernels.window_mask) 0.064 s on 640x480, 0.081 s on 1024x1024, 0.21 s on
 5120x3840 against 0.080, 0.099 and 0.33 s before it on the same images and load (14-16);
 with working_image's one compiled pass, the light levels compiled and the normal
-equations skipping the pixels no ray crosses (corners unchanged bit for bit) 0.050, 0.067-0.077
-and 0.14-0.15 s against 0.054-0.063, 0.070-0.094 and 0.15-0.21 s (load 3-4, same images);
+equations skipping the pixels no ray crosses (corners unchanged bit for bit) 0.045 s on
+640x480, 0.059-0.070 s on 1024x1024, 0.14 s on 5120x3840 against 0.057, 0.067-0.077 and
+0.16 s before (the least CPU of 12 detections of one image each, load 2.5);
 chessboard 0.045 s on 1024x1024 (this
 fit 0.037 s of it), 0.043 s on 640x480, 0.19 s on 5120x3840.
 
