@@ -11,6 +11,10 @@ SYNOPSIS
     # of each wedge (counter-clockwise, below pi); Z (m,M,2) offsets (px) and W (m,M)
     # weights of each corner's blur kernel, dZ, dW their derivatives in the blur's sigma
     # (targets.corners.blur_kernel); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R), dD_ds (m,P)
+    JtJ, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r)  # the fit's normal equations
+    a, b, S, r = light_levels(s, D, w, v)   # light level, contrast, misfit, residuals
+    inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, max_px, H, W)
+    finite, lo, hi, img8 = image_range_u8(img, scale)   # targets.detection.working_image
 
 With M > 1 the dark area of each pixel is blurred: D = sum_q W_q A(d + Z_q), the
 kernel's expectation of the exact pixel area A; pixels far from every ray take A once
@@ -200,6 +204,21 @@ matmul to rounding, not bit for bit)'''
             for k in range(R):
                 J[4 + k] = bn * dD_dt[n, p, k]
             rp = r[n, p]
+            # a pixel no ray crosses (most of a sharp window) has no geometric derivative:
+            # its +-0 terms leave every sum as it is, so only (1, D) are accumulated
+            flat = rp - rp == 0.0
+            for k in range(2, K):
+                if J[k] != 0.0:
+                    flat = False
+                    break
+            if flat:
+                Jtr[j, 0] += wp * rp
+                JtJ[j, 0, 0] += wp
+                JtJ[j, 0, 1] += wp * J[1]
+                jw = J[1] * wp
+                Jtr[j, 1] += jw * rp
+                JtJ[j, 1, 1] += jw * J[1]
+                continue
             for k in range(K):
                 jw = J[k] * wp
                 Jtr[j, k] += jw * rp
@@ -252,7 +271,138 @@ its centre is within max_px of q0; on_image when it lies in the (H, W) image'''
     return inside, on_image
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _block_sum(a, lo, n):
+    # numpy's pairwise_sum on n <= 128 values: eight lanes, then the rest one by one
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    m = n - n % 8
+    while i < m:
+        k = lo + i
+        r0 += a[k]
+        r1 += a[k + 1]
+        r2 += a[k + 2]
+        r3 += a[k + 3]
+        r4 += a[k + 4]
+        r5 += a[k + 5]
+        r6 += a[k + 6]
+        r7 += a[k + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True, error_model="numpy")
+def _pairwise_sum(a, n):
+    r'''a[:n].sum() in numpy's order (its pairwise summation: halves split at a multiple of
+8 down to blocks of at most 128, each summed in 8 lanes), so that light_levels equals the
+numpy expressions it replaces bit for bit. numpy recurses; this walks the same tree with
+its own stacks (numba's cache does not take recursive kernels).'''
+    if n <= 128:
+        return _block_sum(a, 0, n)
+    tlo = np.empty(128, np.int64)      # tasks: start, length, children summed yet
+    tn = np.empty(128, np.int64)
+    tdone = np.empty(128, np.bool_)
+    vals = np.empty(128)
+    nt = 1
+    nv = 0
+    tlo[0], tn[0], tdone[0] = 0, n, False
+    while nt:
+        nt -= 1
+        lo, m, done = tlo[nt], tn[nt], tdone[nt]
+        if m <= 128:
+            vals[nv] = _block_sum(a, lo, m)
+            nv += 1
+        elif done:
+            nv -= 1
+            vals[nv - 1] = vals[nv - 1] + vals[nv]
+        else:
+            m2 = m // 2
+            m2 -= m2 % 8
+            tlo[nt], tn[nt], tdone[nt] = lo, m, True
+            tlo[nt + 1], tn[nt + 1], tdone[nt + 1] = lo + m2, m - m2, False
+            tlo[nt + 2], tn[nt + 2], tdone[nt + 2] = lo, m2, False
+            nt += 3
+    return vals[0]
+
+
+@njit(cache=True, error_model="numpy")
+def light_levels(s, D, w, v):
+    r'''The light level a, contrast b, weighted misfit S (m,) and residuals r (m,P) of the
+corners s: the weighted least squares of v = a + b D over each window (w its weights,
+(n,P); D (m,P) the dark areas of the corners s), the arithmetic of the numpy expressions
+in targets.corners._fit in their order, sums in numpy's pairwise order: equal bit for bit'''
+    m, P = D.shape
+    a = np.empty(m)
+    b = np.empty(m)
+    S = np.empty(m)
+    r = np.empty((m, P))
+    t0 = np.empty(P)
+    t1 = np.empty(P)
+    t2 = np.empty(P)
+    t3 = np.empty(P)
+    t4 = np.empty(P)
+    for j in range(m):
+        n = s[j]
+        for p in range(P):
+            wd = w[n, p] * D[j, p]
+            t0[p] = w[n, p]
+            t1[p] = wd
+            t2[p] = wd * D[j, p]
+            t3[p] = w[n, p] * v[n, p]
+            t4[p] = wd * v[n, p]
+        sw = _pairwise_sum(t0, P)
+        sd = _pairwise_sum(t1, P)
+        sdd = _pairwise_sum(t2, P)
+        sv = _pairwise_sum(t3, P)
+        sdv = _pairwise_sum(t4, P)
+        det = sw * sdd - sd * sd
+        bj = (sw * sdv - sd * sv) / det
+        aj = (sv - bj * sd) / sw
+        for p in range(P):
+            rp = (v[n, p] - aj) - bj * D[j, p]
+            r[j, p] = rp
+            t0[p] = (w[n, p] * rp) * rp
+        a[j] = aj
+        b[j] = bj
+        S[j] = _pairwise_sum(t0, P)
+    return a, b, S, r
+
+
+@njit(cache=True, error_model="numpy")
+def image_range_u8(img, scale):
+    r'''One pass over a detector's image (targets.detection.working_image): (finite, lo, hi,
+img8); finite: no pixel is NaN or infinite; lo, hi: the smallest and largest pixel;
+img8 (H,W) uint8 = rint(scale * max(img, 0)) saturated at 255, in the image's own float
+type (scale of that type): what OpenCV's convertScaleAbs(max(img, 0), alpha=scale) gives
+(round half to even; float32 products stay float32) where it does not overflow'''
+    H, W = img.shape
+    out = np.empty((H, W), np.uint8)
+    zero = np.zeros(1, img.dtype)[0]          # the image's float type, not float64
+    lo = img[0, 0]
+    hi = img[0, 0]
+    finite = True
+    for i in range(H):
+        for j in range(W):
+            x = img[i, j]
+            if not (x - x == zero):           # NaN or +-inf
+                finite = False
+            lo = min(lo, x)
+            hi = max(hi, x)
+            out[i, j] = np.uint8(min(np.rint(max(x, zero) * scale), 255.0))
+    return finite, float(lo), float(hi), out
+
+
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup)'''
-    return (wedge_model, normal_equations, window_mask)
+    return (wedge_model, normal_equations, window_mask, image_range_u8, light_levels)

@@ -178,18 +178,16 @@ SYNOPSIS
 
     img, img8, (lo, hi) = working_image(image)   # or None
 
-One pass each through OpenCV (checkRange, minMaxLoc, max, convertScaleAbs): on a
-5120x3840 image the numpy round/clip/isfinite/max/min they replace took 0.25 s of CPU.
+One compiled pass (targets._corner_kernels.image_range_u8): on a 5120x3840 float32 image
+it takes 0.04 s of CPU where OpenCV's checkRange, minMaxLoc, max and convertScaleAbs took
+0.14 s (load 6, 2 cores), with the same img8 bit for bit (float32 products stay float32).
 img8 = round(255 * clip(img, 0, 1)) (round half to even, as numpy's round).
 '''
-    import cv2
+    from ._corner_kernels import image_range_u8
     a = np.asarray(image)
-    img = as_float_image(a, dtype=np.float64 if a.dtype == np.float64 else np.float32)
-    img = np.ascontiguousarray(img)
-    if not cv2.checkRange(img):
+    dtype = np.float64 if a.dtype == np.float64 else np.float32
+    img = np.ascontiguousarray(as_float_image(a, dtype=dtype))
+    finite, lo, hi, img8 = image_range_u8(img, dtype(255.0))
+    if not finite:
         return None
-    lo, hi, _, _ = cv2.minMaxLoc(img)
-    # negatives to 0 first (convertScaleAbs takes |value|); above 255 it saturates
-    img8 = cv2.convertScaleAbs(cv2.max(img, 0.0), alpha=255.0)
-    return img, img8, (float(lo), float(hi))
-
+    return img, img8, (lo, hi)

@@ -263,3 +263,28 @@ issue 16's, 7x above the worst of those.'''
         assert det["n_found"] >= 0.95 * det["n_expected"], (job.key, det)
         assert rec["residuals"]["rms"] <= 0.005, (job.key, rec["residuals"])
         assert rec["projection"]["rms"] <= 0.005, (job.key, rec["projection"])
+
+
+def test_light_levels_are_the_weighted_least_squares():
+    # the compiled light level / contrast fit against numpy's lstsq on the same windows; both
+    # are sums of ~P terms of size <= 1 in float64: agreement to 1e-9 is rounding (P eps
+    # times the conditioning of a 2x2 system of well-spread D), far above it would be a bug
+    from targets._corner_kernels import _pairwise_sum, light_levels
+    rng = np.random.default_rng(5)
+    n, P = 9, 300
+    w = (rng.uniform(size=(n, P)) > 0.2).astype(float)
+    v = rng.uniform(size=(n, P))
+    s = np.array([0, 3, 4, 8])
+    D = rng.uniform(size=(len(s), P))
+    a, b, S, r = light_levels(s, D, w, v)
+    for j, k in enumerate(s):
+        sw = np.sqrt(w[k])
+        (a0, b0), *_ = np.linalg.lstsq(np.stack((sw, sw * D[j]), -1), sw * v[k], rcond=None)
+        assert a[j] == pytest.approx(a0, abs=1e-9) and b[j] == pytest.approx(b0, abs=1e-9)
+        r0 = v[k] - a0 - b0 * D[j]
+        assert np.allclose(r[j], r0, atol=1e-9)
+        assert S[j] == pytest.approx(np.sum(w[k] * r0 * r0), rel=1e-9)
+    # numpy's pairwise summation order: on many sizes either side of its 128-value blocks
+    for m in (1, 7, 8, 127, 128, 129, 300, 1031, 5000):
+        x = rng.standard_normal(m)
+        assert _pairwise_sum(x, m) == pytest.approx(x.sum(), abs=1e-12 * np.abs(x).sum())

@@ -402,3 +402,23 @@ def test_mark_flags_follow_perspective_on_the_lattice_edge():
                         * (1 + 0.01 * np.sin(7 * ia + 3 * ib)))   # +-1 % blob noise
     flags = mark_flags(nodes, np.array(area), 0.07 / 0.05)
     assert {k for k, j in nodes.items() if flags[j]} == marks
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_working_image_is_the_rounded_clipped_image(dtype):
+    # the detectors' uint8 copy is round-half-to-even(255 * clip(img, 0, 1)) computed in the
+    # image's own float type (numpy's round of the same product): exact integers, so equal,
+    # including pixels exactly half-way between two levels, below 0 and above 1
+    from targets.detection import working_image
+    rng = np.random.default_rng(3)
+    img = rng.uniform(-0.3, 1.3, (37, 53)).astype(dtype)
+    levels = (np.repeat(np.arange(256), 3) + np.tile([-0.5, 0.0, 0.5], 256)) / 255.0
+    img.flat[:len(levels)] = levels.astype(dtype)
+    work, img8, (lo, hi) = working_image(img)
+    assert work.dtype == dtype
+    want = np.round(dtype(255.0) * np.clip(img, dtype(0.0), dtype(1.0)))
+    assert np.array_equal(img8, want.astype(np.uint8))
+    assert (lo, hi) == (float(img.min()), float(img.max()))
+    for bad in (np.nan, np.inf, -np.inf):
+        img[20, 30] = bad
+        assert working_image(img) is None
