@@ -78,12 +78,30 @@ processes and the jobs' workers share it.'''
     return ctx
 
 
+def _init_worker(pid, blas_threads):
+    r'''Worker initializer: end with the campaign (_die_with_campaign), numpy's OpenBLAS
+on blas_threads threads (harness.blas)'''
+    from . import blas
+    blas.set_threads(blas_threads)
+    _die_with_campaign(pid)
+
+
+def blas_threads_per_worker(workers, cores=None):
+    r'''numpy's OpenBLAS threads for each of `workers` local workers: the cores left to
+each (at least 1). The workers fill the cores with jobs; more BLAS threads than that only
+compete with the other workers' (harness/blas.py: measured)'''
+    cores = cores or len(os.sched_getaffinity(0))
+    return max(1, cores // max(1, workers))
+
+
 def local_pool(workers):
     r'''A ProcessPoolExecutor of `workers` local processes (local_context) that end when
-this process does (_die_with_campaign): the jobs' workers and the warm-up's'''
+this process does (_die_with_campaign), each with numpy's OpenBLAS on its share of the
+cores (blas_threads_per_worker): the jobs' workers and the warm-up's'''
     import concurrent.futures as cf
     return cf.ProcessPoolExecutor(max_workers=workers, mp_context=local_context(),
-                                  initializer=_die_with_campaign, initargs=(os.getpid(),))
+                                  initializer=_init_worker,
+                                  initargs=(os.getpid(), blas_threads_per_worker(workers)))
 
 
 def _local_results(fn, jobs, workers):

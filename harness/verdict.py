@@ -436,7 +436,8 @@ numbers fitted) or its "error". Returns a JSON-able dict:
 
 A failed exact fit leaves floor and renderer None with exact_fit saying why.
 '''
-    with _OneBlasThread():
+    from . import blas
+    with blas.one_thread():
         return _assess(truth, res, exact_res, noise, total_params, total_projection,
                        seconds, obs)
 
@@ -888,57 +889,12 @@ least DETECTION_RESOLUTION_PX; NaN where an image has no point'''
     return out
 
 
-def _openblas():
-    r'''(get_num_threads, set_num_threads) of numpy's bundled OpenBLAS, or None'''
-    global _OPENBLAS
-    if _OPENBLAS is False:
-        import ctypes
-        import glob
-        import os
-        _OPENBLAS = None
-        libs = os.path.join(os.path.dirname(os.path.dirname(np.__file__)), "numpy.libs")
-        for path in sorted(glob.glob(os.path.join(libs, "lib*openblas*.so*"))):
-            try:
-                lib = ctypes.CDLL(path)     # the copy numpy loaded (same path: same handle)
-            except OSError:
-                continue
-            for suffix in ("64_", ""):
-                for pre in ("scipy_openblas", "openblas"):
-                    get = getattr(lib, f"{pre}_get_num_threads{suffix}", None)
-                    put = getattr(lib, f"{pre}_set_num_threads{suffix}", None)
-                    if get is not None and put is not None:
-                        _OPENBLAS = (get, put)
-                        return _OPENBLAS
-    return _OPENBLAS
-
-
-_OPENBLAS = False
-
-
-class _OneBlasThread:
-    r'''numpy's OpenBLAS on one thread inside the block (a no-op where it is not found).
-
-scatter()'s linear algebra is on matrices of a few dozen columns: a 48 x 48 eigh takes
-0.3 ms on one thread and 0.2-0.4 s on two with both cores busy (a campaign's two workers
-on 2 cores: OpenBLAS's threads wait for each other), measured 2026-11-25 at load 11.'''
-
-    def __enter__(self):
-        self.lib = _openblas()
-        if self.lib is not None:
-            self.n = self.lib[0]()
-            self.lib[1](1)
-        return self
-
-    def __exit__(self, *exc):
-        if self.lib is not None:
-            self.lib[1](self.n)
-        return False
-
-
 def scatter(res, exact_res, obs, truth):
     r'''Expected scatter of the image fit about the exact fit (see _scatter), with numpy's
-linear algebra on one thread (_OneBlasThread)'''
-    with _OneBlasThread():
+linear algebra on one thread (harness.blas.one_thread: its matrices have a few dozen
+columns, where OpenBLAS's threads only wait for each other)'''
+    from . import blas
+    with blas.one_thread():
         return _scatter(res, exact_res, obs, truth)
 
 

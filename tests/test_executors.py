@@ -84,3 +84,35 @@ def test_workers_end_when_the_campaign_process_is_killed():
     finally:
         if p.poll() is None:
             p.kill()
+
+
+def _blas_threads(_):
+    from harness import blas
+    return blas.threads()
+
+
+def test_workers_share_the_cores_with_numpys_blas():
+    r'''Each local worker runs numpy's OpenBLAS on its share of the cores: 2 workers on
+2 cores, one thread each (more only wait for the other worker's, harness/blas.py)'''
+    from harness import blas
+    from harness.executors import _local_results, blas_threads_per_worker
+    if blas.threads() is None:
+        pytest.skip("numpy's OpenBLAS is not found here (the thread count is not set)")
+    assert blas_threads_per_worker(2, cores=2) == 1
+    assert blas_threads_per_worker(2, cores=8) == 4
+    assert blas_threads_per_worker(4, cores=2) == 1
+    want = blas_threads_per_worker(2)
+    got = [r for _, r in _local_results(_blas_threads, [0, 1, 2, 3], 2)]
+    assert got == [want] * 4
+
+
+def test_one_blas_thread_restores_the_thread_count():
+    r'''blas.one_thread (the verdict's linear algebra) runs on one thread; the count is
+restored after the block'''
+    from harness import blas
+    n = blas.threads()
+    if n is None:
+        pytest.skip("numpy's OpenBLAS is not found here (the block is a no-op)")
+    with blas.one_thread():
+        assert blas.threads() == 1
+    assert blas.threads() == n

@@ -342,17 +342,6 @@ that bring it back (3-5 solves).'''
     assert reused and again is warm
 
 
-def test_one_blas_thread_restores_the_thread_count():
-    r'''scatter()'s linear algebra runs on one OpenBLAS thread; the count is restored'''
-    lib = verdict._openblas()
-    if lib is None:
-        pytest.skip("numpy's OpenBLAS is not found here (the block is a no-op)")
-    n = lib[0]()
-    with verdict._OneBlasThread():
-        assert lib[0]() == 1
-    assert lib[0]() == n
-
-
 def test_a_fractional_difference_of_a_parameter_near_zero_is_judged_like_the_parameter():
     r'''A CAHVOR lens with R1 ~ 0 (navcam 15 with R1 = 1e-8: a nearly distortion-free lens;
 the same happened to Mastcam-Z Z110's R2 on the exact ray caster). The exact fit's R1 is
