@@ -30,9 +30,9 @@ The truth is targets.centroids.projected_points: the board's corner points proje
 through the camera; camval's rows also give the error after subtracting the refiner's
 curvature bias under the true model and pose (harness.calibrators.bias.corner_bias, what
 jpl's bias loop converges to), on the corners the window model refined (the detection's
-corner_model: tag-edge corners of blurred images carry none). Prints the table method x camera (corner error RMS / max px,
-corners found, median seconds per image), then the detection time per image of each
-method and image size (median and max over the images: the bars are 0.1 s on 1024x1024
+corner_model: tag-edge corners of blurred images carry none). Prints the table method x
+camera (corner error RMS / max px, corners found, median seconds per image), then the
+detection time per image of each method and image size (median and max over the images: the bars are 0.1 s on 1024x1024
 and 0.5 s on 5120x3840, issue 16; loaded-machine figures, the load average is
 recorded), and writes one JSON document to --out/<UTC stamp>-corners.json (never
 overwriting). --save-q F.npz keeps every method's corners per image; --compare-q F.npz
