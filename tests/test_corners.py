@@ -60,6 +60,15 @@ def _rolled_pose(roll_deg, tilt_deg, t):
     return np.vstack((Rz @ Rx, t))
 
 
+def _scene(t, m, Rt, K, seed):
+    r'''(image, exact corner projections, coarse corners 0.3 px off the exact ones in random
+directions) of target t under model m and pose Rt, rendered at K x K samples a pixel'''
+    img = render(m, t.pattern(), Rt, K=K)
+    truth = projected_points(m, t, Rt)
+    rng = np.random.default_rng(seed)
+    return img, truth, truth + 0.3 * _unit(rng.uniform(0, 2 * np.pi, len(truth))).T
+
+
 def _exact_error(fit, truth):
     e = np.linalg.norm(fit.q - truth, axis=-1)
     return np.sqrt(np.nanmean(e ** 2)), np.nanmax(e)
@@ -73,10 +82,7 @@ corners 0.3 px off in random directions come back to 0.002 px (the dots' level)'
     t = load_target("chessboard")
     m = pinhole(400, 400, 260.0, R=R)
     Rt = _rolled_pose(17.0, 25.0, [-0.45, -0.5, 1.3])
-    img = render(m, t.pattern(), Rt, K=K_TEST)
-    truth = projected_points(m, t, Rt)
-    rng = np.random.default_rng(0)
-    q0 = truth + 0.3 * _unit(rng.uniform(0, 2 * np.pi, len(truth))).T
+    img, truth, q0 = _scene(t, m, Rt, K_TEST, seed=0)
     fit = refine_chessboard_corners(img, q0.reshape(10, 10, 2), chessboard_half_box(t))
     assert fit.dropped() == {}
     rms, worst = _exact_error(fit, truth)
@@ -90,10 +96,7 @@ def test_tag_corners_to_the_renders_accuracy(R):
     t = load_target("apriltag")
     m = pinhole(640, 640, 600.0, R=R)
     Rt = _rolled_pose(-23.0, 20.0, [-0.5, -0.45, 1.6])
-    img = render(m, t.pattern(), Rt, K=K_TEST)
-    truth = projected_points(m, t, Rt)
-    rng = np.random.default_rng(1)
-    q0 = truth + 0.3 * _unit(rng.uniform(0, 2 * np.pi, len(truth))).T
+    img, truth, q0 = _scene(t, m, Rt, K_TEST, seed=1)
     fit = refine_tag_corners(img, q0.reshape(-1, 4, 2))
     assert fit.dropped() == {}
     rms, worst = _exact_error(fit, truth)
@@ -110,10 +113,7 @@ the gap to the next tag, the tag's inside cut out) refines them all'''
     t = load_target("apriltag")
     m = pinhole(320, 320, 260.0)
     Rt = _rolled_pose(-23.0, 20.0, [-0.5, -0.45, 1.45])
-    img = render(m, t.pattern(), Rt, K=K_TEST)
-    truth = projected_points(m, t, Rt)
-    rng = np.random.default_rng(1)
-    q0 = truth + 0.3 * _unit(rng.uniform(0, 2 * np.pi, len(truth))).T
+    img, truth, q0 = _scene(t, m, Rt, K_TEST, seed=1)
     box = refine_tag_corners(img, q0.reshape(-1, 4, 2))
     assert box.dropped() == {"window too small": len(truth)}
     fit = refine_tag_corners(img, q0.reshape(-1, 4, 2), **tag_window(t))
@@ -177,10 +177,7 @@ a few ulp of a ~100 px coordinate, 1e-14 px), the reasons and misfits as well'''
     else:   # the tags' windows need bits of 5+ px (MIN_WINDOW_PIXELS)
         m = pinhole(640, 640, 600.0, R=[0.0, -0.2, 0.0])
         Rt = _rolled_pose(-23.0, 20.0, [-0.5, -0.45, 1.6])
-    img = render(m, t.pattern(), Rt, K=8)
-    truth = projected_points(m, t, Rt)
-    rng = np.random.default_rng(2)
-    q0 = truth + 0.3 * _unit(rng.uniform(0, 2 * np.pi, len(truth))).T
+    img, truth, q0 = _scene(t, m, Rt, 8, seed=2)
     if kind == "chessboard":
         fits = [refine_chessboard_corners(img, q0.reshape(10, 10, 2), chessboard_half_box(t),
                                           kernel=k) for k in ("numba", "numpy")]

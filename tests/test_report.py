@@ -151,23 +151,29 @@ def test_tables_and_speed_points(run_dir):
     assert pareto_front([(1.0, 1.0), (2.0, 2.0), (3.0, 0.5)]) == [0, 2]
 
 
-def test_targets_get_their_own_tables_and_panels(run_dir):
-    r'''dots and an AprilTag grid in one run: one table and one figure panel per
-calibrator and target (the AprilTag's corners and the dots' centroids have their own
-accuracy); the statistics are the target's own'''
+def _as_apriltag(records, **fields):
+    r'''Copies of dot records as AprilTag records of the same jobs, their projection RMS
+0.5 px (told apart from the dots' 0.001-level values), fields set on each'''
     import copy
-
-    from harness.records import load_run
-    records = {k: r for k, r in load_run(run_dir)["records"].items()
-               if r["settings"]["spp"] == 16}
     tags = {}
     for k, r in records.items():
         t = copy.deepcopy(r)
         t["target"] = "apriltag"
         t["fullname"] = k.replace("/dots/", "/apriltag/")
-        t["projection"]["rms"] = 0.5     # told apart from the dots' 0.001-level values
+        t["projection"]["rms"] = 0.5
+        t.update(copy.deepcopy(fields))
         tags[t["fullname"]] = t
-    both = dict(records, **tags)
+    return tags
+
+
+def test_targets_get_their_own_tables_and_panels(run_dir):
+    r'''dots and an AprilTag grid in one run: one table and one figure panel per
+calibrator and target (the AprilTag's corners and the dots' centroids have their own
+accuracy); the statistics are the target's own'''
+    from harness.records import load_run
+    records = {k: r for k, r in load_run(run_dir)["records"].items()
+               if r["settings"]["spp"] == 16}
+    both = dict(records, **_as_apriltag(records))
     tables = summary_tables(both)
     assert [t.title for t in tables] == ["Calibrator jpl on apriltag", "Calibrator jpl on dots"]
     rms = {t.title: {r[0]: r for r in t.rows}["projection difference RMS, median"]
@@ -456,23 +462,15 @@ def test_legacy_campaign_file():
 def test_targets_side_by_side_table_and_figure(run_dir, tmp_path):
     r'''A calibrator that fitted dots and an AprilTag grid gets one table with its targets
 side by side under each family, the renderer verdict's rows first, and one figure'''
-    import copy
-
     from harness.records import load_run
     from reports.figures import fig_targets
     from reports.tables import target_tables
     records = {k: r for k, r in load_run(run_dir)["records"].items()
                if r["settings"]["spp"] == 16}
     assert target_tables(records) == [] and fig_targets(records, tmp_path) is None
-    tags = {}
-    for k, r in records.items():
-        t = copy.deepcopy(r)
-        t["target"] = "apriltag"
-        t["fullname"] = k.replace("/dots/", "/apriltag/")
-        t["projection"]["rms"] = 0.5     # told apart from the dots' 0.001-level values
-        t["verdict"] = {"renderer": {"projection": {"rms": 0.0},
-                                     "z": {"projection_rms": 0.0, "Hc": 2.5}}}
-        tags[t["fullname"]] = t
+    verdict = {"renderer": {"projection": {"rms": 0.0},
+                            "z": {"projection_rms": 0.0, "Hc": 2.5}}}
+    tags = _as_apriltag(records, verdict=verdict)
     both = dict(records, **tags)
     (table,) = target_tables(both)
     assert table.title == "jpl: dots and apriltag side by side"
