@@ -32,9 +32,9 @@ curvature bias under the true model and pose (harness.calibrators.bias.corner_bi
 jpl's bias loop converges to), on the corners the window model refined (the detection's
 corner_model: tag-edge corners of blurred images carry none). Prints the table method x
 camera (corner error RMS / max px, corners found, median seconds per image), then the
-detection time per image of each method and image size (median and max over the images: the bars are 0.1 s on 1024x1024
-and 0.5 s on 5120x3840, issue 16; loaded-machine figures, the load average is
-recorded), and writes one JSON document to --out/<UTC stamp>-corners.json (never
+detection time per image of each method and image size (median and max over the images:
+the bars are 0.1 s on 1024x1024 and 0.5 s on 5120x3840, issue 16; loaded-machine figures,
+the load average is recorded), and writes one JSON document to --out/<UTC stamp>-corners.json (never
 overwriting). --save-q F.npz keeps every method's corners per image; --compare-q F.npz
 (a file --save-q wrote, e.g. before a change to a detector) prints, per method and
 camera, the corners lost and gained, the largest corner move and the largest growth of a
