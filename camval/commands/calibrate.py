@@ -162,17 +162,22 @@ def run(args):
     if out.exists() and any(out.iterdir()) and not args.force:
         raise CamvalError(f"'{out}' exists and is not empty; use --force to overwrite")
 
-    qs, Rts, detections = [], [], []
+    qs, Rts, detections, models = [], [], [], []
     for (png, _), (side, js) in zip(pairs, sides, strict=True):
         Rts.append(_Rt_from_sidecar(side, js))
         det = detect(_load_image(png), target)
         detections.append({"image": png.name, "status": det.status, "reason": det.reason,
-                           "n_found": int(det.n_found), "n_expected": int(det.n_expected)})
+                           "n_found": int(det.n_found), "n_expected": int(det.n_expected),
+                           "corner_models": _corner_model_counts(det)})
         qs.append(det.q)
+        models.append(det.corner_model)
+    # which model made each corner decides the bias step's correction (issue 16: the window
+    # model's corner_bias applies to window corners only, not to blurred tags' edge corners)
     obs = Observations.from_camera_poses(
         np.array(qs), np.asarray(target.points(), dtype=np.float64),
         (truth.width, truth.height), Rts, truth.Rt_ref_cam(),
-        point_ids=np.asarray(target.point_ids()))
+        point_ids=np.asarray(target.point_ids()),
+        corner_model=None if any(m is None for m in models) else np.stack(models))
     options = {"bias_correction": not args.no_bias_correction}
     if args.known_poses:
         options["known_poses"] = True
@@ -191,6 +196,15 @@ def run(args):
                                                  allow_nan=False) + "\n")
     _print(summary, out)
     return 0 if result.ok else 1
+
+
+def _corner_model_counts(det):
+    r'''{corner model: number of found points} of a Detection; {} when it records none (dots)'''
+    import numpy as np
+    if det.corner_model is None:
+        return {}
+    names, counts = np.unique(det.corner_model[det.found], return_counts=True)
+    return {str(k): int(n) for k, n in zip(names, counts, strict=True)}
 
 
 def _write_model(result, out, force):

@@ -156,7 +156,7 @@ SYNOPSIS
 
     @classmethod
     def from_camera_poses(cls, q, p_board, imagersize, Rt_cam_board=None, Rt_ref_cam=None,
-                          point_ids=None):
+                          point_ids=None, corner_model=None):
         r'''Observations from board poses in a camera frame (what a render sidecar gives)
 
 SYNOPSIS
@@ -166,6 +166,7 @@ SYNOPSIS
 
 The survey in the world frame is Rt_ref_board = Rt_ref_cam o Rt_cam_board;
 without Rt_cam_board the poses are unknown. Rt_ref_cam defaults to identity.
+corner_model: the detections' corner models (the field above), or None.
 '''
         Rt_ref_board = None
         if Rt_cam_board is not None:
@@ -175,7 +176,7 @@ without Rt_cam_board the poses are unknown. Rt_ref_cam defaults to identity.
             Rt_ref_board = np.array([np.vstack((Rt[:3] @ x[:3], Rt[:3] @ x[3] + Rt[3]))
                                      for x in Rt_cam_board])
         return cls(q=q, p_board=p_board, imagersize=imagersize, Rt_ref_board=Rt_ref_board,
-                   point_ids=point_ids)
+                   point_ids=point_ids, corner_model=corner_model)
 
 
 @dataclass(frozen=True, eq=False)
