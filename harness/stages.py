@@ -446,21 +446,17 @@ def observations_from(truth, target, poses, detections):
 
 detections: one per pose, each a Detection (its .q) or the (Npoints,2) image points
 themselves (exact observations: the warm-up, the model benchmark's floors)'''
-    import mrcal
     import numpy as np
 
     from harness.calibrators.base import Observations
     q = np.stack([np.asarray(getattr(d, "q", d), dtype=np.float64) for d in detections])
-    Rt_ref_cam = truth.Rt_ref_cam()
-    Rt_ref_board = np.stack([mrcal.compose_Rt(Rt_ref_cam, np.asarray(Rt, dtype=np.float64))
-                             for Rt in poses])
     ids = target.point_ids() if hasattr(target, "point_ids") else None
     # the corner model of each detection travels to the calibrators' bias step
     models = [getattr(d, "corner_model", None) for d in detections]
-    return Observations(q=q, p_board=np.asarray(target.points(), dtype=np.float64),
-                        imagersize=(truth.width, truth.height), Rt_ref_board=Rt_ref_board,
-                        point_ids=ids,
-                        corner_model=None if any(m is None for m in models) else np.stack(models))
+    return Observations.from_camera_poses(
+        q, np.asarray(target.points(), dtype=np.float64), (truth.width, truth.height),
+        poses, truth.Rt_ref_cam(), point_ids=ids,
+        corner_model=None if any(m is None for m in models) else np.stack(models))
 
 
 def calibrate_stage(name, obs, target, model, truth, options):

@@ -170,10 +170,10 @@ corner_model: the detections' corner models (the field above), or None.
 '''
         Rt_ref_board = None
         if Rt_cam_board is not None:
-            Rt_cam_board = np.asarray(Rt_cam_board, dtype=np.float64)
+            import mrcal
             Rt = (np.vstack((np.eye(3), np.zeros(3))) if Rt_ref_cam is None
                   else np.asarray(Rt_ref_cam, dtype=np.float64))
-            Rt_ref_board = np.array([np.vstack((Rt[:3] @ x[:3], Rt[:3] @ x[3] + Rt[3]))
+            Rt_ref_board = np.stack([mrcal.compose_Rt(Rt, np.asarray(x, dtype=np.float64))
                                      for x in Rt_cam_board])
         return cls(q=q, p_board=p_board, imagersize=imagersize, Rt_ref_board=Rt_ref_board,
                    point_ids=point_ids, corner_model=corner_model)
