@@ -198,11 +198,31 @@ least-squares path is sensitive to the last bits of the residuals: the
 compiled projection moved the paper campaign's 172 ok records by at most
 5.5e-7 of their sigma (benchmarks/bench_fits.py diff), compare() 12-15% faster.
 '''
-    from reference_models.kernels import KINDS, pack_model, project_packed
+    from reference_models.kernels import KINDS, project_packed
     if getattr(fit, "family", None) not in KINDS:
         return fit.project
-    cam = pack_model(fit)
+    cam = _packed(fit)
     return lambda p: project_packed(cam, p)
+
+
+# the last JPL-family models packed (_packed): a comparison projects one fit several times
+# (its grid, its rotation fit) and the verdict's scatter each pair of stepped models twice
+# (the image grid, then the fit's points: harness.verdict.Linearisation.model_jacobians)
+_PACKED = [()]
+PACKED_MEMO = 2
+
+
+def _packed(fit):
+    r'''reference_models.kernels.pack_model(fit), kept for the last PACKED_MEMO fits asked
+(keyed on the objects themselves: models are frozen)'''
+    from reference_models.kernels import pack_model
+    memo = _PACKED[0]
+    for m, cam in memo:
+        if m is fit:
+            return cam
+    cam = pack_model(fit)
+    _PACKED[0] = ((fit, cam),) + memo[:PACKED_MEMO - 1]     # one tuple: atomic for threads
+    return cam
 
 
 # _fit_rotation's Gauss-Newton: it stops when its next step would move no pixel by more than
@@ -227,9 +247,9 @@ UNPROJECTABLE_PX = 1e3
 def _residuals_of(fit):
     r'''residuals(p, q) -> (fit.project(p) - q).ravel(), UNPROJECTABLE_PX where not finite;
 compiled for a JPL-family fit (reference_models.kernels.residuals_packed)'''
-    from reference_models.kernels import KINDS, pack_model, residuals_packed
+    from reference_models.kernels import KINDS, residuals_packed
     if getattr(fit, "family", None) in KINDS:
-        cam = pack_model(fit)
+        cam = _packed(fit)
         return lambda p, q: residuals_packed(cam, np.ascontiguousarray(p), q, UNPROJECTABLE_PX)
 
     def residuals(p, q):

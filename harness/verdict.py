@@ -715,8 +715,9 @@ def jpl_linearisation(res, obs):
     pose = np.nonzero(found)[0]
     x0 = chart.x0()
     h = 1e-6 * np.maximum(np.abs(x0), 1.0)
+    # _projector: the stepped model packed once for its grid and these points (compare._packed)
     return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h,
-                         project_model=lambda m: project(m, p))
+                         project_model=lambda m: _projector(m)(p))
 
 
 def _rodrigues(r):
@@ -994,9 +995,20 @@ grid (harness.compare.truth_points), in its camera frame'''
 
 
 def _grid_projector(P):
-    r'''m -> (M,2) m's projection of the points P of its own camera frame'''
+    r'''m -> (M,2) m's projection of the points P of its own camera frame
+
+A JPL-family model's camera frame (Rt_ref_cam: origin C, axes H', A x H', A) depends on
+its C, A and H only: the points are moved into it once for the stepped models that share
+them (model_jacobians' steps of V, O, R and E), the same numbers.'''
+    frame = [None, None]
+
     def grid(m):
-        return _projector(m)(_rotated_into(m.Rt_ref_cam(), P))
+        if not _is_jpl(m):
+            return _projector(m)(_rotated_into(m.Rt_ref_cam(), P))
+        key = (m.C.tobytes(), m.A.tobytes(), m.H.tobytes())
+        if frame[0] != key:
+            frame[:] = key, _rotated_into(m.Rt_ref_cam(), P)
+        return _projector(m)(frame[1])
     return grid
 
 

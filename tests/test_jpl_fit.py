@@ -228,3 +228,22 @@ def test_callable_jacobian_follows_the_2_point_path(monkeypatch):
     assert fitted.status == "ok" and fitted.iterations == reference.iterations
     for name in ("C", "A", "H", "V", "O", "R"):
         assert np.array_equal(getattr(fitted.model, name), getattr(reference.model, name))
+
+
+@pytest.mark.parametrize("u", [(0, 0, 1), (0, 0, -1), (1, 0, 0), (0, -1, 0), (0.9, 0.1, 0.3),
+                               (0.2, -0.7, 0.6), (-0.95, 0.0, -0.1)])
+def test_tangent_basis_is_the_charts_orthonormal_frame(u):
+    # the chart moves A and O in the plane the basis spans: two unit vectors perpendicular to
+    # u and to each other, right-handed (e2 = u x e1); float64 rounding of a few products of
+    # unit numbers is ~1e-16, so 1e-15 is the tolerance. It is np.cross's arithmetic.
+    u = np.asarray(u, dtype=np.float64)
+    u /= np.linalg.norm(u)
+    e1, e2 = jpl_fit._tangent_basis(u)
+    for e in (e1, e2):
+        assert abs(np.linalg.norm(e) - 1.0) < 1e-15
+        assert abs(e @ u) < 1e-15
+    assert abs(e1 @ e2) < 1e-15
+    np.testing.assert_allclose(e2, np.cross(u, e1), rtol=0, atol=1e-15)
+    a = np.array([1.0, 0, 0]) if abs(u[0]) < 0.9 else np.array([0, 1.0, 0])
+    ref = np.cross(u, a)
+    np.testing.assert_allclose(e1, ref / np.linalg.norm(ref), rtol=0, atol=1e-15)
