@@ -204,7 +204,10 @@ the buffer, every numpy view of it (a slice, a reshape) keeps a reference to it
 RenderResult), so a buffer is never handed out again while any of them lives. The
 pool keeps the buffers of one shape and dtype, the last asked for, at most
 `keep` of them (2: the image a caller is still reading while the next is
-rendered into the other); asking for another shape lets the others go.
+rendered into the other); asking for another shape lets the others go. The
+price: those buffers stay resident while the caller works on other things (a
+paper-campaign job of a 5120x3840 camera rendered and detected in one process:
+peak RSS 410 -> 415 MB for 1/CAHV/dots, 456 -> 505 MB for 3/CAHVORE/apriltag).
 '''
 
     def __init__(self, keep=2):
