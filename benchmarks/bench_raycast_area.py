@@ -22,7 +22,9 @@ min and median over the poses x --repeats (pose 0 apart: the figure of issue
 load average at start and end is in the document (environment).
 
 --memory-camera: that camera is also rendered in area mode in a fresh process,
-which reports its peak resident memory (getrusage) and its first and next times.
+which reports its peak resident memory (getrusage) and its first and next times,
+wall and CPU (the first image's memory is fresh; the next ones reuse the buffers of
+dropped images, renderers.memory.ImagePool).
 
 Records: raycast_area/<camera>/<setting> (rms_px, max_px, n, wall_s, cpu_s,
 pose0_wall_s, fractions), raycast_area/memory/<camera>/area.
@@ -126,16 +128,18 @@ def memory_child(cam, repeats):
     renderer = RaycastRenderer()
     with common.Stopwatch() as cold:
         renderer.render(model, target.pattern(), poses[0], settings_of("area"))
-    walls = []
+    walls, cpus = [], []
     for _ in range(repeats):
         for Rt in poses:
             with common.Stopwatch() as sw:
                 renderer.render(model, target.pattern(), Rt, settings_of("area"))
             walls.append(sw.wall_s)
+            cpus.append(sw.cpu_s)
     md = renderer.render(model, target.pattern(), poses[0], settings_of("area")).metadata
     print(json.dumps({"camera": cam, "size": [model.width, model.height],
                       "edges": md["edges"],
-                      "cold_s": cold.wall_s, "wall_s": common.summary(walls),
+                      "cold_s": cold.wall_s, "cold_cpu_s": cold.cpu_s,
+                      "wall_s": common.summary(walls), "cpu_s": common.summary(cpus),
                       "peak_rss_MB": (_vm("VmHWM") if reset else common.peak_rss_bytes()) / 1e6,
                       "peak_rss_since": "the camera" if reset else "process start",
                       "peak_rss_before_MB": rss0 / 1e6, "rss_before_MB": reset / 1e6}))
@@ -170,8 +174,9 @@ def memory(out, cam, repeats=1):
     rec = out.add(name, json.loads(r.stdout.strip().splitlines()[-1]),
                   bar_peak_rss_MB=BARS["peak_rss_5120x3840_MB"])
     print(f"  camera {rec['camera']} area, edges {rec['edges']}, fresh process: "
-          f"first {rec['cold_s']:.2f} s, next "
-          f"median {rec['wall_s']['median']:.3f} s, peak RSS {rec['peak_rss_MB']:.0f} MB "
+          f"first {rec['cold_s']:.2f} s ({rec['cold_cpu_s']:.2f} CPU s), next "
+          f"median {rec['wall_s']['median']:.3f} s ({rec['cpu_s']['median']:.3f} CPU s), "
+          f"peak RSS {rec['peak_rss_MB']:.0f} MB "
           f"since {rec['peak_rss_since']} (resident before the camera: "
           f"{rec['rss_before_MB']:.0f} MB)", flush=True)
     return rec

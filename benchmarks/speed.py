@@ -13,9 +13,11 @@ nothing itself; it calls the benchmarks that own each figure:
 render    per camera (default 15: MER B navcam, 1024x1024 CAHVOR; 1: 5120x3840
           noncentral CAHVORE), the dot target rendered by the ray caster as the
           campaigns render it (area coverage) in a fresh process
-          (bench_raycast_area.memory): the first image (cold: ray cache), the warm
-          seconds per image (median over 6 poses x --render-repeats) and the
-          process's peak resident memory during the camera's renders.
+          (bench_raycast_area.memory): the first image (cold: its memory is fresh and
+          faulted in; later images reuse dropped buffers, renderers.memory.ImagePool),
+          the warm seconds per image (median over 6 poses x --render-repeats; wall and
+          CPU: with other processes on the cores, wall follows the load and CPU less)
+          and the process's peak resident memory during the camera's renders.
 campaign  the campaign (default paper, -j 2 local workers; bench_campaign.measure):
           the first run after a kernel change (an empty NUMBA_CACHE_DIR: numba
           compiles every kernel; --no-first leaves it out), then --repeats runs with
@@ -89,7 +91,8 @@ def summary(out, renders, campaign, loads):
             continue
         print(f"  render camera {cam:>2} {r['size'][0]}x{r['size'][1]}: warm "
               f"{r['wall_s']['median'] * 1e3:.1f} ms median (min {r['wall_s']['min'] * 1e3:.1f}),"
-              f" first image {r['cold_s'] * 1e3:.0f} ms, peak RSS {r['peak_rss_MB']:.0f} MB")
+              f" CPU {r['cpu_s']['median'] * 1e3:.1f} ms median, first image "
+              f"{r['cold_s'] * 1e3:.0f} ms, peak RSS {r['peak_rss_MB']:.0f} MB")
     def load(r):
         return (f"load {r['load_average_start'][0]:.1f} at the start, "
                 f"{r['load_average'][0]:.1f} at the end")

@@ -1121,11 +1121,12 @@ disc lies inside the board rectangle or wholly outside it)"""
 def _band_scratch(K, nvalues, T, W, area):
     r"""The work arrays of a band of at most T image rows of width W, allocated once per
 thread and reused for each of its bands: (hx, hy, hok, hu, hchi, need, code, blocks,
-bmask, counts, offs (the K subsample offsets), stack, jac, cand, hess, grid, poly,
-corners). hx, hy, hok (T + 2, W + 2): the board points of the band's centre rays (band
+bmask, btiles, counts, offs (the K subsample offsets), stack, jac, cand, hess, grid,
+poly, corners). hx, hy, hok (T + 2, W + 2): the board points of the band's centre rays (band
 row k = iy - r0 + 1, column c = ix + 1), hu, hchi the u, chi of their Newton solves
 (_trace_needed); need, code: a tile's (_render_band_outline); blocks:
-_render_band's stack; bmask (T, W): the band's edge pixels; corners (2, T + 1, W + 1)
+_render_band's stack; bmask (T, W): the band's edge pixels, btiles (1, ceil(W / T)) its
+tiles that hold one; corners (2, T + 1, W + 1)
 in area mode: the board points of the band's pixel corners, NaN until traced (each
 band and tile resets what it reads)"""
     hx = np.empty((T + 2, W + 2))
@@ -1137,6 +1138,7 @@ band and tile resets what it reads)"""
     code = np.empty((T, T), dtype=np.int64)
     blocks = np.empty((4 * (int(math.log2(T)) + 3), 4), dtype=np.int64)
     bmask = np.zeros((T, W), dtype=np.uint8)
+    btiles = np.zeros((1, -(-W // T)), dtype=np.uint8)
     counts = np.zeros(nvalues, dtype=np.int64)
     offs = np.empty(K)
     for i in range(K):
@@ -1148,8 +1150,8 @@ band and tile resets what it reads)"""
     grid = np.empty((2, AREA_MAX_SUBDIVISION + 1, AREA_MAX_SUBDIVISION + 1))
     poly = np.empty((8, AREA_MAX_VERTICES))
     corners = np.full((2, T + 1, W + 1) if area else (2, 1, 1), math.nan)
-    return (hx, hy, hok, hu, hchi, need, code, blocks, bmask, counts, offs, stack, jac, cand,
-            hess, grid, poly, corners)
+    return (hx, hy, hok, hu, hchi, need, code, blocks, bmask, btiles, counts, offs, stack, jac,
+            cand, hess, grid, poly, corners)
 
 
 @njit(cache=True, error_model="numpy")
@@ -1159,7 +1161,7 @@ def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats
     nk = r1 - r0 + 2
     # board points of the centre rays of image rows r0-1 .. r1 (band row k = iy - r0 + 1)
     # and columns -1 .. W (band column c = ix + 1)
-    (hx, hy, hok, _, _, _, _, blocks, _, counts, offs, stack, jac, cand, hess, grid, poly,
+    (hx, hy, hok, _, _, _, _, blocks, _, _, counts, offs, stack, jac, cand, hess, grid, poly,
      corners) = scratch
     hok[:nk] = 0
     if area:
@@ -1265,9 +1267,10 @@ BAND_SLACK_PX = 1e-6
 
 
 @njit(cache=True, error_model="numpy")
-def _mark_chord(ax, ay, bx, by, m, mask, row0, rlo, rhi):
+def _mark_chord(ax, ay, bx, by, m, mask, tiles, T, row0, rlo, rhi):
     r"""Mark in mask (rows row0.., W columns) the pixels of image rows rlo..rhi whose
-square comes within m of the chord (ax, ay) - (bx, by)"""
+square comes within m of the chord (ax, ay) - (bx, by), and their tiles of T x T pixels
+in tiles (tile rows from row0)"""
     W = mask.shape[1]
     dx = bx - ax
     dy = by - ay
@@ -1300,6 +1303,7 @@ square comes within m of the chord (ax, ay) - (bx, by)"""
             for ix in range(ix0, ix1 + 1):
                 if abs(nx * (ix - ax) + ny * (iy - ay)) <= reach:
                     mask[iy - row0, ix] = 1
+                    tiles[(iy - row0) // T, ix // T] = 1
 
 
 @njit(cache=True, error_model="numpy")
@@ -1314,11 +1318,8 @@ by band, _render_band_outline)"""
         for i in range(n if closed[p] else n - 1):
             j = a0 + i
             k = a0 + i + 1 if i + 1 < n else a0
-            _mark_chord(q[j, 0], q[j, 1], q[k, 0], q[k, 1], margin[p], mask, 0, 0, H - 1)
-    for iy in range(H):
-        for ix in range(W):
-            if mask[iy, ix]:
-                tiles[iy // T, ix // T] = 1
+            _mark_chord(q[j, 0], q[j, 1], q[k, 0], q[k, 1], margin[p], mask, tiles, T, 0, 0,
+                        H - 1)
 
 
 @njit(cache=True, error_model="numpy")
@@ -1404,17 +1405,18 @@ either (the union of their squares is connected and no outline meets it: one
 material), else of its own centre ray."""
     H, W = out.shape
     nk = r1 - r0 + 2
-    (hx, hy, hok, hu, hchi, need, code, _, mask, counts, offs, stack, jac, cand, hess, grid,
-     poly, corners) = scratch
+    (hx, hy, hok, hu, hchi, need, code, _, mask, tiles, counts, offs, stack, jac, cand, hess,
+     grid, poly, corners) = scratch
     central = cam[_KIND] == KIND_CAHV
     q, margin, bstart, chords = outline
     b = r0 // T
     mask[:r1 - r0] = 0
+    tiles[0] = 0
     for i in range(bstart[b], bstart[b + 1]):
         j = chords[i, 0]
         k = chords[i, 1]
-        _mark_chord(q[j, 0], q[j, 1], q[k, 0], q[k, 1], margin[chords[i, 2]], mask, r0, r0,
-                    r1 - 1)
+        _mark_chord(q[j, 0], q[j, 1], q[k, 0], q[k, 1], margin[chords[i, 2]], mask, tiles, T,
+                    r0, r0, r1 - 1)
     rect = pat[0]
     bg = pat[1][0]
     narea = 0
@@ -1424,13 +1426,10 @@ material), else of its own centre ray."""
     nboard = 0
     ntiles = 0
     nedge = 0
+    nonfinite = 0
     for x0 in range(0, W, T):
         x1 = min(W, x0 + T)
-        edges = False
-        for iy in range(r1 - r0):
-            for ix in range(x0, x1):
-                edges = edges or mask[iy, ix] != 0
-        if not edges:
+        if not tiles[0, x0 // T]:
             m = bg
             onboard = False
             if not (x1 - 0.5 < qbox[0] or x0 - 0.5 > qbox[1]
@@ -1483,6 +1482,10 @@ material), else of its own centre ray."""
                                               counts, stack, jac, cand, values, pat, area, tol,
                                               hess, grid, poly, corners, warm0)
                     out[iy, ix] = v
+                    # the only pixels that can be non-finite: the others are albedos
+                    # (compile_pattern: in [0, 1])
+                    w = out[iy, ix]
+                    nonfinite += not (w - w == 0.0)
                     nrays += n
                     nsuper += how != 0
                     narea += how == 2
@@ -1509,8 +1512,7 @@ material), else of its own centre ray."""
                 code[iy - r0, ix - x0] = cd
                 out[iy, ix] = values[cd // 2]
                 nboard += cd % 2
-    _band_stats(stats, nrays, nsuper, nboard, ntiles, nedge, _count_nonfinite(out, r0, r1),
-                narea, nfallback)
+    _band_stats(stats, nrays, nsuper, nboard, ntiles, nedge, nonfinite, narea, nfallback)
 
 
 @njit(cache=True, error_model="numpy")
@@ -1586,11 +1588,11 @@ renders (render_kernel)"""
 @njit(cache=True, error_model="numpy")
 def _borrowed_scratch(scratch):
     r"""_band_scratch's arrays, _borrowed"""
-    (hx, hy, hok, hu, hchi, need, code, blocks, bmask, counts, offs, stack, jac, cand, hess,
-     grid, poly, corners) = scratch
+    (hx, hy, hok, hu, hchi, need, code, blocks, bmask, btiles, counts, offs, stack, jac, cand,
+     hess, grid, poly, corners) = scratch
     return (_borrowed(hx), _borrowed(hy), _borrowed(hok), _borrowed(hu), _borrowed(hchi),
             _borrowed(need), _borrowed(code), _borrowed(blocks), _borrowed(bmask),
-            _borrowed(counts), _borrowed(offs), _borrowed(stack), _borrowed(jac),
+            _borrowed(btiles), _borrowed(counts), _borrowed(offs), _borrowed(stack), _borrowed(jac),
             _borrowed(cand), _borrowed(hess), _borrowed(grid), _borrowed(poly),
             _borrowed(corners))
 

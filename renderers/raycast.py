@@ -100,17 +100,21 @@ tests/test_raycast.py checks point sampling's adaptive == full bit for bit on se
 targets and poses (including noncentral CAHVOREs at K = 16).
 
 No ray is cached between renders (RAYCAST_VERSION 3.0): a render traces the
-rays it reads, so a camera's first image costs what its others cost.
+rays it reads. The image's memory is: a render writes every pixel, into a
+buffer of an earlier image that its caller has dropped where there is one
+(renderers.memory.ImagePool; fresh memory costs page faults, and the first
+79 MB arrays of a process cost about as much CPU again as their render).
 '''
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from reference_models.errors import CamvalError
 from renderers.base import DEFAULT_OPTIONS, RendererError, RenderResult, RenderSettings
+from renderers.memory import ImagePool
 
 # 2.0: area coverage is the default; 3.0: edge pixels from the projected outlines, no ray
 # cache
@@ -141,11 +145,14 @@ class PoseError(CamvalError):
 @dataclass(frozen=True, eq=False)
 class CompiledPattern:
     r'''A Pattern as the kernels read it: the albedo of each material and two flat
-arrays (layout in renderers._raycast_kernels)'''
+arrays (layout in renderers._raycast_kernels); derived: what is computed from them
+once for every render of the pattern ({name: value}, e.g. raycast_outlines'
+board features)'''
 
     values: np.ndarray   # (Nmaterials,) albedo of each material
     f: np.ndarray        # float64: rectangle, cell grid, bucket grid, circles
     ii: np.ndarray       # int64: material ids, cell materials and masks, buckets
+    derived: dict = field(default_factory=dict, repr=False)
 
     def kernel_args(self):
         return (self.f, self.ii)
@@ -398,6 +405,9 @@ images agree to rounding (tests/test_raycast.py).
         self.threads = threads
         self.outlines = bool(outlines)
         self._pattern = (None, None)
+        # every pixel of an image is written: a render takes a buffer its caller has
+        # dropped instead of faulting in fresh memory (renderers.memory.ImagePool)
+        self._images = ImagePool()
 
     def version(self):
         import numba
@@ -491,7 +501,7 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
         t = Rt[3]
         O = cam[12:15]
         xf = np.concatenate((R.ravel(), R @ model.C + t, R @ O))
-        out = np.empty((H, W), dtype=np.float32)
+        out = self._images.empty((H, W), np.float32)
         stats = np.zeros((-(-H // TILE), 8 if area else 6), dtype=np.int64)
         kern.render_kernel(cam, noncentral, xf, K, adaptive, TILE, cp.values, out, stats,
                            cp.kernel_args(), qbox, numba.get_num_threads(), area, tol,

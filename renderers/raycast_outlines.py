@@ -102,7 +102,15 @@ the margin (px) that holds its projected curve'''
 def board_features(cp):
     r'''The boundaries of a compiled pattern on the board plane: (segments, circles),
 segments (Ns,4) x0 y0 x1 y1 (board rectangle, runs of cell edges between different
-materials), circles (Nc,3) cx cy r'''
+materials), circles (Nc,3) cx cy r; computed once per compiled pattern (cp.derived;
+an AprilTag grid's runs of cell edges cost ~10 ms)'''
+    features = cp.derived.get("board_features")
+    if features is None:
+        features = cp.derived["board_features"] = _board_features(cp)
+    return features
+
+
+def _board_features(cp):
     from renderers._raycast_kernels import F_CELLS, F_CIRCLES, I_OFFSETS
     f, ii = cp.f, cp.ii
     xmin, xmax, ymin, ymax = f[:4]

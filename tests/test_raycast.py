@@ -322,6 +322,26 @@ def test_target_objects_render_like_their_pattern():
     assert np.array_equal(a, b) and len(np.unique(a)) > 3
 
 
+def test_images_held_are_never_rendered_into_and_dropped_ones_are_reused():
+    model = small_models()["cahvor"]
+    pattern = dot_pattern()
+    poses = [board_pose(model, d, (10, 10, 0)) for d in (0.8, 0.9, 1.0, 1.1)]
+    r = RaycastRenderer()
+    fresh = [RaycastRenderer().render(model, pattern, Rt).image for Rt in poses]
+    held = r.render(model, pattern, poses[0]).image
+    view = r.render(model, pattern, poses[1]).image[10:20]   # only a slice of it kept
+    address = view.base.ctypes.data
+    # both buffers are held (an image and a view of the other): a third one
+    third = r.render(model, pattern, poses[2]).image
+    assert third.ctypes.data not in (held.ctypes.data, address)
+    assert np.array_equal(held, fresh[0]) and np.array_equal(view, fresh[1][10:20])
+    del view
+    fourth = r.render(model, pattern, poses[3]).image
+    # the dropped one is rendered into again, and every pixel is written
+    assert fourth.ctypes.data == address and np.array_equal(fourth, fresh[3])
+    assert np.array_equal(held, fresh[0]) and np.array_equal(third, fresh[2])
+
+
 # --- bad input ----------------------------------------------------------------------------------
 def test_board_behind_the_camera_renders_blank():
     model = small_models()["cahvore-noncentral"]
