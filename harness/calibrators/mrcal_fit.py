@@ -96,6 +96,13 @@ EXACT_RMS = 1e-7
 # for 16 restarts, then converges to a floor of 2e-6 px; 21 CAHVOR crawls at 35x with gains
 # of 1-4% to the end of its budget. A rule on RMS / noise and gain that stopped the second
 # would stop the first, a judged record.
+# The same test once the bias has settled (settled_misfit_verdict, after the settled polish's
+# coarse restarts, which end by their gain rule): a misfit there restarts the full grid once
+# (paper campaign, session 10, every mrcal record refitted in-process on the campaign's own
+# detections, load 10-13: image-fit solves 892 -> 847, CPU of the floor-far records' image
+# fits 33.3 -> 26.9 s; every judged record and every floor_far / fits_disagree flag bit for
+# bit the same; floor-far records move where their valley's crawl stops, projection RMS
+# by 0.6-14 sigma of a renderer difference they are not judged by).
 POLISH_GAIN = 0.99
 POLISH_GAIN_FINE = 0.999
 FINE_RMS = 5e-4
