@@ -312,6 +312,59 @@ def test_a_fit_at_its_noise_is_no_crawl(monkeypatch):
     assert len([s for s in shapes if s[1] == 10]) == 2 + 3
 
 
+def _centroid_obs(truth, sigma, seed=1):
+    # what a perfect detector sees (the dots' centroids, bias included) plus noise: the
+    # data the bias correction is made for
+    obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET), centroids=True)
+    rng = np.random.default_rng(seed)
+    return obs.replace(q=obs.q + rng.normal(scale=sigma, size=obs.q.shape))
+
+
+def test_a_misfit_once_the_bias_settled_restarts_once_on_the_full_grid(monkeypatch):
+    # camera 21's CAHVOR with theta 89.98 deg (as above: residuals ~0.7 px against 1e-3 px
+    # of noise), fitted as a campaign fits it, with the bias correction; crawl_verdict off,
+    # so that the misfit is the settled polish's to find
+    truth = _tilted("21", 0.02)
+    obs = _centroid_obs(truth, 1e-3)
+    monkeypatch.setattr(mrcal_fit, "crawl_verdict", lambda *a: None)
+    shapes = _grid_shapes(monkeypatch)
+    r = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth)
+    assert r.ok, r.reason
+    crawl = r.info["crawl"]
+    assert crawl["restarts"] == 0 and "bias settled" in crawl["reason"]
+    # the noise estimate errs high (a rough misfit's second differences count as noise),
+    # and the misfit is still MISFIT_FACTOR above it and above the noise added
+    assert crawl["rms"] > 3 * crawl["noise_rms"] > 3 * np.sqrt(2) * 1e-3
+    full_on = sum(s[1] == 10 for s in shapes)
+    # without the rule the settled polish's full grid restarts while each gains: more
+    # full-grid solves, the same kind of fit
+    shapes.clear()
+    monkeypatch.setattr(mrcal_fit, "settled_misfit_verdict", lambda *a: None)
+    off = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth)
+    assert off.ok and "crawl" not in off.info
+    assert sum(s[1] == 10 for s in shapes) > full_on, shapes
+    # both misfit by the same ~0.7 px: the rule changes where the valley's crawl stops,
+    # not what the fit says about the camera (10% of the misfit)
+    rms_on, rms_off = r.residual_stats()["rms"], off.residual_stats()["rms"]
+    assert abs(rms_on / rms_off - 1) < 0.1, (rms_on, rms_off)
+
+
+@pytest.mark.parametrize("key", ["15", "17"])
+def test_a_representable_camera_at_its_noise_is_no_settled_misfit(monkeypatch, key):
+    # navcam 15 and hazcam 17 (CAHVORE) at theta 90: once the bias has settled the
+    # residuals are the 1e-3 px noise added, far below MISFIT_FACTOR x the noise: no
+    # verdict, and the fit is bit for bit the fit without the rule
+    truth = dict(MODELS)[key]
+    obs = _centroid_obs(truth, 1e-3)
+    r = calibrate("mrcal", obs, TARGET, truth.family, truth=truth)
+    assert r.ok, r.reason
+    assert "crawl" not in r.info
+    assert any(p.get("full_grid") for p in r.info["passes"])   # the settled polish ran
+    monkeypatch.setattr(mrcal_fit, "settled_misfit_verdict", lambda *a: None)
+    off = calibrate("mrcal", obs, TARGET, truth.family, truth=truth)
+    assert np.array_equal(r.info["intrinsics"], off.info["intrinsics"])
+
+
 def test_a_warm_fit_says_whether_it_moved_from_its_start(monkeypatch):
     import mrcal
     truth = dict(MODELS)["15"]
