@@ -78,30 +78,37 @@ processes and the jobs' workers share it.'''
     return ctx
 
 
-def _init_worker(pid, blas_threads):
+def _init_worker(pid, threads):
     r'''Worker initializer: end with the campaign (_die_with_campaign), numpy's OpenBLAS
-on blas_threads threads (harness.blas)'''
+and numba's parallel kernels (the ray caster's bands) on `threads` threads'''
+    import numba
+
     from . import blas
-    blas.set_threads(blas_threads)
+    blas.set_threads(threads)
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     _die_with_campaign(pid)
 
 
-def blas_threads_per_worker(workers, cores=None):
-    r'''numpy's OpenBLAS threads for each of `workers` local workers: the cores left to
-each (at least 1). The workers fill the cores with jobs; more BLAS threads than that only
-compete with the other workers' (harness/blas.py: measured)'''
+def threads_per_worker(workers, cores=None):
+    r'''Threads for each of `workers` local workers (numpy's OpenBLAS, numba): the cores
+left to each (at least 1). The workers fill the cores with jobs; more threads than that
+only compete with the other workers' and wait for each other: OpenBLAS, harness/blas.py;
+the ray caster's 6 renders of cameras 1 and 3 (CAHV, CAHVORE, dots and AprilTag) cost
+6.61 CPU-s on 2 numba threads against 5.38 on 1 with the cores busy (2026-11-28, load 8-10,
+`NUMBA_NUM_THREADS=N uv run --frozen python benchmarks/bench_render.py jobs --cameras 1,3
+--families CAHV,CAHVORE`)'''
     cores = cores or len(os.sched_getaffinity(0))
     return max(1, cores // max(1, workers))
 
 
 def local_pool(workers):
     r'''A ProcessPoolExecutor of `workers` local processes (local_context) that end when
-this process does (_die_with_campaign), each with numpy's OpenBLAS on its share of the
-cores (blas_threads_per_worker): the jobs' workers and the warm-up's'''
+this process does (_die_with_campaign), each with numpy's OpenBLAS and numba on its share
+of the cores (threads_per_worker): the jobs' workers and the warm-up's'''
     import concurrent.futures as cf
     return cf.ProcessPoolExecutor(max_workers=workers, mp_context=local_context(),
                                   initializer=_init_worker,
-                                  initargs=(os.getpid(), blas_threads_per_worker(workers)))
+                                  initargs=(os.getpid(), threads_per_worker(workers)))
 
 
 def _local_results(fn, jobs, workers):

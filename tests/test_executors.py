@@ -91,17 +91,25 @@ def _blas_threads(_):
     return blas.threads()
 
 
-def test_workers_share_the_cores_with_numpys_blas():
-    r'''Each local worker runs numpy's OpenBLAS on its share of the cores: 2 workers on
-2 cores, one thread each (more only wait for the other worker's, harness/blas.py)'''
+def _numba_threads(_):
+    import numba
+    return numba.get_num_threads()
+
+
+def test_workers_share_the_cores_with_numpys_blas_and_numba():
+    r'''Each local worker runs numpy's OpenBLAS and numba's parallel kernels on its share of
+the cores: 2 workers on 2 cores, one thread each (more only wait for the other worker's,
+harness/blas.py, harness.executors.threads_per_worker)'''
     from harness import blas
-    from harness.executors import _local_results, blas_threads_per_worker
+    from harness.executors import _local_results, threads_per_worker
+    assert threads_per_worker(2, cores=2) == 1
+    assert threads_per_worker(2, cores=8) == 4
+    assert threads_per_worker(4, cores=2) == 1
+    want = threads_per_worker(2)
+    got = [r for _, r in _local_results(_numba_threads, [0, 1, 2, 3], 2)]
+    assert got == [want] * 4
     if blas.threads() is None:
-        pytest.skip("numpy's OpenBLAS is not found here (the thread count is not set)")
-    assert blas_threads_per_worker(2, cores=2) == 1
-    assert blas_threads_per_worker(2, cores=8) == 4
-    assert blas_threads_per_worker(4, cores=2) == 1
-    want = blas_threads_per_worker(2)
+        pytest.skip("numpy's OpenBLAS is not found here (its thread count is not set)")
     got = [r for _, r in _local_results(_blas_threads, [0, 1, 2, 3], 2)]
     assert got == [want] * 4
 
