@@ -62,14 +62,15 @@ None unless every row's elements are one interval (cv2's MORPH_ELLIPSE elements 
 
 
 @njit(cache=True, error_model="numpy")
-def dilations(mask, lo_w, hi_w, lo_r, hi_r):
-    r"""(window, outer): mask (uint8, 0/1) dilated by two symmetric structuring elements
-given by their rows (element_rows()), as cv2.dilate gives them (bool)
+def _dilation_steps(mask, lo_w, hi_w, lo_r, hi_r):
+    r"""d (2,h,w+1) int32: the difference arrays along the rows of mask (uint8, 0/1)
+dilated by two symmetric structuring elements given by their rows (element_rows()):
+d[0] the window's, d[1] the outer one's; a pixel is in dilation j iff the prefix sum
+of d[j, y, :x + 1] is positive (dilations())
 
 Run by run: a run of mask pixels [s, e) of row y covers, in row y + dy, the columns
-[s + lo, e + hi) of the element's row dy (lo..hi); the runs' intervals are summed into
-difference arrays, one pass over the crop for the runs and one for the prefix sums.
-Crop borders clip the intervals, as cv2's constant border adds nothing."""
+[s + lo, e + hi) of the element's row dy (lo..hi); crop borders clip the intervals, as
+cv2's constant border adds nothing."""
     h, w = mask.shape
     d = np.zeros((2, h, w + 1), np.int32)
     for y in range(h):
@@ -92,6 +93,16 @@ Crop borders clip the intervals, as cv2's constant border adds nothing."""
                     if a < b:
                         d[which, Y, a] += 1
                         d[which, Y, b] -= 1
+    return d
+
+
+@njit(cache=True, error_model="numpy")
+def dilations(mask, lo_w, hi_w, lo_r, hi_r):
+    r"""(window, outer): mask (uint8, 0/1) dilated by two symmetric structuring elements
+given by their rows (element_rows()), as cv2.dilate gives them (bool): the prefix sums
+of _dilation_steps(), the form dot_centroid() reads them in"""
+    h, w = mask.shape
+    d = _dilation_steps(mask, lo_w, hi_w, lo_r, hi_r)
     window = np.zeros((h, w), np.bool_)
     outer = np.zeros((h, w), np.bool_)
     for y in range(h):
@@ -184,31 +195,44 @@ fraction of np.sort's time)"""
 
 @njit(cache=True, error_model="numpy")
 def dot_centroid(crop, mask, free, has_free, lo_w, hi_w, lo_r, hi_r, xa, ya, min_ring):
-    r"""(status, x, y): the centroid of the blob mask (uint8) in crop (float64, not
-written), crop[0, 0] being pixel (xa, ya); free (bool, read only if has_free) the
-pixels of no blob; the elements' rows from element_rows(); see the module docstring"""
-    h, w = crop.shape
-    window, outer = dilations(mask, lo_w, hi_w, lo_r, hi_r)
+    r"""(status, x, y): the centroid of the blob mask (uint8) in crop (float64 or float32,
+any strides: a view of the image; not written), crop[0, 0] being pixel (xa, ya); free
+(bool, read only if has_free) the pixels of no blob; the elements' rows from
+element_rows(); see the module docstring
+
+Two passes over the crop: the prefix sums of the dilations (_dilation_steps) mark the
+window and collect the ring's pixels in raster order; the weights are then summed over
+each row's window columns only (first..last window pixel of the row). A float32 pixel
+is taken as its float64 value, as numpy's astype gives it."""
+    h, w = mask.shape
+    d = _dilation_steps(mask, lo_w, hi_w, lo_r, hi_r)
+    window = np.empty((h, w), np.bool_)
+    first = np.empty(h, np.int64)     # the window's columns of row y: first[y]..last[y]
+    last = np.empty(h, np.int64)
+    v = np.empty(h * w)
+    rx = np.empty(h * w, np.int64)
+    ry = np.empty(h * w, np.int64)
     n = 0
-    for y in range(h):
-        for x in range(w):
-            ring = outer[y, x] and not window[y, x] and (not has_free or free[y, x])
-            outer[y, x] = ring
-            n += ring
-    v = np.empty(n)
-    rx = np.empty(n, np.int64)
-    ry = np.empty(n, np.int64)
-    k = 0
     sx, sy = 0, 0
     for y in range(h):
+        cw = cr = 0
+        first[y], last[y] = w, -1
         for x in range(w):
-            if outer[y, x]:
-                v[k] = crop[y, x]
-                rx[k] = x + xa
-                ry[k] = y + ya
+            cw += d[0, y, x]
+            cr += d[1, y, x]
+            win = cw > 0
+            window[y, x] = win
+            if win:
+                if first[y] == w:
+                    first[y] = x
+                last[y] = x
+            elif cr > 0 and (not has_free or free[y, x]):
+                v[n] = crop[y, x]
+                rx[n] = x + xa
+                ry[n] = y + ya
                 sx += x + xa
                 sy += y + ya
-                k += 1
+                n += 1
     plane = n >= min_ring
     level = 0.0
     coef = np.zeros(3)
@@ -242,21 +266,21 @@ pixels of no blob; the elements' rows from element_rows(); see the module docstr
                 for k in range(n):
                     use[k] = abs(v[k] - (coef[0] + dx[k] * coef[1] + dy[k] * coef[2])) < limit
     elif n:
-        level = _median(v.copy(), n)
+        level = _median(v[:n].copy(), n)
     else:
         level = -np.inf
         for y in range(h):
-            for x in range(w):
+            for x in range(first[y], last[y] + 1):
                 if window[y, x] and crop[y, x] > level:
                     level = crop[y, x]
     s = sxw = syw = 0.0
     for y in range(h):
-        Y = float(y + ya)
-        for x in range(w):
+        # the plane's y term of the row: the same value and sum order as per pixel
+        yterm = coef[2] * (float(y + ya) - ym)
+        for x in range(first[y], last[y] + 1):
             if not window[y, x]:
                 continue
-            X = float(x + xa)
-            b = coef[0] + coef[1] * (X - xm) + coef[2] * (Y - ym) if plane else level
+            b = coef[0] + coef[1] * (float(x + xa) - xm) + yterm if plane else level
             wgt = 1.0 - crop[y, x] / b
             if not math.isfinite(wgt) or wgt <= 0.0:
                 continue

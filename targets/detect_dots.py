@@ -65,6 +65,7 @@ REDUCTION = 4
 MIN_REDUCED_AREA_PX = 4        # smaller reduced blobs are not located this way
 MIN_REDUCED_BLOBS = 4          # fewer: the full image is labelled instead
 MIN_RING_FOR_PLANE = 12
+MIN_CONTRAST = 0.02            # an image whose range (max - min) is not above this is refused
 _NO_FREE = np.zeros((1, 1), bool)     # dot_centroid's free mask when no other blob is near
 ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, True)
                   for fb in (False, True)]
@@ -136,12 +137,13 @@ would skip a NaN); where img sums to an overflow it is computed the numpy way.''
 
 
 def _scan(img, s, step, rows=SCAN_ROWS):
-    r'''(small, lo, hi, sub): the reduced image _reduce(img, s), the range _range(img, small)
-and the subsample img[::step, ::step] (a contiguous copy), in one pass over img
+    r'''(small, sub): the reduced image _reduce(img, s) and the subsample img[::step, ::step]
+(a contiguous copy, raveled), in one pass over img
 
 SYNOPSIS
 
-    small, lo, hi, sub = _scan(img, 4, 4)
+    small, sub = _scan(img, 4, 4)
+    reason = _image_problem(img, small)     # the range, only where small leaves it open
 
 Band by band of about `rows` rows (a multiple of s and step), while the band is in the
 cache: 3 passes over a 5120x3840 image from memory cost 4 ms more. A band reduces to the
@@ -150,22 +152,53 @@ of blocks (cv2's area average of whole blocks); otherwise the whole image is red
     import cv2
     H, W = img.shape
     if H % s or W % s:
-        small = _reduce(img, s)
-        return (small, *_range(img, small), img[::step, ::step].ravel())
+        return _reduce(img, s), img[::step, ::step].ravel()
     band = rows - rows % math.lcm(s, step) or math.lcm(s, step)
     small = np.empty((H // s, W // s), img.dtype)
     sub = np.empty((-(-H // step), -(-W // step)), img.dtype)
-    lo, hi = math.inf, -math.inf
     for r in range(0, H, band):
         b = img[r:r + band]
         cv2.resize(b, (W // s, len(b) // s), dst=small[r // s:(r + len(b)) // s],
                    interpolation=cv2.INTER_AREA)
         sub[r // step:-(-(r + len(b)) // step)] = b[::step, ::step]
-        b_lo, b_hi = cv2.minMaxLoc(b)[:2]
-        lo, hi = min(lo, b_lo), max(hi, b_hi)
-    if not (np.isfinite(small.min()) and np.isfinite(small.max())):
-        return small, *_range(img), sub.ravel()
-    return small, img.dtype.type(lo), img.dtype.type(hi), sub.ravel()
+    return small, sub.ravel()
+
+
+def _shows_contrast(small):
+    r'''True when the reduced image small (_reduce) of an image proves that the image
+is finite and its range hi - lo exceeds MIN_CONTRAST, as _image_problem() tests them,
+without a pass over the image
+
+A NaN or infinite pixel makes small non-finite (_range). Each pixel of small is a
+float32 average of a block, within 16 u B of the block's exact average (u = 2^-24: 15
+roundings of the sum, one of the product; B the largest pixel magnitude), and the exact
+average lies within the image's range. Were that range at most MIN_CONTRAST, every
+pixel would be within MIN_CONTRAST of every block's average, so B <= (m + MIN_CONTRAST)
+/ (1 - 16 u) with m = min(|small.min()|, |small.max()|), and small's range at most
+MIN_CONTRAST + 32 u B: a range of small beyond MIN_CONTRAST + 1e-5 (m + 1) (32 u =
+1.9e-6) shows the contrast, with room for the float32 rounding of the test's hi - lo.'''
+    s_lo, s_hi = float(small.min()), float(small.max())
+    if not (math.isfinite(s_lo) and math.isfinite(s_hi)):
+        return False
+    m = min(abs(s_lo), abs(s_hi))      # at least small's smallest magnitude
+    return s_hi - s_lo > MIN_CONTRAST + 1e-5 * (m + 1.0)
+
+
+def _image_problem(img, small=None):
+    r'''Why img holds no target for any threshold: "the image has non-finite pixels" or
+"no contrast in the image (range lo..hi)"; None when it may hold one
+
+With its reduced image small (_reduce), no pass over img when small shows the contrast
+(_shows_contrast); else the range of img (_range).'''
+    if small is not None and _shows_contrast(small):
+        return None
+    lo, hi = _range(img, small)
+    # min and max propagate NaN and reach +-inf: finite both iff every pixel is finite
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return "the image has non-finite pixels"
+    if not hi - lo > MIN_CONTRAST:
+        return f"no contrast in the image (range {lo:.3g}..{hi:.3g})"
+    return None
 
 
 def _blobs_from_reduced(img, thr, s, small=None):
@@ -711,16 +744,12 @@ ARGUMENTS
     # the threshold only splits dark from light: about a million pixels give it
     step = max(2, math.isqrt(H * W // OTSU_PIXELS))
     if H * W > LARGE_IMAGE_PIXELS:
-        small, lo, hi, sub = _scan(img, REDUCTION, step)
+        small, sub = _scan(img, REDUCTION, step)
     else:
         small, sub = None, img[::step, ::step]
-        lo, hi = _range(img)
-    # min and max propagate NaN and reach +-inf: finite both iff every pixel is finite
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        return failed(target, "the image has non-finite pixels", DETECTOR)
-    if not hi - lo > 0.02:
-        return failed(target, f"no contrast in the image (range {lo:.3g}..{hi:.3g})",
-                      DETECTOR)
+    problem = _image_problem(img, small)
+    if problem is not None:
+        return failed(target, problem, DETECTOR)
     thr = _otsu(sub) if threshold is None else float(threshold)
     found = None
     if H * W > LARGE_IMAGE_PIXELS:
@@ -780,13 +809,18 @@ ARGUMENTS
     rows = _kernels.element_rows(win_kernel), _kernels.element_rows(ring_kernel)
     rows = None if None in rows else rows[0] + rows[1]
     pad = window_dilation_px + ring_px + 1
+    # img has the source's pixel values when it is float64 (converted from the source as
+    # float64) or when it is the source itself (a 2-D float32 image, not copied)
+    src = np.asarray(image)
+    img_is_source = img.dtype == np.float64 or (src.ndim == 2 and src.dtype == img.dtype)
     for i_blob, gx, gy in zip(best.values(), ix, iy, strict=True):
         label = blobs[i_blob]
         xa, ya = max(0, x0[label] - pad), max(0, y0[label] - pad)
         xb, yb = min(W, x0[label] + w[label] + pad), min(H, y0[label] + h[label] + pad)
-        # float64 from the source pixels, whatever precision the labelling used
-        crop = np.ascontiguousarray(img[ya:yb, xa:xb] if img.dtype == np.float64
-                                    else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
+        # the source pixels (their float64 values), whatever precision the labelling used:
+        # a view of img when img holds them (the kernel reads float32 as float64)
+        crop = img[ya:yb, xa:xb] if img_is_source else \
+            as_float_image(np.asarray(image)[ya:yb, xa:xb])
         mask, free = _dot_masks(labels, stats, label, xa, ya, xb, yb)
         status = -1
         if rows is not None:
@@ -794,8 +828,7 @@ ARGUMENTS
                 crop, mask, _NO_FREE if free is None else free, free is not None, *rows,
                 int(xa), int(ya), MIN_RING_FOR_PLANE)
         if status < 0:      # a degenerate plane fit (numpy's solve or lstsq), or no kernel
-            if crop.base is not None or not crop.flags.writeable:
-                crop = crop.copy()
+            crop = np.array(crop, dtype=np.float64)     # a copy: _dot_centroid writes it
             c = _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya)
             status, (cx, cy) = (0, (0, 0)) if c is None else (1, c)
         if status:

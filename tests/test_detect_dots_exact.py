@@ -323,13 +323,55 @@ def test_range_is_numpy_min_max():
 @pytest.mark.parametrize("rows", [1, 8, 13, 64, 1000])
 @pytest.mark.parametrize("shape,s,step", [((300, 420), 4, 4), ((300, 420), 4, 3),
                                           ((302, 420), 4, 4), ((300, 418), 2, 5)])
-def test_scan_is_reduce_range_and_subsample(rows, shape, s, step):
+def test_scan_is_reduce_and_subsample(rows, shape, s, step):
     img = np.tile(_speckled(4), (2, 2))[:shape[0], :shape[1]].copy()
-    small, lo, hi, sub = dd._scan(img, s, step, rows)
+    small, sub = dd._scan(img, s, step, rows)
     ref = dd._reduce(img, s)
     assert np.array_equal(small, ref) and small.dtype == ref.dtype
-    assert (lo, hi) == (img.min(), img.max()) and type(lo) is type(img.min())
     assert np.array_equal(sub, img[::step, ::step].ravel())
     img[shape[0] - 1, 7] = np.nan
-    small, lo, hi, sub = dd._scan(img, s, step, rows)
-    assert np.isnan(lo) and np.isnan(hi) and np.isnan(small).any()
+    small, sub = dd._scan(img, s, step, rows)
+    assert np.isnan(small).any()
+
+
+def _problem_from_range(img):
+    r'''The image test as the detector made it before _image_problem: from the full range'''
+    lo, hi = img.min(), img.max()
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return "the image has non-finite pixels"
+    if not hi - lo > dd.MIN_CONTRAST:
+        return f"no contrast in the image (range {lo:.3g}..{hi:.3g})"
+    return None
+
+
+@pytest.mark.parametrize("level", [0.0, 0.5, -3.0, 1e4])
+def test_image_problem_is_the_full_range_test(level):
+    r'''Through the reduced image or not, the same verdict as the full range gives: ranges
+just above and below MIN_CONTRAST (float32 steps of the level), a contrast that only
+single pixels show (averaged away in the reduced image), non-finite pixels'''
+    rng = np.random.default_rng(7)
+    base = np.float32(level) + rng.uniform(0, 1, (64, 96)).astype(np.float32) * np.float32(0.01)
+    ulp = np.spacing(np.float32(level + 0.03))
+    for extra in (0.0, 0.0101, 0.02, 0.025, 0.5):
+        for kind in ("block", "pixel"):
+            for nudge in (-2, 0, 2):
+                img = base.copy()
+                if kind == "block":
+                    img[8:16, 12:20] += np.float32(extra)
+                else:
+                    img[9, 13] += np.float32(extra)
+                img[9, 13] += nudge * ulp
+                want = _problem_from_range(img)
+                for small in (None, dd._reduce(img, 4)):
+                    assert dd._image_problem(img, small) == want
+                    if small is not None and dd._shows_contrast(small):
+                        assert want is None
+    img = base.copy()
+    img[5, 6] = np.nan
+    assert dd._image_problem(img, dd._reduce(img, 4)) == "the image has non-finite pixels"
+
+
+def test_reduced_contrast_decides_the_paper_like_image():
+    # a board with dark dots: the reduced image shows the contrast, so no full range pass
+    img = np.tile(_speckled(1), (2, 2))
+    assert dd._shows_contrast(dd._reduce(img, 4)) and dd._image_problem(img) is None
