@@ -184,15 +184,18 @@ MIN_CONTRAST + 32 u B: a range of small beyond MIN_CONTRAST + 1e-5 (m + 1) (32 u
     return s_hi - s_lo > MIN_CONTRAST + 1e-5 * (m + 1.0)
 
 
-def _image_problem(img, small=None):
+def _image_problem(img, small=None, dtype=None):
     r'''Why img holds no target for any threshold: "the image has non-finite pixels" or
 "no contrast in the image (range lo..hi)"; None when it may hold one
 
 With its reduced image small (_reduce), no pass over img when small shows the contrast
-(_shows_contrast); else the range of img (_range).'''
+(_shows_contrast); else the range of img (_range), taken as dtype (a wider float type:
+the range of img converted to it) when given.'''
     if small is not None and _shows_contrast(small):
         return None
     lo, hi = _range(img, small)
+    if dtype is not None:
+        lo, hi = dtype(lo), dtype(hi)
     # min and max propagate NaN and reach +-inf: finite both iff every pixel is finite
     if not (np.isfinite(lo) and np.isfinite(hi)):
         return "the image has non-finite pixels"
@@ -285,7 +288,8 @@ corner: cv2's centroid of the box labelled alone, bit for bit.
 A component wholly inside its box is a component of the whole image, so one labelled
 through another box has the same box and pixels, and components of the image are
 disjoint: a component is taken iff one of the same box shares a pixel with it.'''
-    comps, pixels = _kernels.label_boxes(img, img.dtype.type(thr),
+    # numpy's img < thr: a float threshold in img's type, a numpy scalar in the wider type
+    comps, pixels = _kernels.label_boxes(img, np.result_type(img, thr).type(thr),
                                          np.array(boxes, np.int64).reshape(-1, 4))
     taken = {}
     for k, st in enumerate(stats[1:], 1):
@@ -662,7 +666,13 @@ ARGUMENTS
 '''
     from scipy.spatial import cKDTree
 
-    img = as_float_image(image, dtype=np.float32 if _is_large(image) else np.float64)
+    large = _is_large(image)
+    src = np.asarray(image)
+    # a small float32 image (a render) is not converted as a whole: its pixels are read
+    # as float64 where they are used (the subsample, the range, the threshold test and
+    # the centroids), the values a float64 copy would hold
+    exact64 = not large and src.ndim == 2 and src.dtype == np.float32
+    img = as_float_image(image, dtype=np.float32 if large or exact64 else np.float64)
     nx, ny = target.grid_shape
     if target.kind != "dots":
         return failed(target, f"detect_dots() needs a dots target; got {target.kind!r}",
@@ -673,16 +683,16 @@ ARGUMENTS
     if H * W > LARGE_IMAGE_PIXELS:
         small, sub = _scan(img, REDUCTION, step)
     else:
-        small, sub = None, img[::step, ::step]
-    problem = _image_problem(img, small)
+        small, sub = None, img[::step, ::step].astype(np.float64 if exact64 else img.dtype)
+    problem = _image_problem(img, small, np.float64 if exact64 else None)
     if problem is not None:
         return failed(target, problem, DETECTOR)
     thr = _otsu(sub) if threshold is None else float(threshold)
     found = None
     if H * W > LARGE_IMAGE_PIXELS:
         found = _blobs_from_reduced(img, thr, REDUCTION, small)
-    if found is None:
-        found = _label_whole(img, thr)
+    if found is None:   # (a float64 threshold: the float32 pixels compared as float64)
+        found = _label_whole(img, np.float64(thr) if exact64 else thr)
     masks, stats, centroids = found
     n = len(stats)
     x0, y0, w, h, area = (stats[:, k] for k in range(5))
@@ -738,7 +748,6 @@ ARGUMENTS
     pad = window_dilation_px + ring_px + 1
     # img has the source's pixel values when it is float64 (converted from the source as
     # float64) or when it is the source itself (a 2-D float32 image, not copied)
-    src = np.asarray(image)
     img_is_source = img.dtype == np.float64 or (src.ndim == 2 and src.dtype == img.dtype)
     dots = blobs[np.array(list(best.values()), np.int64)]
     crops = (np.maximum(0, x0[dots] - pad), np.maximum(0, y0[dots] - pad),

@@ -383,3 +383,19 @@ def test_reduced_contrast_decides_the_paper_like_image():
     # a board with dark dots: the reduced image shows the contrast, so no full range pass
     img = np.tile(_speckled(1), (2, 2))
     assert dd._shows_contrast(dd._reduce(img, 4)) and dd._image_problem(img) is None
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_small_float32_image_is_read_as_its_float64_copy(seed):
+    r'''A small float32 image is not converted as a whole: the same threshold, blobs,
+centroids and verdicts as its float64 copy (whose values it holds exactly), also at a
+range just above and below the contrast bar (float32 and float64 differences differ)'''
+    from targets.boards import load_target
+    from targets.detect import detect
+    t = load_target("dots")
+    img = _dot_field(seed).astype(np.float32)
+    for im in (img, np.float32(0.5) + (img - img.min()) * np.float32(0.02 / np.ptp(img)),
+               np.float32(0.5) + (img - img.min()) * np.float32(0.0201 / np.ptp(img))):
+        a, b = detect(im, t), detect(im.astype(np.float64), t)
+        assert (a.status, a.reason, a.info) == (b.status, b.reason, b.info)
+        assert np.array_equal(a.q, b.q, equal_nan=True)
