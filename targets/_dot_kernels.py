@@ -10,6 +10,7 @@ SYNOPSIS
     # (a zero pivot): the caller computes this dot the numpy way (detect_dots._dot_centroid)
     is_mark = K.mark_flags(ab, node, area, ratio_threshold, R)     # detect_dots.mark_flags
     counts = K.histogram_counts(v, edges, lo, scale)               # detect_dots._histogram
+    comps, pixels = K.label_boxes(img, thr, boxes)                 # detect_dots._label_stack
 
 One call per dot instead of about forty numpy and OpenCV calls (their overhead was most
 of the detector's time: ~250 us a dot). The arithmetic is detect_dots._dot_centroid's
@@ -62,14 +63,15 @@ None unless every row's elements are one interval (cv2's MORPH_ELLIPSE elements 
 
 
 @njit(cache=True, error_model="numpy")
-def dilations(mask, lo_w, hi_w, lo_r, hi_r):
-    r"""(window, outer): mask (uint8, 0/1) dilated by two symmetric structuring elements
-given by their rows (element_rows()), as cv2.dilate gives them (bool)
+def _dilation_steps(mask, lo_w, hi_w, lo_r, hi_r):
+    r"""d (2,h,w+1) int32: the difference arrays along the rows of mask (uint8, 0/1)
+dilated by two symmetric structuring elements given by their rows (element_rows()):
+d[0] the window's, d[1] the outer one's; a pixel is in dilation j iff the prefix sum
+of d[j, y, :x + 1] is positive (dilations())
 
 Run by run: a run of mask pixels [s, e) of row y covers, in row y + dy, the columns
-[s + lo, e + hi) of the element's row dy (lo..hi); the runs' intervals are summed into
-difference arrays, one pass over the crop for the runs and one for the prefix sums.
-Crop borders clip the intervals, as cv2's constant border adds nothing."""
+[s + lo, e + hi) of the element's row dy (lo..hi); crop borders clip the intervals, as
+cv2's constant border adds nothing."""
     h, w = mask.shape
     d = np.zeros((2, h, w + 1), np.int32)
     for y in range(h):
@@ -92,6 +94,16 @@ Crop borders clip the intervals, as cv2's constant border adds nothing."""
                     if a < b:
                         d[which, Y, a] += 1
                         d[which, Y, b] -= 1
+    return d
+
+
+@njit(cache=True, error_model="numpy")
+def dilations(mask, lo_w, hi_w, lo_r, hi_r):
+    r"""(window, outer): mask (uint8, 0/1) dilated by two symmetric structuring elements
+given by their rows (element_rows()), as cv2.dilate gives them (bool): the prefix sums
+of _dilation_steps(), the form dot_centroid() reads them in"""
+    h, w = mask.shape
+    d = _dilation_steps(mask, lo_w, hi_w, lo_r, hi_r)
     window = np.zeros((h, w), np.bool_)
     outer = np.zeros((h, w), np.bool_)
     for y in range(h):
@@ -184,31 +196,44 @@ fraction of np.sort's time)"""
 
 @njit(cache=True, error_model="numpy")
 def dot_centroid(crop, mask, free, has_free, lo_w, hi_w, lo_r, hi_r, xa, ya, min_ring):
-    r"""(status, x, y): the centroid of the blob mask (uint8) in crop (float64, not
-written), crop[0, 0] being pixel (xa, ya); free (bool, read only if has_free) the
-pixels of no blob; the elements' rows from element_rows(); see the module docstring"""
-    h, w = crop.shape
-    window, outer = dilations(mask, lo_w, hi_w, lo_r, hi_r)
+    r"""(status, x, y): the centroid of the blob mask (uint8) in crop (float64 or float32,
+any strides: a view of the image; not written), crop[0, 0] being pixel (xa, ya); free
+(bool, read only if has_free) the pixels of no blob; the elements' rows from
+element_rows(); see the module docstring
+
+Two passes over the crop: the prefix sums of the dilations (_dilation_steps) mark the
+window and collect the ring's pixels in raster order; the weights are then summed over
+each row's window columns only (first..last window pixel of the row). A float32 pixel
+is taken as its float64 value, as numpy's astype gives it."""
+    h, w = mask.shape
+    d = _dilation_steps(mask, lo_w, hi_w, lo_r, hi_r)
+    window = np.empty((h, w), np.bool_)
+    first = np.empty(h, np.int64)     # the window's columns of row y: first[y]..last[y]
+    last = np.empty(h, np.int64)
+    v = np.empty(h * w)
+    rx = np.empty(h * w, np.int64)
+    ry = np.empty(h * w, np.int64)
     n = 0
-    for y in range(h):
-        for x in range(w):
-            ring = outer[y, x] and not window[y, x] and (not has_free or free[y, x])
-            outer[y, x] = ring
-            n += ring
-    v = np.empty(n)
-    rx = np.empty(n, np.int64)
-    ry = np.empty(n, np.int64)
-    k = 0
     sx, sy = 0, 0
     for y in range(h):
+        cw = cr = 0
+        first[y], last[y] = w, -1
         for x in range(w):
-            if outer[y, x]:
-                v[k] = crop[y, x]
-                rx[k] = x + xa
-                ry[k] = y + ya
+            cw += d[0, y, x]
+            cr += d[1, y, x]
+            win = cw > 0
+            window[y, x] = win
+            if win:
+                if first[y] == w:
+                    first[y] = x
+                last[y] = x
+            elif cr > 0 and (not has_free or free[y, x]):
+                v[n] = crop[y, x]
+                rx[n] = x + xa
+                ry[n] = y + ya
                 sx += x + xa
                 sy += y + ya
-                k += 1
+                n += 1
     plane = n >= min_ring
     level = 0.0
     coef = np.zeros(3)
@@ -242,21 +267,21 @@ pixels of no blob; the elements' rows from element_rows(); see the module docstr
                 for k in range(n):
                     use[k] = abs(v[k] - (coef[0] + dx[k] * coef[1] + dy[k] * coef[2])) < limit
     elif n:
-        level = _median(v.copy(), n)
+        level = _median(v[:n].copy(), n)
     else:
         level = -np.inf
         for y in range(h):
-            for x in range(w):
+            for x in range(first[y], last[y] + 1):
                 if window[y, x] and crop[y, x] > level:
                     level = crop[y, x]
     s = sxw = syw = 0.0
     for y in range(h):
-        Y = float(y + ya)
-        for x in range(w):
+        # the plane's y term of the row: the same value and sum order as per pixel
+        yterm = coef[2] * (float(y + ya) - ym)
+        for x in range(first[y], last[y] + 1):
             if not window[y, x]:
                 continue
-            X = float(x + xa)
-            b = coef[0] + coef[1] * (X - xm) + coef[2] * (Y - ym) if plane else level
+            b = coef[0] + coef[1] * (float(x + xa) - xm) + yterm if plane else level
             wgt = 1.0 - crop[y, x] / b
             if not math.isfinite(wgt) or wgt <= 0.0:
                 continue
@@ -382,16 +407,139 @@ in the bin [edges[i], edges[i+1]) that holds it, the last bin closed'''
 
 
 @njit(cache=True, error_model="numpy")
-def label_counts(labels, n):
-    r'''np.bincount(labels.ravel(), minlength=n) of a (H,W) label image (int32, values in
-0..n-1) in one pass, without bincount's int64 copy of the labels'''
-    counts = np.zeros(n, np.int64)
-    for v in labels.ravel():
-        counts[v] += 1
-    return counts
+def _root(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True, error_model="numpy")
+def label_boxes(img, thr, boxes):
+    r"""The 8-connected components of img < thr in each box, as the box labelled alone by
+cv2.connectedComponents gives them, those wholly inside their box (a box side on the
+image border counts as inside): (comps, pixels)
+
+comps (m,8) int64, box by box, in cv2's label order within the box: box index, x, y,
+w, h (the component's bounding box in the image), area, and the sums of the pixels'
+x and y relative to the box's corner (exact integers); pixels (bool, flat): each
+component's pixels over its bounding box, row by row, one after the other.
+
+thr is of img's type (numpy compares a float32 image with a float threshold in
+float32). Row runs of dark pixels are joined (union-find) where they touch across
+rows, 8-connected. cv2 labels 2x2 blocks in raster order from the box's corner (the
+blocks of a component are 8-connected, so each block belongs to one component) and
+numbers components in the order of their first block: here each component's first
+block (y // 2, x // 2 in the box) orders them."""
+    H, W = img.shape
+    nb = len(boxes)
+    comps = np.zeros((0, 8), np.int64)
+    out = []
+    npix = 0
+    # the runs [rs, re) of row ry, row by row: at most (w + 1) // 2 a row
+    cap = 1
+    for ib in range(nb):
+        cap = max(cap, (boxes[ib, 3] - boxes[ib, 1]) * ((boxes[ib, 2] - boxes[ib, 0] + 1) // 2))
+    rs = np.empty(cap, np.int64)
+    re = np.empty(cap, np.int64)
+    ry = np.empty(cap, np.int64)
+    for ib in range(nb):
+        xa, ya, xb, yb = boxes[ib, 0], boxes[ib, 1], boxes[ib, 2], boxes[ib, 3]
+        h, w = yb - ya, xb - xa
+        row0 = np.empty(h + 1, np.int64)
+        n = 0
+        for y in range(h):
+            row0[y] = n
+            x = 0
+            while x < w:
+                if not img[ya + y, xa + x] < thr:
+                    x += 1
+                    continue
+                rs[n] = x
+                while x < w and img[ya + y, xa + x] < thr:
+                    x += 1
+                re[n], ry[n] = x, y
+                n += 1
+        row0[h] = n
+        parent = np.arange(n)
+        for y in range(1, h):
+            i, j = row0[y - 1], row0[y]
+            while i < row0[y] and j < row0[y + 1]:
+                # 8-connected: [rs_i - 1, re_i + 1) meets [rs_j, re_j)
+                if rs[i] <= re[j] and rs[j] <= re[i]:
+                    a, b = _root(parent, i), _root(parent, j)
+                    if a < b:
+                        parent[b] = a
+                    elif b < a:
+                        parent[a] = b
+                if re[i] < re[j]:
+                    i += 1
+                else:
+                    j += 1
+        # per root: first block, box, area, sums
+        nbx = w // 2 + 1
+        first = np.full(n, np.iinfo(np.int64).max)
+        x0 = np.full(n, w)
+        y0 = np.full(n, h)
+        x1 = np.full(n, -1)
+        y1 = np.full(n, -1)
+        area = np.zeros(n, np.int64)
+        sx = np.zeros(n, np.int64)
+        sy = np.zeros(n, np.int64)
+        for k in range(n):
+            r = _root(parent, k)
+            parent[k] = r
+            first[r] = min(first[r], (ry[k] // 2) * nbx + rs[k] // 2)
+            x0[r] = min(x0[r], rs[k])
+            x1[r] = max(x1[r], re[k])
+            y0[r] = min(y0[r], ry[k])
+            y1[r] = max(y1[r], ry[k] + 1)
+            L = re[k] - rs[k]
+            area[r] += L
+            sx[r] += (rs[k] + re[k] - 1) * L // 2
+            sy[r] += ry[k] * L
+        roots = np.empty(n, np.int64)
+        m = 0
+        for k in range(n):
+            if parent[k] == k:
+                # insertion by first block (few components a box)
+                t = m
+                while t > 0 and first[roots[t - 1]] > first[k]:
+                    roots[t] = roots[t - 1]
+                    t -= 1
+                roots[t] = k
+                m += 1
+        slot = np.full(n, -1)
+        kept = []
+        for t in range(m):
+            r = roots[t]
+            if not ((x0[r] > 0 or xa == 0) and (y0[r] > 0 or ya == 0)
+                    and (x1[r] < w or xb == W) and (y1[r] < h or yb == H)):
+                continue
+            slot[r] = len(out)
+            out.append(np.zeros((y1[r] - y0[r], x1[r] - x0[r]), np.bool_))
+            kept.append(r)
+        for k in range(n):
+            r = parent[k]
+            if slot[r] >= 0:
+                out[slot[r]][ry[k] - y0[r], rs[k] - x0[r]:re[k] - x0[r]] = True
+        rows = np.empty((len(kept), 8), np.int64)
+        for t in range(len(kept)):
+            r = kept[t]
+            cw, ch = x1[r] - x0[r], y1[r] - y0[r]
+            npix += ch * cw
+            rows[t, 0], rows[t, 1], rows[t, 2], rows[t, 3] = ib, xa + x0[r], ya + y0[r], cw
+            rows[t, 4], rows[t, 5], rows[t, 6], rows[t, 7] = ch, area[r], sx[r], sy[r]
+        comps = np.concatenate((comps, rows))
+    pixels = np.empty(npix, np.bool_)
+    k = 0
+    for mask in out:
+        pixels[k:k + mask.size] = mask.ravel()
+        k += mask.size
+    return comps, pixels
 
 
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup)'''
-    return (dilations, dot_centroid, mark_flags, histogram_counts, label_counts)
+    return (dilations, dot_centroid, mark_flags, histogram_counts, label_boxes)

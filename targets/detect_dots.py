@@ -33,8 +33,8 @@ Steps:
    dot area each pixel covers (a 50 % vignette biased the plain weights by
    0.03 px RMS on 320x240 test renders).
 
-Step 3's mark test and 4 (and the Otsu histogram) run as compiled kernels
-(targets._dot_kernels, numba: one call a dot instead of ~40 numpy/OpenCV calls);
+Step 1's labelling, 3's mark test and 4 (and the Otsu histogram) run as compiled
+kernels (targets._dot_kernels, numba: one call a dot instead of ~40 numpy/OpenCV calls);
 mark_flags' and _dot_centroid's numpy code here is their reference (the tests
 compare) and _dot_centroid the fallback for a degenerate plane fit.
 
@@ -65,6 +65,7 @@ REDUCTION = 4
 MIN_REDUCED_AREA_PX = 4        # smaller reduced blobs are not located this way
 MIN_REDUCED_BLOBS = 4          # fewer: the full image is labelled instead
 MIN_RING_FOR_PLANE = 12
+MIN_CONTRAST = 0.02            # an image whose range (max - min) is not above this is refused
 _NO_FREE = np.zeros((1, 1), bool)     # dot_centroid's free mask when no other blob is near
 ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, True)
                   for fb in (False, True)]
@@ -136,12 +137,13 @@ would skip a NaN); where img sums to an overflow it is computed the numpy way.''
 
 
 def _scan(img, s, step, rows=SCAN_ROWS):
-    r'''(small, lo, hi, sub): the reduced image _reduce(img, s), the range _range(img, small)
-and the subsample img[::step, ::step] (a contiguous copy), in one pass over img
+    r'''(small, sub): the reduced image _reduce(img, s) and the subsample img[::step, ::step]
+(a contiguous copy, raveled), in one pass over img
 
 SYNOPSIS
 
-    small, lo, hi, sub = _scan(img, 4, 4)
+    small, sub = _scan(img, 4, 4)
+    reason = _image_problem(img, small)     # the range, only where small leaves it open
 
 Band by band of about `rows` rows (a multiple of s and step), while the band is in the
 cache: 3 passes over a 5120x3840 image from memory cost 4 ms more. A band reduces to the
@@ -150,22 +152,56 @@ of blocks (cv2's area average of whole blocks); otherwise the whole image is red
     import cv2
     H, W = img.shape
     if H % s or W % s:
-        small = _reduce(img, s)
-        return (small, *_range(img, small), img[::step, ::step].ravel())
+        return _reduce(img, s), img[::step, ::step].ravel()
     band = rows - rows % math.lcm(s, step) or math.lcm(s, step)
     small = np.empty((H // s, W // s), img.dtype)
     sub = np.empty((-(-H // step), -(-W // step)), img.dtype)
-    lo, hi = math.inf, -math.inf
     for r in range(0, H, band):
         b = img[r:r + band]
         cv2.resize(b, (W // s, len(b) // s), dst=small[r // s:(r + len(b)) // s],
                    interpolation=cv2.INTER_AREA)
         sub[r // step:-(-(r + len(b)) // step)] = b[::step, ::step]
-        b_lo, b_hi = cv2.minMaxLoc(b)[:2]
-        lo, hi = min(lo, b_lo), max(hi, b_hi)
-    if not (np.isfinite(small.min()) and np.isfinite(small.max())):
-        return small, *_range(img), sub.ravel()
-    return small, img.dtype.type(lo), img.dtype.type(hi), sub.ravel()
+    return small, sub.ravel()
+
+
+def _shows_contrast(small):
+    r'''True when the reduced image small (_reduce) of an image proves that the image
+is finite and its range hi - lo exceeds MIN_CONTRAST, as _image_problem() tests them,
+without a pass over the image
+
+A NaN or infinite pixel makes small non-finite (_range). Each pixel of small is a
+float32 average of a block, within 16 u B of the block's exact average (u = 2^-24: 15
+roundings of the sum, one of the product; B the largest pixel magnitude), and the exact
+average lies within the image's range. Were that range at most MIN_CONTRAST, every
+pixel would be within MIN_CONTRAST of every block's average, so B <= (m + MIN_CONTRAST)
+/ (1 - 16 u) with m = min(|small.min()|, |small.max()|), and small's range at most
+MIN_CONTRAST + 32 u B: a range of small beyond MIN_CONTRAST + 1e-5 (m + 1) (32 u =
+1.9e-6) shows the contrast, with room for the float32 rounding of the test's hi - lo.'''
+    s_lo, s_hi = float(small.min()), float(small.max())
+    if not (math.isfinite(s_lo) and math.isfinite(s_hi)):
+        return False
+    m = min(abs(s_lo), abs(s_hi))      # at least small's smallest magnitude
+    return s_hi - s_lo > MIN_CONTRAST + 1e-5 * (m + 1.0)
+
+
+def _image_problem(img, small=None, dtype=None):
+    r'''Why img holds no target for any threshold: "the image has non-finite pixels" or
+"no contrast in the image (range lo..hi)"; None when it may hold one
+
+With its reduced image small (_reduce), no pass over img when small shows the contrast
+(_shows_contrast); else the range of img (_range), taken as dtype (a wider float type:
+the range of img converted to it) when given.'''
+    if small is not None and _shows_contrast(small):
+        return None
+    lo, hi = _range(img, small)
+    if dtype is not None:
+        lo, hi = dtype(lo), dtype(hi)
+    # min and max propagate NaN and reach +-inf: finite both iff every pixel is finite
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return "the image has non-finite pixels"
+    if not hi - lo > MIN_CONTRAST:
+        return f"no contrast in the image (range {lo:.3g}..{hi:.3g})"
+    return None
 
 
 def _blobs_from_reduced(img, thr, s, small=None):
@@ -186,7 +222,7 @@ the pixels, statistics and centroid of the full labelling; the label image is ze
 elsewhere (background, or dark specks too small to show in the reduced image).'''
     H, W = img.shape
     small = _reduce(img, s) if small is None else small
-    st = _reduced_blobs(small < thr)
+    st = _reduced_blobs(small, thr)
     if len(st) < MIN_REDUCED_BLOBS:
         return None
     margin = 2 * s
@@ -196,8 +232,7 @@ elsewhere (background, or dark specks too small to show in the reduced image).''
     stats = [[0, 0, 0, 0, 0]]
     centroids = [np.zeros(2)]
     masks = [None]
-    for run in _stacks(boxes):
-        _label_stack(img, thr, run, stats, centroids, masks)
+    _label_stack(img, thr, boxes, stats, centroids, masks)
     return masks, np.array(stats, np.int64), np.array(centroids)
 
 
@@ -217,142 +252,59 @@ def _label_image(masks, stats, xa, ya, xb, yb):
     return lab
 
 
-def _components(mask):
-    r'''Labels and boxes of the 8-connected components of a uint8 mask, as
-cv2.connectedComponentsWithStats gives them, without its statistics (which take 5x the
-time of the labelling)
-
-SYNOPSIS
-
-    labels, boxes = _components(mask)   # boxes (n,5): label, x, y, w, h in label order
-
-Each component has one outer border, the top level of findContours' RETR_CCOMP
-hierarchy (a component in a hole of another is at the top level too): its bounding
-rectangle is the component's, and its pixels carry the component's label.'''
-    import cv2
-    _, labels = cv2.connectedComponents(mask, connectivity=8)
-    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
-    rows = [(int(labels[c[0, 0, 1], c[0, 0, 0]]), *cv2.boundingRect(c))
-            for c, up in zip(contours, [] if hierarchy is None else hierarchy[0, :, 3],
-                             strict=True) if up < 0]
-    return labels, np.array(sorted(rows), np.int64).reshape(-1, 5)
+def _label_whole(img, thr):
+    r'''(masks, stats, centroids) of every component of img < thr, as _blobs_from_reduced()
+gives them and cv2.connectedComponentsWithStats numbers them: the whole image as one
+box (_label_stack)'''
+    H, W = img.shape
+    stats, centroids, masks = [[0, 0, 0, 0, 0]], [np.zeros(2)], [None]
+    _label_stack(img, thr, [(0, 0, W, H)], stats, centroids, masks)
+    return masks, np.array(stats, np.int64), np.array(centroids)
 
 
-def _label_all(dark):
-    r'''(labels, stats, None) of a uint8 mask: cv2.connectedComponentsWithStats' labels and
-stats, the areas counted in one pass (_dot_kernels.label_counts: np.bincount's counts),
-in half its time; the centroids are left to _blob_centroids() for the blobs kept'''
-    labels, comp = _components(dark)
-    stats = np.zeros((len(comp) + 1, 5), np.int64)
-    stats[comp[:, 0], :4] = comp[:, 1:]
-    stats[:, 4] = _kernels.label_counts(labels, len(stats))
-    return labels, stats, None
-
-
-def _blob_centroids(labels, stats, blobs):
-    r'''The centroids (len(blobs),2) of these labels, as cv2.connectedComponentsWithStats
-gives them'''
-    c = np.empty((len(blobs), 2))
-    for j, k in enumerate(blobs.tolist()):
-        x, y, w, h, _ = st = stats[k].tolist()
-        c[j] = _centroid(labels[y:y + h, x:x + w] == k, x, y, st)
-    return c
-
-
-def _reduced_blobs(dark):
-    r'''Boxes (x, y, w, h) of the components of a reduced image's dark mask that
-detect_dots would keep: not touching the border, of MIN_REDUCED_AREA_PX to a quarter of
-the image; in label order
-
-A component's area (pixel count) lies between the width and height of its box and the
-box's area; it is counted only when these bounds do not decide.'''
-    H, W = dark.shape
-    labels, comp = _components(dark.view(np.uint8))
-    kept = []
-    for k, x, y, w, h in comp.tolist():
-        if not (x > 0 and y > 0 and x + w < W and y + h < H):
-            continue
-        if max(w, h) >= MIN_REDUCED_AREA_PX and w * h <= 0.25 * dark.size:
-            kept.append((x, y, w, h))
-        elif w * h >= MIN_REDUCED_AREA_PX:
-            area = np.count_nonzero(labels[y:y + h, x:x + w] == k)
-            if MIN_REDUCED_AREA_PX <= area <= 0.25 * dark.size:
-                kept.append((x, y, w, h))
-    return kept
-
-
-def _stacks(boxes, waste=4):
-    r'''Consecutive runs of boxes (xa, ya, xb, yb) whose stack (as wide as the widest)
-has at most waste times the pixels of the boxes themselves'''
-    run, width, rows, pixels = [], 0, 0, 0
-    for b in boxes:
-        w, h = b[2] - b[0], b[3] - b[1]
-        if run and max(width, w) * (rows + h + 2) > waste * (pixels + w * h):
-            yield run
-            run, width, rows, pixels = [], 0, 0, 0
-        run.append(b)
-        width, rows, pixels = max(width, w), rows + h + 2, pixels + w * h
-    if run:
-        yield run
+def _reduced_blobs(small, thr):
+    r'''Boxes (x, y, w, h) of the components of the reduced image's dark pixels (small <
+thr) that detect_dots would keep: not touching the border, of MIN_REDUCED_AREA_PX to a
+quarter of the image; in label order'''
+    H, W = small.shape
+    comps, _ = _kernels.label_boxes(small, small.dtype.type(thr),
+                                    np.array([[0, 0, W, H]], np.int64))
+    return [(x, y, w, h) for _, x, y, w, h, area, _, _ in comps.tolist()
+            if x > 0 and y > 0 and x + w < W and y + h < H
+            and MIN_REDUCED_AREA_PX <= area <= 0.25 * small.size]
 
 
 def _label_stack(img, thr, boxes, stats, centroids, masks):
-    r'''Label img < thr in each box as if alone, all boxes in one labelling call
+    r'''Label img < thr in each box as if alone: one compiled call for all boxes
 
-The boxes' dark masks are stacked, each from an even row (cv2 labels 2x2 blocks in
-raster order) with an empty row after it, so each box's components come out as the box
-labelled alone gives them, in the same order. A component lying wholly inside its box
-and not yet labelled (through a neighbouring box) gets the next label: its row of stats,
-centroids and masks (appended to these lists), the stats and centroid computed from its
-pixels (_components, _centroid) as cv2.connectedComponentsWithStats would give them.
+A component lying wholly inside its box and not yet labelled (through a neighbouring
+box) gets the next label: its row of stats, centroids and masks (appended to these
+lists), as cv2.connectedComponentsWithStats gives them for the box alone, in its label
+order (targets._dot_kernels.label_boxes: row runs joined 8-connected, ordered by each
+component's first 2x2 block, as cv2 numbers them). The centroid is the mean of the
+pixels' box-relative coordinates (exact integer sums over the area) plus the box's
+corner: cv2's centroid of the box labelled alone, bit for bit.
 
 A component wholly inside its box is a component of the whole image, so one labelled
 through another box has the same box and pixels, and components of the image are
 disjoint: a component is taken iff one of the same box shares a pixel with it.'''
-    tops, top = [], 0
-    for _, ya, _, yb in boxes:
-        tops.append(top)
-        top += yb - ya + 1
-        top += top % 2
-    stack = np.zeros((top, max(b[2] - b[0] for b in boxes)), np.uint8)
-    for (xa, ya, xb, yb), t in zip(boxes, tops, strict=True):
-        stack[t:t + yb - ya, :xb - xa] = img[ya:yb, xa:xb] < thr
-    H, W = img.shape
-    lab, comp = _components(stack)
-    box = np.searchsorted(tops, comp[:, 2], side="right") - 1
+    # numpy's img < thr: a float threshold in img's type, a numpy scalar in the wider type
+    comps, pixels = _kernels.label_boxes(img, np.result_type(img, thr).type(thr),
+                                         np.array(boxes, np.int64).reshape(-1, 4))
     taken = {}
     for k, st in enumerate(stats[1:], 1):
         taken.setdefault(tuple(st[:4]), []).append(k)
-    for (k, cx, cy, cw, ch), i in zip(comp.tolist(), box.tolist(), strict=True):
-        xa, ya, xb, yb = boxes[i]
-        t = tops[i]
-        cy -= t
-        inside = (cx > 0 or xa == 0) and (cy > 0 or ya == 0) and \
-            (cx + cw < xb - xa or xb == W) and (cy + ch < yb - ya or yb == H)
-        if not inside:
-            continue
-        mine = lab[t + cy:t + cy + ch, cx:cx + cw] == k
-        key = (cx + xa, cy + ya, cw, ch)
+    end = 0
+    for i, x, y, w, h, area, sx, sy in comps.tolist():
+        start, end = end, end + w * h
+        mine = pixels[start:end].reshape(h, w)
+        key = (x, y, w, h)
         if any(masks[j].any(where=mine) for j in taken.get(key, ())):
             continue                    # already taken through a neighbouring box
         taken.setdefault(key, []).append(len(stats))
-        stats.append([*key, 0])
-        centroids.append(_centroid(mine, cx, cy, stats[-1]) + (xa, ya))
+        stats.append([*key, area])
+        centroids.append(np.array([sx / area, sy / area]) + boxes[i][:2])
         masks.append(mine)
-
-
-def _centroid(mine, x0, y0, st):
-    r'''The centroid (x, y) of the pixels of mine (h,w) whose [0,0] is (x0, y0), as
-cv2.connectedComponentsWithStats computes it: the exact integer sums of x and y divided
-by the area (which is written into st[4])'''
-    import cv2
-    h, w = mine.shape
-    u8 = mine.view(np.uint8)    # pixel counts of the columns and rows (int32, exact)
-    cols = cv2.reduce(u8, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
-    rows = cv2.reduce(u8, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
-    st[4] = area = int(cols.sum())
-    return np.array([int(cols @ np.arange(x0, x0 + w)) / area,
-                     int(rows @ np.arange(y0, y0 + h)) / area])
 
 
 def _disk(r):
@@ -603,24 +555,36 @@ crop[ring], np.nonzero(ring), rx.mean() and np.column_stack((1, x, y)).'''
     return coef[0] + coef[1] * (xx - xm) + coef[2] * (yy - ym)
 
 
-def _dot_masks(labels, stats, label, xa, ya, xb, yb):
+def _crowded(stats, labels, xa, ya, xb, yb, chunk=1_000_000):
+    r'''(len(labels),) bool: whether another component's box (stats, row 0 not one) reaches
+the crop [ya:yb, xa:xb] of each component of labels (arrays of the crops' corners), in
+pieces of about chunk box tests'''
+    sx, sy, sw, sh = (stats[:, k] for k in range(4))
+    out = np.zeros(len(labels), bool)
+    step = max(1, chunk // max(1, len(stats)))
+    for i in range(0, len(labels), step):
+        j = slice(i, i + step)
+        near = ((sx < xb[j, None]) & (sx + sw > xa[j, None]) & (sy < yb[j, None])
+                & (sy + sh > ya[j, None]))
+        near[:, 0] = False
+        near[np.arange(len(near)), labels[j]] = False
+        out[j] = near.any(axis=1)
+    return out
+
+
+def _dot_masks(masks, stats, label, xa, ya, xb, yb, crowded):
     r'''(mask, free) over the crop [ya:yb, xa:xb] of blob `label`: its pixels (uint8) and
 the pixels of no blob (bool), or None when no other blob comes into the crop
 
-labels: the label image, or the masks of _blobs_from_reduced(): the blob's mask is then
-copied into the crop, and the label image made only when another blob's box reaches it.'''
-    if isinstance(labels, np.ndarray):
-        lab = labels[ya:yb, xa:xb]
-        return (lab == label).view(np.uint8), lab == 0
+masks, stats: as _blobs_from_reduced() gives them: the blob's mask is copied into the
+crop, and the label image (_label_image) made only when another blob's box reaches it
+(crowded: _crowded()'s value for this crop).'''
     x, y, w, h = stats[label, :4].tolist()
     mask = np.zeros((yb - ya, xb - xa), np.uint8)
-    mask[y - ya:y - ya + h, x - xa:x - xa + w] = labels[label]
-    sx, sy, sw, sh = (stats[:, k] for k in range(4))
-    near = (sx < xb) & (sx + sw > xa) & (sy < yb) & (sy + sh > ya)
-    near[[0, label]] = False
-    if not near.any():
+    mask[y - ya:y - ya + h, x - xa:x - xa + w] = masks[label]
+    if not crowded:
         return mask, None
-    return mask, _label_image(labels, stats, xa, ya, xb, yb) == 0
+    return mask, _label_image(masks, stats, xa, ya, xb, yb) == 0
 
 
 def _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya):
@@ -702,7 +666,13 @@ ARGUMENTS
 '''
     from scipy.spatial import cKDTree
 
-    img = as_float_image(image, dtype=np.float32 if _is_large(image) else np.float64)
+    large = _is_large(image)
+    src = np.asarray(image)
+    # a small float32 image (a render) is not converted as a whole: its pixels are read
+    # as float64 where they are used (the subsample, the range, the threshold test and
+    # the centroids), the values a float64 copy would hold
+    exact64 = not large and src.ndim == 2 and src.dtype == np.float32
+    img = as_float_image(image, dtype=np.float32 if large or exact64 else np.float64)
     nx, ny = target.grid_shape
     if target.kind != "dots":
         return failed(target, f"detect_dots() needs a dots target; got {target.kind!r}",
@@ -711,23 +681,19 @@ ARGUMENTS
     # the threshold only splits dark from light: about a million pixels give it
     step = max(2, math.isqrt(H * W // OTSU_PIXELS))
     if H * W > LARGE_IMAGE_PIXELS:
-        small, lo, hi, sub = _scan(img, REDUCTION, step)
+        small, sub = _scan(img, REDUCTION, step)
     else:
-        small, sub = None, img[::step, ::step]
-        lo, hi = _range(img)
-    # min and max propagate NaN and reach +-inf: finite both iff every pixel is finite
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        return failed(target, "the image has non-finite pixels", DETECTOR)
-    if not hi - lo > 0.02:
-        return failed(target, f"no contrast in the image (range {lo:.3g}..{hi:.3g})",
-                      DETECTOR)
+        small, sub = None, img[::step, ::step].astype(np.float64 if exact64 else img.dtype)
+    problem = _image_problem(img, small, np.float64 if exact64 else None)
+    if problem is not None:
+        return failed(target, problem, DETECTOR)
     thr = _otsu(sub) if threshold is None else float(threshold)
     found = None
     if H * W > LARGE_IMAGE_PIXELS:
         found = _blobs_from_reduced(img, thr, REDUCTION, small)
-    if found is None:
-        found = _label_all((img < thr).view(np.uint8))
-    labels, stats, centroids = found
+    if found is None:   # (a float64 threshold: the float32 pixels compared as float64)
+        found = _label_whole(img, np.float64(thr) if exact64 else thr)
+    masks, stats, centroids = found
     n = len(stats)
     x0, y0, w, h, area = (stats[:, k] for k in range(5))
     keep = ((np.arange(n) > 0) & (x0 > 0) & (y0 > 0) & (x0 + w < W) & (y0 + h < H)
@@ -736,7 +702,7 @@ ARGUMENTS
     info = {"threshold": thr, "Nblobs": int(len(blobs))}
     if len(blobs) == 0:
         return failed(target, "no dark blobs in the image", DETECTOR, info)
-    c = centroids[blobs] if centroids is not None else _blob_centroids(labels, stats, blobs)
+    c = centroids[blobs]
     a = area[blobs].astype(np.float64)
     tree = cKDTree(c)
 
@@ -780,22 +746,27 @@ ARGUMENTS
     rows = _kernels.element_rows(win_kernel), _kernels.element_rows(ring_kernel)
     rows = None if None in rows else rows[0] + rows[1]
     pad = window_dilation_px + ring_px + 1
-    for i_blob, gx, gy in zip(best.values(), ix, iy, strict=True):
-        label = blobs[i_blob]
-        xa, ya = max(0, x0[label] - pad), max(0, y0[label] - pad)
-        xb, yb = min(W, x0[label] + w[label] + pad), min(H, y0[label] + h[label] + pad)
-        # float64 from the source pixels, whatever precision the labelling used
-        crop = np.ascontiguousarray(img[ya:yb, xa:xb] if img.dtype == np.float64
-                                    else as_float_image(np.asarray(image)[ya:yb, xa:xb]))
-        mask, free = _dot_masks(labels, stats, label, xa, ya, xb, yb)
+    # img has the source's pixel values when it is float64 (converted from the source as
+    # float64) or when it is the source itself (a 2-D float32 image, not copied)
+    img_is_source = img.dtype == np.float64 or (src.ndim == 2 and src.dtype == img.dtype)
+    dots = blobs[np.array(list(best.values()), np.int64)]
+    crops = (np.maximum(0, x0[dots] - pad), np.maximum(0, y0[dots] - pad),
+             np.minimum(W, x0[dots] + w[dots] + pad), np.minimum(H, y0[dots] + h[dots] + pad))
+    crowded = _crowded(stats, dots, *crops)
+    for label, xa, ya, xb, yb, near, gx, gy in zip(
+            dots.tolist(), *(c.tolist() for c in crops), crowded.tolist(), ix, iy, strict=True):
+        # the source pixels (their float64 values), whatever precision the labelling used:
+        # a view of img when img holds them (the kernel reads float32 as float64)
+        crop = img[ya:yb, xa:xb] if img_is_source else \
+            as_float_image(np.asarray(image)[ya:yb, xa:xb])
+        mask, free = _dot_masks(masks, stats, label, xa, ya, xb, yb, near)
         status = -1
         if rows is not None:
             status, cx, cy = _kernels.dot_centroid(
                 crop, mask, _NO_FREE if free is None else free, free is not None, *rows,
-                int(xa), int(ya), MIN_RING_FOR_PLANE)
+                xa, ya, MIN_RING_FOR_PLANE)
         if status < 0:      # a degenerate plane fit (numpy's solve or lstsq), or no kernel
-            if crop.base is not None or not crop.flags.writeable:
-                crop = crop.copy()
+            crop = np.array(crop, dtype=np.float64)     # a copy: _dot_centroid writes it
             c = _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya)
             status, (cx, cy) = (0, (0, 0)) if c is None else (1, c)
         if status:

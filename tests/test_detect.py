@@ -422,3 +422,17 @@ def test_working_image_is_the_rounded_clipped_image(dtype):
     for bad in (np.nan, np.inf, -np.inf):
         img[20, 30] = bad
         assert working_image(img) is None
+
+
+def test_a_float32_render_is_detected_as_its_float64_copy(dots):
+    r'''A small float32 image (what the renderers give) is read as float64 where the
+detector computes, not converted as a whole: the same dots, numbering and centroids as
+its float64 copy, bit for bit (the float64 copy holds the same values), noisy too'''
+    m = pinhole(WIDE["width"], WIDE["height"], WIDE["f"], R=WIDE["R"])
+    Rt = plan_poses(m, dots)[0]
+    img = render(m, dots.pattern(), Rt, K=4)
+    noisy = np.clip(img + np.random.default_rng(2).normal(0, 2 / 255, img.shape), 0, 1)
+    for im in (img.astype(np.float32), noisy.astype(np.float32)):
+        a, b = detect(im, dots), detect(im.astype(np.float64), dots)
+        assert a.status == b.status == "ok" and a.n_found == 100
+        assert a.info == b.info and np.array_equal(a.q, b.q)

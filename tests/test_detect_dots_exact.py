@@ -3,7 +3,7 @@ r'''The dot detector's shortcuts give bit for bit what the plain computations gi
 _label_stack labels many boxes in one call: each box's components, their order, stats
 and centroids must be those of the box labelled alone (as the detector did before, one
 connectedComponentsWithStats call per box), and _label_image the label image they made.
-The other shortcuts (_median, _histogram, _components, _dot_centroid, ...) are compared
+The other shortcuts (_median, _histogram, _label_whole, _dot_centroid, ...) are compared
 with the numpy/OpenCV computations they replace.
 '''
 
@@ -69,18 +69,20 @@ def test_label_stack_is_each_box_labelled_alone(seed):
     boxes.insert(30, (0, 150, W, 157))
     ref = _label_boxes_one_by_one(img, 0.5, boxes)
     stats, centroids, masks = [[0, 0, 0, 0, 0]], [np.zeros(2)], [None]
-    runs = list(dd._stacks(boxes))
-    assert [b for r in runs for b in r] == boxes
-    for run in runs:
-        dd._label_stack(img, 0.5, run, stats, centroids, masks)
+    dd._label_stack(img, 0.5, boxes, stats, centroids, masks)
     assert len(stats) == len(ref[1]) == len(masks) > 40
     labels = dd._label_image(masks, np.array(stats), 0, 0, W, H)
     assert np.array_equal(labels, ref[0])
     # each blob's crop as detect_dots takes it: its mask, and the pixels of no blob
     nfree = 0
+    st = np.array(stats)
+    labels = np.arange(1, len(st))
+    corners = (np.maximum(0, st[1:, 0] - 6), np.maximum(0, st[1:, 1] - 6),
+               np.minimum(W, st[1:, 0] + st[1:, 2] + 6), np.minimum(H, st[1:, 1] + st[1:, 3] + 6))
+    crowded = dd._crowded(st, labels, *corners, chunk=50)     # (in pieces of a few crops)
     for k, (x, y, w, h, _) in enumerate(stats[1:], 1):
         xa, ya, xb, yb = max(0, x - 6), max(0, y - 6), min(W, x + w + 6), min(H, y + h + 6)
-        mask, free = dd._dot_masks(masks, np.array(stats), k, xa, ya, xb, yb)
+        mask, free = dd._dot_masks(masks, st, k, xa, ya, xb, yb, crowded[k - 1])
         lab = ref[0][ya:yb, xa:xb]
         assert mask.dtype == np.uint8 and np.array_equal(mask, lab == k)
         if free is None:
@@ -95,15 +97,25 @@ def test_label_stack_is_each_box_labelled_alone(seed):
     assert np.array_equal(np.array(centroids), ref[2])     # bit for bit, not just close
 
 
-def test_stacks_keep_the_order_and_bound_the_waste():
-    boxes = [(0, 0, 10, 10)] * 5 + [(0, 0, 1000, 4)] + [(0, 0, 12, 8)] * 3
-    runs = list(dd._stacks(boxes))
-    assert [len(r) for r in runs] == [5, 2, 2]     # the wide box starts a new run
-    assert [b for r in runs for b in r] == boxes
-    for r in runs:
-        w = max(b[2] - b[0] for b in r)
-        rows = sum(b[3] - b[1] + 2 for b in r)
-        assert len(r) == 1 or w * rows <= 4 * sum((b[2] - b[0]) * (b[3] - b[1]) for b in r)
+@pytest.mark.parametrize("density", [0.2, 0.45, 0.6])
+def test_label_stack_on_noise_is_each_box_labelled_alone(density):
+    r'''Speckle noise: many small components touching only diagonally, nested in each
+other's boxes, whose label order (cv2's first 2x2 block, from the box's own corner at
+odd and even rows and columns) decides the stats' order'''
+    rng = np.random.default_rng(int(density * 100))
+    H, W = 97, 131
+    img = np.where(rng.uniform(size=(H, W)) < density, 0.1, 0.9).astype(np.float32)
+    boxes = [(int(xa), int(ya), int(min(W, xa + dx)), int(min(H, ya + dy)))
+             for xa, ya, dx, dy in zip(rng.integers(0, W - 4, 30), rng.integers(0, H - 4, 30),
+                                       rng.integers(3, 40, 30), rng.integers(3, 40, 30),
+                                       strict=True)] + [(0, 0, W, H)]
+    ref = _label_boxes_one_by_one(img, 0.5, boxes)
+    stats, centroids, masks = [[0, 0, 0, 0, 0]], [np.zeros(2)], [None]
+    dd._label_stack(img, 0.5, boxes, stats, centroids, masks)
+    assert len(stats) > 5      # (0.6 percolates: one big component and a few specks)
+    assert np.array_equal(np.array(stats, np.int64), ref[1])
+    assert np.array_equal(np.array(centroids), ref[2])
+    assert np.array_equal(dd._label_image(masks, np.array(stats), 0, 0, W, H), ref[0])
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 64, 65])
@@ -263,13 +275,9 @@ holes, diagonal contacts, components on the border, one over a quarter of the im
     yield big
 
 
-def test_components_are_those_of_cv2():
-    for mask in _masks():
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-        lab, boxes = dd._components(mask)
-        assert np.array_equal(lab, labels)
-        assert np.array_equal(boxes[:, 0], np.arange(1, n))
-        assert np.array_equal(boxes[:, 1:], stats[1:, :4])
+def _as_image(mask):
+    r'''A float32 image whose pixels below 0.5 are the mask'''
+    return np.where(mask != 0, np.float32(0.1), np.float32(0.9))
 
 
 def test_reduced_blobs_are_the_stats_filter():
@@ -280,17 +288,17 @@ def test_reduced_blobs_are_the_stats_filter():
         st = st[(st[:, 4] >= dd.MIN_REDUCED_AREA_PX) & (st[:, 4] <= 0.25 * mask.size)
                 & (st[:, 0] > 0) & (st[:, 1] > 0) & (st[:, 0] + st[:, 2] < W)
                 & (st[:, 1] + st[:, 3] < H)]
-        assert dd._reduced_blobs(mask.view(bool)) == [tuple(r) for r in st[:, :4].tolist()]
+        assert dd._reduced_blobs(_as_image(mask), 0.5) == [tuple(r) for r in st[:, :4].tolist()]
 
 
-def test_label_all_is_cv2_stats_and_centroids():
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_label_whole_is_cv2_labels_stats_and_centroids(dtype):
     for mask in _masks():
         n, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
-        lab, st, none = dd._label_all(mask)
-        assert none is None and np.array_equal(lab, labels)
-        assert np.array_equal(st[1:], stats[1:]) and st[0, 4] == stats[0, 4]
-        blobs = np.arange(1, n)
-        assert np.array_equal(dd._blob_centroids(lab, st, blobs), centroids[1:])
+        masks, st, c = dd._label_whole(_as_image(mask).astype(dtype), 0.5)
+        assert np.array_equal(st[1:], stats[1:]) and np.array_equal(c[1:], centroids[1:])
+        H, W = mask.shape
+        assert np.array_equal(dd._label_image(masks, st, 0, 0, W, H), labels)
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
@@ -323,13 +331,71 @@ def test_range_is_numpy_min_max():
 @pytest.mark.parametrize("rows", [1, 8, 13, 64, 1000])
 @pytest.mark.parametrize("shape,s,step", [((300, 420), 4, 4), ((300, 420), 4, 3),
                                           ((302, 420), 4, 4), ((300, 418), 2, 5)])
-def test_scan_is_reduce_range_and_subsample(rows, shape, s, step):
+def test_scan_is_reduce_and_subsample(rows, shape, s, step):
     img = np.tile(_speckled(4), (2, 2))[:shape[0], :shape[1]].copy()
-    small, lo, hi, sub = dd._scan(img, s, step, rows)
+    small, sub = dd._scan(img, s, step, rows)
     ref = dd._reduce(img, s)
     assert np.array_equal(small, ref) and small.dtype == ref.dtype
-    assert (lo, hi) == (img.min(), img.max()) and type(lo) is type(img.min())
     assert np.array_equal(sub, img[::step, ::step].ravel())
     img[shape[0] - 1, 7] = np.nan
-    small, lo, hi, sub = dd._scan(img, s, step, rows)
-    assert np.isnan(lo) and np.isnan(hi) and np.isnan(small).any()
+    small, sub = dd._scan(img, s, step, rows)
+    assert np.isnan(small).any()
+
+
+def _problem_from_range(img):
+    r'''The image test as the detector made it before _image_problem: from the full range'''
+    lo, hi = img.min(), img.max()
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return "the image has non-finite pixels"
+    if not hi - lo > dd.MIN_CONTRAST:
+        return f"no contrast in the image (range {lo:.3g}..{hi:.3g})"
+    return None
+
+
+@pytest.mark.parametrize("level", [0.0, 0.5, -3.0, 1e4])
+def test_image_problem_is_the_full_range_test(level):
+    r'''Through the reduced image or not, the same verdict as the full range gives: ranges
+just above and below MIN_CONTRAST (float32 steps of the level), a contrast that only
+single pixels show (averaged away in the reduced image), non-finite pixels'''
+    rng = np.random.default_rng(7)
+    base = np.float32(level) + rng.uniform(0, 1, (64, 96)).astype(np.float32) * np.float32(0.01)
+    ulp = np.spacing(np.float32(level + 0.03))
+    for extra in (0.0, 0.0101, 0.02, 0.025, 0.5):
+        for kind in ("block", "pixel"):
+            for nudge in (-2, 0, 2):
+                img = base.copy()
+                if kind == "block":
+                    img[8:16, 12:20] += np.float32(extra)
+                else:
+                    img[9, 13] += np.float32(extra)
+                img[9, 13] += nudge * ulp
+                want = _problem_from_range(img)
+                for small in (None, dd._reduce(img, 4)):
+                    assert dd._image_problem(img, small) == want
+                    if small is not None and dd._shows_contrast(small):
+                        assert want is None
+    img = base.copy()
+    img[5, 6] = np.nan
+    assert dd._image_problem(img, dd._reduce(img, 4)) == "the image has non-finite pixels"
+
+
+def test_reduced_contrast_decides_the_paper_like_image():
+    # a board with dark dots: the reduced image shows the contrast, so no full range pass
+    img = np.tile(_speckled(1), (2, 2))
+    assert dd._shows_contrast(dd._reduce(img, 4)) and dd._image_problem(img) is None
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_small_float32_image_is_read_as_its_float64_copy(seed):
+    r'''A small float32 image is not converted as a whole: the same threshold, blobs,
+centroids and verdicts as its float64 copy (whose values it holds exactly), also at a
+range just above and below the contrast bar (float32 and float64 differences differ)'''
+    from targets.boards import load_target
+    from targets.detect import detect
+    t = load_target("dots")
+    img = _dot_field(seed).astype(np.float32)
+    for im in (img, np.float32(0.5) + (img - img.min()) * np.float32(0.02 / np.ptp(img)),
+               np.float32(0.5) + (img - img.min()) * np.float32(0.0201 / np.ptp(img))):
+        a, b = detect(im, t), detect(im.astype(np.float64), t)
+        assert (a.status, a.reason, a.info) == (b.status, b.reason, b.info)
+        assert np.array_equal(a.q, b.q, equal_nan=True)

@@ -141,11 +141,3 @@ def test_median_is_np_median(n):
     rng = np.random.default_rng(n)
     for v in (rng.normal(size=n), rng.integers(0, 4, n).astype(float), np.ones(n)):
         assert K._median(v.copy(), n) == np.median(v)
-
-
-def test_label_counts_are_np_bincount():
-    rng = np.random.default_rng(5)
-    n, labels = cv2.connectedComponents((rng.uniform(size=(300, 211)) < 0.4).view(np.uint8))
-    assert np.array_equal(K.label_counts(labels, n), np.bincount(labels.ravel(), minlength=n))
-    assert np.array_equal(K.label_counts(labels[:, 3:150], n + 2),
-                          np.bincount(labels[:, 3:150].ravel(), minlength=n + 2))
