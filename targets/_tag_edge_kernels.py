@@ -4,25 +4,24 @@ SYNOPSIS
 
     from targets._tag_edge_kernels import fit_edges, meet_curves, tag_edge_pixels
 
-    status, L, e, n, off, ix, iy, t, s, a, lit = tag_edge_pixels(
-        Q, live, bits, True, H, curves, reach, gap_bits, safety, plateau, min_pixels, W, H_img)
+    status, L, e, n, off, ix, iy, t, s = tag_edge_pixels(Q, live, bits, True, H, curves,
+                                                         reach, gap_bits, safety, plateau,
+                                                         min_pixels, W, H_img)
     # every edge's band of pixels (targets.tag_edges._EDGE_STATUS says why an edge has none)
 
-    p, done, mis = fit_edges(off, v, tau, s, gl, wl, cubic, j0, fy, d, x0, h, F, dF, bfix,
+    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix,
                              max_iterations, converged_px)
     # the m edges' pixels one after another: edge j's are [off[j], off[j+1]) of v (values),
     # tau (positions along the chord, -1..1) and s (distances from it, px); cubic (m,) 1.0
     # where d3 is fitted; j0, fy (m,): the angle bin and fraction of each edge's normal;
     # d (m,4) the start curves; x0, h, F, dF (A,X): targets.tag_edges._edge_table; bfix
-    # (m,) the contrast of an edge whose b is given (NaN: fitted); gl, wl each pixel's share
-    # of light data cells along the edge and their depth beyond its own (gl 0: none)
+    # (m,) the contrast of an edge whose b is given (NaN: fitted)
     # p (m,6) the fitted (a, b, d0, d1, d2, d3); done (m,) converged; mis (m,) the RMS
     # misfit over the contrast
     q = meet_curves(Pa, La, ea, na, da, Pb, Lb, eb, nb, db, iterations)
     # (M,2) where each edge a meets its edge b near a's end and b's start
 
-The model of pixel p of edge j: v = a + b (F(x) - gl F(x - wl)),
-x = s - (d0 + d1 tau + d2 tau^2 + d3 tau^3),
+The model of pixel p of edge j: v = a + b F(x), x = s - (d0 + d1 tau + d2 tau^2 + d3 tau^3),
 F linear in x and in the angle between the table's entries (targets.tag_edges._lookup is the
 numpy reference). a and b solve the least squares for the current curve; the curve is
 fitted by Levenberg-Marquardt, each edge on its own (targets.tag_edges._fit_edges).
@@ -33,27 +32,10 @@ from numba import njit
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _lookup(x, x0, h, F, dF, ja, fa):
-    # F and F' at x, linear in x and in the angle
-    X = F.shape[1]
-    fi = (x - x0) / h
-    if fi <= 0.0:
-        return 0.0, 0.0
-    if fi >= X - 1:
-        return 1.0, 0.0
-    i = int(fi)
-    fx = fi - i
-    f0 = F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx
-    f1 = F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx
-    g0 = dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx
-    g1 = dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx
-    return f0 * (1.0 - fa) + f1 * fa, g0 * (1.0 - fa) + g1 * fa
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _profile(v, tau, s, gl, wl, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, dFv):
+def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, dFv):
     # F and F' at every pixel of one edge (into Fv, dFv), and the light level a, contrast
     # b and squared misfit S that fit them
+    X = F.shape[1]
     sw = 0.0
     sf = 0.0
     sff = 0.0
@@ -62,13 +44,20 @@ def _profile(v, tau, s, gl, wl, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv
     for p in range(o0, o1):
         t = tau[p]
         x = s[p] - (d[0] + t * (d[1] + t * (d[2] + t * d[3] * cubic)))
-        f, df = _lookup(x, x0, h, F, dF, ja, fa)
-        if gl[p] != 0.0:
-            # the light data cells beyond the border's inner side, wl[p] px deeper, their
-            # share gl[p] along the edge (targets.tag_edges._data_row_leak)
-            f2, df2 = _lookup(x - wl[p], x0, h, F, dF, ja, fa)
-            f -= gl[p] * f2
-            df -= gl[p] * df2
+        fi = (x - x0) / h
+        if fi <= 0.0:
+            f, df = 0.0, 0.0
+        elif fi >= X - 1:
+            f, df = 1.0, 0.0
+        else:
+            i = int(fi)
+            fx = fi - i
+            f0 = F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx
+            f1 = F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx
+            f = f0 * (1.0 - fa) + f1 * fa
+            g0 = dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx
+            g1 = dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx
+            df = g0 * (1.0 - fa) + g1 * fa
         Fv[p - o0] = f
         dFv[p - o0] = df
         vp = v[p]
@@ -115,8 +104,8 @@ def _normal(v, tau, o0, o1, cubic, a, b, bfree, Fv, dFv, JtJ, Jtr):
 
 
 @njit(cache=True, error_model="numpy")
-def fit_edges(off, v, tau, s, gl, wl, cubic, j0, fy, d, x0, h, F, dF, bfix,
-              max_iterations, converged_px):
+def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iterations,
+              converged_px):
     m = len(off) - 1
     p_out = np.zeros((m, 6))
     done = np.zeros(m, np.bool_)
@@ -137,8 +126,7 @@ def fit_edges(off, v, tau, s, gl, wl, cubic, j0, fy, d, x0, h, F, dF, bfix,
         ja, fa, cj, bj = j0[j], fy[j], cubic[j], bfix[j]
         bfree = np.isnan(bj)
         dj = d[j].copy()
-        a, b, S = _profile(v, tau, s, gl, wl, o0, o1, cj, ja, fa, dj, x0, h, F, dF, bj, Fv,
-                           dFv)
+        a, b, S = _profile(v, tau, s, o0, o1, cj, ja, fa, dj, x0, h, F, dF, bj, Fv, dFv)
         _normal(v, tau, o0, o1, cj, a, b, bfree, Fv, dFv, JtJ, Jtr)
         lam = 1e-3
         ok = False
@@ -149,8 +137,8 @@ def fit_edges(off, v, tau, s, gl, wl, cubic, j0, fy, d, x0, h, F, dF, bfix,
                 A[k, k] += lam * JtJ[k, k]
             step = np.linalg.solve(A, Jtr)
             d1 = dj + step[2:]
-            a1, b1, S1 = _profile(v, tau, s, gl, wl, o0, o1, cj, ja, fa, d1, x0, h, F, dF,
-                                  bj, F1, dF1)
+            a1, b1, S1 = _profile(v, tau, s, o0, o1, cj, ja, fa, d1, x0, h, F, dF, bj, F1,
+                                  dF1)
             better = S1 <= S
             if better:
                 dj, a, b, S = d1, a1, b1, S1
@@ -173,8 +161,8 @@ def fit_edges(off, v, tau, s, gl, wl, cubic, j0, fy, d, x0, h, F, dF, bfix,
 
 
 @njit(cache=True, error_model="numpy")
-def _band(P0, e, n, L, curve, t_lo, t_hi, out_px, in_px, deep_px, H, bits, leak, offs,
-          x0, y0, x1, y1, k, bit_px, Pa, na, Pb, nb, oix, oiy, ot, os_, oa, ol, c):
+def _band(P0, e, n, L, curve, t_lo, t_hi, out_px, in_px, deep_px, H, bits, offs,
+          x0, y0, x1, y1, k, bit_px, Pa, na, Pb, nb, oix, oiy, ot, os_, c):
     r'''The pixels of one tag edge's band, written from index c of oix, oiy, ot, os_
 (ix, iy, t, s); returns the index after the last
 
@@ -185,11 +173,7 @@ by the homography H (image -> cells) of the tag's corners, across it by the dept
 bit_px from the curve (lens distortion bends the edge away from the homography's line by
 up to a px on a fisheye's tag). A pixel keeps the clearance t_lo from the lines of the two
 adjacent edges too (through Pa, Pb with normals na, nb into the tag): a tag seen obliquely
-meets them at an angle off 90 deg.
-
-A light cell of the data row next to the border (depth 1..2 cells) does not drop a deeper
-pixel: its light is in the model (targets.tag_edges._data_row_leak); ol[c] marks such a
-pixel, oa[c] its position along the edge in cells (0..8 from corner k).'''
+meets them at an angle off 90 deg.'''
     no = len(offs)
     for yy in range(y0, y1 + 1):
         for xx in range(x0, x1 + 1):
@@ -223,26 +207,14 @@ pixel, oa[c] its position along the edge in cells (0..8 from corner k).'''
                 else:
                     u = depth
                 ok = True
-                lit = False
                 for a in range(no):
                     for b in range(no):
                         col = int(np.floor(u + offs[a]))
                         row = int(np.floor(v + offs[b]))
                         if 0 <= col < 8 and 0 <= row < 8 and bits[row, col]:
-                            # the data row next to edge k's border (row 6, column 6, row 1,
-                            # column 1 for edges 0..3) is in the model, the rest drops it
-                            if leak and (row == 6 if k == 0 else col == 6 if k == 1 else
-                                         row == 1 if k == 2 else col == 1):
-                                lit = True
-                            else:
-                                ok = False
+                            ok = False
                 if not ok:
                     continue
-                ol[c] = lit
-                oa[c] = u if k == 0 else 8.0 - v if k == 1 else 8.0 - u if k == 2 else v
-            else:
-                ol[c] = False
-                oa[c] = 0.0
             oix[c] = xx
             oiy[c] = yy
             ot[c] = t
@@ -291,9 +263,8 @@ have_bits False: unknown, every data bit may be light); H (N,3,3) each tag's ima
 homography; curves (N,4,4) each edge's (d0..d3) in its chord's frame. Returns status (N,4)
 (0: pixels found; 1: edge too short for its blur or too few pixels; 2: seen from its light
 side only; 3: off the image; 4: tag not live), L (N,4), e, n (N,4,2) each edge's chord
-length, direction and normal into the tag, off (N*4+1,) and the pixels (ix, iy, t, s, a,
-lit): edge (i, k)'s are [off[4i+k], off[4i+k+1]); lit marks a pixel that sees a light cell
-of the data row next to the border (have_bits), a its position along the edge in cells.'''
+length, direction and normal into the tag, off (N*4+1,) and the pixels (ix, iy, t, s):
+edge (i, k)'s are [off[4i+k], off[4i+k+1]).'''
     N = Q.shape[0]
     status = np.full((N, 4), 4, np.int64)
     Ls = np.zeros((N, 4))
@@ -333,8 +304,6 @@ of the data row next to the border (have_bits), a its position along the edge in
     oiy = np.empty(cap, np.int64)
     ot = np.empty(cap)
     os_ = np.empty(cap)
-    oa = np.empty(cap)
-    ol = np.empty(cap, np.bool_)
     off = np.zeros(4 * N + 1, np.int64)
     ones = np.ones((8, 8), np.bool_)
     eye = np.eye(3)
@@ -380,9 +349,9 @@ of the data row next to the border (have_bits), a its position along the edge in
             if not m1[0] * (cx - A1[0]) + m1[1] * (cy - A1[1]) > 0:
                 m1 = -m1
             c1 = _band(Qt[k], e, n, L, curves[i, k], t_lo, t_hi, out_px, in_px,
-                       deep_bit - clear, Hk, cells, have_bits, offs, box[i, k, 0], box[i, k, 1],
+                       deep_bit - clear, Hk, cells, offs, box[i, k, 0], box[i, k, 1],
                        box[i, k, 2], box[i, k, 3], k, deep_bit, A0, m0, A1, m1,
-                       oix, oiy, ot, os_, oa, ol, c)
+                       oix, oiy, ot, os_, c)
             if c1 - c < min_pixels:
                 status[i, k] = 1
                 continue
@@ -403,7 +372,7 @@ of the data row next to the border (have_bits), a its position along the edge in
                 continue
             c = c1
     off[4 * N] = c
-    return status, Ls, es, ns, off, oix[:c], oiy[:c], ot[:c], os_[:c], oa[:c], ol[:c]
+    return status, Ls, es, ns, off, oix[:c], oiy[:c], ot[:c], os_[:c]
 
 
 @njit(cache=True, error_model="numpy", inline="always")

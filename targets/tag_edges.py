@@ -281,7 +281,7 @@ the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" use
         Hc = np.zeros((N, 3, 3))
         if bits is not None and live.any():
             Hc[live] = _homographies(q[live])
-        status, Ls, es, ns, off, pix, piy, pt, ps, pa, plit = tag_edge_pixels(
+        status, Ls, es, ns, off, pix, piy, pt, ps = tag_edge_pixels(
             q, live, np.zeros((N, 8, 8), bool) if bits is None else bits, bits is not None,
             Hc, curves, reach, gap_bits, SAFETY_PX, PLATEAU_PX, MIN_EDGE_PIXELS, W, H)
         for i, k in zip(*np.nonzero(status < 4), strict=True):
@@ -289,14 +289,7 @@ the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" use
                 why_edge[i, k] = _EDGE_STATUS[status[i, k]]
                 continue
             a, b = off[4 * i + k], off[4 * i + k + 1]
-            gl, wl = _data_row_leak(table, q[i], Hc[i], None if bits is None else bits[i], k,
-                                    pt[a:b], pa[a:b], plit[a:b], Ls[i, k], es[i, k], ns[i, k])
-            # a pixel past the border's middle beside a light data cell sees that cell's
-            # edge more than this one: it is left to the data row (_data_row_leak)
-            x = ps[a:b] - _curve_s(curves[i, k], 2.0 * pt[a:b] / Ls[i, k] - 1.0)
-            keep = ~((gl > 0) & (x > 0.5 * wl))
-            own[(i, k)] = (pix[a:b][keep], piy[a:b][keep], pt[a:b][keep], ps[a:b][keep],
-                           Ls[i, k], es[i, k], ns[i, k], gl[keep], wl[keep])
+            own[(i, k)] = (pix[a:b], piy[a:b], pt[a:b], ps[a:b], Ls[i, k], es[i, k], ns[i, k])
             start[(i, k)] = curves[i, k]
         if not own:
             break
@@ -307,7 +300,7 @@ the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" use
         # an end without a neighbour (the board's border, a tag not found) takes the edge
         # alone (end 2)
         geo = []
-        for (i, k), (ix, iy, t, s, L, e, n, gl, wl) in own.items():
+        for (i, k), (ix, iy, t, s, L, e, n) in own.items():
             ends = {}
             # the first pass only places the second's pixels: each edge alone
             members = [m for m in (nbrs.get((i, k), []) if last else []) if m in own]
@@ -316,11 +309,8 @@ the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" use
                 # a short edge (noise-limited): one cubic through it and both neighbours'
                 jx = np.concatenate([ix] + [own[m][0] for m in members])
                 jy = np.concatenate([iy] + [own[m][1] for m in members])
-                jg = np.concatenate([gl] + [own[m][7] for m in members])
-                jw = np.concatenate([wl] + [own[m][8] for m in members])
                 r = np.stack((jx, jy), -1) - q[i, k]
-                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], 2, jg,
-                            jw))
+                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], 2))
                 continue
             for m in members:
                 mid = 0.5 * (q[m[0], m[1]] + q[m[0], (m[1] + 1) % 4])
@@ -328,15 +318,12 @@ the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" use
             for end, m in ends.items():
                 jx = np.concatenate((ix, own[m][0]))
                 jy = np.concatenate((iy, own[m][1]))
-                jg = np.concatenate((gl, own[m][7]))
-                jw = np.concatenate((wl, own[m][8]))
                 r = np.stack((jx, jy), -1) - q[i, k]
-                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], end,
-                            jg, jw))
+                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], end))
             if len(ends) < 2:
                 # a long edge alone bends more than a quadratic follows on a fisheye
                 geo.append((i, k, ix, iy, t, s, L, e, n, last and L > CUBIC_EDGE_PX,
-                            start[(i, k)], 2, gl, wl))
+                            start[(i, k)], 2))
         if len(blurs) > 1:
             (sigma, kind), table, fits, info = _choose_kind(img, geo, blurs, reach)
             blurs = [(sigma, kind)]
@@ -345,7 +332,7 @@ the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" use
             fits = _fit_contrast_first(img, geo, table, reach)
         curves = {}
         for (i, k, *_rest), (p, ok, mis) in zip(geo, fits, strict=True):
-            end = _rest[9]
+            end = _rest[-1]
             mis_edge[i, k] = np.fmax(mis_edge[i, k], mis) if last else mis
             if not ok:
                 why_edge[i, k] = f"edge fit not converged in {MAX_ITERATIONS} iterations"
@@ -493,62 +480,6 @@ edge's position'''
     return fits
 
 
-# the data row's cells along edge k (in the order of a, from corner k): (row, column) of
-# cell j of tag36h11_bits's (8,8) cells
-_DATA_ROW = [lambda j: (6, j), lambda j: (7 - j, 6), lambda j: (1, 7 - j), lambda j: (j, 1)]
-# the line between the border and the data row of edge k, in cells (two points)
-_INNER_LINE = np.array([[[0.0, 7.0], [8.0, 7.0]], [[7.0, 8.0], [7.0, 0.0]],
-                        [[8.0, 1.0], [0.0, 1.0]], [[1.0, 0.0], [1.0, 8.0]]])
-
-
-def _data_row_leak(table, Qt, Hc, bits, k, t, a, lit, L, e, n):
-    r'''(gl, wl) of edge k's pixels: the share gl of the light data cells next to the border
-along the edge (blurred) and the depth wl (px) of the border's inner side beyond the edge
-
-Why. On tags of bits under ~3.5 px at sigma 0.7 (the hazcams' 2.8 px bits) every pixel on
-an edge's dark side is within the blur's reach of the data row inside the 1-bit border;
-dropping those that see a light data cell left 40% of camera 17's edges "seen from the
-light side only". Their light is modelled instead: a pixel at depth x from the edge is
-dark by F(x) - gl F(x - wl) (the data row's light region from depth wl inwards, over gl
-of the blurred extent along the edge). The product of the across and along terms is exact
-for a Gaussian on a straight edge pair with sides perpendicular to it; the pixel's square
-and the cells' shear add an error of the order of the leak's curvature, on a tail term
-(F(x - wl) <= F(in_px - wl), and the second data row is kept out of reach by the band).
-wl is the distance along the normal from the chord to the inner line (v = 7 for edge 0)
-mapped by the tag's homography (its perspective: the bit width changes along the edge),
-followed by the fitted curve's bend (the inner side is 1/8 of the tag from the edge: its
-bend differs by 1/8 of the difference of the edge's and the opposite edge's).
-
-The caller keeps only the pixels on the edge's side of the border's middle (x <= wl / 2)
-where gl > 0: deeper, a pixel sees the data cell's edge more than this one, and the model's
-errors there (the cells' places along the edge by the homography, the product form) moved
-camera 17's corners (CAHVOR, 6 poses, blur without noise) by 0.0038 px RMS, against 0.0014
-with the cut (0.00016 on the 538 corners the band kept before, which had 0.00025 then; the
-316 it adds 0.0023).'''
-    gl = np.zeros(len(t))
-    wl = np.zeros(len(t))
-    if bits is None or not lit.any():
-        return gl, wl
-    Hi = np.linalg.inv(Hc)
-    ends = np.column_stack((_INNER_LINE[k], np.ones(2))) @ Hi.T
-    A, B = ends[0, :2] / ends[0, 2], ends[1, :2] / ends[1, 2]
-    D = B - A
-    idx = np.flatnonzero(lit)
-    P = Qt[k][None, :] + t[idx, None] * e[None, :]
-    cross = lambda u, v: u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]  # noqa: E731
-    wl[idx] = cross(A[None, :] - P, D[None, :]) / cross(n, D)
-    light = np.array([bits[_DATA_ROW[k](j)] for j in range(8)], dtype=np.float64)
-    lb = L / 8.0
-    na = np.abs(n)
-    phi = np.full(len(idx), np.arctan2(na.min(), na.max()))
-    j = np.arange(8.0)
-    y = lb * (a[idx, None] - j[None, :])
-    f_lo = _lookup(table, y, phi[:, None] + 0.0 * y)[0]
-    f_hi = _lookup(table, y - lb, phi[:, None] + 0.0 * y)[0]
-    gl[idx] = ((f_lo - f_hi) * light[None, :]).sum(1)
-    return gl, wl
-
-
 def _curve_s(d, tau):
     return d[0] + tau * (d[1] + tau * (d[2] + tau * d[3]))
 
@@ -589,8 +520,6 @@ misfit RMS / contrast)] per edge'''
     v = img[iy, ix].astype(np.float64)
     tau = np.concatenate([2.0 * g[4] / g[6] - 1.0 for g in geo])
     s = np.concatenate([g[5] for g in geo]).astype(np.float64)
-    gl = np.concatenate([g[12] for g in geo]).astype(np.float64)
-    wl = np.concatenate([g[13] for g in geo]).astype(np.float64)
     n = np.abs(np.array([g[8] for g in geo], dtype=np.float64).reshape(m, 2))
     phi = np.arctan2(n.min(-1), n.max(-1))
     cubic = np.array([float(g[9]) for g in geo])
@@ -602,6 +531,6 @@ misfit RMS / contrast)] per edge'''
     bf = np.full(m, np.nan) if bfix is None else np.asarray(bfix, dtype=np.float64)
     # the start: each edge's current curve (cubic term 0)
     d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
-    p, done, mis = fit_edges(off, v, tau, s, gl, wl, cubic, j0, fy, d, x0, TABLE_STEP_PX, F,
-                             dF, bf, MAX_ITERATIONS, float(converged_px))
+    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF, bf,
+                             MAX_ITERATIONS, float(converged_px))
     return [(p[j], bool(done[j]), float(mis[j])) for j in range(m)]

@@ -100,29 +100,15 @@ square root is ~6), and below 0.008 px'''
     assert e < 0.008 and 4 * e < w, (e, w)
 
 
-def test_tags_of_bits_within_the_blurs_reach_keep_their_corners():
-    r'''Bits of 2.5 and 2.8 px (camera 17's hazcam tags): the border (one bit) is narrower
-than the blur's reach (3 sigma + the pixel's half-diagonal, 2.8 px), so every pixel on an
-edge's dark side sees the data row inside the border; before the data row's light was in
-the model (tag_edges._data_row_leak) every such edge was dropped "seen from its light side
-only". Noise-free blur, K = 16: measured 0.0016 / 0.0010 px RMS (max 0.0032): the data
-row's model (cells placed along the edge by the homography, the product form of the blur)
-errs by a fraction of the realistic noise floor (0.005 px,
-test_noisy_tag_corners_to_the_edges_noise_floor), asserted below it. Bits of 2 px leave no
-band at all (the border and the gap outside are both within the reach): dropped, with
-why.'''
-    bits = np.array([tag36h11_bits(t) for t in range(9)])
-    for bit_px in (2.5, 2.8):
-        img, Q, grid = _tag_grid(bit_px)
-        im = ResponseChain.from_config(BLUR).apply(img).image.astype(np.float64)
-        fit = refine_tag_edges(im, Q + 0.1, 0.7, "sampled", bits=bits, grid=grid,
-                               value_range=1.0)
-        assert fit.dropped() == {}, (bit_px, fit.dropped())
-        rms, n = _rms(fit.q, Q)
-        assert n == Q.size // 2 and rms < 0.004, (bit_px, rms)
-    img, Q, grid = _tag_grid(2.0, K=8)
+def test_tags_too_small_for_the_blur_are_dropped_with_a_reason():
+    r'''Bits of 2.5 px: the border (one bit) is narrower than the blur's reach (3 sigma +
+the pixel's half-diagonal, 2.8 px), so no band sees the dark side of an edge without
+seeing the data bits: every corner is dropped, with why'''
+    img, Q, grid = _tag_grid(2.5, K=8)
     im = ResponseChain.from_config(BLUR).apply(img).image.astype(np.float64)
-    fit = refine_tag_edges(im, Q, 0.7, "sampled", bits=bits, grid=grid, value_range=1.0)
+    fit = refine_tag_edges(im, Q, 0.7, "sampled",
+                           bits=np.array([tag36h11_bits(t) for t in range(len(Q))]),
+                           grid=grid, value_range=1.0)
     assert np.all(np.isnan(fit.q))
     assert all(r for r in fit.reasons)
     assert any("light side only" in r or "too short" in r for r in fit.reasons)
