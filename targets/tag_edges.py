@@ -52,7 +52,18 @@ The cells are placed along the edge by the homography of the tag's four current 
 across it by the depth from the fitted curve, in the adjacent edges' bits (an oblique tag
 has bits of two sizes), with SAFETY_PX more margin. An edge whose band has no dark
 plateau (bits of 2-3 px across) takes its tag's contrast b from the edges that have one
-(_fit_contrast_first); an edge that sees only its light side is dropped.
+(_fit_contrast_first); an edge that sees only its light side is dropped. On bits under
+~3.5 px at sigma 0.7 (camera 17's 2.8 px) every dark-side pixel sees the data row inside
+the border, so ~40% of camera 17's edges are dropped that way where a light data cell lines
+them. Modelling the data row's light instead (F(x) - gl F(x - wl), the cells placed by the
+tag's homography; commits 73e4c2b, fdce4a3, reverted) kept 854 of 864 corners, but their
+model error under the hazcam's distortion (0.0016 px RMS on blur without noise, against
+0.0009 for the corners kept without it) raised the realistic AprilTag / dots projection
+ratio of 17 as CAHVORE from 0.63 to 1.46 (docs/corners.md).
+
+The blur's kind. Handed an estimate (choose_kind), the first pass fits every edge with
+each kind of kernel at the same variance and keeps the one of least summed squared misfit
+(_choose_kind): the corner windows' estimate tells the kinds apart on too few pixels.
 
 The fit: Levenberg-Marquardt on (a, b, d0..d3) of every edge at once (compiled:
 targets._tag_edge_kernels), twice: the first pass fits each edge alone and places the
