@@ -417,3 +417,10 @@ of Pa (M,2), La (M,), ea, na (M,2), da (M,4) and of the b ones.'''
             out[j, 0] = pax
             out[j, 1] = pay
     return out
+
+
+def compiled_entry_points():
+    r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
+warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
+blurred images, targets.tag_edges)'''
+    return (tag_edge_pixels, fit_edges, meet_curves)

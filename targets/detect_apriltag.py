@@ -171,9 +171,11 @@ pupil_apriltags' elsewhere; the CornerFit, its info the blur's and the edge mode
     nx = int(spec["nx"])
     first = int(spec.get("first_id", 0))
     grid = np.array([((t - first) % nx, (t - first) // nx) for t, _ in used])
+    # an estimated blur's kind is chosen again on the whole edges (tag_edges._choose_kind)
     fit = refine_tag_edges(img, start, blur["psf_sigma_px"], blur.get("psf_kind", "gaussian"),
-                           bits=bits, grid=grid, gap_bits=gap_bits, value_range=value_range)
-    fit.info.update({k: v for k, v in blur.items() if k.startswith("psf_")})
+                           bits=bits, grid=grid, gap_bits=gap_bits, value_range=value_range,
+                           choose_kind=blur.get("psf_source") == "estimated")
+    fit.info.update({k: v for k, v in blur.items() if k.startswith("psf_") and k not in fit.info})
     return fit
 
 

@@ -52,7 +52,18 @@ The cells are placed along the edge by the homography of the tag's four current 
 across it by the depth from the fitted curve, in the adjacent edges' bits (an oblique tag
 has bits of two sizes), with SAFETY_PX more margin. An edge whose band has no dark
 plateau (bits of 2-3 px across) takes its tag's contrast b from the edges that have one
-(_fit_contrast_first); an edge that sees only its light side is dropped.
+(_fit_contrast_first); an edge that sees only its light side is dropped. On bits under
+~3.5 px at sigma 0.7 (camera 17's 2.8 px) every dark-side pixel sees the data row inside
+the border, so ~40% of camera 17's edges are dropped that way where a light data cell lines
+them. Modelling the data row's light instead (F(x) - gl F(x - wl), the cells placed by the
+tag's homography; commits 73e4c2b, fdce4a3, reverted) kept 854 of 864 corners, but their
+model error under the hazcam's distortion (0.0016 px RMS on blur without noise, against
+0.0009 for the corners kept without it) raised the realistic AprilTag / dots projection
+ratio of 17 as CAHVORE from 0.63 to 1.46 (docs/corners.md).
+
+The blur's kind. Handed an estimate (choose_kind), the first pass fits every edge with
+each kind of kernel at the same variance and keeps the one of least summed squared misfit
+(_choose_kind): the corner windows' estimate tells the kinds apart on too few pixels.
 
 The fit: Levenberg-Marquardt on (a, b, d0..d3) of every edge at once (compiled:
 targets._tag_edge_kernels), twice: the first pass fits each edge alone and places the
@@ -81,7 +92,7 @@ import functools
 import numpy as np
 
 from ._tag_edge_kernels import fit_edges, meet_curves, tag_edge_pixels
-from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, CornerFit, blur_kernel
+from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, PSF_KINDS, CornerFit, blur_kernel
 
 # px added to every clearance: the coarse corners' error and the bend of an edge between
 # them (a homography of the 4 corners places the cells; the sagitta of a hazcam's 60 px
@@ -226,7 +237,7 @@ def _neighbours(grid, N):
 
 def refine_tag_edges(image, Q, sigma, kind="gaussian", *, bits=None, grid=None, gap_bits=2.4,
                      value_range=None, passes=2, max_misfit=MAX_MISFIT,
-                     min_contrast=MIN_CONTRAST):
+                     min_contrast=MIN_CONTRAST, choose_kind=False):
     r'''Corners of AprilTags from their four whole border edges; see the module docstring
 
 ARGUMENTS
@@ -239,9 +250,13 @@ ARGUMENTS
   edge is fitted together with the edges on the same board line of the adjacent tags
 - gap_bits: tag bits of light board between a tag and its neighbour (tag_spacing x 8)
 - value_range: the image's max - min (the contrast test's scale; default computed)
+- choose_kind: True: (sigma, kind) is an estimate; the kind is chosen here among
+  targets.corners.PSF_KINDS, each at the sigma of the same variance (_same_variance), by
+  the first pass's squared misfit summed over the edges every kind fitted (_choose_kind)
 
 RETURNED VALUE: a targets.corners.CornerFit of the Ntags*4 corners (info: "corner_model",
-the edge fits' median misfit)
+the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" used,
+"psf_kind_misfit": each kind's sum of squared misfits)
 '''
     img = np.asarray(image)
     H, W = img.shape
@@ -250,8 +265,14 @@ the edge fits' median misfit)
     if bits is not None:
         bits = np.asarray(bits, dtype=bool).reshape(N, 8, 8)
     rng = float(value_range) if value_range is not None else float(np.nanmax(img) - np.nanmin(img))
-    table = _edge_table(round(float(sigma) / TABLE_SIGMA_STEP_PX) * TABLE_SIGMA_STEP_PX, kind)
-    reach = BLUR_REACH_SIGMAS * float(sigma) + np.sqrt(0.5)
+    blurs = [(float(sigma), kind)]
+    if choose_kind:
+        blurs += [(s1, k1) for k1 in PSF_KINDS if k1 != kind
+                  for s1 in [_same_variance(float(sigma), kind, k1)] if s1 > 0]
+    # the first pass's pixels keep the widest candidate's reach
+    reach = BLUR_REACH_SIGMAS * max(s1 for s1, _ in blurs) + np.sqrt(0.5)
+    table = _table(*blurs[0])
+    info = {}
     nbrs = _neighbours(grid, N)
     q = Q.copy()
     # each edge's current curve as image points (None: the chord)
@@ -314,7 +335,12 @@ the edge fits' median misfit)
                 # a long edge alone bends more than a quadratic follows on a fisheye
                 geo.append((i, k, ix, iy, t, s, L, e, n, last and L > CUBIC_EDGE_PX,
                             start[(i, k)], 2))
-        fits = _fit_contrast_first(img, geo, table, reach)
+        if len(blurs) > 1:
+            (sigma, kind), table, fits, info = _choose_kind(img, geo, blurs, reach)
+            blurs = [(sigma, kind)]
+            reach = BLUR_REACH_SIGMAS * sigma + np.sqrt(0.5)
+        else:
+            fits = _fit_contrast_first(img, geo, table, reach)
         curves = {}
         for (i, k, *_rest), (p, ok, mis) in zip(geo, fits, strict=True):
             end = _rest[-1]
@@ -377,9 +403,59 @@ the edge fits' median misfit)
     return CornerFit(q=q.reshape(-1, 2), reasons=reasons.ravel(),
                      misfit=np.repeat(np.nanmax(np.where(good, mis_edge, -1.0), axis=1), 4),
                      npixels=np.zeros(N * 4, np.int64),
-                     info={"corner_model": "tag edges",
+                     info={**info, "corner_model": "tag edges",
                            "edge_misfit_median": float(np.median(mis_edge[good]))
                            if good.any() else float("nan")})
+
+
+def _table(sigma, kind):
+    return _edge_table(round(float(sigma) / TABLE_SIGMA_STEP_PX) * TABLE_SIGMA_STEP_PX, kind)
+
+
+# each kind's variance per axis on an area-sampled image beyond its sigma^2 (px^2): the
+# pixel's square once (a Gaussian on the scene, which the pixel integrates) or twice (the
+# sampled kernel, itself pixel-integrated, on area-sampled pixels; corners.blur_kernel)
+_KIND_VARIANCE = {"gaussian": 1.0 / 12.0, "sampled": 1.0 / 6.0}
+
+
+def _same_variance(sigma, kind, other):
+    r'''The sigma of kind other whose blurred edge has the variance of (sigma, kind); 0 where
+none has (a sampled kernel narrower than the pixel)'''
+    v = sigma * sigma + _KIND_VARIANCE[kind] - _KIND_VARIANCE[other]
+    return float(np.sqrt(v)) if v > 0 else 0.0
+
+
+def _choose_kind(img, geo, blurs, reach):
+    r'''((sigma, kind), table, fits, info): the candidate blur whose edge fits (the first
+pass's, each edge alone) leave the least squared misfit summed over the edges every
+candidate fitted to convergence
+
+Why. targets.corners.estimate_blur picks the kind on ~32 corner windows of a few dozen
+pixels each: the two kinds at the same variance differ in the edge's shape by less than
+the noise there, and on half of camera 17's realistic images (as CAHVOR, tag bits of 2.8
+px) it chose "gaussian" (sigma 0.75) for the response's sampled blur (0.7): the tag-edge
+corners were 0.011-0.020 px RMS off against 0.0055-0.0065 with the right kind (an edge seen
+mostly from its light side takes the profile's shape for its position). All the image's
+tag edges (10^4-10^6 pixels) tell the shapes apart; both kinds are judged on the same
+pixels, so the noise is common to both and no threshold enters.'''
+    out = []
+    for sg, kd in blurs:
+        table = _table(sg, kd)
+        out.append((table, _fit_contrast_first(img, geo, table, reach)))
+    both = np.ones(len(geo), bool)
+    for _, fits in out:
+        both &= np.array([bool(f[1]) and bool(np.isfinite(f[2])) for f in fits])
+    n = np.array([len(g[2]) for g in geo], dtype=np.float64)
+    sums = []
+    for _, fits in out:
+        # mis = RMS / |b|: an edge's squared residual sum is n (mis b)^2
+        sq = np.array([(f[2] * f[0][1]) ** 2 for f in fits]) * n
+        sums.append(float(sq[both].sum()) if both.any() else np.inf)
+    best = int(np.argmin(sums))
+    sg, kd = blurs[best]
+    info = {"psf_sigma_px": sg, "psf_kind": kd, "psf_kind_chosen_by": "tag edges",
+            "psf_kind_misfit": {k: v for (_, k), v in zip(blurs, sums, strict=True)}}
+    return blurs[best], out[best][0], out[best][1], info
 
 
 def _fit_contrast_first(img, geo, table, reach):

@@ -147,3 +147,26 @@ end point is ~1.4x as noisy as its mean). Measured: see the assertion message.''
             es.append(e[np.isfinite(e)])
         err[t.kind] = float(np.sqrt(np.mean(np.concatenate(es) ** 2)))
     assert err["apriltag"] < 1.5 * err["dots"], err
+
+
+def test_an_estimated_blur_kind_is_chosen_on_the_whole_edges():
+    r'''The realistic profile blurs the pixel image (the "sampled" kernel, sigma 0.7 px);
+handed the Gaussian kind of the same variance (sigma sqrt(0.7^2 + 1/12): what the corner
+windows' estimate returned on half of camera 17's images), the edges choose the sampled
+kind back at sigma 0.7 (the variances' identity, exact), and the corners are those of the
+right kind given: the fit after the choice is the same fit, but for the first pass's
+slightly wider pixel band (the wider candidate's reach), so to a fraction of the noise
+floor (0.005 px RMS here, test_noisy_tag_corners_to_the_edges_noise_floor)'''
+    img, Q, grid = _tag_grid(4.0)
+    bits = np.array([tag36h11_bits(t) for t in range(len(Q))])
+    im = ResponseChain.from_config(REALISTIC).apply(img, seed=1).image.astype(np.float64)
+    wrong = float(np.sqrt(0.7 ** 2 + 1.0 / 12.0))
+    fit = refine_tag_edges(im, Q + 0.2, wrong, "gaussian", bits=bits, grid=grid,
+                           value_range=1.0, choose_kind=True)
+    assert fit.info["psf_kind"] == "sampled"
+    assert abs(fit.info["psf_sigma_px"] - 0.7) < 1e-12
+    right = refine_tag_edges(im, Q + 0.2, 0.7, "sampled", bits=bits, grid=grid,
+                             value_range=1.0)
+    e = np.linalg.norm(fit.q - right.q, axis=-1)
+    assert np.isfinite(e).sum() == np.isfinite(right.q[:, 0]).sum() > 0
+    assert float(np.sqrt(np.nanmean(e ** 2))) < 0.002, e
