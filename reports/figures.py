@@ -155,7 +155,8 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
         return None
     plt = _plt()
     fig, axes = plt.subplots(len(rows), 1, figsize=(max(7.0, 0.38 * len(cams) + 3), 2.6 *
-                                                    len(rows) + 0.6), squeeze=False)
+                                                    len(rows) + 0.6), squeeze=False,
+                             dpi=90)   # the dpi of save_png: one renderer lays out and draws
     offscale = []
     for ax, (panel_title, pts) in zip(axes[:, 0], rows, strict=True):
         lim = None if logy else robust_limit([p[1] for p in pts],
@@ -349,7 +350,8 @@ for a run of one target'''
     gate_z = _gate_z()
     plt = _plt()
     fig, axes = plt.subplots(len(groups), 2, figsize=(max(12.0, 0.6 * len(cams) + 4),
-                                                      2.8 * len(groups) + 0.6), squeeze=False)
+                                                      2.8 * len(groups) + 0.6), squeeze=False,
+                             dpi=90)   # the dpi of save_png: one renderer lays out and draws
     for (label, recs), (axz, axp) in zip(sorted(groups.items()), axes, strict=True):
         series = {}
         for r in recs:
