@@ -824,21 +824,60 @@ def fig_sweeps(sweeps, out):
     return figs
 
 
-def make_figures(records, run_dir, out):
-    r'''Every figure that has data -> [Figure]'''
+def _figure_makers():
+    r'''The run's figures in the report's order: functions (records, run_dir, out) -> a
+Figure, None (nothing to plot) or [Figure]'''
+    per_run = (fig_targets, fig_residuals, fig_center, fig_focal, fig_theta, fig_C, fig_A,
+               fig_O, fig_R_abs, fig_R_frac, fig_projection)
+    return ([lambda records, run_dir, out, f=f: f(records, out) for f in per_run] +
+            [fig_maps, lambda records, run_dir, out: fig_speed(records, out)])
+
+
+def _make_figure(i, records, run_dir, out):
+    r'''The i-th of _figure_makers() -> [Figure] (what a worker process runs)'''
+    fig = _figure_makers()[i](records, run_dir, out)
+    return fig if isinstance(fig, list) else [] if fig is None else [fig]
+
+
+def figure_workers():
+    r'''Processes that draw the figures: the cores this process may use, at most 2 (the
+paper campaign's 13 figure groups take 0.4-2.5 s of CPU each)'''
+    import os
+    return min(2, len(os.sched_getaffinity(0)))
+
+
+def make_figures(records, run_dir, out, workers=None):
+    r'''Every figure that has data -> [Figure], in the report's order
+
+workers: processes drawing them (default figure_workers()). With 2, this process and one
+worker (harness.executors.local_pool) share the figures: the worker takes them from the
+front of the list, this process from the back, each taking the next one the other has
+not started, so neither waits while figures are left, whatever each costs.'''
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    figs = []
-    for f in (fig_targets, fig_residuals, fig_center, fig_focal, fig_theta, fig_C, fig_A, fig_O,
-              fig_R_abs, fig_R_frac, fig_projection):
-        fig = f(records, out)
-        if fig is not None:
-            figs.append(fig)
-    figs += fig_maps(records, run_dir, out)
-    sp = fig_speed(records, out)
-    if sp is not None:
-        figs.append(sp)
-    return figs
+    n = len(_figure_makers())
+    workers = figure_workers() if workers is None else workers
+    if workers < 2:
+        return [f for i in range(n) for f in _make_figure(i, records, run_dir, out)]
+    from concurrent.futures.process import BrokenProcessPool
+
+    from harness.executors import local_pool
+    done = {}
+    with local_pool(1) as pool:
+        futs = [pool.submit(_make_figure, i, records, run_dir, out) for i in range(n)]
+        for i in reversed(range(n)):
+            if not futs[i].cancel():
+                break       # the worker has it, and every figure before it
+            done[i] = _make_figure(i, records, run_dir, out)
+        for i in range(n):
+            if i not in done:
+                try:
+                    done[i] = futs[i].result()
+                except BrokenProcessPool:
+                    # the worker could not start or died (a script without the
+                    # `if __name__ == "__main__":` guard forkserver needs): draw it here
+                    done[i] = _make_figure(i, records, run_dir, out)
+    return [f for i in range(n) for f in done[i]]
 
 
 def stereo_figure(result, path, variant="clean"):
