@@ -111,7 +111,11 @@ report's plots and maps (the paper campaign's report: 2.83 -> 1.57 MB), no visib
     fig.set_dpi(dpi)
     fig.canvas.draw()
     rgba = np.asarray(fig.canvas.buffer_rgba())
-    Image.fromarray(rgba[..., :3]).quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(
+    # MAXCOVERAGE, not MEDIANCUT: median cut spends the palette on the maps' gradients and
+    # turned their few red "(saturated)" titles grey (the paper run's mrcal maps: none of
+    # 482 red pixels kept; maximum coverage keeps 99%, its worst pixels are closer (99th
+    # percentile 4 vs 8 of 255) and the file is half the size)
+    Image.fromarray(rgba[..., :3]).quantize(colors=256, method=Image.Quantize.MAXCOVERAGE).save(
         path, optimize=True)
 
 
