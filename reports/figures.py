@@ -870,8 +870,9 @@ def _make_figure(i, records, run_dir, out):
 
 
 def figure_workers():
-    r'''Processes that draw the figures: the cores this process may use, at most 2 (the
-paper campaign's 13 figure groups take 0.4-2.5 s of CPU each)'''
+    r'''Processes that draw the figures by default: the cores this process may use, at most
+2 (the machine the paper campaign is timed on; the 13 figure groups of its report take
+0.4-2.5 s of CPU each: more processes than 2 are not measured)'''
     import os
     return min(2, len(os.sched_getaffinity(0)))
 
@@ -879,32 +880,32 @@ paper campaign's 13 figure groups take 0.4-2.5 s of CPU each)'''
 def make_figures(records, run_dir, out, workers=None):
     r'''Every figure that has data -> [Figure], in the report's order
 
-workers: processes drawing them (default figure_workers()). With 2, this process and one
-worker (harness.executors.local_pool) share the figures: the worker takes them from the
-front of the list, this process from the back, each taking the next one the other has
-not started, so neither waits while figures are left, whatever each costs.'''
+workers: processes drawing them (default figure_workers()). With N >= 2, this process
+and N - 1 workers (harness.executors.local_pool) share the figures: the workers take
+them from the front of the list, this process from the back, each taking the next one
+no other has started, so none waits while figures are left, whatever each costs.'''
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     n = len(_figure_makers())
-    workers = figure_workers() if workers is None else workers
+    workers = min(n, figure_workers() if workers is None else workers)
     if workers < 2:
         return [f for i in range(n) for f in _make_figure(i, records, run_dir, out)]
     from concurrent.futures.process import BrokenProcessPool
 
     from harness.executors import local_pool
     done = {}
-    with local_pool(1) as pool:
+    with local_pool(workers - 1) as pool:
         futs = [pool.submit(_make_figure, i, records, run_dir, out) for i in range(n)]
         for i in reversed(range(n)):
             if not futs[i].cancel():
-                break       # the worker has it, and every figure before it
+                break       # a worker has it, and the workers every figure before it
             done[i] = _make_figure(i, records, run_dir, out)
         for i in range(n):
             if i not in done:
                 try:
                     done[i] = futs[i].result()
                 except BrokenProcessPool:
-                    # the worker could not start or died (a script without the
+                    # a worker could not start or died (a script without the
                     # `if __name__ == "__main__":` guard forkserver needs): draw it here
                     done[i] = _make_figure(i, records, run_dir, out)
     return [f for i in range(n) for f in done[i]]

@@ -497,9 +497,10 @@ side by side under each family, the renderer verdict's rows first, and one figur
     assert "gate fails above 6" in fig.caption
 
 
-def test_figure_workers_draw_the_same_figures(run_dir, tmp_path):
-    r'''Two processes sharing the figures (make_figures(workers=2)) give the figures, order,
-captions and pixels of one process: the same matplotlib draws the same canvas in either
+@pytest.mark.parametrize("workers", [2, 3])
+def test_figure_workers_draw_the_same_figures(run_dir, tmp_path, workers):
+    r'''Processes sharing the figures (make_figures(workers=2 or 3)) give the figures, order,
+captions and pixels of one process: the same matplotlib draws the same canvas in any
 process of this machine'''
     from PIL import Image
 
@@ -507,7 +508,7 @@ process of this machine'''
     from reports.figures import make_figures
     records = load_run(run_dir)["records"]
     one = make_figures(records, run_dir, tmp_path / "one", workers=1)
-    two = make_figures(records, run_dir, tmp_path / "two", workers=2)
+    two = make_figures(records, run_dir, tmp_path / "two", workers=workers)
     assert [(f.key, f.title, f.caption) for f in one] == [(f.key, f.title, f.caption)
                                                           for f in two]
     assert len(one) == 13   # 10 per-camera figures, 2 map figures, speed versus accuracy
