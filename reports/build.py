@@ -291,10 +291,11 @@ DETECTABLE_NOTE = ("The smallest fault of each kind the renderer gate would flag
                    "theta change in deg.")
 
 
-def build_report(run, out_dir=None, gate_spec=None):
+def build_report(run, out_dir=None, gate_spec=None, workers=None):
     r'''Write report.html, report.md and figures/*.png for a run -> {"html", "markdown", ...}
 
-gate_spec: the gate whose result opens the report (see verdict()).
+gate_spec: the gate whose result opens the report (see verdict()). workers: processes
+drawing the figures (reports.figures.make_figures; default: the cores, at most 2).
 '''
     run = Path(run)
     run_dir = run if run.is_dir() else run.parent
@@ -302,7 +303,7 @@ gate_spec: the gate whose result opens the report (see verdict()).
     records = doc["records"]
     out = Path(out_dir) if out_dir else run_dir / "report"
     fig_dir = out / "figures"
-    figs = make_figures(records, run_dir, fig_dir)
+    figs = make_figures(records, run_dir, fig_dir, workers=workers)
     legacy_rows = legacy_signature_rows(records, truth_resolver(doc, run_dir))
     legacy_fig = fig_legacy_signature(legacy_rows, fig_dir) if legacy_rows else None
     sweeps = find_sweeps(run_dir)

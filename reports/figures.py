@@ -91,20 +91,58 @@ OFFSCALE = 10.0
 OFFSCALE_LISTED = 12
 # decades of the maps' shared logarithmic colour scale
 MAP_DECADES = 3
+# the map figures' fixed geometry (inches): a cell per map (its two-line title above the
+# image), the margin round the grid, the suptitle's band, the colour bar (width, longest
+# length) and the band right of the grid that holds it with its labels
+MAP_CELL = (2.1, 2.0)
+MAP_PAD = 0.08
+MAP_TITLE_SPACE = 0.32
+MAP_MARGIN = 0.05
+MAP_SUPTITLE_SPACE = 0.3
+MAP_COLORBAR = (0.2, 4.5)
+MAP_COLORBAR_SPACE = 0.9
+
+
+# The report's signal colour (off-scale arrows, the paper's lines, saturated map titles) and
+# its blends with the white page (antialiased text edges), at these opacities: palette
+# entries of their own in every palette PNG (save_png)
+SIGNAL_COLOUR = (214, 39, 40)     # matplotlib's tab:red
+SIGNAL_BLENDS = (1.0, 0.8, 0.6, 0.4)
 
 
 def save_png(fig, path, dpi):
     r'''Save a figure as a palette PNG (256 colours): a third of the RGB file's size for the
-report's plots and maps (the paper campaign's report: 2.83 -> 1.57 MB), no visible change'''
-    import io
+report's plots and maps (the paper campaign's report: 2.83 -> 1.57 MB), no visible change
 
+The palette: a median cut of the figure's colours (smooth gradients stay smooth; maximum
+coverage bands the maps into false contours) plus SIGNAL_COLOUR and its blends, which
+take the pixels nearer to them than to their median-cut colour: a few red pixels among
+the maps' million (a "(saturated)" title) stay red, where median cut alone spent every
+entry on the gradients and turned them grey (the paper run's mrcal maps).'''
     from PIL import Image
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=dpi, format="png")
-    buf.seek(0)
-    with Image.open(buf) as im:
-        im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(
-            path, optimize=True)
+    # the canvas's pixels as they are: fig.savefig would encode a PNG only to decode it here
+    fig.set_dpi(dpi)
+    fig.canvas.draw()
+    rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3]
+    reserved = np.array([[255 * (1 - a) + a * c for c in SIGNAL_COLOUR]
+                         for a in SIGNAL_BLENDS]).round()
+    ncut = 256 - len(reserved)
+    cut = Image.fromarray(rgb).quantize(colors=ncut, method=Image.Quantize.MEDIANCUT)
+    palette = np.array(cut.getpalette()[:3 * ncut], dtype=np.float64).reshape(-1, 3)
+    palette = np.vstack([palette, np.zeros((ncut - len(palette), 3)), reserved])
+    index = np.array(cut, dtype=np.uint8)
+    # only reddish pixels can be nearer a blend of red and white (each has R - G, R - B
+    # >= 0.4 x 174 there): the few to look at
+    r, g, b = (rgb[..., k].astype(np.int16) for k in range(3))
+    iy, ix = np.nonzero((r - g > 30) & (r - b > 30))
+    x = rgb[iy, ix].astype(np.float64)                                  # (n, 3)
+    d_cut = ((x - palette[index[iy, ix]]) ** 2).sum(axis=-1)
+    d_res = ((x[:, None, :] - reserved) ** 2).sum(axis=-1)              # (n, len(reserved))
+    nearer = d_res.min(axis=-1) < d_cut
+    index[iy[nearer], ix[nearer]] = ncut + d_res.argmin(axis=-1)[nearer]
+    out = Image.fromarray(index, mode="P")
+    out.putpalette(palette.astype(np.uint8).ravel().tolist())
+    out.save(path, optimize=True)
 
 
 def robust_limit(values, keep=()):
@@ -147,7 +185,8 @@ paper: [(value, label)] the paper's figures, drawn as dashed lines'''
         return None
     plt = _plt()
     fig, axes = plt.subplots(len(rows), 1, figsize=(max(7.0, 0.38 * len(cams) + 3), 2.6 *
-                                                    len(rows) + 0.6), squeeze=False)
+                                                    len(rows) + 0.6), squeeze=False,
+                             dpi=90)   # the dpi of save_png: one renderer lays out and draws
     offscale = []
     for ax, (panel_title, pts) in zip(axes[:, 0], rows, strict=True):
         lim = None if logy else robust_limit([p[1] for p in pts],
@@ -341,7 +380,8 @@ for a run of one target'''
     gate_z = _gate_z()
     plt = _plt()
     fig, axes = plt.subplots(len(groups), 2, figsize=(max(12.0, 0.6 * len(cams) + 4),
-                                                      2.8 * len(groups) + 0.6), squeeze=False)
+                                                      2.8 * len(groups) + 0.6), squeeze=False,
+                             dpi=90)   # the dpi of save_png: one renderer lays out and draws
     for (label, recs), (axz, axp) in zip(sorted(groups.items()), axes, strict=True):
         series = {}
         for r in recs:
@@ -392,7 +432,13 @@ for a run of one target'''
 
 
 def fig_maps(records, run_dir, out, limit=72):
-    r'''Small multiples of the stored projection-difference maps (keep_maps), per calibrator'''
+    r'''Small multiples of the stored projection-difference maps (keep_maps), per calibrator
+
+All the panels of a figure are images in ONE axes (data units are inches; each
+map centred in its cell at its own aspect, its title above it) placed at fixed
+positions: a figure of 66 maps costs one axes' tick machinery and no layout
+solve, instead of 66 axes under constrained layout (the paper campaign's four
+map figures: 14 s -> 3 s of CPU).'''
     figs = []
     panels = calibrator_panels(records)
     order = {c: i for i, c in enumerate(camera_order(records))}
@@ -408,10 +454,6 @@ def fig_maps(records, run_dir, out, limit=72):
         plt = _plt()
         ncol = min(6, len(shown))
         nrow = math.ceil(len(shown) / ncol)
-        fig, axes = plt.subplots(nrow, ncol, figsize=(2.1 * ncol + 0.6, 2.0 * nrow + 0.5),
-                                 squeeze=False, layout="constrained")
-        for ax in axes.ravel():
-            ax.axis("off")
         maps = [np.load(Path(run_dir) / r["artifacts"]["map"]) for r in shown]
         maxima = [float(np.nanmax(m)) if np.isfinite(m).any() else math.nan for m in maps]
         # one colour scale for the figure; a panel beyond it saturates and says so
@@ -422,20 +464,48 @@ def fig_maps(records, run_dir, out, limit=72):
         # 0.8 px one on the same scale
         from matplotlib.colors import LogNorm
         norm = LogNorm(vmin=vmax * 10.0 ** -MAP_DECADES, vmax=vmax, clip=True)
+        grid_w, grid_h = MAP_CELL[0] * ncol, MAP_CELL[1] * nrow
+        fig_w = MAP_MARGIN + grid_w + MAP_COLORBAR_SPACE
+        fig_h = grid_h + MAP_MARGIN + MAP_SUPTITLE_SPACE
+        fig = plt.figure(figsize=(fig_w, fig_h))
+        ax = fig.add_axes((MAP_MARGIN / fig_w, MAP_MARGIN / fig_h, grid_w / fig_w,
+                           grid_h / fig_h))
+        ax.set_xlim(0, grid_w)
+        ax.set_ylim(0, grid_h)
+        ax.axis("off")
         im = None
-        for ax, r, m, mx in zip(axes.ravel(), shown, maps, maxima, strict=False):
-            im = ax.imshow(np.maximum(m, norm.vmin), cmap="viridis", norm=norm)
+        box_w = MAP_CELL[0] - 2 * MAP_PAD
+        box_h = MAP_CELL[1] - MAP_TITLE_SPACE - MAP_PAD
+        for k, (r, m, mx) in enumerate(zip(shown, maps, maxima, strict=True)):
+            x_left = (k % ncol) * MAP_CELL[0]
+            y_top = grid_h - (k // ncol) * MAP_CELL[1]
+            ny, nx = m.shape
+            s = min(box_w / nx, box_h / ny)      # inches per map pixel: the map's own aspect
+            cx, cy = x_left + MAP_CELL[0] / 2, y_top - MAP_TITLE_SPACE - box_h / 2
+            im = ax.imshow(np.maximum(m, norm.vmin), cmap="viridis", norm=norm,
+                           extent=(cx - s * nx / 2, cx + s * nx / 2, cy - s * ny / 2,
+                                   cy + s * ny / 2))
             setting = f" {r['renderer']} K{r['settings'].get('spp')}" if several else ""
             over = " (saturated)" if mx > vmax else ""
-            ax.set_title(f"{r['camera']} {r['model']}{setting}\nmax {mx:.2g} px{over}",
-                         fontsize=7, color="tab:red" if over else "black")
+            ax.text(cx, cy + s * ny / 2 + 0.04, f"{r['camera']} {r['model']}{setting}\n"
+                    f"max {mx:.2g} px{over}", ha="center", va="bottom", fontsize=7,
+                    color="tab:red" if over else "black")
+        # the image axes' autoscaling and aspect are not wanted: the cells fix both
+        ax.set_xlim(0, grid_w)
+        ax.set_ylim(0, grid_h)
+        ax.set_aspect("auto")
         if im is not None:
-            fig.colorbar(im, ax=axes.ravel().tolist(), fraction=0.02, pad=0.01,
+            bar_h = min(grid_h, MAP_COLORBAR[1])
+            cax = fig.add_axes(((MAP_MARGIN + grid_w + 0.1) / fig_w,
+                                (MAP_MARGIN + (grid_h - bar_h) / 2) / fig_h,
+                                MAP_COLORBAR[0] / fig_w, bar_h / fig_h))
+            fig.colorbar(im, cax=cax,
                          extend="both" if max(maxima, default=0) > vmax else "min",
                          label="px").ax.tick_params(labelsize=6)
         label = _panel_title(cal, cm, variant)
         more = f" (first {limit} of {len(recs)})" if len(recs) > limit else ""
-        fig.suptitle(f"Projection difference |fit - truth| (px), {label}{more}", fontsize=9)
+        fig.suptitle(f"Projection difference |fit - truth| (px), {label}{more}", fontsize=9,
+                     y=1 - 0.08 / fig_h, va="top")
         key = f"maps_{cal}" + ("" if cm == "family" else f"_{cm}") + (
             "_" + "".join(c if c.isalnum() else "_" for c in variant) if variant else "")
         path = Path(out) / f"{key}.png"
@@ -784,21 +854,61 @@ def fig_sweeps(sweeps, out):
     return figs
 
 
-def make_figures(records, run_dir, out):
-    r'''Every figure that has data -> [Figure]'''
+def _figure_makers():
+    r'''The run's figures in the report's order: functions (records, run_dir, out) -> a
+Figure, None (nothing to plot) or [Figure]'''
+    per_run = (fig_targets, fig_residuals, fig_center, fig_focal, fig_theta, fig_C, fig_A,
+               fig_O, fig_R_abs, fig_R_frac, fig_projection)
+    return ([lambda records, run_dir, out, f=f: f(records, out) for f in per_run] +
+            [fig_maps, lambda records, run_dir, out: fig_speed(records, out)])
+
+
+def _make_figure(i, records, run_dir, out):
+    r'''The i-th of _figure_makers() -> [Figure] (what a worker process runs)'''
+    fig = _figure_makers()[i](records, run_dir, out)
+    return fig if isinstance(fig, list) else [] if fig is None else [fig]
+
+
+def figure_workers():
+    r'''Processes that draw the figures by default: the cores this process may use, at most
+2 (the machine the paper campaign is timed on; the 13 figure groups of its report take
+0.4-2.5 s of CPU each: more processes than 2 are not measured)'''
+    import os
+    return min(2, len(os.sched_getaffinity(0)))
+
+
+def make_figures(records, run_dir, out, workers=None):
+    r'''Every figure that has data -> [Figure], in the report's order
+
+workers: processes drawing them (default figure_workers()). With N >= 2, this process
+and N - 1 workers (harness.executors.local_pool) share the figures: the workers take
+them from the front of the list, this process from the back, each taking the next one
+no other has started, so none waits while figures are left, whatever each costs.'''
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    figs = []
-    for f in (fig_targets, fig_residuals, fig_center, fig_focal, fig_theta, fig_C, fig_A, fig_O,
-              fig_R_abs, fig_R_frac, fig_projection):
-        fig = f(records, out)
-        if fig is not None:
-            figs.append(fig)
-    figs += fig_maps(records, run_dir, out)
-    sp = fig_speed(records, out)
-    if sp is not None:
-        figs.append(sp)
-    return figs
+    n = len(_figure_makers())
+    workers = min(n, figure_workers() if workers is None else workers)
+    if workers < 2:
+        return [f for i in range(n) for f in _make_figure(i, records, run_dir, out)]
+    from concurrent.futures.process import BrokenProcessPool
+
+    from harness.executors import local_pool
+    done = {}
+    with local_pool(workers - 1) as pool:
+        futs = [pool.submit(_make_figure, i, records, run_dir, out) for i in range(n)]
+        for i in reversed(range(n)):
+            if not futs[i].cancel():
+                break       # a worker has it, and the workers every figure before it
+            done[i] = _make_figure(i, records, run_dir, out)
+        for i in range(n):
+            if i not in done:
+                try:
+                    done[i] = futs[i].result()
+                except BrokenProcessPool:
+                    # a worker could not start or died (a script without the
+                    # `if __name__ == "__main__":` guard forkserver needs): draw it here
+                    done[i] = _make_figure(i, records, run_dir, out)
+    return [f for i in range(n) for f in done[i]]
 
 
 def stereo_figure(result, path, variant="clean"):

@@ -495,3 +495,24 @@ side by side under each family, the renderer verdict's rows first, and one figur
     fig = fig_targets(both, tmp_path)
     assert fig.key == "fig_targets" and Path(fig.path).read_bytes()[:4] == b"\x89PNG"
     assert "gate fails above 6" in fig.caption
+
+
+@pytest.mark.parametrize("workers", [2, 3])
+def test_figure_workers_draw_the_same_figures(run_dir, tmp_path, workers):
+    r'''Processes sharing the figures (make_figures(workers=2 or 3)) give the figures, order,
+captions and pixels of one process: the same matplotlib draws the same canvas in any
+process of this machine'''
+    from PIL import Image
+
+    from harness.records import load_run
+    from reports.figures import make_figures
+    records = load_run(run_dir)["records"]
+    one = make_figures(records, run_dir, tmp_path / "one", workers=1)
+    two = make_figures(records, run_dir, tmp_path / "two", workers=workers)
+    assert [(f.key, f.title, f.caption) for f in one] == [(f.key, f.title, f.caption)
+                                                          for f in two]
+    assert len(one) == 13   # 10 per-camera figures, 2 map figures, speed versus accuracy
+    for a, b in zip(one, two, strict=True):
+        assert Path(b.path).parent == tmp_path / "two"
+        with Image.open(a.path) as ia, Image.open(b.path) as ib:
+            assert np.array_equal(np.asarray(ia.convert("RGB")), np.asarray(ib.convert("RGB")))

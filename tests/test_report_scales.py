@@ -52,6 +52,28 @@ def test_maps_share_one_colour_scale_and_name_the_saturated_panel(tmp_path):
     assert 0.02 <= vmax < 50.0 and math.isfinite(vmax)
 
 
+
+def test_a_saturated_panel_keeps_its_red_title_in_the_palette_png(tmp_path):
+    r'''Smooth maps fill the 256-colour palette with gradients; the saturated panel's title
+must stay red (viridis holds no red: every red pixel is that title's), not turn grey'''
+    from PIL import Image
+    yy, xx = np.mgrid[0:64, 0:64] / 63.0
+    (tmp_path / "maps").mkdir()
+    recs = []
+    for i, peak in enumerate([0.01, 0.02, 0.015, 0.012, 50.0]):
+        # three decades across the panel, centred differently in each: many colours
+        m = peak * 10.0 ** (-2.5 * np.hypot(xx - i / 5, yy - 0.5))
+        np.save(tmp_path / f"maps/{i}.npy", m)
+        recs.append(_rec(i + 1, "jpl", 0.0, map_path=f"maps/{i}.npy"))
+    (f,) = fig_maps({r["fullname"]: r for r in recs}, tmp_path, tmp_path)
+    with Image.open(f.path) as im:
+        assert im.mode == "P"
+        rgb = np.asarray(im.convert("RGB")).astype(int)
+    red = (rgb[..., 0] - rgb[..., 1] > 60) & (rgb[..., 0] - rgb[..., 2] > 60)
+    # "5 CAHVOR / max 50 px (saturated)" at 7 pt, 68 dpi: a few hundred red pixels
+    assert red.sum() > 100
+
+
 def test_verdict_line():
     from pathlib import Path
     rec = _rec(15, "jpl", 0.0)
