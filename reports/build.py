@@ -295,7 +295,7 @@ def build_report(run, out_dir=None, gate_spec=None, workers=None):
     r'''Write report.html, report.md and figures/*.png for a run -> {"html", "markdown", ...}
 
 gate_spec: the gate whose result opens the report (see verdict()). workers: processes
-drawing the figures (reports.figures.make_figures; default: the cores, at most 2).
+drawing the figures (reports.figures.make_figures; default 1: figure_workers says why).
 '''
     run = Path(run)
     run_dir = run if run.is_dir() else run.parent

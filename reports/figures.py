@@ -870,11 +870,12 @@ def _make_figure(i, records, run_dir, out):
 
 
 def figure_workers():
-    r'''Processes that draw the figures by default: the cores this process may use, at most
-2 (the machine the paper campaign is timed on; the 13 figure groups of its report take
-0.4-2.5 s of CPU each: more processes than 2 are not measured)'''
-    import os
-    return min(2, len(os.sched_getaffinity(0)))
+    r'''Processes that draw the figures by default: 1. A second process sharing them
+(make_figures(workers=2)) was not faster on the 2-core machine the paper campaign is timed
+on: 11.8 s wall against 10.2 s near idle (load 0.8-2.2), neutral to slower under load
+(2026-11-28, `uv run --frozen python benchmarks/bench_report.py RUN --workers 1,2`); where
+more cores are free, pass workers='''
+    return 1
 
 
 def make_figures(records, run_dir, out, workers=None):
