@@ -27,7 +27,8 @@ stay in numpy (the caller passes uu) so that both paths start from identical dir
 '''
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 # the pixel square's corners relative to its centre, counter-clockwise (as corners._SQUARE)
 _SX = (-0.5, 0.5, 0.5, -0.5)
@@ -378,27 +379,78 @@ in targets.corners._fit in their order, sums in numpy's pairwise order: equal bi
     return a, b, S, r
 
 
+def _sortable_bits(img):
+    pass
+
+
+@overload(_sortable_bits)
+def _sortable_bits_impl(img):
+    # (bits, low, exponent): the image's float bits as signed integers of its width; the
+    # mask of all bits below the sign and the mask of the exponent (all ones: inf or NaN)
+    if img.dtype == types.float32:
+        return lambda img: (img.view(np.int32), np.int32(0x7FFFFFFF), np.int32(0x7F800000))
+    return lambda img: (img.view(np.int64), np.int64(0x7FFFFFFFFFFFFFFF),
+                        np.int64(0x7FF0000000000000))
+
+
+@njit(cache=True, error_model="numpy")
+def _range_u8_row(row, bits, scale, out, kmin, kmax, low, exponent):
+    # one row of image_range_u8: every step integer or elementwise, so LLVM vectorises it
+    # (a float min/max reduction it does not: NaN semantics; 2.5x the time)
+    zero = np.zeros(1, row.dtype)[0]
+    sign = bits.itemsize * 8 - 1
+    nonfinite = False
+    for j in range(row.shape[0]):
+        b = bits[j]
+        # the float's order as an integer's: negative floats' magnitude bits reversed
+        k = b ^ ((b >> sign) & low)
+        kmin = min(kmin, k)
+        kmax = max(kmax, k)
+        nonfinite |= (b & exponent) == exponent
+        out[j] = np.uint8(min(np.rint(max(row[j], zero) * scale), 255.0))
+    return kmin, kmax, nonfinite
+
+
 @njit(cache=True, error_model="numpy")
 def image_range_u8(img, scale):
     r'''One pass over a detector's image (targets.detection.working_image): (finite, lo, hi,
-img8); finite: no pixel is NaN or infinite; lo, hi: the smallest and largest pixel;
-img8 (H,W) uint8 = rint(scale * max(img, 0)) saturated at 255, in the image's own float
-type (scale of that type): what OpenCV's convertScaleAbs(max(img, 0), alpha=scale) gives
-(round half to even; float32 products stay float32) where it does not overflow'''
+img8); finite: no pixel is NaN or infinite; lo, hi: the smallest and largest pixel of a
+finite image (of +0 and -0, the first in row order); img8 (H,W) uint8 =
+rint(scale * max(img, 0)) saturated at 255, in the image's own float type (scale of that
+type): what OpenCV's convertScaleAbs(max(img, 0), alpha=scale) gives (round half to even;
+float32 products stay float32) where it does not overflow. The smallest and largest are
+taken on the floats' bits as ordered integers (a float min/max does not vectorise): 0.015
+s of CPU on a 5120x3840 float32 image against 0.038 for a float min/max (load 8, 2 cores)'''
     H, W = img.shape
     out = np.empty((H, W), np.uint8)
-    zero = np.zeros(1, img.dtype)[0]          # the image's float type, not float64
-    lo = img[0, 0]
-    hi = img[0, 0]
+    bits, low, exponent = _sortable_bits(img)
+    sign = bits.itemsize * 8 - 1
+    kmin = bits[0, 0] ^ ((bits[0, 0] >> sign) & low)
+    kmax = kmin
     finite = True
     for i in range(H):
-        for j in range(W):
-            x = img[i, j]
-            if not (x - x == zero):           # NaN or +-inf
-                finite = False
-            lo = min(lo, x)
-            hi = max(hi, x)
-            out[i, j] = np.uint8(min(np.rint(max(x, zero) * scale), 255.0))
+        kmin, kmax, nonfinite = _range_u8_row(img[i], bits[i], scale, out[i], kmin, kmax,
+                                              low, exponent)
+        finite &= not nonfinite
+    ext = np.empty(2, bits.dtype)
+    ext[0] = kmin ^ ((kmin >> sign) & low)
+    ext[1] = kmax ^ ((kmax >> sign) & low)
+    lohi = ext.view(img.dtype)
+    lo, hi = lohi[0], lohi[1]
+    zero = np.zeros(1, img.dtype)[0]
+    if lo == zero or hi == zero:
+        # +0 and -0 are one value, ordered apart as integers: the first zero in row order
+        first = zero
+        for i in range(H):
+            for j in range(W):
+                if img[i, j] == zero:
+                    first = img[i, j]
+                    break
+            else:
+                continue
+            break
+        lo = first if lo == zero else lo
+        hi = first if hi == zero else hi
     return finite, float(lo), float(hi), out
 
 

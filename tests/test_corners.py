@@ -285,3 +285,33 @@ def test_light_levels_are_the_weighted_least_squares():
     for m in (1, 7, 8, 127, 128, 129, 300, 1031, 5000):
         x = rng.standard_normal(m)
         assert _pairwise_sum(x, m) == pytest.approx(x.sum(), abs=1e-12 * np.abs(x).sum())
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_image_range_is_the_images_smallest_and_largest_pixel(dtype):
+    # the compiled pass takes min/max on the floats' bits as ordered integers: exact values
+    # (a comparison, no arithmetic), with numpy's min/max on finite images of either sign,
+    # of extreme magnitudes, and of signed zeros, where it keeps the first zero in row
+    # order (as a float comparison that only replaces on "<" does); a NaN or inf anywhere
+    # makes the image not finite
+    from targets._corner_kernels import image_range_u8
+    rng = np.random.default_rng(8)
+    for trial in range(60):
+        h, w = rng.integers(1, 30, 2)
+        img = rng.uniform(-0.3, 1.3, (h, w)) * 10.0 ** rng.integers(-30, 30)
+        if trial % 3 == 0:
+            img = -np.abs(img)
+        img = img.astype(dtype)
+        finite, lo, hi, _ = image_range_u8(img, dtype(255.0))
+        assert finite and (lo, hi) == (float(img.min()), float(img.max()))
+    for first, later in ((0.0, -0.0), (-0.0, 0.0)):
+        img = np.full((5, 7), dtype(-1.0))
+        img[1, 2], img[3, 4] = first, later
+        _, lo, hi, _ = image_range_u8(-img, dtype(255.0))   # zeros are the smallest
+        assert (lo, np.signbit(lo)) == (0.0, not np.signbit(first))
+        _, lo, hi, _ = image_range_u8(img, dtype(255.0))    # zeros are the largest
+        assert (hi, np.signbit(hi)) == (0.0, bool(np.signbit(first)))
+    for bad in (np.nan, -np.nan, np.inf, -np.inf):
+        img = rng.uniform(size=(6, 9)).astype(dtype)
+        img[4, 5] = bad
+        assert not image_range_u8(img, dtype(255.0))[0]
