@@ -22,7 +22,9 @@ kernel's expectation of the exact pixel area A; pixels far from every ray take A
 
 The same arithmetic as targets.corners.wedge_area / _ray_stretch (the numpy reference),
 one pixel at a time, in the same order of operations, so the two agree to rounding
-(tests/test_corners.py holds them within 1e-12 px on refined corners). The rays' cos/sin
+(tests/test_corners.py holds them within 1e-12 px on refined corners). A pixel that a ray
+misses by far (most of a window) skips that ray's clipping, whose result is then known
+exactly (_pixel_wedge). The rays' cos/sin
 stay in numpy (the caller passes uu) so that both paths start from identical directions.
 '''
 
@@ -118,42 +120,59 @@ def _ray_distance(dx, dy, ux, uy):
 
 # a ray farther than this (px) beyond a square's circumscribed circle misses the square by
 # far more than the rounding of the clipping arithmetic (1e-15 px): _area's clipping then
-# gives every edge of the square a fraction of exactly 0 or 1, and _stretch (0, 0)
+# gives every edge of the square a fraction of exactly 0 or 1, and _stretch (0, 0): what
+# _pixel_wedge returns there without clipping is what the clipping gives, bit for bit
 _MISS_MARGIN_PX = 1e-6
+# the least sin of a wedge's angle for which _pixel_wedge decides a far pixel's side
+# without clipping: a centre 0.7 px from both rays is then 7e-10 px or more from each
+# line it must be told from, against ~1e-15 px of rounding
+_MIN_WEDGE_SIN = 1e-9
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _pixel_wedge(dx, dy, u1x, u1y, u2x, u2y, half):
+    # (A, s0a, s1a, s0b, s1b): _area of the pixel centred at d (relative to the apex) and
+    # _stretch of both rays over its square widened to half. Where a ray is farther than a
+    # square's circumscribed circle (plus _MISS_MARGIN_PX) its clipping is known without
+    # computing it (most pixels of a window): _stretch gives (0, 0), and a square that
+    # both rays miss is wholly inside the wedge (its area: _square_area) or outside (0).
+    # The latter only while the rays turn by less than pi from u1 to u2 (sin above
+    # _MIN_WEDGE_SIN): the wedge is then the region between the rays (a fit whose rays
+    # crossed has the region between their backward extensions), and the centre's side of
+    # each ray's line is decided far above rounding
+    d1 = _ray_distance(dx, dy, u1x, u1y)
+    d2 = _ray_distance(dx, dy, u2x, u2y)
+    r_area = np.sqrt(2.0) * 0.5 + _MISS_MARGIN_PX
+    r_stretch = np.sqrt(2.0) * half + _MISS_MARGIN_PX
+    if d1 > r_area and d2 > r_area and u1x * u2y - u1y * u2x > _MIN_WEDGE_SIN:
+        # wholly inside the wedge when its centre is: cross(u1, d) >= 0, cross(d, u2) >= 0
+        if u1x * dy - u1y * dx >= 0.0 and dx * u2y - dy * u2x >= 0.0:
+            A = _square_area(dx, dy)
+        else:
+            A = 0.0
+    else:
+        A = _area(dx, dy, u1x, u1y, u2x, u2y)
+    s0a, s1a = _stretch(dx, dy, u1x, u1y, half) if d1 <= r_stretch else (0.0, 0.0)
+    s0b, s1b = _stretch(dx, dy, u2x, u2y, half) if d2 <= r_stretch else (0.0, 0.0)
+    return A, s0a, s1a, s0b, s1b
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _sharp_pixel(j, n, p, dx, dy, uu, first, second, half, D, dD_dc, dD_dt):
-    # wedge_model's sharp pixel (no blur offset, weight 1): where a ray is farther than the
-    # pixel's circumscribed circle (plus _MISS_MARGIN_PX) its clipping is known without
-    # computing it: _stretch gives (0, 0), and a square both rays of a wedge miss is wholly
-    # inside it (area _square_area) or outside (0). Adding the +-0 terms of a missed ray
-    # changes no sum, so they are left out where no ray of the wedge reaches the pixel.
-    r_area = np.sqrt(2.0) * 0.5 + _MISS_MARGIN_PX
-    r_stretch = np.sqrt(2.0) * half + _MISS_MARGIN_PX
+    # wedge_model's sharp pixel (no blur offset, weight 1: the same numbers as its general
+    # loop); a pixel that neither ray of a wedge crosses adds +-0 to every derivative,
+    # which changes no sum: left out
     for k in range(first.shape[1]):
         i1 = first[n, k]
         i2 = second[n, k]
         u1x, u1y = uu[j, i1, 0], uu[j, i1, 1]
         u2x, u2y = uu[j, i2, 0], uu[j, i2, 1]
-        d1 = _ray_distance(dx, dy, u1x, u1y)
-        d2 = _ray_distance(dx, dy, u2x, u2y)
-        if d1 > r_area and d2 > r_area:
-            # wholly inside the wedge when its centre is: cross(u1, d) >= 0, cross(d, u2) >= 0
-            if u1x * dy - u1y * dx >= 0.0 and dx * u2y - dy * u2x >= 0.0:
-                D[j, p] += _square_area(dx, dy)
-            else:
-                D[j, p] += 0.0
-        else:
-            D[j, p] += _area(dx, dy, u1x, u1y, u2x, u2y)
-        near1 = d1 <= r_stretch
-        near2 = d2 <= r_stretch
-        if not (near1 or near2):
-            continue
-        s0a, s1a = _stretch(dx, dy, u1x, u1y, half) if near1 else (0.0, 0.0)
-        s0b, s1b = _stretch(dx, dy, u2x, u2y, half) if near2 else (0.0, 0.0)
+        A, s0a, s1a, s0b, s1b = _pixel_wedge(dx, dy, u1x, u1y, u2x, u2y, half)
+        D[j, p] += A
         la = s1a - s0a
         lb = s1b - s0b
+        if la == 0.0 and lb == 0.0:
+            continue
         gx = -la * -u1y + lb * -u2y
         gy = -la * u1x + lb * u2x
         dD_dc[j, p, 0] += gx
@@ -233,10 +252,8 @@ def wedge_model(centres, s, c, uu, first, second, widen, Z, W, dZ, dW):
                     i2 = second[n, k]
                     u1x, u1y = uu[j, i1, 0], uu[j, i1, 1]
                     u2x, u2y = uu[j, i2, 0], uu[j, i2, 1]
-                    A = _area(dx, dy, u1x, u1y, u2x, u2y)
+                    A, s0a, s1a, s0b, s1b = _pixel_wedge(dx, dy, u1x, u1y, u2x, u2y, half)
                     D[j, p] += wq * A
-                    s0a, s1a = _stretch(dx, dy, u1x, u1y, half)
-                    s0b, s1b = _stretch(dx, dy, u2x, u2y, half)
                     la = s1a - s0a
                     lb = s1b - s0b
                     # -la perp(u1) + lb perp(u2), perp(u) = (-u_y, u_x)
