@@ -13,6 +13,7 @@ SYNOPSIS
     # (targets.corners.blur_kernel); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R), dD_ds (m,P)
     JtJ, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r)  # the fit's normal equations
     a, b, S, r = light_levels(s, D, w, v)   # light level, contrast, misfit, residuals
+    lm_accept(s, step, S1, c1, t1, g1, D1, ..., converged, px, wpx)  # accept/damp/converge
     inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, max_px, H, W)
     finite, lo, hi, img8 = image_range_u8(img, scale)   # targets.detection.working_image
 
@@ -545,7 +546,68 @@ s of CPU on a 5120x3840 float32 image against 0.038 for a float min/max (load 8,
     return finite, float(lo), float(hi), out
 
 
+@njit(cache=True, error_model="numpy")
+def lm_accept(s, step, S1, c1, t1, g1, D1, dD_dc1, dD_dt1, a1, b1, r1, c, theta, sig, D,
+              dD_dc, dD_dt, a, b, S, r, lam, prev, converged, converged_px, max_window_px):
+    r'''The end of one Levenberg-Marquardt iteration of targets.corners._fit, in place: for
+each corner n = s[j] whose trial (S1, c1, t1, g1, D1, ... of row j) lowers its misfit S[n],
+take the trial's geometry, model and light levels; damp the corner (lam) down after a
+step that lowered the misfit and was no zig-zag (a step back along the last accepted one,
+prev), else up; keep the accepted step in prev; mark it converged on a small accepted step
+(corner move < converged_px, ray turn x max_window_px < converged_px) or when its
+damping passed 1e6 with a small step. The numpy expressions it replaces, in their order
+of operations and numpy's summation order (_block_sum): the same bits.'''
+    m, K = step.shape
+    tmp = np.empty(K)
+    for j in range(m):
+        n = s[j]
+        better = S1[j] <= S[n]
+        # zig-zag: step . prev < -0.5 |step| |prev|, each sum in numpy's order
+        for k in range(K):
+            tmp[k] = step[j, k] * prev[n, k]
+        dot = _block_sum(tmp, 0, K)
+        for k in range(K):
+            tmp[k] = step[j, k] * step[j, k]
+        n1 = np.sqrt(_block_sum(tmp, 0, K))
+        for k in range(K):
+            tmp[k] = prev[n, k] * prev[n, k]
+        n2 = np.sqrt(_block_sum(tmp, 0, K))
+        zig = dot < -0.5 * n1 * n2
+        if better:
+            c[n, 0] = c1[j, 0]
+            c[n, 1] = c1[j, 1]
+            theta[n, :] = t1[j, :]
+            sig[n] = g1[j]
+            D[n, :] = D1[j, :]
+            dD_dc[n, :, :] = dD_dc1[j, :, :]
+            dD_dt[n, :, :] = dD_dt1[j, :, :]
+            a[n] = a1[j]
+            b[n] = b1[j]
+            S[n] = S1[j]
+            r[n, :] = r1[j, :]
+        if better and not zig:
+            lam[n] = max(lam[n] * 0.3, 1e-6)
+        else:
+            lam[n] = lam[n] * 10.0
+        if better:
+            prev[n, :] = step[j, :]
+        # the largest |move| and |turn|: NaN if any is NaN (numpy's max), failing both tests
+        x0 = abs(step[j, 2])
+        x1 = abs(step[j, 3])
+        dc = np.nan if (np.isnan(x0) or np.isnan(x1)) else max(x0, x1)
+        turn = -np.inf
+        for k in range(4, K):
+            x = abs(step[j, k])
+            if np.isnan(x) or np.isnan(turn):
+                turn = np.nan
+            else:
+                turn = max(turn, x)
+        small = (dc < converged_px) and (turn * max_window_px < converged_px)
+        converged[n] = (better and small) or ((lam[n] > 1e6) and (dc < converged_px))
+
+
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup)'''
-    return (wedge_model, normal_equations, window_mask, image_range_u8, light_levels)
+    return (wedge_model, normal_equations, window_mask, image_range_u8, light_levels,
+            lm_accept)

@@ -759,6 +759,15 @@ line through the corner when sigma > 0)'''
             else sig[s]
         D1, dD_dc1, dD_dt1 = model(s, c1, t1, g1)
         a1, b1, S1, r1 = linear(s, D1)
+        if kernel == "numba":
+            # the acceptance, damping and convergence of the numpy branch below, compiled:
+            # one call for its ~20 array operations per iteration (the same bits)
+            from ._corner_kernels import lm_accept
+            lm_accept(s, np.ascontiguousarray(step), S1, c1, np.ascontiguousarray(t1),
+                      np.ascontiguousarray(g1, dtype=np.float64), D1, dD_dc1, dD_dt1, a1, b1,
+                      r1, c, theta, sig, D, dD_dc, dD_dt, a, b, S, r, lam, prev, converged,
+                      float(converged_px), float(max_window_px))
+            continue
         better = S1 <= S[s]
         sb = s[better]
         c[sb], theta[sb], sig[sb] = c1[better], t1[better], g1[better]
