@@ -315,3 +315,51 @@ def test_image_range_is_the_images_smallest_and_largest_pixel(dtype):
         img = rng.uniform(size=(6, 9)).astype(dtype)
         img[4, 5] = bad
         assert not image_range_u8(img, dtype(255.0))[0]
+
+
+@pytest.mark.parametrize("K", [5, 6, 7, 8, 9])
+def test_compiled_iteration_end_is_the_numpy_one(K):
+    # lm_accept replaces the numpy acceptance / damping / convergence of one iteration of
+    # _fit: elementwise arithmetic and comparisons in the same order and sums in numpy's
+    # order (K < 8 one by one, 8 or more in 8 lanes), so the same state bit for bit, on
+    # accepted and rejected steps, zig-zags, huge dampings and a NaN step (a singular solve)
+    from targets._corner_kernels import lm_accept
+    rng = np.random.default_rng(K)
+    n, m, P, Rt = 40, 30, 17, K - 4
+    s = np.sort(rng.choice(n, m, replace=False))
+    step = rng.standard_normal((m, K)) * 10.0 ** rng.integers(-7, 0, (m, 1))
+    step[3] = np.nan
+    st = {"c": rng.standard_normal((n, 2)), "theta": rng.standard_normal((n, Rt)),
+          "sig": rng.uniform(size=n), "D": rng.uniform(size=(n, P)),
+          "dD_dc": rng.standard_normal((n, P, 2)), "dD_dt": rng.standard_normal((n, P, Rt)),
+          "a": rng.uniform(size=n), "b": rng.uniform(size=n), "S": rng.uniform(size=n),
+          "r": rng.standard_normal((n, P)), "lam": 10.0 ** rng.uniform(-7, 7, n),
+          "prev": rng.standard_normal((n, K)) * 1e-4, "converged": np.zeros(n, bool)}
+    st["prev"][s[:5]] = -step[:5]                      # zig-zags
+    trial = {"S": st["S"][s] * rng.uniform(0.5, 1.5, m), "c": rng.standard_normal((m, 2)),
+             "theta": rng.standard_normal((m, Rt)), "sig": rng.uniform(size=m),
+             "D": rng.uniform(size=(m, P)), "dD_dc": rng.standard_normal((m, P, 2)),
+             "dD_dt": rng.standard_normal((m, P, Rt)), "a": rng.uniform(size=m),
+             "b": rng.uniform(size=m), "r": rng.standard_normal((m, P))}
+    px, wpx = 1e-4, 8.0
+    want = {k: v.copy() for k, v in st.items()}
+    better = trial["S"] <= want["S"][s]
+    sb = s[better]
+    for k in ("c", "theta", "sig", "D", "dD_dc", "dD_dt", "a", "b", "S", "r"):
+        want[k][sb] = trial[k][better]
+    zig = (step * want["prev"][s]).sum(-1) < -0.5 * np.linalg.norm(step, axis=-1) \
+        * np.linalg.norm(want["prev"][s], axis=-1)
+    lam = want["lam"]
+    lam[s] = np.where(better & ~zig, np.maximum(lam[s] * 0.3, 1e-6), lam[s] * 10.0)
+    want["prev"][sb] = step[better]
+    dc = np.abs(step[:, 2:4]).max(-1)
+    small = (dc < px) & (np.abs(step[:, 4:]).max(-1) * wpx < px)
+    want["converged"][s] = (better & small) | ((lam[s] > 1e6) & (dc < px))
+    got = {k: v.copy() for k, v in st.items()}
+    lm_accept(s, step, trial["S"], trial["c"], trial["theta"], trial["sig"], trial["D"],
+              trial["dD_dc"], trial["dD_dt"], trial["a"], trial["b"], trial["r"], got["c"],
+              got["theta"], got["sig"], got["D"], got["dD_dc"], got["dD_dt"], got["a"],
+              got["b"], got["S"], got["r"], got["lam"], got["prev"], got["converged"], px, wpx)
+    assert better.any() and (~better).any() and zig.any() and want["converged"].any()
+    for k in want:
+        assert np.array_equal(got[k], want[k], equal_nan=True), k
