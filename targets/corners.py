@@ -76,6 +76,13 @@ with working_image's one compiled pass, the light levels compiled and the normal
 equations skipping the pixels no ray crosses (corners unchanged bit for bit) 0.045 s on
 640x480, 0.059-0.070 s on 1024x1024, 0.14 s on 5120x3840 against 0.057, 0.067-0.077 and
 0.16 s before (the least CPU of 12 detections of one image each, load 2.5);
+with the compiled model skipping the clipping of pixels no ray comes near, each iteration's
+end compiled (lm_accept), the AprilTag library reading the image in place and
+working_image's min/max taken on integers (corners, drops and blur estimates unchanged bit
+for bit) 0.040 s on 640x480, 0.054 s on 1024x1024, 0.094 s on 5120x3840 against 0.048,
+0.076 and 0.133 s before (CPU, median over 6 images, benchmarks/bench_corners.py
+--coverage area --cameras 9,17,21, load 3.8; the least of 3 per image: 0.036, 0.045-0.049,
+0.094-0.10 against 0.050, 0.058-0.063, 0.135-0.145 s, load 5-8);
 chessboard 0.045 s on 1024x1024 (this
 fit 0.037 s of it), 0.043 s on 640x480, 0.19 s on 5120x3840.
 
@@ -759,6 +766,15 @@ line through the corner when sigma > 0)'''
             else sig[s]
         D1, dD_dc1, dD_dt1 = model(s, c1, t1, g1)
         a1, b1, S1, r1 = linear(s, D1)
+        if kernel == "numba":
+            # the acceptance, damping and convergence of the numpy branch below, compiled:
+            # one call for its ~20 array operations per iteration (the same bits)
+            from ._corner_kernels import lm_accept
+            lm_accept(s, np.ascontiguousarray(step), S1, c1, np.ascontiguousarray(t1),
+                      np.ascontiguousarray(g1, dtype=np.float64), D1, dD_dc1, dD_dt1, a1, b1,
+                      r1, c, theta, sig, D, dD_dc, dD_dt, a, b, S, r, lam, prev, converged,
+                      float(converged_px), float(max_window_px))
+            continue
         better = S1 <= S[s]
         sb = s[better]
         c[sb], theta[sb], sig[sb] = c1[better], t1[better], g1[better]

@@ -49,6 +49,7 @@ render) the corner errors went from 1.47 px max / 0.54 px RMS to 0.44 / 0.20.
 '''
 
 import functools
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -100,14 +101,56 @@ this bug.'''
 @functools.cache
 def _detector_class():
     r'''pupil_apriltags' Detector, freed in the right order (see _destroy)'''
+    import ctypes
+
     from pupil_apriltags import Detector
+    from pupil_apriltags.bindings import _ApriltagDetection, _ImageU8, _ZArray, zarray_get
 
     class OrderedDetector(Detector):
         # bound now: at interpreter shutdown this module's globals may be gone already
         def __del__(self, _destroy=_destroy):
             _destroy(self)
 
+        def detect(self, img):
+            r'''[Tag]: pupil_apriltags' Detector.detect without its copy of the image
+
+The library's detect copies the uint8 image into a buffer of its own (image_u8_create:
+a zeroed allocation, rows padded to 96 bytes), 0.011 s of CPU per 5120x3840 image of the
+0.05 its search takes (load 9-13, 2 cores); the AprilTag library reads its input image
+through the image's stride and never writes it, so it is handed the array's own rows
+(the tags and corners are the same bit for bit, benchmarks/bench_corners.py
+--compare-q). Only what detect_apriltags uses is kept of each detection.'''
+            img = np.ascontiguousarray(img, dtype=np.uint8)
+            if img.ndim != 2:
+                raise ValueError(f"detect() needs a (H,W) uint8 image; got shape {img.shape}")
+            c_img = _ImageU8(width=img.shape[1], height=img.shape[0], stride=img.shape[1],
+                             buf=img.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)))
+            lib = self.libc
+            lib.apriltag_detector_detect.restype = ctypes.POINTER(_ZArray)
+            found = lib.apriltag_detector_detect(self.tag_detector_ptr, ctypes.byref(c_img))
+            tags = []
+            try:
+                det = ctypes.POINTER(_ApriltagDetection)()
+                for i in range(found.contents.size):
+                    zarray_get(found, i, ctypes.byref(det))
+                    d = det.contents
+                    tags.append(Tag(d.id, d.hamming,
+                                    np.ctypeslib.as_array(d.p, shape=(4, 2)).copy()))
+            finally:
+                lib.apriltag_detections_destroy.restype = None
+                lib.apriltag_detections_destroy(found)
+            return tags
+
     return OrderedDetector
+
+
+@dataclass(frozen=True, eq=False)
+class Tag:
+    r'''One decoded tag: its id, the bits corrected, its 4 corners (4,2) in the AprilTag
+library's pixel convention (APRILTAG_PIXEL_OFFSET) and order'''
+    tag_id: int
+    hamming: int
+    corners: np.ndarray
 
 
 # the quad search runs on an image decimated by an integer while its smaller side stays at

@@ -67,3 +67,29 @@ def test_cached_detector_is_the_ordered_one_and_detects():
     assert isinstance(det, _detector_class())
     # a blank image decodes no tag (a detector whose C side were freed would crash here)
     assert det.detect(np.full((64, 64), 128, np.uint8)) == []
+
+
+def test_detect_reads_the_callers_image_as_pupil_apriltags_does():
+    # the ordered detector hands the AprilTag library the caller's own rows (stride = width,
+    # no copy); the library's own detect copies them into rows padded to 96 bytes. Both
+    # run the same C search on the same pixel values, so the tags and corners are the same
+    # (an odd width included). A second pupil_apriltags Detector is not made here: its own
+    # teardown corrupts the heap
+    from pupil_apriltags import Detector
+    from targets_render import pinhole, render
+
+    from targets.boards import load_target
+    t = load_target("apriltag")
+    r, a = np.radians(-23.0), np.radians(20.0)
+    Rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    img = render(pinhole(640, 640, 600.0), t.pattern(), np.vstack((Rz @ Rx, [-0.5, -0.45, 1.6])),
+                 K=4)
+    img8 = np.round(255 * np.clip(img, 0, 1)).astype(np.uint8)
+    det = _detector(1.0, 0.0, 1, 0.25)
+    for im in (img8, img8[:, :333]):
+        # pupil_apriltags' own detect, on the same (ordered: see above) detector
+        got, want = det.detect(im), Detector.detect(det, np.ascontiguousarray(im))
+        assert len(want) >= 4
+        assert [(g.tag_id, g.hamming) for g in got] == [(w.tag_id, w.hamming) for w in want]
+        assert all(np.array_equal(g.corners, w.corners) for g, w in zip(got, want, strict=True))

@@ -285,3 +285,81 @@ def test_light_levels_are_the_weighted_least_squares():
     for m in (1, 7, 8, 127, 128, 129, 300, 1031, 5000):
         x = rng.standard_normal(m)
         assert _pairwise_sum(x, m) == pytest.approx(x.sum(), abs=1e-12 * np.abs(x).sum())
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_image_range_is_the_images_smallest_and_largest_pixel(dtype):
+    # the compiled pass takes min/max on the floats' bits as ordered integers: exact values
+    # (a comparison, no arithmetic), with numpy's min/max on finite images of either sign,
+    # of extreme magnitudes, and of signed zeros, where it keeps the first zero in row
+    # order (as a float comparison that only replaces on "<" does); a NaN or inf anywhere
+    # makes the image not finite
+    from targets._corner_kernels import image_range_u8
+    rng = np.random.default_rng(8)
+    for trial in range(60):
+        h, w = rng.integers(1, 30, 2)
+        img = rng.uniform(-0.3, 1.3, (h, w)) * 10.0 ** rng.integers(-30, 30)
+        if trial % 3 == 0:
+            img = -np.abs(img)
+        img = img.astype(dtype)
+        finite, lo, hi, _ = image_range_u8(img, dtype(255.0))
+        assert finite and (lo, hi) == (float(img.min()), float(img.max()))
+    for first, later in ((0.0, -0.0), (-0.0, 0.0)):
+        img = np.full((5, 7), dtype(-1.0))
+        img[1, 2], img[3, 4] = first, later
+        _, lo, hi, _ = image_range_u8(-img, dtype(255.0))   # zeros are the smallest
+        assert (lo, np.signbit(lo)) == (0.0, not np.signbit(first))
+        _, lo, hi, _ = image_range_u8(img, dtype(255.0))    # zeros are the largest
+        assert (hi, np.signbit(hi)) == (0.0, bool(np.signbit(first)))
+    for bad in (np.nan, -np.nan, np.inf, -np.inf):
+        img = rng.uniform(size=(6, 9)).astype(dtype)
+        img[4, 5] = bad
+        assert not image_range_u8(img, dtype(255.0))[0]
+
+
+@pytest.mark.parametrize("K", [5, 6, 7, 8, 9])
+def test_compiled_iteration_end_is_the_numpy_one(K):
+    # lm_accept replaces the numpy acceptance / damping / convergence of one iteration of
+    # _fit: elementwise arithmetic and comparisons in the same order and sums in numpy's
+    # order (K < 8 one by one, 8 or more in 8 lanes), so the same state bit for bit, on
+    # accepted and rejected steps, zig-zags, huge dampings and a NaN step (a singular solve)
+    from targets._corner_kernels import lm_accept
+    rng = np.random.default_rng(K)
+    n, m, P, Rt = 40, 30, 17, K - 4
+    s = np.sort(rng.choice(n, m, replace=False))
+    step = rng.standard_normal((m, K)) * 10.0 ** rng.integers(-7, 0, (m, 1))
+    step[3] = np.nan
+    st = {"c": rng.standard_normal((n, 2)), "theta": rng.standard_normal((n, Rt)),
+          "sig": rng.uniform(size=n), "D": rng.uniform(size=(n, P)),
+          "dD_dc": rng.standard_normal((n, P, 2)), "dD_dt": rng.standard_normal((n, P, Rt)),
+          "a": rng.uniform(size=n), "b": rng.uniform(size=n), "S": rng.uniform(size=n),
+          "r": rng.standard_normal((n, P)), "lam": 10.0 ** rng.uniform(-7, 7, n),
+          "prev": rng.standard_normal((n, K)) * 1e-4, "converged": np.zeros(n, bool)}
+    st["prev"][s[:5]] = -step[:5]                      # zig-zags
+    trial = {"S": st["S"][s] * rng.uniform(0.5, 1.5, m), "c": rng.standard_normal((m, 2)),
+             "theta": rng.standard_normal((m, Rt)), "sig": rng.uniform(size=m),
+             "D": rng.uniform(size=(m, P)), "dD_dc": rng.standard_normal((m, P, 2)),
+             "dD_dt": rng.standard_normal((m, P, Rt)), "a": rng.uniform(size=m),
+             "b": rng.uniform(size=m), "r": rng.standard_normal((m, P))}
+    px, wpx = 1e-4, 8.0
+    want = {k: v.copy() for k, v in st.items()}
+    better = trial["S"] <= want["S"][s]
+    sb = s[better]
+    for k in ("c", "theta", "sig", "D", "dD_dc", "dD_dt", "a", "b", "S", "r"):
+        want[k][sb] = trial[k][better]
+    zig = (step * want["prev"][s]).sum(-1) < -0.5 * np.linalg.norm(step, axis=-1) \
+        * np.linalg.norm(want["prev"][s], axis=-1)
+    lam = want["lam"]
+    lam[s] = np.where(better & ~zig, np.maximum(lam[s] * 0.3, 1e-6), lam[s] * 10.0)
+    want["prev"][sb] = step[better]
+    dc = np.abs(step[:, 2:4]).max(-1)
+    small = (dc < px) & (np.abs(step[:, 4:]).max(-1) * wpx < px)
+    want["converged"][s] = (better & small) | ((lam[s] > 1e6) & (dc < px))
+    got = {k: v.copy() for k, v in st.items()}
+    lm_accept(s, step, trial["S"], trial["c"], trial["theta"], trial["sig"], trial["D"],
+              trial["dD_dc"], trial["dD_dt"], trial["a"], trial["b"], trial["r"], got["c"],
+              got["theta"], got["sig"], got["D"], got["dD_dc"], got["dD_dt"], got["a"],
+              got["b"], got["S"], got["r"], got["lam"], got["prev"], got["converged"], px, wpx)
+    assert better.any() and (~better).any() and zig.any() and want["converged"].any()
+    for k in want:
+        assert np.array_equal(got[k], want[k], equal_nan=True), k
