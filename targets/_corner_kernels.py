@@ -610,4 +610,41 @@ def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup)'''
     return (wedge_model, normal_equations, window_mask, image_range_u8, light_levels,
-            lm_accept)
+            lm_accept, curvature_terms)
+
+
+@njit(cache=True, error_model="numpy")
+def curvature_terms(d, uu, first, second, kk):
+    r'''corners.curvature_bias's pixel terms: D (n,P), dD_dc (n,P,2), dD_dt (n,P,R) (the
+sharp wedge model, wedge_area with derivatives, widen 0) and dv (n,P), the dark area that
+edges bent by kk (n,R) add to each pixel: k (s1^3 - s0^3) / 6 over each ray's stretch
+[s0, s1]; d (n,P,2) pixel centres - apex, uu (n,R,2) unit rays, first, second (n,Nw)'''
+    n, P = d.shape[0], d.shape[1]
+    R = uu.shape[1]
+    Nw = first.shape[1]
+    D = np.zeros((n, P))
+    dD_dc = np.zeros((n, P, 2))
+    dD_dt = np.zeros((n, P, R))
+    dv = np.zeros((n, P))
+    for j in range(n):
+        for p in range(P):
+            dx = d[j, p, 0]
+            dy = d[j, p, 1]
+            for k in range(Nw):
+                i1 = first[j, k]
+                i2 = second[j, k]
+                u1x, u1y = uu[j, i1, 0], uu[j, i1, 1]
+                u2x, u2y = uu[j, i2, 0], uu[j, i2, 1]
+                D[j, p] += _area(dx, dy, u1x, u1y, u2x, u2y)
+                s0a, s1a = _stretch(dx, dy, u1x, u1y, 0.5)
+                s0b, s1b = _stretch(dx, dy, u2x, u2y, 0.5)
+                la = s1a - s0a
+                lb = s1b - s0b
+                dD_dc[j, p, 0] += -la * -u1y + lb * -u2y
+                dD_dc[j, p, 1] += -la * u1x + lb * u2x
+                dD_dt[j, p, i1] += -0.5 * (s1a ** 2 - s0a ** 2)
+                dD_dt[j, p, i2] += 0.5 * (s1b ** 2 - s0b ** 2)
+                # a ray bent outwards adds dark area: outward normal -perp(u1), +perp(u2)
+                dv[j, p] += -1.0 * kk[j, i1] * (s1a ** 3 - s0a ** 3) / 6.0
+                dv[j, p] += 1.0 * kk[j, i2] * (s1b ** 3 - s0b ** 3) / 6.0
+    return D, dD_dc, dD_dt, dv

@@ -1012,27 +1012,16 @@ the neglected terms are k^2 w^3 (1e-6 px for k = 1e-3/px, w = 8 px).
     n, R = k[idx].shape
     wedges = np.asarray(wedges, dtype=np.int64).reshape(-1, 2)
     u = t[idx]
-    D = np.zeros(d.shape[:-1])
-    dD_dc = np.zeros(d.shape)
-    dD_dt = np.zeros(d.shape[:-1] + (R,))
-    dv = np.zeros(d.shape[:-1])
-    rows = np.arange(n)
-    for i, j in wedges:
+    # each wedge's rays counter-clockwise (first, second), as wedge_area takes them
+    first = np.empty((n, len(wedges)), dtype=np.int64)
+    second = np.empty((n, len(wedges)), dtype=np.int64)
+    for iw, (i, j) in enumerate(wedges):
         flip = _cross(u[:, i], u[:, j]) < 0
-        i1 = np.where(flip, j, i)
-        i2 = np.where(flip, i, j)
-        u1 = np.broadcast_to(u[rows, i1][:, None, :], d.shape)
-        u2 = np.broadcast_to(u[rows, i2][:, None, :], d.shape)
-        A, dA_dc, dA_dt1, dA_dt2 = wedge_area(d, u1, u2, True)
-        D += A
-        dD_dc += dA_dc
-        dD_dt += (dA_dt1[..., None] * (np.arange(R) == i1[:, None])[:, None, :]
-                  + dA_dt2[..., None] * (np.arange(R) == i2[:, None])[:, None, :])
-        # a ray bent towards the outside of the dark wedge adds dark area: the outward
-        # normal is -perp(u1) on the first ray and +perp(u2) on the second
-        for uu, ii, sign in ((u1, i1, -1.0), (u2, i2, 1.0)):
-            s0, s1 = _ray_stretch(d, uu)
-            dv += sign * k[idx][rows, ii][:, None] * (s1 ** 3 - s0 ** 3) / 6.0
+        first[:, iw] = np.where(flip, j, i)
+        second[:, iw] = np.where(flip, i, j)
+    from ._corner_kernels import curvature_terms
+    D, dD_dc, dD_dt, dv = curvature_terms(np.ascontiguousarray(d), np.ascontiguousarray(u),
+                                          first, second, np.ascontiguousarray(k[idx]))
     J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], dD_dc, dD_dt), axis=-1)
     Jw = J * w[..., None]
     JtJ = Jw.transpose(0, 2, 1) @ J + 1e-12 * np.eye(J.shape[-1])
