@@ -16,9 +16,9 @@ disjoint sets, compiled at the same time in two processes: the render set
 (the renderer's kernels, the camera response, the detector's: one real image of
 each job kind rendered, responded and detected) and the fit set (the pose
 planner's and the calibrators' kernels: each numba calibrator fitted once on the
-exact observations of the job's poses). The render set is most of the time
-(~48 of ~60 CPU s on this machine kind, nearly all of it the ray caster's
-render_kernel), so two cores take ~48 s where one took ~60.
+exact observations of the job's poses, and the corner targets' bias step). The
+render set is most of the time (~48 of ~60 CPU s on this machine kind, nearly all of it
+the ray caster's render_kernel), so two cores take ~48 s where one took ~60.
 
 Two processes may write numba's cache at once: each index file is written by
 rename (atomic), and two writers of one kernel with the same signature write
@@ -46,6 +46,9 @@ NUMBA_DETECTORS = {"dots": "targets._dot_kernels", "apriltag": "targets._corner_
 # calibrators whose fit calls numba kernels -> their module
 NUMBA_CALIBRATORS = {"jpl": "harness.calibrators._jpl_kernels",
                      "opencv": "harness.calibrators.opencv_fit"}
+# target kinds whose points the calibrators' bias step corrects with numba kernels (the
+# corner windows' curvature bias, harness.calibrators.bias.corner_bias) -> their module
+BIAS_KERNELS = {"apriltag": "targets._corner_kernels", "chessboard": "targets._corner_kernels"}
 # every module with @njit(cache=True) kernels that call reference_models.kernels: numba
 # checks a cached kernel against its own source file only (reference_models.kernels.
 # drop_stale_caches says why), so a warm-up drops their stale caches first
@@ -173,7 +176,9 @@ needed) -> (done, failed)'''
     done, failed, seen = [], {}, set()
     for job in jobs:
         todo = [c for c in _numba_calibrators(job) if (c[0], job.family) not in seen]
-        if not todo:
+        bias = _bias_kind(job)
+        bias = bias if bias and ("bias", bias) not in seen else None
+        if not todo and not bias:
             continue
         try:
             _, truth = camera_stage(job)
@@ -196,7 +201,22 @@ needed) -> (done, failed)'''
                 failed[(cal, job.family)] = []
             elif res.status == "failed":
                 failed.setdefault((cal, job.family), []).append(f"{job.key}/{cal}: {res.reason}")
+        if bias:
+            from .calibrators.bias import corner_bias
+            try:
+                corner_bias(truth, target, poses[0], target.points())
+                seen.add(("bias", bias))
+                done.append(f"bias/{bias}")
+            except Exception as e:
+                failed.setdefault(("bias", bias), []).append(f"{job.key}: {failure_reason(e)}")
     return done, [f for fs in failed.values() for f in fs]
+
+
+def _bias_kind(job):
+    r'''The job's target kind when a calibrator of the job corrects its points with numba
+kernels (BIAS_KERNELS), else None'''
+    kind = _kind(job.target)
+    return kind if job.calibrators and kind in BIAS_KERNELS else None
 
 
 def _timed(fn, jobs):
@@ -238,7 +258,8 @@ The render set (per renderer, model family and target of the jobs, and per
 renderer and target the largest image: one image of the job's own settings and
 first pose rendered, put through the job's camera response and detected) and
 the fit set (per numba calibrator and family: the job's poses planned and the
-calibrator fitted to their exact observations) run in two processes at once
+calibrator fitted to their exact observations; per corner target kind a calibrator
+corrects, its bias step once: BIAS_KERNELS) run in two processes at once
 (workers=1: one after the other, in this process). numba writes what it compiles
 to its cache directory, so worker processes started afterwards load the kernels
 instead of each compiling them (after a kernel change that is minutes per worker on a loaded
@@ -262,7 +283,10 @@ fails later, in its own record.
     if not _modules_cached(detectors):   # the render set runs the detectors
         cached = [c for c in cached if c not in renderers]
     render_jobs = [j for j in jobs if j.renderer in renderers and j.renderer not in cached]
-    fit_jobs = [j for j in jobs if any(c[0] not in cached for c in _numba_calibrators(j))]
+    bias = sorted({BIAS_KERNELS[k] for k in map(_bias_kind, jobs) if k})
+    bias_cached = not force and _modules_cached(bias)
+    fit_jobs = [j for j in jobs if any(c[0] not in cached for c in _numba_calibrators(j))
+                or (_bias_kind(j) and not bias_cached)]
     parts = [(fn, js) for fn, js in ((_warm_renders, render_jobs), (_warm_fits, fit_jobs))
              if js]
     out = {_warm_renders: [], _warm_fits: []}
