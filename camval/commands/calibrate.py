@@ -140,11 +140,10 @@ DEFAULT_MODEL = {"opencv": "OPENCV5", "colmap": "OPENCV"}
 def run(args):
     import json
 
-    import numpy as np
-
     from harness.calibrators import calibrate, calibrator_module, models_of
-    from harness.calibrators.base import Observations, jsonable
+    from harness.calibrators.base import jsonable
     from harness.compare import compare
+    from harness.stages import observations_from
     from reference_models.errors import CamvalError
     from targets.detect import detect
 
@@ -162,22 +161,18 @@ def run(args):
     if out.exists() and any(out.iterdir()) and not args.force:
         raise CamvalError(f"'{out}' exists and is not empty; use --force to overwrite")
 
-    qs, Rts, detections, models = [], [], [], []
+    Rts, dets, detections = [], [], []
     for (png, _), (side, js) in zip(pairs, sides, strict=True):
         Rts.append(_Rt_from_sidecar(side, js))
         det = detect(_load_image(png), target)
         detections.append({"image": png.name, "status": det.status, "reason": det.reason,
                            "n_found": int(det.n_found), "n_expected": int(det.n_expected),
                            "corner_models": _corner_model_counts(det)})
-        qs.append(det.q)
-        models.append(det.corner_model)
-    # which model made each corner decides the bias step's correction (issue 16: the window
-    # model's corner_bias applies to window corners only, not to blurred tags' edge corners)
-    obs = Observations.from_camera_poses(
-        np.array(qs), np.asarray(target.points(), dtype=np.float64),
-        (truth.width, truth.height), Rts, truth.Rt_ref_cam(),
-        point_ids=np.asarray(target.point_ids()),
-        corner_model=None if any(m is None for m in models) else np.stack(models))
+        dets.append(det)
+    # the campaign's observations: the survey in the world frame and each corner's model,
+    # which decides the bias step's correction (issue 16: the window model's corner_bias
+    # applies to window corners only, not to blurred tags' edge corners)
+    obs = observations_from(truth, target, Rts, dets)
     options = {"bias_correction": not args.no_bias_correction}
     if args.known_poses:
         options["known_poses"] = True
