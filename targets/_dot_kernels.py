@@ -385,6 +385,114 @@ matrix has small integer entries: its determinant is exact here, numpy's by LU).
 
 
 @njit(cache=True, error_model="numpy")
+def _slot(keys, key):
+    # the slot of key in the open-addressed table keys (-1: empty), linear probing
+    mask = len(keys) - 1
+    i = key & mask
+    while keys[i] != -1 and keys[i] != key:
+        i = (i + 1) & mask
+    return i
+
+
+@njit(cache=True, error_model="numpy")
+def grow_lattice(c, area, seed, u, v, max_nodes, tolerance, ratio_max):
+    r"""detect_dots._grow's breadth-first walk from blob `seed`, compiled: the lattice
+offsets (ka, kb) and blob indices idx of its nodes in the order the walk adds them,
+and their count n (-1: the walk passed max_nodes nodes)
+
+u, v: (2,) the seed's lattice steps. Each node's four neighbours are predicted (the
+parallelogram of a neighbouring row or column, else the step back, else the node's
+steps) and taken when the blob nearest the prediction (brute force: the nearest of
+all, the first of equals) lies within tolerance x the step and not yet in the
+lattice, and its area is within ratio_max of the node's either way. The arithmetic
+and the order are _grow's own, so the lattice is the one a k-d tree's nearest
+neighbours give (they differ only where two blobs are equally near a prediction)."""
+    N = len(c)
+    M = max_nodes + 2                    # |a|, |b| <= nodes so far
+    size = 1
+    while size < 4 * M:
+        size *= 2
+    hkeys = np.full(size, -1, np.int64)
+    hvals = np.empty(size, np.int64)
+    width = 2 * M + 1
+    ka = np.empty(M, np.int64)
+    kb = np.empty(M, np.int64)
+    idx = np.empty(M, np.int64)
+    lu = np.empty((M, 2))
+    lv = np.empty((M, 2))
+    taken = np.zeros(N, np.bool_)
+    ka[0], kb[0], idx[0] = 0, 0, seed
+    lu[0, 0], lu[0, 1], lv[0, 0], lv[0, 1] = u[0], u[1], v[0], v[1]
+    taken[seed] = True
+    i = _slot(hkeys, M * width + M)
+    hkeys[i], hvals[i] = M * width + M, 0
+    n = 1
+    head = 0
+    pred = np.empty(2)
+    while head < n:
+        a, b = ka[head], kb[head]
+        j0 = idx[head]
+        p0, p1 = c[j0, 0], c[j0, 1]
+        for d in range(4):
+            da = 1 if d == 0 else (-1 if d == 1 else 0)
+            db = 0 if d < 2 else (1 if d == 2 else -1)
+            t = _slot(hkeys, (a + da + M) * width + (b + db + M))
+            if hkeys[t] != -1:
+                continue                 # already a node
+            have = False
+            for s in range(2):
+                sa = 0 if da != 0 else (1 if s == 0 else -1)
+                sb = (1 if s == 0 else -1) if da != 0 else 0
+                s1 = _slot(hkeys, (a + sa + M) * width + (b + sb + M))
+                s2 = _slot(hkeys, (a + da + sa + M) * width + (b + db + sb + M))
+                if hkeys[s1] != -1 and hkeys[s2] != -1:
+                    q1 = idx[hvals[s1]]
+                    q2 = idx[hvals[s2]]
+                    pred[0] = p0 + (c[q2, 0] - c[q1, 0])
+                    pred[1] = p1 + (c[q2, 1] - c[q1, 1])
+                    have = True
+                    break
+            if not have:
+                sbk = _slot(hkeys, (a - da + M) * width + (b - db + M))
+                if hkeys[sbk] != -1:
+                    jb = idx[hvals[sbk]]
+                    pred[0] = p0 + (p0 - c[jb, 0])
+                    pred[1] = p1 + (p1 - c[jb, 1])
+                else:
+                    pred[0] = p0 + (da * lu[head, 0] + db * lv[head, 0])
+                    pred[1] = p1 + (da * lu[head, 1] + db * lv[head, 1])
+            e0, e1 = pred[0] - p0, pred[1] - p1
+            step_len = math.sqrt(e0 * e0 + e1 * e1)
+            best, jn = np.inf, -1
+            for k in range(N):
+                x0, x1 = c[k, 0] - pred[0], c[k, 1] - pred[1]
+                dd = x0 * x0 + x1 * x1
+                if dd < best:
+                    best, jn = dd, k
+            if not (math.sqrt(best) < tolerance * step_len) or taken[jn]:
+                continue
+            r = area[jn] / area[j0]
+            if not (1.0 / ratio_max < r < ratio_max):
+                continue
+            if n == M:
+                return ka, kb, idx, -1
+            ka[n], kb[n], idx[n] = a + da, b + db, jn
+            hkeys[t], hvals[t] = (a + da + M) * width + (b + db + M), n
+            taken[jn] = True
+            if da != 0:
+                lu[n, 0], lu[n, 1] = (c[jn, 0] - p0) * da, (c[jn, 1] - p1) * da
+                lv[n, 0], lv[n, 1] = lv[head, 0], lv[head, 1]
+            else:
+                lu[n, 0], lu[n, 1] = lu[head, 0], lu[head, 1]
+                lv[n, 0], lv[n, 1] = (c[jn, 0] - p0) * db, (c[jn, 1] - p1) * db
+            n += 1
+            if n > max_nodes:
+                return ka, kb, idx, -1
+        head += 1
+    return ka[:n], kb[:n], idx[:n], n
+
+
+@njit(cache=True, error_model="numpy")
 def histogram_counts(v, edges, lo, scale):
     r'''The counts of detect_dots._histogram (np.histogram's) in one pass over v: each
 value's bin estimated as min((v - lo) scale, bins - 1) in v's precision (lo and scale
@@ -545,4 +653,4 @@ warm-up's check of numba's cache (harness.warmup). Not dilations(): the detector
 longer calls it (dot_centroid's prefix pass does the dilations); it stays as the tests'
 statement of the dilations cv2.dilate gives, and a kernel listed here that no job calls
 would never be cached, so every warm-up would render again.'''
-    return (dot_centroid, mark_flags, histogram_counts, label_boxes)
+    return (dot_centroid, mark_flags, histogram_counts, label_boxes, grow_lattice)

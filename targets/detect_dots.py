@@ -44,7 +44,6 @@ targets.centroids.expected_centroids() gives it exactly.
 '''
 
 import math
-from collections import deque
 
 import numpy as np
 
@@ -332,48 +331,14 @@ def _grow(c, area, seed, tree, max_extent):
     if v is None:
         # a single row of dots: any perpendicular will do for the second axis
         v = np.array([-u[1], u[0]])
-    nodes = {(0, 0): seed}
-    where = {seed: (0, 0)}
-    local = {(0, 0): (u, v)}
-    queue = deque([(0, 0)])
-    while queue:
-        a, b = queue.popleft()
-        p = c[nodes[(a, b)]]
-        u, v = local[(a, b)]
-
-        def at(ab):
-            j = nodes.get(ab)
-            return None if j is None else c[j]
-
-        for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-            target = (a + da, b + db)
-            if target in nodes:
-                continue
-            # parallelogram prediction from a neighbouring row/column if we have one
-            pred = None
-            for sa, sb in (((0, 1), (0, -1)) if da else ((1, 0), (-1, 0))):
-                q1, q2 = at((a + sa, b + sb)), at((a + da + sa, b + db + sb))
-                if q1 is not None and q2 is not None:
-                    pred = p + (q2 - q1)
-                    break
-            if pred is None:
-                back = at((a - da, b - db))
-                step = (p - back) if back is not None else (da * u + db * v)
-                pred = p + step
-            step_len = np.linalg.norm(pred - p)
-            d, j = tree.query(pred)
-            if not (d < NEIGHBOUR_TOLERANCE * step_len) or j in where:
-                continue
-            if not 1 / AREA_RATIO_MAX < area[j] / area[nodes[(a, b)]] < AREA_RATIO_MAX:
-                continue
-            nodes[target] = j
-            where[j] = target
-            delta = c[j] - p
-            local[target] = (delta * da, v) if da else (u, delta * db)
-            queue.append(target)
-            if len(nodes) > max_extent ** 2 + 4 * max_extent:
-                return None
-    return nodes
+    # the walk itself: _kernels.grow_lattice (one compiled call; its doc says how)
+    ka, kb, idx, n = _kernels.grow_lattice(
+        np.ascontiguousarray(c, np.float64), np.ascontiguousarray(area, np.float64),
+        int(seed), np.asarray(u, np.float64), np.asarray(v, np.float64),
+        max_extent ** 2 + 4 * max_extent, NEIGHBOUR_TOLERANCE, AREA_RATIO_MAX)
+    if n < 0:
+        return None
+    return dict(zip(zip(ka.tolist(), kb.tolist(), strict=True), idx.tolist(), strict=True))
 
 
 # the neighbourhood (lattice steps each way) whose areas predict a dot's own
@@ -691,7 +656,8 @@ ARGUMENTS
     found = None
     if H * W > LARGE_IMAGE_PIXELS:
         found = _blobs_from_reduced(img, thr, REDUCTION, small)
-    if found is None:   # (a float64 threshold: the float32 pixels compared as float64)
+    whole = found is None   # every dark pixel lies in a labelled component
+    if whole:   # (a float64 threshold: the float32 pixels compared as float64)
         found = _label_whole(img, np.float64(thr) if exact64 else thr)
     masks, stats, centroids = found
     n = len(stats)
@@ -753,13 +719,17 @@ ARGUMENTS
     crops = (np.maximum(0, x0[dots] - pad), np.maximum(0, y0[dots] - pad),
              np.minimum(W, x0[dots] + w[dots] + pad), np.minimum(H, y0[dots] + h[dots] + pad))
     crowded = _crowded(stats, dots, *crops)
+    # the threshold as _label_stack compared the pixels with it
+    thr_labelled = np.result_type(img, thr).type(np.float64(thr) if exact64 else thr)
     for label, xa, ya, xb, yb, near, gx, gy in zip(
             dots.tolist(), *(c.tolist() for c in crops), crowded.tolist(), ix, iy, strict=True):
         # the source pixels (their float64 values), whatever precision the labelling used:
         # a view of img when img holds them (the kernel reads float32 as float64)
         crop = img[ya:yb, xa:xb] if img_is_source else \
             as_float_image(np.asarray(image)[ya:yb, xa:xb])
-        mask, free = _dot_masks(masks, stats, label, xa, ya, xb, yb, near)
+        mask, free = _dot_masks(masks, stats, label, xa, ya, xb, yb, near and not whole)
+        if near and whole:   # the pixels of no blob: the light ones, as labelled
+            free = ~(img[ya:yb, xa:xb] < thr_labelled)
         status = -1
         if rows is not None:
             status, cx, cy = _kernels.dot_centroid(

@@ -399,3 +399,68 @@ range just above and below the contrast bar (float32 and float64 differences dif
         a, b = detect(im, t), detect(im.astype(np.float64), t)
         assert (a.status, a.reason, a.info) == (b.status, b.reason, b.info)
         assert np.array_equal(a.q, b.q, equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_pixels_of_no_blob_of_a_whole_labelling_are_the_light_ones(seed, dtype):
+    r'''The detector takes a crowded crop's pixels of no blob as the light pixels (not
+img < thr) when the whole image was labelled: every dark pixel then lies in a labelled
+component, so this is the label image's zeros (_label_image), NaN pixels included'''
+    img = _speckled(seed).astype(dtype)
+    img[np.random.default_rng(seed).uniform(size=img.shape) < 0.002] = np.nan
+    thr = np.float64(0.45)
+    masks, stats, _ = dd._label_whole(img, thr)
+    t = np.result_type(img, thr).type(thr)
+    rng = np.random.default_rng(100 + seed)
+    for _ in range(40):
+        xa, ya = rng.integers(0, 380), rng.integers(0, 260)
+        xb, yb = xa + rng.integers(1, 40), ya + rng.integers(1, 40)
+        assert np.array_equal(dd._label_image(masks, stats, xa, ya, xb, yb) == 0,
+                              ~(img[ya:yb, xa:xb] < t))
+
+
+def _lattice_blobs(seed):
+    r'''Blob centroids of a 9 x 7 dot lattice under perspective and a barrel warp (rows
+bend by ~half a spacing), two dots missing, one far too large (area ratio > 4 with its
+neighbours: never a lattice node), two stray blobs in the middle of cells; -> (c, area, ij)
+with ij the lattice position of each blob ((-1, -1) for the strays)'''
+    rng = np.random.default_rng(seed)
+    i, j = np.meshgrid(np.arange(9), np.arange(7), indexing="ij")
+    ij = np.column_stack((i.ravel(), j.ravel()))
+    x, y = ij[:, 0] - 4.0, ij[:, 1] - 3.0
+    w = 1.0 + 0.04 * x + 0.02 * y                              # perspective
+    px, py = 30 * x / w, 30 * y / w
+    r2 = (px * px + py * py) / 150.0 ** 2
+    c = np.column_stack((px, py)) * (1 - 0.1 * r2)[:, None] + rng.normal(0, 0.3, (63, 2))
+    area = 40.0 * (1 + rng.uniform(-0.2, 0.2, 63))
+    # strays in the middle of two cells away from the seed (index 30 after the holes)
+    strays = np.array([c[[0, 1, 7, 8]].mean(axis=0), c[[53, 54, 60, 61]].mean(axis=0)])
+    keep = np.ones(63, bool)
+    keep[[10, 40]] = False
+    area[25] *= 6.0
+    c, area, ij = c[keep], area[keep], ij[keep]
+    return (np.vstack((c, strays)), np.concatenate((area, [40.0, 40.0])),
+            np.vstack((ij, [[-1, -1], [-1, -1]])))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_grow_finds_the_lattice_around_holes_strays_and_an_outsized_dot(seed):
+    r'''_grow (the compiled walk) maps the lattice offsets to exactly the blobs at those
+lattice positions: one integer frame for all, the strays and the outsized dot left out,
+the walk going round the holes; a max_extent the lattice exceeds gives None'''
+    from scipy.spatial import cKDTree
+    c, area, ij = _lattice_blobs(seed)
+    seed_blob = 30
+    nodes = dd._grow(c, area, seed_blob, cKDTree(c), 9)
+    assert nodes is not None
+    big = int(np.flatnonzero(area > 100)[0])
+    members = set(range(len(c))) - {big} - set(np.flatnonzero(ij[:, 0] < 0).tolist())
+    assert set(nodes.values()) == members and len(nodes) == len(members)
+    ab = np.array(list(nodes.keys()), float)
+    d_ij = (ij[list(nodes.values())] - ij[seed_blob]).astype(float)
+    # the lattice frame: d_ij = ab @ F with F a signed permutation (integer, |det| 1)
+    F, *_ = np.linalg.lstsq(ab, d_ij, rcond=None)
+    assert np.array_equal(np.rint(F), F.round(9)) and abs(round(np.linalg.det(F))) == 1
+    assert np.array_equal(ab @ np.rint(F), d_ij)
+    assert dd._grow(c, area, seed_blob, cKDTree(c), 4) is None
