@@ -289,15 +289,16 @@ fits: _projector); the rotation is fitted as it fits it (_fit_rotation).
 _ref_q: a dict fit_comparison() shares between its modes (ref's pixels of the
 camera-frame points, the same for rotation and intrinsics).
 '''
+    same = fit is ref   # a fit compared with itself: no difference to measure (see below)
     world_ref = ref     # world points: the same pixels in any R0 gauge (fit_pixels' memo)
-    if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
+    if not same and getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
             getattr(ref, "family", None) in ("CAHVOR", "CAHVORE"):
         ref = with_R0(ref, float(fit.R[0]))   # the same projection in fit's R0 gauge
     _, p_ref, p_cam = truth_points(truth, range_m, step)
     with np.errstate(all="ignore"):
         if mode == "world":
             qa = fit_pixels(world_ref, p_ref, False)
-            qb = fit_pixels(fit, p_ref, False)
+            qb = qa if same else fit_pixels(fit, p_ref, False)
             R = None
         else:
             qa = None if _ref_q is None else _ref_q.get("cam")
@@ -306,7 +307,13 @@ camera-frame points, the same for rotation and intrinsics).
                 if _ref_q is not None:
                     _ref_q["cam"] = qa
             R = np.eye(3)
-            if mode == "rotation":
+            if same:
+                # the fit against itself (an exact fit that IS the image fit: exact_fit's
+                # reuse): exactly zero where it projects, the rotation exactly none; the
+                # fitted rotation and second projection only measured their own rounding
+                # (1e-12 px)
+                qb = qa
+            elif mode == "rotation":
                 R = _fit_rotation(fit, p_cam.reshape(-1, 3), qa.reshape(-1, 2))
                 qb = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam, R))
             else:
