@@ -270,7 +270,7 @@ coefficients.
 
 
 def fit_projection_difference(ref, fit, truth, mode="rotation", range_m=DEFAULT_RANGE_M,
-                              step=DEFAULT_GRID_STEP, _ref_q=None):
+                              step=DEFAULT_GRID_STEP):
     r'''|fit - ref| in projection over the truth's image grid, for two fits of any model
 
 SYNOPSIS
@@ -279,33 +279,36 @@ SYNOPSIS
     d["rms"], d["max"], d["n"], d["n_invalid"]      # px; d["map"] (ny,nx)
 
 The sample points are the truth's: points at range_m along its rays through
-the image grid, in its camera frame (harness.compare.truth_points). ref
-projects them from its own camera frame; fit from its own, rotated by the
-rotation that best matches ref's pixels (mode "rotation"), not rotated
-("intrinsics"), or both fits project the world points ("world": both must
-live in the truth's world frame). The grid is projected as
-harness.compare.projection_difference projects it (compiled for JPL-family
-fits: _projector); the rotation is fitted as it fits it (_fit_rotation).
-_ref_q: a dict fit_comparison() shares between its modes (ref's pixels of the
-camera-frame points, the same for rotation and intrinsics).
+the image grid, in its camera frame (harness.compare.truth_points), or, when
+both fits are CAHVOR/CAHVORE in the same R0 gauge (jpl holds R0), in the frame
+of the truth moved to that gauge: the points the record's floor and total
+compare each fit on, so ref's and fit's pixels of them are shared (fit_pixels'
+memo; the two frames differ by the gauge's small turn of A, which moves the grid's
+rays by a fraction of a pixel over a smooth difference map). ref projects them
+from its own camera frame; fit from its own, rotated by the rotation that best
+matches ref's pixels (mode "rotation"), not rotated ("intrinsics"), or both
+fits project the world points ("world": both must live in the truth's world
+frame). The grid is projected as harness.compare.projection_difference
+projects it (compiled for JPL-family fits: _projector); the rotation is fitted
+as it fits it (_fit_rotation).
 '''
     same = fit is ref   # a fit compared with itself: no difference to measure (see below)
     world_ref = ref     # world points: the same pixels in any R0 gauge (fit_pixels' memo)
+    R0 = None
     if not same and getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
             getattr(ref, "family", None) in ("CAHVOR", "CAHVORE"):
-        ref = with_R0(ref, float(fit.R[0]))   # the same projection in fit's R0 gauge
-    _, p_ref, p_cam = truth_points(truth, range_m, step)
+        R0 = float(fit.R[0])
+        if float(ref.R[0]) != R0:
+            # the same projection in fit's R0 gauge, on the truth's own frame's points
+            ref, R0 = with_R0(ref, R0), None
+    _, p_ref, p_cam = truth_points(truth, range_m, step, R0=R0)
     with np.errstate(all="ignore"):
         if mode == "world":
             qa = fit_pixels(world_ref, p_ref, False)
             qb = qa if same else fit_pixels(fit, p_ref, False)
             R = None
         else:
-            qa = None if _ref_q is None else _ref_q.get("cam")
-            if qa is None:
-                qa = _projector(ref)(_rotated_into(ref.Rt_ref_cam(), p_cam))
-                if _ref_q is not None:
-                    _ref_q["cam"] = qa
+            qa = fit_pixels(ref, p_cam, True)
             R = np.eye(3)
             if same:
                 # the fit against itself (an exact fit that IS the image fit: exact_fit's
@@ -318,7 +321,7 @@ camera-frame points, the same for rotation and intrinsics).
                 qb = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam, R))
             else:
                 qb = fit_pixels(fit, p_cam, True)
-        d = _distance(qa, qb)
+    d = _distance(qa, qb)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "map": d,
            "n": int(finite.sum()), "n_invalid": int((~finite).sum()),
@@ -339,9 +342,8 @@ def fit_comparison(ref, fit, truth, theta_estimated, world_frame):
     params = fit_parameter_differences(ref, fit, theta_estimated=theta_estimated,
                                        world_frame=world_frame)
     proj = {}
-    ref_q = {}      # ref's side of the rotation and intrinsics modes: the same pixels
     for mode in ("rotation", "intrinsics") + (("world",) if world_frame else ()):
-        d = fit_projection_difference(ref, fit, truth, mode=mode, _ref_q=ref_q)
+        d = fit_projection_difference(ref, fit, truth, mode=mode)
         proj[mode] = {k: v for k, v in d.items() if k != "map"}
     proj["rms"] = proj["rotation"]["rms"]
     proj["max"] = proj["rotation"]["max"]
