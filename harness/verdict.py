@@ -659,22 +659,18 @@ class Linearisation:
 x0:        (n,) the fit's parameters at the solution
 project:   x -> (2N,) the projections of the fit's observed points (pose-major)
 model:     x -> the fitted model (a JPL model, OpenCVModel, MrcalModel)
-project_model: model -> project(x), where that depends on the model only (or None)
 pose:      (N,) the image of each observed point
 n_model:   the model depends on x[:n_model] only (the rest: board poses)
 '''
 
-    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None,
-                 project_model=None):
+    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None):
         self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
         self.n_model = len(x0) if n_model is None else n_model
         self._jacobian = jacobian
-        # project(x) = project_model(model(x)) where the fit's points depend on the model
-        # only (jpl: known poses): model_jacobians() then differences them on its models
-        self.project_model = project_model
 
     def jacobian(self):
-        r'''(2N, n) d project / d x at x0 (central differences)'''
+        r'''(2N, n) d project / d x at x0 (central differences; the fit's own jacobian(),
+where it gives them faster: jpl_linearisation, posed_linearisation)'''
         if self._jacobian is not None:
             return self._jacobian()
         return _central_jacobian(self.project, self.x0, self.steps)
@@ -724,9 +720,26 @@ def jpl_linearisation(res, obs):
     pose = np.nonzero(found)[0]
     x0 = chart.x0()
     h = 1e-6 * np.maximum(np.abs(x0), 1.0)
-    # _projector: the stepped model packed once for its grid and these points (compare._packed)
+
+    def jacobian():
+        # central differences in one compiled pass per side: the fit's own forward-difference
+        # kernel (_jpl_kernels.jacobian_chart, the charted models packed without building
+        # them) with steps +h and -h, combined; a column whose stepped model needs the
+        # model's own checks (ok False: near its limits) is differenced on built models
+        from harness.calibrators._jpl_kernels import jacobian_chart
+        zero = np.zeros((len(p), 2))
+        f0 = project(chart.model(x0), p).ravel()
+        args = chart._chart_args()
+        Jp, okp = jacobian_chart(x0, h, *args, p, zero, np.nan, f0)
+        Jm, okm = jacobian_chart(x0, -h, *args, p, zero, np.nan, f0)
+        dp, dm = (x0 + h) - x0, (x0 - h) - x0
+        J = ((Jp * dp[:, None] - Jm * dm[:, None]) / (dp - dm)[:, None]).T
+        for i in np.flatnonzero(~(okp & okm)):
+            J[:, i] = _central_jacobian(lambda y, i=i: project(chart.model(
+                np.concatenate((x0[:i], y, x0[i + 1:]))), p), x0[i:i + 1], h[i:i + 1])[:, 0]
+        return J
     return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h,
-                         project_model=lambda m: _projector(m)(p))
+                         jacobian=jacobian)
 
 
 def _rodrigues(r):
@@ -952,14 +965,10 @@ projection difference (the rotation's own freedom projected out).
         return np.array([q.get(k, 0.0) for k in names])
     P = projection_points(truth)
     # the model's Jacobians in one pass over its stepped models: the reported quantities
-    # (G), the projection of the image grid (Jg) and, where the observed points depend on
-    # the model only (jpl), the fit's own Jacobian J
-    fs = [qvec, _grid_projector(P)]
-    if lin.project_model is not None and lin.n_model == n and lin._jacobian is None:
-        fs.append(lin.project_model)
+    # (G) and the projection of the image grid (Jg); then the fit's own Jacobian J
     with np.errstate(all="ignore"):
-        G, Jg, *J = lin.model_jacobians(fs)          # (m, n_model), (2M, n_model), (2N, n)
-    J = J[0] if J else lin.jacobian()
+        G, Jg = lin.model_jacobians([qvec, _grid_projector(P)])  # (m, n_model), (2M, n_model)
+        J = lin.jacobian()                                       # (2N, n)
     # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
     # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
     # not determine at all; then the block of the parameters the model depends on (the
