@@ -81,6 +81,21 @@ def test_two_fits_of_any_model_compare(navcam):
     assert rot["rms"] < 0.2 * sh["rms"]
 
 
+def test_a_fit_against_itself_is_zero_with_its_counts(navcam):
+    # the AprilTag records' exact fit IS the image fit: every mode exactly 0 where the fit
+    # projects, no rotation, and the counts those of a comparison with a copy (whose
+    # differences are rounding: 1e-12 px)
+    truth = navcam[0]
+    fit = truth.replace(H=truth.H + 0.01 * truth.A)
+    copy = fit.replace()
+    for mode in ("rotation", "intrinsics", "world"):
+        d = verdict.fit_projection_difference(fit, fit, truth, mode=mode)
+        c = verdict.fit_projection_difference(fit, copy, truth, mode=mode)
+        assert d["rms"] == 0.0 and d["max"] == 0.0 and c["max"] < 1e-9
+        assert (d["n"], d["n_invalid"]) == (c["n"], c["n_invalid"]) and d["n"] > 0
+        assert d.get("rotation_deg", 0.0) == 0.0
+
+
 def test_opencv_fits_compare_with_each_other():
     from harness.calibrators.opencv_fit import OpenCVModel
     K = np.array([[1000.0, 0, 511.5], [0, 1000.0, 511.5], [0, 0, 1]])
