@@ -270,7 +270,7 @@ coefficients.
 
 
 def fit_projection_difference(ref, fit, truth, mode="rotation", range_m=DEFAULT_RANGE_M,
-                              step=DEFAULT_GRID_STEP, _ref_q=None):
+                              step=DEFAULT_GRID_STEP):
     r'''|fit - ref| in projection over the truth's image grid, for two fits of any model
 
 SYNOPSIS
@@ -279,39 +279,49 @@ SYNOPSIS
     d["rms"], d["max"], d["n"], d["n_invalid"]      # px; d["map"] (ny,nx)
 
 The sample points are the truth's: points at range_m along its rays through
-the image grid, in its camera frame (harness.compare.truth_points). ref
-projects them from its own camera frame; fit from its own, rotated by the
-rotation that best matches ref's pixels (mode "rotation"), not rotated
-("intrinsics"), or both fits project the world points ("world": both must
-live in the truth's world frame). The grid is projected as
-harness.compare.projection_difference projects it (compiled for JPL-family
-fits: _projector); the rotation is fitted as it fits it (_fit_rotation).
-_ref_q: a dict fit_comparison() shares between its modes (ref's pixels of the
-camera-frame points, the same for rotation and intrinsics).
+the image grid, in its camera frame (harness.compare.truth_points), or, when
+both fits are CAHVOR/CAHVORE in the same R0 gauge (jpl holds R0), in the frame
+of the truth moved to that gauge: the points the record's floor and total
+compare each fit on, so ref's and fit's pixels of them are shared (fit_pixels'
+memo; the two frames differ by the gauge's small turn of A, which moves the grid's
+rays by a fraction of a pixel over a smooth difference map). ref projects them
+from its own camera frame; fit from its own, rotated by the rotation that best
+matches ref's pixels (mode "rotation"), not rotated ("intrinsics"), or both
+fits project the world points ("world": both must live in the truth's world
+frame). The grid is projected as harness.compare.projection_difference
+projects it (compiled for JPL-family fits: _projector); the rotation is fitted
+as it fits it (_fit_rotation).
 '''
+    same = fit is ref   # a fit compared with itself: no difference to measure (see below)
     world_ref = ref     # world points: the same pixels in any R0 gauge (fit_pixels' memo)
-    if getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
+    R0 = None
+    if not same and getattr(fit, "family", None) in ("CAHVOR", "CAHVORE") and \
             getattr(ref, "family", None) in ("CAHVOR", "CAHVORE"):
-        ref = with_R0(ref, float(fit.R[0]))   # the same projection in fit's R0 gauge
-    _, p_ref, p_cam = truth_points(truth, range_m, step)
+        R0 = float(fit.R[0])
+        if float(ref.R[0]) != R0:
+            # the same projection in fit's R0 gauge, on the truth's own frame's points
+            ref, R0 = with_R0(ref, R0), None
+    _, p_ref, p_cam = truth_points(truth, range_m, step, R0=R0)
     with np.errstate(all="ignore"):
         if mode == "world":
             qa = fit_pixels(world_ref, p_ref, False)
-            qb = fit_pixels(fit, p_ref, False)
+            qb = qa if same else fit_pixels(fit, p_ref, False)
             R = None
         else:
-            qa = None if _ref_q is None else _ref_q.get("cam")
-            if qa is None:
-                qa = _projector(ref)(_rotated_into(ref.Rt_ref_cam(), p_cam))
-                if _ref_q is not None:
-                    _ref_q["cam"] = qa
+            qa = fit_pixels(ref, p_cam, True)
             R = np.eye(3)
-            if mode == "rotation":
+            if same:
+                # the fit against itself (an exact fit that IS the image fit: exact_fit's
+                # reuse): exactly zero where it projects, the rotation exactly none; the
+                # fitted rotation and second projection only measured their own rounding
+                # (1e-12 px)
+                qb = qa
+            elif mode == "rotation":
                 R = _fit_rotation(fit, p_cam.reshape(-1, 3), qa.reshape(-1, 2))
                 qb = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam, R))
             else:
                 qb = fit_pixels(fit, p_cam, True)
-        d = _distance(qa, qb)
+    d = _distance(qa, qb)
     finite = np.isfinite(d)
     out = {"mode": mode, "range_m": range_m, "step": step, "map": d,
            "n": int(finite.sum()), "n_invalid": int((~finite).sum()),
@@ -332,9 +342,8 @@ def fit_comparison(ref, fit, truth, theta_estimated, world_frame):
     params = fit_parameter_differences(ref, fit, theta_estimated=theta_estimated,
                                        world_frame=world_frame)
     proj = {}
-    ref_q = {}      # ref's side of the rotation and intrinsics modes: the same pixels
     for mode in ("rotation", "intrinsics") + (("world",) if world_frame else ()):
-        d = fit_projection_difference(ref, fit, truth, mode=mode, _ref_q=ref_q)
+        d = fit_projection_difference(ref, fit, truth, mode=mode)
         proj[mode] = {k: v for k, v in d.items() if k != "map"}
     proj["rms"] = proj["rotation"]["rms"]
     proj["max"] = proj["rotation"]["max"]
@@ -650,22 +659,18 @@ class Linearisation:
 x0:        (n,) the fit's parameters at the solution
 project:   x -> (2N,) the projections of the fit's observed points (pose-major)
 model:     x -> the fitted model (a JPL model, OpenCVModel, MrcalModel)
-project_model: model -> project(x), where that depends on the model only (or None)
 pose:      (N,) the image of each observed point
 n_model:   the model depends on x[:n_model] only (the rest: board poses)
 '''
 
-    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None,
-                 project_model=None):
+    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None):
         self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
         self.n_model = len(x0) if n_model is None else n_model
         self._jacobian = jacobian
-        # project(x) = project_model(model(x)) where the fit's points depend on the model
-        # only (jpl: known poses): model_jacobians() then differences them on its models
-        self.project_model = project_model
 
     def jacobian(self):
-        r'''(2N, n) d project / d x at x0 (central differences)'''
+        r'''(2N, n) d project / d x at x0 (central differences; the fit's own jacobian(),
+where it gives them faster: jpl_linearisation, posed_linearisation)'''
         if self._jacobian is not None:
             return self._jacobian()
         return _central_jacobian(self.project, self.x0, self.steps)
@@ -715,9 +720,26 @@ def jpl_linearisation(res, obs):
     pose = np.nonzero(found)[0]
     x0 = chart.x0()
     h = 1e-6 * np.maximum(np.abs(x0), 1.0)
-    # _projector: the stepped model packed once for its grid and these points (compare._packed)
+
+    def jacobian():
+        # central differences in one compiled pass per side: the fit's own forward-difference
+        # kernel (_jpl_kernels.jacobian_chart, the charted models packed without building
+        # them) with steps +h and -h, combined; a column whose stepped model needs the
+        # model's own checks (ok False: near its limits) is differenced on built models
+        from harness.calibrators._jpl_kernels import jacobian_chart
+        zero = np.zeros((len(p), 2))
+        f0 = project(chart.model(x0), p).ravel()
+        args = chart._chart_args()
+        Jp, okp = jacobian_chart(x0, h, *args, p, zero, np.nan, f0)
+        Jm, okm = jacobian_chart(x0, -h, *args, p, zero, np.nan, f0)
+        dp, dm = (x0 + h) - x0, (x0 - h) - x0
+        J = ((Jp * dp[:, None] - Jm * dm[:, None]) / (dp - dm)[:, None]).T
+        for i in np.flatnonzero(~(okp & okm)):
+            J[:, i] = _central_jacobian(lambda y, i=i: project(chart.model(
+                np.concatenate((x0[:i], y, x0[i + 1:]))), p), x0[i:i + 1], h[i:i + 1])[:, 0]
+        return J
     return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h,
-                         project_model=lambda m: _projector(m)(p))
+                         jacobian=jacobian)
 
 
 def _rodrigues(r):
@@ -943,14 +965,10 @@ projection difference (the rotation's own freedom projected out).
         return np.array([q.get(k, 0.0) for k in names])
     P = projection_points(truth)
     # the model's Jacobians in one pass over its stepped models: the reported quantities
-    # (G), the projection of the image grid (Jg) and, where the observed points depend on
-    # the model only (jpl), the fit's own Jacobian J
-    fs = [qvec, _grid_projector(P)]
-    if lin.project_model is not None and lin.n_model == n and lin._jacobian is None:
-        fs.append(lin.project_model)
+    # (G) and the projection of the image grid (Jg); then the fit's own Jacobian J
     with np.errstate(all="ignore"):
-        G, Jg, *J = lin.model_jacobians(fs)          # (m, n_model), (2M, n_model), (2N, n)
-    J = J[0] if J else lin.jacobian()
+        G, Jg = lin.model_jacobians([qvec, _grid_projector(P)])  # (m, n_model), (2M, n_model)
+        J = lin.jacobian()                                       # (2N, n)
     # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
     # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
     # not determine at all; then the block of the parameters the model depends on (the
