@@ -162,3 +162,36 @@ def test_calibrator_bias_of_an_opencv_model():
         assert b.shape == (100, 2) and np.all(np.isfinite(b))
         assert 0.01 < np.abs(b).max() < 2.0
         assert np.abs(b - ref).max() < 1e-6
+
+
+@pytest.mark.parametrize("n", [8, 12, 20, 128, 192, 264, 1024])
+def test_compiled_outline_centroids_are_the_numpy_ones_bit_for_bit(n):
+    r'''targets._dot_kernels.outline_centroids (what expected_centroids computes) against
+polygon_centroid and _richardson_centroid, bit for bit: the calibrators' bias takes these
+centroids and mrcal's fits are chaotic in their last bits, so the compiled sums run in
+numpy's pairwise order. Projected-circle-like polygons far from the origin, some with a
+non-finite vertex or no area.'''
+    from targets._dot_kernels import outline_centroids
+    from targets.centroids import _richardson_centroid
+    rng = np.random.default_rng(n)
+    t = np.arange(n) * (2 * np.pi / n)
+    ndots = 40
+    r = rng.uniform(0.5, 60, (ndots, 1))
+    squeeze = rng.uniform(0.3, 1, (ndots, 1))
+    q = np.stack((rng.uniform(0, 5000, (ndots, 1)) + r * np.cos(t) * squeeze
+                  + rng.normal(0, 1e-3, (ndots, n)),
+                  rng.uniform(0, 4000, (ndots, 1)) + r * np.sin(t)
+                  + rng.normal(0, 1e-3, (ndots, n))), axis=-1)
+    q[3, 5] = np.nan
+    q[4, 2, 1] = np.inf
+    q[5] = q[5, :1]                      # no area
+    out = np.empty((ndots, 3))
+    outline_centroids(q, out)
+    with np.errstate(invalid="ignore"):   # the inf vertex: inf - inf in the sums
+        c_half = polygon_centroid(q[:, ::2])
+        c = _richardson_centroid(q, c_half)
+        err = np.abs(c - _richardson_centroid(q[:, ::2], c=c_half)) / 15.0
+    assert np.array_equal(out[:, :2], c, equal_nan=True)
+    assert np.array_equal(out[:, 2], err.max(axis=1), equal_nan=True)
+    assert np.isnan(out[[3, 4, 5], :2]).all()
+    assert np.isfinite(np.delete(out[:, :2], [3, 4, 5], 0)).all()
