@@ -103,6 +103,15 @@ EXACT_RMS = 1e-7
 # fits 33.3 -> 26.9 s; every judged record and every floor_far / fits_disagree flag bit for
 # bit the same; floor-far records move where their valley's crawl stops, projection RMS
 # by 0.6-14 sigma of a renderer difference they are not judged by).
+# From a misfit's verdict on, a model with distortions (the valley's) is fitted on the coarse
+# grid alone (misfit_coarse), its image fit and the exact fit warm-started from it alike:
+# the full grid's single restart crawled the same valley at 4x the cost per call (0.1-0.3 s:
+# libdogleg's iteration limit), and that restart and the exact fit's were 8 of the 33 CPU s
+# of mrcal in the paper campaign. Measured there (session 11, benchmarks/bench_fits.py,
+# load 4-6): mrcal calibrate 25.1 -> 22.1 CPU s, its exact fits 7.9 -> 3.5 CPU s; every judged
+# record and every status, floor_far and fits_disagree flag bit for bit the same (no judged
+# fit gets a verdict); the floor-far CAHVOR / CAHVORE records' total projection errors move
+# by -2% .. +11% (where the coarse fit of a model that cannot represent the camera stops).
 POLISH_GAIN = 0.99
 POLISH_GAIN_FINE = 0.999
 FINE_RMS = 5e-4
@@ -334,7 +343,10 @@ info["crawl"], when present: the restarts of a polish ran out of their budget
 (max_restarts) still gaining, with residuals far above the noise (crawl_verdict), or
 the coarse restarts of the polish after the bias settled ended far above it
 (settled_misfit_verdict, "restarts": 0): from then on every polish restarts once, and
-the entry says why in words.
+the entry says why in words. A model with distortion parameters then restarts on the
+coarse grid only (its final fit is the coarse grid's: the full grid's restart crawls the
+same valley at 4x the cost); a warm fit from a start with a crawl inherits it
+("from_start": True), so that its fit of the exact observations is the same coarse fit.
 '''
     import mrcal
 
@@ -475,8 +487,19 @@ the entry says why in words.
     # crawl: set once a restarts() run with the full budget ends still gaining, far above
     # the detection noise (crawl_verdict), or once the coarse restarts of the polish after
     # the bias settled end far above it (settled_misfit_verdict): every later polish
-    # restarts once only
+    # restarts once only (on the coarse grid only, for a model with distortions: misfit_coarse)
     crawl = None
+    if warm is not None and (start.info or {}).get("crawl") is not None:
+        # the start misfits: the exact observations' fit is the same coarse fit of it
+        crawl = {**start.info["crawl"], "from_start": True}
+
+    def misfit_coarse():
+        # a misfit's polishes end on the coarse grid: for a model with distortions the full
+        # grid's one restart crawls the misfit's R0 / focal-length valley as the coarse
+        # grid's did, at 4x the cost per call (0.1-0.3 s in the paper campaign, at libdogleg's
+        # iteration limit), and where it stops is the budget's choice (crawl_verdict); a
+        # pinhole's full-grid solve converges in a few steps, and keeps its full-grid fit
+        return crawl is not None and nint > 4 and coarse > 1
 
     def polish(limit=None, full=True, settle=False):
         # mrcal's solver stops early in flat valleys (narrow lenses: focal length vs range;
@@ -494,7 +517,8 @@ the entry says why in words.
         if settle and full and coarse > 1 and crawl is None and warm is None \
                 and limit == max_restarts > 1:
             crawl = settled_misfit_verdict(*problem_residuals(1))
-        if full and coarse > 1:   # a crawl the coarse grid just found limits this one too
+        if full and coarse > 1 and not misfit_coarse():
+            # a crawl the coarse grid just found limits this one too
             restarts(1, 1 if crawl is not None else limit)
 
     def restarts(step, limit):
@@ -609,7 +633,7 @@ the entry says why in words.
         polish(settle=True)
         unpolished = False
         cm, model, Rt_cam_board = current()
-        return {"bias_change_max": change, "full_grid": True,
+        return {"bias_change_max": change, "full_grid": not misfit_coarse(),
                 **_rms(model, obs, Rt_cam_board, q_used, found)}
 
     q_used, bias_applied = iterate_bias(
@@ -697,7 +721,8 @@ be estimated.
                       f"{rms / noise if noise > 0 else math.inf:.3g} x the detection noise "
                       f"estimated from the residuals ({noise:.3g} px): the model misfits "
                       f"these observations and where the restarts stop is the budget's "
-                      f"choice; each later polish restarts once"}
+                      f"choice; each later polish restarts once (on the coarse grid "
+                      f"only, for a model with distortions)"}
 
 
 def settled_misfit_verdict(d, ok):
@@ -707,9 +732,10 @@ d, ok: the residuals on the full grid (grid_noise_rms) after the coarse-grid res
 the polish that follows a settled bias (the detections corrected to within the bias
 tolerance) ended by their gain rule. Residuals MISFIT_FACTOR times the noise estimated
 from them at that point are the model's misfit, as in crawl_verdict; the full grid's
-restarts would crawl along the misfit's flat valley as the coarse grid's did, so they
-restart once (9 CAHVORE of the paper campaign: 3 full-grid restarts, 0.28 CPU s each,
-gaining 1.2% and 0.7% at 57x its noise). Checked here only: before the bias has settled
+restarts would crawl along the misfit's flat valley as the coarse grid's did (9 CAHVORE
+of the paper campaign: 3 full-grid restarts, 0.28 CPU s each, gaining 1.2% and 0.7% at 57x
+its noise), so a model with distortions ends on the coarse grid, and a pinhole restarts
+the full grid once (_fit_poses' misfit_coarse). Checked here only: before the bias has settled
 the residuals hold the dot-centroid bias not yet corrected, and a run that ends after
 the first bias correction can stop far above the noise and still converge in the next
 (5 CAHVOR: at 30x its noise after the first correction, then 16 restarts gaining 1-2% to
@@ -725,7 +751,8 @@ its noise in the settled polish's coarse run; this check follows that run).
                       f"{rms / noise if noise > 0 else math.inf:.3g} x the detection noise "
                       f"estimated from the residuals ({noise:.3g} px): the model misfits "
                       f"these observations and where the restarts stop is the budget's "
-                      f"choice; the full-grid polish and each later polish restart once"}
+                      f"choice; each later polish restarts once, and a model with "
+                      f"distortions on the coarse grid only"}
 
 
 def _misfit(d, ok):
