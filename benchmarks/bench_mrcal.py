@@ -18,7 +18,7 @@ residual RMS, the verdict's floor and renderer differences. --profile prints the
 top functions of a cProfile of each job (cumulative time). At the end, the
 mrcal.optimize calls of every job summed by where in mrcal_fit._fit_poses they were
 made (the chain of its inner functions that called solve(), e.g. restarts<polish<refit
-for the coarse restarts after a bias pass; "" for a direct solve: the pinhole seed,
+for the coarse restarts after a bias pass; "direct" for a solve of _fit_poses itself: the seed,
 the race's regularised start) and the grid step they ran on (2: the coarse grid), for
 the image fits and the exact fits apart.
 
