@@ -48,10 +48,10 @@ the camera frame). For a truth with theta != 90 deg the optimum lies at infinity
 the solver runs off along that valley (Rocky8 navcam, slot 21, theta 90.0106 deg:
 R0 -> -0.975, fx 2900 -> 117000 px, skew -> 0.0099 deg) and stops where the
 restarts gain less than POLISH_GAIN, or where the restarts of a fit found to
-misfit (residuals far above the noise: crawl_verdict, settled_misfit_verdict)
-end: on the coarse grid, restarted once. The projection is then close (0.03 px
-there; 0.0005 px for the MER A hazcam, slot 5) while fx, cx and R are far from
-the truth's.
+misfit end (residuals far above the noise: crawl_verdict, then restarted once;
+still so once the bias settled, settled_misfit_verdict: on the coarse grid).
+The projection is then close (0.03 px there; 0.0005 px for the MER A hazcam,
+slot 5) while fx, cx and R are far from the truth's.
 '''
 
 import math
