@@ -15,9 +15,14 @@ OPENBLAS_NUM_THREADS=1) for the fit and the exact fit separately, with the numbe
 of mrcal.optimize calls and their CPU seconds, and the figures a record keeps:
 projection difference RMS (rotation mode), residual RMS, the exact fit's
 residual RMS, the verdict's floor and renderer differences. --profile prints the
-top functions of a cProfile of each job (cumulative time).
+top functions of a cProfile of each job (cumulative time). At the end, the
+mrcal.optimize calls of every job summed by where in mrcal_fit._fit_poses they were
+made (the chain of its inner functions that called solve(), e.g. restarts<polish<refit
+for the coarse restarts after a bias pass; "direct" for a solve of _fit_poses itself: the seed,
+the race's regularised start) and the grid step they ran on (2: the coarse grid), for
+the image fits and the exact fits apart.
 
-Records: mrcal/<camera>/<family>.
+Records: mrcal/<camera>/<family>, mrcal/phases/<fit|exact>/<chain>/<step>.
 '''
 
 import sys
@@ -35,24 +40,50 @@ DEFAULT_JOBS = ("1/CAHVOR,1/CAHVORE,2/CAHVOR,2/CAHVORE,3/CAHVOR,3/CAHVORE,4/CAHV
 
 
 class _Counted:
-    r'''mrcal.optimize wrapped: calls and CPU seconds'''
+    r'''mrcal.optimize wrapped: calls and CPU seconds, in total and per phase'''
 
     def __init__(self, mrcal):
         self.mrcal, self.inner = mrcal, mrcal.optimize
         self.calls, self.cpu = 0, 0.0
+        self.phases = {}   # (chain, step) -> [calls, CPU s] since the last take()
 
     def __call__(self, *a, **kw):
         c0 = time.process_time()
         try:
             return self.inner(*a, **kw)
         finally:
+            cpu = time.process_time() - c0
             self.calls += 1
-            self.cpu += time.process_time() - c0
+            self.cpu += cpu
+            t = self.phases.setdefault(_phase(sys._getframe(1)), [0, 0.0])
+            t[0] += 1
+            t[1] += cpu
 
     def take(self):
         out = (self.calls, self.cpu)
         self.calls, self.cpu = 0, 0.0
         return out
+
+    def take_phases(self):
+        out, self.phases = self.phases, {}
+        return out
+
+
+def _phase(frame):
+    r'''(chain, step) of an mrcal.optimize call: the mrcal_fit._fit_poses inner functions
+that led to it, innermost first ("restarts<polish<refit"), and solve()'s grid step'''
+    chain, step = [], 1
+    while frame is not None:
+        code = frame.f_code
+        if code.co_filename.endswith("mrcal_fit.py"):
+            if code.co_name == "_fit_poses":
+                break
+            if code.co_name == "solve":
+                step = frame.f_locals.get("step", 1)
+            else:
+                chain.append(code.co_name)
+        frame = frame.f_back
+    return "<".join(chain), step
 
 
 def _figure(d, *keys):
@@ -84,6 +115,13 @@ def run(args, out):
             f"{'proj rms':>9} {'resid rms':>9} {'x resid':>9} {'floor':>9} {'renderer':>9}")
     print(head)
     tot = [0.0, 0.0]
+    phases = {}   # (fit|exact, chain, step) -> [calls, CPU s]
+
+    def add_phases(kind):
+        for (chain, step), (n, cpu) in counted.take_phases().items():
+            t = phases.setdefault((kind, chain, step), [0, 0.0])
+            t[0] += n
+            t[1] += cpu
     for spec in args.jobs:
         obs, truth, target = data[spec]
         prof = cProfile.Profile() if args.profile else None
@@ -93,6 +131,7 @@ def run(args, out):
         res = calibrate_stage("mrcal", obs, target, truth.family, truth, {})
         fit_cpu = time.process_time() - c0
         fit_calls, fit_opt = counted.take()
+        add_phases("fit")
         if res.status != "ok":
             out.add(f"mrcal/{spec}", status="failed", reason=res.reason)
             print(f"{spec:<12} failed: {res.reason}")
@@ -115,6 +154,7 @@ def run(args, out):
             harness.stages.calibrate_stage = stages.calibrate_stage
         verdict_cpu = time.process_time() - c0
         x_calls, x_opt = counted.take()
+        add_phases("exact")
         if prof:
             prof.disable()
         rec = out.add(
@@ -142,6 +182,11 @@ def run(args, out):
             print(s.getvalue())
     out.add("mrcal/total", fit_cpu_s=tot[0], exact_fit_cpu_s=tot[1])
     print(f"total CPU s: fit {tot[0]:.2f}, exact fit {tot[1]:.2f}")
+    print("mrcal.optimize by phase (the calls' CPU s, calls, ms per call):")
+    for (kind, chain, step), (n, cpu) in sorted(phases.items(), key=lambda x: -x[1][1]):
+        out.add(f"mrcal/phases/{kind}/{chain or 'direct'}/{step}", calls=n, cpu_s=cpu)
+        print(f"  {kind:<5} {chain or 'direct':<28} step {step}  {cpu:7.2f} s {n:5d} "
+              f"{1e3 * cpu / n:7.1f} ms")
 
 
 def arguments(ap):
