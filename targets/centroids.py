@@ -38,6 +38,8 @@ Points behind the camera or outside the model's domain give NaN (a dot gives
 NaN if any point of its outline does).
 '''
 
+import functools
+
 import numpy as np
 
 from reference_models.poseutils import compose_Rt, transform_point_Rt
@@ -176,7 +178,16 @@ def _projected_outlines(model, target, Rt_cam_board, Noutline):
     # in 1e-10 px of them (harness/calibrators/mrcal_fit.py): the kernel moved 9 CAHVORE's
     # mrcal projection difference by 2.6 sigma, and (2026-11-28) 5-8 CAHVOR's mrcal fits
     # from 0.0005 to 0.108 px
-    return model.project(board_to_ref(model, Rt_cam_board, target.dot_outlines(Noutline)))
+    return model.project(board_to_ref(model, Rt_cam_board, _dot_outlines(target, Noutline)))
+
+
+@functools.lru_cache(maxsize=16)
+def _dot_outlines(target, Noutline):
+    r'''target.dot_outlines(Noutline), made once per target and count (read-only): a fit's
+bias takes them for every pose of every pass'''
+    p = target.dot_outlines(Noutline)
+    p.setflags(write=False)
+    return p
 
 
 def _richardson_centroid(q, c_half=None, c=None):
