@@ -9,13 +9,14 @@ SYNOPSIS
                                                          min_pixels, W, H_img)
     # every edge's band of pixels (targets.tag_edges._EDGE_STATUS says why an edge has none)
 
-    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix,
+    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip,
                              max_iterations, converged_px)
     # the m edges' pixels one after another: edge j's are [off[j], off[j+1]) of v (values),
     # tau (positions along the chord, -1..1) and s (distances from it, px); cubic (m,) 1.0
     # where d3 is fitted; j0, fy (m,): the angle bin and fraction of each edge's normal;
     # d (m,4) the start curves; x0, h, F, dF (A,X): targets.tag_edges._edge_table; bfix
-    # (m,) the contrast of an edge whose b is given (NaN: fitted)
+    # (m,) the contrast of an edge whose b is given (NaN: fitted); skip (m,) edges left
+    # alone (p 0, done False, mis NaN)
     # p (m,6) the fitted (a, b, d0, d1, d2, d3); done (m,) converged; mis (m,) the RMS
     # misfit over the contrast
     q = meet_curves(Pa, La, ea, na, da, Pb, Lb, eb, nb, db, iterations)
@@ -104,7 +105,7 @@ def _normal(v, tau, o0, o1, cubic, a, b, bfree, Fv, dFv, JtJ, Jtr):
 
 
 @njit(cache=True, error_model="numpy")
-def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iterations,
+def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_iterations,
               converged_px):
     m = len(off) - 1
     p_out = np.zeros((m, 6))
@@ -122,6 +123,9 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iteratio
     A = np.zeros((6, 6))
     eye = np.eye(6)
     for j in range(m):
+        if skip[j]:
+            mis[j] = np.nan
+            continue
         o0, o1 = off[j], off[j + 1]
         ja, fa, cj, bj = j0[j], fy[j], cubic[j], bfix[j]
         bfree = np.isnan(bj)
@@ -158,6 +162,76 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iteratio
         done[j] = ok
         mis[j] = np.sqrt(S / (o1 - o0)) / abs(b)
     return p_out, done, mis
+
+
+@njit(cache=True, error_model="numpy")
+def blur_step(off, v, tau, s, cubic, j0, fy, p, x0, h, F, dF, Fs, use):
+    r'''(H, G): the Gauss-Newton normal equation H dsigma = G of the blur the edges marked
+in use (m,) share, each edge's own (a, b, d0..d3) in p (m,6) eliminated (the Schur
+complement: their fits follow sigma, to first order). Fs (A,X) is dF/dsigma tabulated as
+F; the pixels and the rest as fit_edges'. Every edge's b is free, its d3 where cubic.'''
+    m = len(off) - 1
+    X = F.shape[1]
+    Htot = 0.0
+    Gtot = 0.0
+    J = np.zeros(6)
+    A = np.zeros((6, 6))
+    c = np.zeros(6)
+    g = np.zeros(6)
+    for j in range(m):
+        if not use[j]:
+            continue
+        ja, fa, cj = j0[j], fy[j], cubic[j]
+        a, b = p[j, 0], p[j, 1]
+        d = p[j, 2:]
+        A[:, :] = 0.0
+        c[:] = 0.0
+        g[:] = 0.0
+        e = 0.0
+        gs = 0.0
+        for q in range(off[j], off[j + 1]):
+            t = tau[q]
+            x = s[q] - (d[0] + t * (d[1] + t * (d[2] + t * d[3] * cj)))
+            fi = (x - x0) / h
+            if fi <= 0.0:
+                f, df, fs = 0.0, 0.0, 0.0
+            elif fi >= X - 1:
+                f, df, fs = 1.0, 0.0, 0.0
+            else:
+                i = int(fi)
+                fx = fi - i
+                f = (F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx) * (1.0 - fa) \
+                    + (F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx) * fa
+                df = (dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx) * (1.0 - fa) \
+                    + (dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx) * fa
+                fs = (Fs[ja, i] * (1.0 - fx) + Fs[ja, i + 1] * fx) * (1.0 - fa) \
+                    + (Fs[ja + 1, i] * (1.0 - fx) + Fs[ja + 1, i + 1] * fx) * fa
+            r = v[q] - a - b * f
+            gg = -b * df
+            J[0] = 1.0
+            J[1] = f
+            J[2] = gg
+            J[3] = gg * t
+            J[4] = gg * t * t
+            J[5] = gg * t * t * t * cj
+            js = b * fs
+            for k in range(6):
+                g[k] += J[k] * r
+                c[k] += J[k] * js
+                for l in range(k + 1):
+                    A[k, l] += J[k] * J[l]
+            e += js * js
+            gs += js * r
+        for k in range(6):
+            for l in range(k):
+                A[l, k] = A[k, l]
+        if cj == 0.0:
+            A[5, 5] = 1.0
+        y = np.linalg.solve(A, c)
+        z = np.linalg.solve(A, g)
+        Htot += e - (c * y).sum()
+        Gtot += gs - (c * z).sum()
+    return Htot, Gtot
 
 
 @njit(cache=True, error_model="numpy")
@@ -423,4 +497,4 @@ def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
-    return (tag_edge_pixels, fit_edges, meet_curves)
+    return (tag_edge_pixels, fit_edges, meet_curves, blur_step)

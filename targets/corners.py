@@ -429,9 +429,9 @@ ARGUMENTS
   (an AprilTag's border: its data bits start one bit in); notch_clearance: board units
   from the corner to that feature (default notch), the notch shrinks for the blur as the
   box does for clearance
-- stop_if_blurred: return after the blur estimate when it finds a blur (fit.q: the first
-  pass's sharp-model corners, info["stopped"]): for a caller with its own blurred model
-  (targets.tag_edges)
+- stop_if_blurred: return after the blur's quick look (one kind, BLUR_QUICK_SAMPLE corners)
+  when it finds a blur (fit.q: the first pass's sharp-model corners, info["stopped"]): for
+  a caller with its own blurred model, which fits the blur on it (targets.tag_edges)
 - options: max_window_px, max_misfit, min_contrast (module constants by default);
   value_range: the image's max - min when the caller has it (the contrast test's scale;
   default: computed here, a pass over the image); kernel:
@@ -497,7 +497,10 @@ the estimate's spread.
         notches = {} if notch is None else {"notch": notch, "notch_clearance": notch_clearance}
         info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box, clearance,
                              kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE, **notches, **options)
-        if added_blur_px(info["psf_sigma_px"], info["psf_kind"]) >= BLUR_NEGLIGIBLE_PX:
+        # a caller that stops at a blur fits it on its own model (targets.tag_edges: on
+        # every tag edge, where the windows' estimate has a few dozen pixels per corner)
+        if added_blur_px(info["psf_sigma_px"], info["psf_kind"]) >= BLUR_NEGLIGIBLE_PX \
+                and not stop_if_blurred:
             info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box,
                                  clearance, kinds=kinds, **notches, **options)
         options["psf_kind"] = info["psf_kind"]

@@ -91,7 +91,7 @@ import functools
 
 import numpy as np
 
-from ._tag_edge_kernels import fit_edges, meet_curves, tag_edge_pixels
+from ._tag_edge_kernels import blur_step, fit_edges, meet_curves, tag_edge_pixels
 from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, PSF_KINDS, CornerFit, blur_kernel
 
 # px added to every clearance: the coarse corners' error and the bend of an edge between
@@ -103,7 +103,7 @@ SAFETY_PX = 0.3
 # that sees only the light side's tail of the blurred edge places it 5-20x worse)
 MIN_EDGE_PIXELS = 40
 # the band's half-width beyond the blur's reach (px): plateau pixels fix a and b; more of
-# them add nothing to the edge's position; start (m,4): the curves the fits start from (None: geo's)
+# them add nothing to the edge's position
 PLATEAU_PX = 1.0
 MAX_ITERATIONS = 30
 # an edge fitted alone longer than this (px) gets a cubic: on a fisheye (MER hazcam 8,
@@ -146,25 +146,28 @@ def _trapezoid_cdf(x, u, w):
 
 
 def _phi_integral(y, sigma, order):
-    r'''The order-th (1 or 2) antiderivative in y of Phi(y / sigma), 0 at -infinity'''
+    r'''The order-th (1 or 2) antiderivative in y of Phi(y / sigma), 0 at -infinity, and
+its derivative in sigma'''
     from scipy.special import ndtr
     z = y / sigma
     pdf = np.exp(-0.5 * z * z) / np.sqrt(2.0 * np.pi)
     if order == 1:
-        return sigma * (z * ndtr(z) + pdf)
-    return sigma * sigma * 0.5 * ((z * z + 1.0) * ndtr(z) + z * pdf)
+        return sigma * (z * ndtr(z) + pdf), pdf
+    cdf = ndtr(z)
+    return sigma * sigma * 0.5 * ((z * z + 1.0) * cdf + z * pdf), sigma * cdf
 
 
 @functools.lru_cache(maxsize=8)
 def _edge_table(sigma, kind):
-    r'''(x0, F (A,X), dF/dx (A,X)): the blurred dark fraction at x px into the dark side, per
-angle bin phi_m = m pi/4 / (A-1) of the normal (folded: |n_x| >= |n_y|)'''
-    Z, W, _, _ = blur_kernel([sigma], kind)
-    Z, W = Z[0], W[0]
+    r'''(x0, F (A,X), dF/dx (A,X), dF/dsigma (A,X)): the blurred dark fraction at x px into
+the dark side, per angle bin phi_m = m pi/4 / (A-1) of the normal (folded: |n_x| >= |n_y|)'''
+    Z, W, _, dW = blur_kernel([sigma], kind)
+    Z, W, dW = Z[0], W[0], dW[0]
     reach = BLUR_REACH_SIGMAS * max(sigma, 0.3) + 2.0
     x = np.arange(-reach, reach + TABLE_STEP_PX / 2, TABLE_STEP_PX)
     phi = np.linspace(0.0, np.pi / 4, TABLE_ANGLES)
     F = np.zeros((len(phi), len(x)))
+    Fs = np.zeros((len(phi), len(x)))
     for m, p in enumerate(phi):
         u, w = np.cos(p), np.sin(p)
         if kind == "gaussian":
@@ -173,24 +176,28 @@ angle bin phi_m = m pi/4 / (A-1) of the normal (folded: |n_x| >= |n_y|)'''
             # antiderivative in x, closed form (within 2e-13 of a 12 x 12 Gauss-Legendre
             # rule over the square, which took 0.024 s per table against 0.001)
             if w < 1e-12:
-                F[m] = (_phi_integral(x + u / 2, sigma, 1) - _phi_integral(x - u / 2, sigma, 1)) / u
+                hi, lo = _phi_integral(x + u / 2, sigma, 1), _phi_integral(x - u / 2, sigma, 1)
+                F[m], Fs[m] = (hi[0] - lo[0]) / u, (hi[1] - lo[1]) / u
             else:
-                F[m] = (_phi_integral(x + (u + w) / 2, sigma, 2)
-                        - _phi_integral(x + (u - w) / 2, sigma, 2)
-                        - _phi_integral(x - (u - w) / 2, sigma, 2)
-                        + _phi_integral(x - (u + w) / 2, sigma, 2)) / (u * w)
+                terms = [(sgn, _phi_integral(x + dx, sigma, 2)) for sgn, dx in
+                         ((1, (u + w) / 2), (-1, (u - w) / 2), (-1, -(u - w) / 2),
+                          (1, -(u + w) / 2))]
+                F[m] = sum(sgn * t[0] for sgn, t in terms) / (u * w)
+                Fs[m] = sum(sgn * t[1] for sgn, t in terms) / (u * w)
         else:
             # the sampled kernel's taps on the pixel image: the exact pixel fraction at
-            # each tap's offset
+            # each tap's offset (the taps fixed, their weights a function of sigma)
             proj = Z @ np.array([u, w])
-            F[m] = (W[:, None] * _trapezoid_cdf(x[None, :] - proj[:, None], u, w)).sum(0)
+            T = _trapezoid_cdf(x[None, :] - proj[:, None], u, w)
+            F[m] = (W[:, None] * T).sum(0)
+            Fs[m] = (dW[:, None] * T).sum(0)
     dF = np.gradient(F, TABLE_STEP_PX, axis=1)
-    return float(x[0]), F, dF
+    return float(x[0]), F, dF, Fs
 
 
 def _lookup(table, x, phi):
     r'''F(x) and F'(x) for the folded angles phi (same shape as x), linear in both'''
-    x0, F, dF = table
+    x0, F, dF = table[:3]
     A, X = F.shape
     fi = np.clip((x - x0) / TABLE_STEP_PX, 0.0, X - 1.000001)
     i = fi.astype(np.int64)
@@ -349,14 +356,15 @@ the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" use
                 # a long edge alone bends more than a quadratic follows on a fisheye
                 geo.append((i, k, ix, iy, t, s, L, e, n, last and L > CUBIC_EDGE_PX,
                             start[(i, k)], 2))
+        E = _Edges(img, geo, reach)
         if len(blurs) > 1:
-            (sigma, kind), table, fits, info = _choose_kind(img, geo, blurs, reach)
+            (sigma, kind), table, fits, info = _choose_kind(E, blurs)
             blurs = [(sigma, kind)]
             reach = BLUR_REACH_SIGMAS * sigma + np.sqrt(0.5)
         else:
-            fits = _fit_contrast_first(img, geo, table, reach)
+            fits = _fit_contrast_first(E, table)
         curves = {}
-        for (i, k, *_rest), (p, ok, mis) in zip(geo, fits, strict=True):
+        for (i, k, *_rest), p, ok, mis in zip(geo, *fits, strict=True):
             end = _rest[-1]
             mis_edge[i, k] = np.fmax(mis_edge[i, k], mis) if last else mis
             if not ok:
@@ -439,10 +447,10 @@ none has (a sampled kernel narrower than the pixel)'''
     return float(np.sqrt(v)) if v > 0 else 0.0
 
 
-def _choose_kind(img, geo, blurs, reach):
+def _choose_kind(E, blurs):
     r'''((sigma, kind), table, fits, info): the candidate blur whose edge fits (the first
 pass's, each edge alone) leave the least squared misfit summed over the edges every
-candidate fitted to convergence
+candidate fitted to convergence, each kind at the sigma the edges fit best (_fit_blur)
 
 Why. targets.corners.estimate_blur picks the kind on ~32 corner windows of a few dozen
 pixels each: the two kinds at the same variance differ in the edge's shape by less than
@@ -451,68 +459,113 @@ px) it chose "gaussian" (sigma 0.75) for the response's sampled blur (0.7): the 
 corners were 0.011-0.020 px RMS off against 0.0055-0.0065 with the right kind (an edge seen
 mostly from its light side takes the profile's shape for its position). All the image's
 tag edges (10^4-10^6 pixels) tell the shapes apart; both kinds are judged on the same
-pixels, so the noise is common to both and no threshold enters.'''
+pixels, so the noise is common to both and no threshold enters. They tell sigma too: the
+windows' estimate is a median of per-corner fits scattered by ~0.005 px on the realistic
+images (standard error ~0.001 px from 32 corners, both kinds fitted: ~0.04 s per 1024x1024
+image), where the one sigma of every edge comes to 2e-4 - 9e-4 px (info
+"psf_sigma_se_px"); the windows' quick look (BLUR_QUICK_SAMPLE corners, one kind) only
+starts it. Each kind's misfit is compared at its sigma after one Gauss-Newton step
+(predicted: S - G^2 / H, the step's own quadratic model); the chosen kind's sigma is then
+stepped to convergence.'''
     out = []
     for sg, kd in blurs:
+        start = None
+        if out:
+            # the other kinds at the variance of the first one's stepped sigma, started from
+            # its curves: at the same variance the kinds' edges lie within ~0.01 px
+            sg = _same_variance(out[0][1] + out[0][4], out[0][0], kd)
+            if not sg > 0:
+                continue
+            start = out[0][3][0][:, 2:] * [1, 1, 1, 0]
         table = _table(sg, kd)
-        # the other kinds start from the first's curves: at the same variance the kinds'
-        # edges lie within ~0.01 px, a few steps instead of the ~0.13 px from the chords
-        start = None if not out else np.array([f[0][2:] for f in out[0][1]]) * [1, 1, 1, 0]
-        out.append((table, _fit_contrast_first(img, geo, table, reach, start)))
-    both = np.ones(len(geo), bool)
-    for _, fits in out:
-        both &= np.array([bool(f[1]) and bool(np.isfinite(f[2])) for f in fits])
-    n = np.array([len(g[2]) for g in geo], dtype=np.float64)
+        fits = _fit_contrast_first(E, table, start)
+        out.append((kd, sg, table, fits) + _blur_step(E, table, fits))
+    both = np.ones(E.m, bool)
+    for o in out:
+        both &= o[3][1] & np.isfinite(o[3][2])
     sums = []
-    for _, fits in out:
-        # mis = RMS / |b|: an edge's squared residual sum is n (mis b)^2
-        sq = np.array([(f[2] * f[0][1]) ** 2 for f in fits]) * n
-        sums.append(float(sq[both].sum()) if both.any() else np.inf)
+    for o in out:
+        p, _, mis = o[3]
+        # mis = RMS / |b|: an edge's squared residual sum is n (mis b)^2; less the step's
+        # predicted decrease
+        sq = (mis * p[:, 1]) ** 2 * E.n
+        sums.append(float(sq[both].sum()) - o[5] if both.any() else np.inf)
     best = int(np.argmin(sums))
-    sg, kd = blurs[best]
+    kd, sg, table, fits, step, _, _, se = out[best]
+    sg, table, fits, se = _fit_blur(E, sg, kd, table, fits, step, se)
     info = {"psf_sigma_px": sg, "psf_kind": kd, "psf_kind_chosen_by": "tag edges",
-            "psf_kind_misfit": {k: v for (_, k), v in zip(blurs, sums, strict=True)}}
-    return blurs[best], out[best][0], out[best][1], info
+            "psf_sigma_fitted_by": "tag edges", "psf_sigma_se_px": se,
+            "psf_kind_misfit": {o[0]: v for o, v in zip(out, sums, strict=True)}}
+    return (sg, kd), table, fits, info
 
 
-def _fit_contrast_first(img, geo, table, reach, start=None):
-    r'''_fit_edges: first the edges whose band reaches the dark plateau (MIN_PLATEAU_PIXELS
-at least reach px inside the curve), then the others with the contrast b given, the median
-of their tag's plateau edges (else of the image's): a band that sees only the light side of
-an edge (bits of 2-3 px across, a tag seen obliquely) cannot tell the contrast from the
-edge's position'''
-    deep = np.array([np.count_nonzero(g[5] - _curve_s(g[10], 2.0 * g[4] / g[6] - 1.0) >= reach)
-                     >= MIN_PLATEAU_PIXELS for g in geo])
-    fits = [None] * len(geo)
-    first = np.flatnonzero(deep)
-    if len(first):
-        for j, f in zip(first, _fit_edges(img, [geo[j] for j in first], table,
-                                          start=_rows(start, first)), strict=True):
-            fits[j] = f
+# Gauss-Newton steps of the blur's sigma on the edges at most (each refits them); they stop
+# at a step below sigma's standard error or half the table's sigma step
+# (TABLE_SIGMA_STEP_PX, which no table follows), whichever is larger
+BLUR_STEPS = 4
+
+
+def _blur_step(E, table, fits):
+    r'''(step, predicted decrease of the summed squared misfit, misfit sum, standard error
+of sigma): a Gauss-Newton step of the one sigma of every edge fitted with its contrast free
+(targets._tag_edge_kernels.blur_step: each edge's own parameters follow it); step 0 where
+no edge tells'''
+    p, done, mis = fits
+    use = E.deep & done & np.isfinite(mis)
+    if not use.any():
+        return 0.0, 0.0, 0.0, float("nan")
+    x0, F, dF, Fs = table
+    H, G = blur_step(E.off, E.v, E.tau, E.s, E.cubic, E.j0, E.fy, p, x0, TABLE_STEP_PX, F,
+                     dF, Fs, use)
+    if not H > 0:
+        return 0.0, 0.0, 0.0, float("nan")
+    S = float(((mis[use] * p[use, 1]) ** 2 * E.n[use]).sum())
+    dof = max(float(E.n[use].sum()) - 6 * int(use.sum()) - 1, 1.0)
+    return G / H, G * G / H, S, float(np.sqrt(S / dof / H))
+
+
+def _fit_blur(E, sigma, kind, table, fits, step, se):
+    r'''(sigma, table, fits, standard error of sigma): sigma of this kind stepped from fits
+(at sigma, its next step) until the step is below max(standard error,
+TABLE_SIGMA_STEP_PX / 2), the edges fitted again from their curves after each'''
+    for _ in range(BLUR_STEPS):
+        if not abs(step) > max(se, TABLE_SIGMA_STEP_PX / 2) or not sigma + step > 0:
+            break
+        sigma = sigma + step
+        table = _table(sigma, kind)
+        fits = _fit_contrast_first(E, table, fits[0][:, 2:] * [1, 1, 1, 0])
+        step, _, _, se1 = _blur_step(E, table, fits)
+        se = se1 if np.isfinite(se1) else se
+    return sigma, table, fits, se
+
+
+def _fit_contrast_first(E, table, start=None):
+    r'''_fit_edges: first the edges whose band reaches the dark plateau (E.deep), then the
+others with the contrast b given, the median of their tag's plateau edges (else of the
+image's): a band that sees only the light side of an edge (bits of 2-3 px across, a tag
+seen obliquely) cannot tell the contrast from the edge's position; start (m,4): the curves
+the fits start from (None: E.d). (p (m,6), converged (m,), misfit (m,))'''
+    deep = E.deep
+    free = np.full(E.m, np.nan)
+    p, done, mis = _fit_edges(E, table, free, start, skip=~deep)
     rest = np.flatnonzero(~deep)
     if not len(rest):
-        return fits
-    bs = {}
-    for j in first:
-        if fits[j][1]:
-            bs.setdefault(geo[j][0], []).append(fits[j][0][1])
-    every = [b for v in bs.values() for b in v]
-    if not every:
+        return p, done, mis
+    first = np.flatnonzero(deep & done)
+    if not len(first):
         # no edge sees its plateau: fit them all free (poorly conditioned, judged by misfit)
-        for j, f in zip(rest, _fit_edges(img, [geo[j] for j in rest], table,
-                                          start=_rows(start, rest)), strict=True):
-            fits[j] = f
-        return fits
-    ball = float(np.median(every))
-    bfix = [float(np.median(bs[geo[j][0]])) if geo[j][0] in bs else ball for j in rest]
-    for j, f in zip(rest, _fit_edges(img, [geo[j] for j in rest], table, bfix,
-                                      start=_rows(start, rest)), strict=True):
-        fits[j] = f
-    return fits
-
-
-def _rows(a, j):
-    return None if a is None else a[j]
+        p2, d2, m2 = _fit_edges(E, table, free, start, skip=deep)
+    else:
+        bs = {}
+        for j in first:
+            bs.setdefault(E.tag[j], []).append(p[j, 1])
+        ball = float(np.median(p[first, 1]))
+        bfix = free.copy()
+        bfix[rest] = [float(np.median(bs[E.tag[j]])) if E.tag[j] in bs else ball
+                      for j in rest]
+        p2, d2, m2 = _fit_edges(E, table, bfix, start, skip=deep)
+    p[rest], done[rest], mis[rest] = p2[rest], d2[rest], m2[rest]
+    return p, done, mis
 
 
 def _curve_s(d, tau):
@@ -541,34 +594,51 @@ the frame of its chord in Q (N,4,2), d3 = 0 (zeros where shapes has none)'''
     return out
 
 
-def _fit_edges(img, geo, table, bfix=None, converged_px=CONVERGED_PX, start=None):
+def _fit_edges(E, table, bfix, start=None, skip=None, converged_px=CONVERGED_PX):
     r'''Levenberg-Marquardt of every edge's (a, b, d0..d3), each on its own (compiled:
 targets._tag_edge_kernels.fit_edges), d3 = 0 unless the edge has its neighbours' pixels;
-bfix (m,) the contrast of the edges whose b is given (NaN: fitted): [(p (6,), converged,
-misfit RMS / contrast)] per edge; start (m,4): the curves to start from (None: geo's)'''
-    m = len(geo)
-    counts = np.array([len(g[2]) for g in geo], dtype=np.int64)
-    off = np.zeros(m + 1, np.int64)
-    np.cumsum(counts, out=off[1:])
-    ix = np.concatenate([g[2] for g in geo])
-    iy = np.concatenate([g[3] for g in geo])
-    v = img[iy, ix].astype(np.float64)
-    tau = np.concatenate([2.0 * g[4] / g[6] - 1.0 for g in geo])
-    s = np.concatenate([g[5] for g in geo]).astype(np.float64)
-    n = np.abs(np.array([g[8] for g in geo], dtype=np.float64).reshape(m, 2))
-    phi = np.arctan2(n.min(-1), n.max(-1))
-    cubic = np.array([float(g[9]) for g in geo])
-    x0, F, dF = table
-    A = F.shape[0]
-    fa = np.clip(phi / (np.pi / 4) * (A - 1), 0.0, A - 1.000001)
-    j0 = fa.astype(np.int64)
-    fy = fa - j0
-    bf = np.full(m, np.nan) if bfix is None else np.asarray(bfix, dtype=np.float64)
-    # the start: each edge's current curve (cubic term 0), or the one given
-    d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
+bfix (m,) the contrast of the edges whose b is given (NaN: fitted); start (m,4): the curves
+to start from (None, or a row not finite: E.d); skip (m,): edges not fitted. (p (m,6),
+converged (m,), misfit RMS / contrast (m,))'''
+    x0, F, dF = table[:3]
+    d = E.d
     if start is not None:
-        start = np.asarray(start, dtype=np.float64).reshape(m, 4)
+        start = np.asarray(start, dtype=np.float64).reshape(E.m, 4)
         d = np.where(np.isfinite(start).all(-1)[:, None], start, d)
-    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF, bf,
-                             MAX_ITERATIONS, float(converged_px))
-    return [(p[j], bool(done[j]), float(mis[j])) for j in range(m)]
+    skip = np.zeros(E.m, bool) if skip is None else skip
+    return fit_edges(E.off, E.v, E.tau, E.s, E.cubic, E.j0, E.fy, np.ascontiguousarray(d),
+                     x0, TABLE_STEP_PX, F, dF, np.asarray(bfix, dtype=np.float64), skip,
+                     MAX_ITERATIONS, float(converged_px))
+
+
+class _Edges:
+    r'''The pixels of the edges geo in the arrays of targets._tag_edge_kernels.fit_edges
+(off, v, tau, s, cubic, j0, fy; d each edge's current curve, cubic term 0), with n (m,)
+each edge's pixel count, tag (m,) its tag and deep (m,): the edges whose band reaches the
+dark plateau (MIN_PLATEAU_PIXELS at least reach px inside the curve)'''
+
+    def __init__(self, img, geo, reach):
+        m = self.m = len(geo)
+        counts = np.array([len(g[2]) for g in geo], dtype=np.int64)
+        self.n = counts.astype(np.float64)
+        self.off = np.zeros(m + 1, np.int64)
+        np.cumsum(counts, out=self.off[1:])
+        ix = np.concatenate([g[2] for g in geo])
+        iy = np.concatenate([g[3] for g in geo])
+        self.v = img[iy, ix].astype(np.float64)
+        self.tau = np.concatenate([2.0 * g[4] / g[6] - 1.0 for g in geo])
+        self.s = np.concatenate([g[5] for g in geo]).astype(np.float64)
+        n = np.abs(np.array([g[8] for g in geo], dtype=np.float64).reshape(m, 2))
+        phi = np.arctan2(n.min(-1), n.max(-1))
+        self.cubic = np.array([float(g[9]) for g in geo])
+        fa = np.clip(phi / (np.pi / 4) * (TABLE_ANGLES - 1), 0.0, TABLE_ANGLES - 1.000001)
+        self.j0 = fa.astype(np.int64)
+        self.fy = fa - self.j0
+        self.d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
+        self.tag = np.array([g[0] for g in geo], dtype=np.int64)
+        # the start curves (cubic term kept, as the band was placed) at every pixel
+        c = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4)
+        cp = np.repeat(c, counts, axis=0)
+        x = self.s - _curve_s(cp.T, self.tau)
+        self.deep = np.add.reduceat((x >= reach).astype(np.int64), self.off[:-1]) \
+            >= MIN_PLATEAU_PIXELS if m else np.zeros(0, bool)

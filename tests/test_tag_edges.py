@@ -155,8 +155,10 @@ handed the Gaussian kind of the same variance (sigma sqrt(0.7^2 + 1/12): what th
 windows' estimate returned on half of camera 17's images), the edges choose the sampled
 kind back at sigma 0.7 (the variances' identity, exact), and the corners are those of the
 right kind given: the fit after the choice is the same fit, but for the first pass's
-slightly wider pixel band (the wider candidate's reach), so to a fraction of the noise
-floor (0.005 px RMS here, test_noisy_tag_corners_to_the_edges_noise_floor)'''
+slightly wider pixel band (the wider candidate's reach) and sigma fitted on the edges, so to
+a fraction of the noise floor (0.005 px RMS here,
+test_noisy_tag_corners_to_the_edges_noise_floor). Sigma is fitted on the edges: within a
+few of its standard errors (the noise's, from the misfit) of 0.7'''
     img, Q, grid = _tag_grid(4.0)
     bits = np.array([tag36h11_bits(t) for t in range(len(Q))])
     im = ResponseChain.from_config(REALISTIC).apply(img, seed=1).image.astype(np.float64)
@@ -164,7 +166,10 @@ floor (0.005 px RMS here, test_noisy_tag_corners_to_the_edges_noise_floor)'''
     fit = refine_tag_edges(im, Q + 0.2, wrong, "gaussian", bits=bits, grid=grid,
                            value_range=1.0, choose_kind=True)
     assert fit.info["psf_kind"] == "sampled"
-    assert abs(fit.info["psf_sigma_px"] - 0.7) < 1e-12
+    se = fit.info["psf_sigma_se_px"]
+    # 4 standard errors: a Gaussian estimate's 1-in-16000 tail; se itself ~1e-3 px on the
+    # 9 tags' ~10^4 edge pixels at the profile's noise
+    assert 0 < se < 0.003 and abs(fit.info["psf_sigma_px"] - 0.7) < 4 * se, (se, fit.info)
     right = refine_tag_edges(im, Q + 0.2, 0.7, "sampled", bits=bits, grid=grid,
                              value_range=1.0)
     e = np.linalg.norm(fit.q - right.q, axis=-1)
