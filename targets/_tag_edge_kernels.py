@@ -31,21 +31,30 @@ fitted by Levenberg-Marquardt, each edge on its own (targets.tag_edges._fit_edge
 import numpy as np
 from numba import njit
 
+# the moments _profile sums over an edge's pixels for its normal equations (_normal): with
+# g = F'(x) and t the position tau, sum g t^k, sum g F t^k, sum g v t^k (k = 0..3) and
+# sum g^2 t^k (k = 0..6): the Jacobian's columns are b g t^k, so the normal equations are
+# these times powers of b (one pass over the pixels instead of two)
+_G, _GF, _GV, _GG = 0, 4, 8, 12
+_MOMENTS = 19
+
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, dFv):
-    # F and F' at every pixel of one edge (into Fv, dFv), and the light level a, contrast
-    # b and squared misfit S that fit them
+def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, M):
+    # F at every pixel of one edge (into Fv), the moments M of its normal equations, and
+    # the light level a, contrast b and squared misfit S that fit them
     X = F.shape[1]
     sw = 0.0
     sf = 0.0
     sff = 0.0
     sv = 0.0
     sfv = 0.0
+    M[:] = 0.0
     for p in range(o0, o1):
         t = tau[p]
         x = s[p] - (d[0] + t * (d[1] + t * (d[2] + t * d[3] * cubic)))
         fi = (x - x0) / h
+        vp = v[p]
         if fi <= 0.0:
             f, df = 0.0, 0.0
         elif fi >= X - 1:
@@ -59,9 +68,17 @@ def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, dFv):
             g0 = dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx
             g1 = dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx
             df = g0 * (1.0 - fa) + g1 * fa
+        if df != 0.0:
+            tk = 1.0
+            gg = df * df
+            for k in range(7):
+                if k < 4:
+                    M[_G + k] += df * tk
+                    M[_GF + k] += df * f * tk
+                    M[_GV + k] += df * vp * tk
+                M[_GG + k] += gg * tk
+                tk *= t
         Fv[p - o0] = f
-        dFv[p - o0] = df
-        vp = v[p]
         sw += 1.0
         sf += f
         sff += f * f
@@ -76,29 +93,30 @@ def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, dFv):
     for p in range(o0, o1):
         r = v[p] - a - b * Fv[p - o0]
         S += r * r
-    return a, b, S
+    return a, b, S, sw, sf, sff, sv, sfv
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _normal(v, tau, o0, o1, cubic, a, b, bfree, Fv, dFv, JtJ, Jtr):
-    # the normal equations of one edge in (a, b, d0, d1, d2, d3) at its profile Fv, dFv
-    J = np.zeros(6)
+def _normal(M, sw, sf, sff, sv, sfv, cubic, a, b, bfree, JtJ, Jtr):
+    # the normal equations of one edge in (a, b, d0, d1, d2, d3) from _profile's sums: the
+    # Jacobian is (1, F, -b g, -b g t, -b g t^2, -b g t^3 [cubic]), the residual
+    # v - a - b F
     JtJ[:, :] = 0.0
     Jtr[:] = 0.0
-    for p in range(o0, o1):
-        t = tau[p]
-        r = v[p] - a - b * Fv[p - o0]
-        g = -b * dFv[p - o0]
-        J[0] = 1.0
-        J[1] = Fv[p - o0] if bfree else 0.0
-        J[2] = g
-        J[3] = g * t
-        J[4] = g * t * t
-        J[5] = g * t * t * t * cubic
-        for k in range(6):
-            Jtr[k] += J[k] * r
-            for l in range(k + 1):
-                JtJ[k, l] += J[k] * J[l]
+    nk = 4 if cubic != 0.0 else 3
+    JtJ[0, 0] = sw
+    Jtr[0] = sv - a * sw - b * sf
+    if bfree:
+        JtJ[1, 0] = sf
+        JtJ[1, 1] = sff
+        Jtr[1] = sfv - a * sf - b * sff
+    for k in range(nk):
+        JtJ[2 + k, 0] = -b * M[_G + k]
+        if bfree:
+            JtJ[2 + k, 1] = -b * M[_GF + k]
+        for l in range(k + 1):
+            JtJ[2 + k, 2 + l] = b * b * M[_GG + k + l]
+        Jtr[2 + k] = -b * (M[_GV + k] - a * M[_G + k] - b * M[_GF + k])
     for k in range(6):
         for l in range(k):
             JtJ[l, k] = JtJ[k, l]
@@ -115,9 +133,8 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
     for j in range(m):
         P = max(P, off[j + 1] - off[j])
     Fv = np.zeros(P)
-    dFv = np.zeros(P)
-    F1 = np.zeros(P)
-    dF1 = np.zeros(P)
+    M = np.zeros(_MOMENTS)
+    M1 = np.zeros(_MOMENTS)
     JtJ = np.zeros((6, 6))
     Jtr = np.zeros(6)
     A = np.zeros((6, 6))
@@ -130,8 +147,9 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
         ja, fa, cj, bj = j0[j], fy[j], cubic[j], bfix[j]
         bfree = np.isnan(bj)
         dj = d[j].copy()
-        a, b, S = _profile(v, tau, s, o0, o1, cj, ja, fa, dj, x0, h, F, dF, bj, Fv, dFv)
-        _normal(v, tau, o0, o1, cj, a, b, bfree, Fv, dFv, JtJ, Jtr)
+        a, b, S, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, ja, fa, dj, x0, h, F,
+                                                 dF, bj, Fv, M)
+        _normal(M, sw, sf, sff, sv, sfv, cj, a, b, bfree, JtJ, Jtr)
         lam = 1e-3
         ok = False
         for _ in range(max_iterations):
@@ -141,14 +159,13 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
                 A[k, k] += lam * JtJ[k, k]
             step = np.linalg.solve(A, Jtr)
             d1 = dj + step[2:]
-            a1, b1, S1 = _profile(v, tau, s, o0, o1, cj, ja, fa, d1, x0, h, F, dF, bj, F1,
-                                  dF1)
+            a1, b1, S1, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, ja, fa, d1, x0,
+                                                        h, F, dF, bj, Fv, M1)
             better = S1 <= S
             if better:
                 dj, a, b, S = d1, a1, b1, S1
-                Fv, F1 = F1, Fv
-                dFv, dF1 = dF1, dFv
-                _normal(v, tau, o0, o1, cj, a, b, bfree, Fv, dFv, JtJ, Jtr)
+                M, M1 = M1, M
+                _normal(M, sw, sf, sff, sv, sfv, cj, a, b, bfree, JtJ, Jtr)
                 lam = max(lam * 0.3, 1e-7)
             else:
                 lam = lam * 10.0
