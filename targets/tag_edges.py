@@ -70,7 +70,7 @@ targets._tag_edge_kernels), twice: the first pass fits each edge alone and place
 second's pixels. A corner is dropped, with the reason, when either of its edges has too
 few pixels or sees only its light side, did not converge, misfits by more than MAX_MISFIT
 of its contrast, has too little contrast, or when the two curves do not meet within
-MAX_CORNER_SHIFT_PX of the corner they started from.
+MAX_CORNER_SHIFT_PX of the corner they started from (start_error_px in the first pass).
 
 Measured (benchmarks/bench_corners.py --targets apriltag --methods camval --response
 realistic; K = 16 renders, 6 poses; load 18): corner error RMS 0.0034 px (navcam 15),
@@ -258,7 +258,7 @@ def _neighbours(grid, N):
 
 def refine_tag_edges(image, Q, sigma, kind="gaussian", *, bits=None, grid=None, gap_bits=2.4,
                      value_range=None, passes=2, max_misfit=MAX_MISFIT,
-                     min_contrast=MIN_CONTRAST, choose_kind=False):
+                     min_contrast=MIN_CONTRAST, choose_kind=False, start_error_px=None):
     r'''Corners of AprilTags from their four whole border edges; see the module docstring
 
 ARGUMENTS
@@ -271,6 +271,9 @@ ARGUMENTS
   edge is fitted together with the edges on the same board line of the adjacent tags
 - gap_bits: tag bits of light board between a tag and its neighbour (tag_spacing x 8)
 - value_range: the image's max - min (the contrast test's scale; default computed)
+- start_error_px: the most the first pass's corners may move from Q (default
+  MAX_CORNER_SHIFT_PX; the passes after it keep to MAX_CORNER_SHIFT_PX of the previous
+  pass's corners): a detector's coarse corners may err by more
 - choose_kind: True: (sigma, kind) is an estimate; the kind is chosen here among
   targets.corners.PSF_KINDS, each at the sigma of the same variance (_same_variance), by
   the first pass's squared misfit summed over the edges every kind fitted (_choose_kind)
@@ -404,7 +407,9 @@ the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" use
             L, e, n = frames[(i, k)]
             shapes[(i, k)] = q[i, k] + (0.5 * L * (tau9 + 1.0))[:, None] * e \
                 + _curve_s(c, tau9)[:, None] * n
-        far = np.linalg.norm(qn - q, axis=-1) > MAX_CORNER_SHIFT_PX
+        # the first pass starts from Q, the next ones from the previous pass's corners
+        far = np.linalg.norm(qn - q, axis=-1) > (
+            start_error_px if npass == 0 and start_error_px else MAX_CORNER_SHIFT_PX)
         found = np.where(far[..., None], np.nan, qn)
         # a corner not found keeps its place for the next pass's chords (its edges are
         # fitted again, and judged there)
