@@ -120,6 +120,9 @@ STRAIGHT_BEND_PX = 0.05
 MIN_PLATEAU_PIXELS = 10
 # converged when no curve coefficient moves by more than this (px): a tenth of 1e-3 px
 CONVERGED_PX = 1e-4
+# the blur's first pass (kind and sigma, each edge alone) only places the second pass's
+# pixels (SAFETY_PX of margin) and compares misfits, second order in a curve's error
+FIRST_PASS_CONVERGED_PX = 1e-3
 # the most the meeting point of two fitted edges may move from the corner it started at
 MAX_CORNER_SHIFT_PX = 2.0
 # the most Newton steps to where two fitted edges meet (they stop at a step below 1e-9 px)
@@ -483,7 +486,7 @@ stepped to convergence.'''
                 continue
             start = out[0][3][0][:, 2:] * [1, 1, 1, 0]
         table = _table(sg, kd)
-        fits = _fit_contrast_first(E, table, start)
+        fits = _fit_contrast_first(E, table, start, FIRST_PASS_CONVERGED_PX)
         out.append((kd, sg, table, fits) + _blur_step(E, table, fits))
     both = np.ones(E.m, bool)
     for o in out:
@@ -538,13 +541,14 @@ TABLE_SIGMA_STEP_PX / 2), the edges fitted again from their curves after each'''
             break
         sigma = sigma + step
         table = _table(sigma, kind)
-        fits = _fit_contrast_first(E, table, fits[0][:, 2:] * [1, 1, 1, 0])
+        fits = _fit_contrast_first(E, table, fits[0][:, 2:] * [1, 1, 1, 0],
+                                   FIRST_PASS_CONVERGED_PX)
         step, _, _, se1 = _blur_step(E, table, fits)
         se = se1 if np.isfinite(se1) else se
     return sigma, table, fits, se
 
 
-def _fit_contrast_first(E, table, start=None):
+def _fit_contrast_first(E, table, start=None, converged_px=CONVERGED_PX):
     r'''_fit_edges: first the edges whose band reaches the dark plateau (E.deep), then the
 others with the contrast b given, the median of their tag's plateau edges (else of the
 image's): a band that sees only the light side of an edge (bits of 2-3 px across, a tag
@@ -552,14 +556,14 @@ seen obliquely) cannot tell the contrast from the edge's position; start (m,4): 
 the fits start from (None: E.d). (p (m,6), converged (m,), misfit (m,))'''
     deep = E.deep
     free = np.full(E.m, np.nan)
-    p, done, mis = _fit_edges(E, table, free, start, skip=~deep)
+    p, done, mis = _fit_edges(E, table, free, start, skip=~deep, converged_px=converged_px)
     rest = np.flatnonzero(~deep)
     if not len(rest):
         return p, done, mis
     first = np.flatnonzero(deep & done)
     if not len(first):
         # no edge sees its plateau: fit them all free (poorly conditioned, judged by misfit)
-        p2, d2, m2 = _fit_edges(E, table, free, start, skip=deep)
+        p2, d2, m2 = _fit_edges(E, table, free, start, skip=deep, converged_px=converged_px)
     else:
         bs = {}
         for j in first:
@@ -568,7 +572,7 @@ the fits start from (None: E.d). (p (m,6), converged (m,), misfit (m,))'''
         bfix = free.copy()
         bfix[rest] = [float(np.median(bs[E.tag[j]])) if E.tag[j] in bs else ball
                       for j in rest]
-        p2, d2, m2 = _fit_edges(E, table, bfix, start, skip=deep)
+        p2, d2, m2 = _fit_edges(E, table, bfix, start, skip=deep, converged_px=converged_px)
     p[rest], done[rest], mis[rest] = p2[rest], d2[rest], m2[rest]
     return p, done, mis
 
