@@ -40,10 +40,11 @@ _MOMENTS = 19
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, M):
-    # F at every pixel of one edge (into Fv), the moments M of its normal equations, and
-    # the light level a, contrast b and squared misfit S that fit them
-    X = F.shape[1]
+def _profile(v, tau, s, o0, o1, cubic, d, x0, h, Fe, dFe, bfix, Fv, M):
+    # F at every pixel of one edge (into Fv; Fe, dFe: F and F' at the edge's angle, _at_angle),
+    # the moments M of its normal equations, and the light level a, contrast b and squared
+    # misfit S that fit them
+    X = Fe.shape[0]
     sw = 0.0
     sf = 0.0
     sff = 0.0
@@ -62,12 +63,8 @@ def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, M):
         else:
             i = int(fi)
             fx = fi - i
-            f0 = F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx
-            f1 = F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx
-            f = f0 * (1.0 - fa) + f1 * fa
-            g0 = dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx
-            g1 = dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx
-            df = g0 * (1.0 - fa) + g1 * fa
+            f = Fe[i] * (1.0 - fx) + Fe[i + 1] * fx
+            df = dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
         if df != 0.0:
             tk = 1.0
             gg = df * df
@@ -94,6 +91,13 @@ def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, M):
         r = v[p] - a - b * Fv[p - o0]
         S += r * r
     return a, b, S, sw, sf, sff, sv, sfv
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _at_angle(T, ja, fa, out):
+    # a table's row at an edge's angle: bins ja and ja + 1 mixed by fa (linear in the angle)
+    for i in range(T.shape[1]):
+        out[i] = T[ja, i] * (1.0 - fa) + T[ja + 1, i] * fa
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -133,6 +137,9 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
     for j in range(m):
         P = max(P, off[j + 1] - off[j])
     Fv = np.zeros(P)
+    X = F.shape[1]
+    Fe = np.zeros(X)
+    dFe = np.zeros(X)
     M = np.zeros(_MOMENTS)
     M1 = np.zeros(_MOMENTS)
     JtJ = np.zeros((6, 6))
@@ -147,8 +154,10 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
         ja, fa, cj, bj = j0[j], fy[j], cubic[j], bfix[j]
         bfree = np.isnan(bj)
         dj = d[j].copy()
-        a, b, S, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, ja, fa, dj, x0, h, F,
-                                                 dF, bj, Fv, M)
+        _at_angle(F, ja, fa, Fe)
+        _at_angle(dF, ja, fa, dFe)
+        a, b, S, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, dj, x0, h, Fe, dFe,
+                                                 bj, Fv, M)
         _normal(M, sw, sf, sff, sv, sfv, cj, a, b, bfree, JtJ, Jtr)
         lam = 1e-3
         ok = False
@@ -159,8 +168,8 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
                 A[k, k] += lam * JtJ[k, k]
             step = np.linalg.solve(A, Jtr)
             d1 = dj + step[2:]
-            a1, b1, S1, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, ja, fa, d1, x0,
-                                                        h, F, dF, bj, Fv, M1)
+            a1, b1, S1, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, d1, x0, h, Fe,
+                                                        dFe, bj, Fv, M1)
             better = S1 <= S
             if better:
                 dj, a, b, S = d1, a1, b1, S1
@@ -182,6 +191,23 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
 
 
 @njit(cache=True, error_model="numpy")
+def plateau_counts(off, tau, s, curves, reach):
+    r'''(m,) each edge's pixels at least reach px inside its curve (d0..d3 in curves (m,4),
+the pixels as fit_edges')'''
+    m = len(off) - 1
+    out = np.zeros(m, np.int64)
+    for j in range(m):
+        d = curves[j]
+        c = 0
+        for q in range(off[j], off[j + 1]):
+            t = tau[q]
+            if s[q] - (d[0] + t * (d[1] + t * (d[2] + t * d[3]))) >= reach:
+                c += 1
+        out[j] = c
+    return out
+
+
+@njit(cache=True, error_model="numpy")
 def blur_step(off, v, tau, s, cubic, j0, fy, p, x0, h, F, dF, Fs, use):
     r'''(H, G): the Gauss-Newton normal equation H dsigma = G of the blur the edges marked
 in use (m,) share, each edge's own (a, b, d0..d3) in p (m,6) eliminated (the Schur
@@ -195,10 +221,16 @@ F; the pixels and the rest as fit_edges'. Every edge's b is free, its d3 where c
     A = np.zeros((6, 6))
     c = np.zeros(6)
     g = np.zeros(6)
+    Fe = np.zeros(X)
+    dFe = np.zeros(X)
+    Fse = np.zeros(X)
     for j in range(m):
         if not use[j]:
             continue
         ja, fa, cj = j0[j], fy[j], cubic[j]
+        _at_angle(F, ja, fa, Fe)
+        _at_angle(dF, ja, fa, dFe)
+        _at_angle(Fs, ja, fa, Fse)
         a, b = p[j, 0], p[j, 1]
         d = p[j, 2:]
         A[:, :] = 0.0
@@ -217,12 +249,9 @@ F; the pixels and the rest as fit_edges'. Every edge's b is free, its d3 where c
             else:
                 i = int(fi)
                 fx = fi - i
-                f = (F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx) * (1.0 - fa) \
-                    + (F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx) * fa
-                df = (dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx) * (1.0 - fa) \
-                    + (dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx) * fa
-                fs = (Fs[ja, i] * (1.0 - fx) + Fs[ja, i + 1] * fx) * (1.0 - fa) \
-                    + (Fs[ja + 1, i] * (1.0 - fx) + Fs[ja + 1, i + 1] * fx) * fa
+                f = Fe[i] * (1.0 - fx) + Fe[i + 1] * fx
+                df = dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
+                fs = Fse[i] * (1.0 - fx) + Fse[i + 1] * fx
             r = v[q] - a - b * f
             gg = -b * df
             J[0] = 1.0
@@ -514,4 +543,4 @@ def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
-    return (tag_edge_pixels, fit_edges, meet_curves, blur_step)
+    return (tag_edge_pixels, fit_edges, meet_curves, blur_step, plateau_counts)

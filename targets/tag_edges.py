@@ -91,7 +91,7 @@ import functools
 
 import numpy as np
 
-from ._tag_edge_kernels import blur_step, fit_edges, meet_curves, tag_edge_pixels
+from ._tag_edge_kernels import blur_step, fit_edges, meet_curves, plateau_counts, tag_edge_pixels
 from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, PSF_KINDS, CornerFit, blur_kernel
 
 # px added to every clearance: the coarse corners' error and the bend of an edge between
@@ -645,9 +645,7 @@ dark plateau (MIN_PLATEAU_PIXELS at least reach px inside the curve)'''
         self.fy = fa - self.j0
         self.d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
         self.tag = np.array([g[0] for g in geo], dtype=np.int64)
-        # the start curves (cubic term kept, as the band was placed) at every pixel
-        c = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4)
-        cp = np.repeat(c, counts, axis=0)
-        x = self.s - _curve_s(cp.T, self.tau)
-        self.deep = np.add.reduceat((x >= reach).astype(np.int64), self.off[:-1]) \
-            >= MIN_PLATEAU_PIXELS if m else np.zeros(0, bool)
+        # about the start curves (cubic term kept, as the band was placed)
+        self.deep = plateau_counts(self.off, self.tau, self.s, np.array(
+            [g[10] for g in geo], dtype=np.float64).reshape(m, 4), float(reach)) \
+            >= MIN_PLATEAU_PIXELS
