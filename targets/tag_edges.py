@@ -567,11 +567,11 @@ the fits start from (None: E.d). (p (m,6), converged (m,), misfit (m,))'''
     else:
         bs = {}
         for j in first:
-            bs.setdefault(E.tag[j], []).append(p[j, 1])
+            bs.setdefault(int(E.tag[j]), []).append(p[j, 1])
+        med = {t: float(np.median(b)) for t, b in bs.items()}
         ball = float(np.median(p[first, 1]))
         bfix = free.copy()
-        bfix[rest] = [float(np.median(bs[E.tag[j]])) if E.tag[j] in bs else ball
-                      for j in rest]
+        bfix[rest] = [med.get(int(E.tag[j]), ball) for j in rest]
         p2, d2, m2 = _fit_edges(E, table, bfix, start, skip=deep, converged_px=converged_px)
     p[rest], done[rest], mis[rest] = p2[rest], d2[rest], m2[rest]
     return p, done, mis
