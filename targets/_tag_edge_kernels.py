@@ -171,6 +171,11 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
             a1, b1, S1, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, d1, x0, h, Fe,
                                                         dFe, bj, Fv, M1)
             better = S1 <= S
+            # a step this small barely damped (lam <= 1: at most halved) is the Gauss-Newton
+            # step within 2x: the curve is at its minimum to that, whether or not the
+            # misfit, flat there to rounding, went down
+            small = np.abs(step[2:]).max() < converged_px
+            near = small and lam <= 1.0
             if better:
                 dj, a, b, S = d1, a1, b1, S1
                 M, M1 = M1, M
@@ -178,8 +183,7 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
                 lam = max(lam * 0.3, 1e-7)
             else:
                 lam = lam * 10.0
-            small = np.abs(step[2:]).max() < converged_px
-            if (better and small) or lam > 1e6:
+            if (better and small) or near or lam > 1e6:
                 ok = True
                 break
         p_out[j, 0] = a
