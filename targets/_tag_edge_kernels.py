@@ -216,15 +216,18 @@ def blur_step(off, v, tau, s, cubic, j0, fy, p, x0, h, F, dF, Fs, use):
     r'''(H, G): the Gauss-Newton normal equation H dsigma = G of the blur the edges marked
 in use (m,) share, each edge's own (a, b, d0..d3) in p (m,6) eliminated (the Schur
 complement: their fits follow sigma, to first order). Fs (A,X) is dF/dsigma tabulated as
-F; the pixels and the rest as fit_edges'. Every edge's b is free, its d3 where cubic.'''
+F; the pixels and the rest as fit_edges'. Every edge's b is free, its d3 where cubic.
+Sums of moments as fit_edges' (_normal), with those of fs = dF/dsigma: sum fs, fs F,
+fs v, fs^2 and fs g t^k.'''
     m = len(off) - 1
     X = F.shape[1]
     Htot = 0.0
     Gtot = 0.0
-    J = np.zeros(6)
     A = np.zeros((6, 6))
+    r0 = np.zeros(6)
     c = np.zeros(6)
-    g = np.zeros(6)
+    M = np.zeros(_MOMENTS)
+    Ms = np.zeros(4)
     Fe = np.zeros(X)
     dFe = np.zeros(X)
     Fse = np.zeros(X)
@@ -237,15 +240,22 @@ F; the pixels and the rest as fit_edges'. Every edge's b is free, its d3 where c
         _at_angle(Fs, ja, fa, Fse)
         a, b = p[j, 0], p[j, 1]
         d = p[j, 2:]
-        A[:, :] = 0.0
-        c[:] = 0.0
-        g[:] = 0.0
-        e = 0.0
-        gs = 0.0
+        M[:] = 0.0
+        Ms[:] = 0.0
+        sw = 0.0
+        sf = 0.0
+        sff = 0.0
+        sv = 0.0
+        sfv = 0.0
+        s1 = 0.0
+        sfs = 0.0
+        svs = 0.0
+        sss = 0.0
         for q in range(off[j], off[j + 1]):
             t = tau[q]
             x = s[q] - (d[0] + t * (d[1] + t * (d[2] + t * d[3] * cj)))
             fi = (x - x0) / h
+            vq = v[q]
             if fi <= 0.0:
                 f, df, fs = 0.0, 0.0, 0.0
             elif fi >= X - 1:
@@ -256,29 +266,38 @@ F; the pixels and the rest as fit_edges'. Every edge's b is free, its d3 where c
                 f = Fe[i] * (1.0 - fx) + Fe[i + 1] * fx
                 df = dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
                 fs = Fse[i] * (1.0 - fx) + Fse[i + 1] * fx
-            r = v[q] - a - b * f
-            gg = -b * df
-            J[0] = 1.0
-            J[1] = f
-            J[2] = gg
-            J[3] = gg * t
-            J[4] = gg * t * t
-            J[5] = gg * t * t * t * cj
-            js = b * fs
-            for k in range(6):
-                g[k] += J[k] * r
-                c[k] += J[k] * js
-                for l in range(k + 1):
-                    A[k, l] += J[k] * J[l]
-            e += js * js
-            gs += js * r
-        for k in range(6):
-            for l in range(k):
-                A[l, k] = A[k, l]
+            if df != 0.0:
+                tk = 1.0
+                gg = df * df
+                for k in range(7):
+                    if k < 4:
+                        M[_G + k] += df * tk
+                        M[_GF + k] += df * f * tk
+                        M[_GV + k] += df * vq * tk
+                        Ms[k] += df * fs * tk
+                    M[_GG + k] += gg * tk
+                    tk *= t
+            sw += 1.0
+            sf += f
+            sff += f * f
+            sv += vq
+            sfv += f * vq
+            s1 += fs
+            sfs += f * fs
+            svs += vq * fs
+            sss += fs * fs
+        _normal(M, sw, sf, sff, sv, sfv, cj, a, b, True, A, r0)
         if cj == 0.0:
             A[5, 5] = 1.0
+        # J_sigma = b fs against the columns (1, F, -b g t^k) and the residual
+        c[0] = b * s1
+        c[1] = b * sfs
+        for k in range(4):
+            c[2 + k] = -b * b * Ms[k] if (k < 3 or cj != 0.0) else 0.0
+        e = b * b * sss
+        gs = b * (svs - a * s1 - b * sfs)
         y = np.linalg.solve(A, c)
-        z = np.linalg.solve(A, g)
+        z = np.linalg.solve(A, r0)
         Htot += e - (c * y).sum()
         Gtot += gs - (c * z).sum()
     return Htot, Gtot
