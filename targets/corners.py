@@ -97,7 +97,9 @@ the pixel integrates it, or "sampled", a pixel-integrated Gaussian applied to th
 image as renderers.response's psf stage does), with a chessboard's opposite rays tied
 into one line. The blur is estimated from the image (estimate_blur: sigma and the kind
 fitted on up to BLUR_SAMPLE corners, the median kept, after a look at BLUR_QUICK_SAMPLE
-corners with one kind finds any blur; a given psf_sigma_px skips it), and
+corners with one kind finds any blur; a given psf_sigma_px skips it; the AprilTag grid
+stops at the look, refine_corners(stop_if_blurred), and fits the blur on the tags' whole
+edges, targets.tag_edges), and
 each window keeps 3 sigma of blur (px, over the board unit's smallest image step) away
 from the nearest feature it does not model (blurred_half_box). Noise-free, the blurred
 chessboard and tag corners come out within 2e-4 px of the truth on navcam 15's renders
@@ -491,6 +493,8 @@ the estimate's spread.
                  notch=None if nb1 is None else nb1[idx], widen=JACOBIAN_WIDEN,
                  converged_px=FIRST_PASS_CONVERGED_PX, sigma=sigma1, **opts1)
         good = np.all(np.isfinite(f.q), axis=-1)
+        if not good.any():
+            return f, good, None, None
         d = f.directions[good]
         # the box's axes along rays 0 and 1 (the helpers below put the board axes there)
         s2 = np.stack((d[:, 0] * np.linalg.norm(steps[idx][good, :, 0], axis=-1)[:, None],

@@ -199,8 +199,9 @@ its window, keeps pupil_apriltags' position'''
 
 def _refine_blurred(img, used, refined, blur, target, value_range, quad_decimate=1):
     r'''The corners of a blurred image from the tags' whole border edges
-(targets.tag_edges), started from the window fit's corners where it kept them and from
-pupil_apriltags' elsewhere; the CornerFit, its info the blur's and the edge model's'''
+(targets.tag_edges), started from the window fit's corners where it kept them (the blur's
+quick look's few) and from pupil_apriltags' elsewhere; the CornerFit, its info the blur's
+and the edge model's'''
     from .boards import tag36h11_bits
     from .tag_edges import MAX_CORNER_SHIFT_PX, refine_tag_edges
     coarse = np.array([c for _, c in used])

@@ -61,9 +61,15 @@ model error under the hazcam's distortion (0.0016 px RMS on blur without noise, 
 0.0009 for the corners kept without it) raised the realistic AprilTag / dots projection
 ratio of 17 as CAHVORE from 0.63 to 1.46 (docs/corners.md).
 
-The blur's kind. Handed an estimate (choose_kind), the first pass fits every edge with
-each kind of kernel at the same variance and keeps the one of least summed squared misfit
-(_choose_kind): the corner windows' estimate tells the kinds apart on too few pixels.
+The blur. Handed an estimate (choose_kind: the corner windows' quick look, one kind on
+BLUR_QUICK_SAMPLE corners), the first pass fits sigma on the edges: one Gauss-Newton step
+of the sigma all edges share, each edge's own parameters eliminated (_blur_step,
+targets._tag_edge_kernels.blur_step, with dF/dsigma tabulated beside F), for each kind of
+kernel (the second started at the first's variance, from its curves); the kind of least
+summed squared misfit after its step is kept (_choose_kind: the corner windows tell the
+kinds apart on too few pixels) and its sigma stepped until a step is below its standard
+error (_fit_blur; 2e-4 - 9e-4 px on the quick cameras' realistic renders, where the
+windows' median over 32 corners had ~1e-3 and cost ~0.04 s per 1024x1024 image).
 
 The fit: Levenberg-Marquardt on (a, b, d0..d3) of every edge at once (compiled:
 targets._tag_edge_kernels), twice: the first pass fits each edge alone and places the
@@ -73,14 +79,12 @@ of its contrast, has too little contrast, or when the two curves do not meet wit
 MAX_CORNER_SHIFT_PX of the corner they started from (start_error_px in the first pass).
 
 Measured (benchmarks/bench_corners.py --targets apriltag --methods camval --response
-realistic; K = 16 renders, 6 poses; load 18): corner error RMS 0.0034 px (navcam 15),
-0.0075 (hazcam 17, 551 of 864 corners: the rest's bits are too small for the blur), 0.0065
-(hazcam 8 fisheye); the corner windows gave 0.014-0.03. CPU per image, whole detection
-(median, same benchmark, load 14-16): 0.19 s on 640x480, 0.24 s on 1024x1024 (this fit
-~0.1 s of it), 0.74 s on 5120x3840 (0.3 s of it the edges' Levenberg-Marquardt over their
-~10^6 pixels); the pixels, the fit and the edges' meeting points run compiled
-(targets._tag_edge_kernels), where a Python loop per edge and per corner took 0.27, 0.33
-and 0.83 s.
+realistic; K = 16 renders, 6 poses): corner error RMS 0.0032 px (navcam 15), 0.0059
+(hazcam 17 as CAHVORE, 573 of 864 corners: the rest's bits are too small for the blur),
+0.0058 (hazcam 8 fisheye), 0.0037 (camera 1, 5120x3840); the corner windows gave
+0.014-0.03. CPU per image, whole detection (median; docs/corners.md, "Blurred AprilTag
+detection time"): ~0.05 s on 640x480, ~0.1 s on 1024x1024, ~0.36-0.42 s on 5120x3840
+(from 0.14, 0.20, 0.61 s before the blur was fitted on the edges, at the same load).
 
 Sharp images keep the corner window model (targets.corners): it is exact there to 1e-7 px
 on the ray caster's area renders, which this model is not built to match (its F ignores
