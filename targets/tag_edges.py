@@ -67,9 +67,9 @@ of the sigma all edges share, each edge's own parameters eliminated (_blur_step,
 targets._tag_edge_kernels.blur_step, with dF/dsigma tabulated beside F), for each kind of
 kernel (the second started at the first's variance, from its curves); the kind of least
 summed squared misfit after its step is kept (_choose_kind: the corner windows tell the
-kinds apart on too few pixels) and its sigma stepped until a step is below its standard
-error (_fit_blur; 2e-4 - 9e-4 px on the quick cameras' realistic renders, where the
-windows' median over 32 corners had ~1e-3 and cost ~0.04 s per 1024x1024 image).
+kinds apart on too few pixels) with its sigma after the step (standard error 2e-4 - 9e-4
+px on the quick cameras' realistic renders, where the windows' median over 32 corners had
+~1e-3 and cost ~0.04 s per 1024x1024 image).
 
 The fit: Levenberg-Marquardt on (a, b, d0..d3) of every edge at once (compiled:
 targets._tag_edge_kernels), twice: the first pass fits each edge alone and places the
@@ -462,7 +462,7 @@ none has (a sampled kernel narrower than the pixel)'''
 def _choose_kind(E, blurs):
     r'''((sigma, kind), table, fits, info): the candidate blur whose edge fits (the first
 pass's, each edge alone) leave the least squared misfit summed over the edges every
-candidate fitted to convergence, each kind at the sigma the edges fit best (_fit_blur)
+candidate fitted to convergence, each kind at the sigma the edges fit best (_blur_step)
 
 Why. targets.corners.estimate_blur picks the kind on ~32 corner windows of a few dozen
 pixels each: the two kinds at the same variance differ in the edge's shape by less than
@@ -477,8 +477,12 @@ images (standard error ~0.001 px from 32 corners, both kinds fitted: ~0.04 s per
 image), where the one sigma of every edge comes to 2e-4 - 9e-4 px (info
 "psf_sigma_se_px"); the windows' quick look (BLUR_QUICK_SAMPLE corners, one kind) only
 starts it. Each kind's misfit is compared at its sigma after one Gauss-Newton step
-(predicted: S - G^2 / H, the step's own quadratic model); the chosen kind's sigma is then
-stepped to convergence.'''
+(predicted: S - G^2 / H, the step's own quadratic model), and the chosen kind takes that
+step. One step only: the second kind starts at the first's stepped variance, ~0.005 px
+from its own best sigma on the realistic renders, and the step lands within ~6e-4 px of the
+iterated sigma (1-3 standard errors); iterating, a refit of the edges per step (~8% of the
+detection's CPU), moved the quick cameras' corners by at most 0.0017 px and their RMS by
+at most 3e-6 px (benchmarks/bench_corners.py --response realistic --compare-q).'''
     out = []
     for sg, kd in blurs:
         start = None
@@ -504,17 +508,14 @@ stepped to convergence.'''
         sums.append(float(sq[both].sum()) - o[5] if both.any() else np.inf)
     best = int(np.argmin(sums))
     kd, sg, table, fits, step, _, _, se = out[best]
-    sg, table, fits, se = _fit_blur(E, sg, kd, table, fits, step, se)
+    if sg + step > 0:
+        # one step: the fits stay those at sg (they only place the second pass's pixels)
+        sg = sg + step
+        table = _table(sg, kd)
     info = {"psf_sigma_px": sg, "psf_kind": kd, "psf_kind_chosen_by": "tag edges",
             "psf_sigma_fitted_by": "tag edges", "psf_sigma_se_px": se,
             "psf_kind_misfit": {o[0]: v for o, v in zip(out, sums, strict=True)}}
     return (sg, kd), table, fits, info
-
-
-# Gauss-Newton steps of the blur's sigma on the edges at most (each refits them); they stop
-# at a step below sigma's standard error or half the table's sigma step
-# (TABLE_SIGMA_STEP_PX, which no table follows), whichever is larger
-BLUR_STEPS = 4
 
 
 def _blur_step(E, table, fits):
@@ -534,22 +535,6 @@ no edge tells'''
     S = float(((mis[use] * p[use, 1]) ** 2 * E.n[use]).sum())
     dof = max(float(E.n[use].sum()) - 6 * int(use.sum()) - 1, 1.0)
     return G / H, G * G / H, S, float(np.sqrt(S / dof / H))
-
-
-def _fit_blur(E, sigma, kind, table, fits, step, se):
-    r'''(sigma, table, fits, standard error of sigma): sigma of this kind stepped from fits
-(at sigma, its next step) until the step is below max(standard error,
-TABLE_SIGMA_STEP_PX / 2), the edges fitted again from their curves after each'''
-    for _ in range(BLUR_STEPS):
-        if not abs(step) > max(se, TABLE_SIGMA_STEP_PX / 2) or not sigma + step > 0:
-            break
-        sigma = sigma + step
-        table = _table(sigma, kind)
-        fits = _fit_contrast_first(E, table, fits[0][:, 2:] * [1, 1, 1, 0],
-                                   FIRST_PASS_CONVERGED_PX)
-        step, _, _, se1 = _blur_step(E, table, fits)
-        se = se1 if np.isfinite(se1) else se
-    return sigma, table, fits, se
 
 
 def _fit_contrast_first(E, table, start=None, converged_px=CONVERGED_PX):
