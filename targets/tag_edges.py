@@ -281,13 +281,15 @@ ARGUMENTS
 - start_error_px: the most the first pass's corners may move from Q (default
   MAX_CORNER_SHIFT_PX; the passes after it keep to MAX_CORNER_SHIFT_PX of the previous
   pass's corners): a detector's coarse corners may err by more
-- choose_kind: True: (sigma, kind) is an estimate; the kind is chosen here among
-  targets.corners.PSF_KINDS, each at the sigma of the same variance (_same_variance), by
-  the first pass's squared misfit summed over the edges every kind fitted (_choose_kind)
+- choose_kind: True: (sigma, kind) is an estimate, a start: sigma is fitted on the edges
+  and the kind chosen among targets.corners.PSF_KINDS (the others started at the sigma of
+  the same variance, _same_variance) by the first pass's squared misfit summed over the
+  edges every kind fitted (_choose_kind)
 
 RETURNED VALUE: a targets.corners.CornerFit of the Ntags*4 corners (info: "corner_model",
-the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" used,
-"psf_kind_misfit": each kind's sum of squared misfits)
+the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" used (sigma
+fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
+"psf_kind_misfit": each kind's sum of squared misfits after its sigma step)
 '''
     img = np.asarray(image)
     H, W = img.shape
