@@ -478,13 +478,17 @@ windows' estimate is a median of per-corner fits scattered by ~0.005 px on the r
 images (standard error ~0.001 px from 32 corners, both kinds fitted: ~0.04 s per 1024x1024
 image), where the one sigma of every edge comes to 2e-4 - 9e-4 px (info
 "psf_sigma_se_px"); the windows' quick look (BLUR_QUICK_SAMPLE corners, one kind) only
-starts it. Each kind's misfit is compared at its sigma after one Gauss-Newton step
-(predicted: S - G^2 / H, the step's own quadratic model), and the chosen kind takes that
-step. One step only: the second kind starts at the first's stepped variance, ~0.005 px
-from its own best sigma on the realistic renders, and the step lands within ~6e-4 px of the
-iterated sigma (1-3 standard errors); iterating, a refit of the edges per step (~8% of the
-detection's CPU), moved the quick cameras' corners by at most 0.0017 px and their RMS by
-at most 3e-6 px (benchmarks/bench_corners.py --response realistic --compare-q).'''
+starts it, and may be far off (0.3 px on camera 17's small windows, estimate_blur): the
+first kind's sigma is stepped, the edges refitted, while a step exceeds FIRST_KIND_STEP_PX
+(a Gauss-Newton step leaves ~6% of the distance: from 0.05-0.1 px off, 0.003-0.006 px;
+from the realistic renders' quick look, 0.0015-0.006 px off, no refit). Each kind's
+misfit is compared at its sigma after one more step (predicted: S - G^2 / H, the step's
+own quadratic model), and the chosen kind takes that step. One step for the second kind:
+it starts at the first's variance, ~0.005 px from its own best sigma on the realistic
+renders, and its step lands within ~6e-4 px of the iterated sigma (1-3 standard errors);
+iterating it too, a refit of the edges per step (~8% of the detection's CPU), moved the
+quick cameras' corners by at most 0.0017 px and their RMS by at most 3e-6 px
+(benchmarks/bench_corners.py --response realistic --compare-q).'''
     out = []
     for sg, kd in blurs:
         start = None
@@ -497,7 +501,18 @@ at most 3e-6 px (benchmarks/bench_corners.py --response realistic --compare-q).'
             start = out[0][3][0][:, 2:] * [1, 1, 1, 0]
         table = _table(sg, kd)
         fits = _fit_contrast_first(E, table, start, FIRST_PASS_CONVERGED_PX)
-        out.append((kd, sg, table, fits) + _blur_step(E, table, fits))
+        step, dec, S, se = _blur_step(E, table, fits)
+        for _ in range(BLUR_STEPS if not out else 0):
+            # the first kind starts from the windows' quick look, which may be far off: its
+            # sigma is stepped (the edges refitted) while a step is above FIRST_KIND_STEP_PX
+            if not (abs(step) > FIRST_KIND_STEP_PX and sg + step > 0):
+                break
+            sg = sg + step
+            table = _table(sg, kd)
+            fits = _fit_contrast_first(E, table, fits[0][:, 2:] * [1, 1, 1, 0],
+                                       FIRST_PASS_CONVERGED_PX)
+            step, dec, S, se = _blur_step(E, table, fits)
+        out.append((kd, sg, table, fits, step, dec, S, se))
     both = np.ones(E.m, bool)
     for o in out:
         both &= o[3][1] & np.isfinite(o[3][2])
@@ -518,6 +533,15 @@ at most 3e-6 px (benchmarks/bench_corners.py --response realistic --compare-q).'
             "psf_sigma_fitted_by": "tag edges", "psf_sigma_se_px": se,
             "psf_kind_misfit": {o[0]: v for o, v in zip(out, sums, strict=True)}}
     return (sg, kd), table, fits, info
+
+
+# Gauss-Newton steps of the first kind's sigma at most (each refits the edges)
+BLUR_STEPS = 4
+# the first kind's sigma is stepped again (the edges refitted) after a step larger than this
+# (px): a step leaves ~6% of itself (measured from 0.05-0.2 px off), so one below it leaves
+# < 6e-4 px, a tenth of the second kind's own start offset (~0.005 px at the same
+# variance, which its one step absorbs) and the kinds' misfits are compared near their best
+FIRST_KIND_STEP_PX = 0.01
 
 
 def _blur_step(E, table, fits):
