@@ -83,8 +83,8 @@ realistic; K = 16 renders, 6 poses): corner error RMS 0.0032 px (navcam 15), 0.0
 (hazcam 17 as CAHVORE, 573 of 864 corners: the rest's bits are too small for the blur),
 0.0058 (hazcam 8 fisheye), 0.0037 (camera 1, 5120x3840); the corner windows gave
 0.014-0.03. CPU per image, whole detection (median; docs/corners.md, "Blurred AprilTag
-detection time"): ~0.05 s on 640x480, ~0.1 s on 1024x1024, ~0.36-0.42 s on 5120x3840
-(from 0.14, 0.20, 0.61 s before the blur was fitted on the edges, at the same load).
+detection time", load 3 on 2 cores): 0.043 s on 640x480, 0.090 s on 1024x1024, 0.30 s on
+5120x3840 (0.135, 0.194, 0.561 s before the blur was fitted on the edges, back to back).
 
 Sharp images keep the corner window model (targets.corners): it is exact there to 1e-7 px
 on the ray caster's area renders, which this model is not built to match (its F ignores
