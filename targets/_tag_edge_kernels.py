@@ -9,13 +9,14 @@ SYNOPSIS
                                                          min_pixels, W, H_img)
     # every edge's band of pixels (targets.tag_edges._EDGE_STATUS says why an edge has none)
 
-    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix,
+    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip,
                              max_iterations, converged_px)
     # the m edges' pixels one after another: edge j's are [off[j], off[j+1]) of v (values),
     # tau (positions along the chord, -1..1) and s (distances from it, px); cubic (m,) 1.0
     # where d3 is fitted; j0, fy (m,): the angle bin and fraction of each edge's normal;
     # d (m,4) the start curves; x0, h, F, dF (A,X): targets.tag_edges._edge_table; bfix
-    # (m,) the contrast of an edge whose b is given (NaN: fitted)
+    # (m,) the contrast of an edge whose b is given (NaN: fitted); skip (m,) edges left
+    # alone (p 0, done False, mis NaN)
     # p (m,6) the fitted (a, b, d0, d1, d2, d3); done (m,) converged; mis (m,) the RMS
     # misfit over the contrast
     q = meet_curves(Pa, La, ea, na, da, Pb, Lb, eb, nb, db, iterations)
@@ -30,21 +31,31 @@ fitted by Levenberg-Marquardt, each edge on its own (targets.tag_edges._fit_edge
 import numpy as np
 from numba import njit
 
+# the moments _profile sums over an edge's pixels for its normal equations (_normal): with
+# g = F'(x) and t the position tau, sum g t^k, sum g F t^k, sum g v t^k (k = 0..3) and
+# sum g^2 t^k (k = 0..6): the Jacobian's columns are b g t^k, so the normal equations are
+# these times powers of b (one pass over the pixels instead of two)
+_G, _GF, _GV, _GG = 0, 4, 8, 12
+_MOMENTS = 19
+
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, dFv):
-    # F and F' at every pixel of one edge (into Fv, dFv), and the light level a, contrast
-    # b and squared misfit S that fit them
-    X = F.shape[1]
+def _profile(v, tau, s, o0, o1, cubic, d, x0, h, Fe, dFe, bfix, Fv, M):
+    # F at every pixel of one edge (into Fv; Fe, dFe: F and F' at the edge's angle, _at_angle),
+    # the moments M of its normal equations, and the light level a, contrast b and squared
+    # misfit S that fit them
+    X = Fe.shape[0]
     sw = 0.0
     sf = 0.0
     sff = 0.0
     sv = 0.0
     sfv = 0.0
+    M[:] = 0.0
     for p in range(o0, o1):
         t = tau[p]
         x = s[p] - (d[0] + t * (d[1] + t * (d[2] + t * d[3] * cubic)))
         fi = (x - x0) / h
+        vp = v[p]
         if fi <= 0.0:
             f, df = 0.0, 0.0
         elif fi >= X - 1:
@@ -52,15 +63,19 @@ def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, dFv):
         else:
             i = int(fi)
             fx = fi - i
-            f0 = F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx
-            f1 = F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx
-            f = f0 * (1.0 - fa) + f1 * fa
-            g0 = dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx
-            g1 = dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx
-            df = g0 * (1.0 - fa) + g1 * fa
+            f = Fe[i] * (1.0 - fx) + Fe[i + 1] * fx
+            df = dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
+        if df != 0.0:
+            tk = 1.0
+            gg = df * df
+            for k in range(7):
+                if k < 4:
+                    M[_G + k] += df * tk
+                    M[_GF + k] += df * f * tk
+                    M[_GV + k] += df * vp * tk
+                M[_GG + k] += gg * tk
+                tk *= t
         Fv[p - o0] = f
-        dFv[p - o0] = df
-        vp = v[p]
         sw += 1.0
         sf += f
         sff += f * f
@@ -75,36 +90,44 @@ def _profile(v, tau, s, o0, o1, cubic, ja, fa, d, x0, h, F, dF, bfix, Fv, dFv):
     for p in range(o0, o1):
         r = v[p] - a - b * Fv[p - o0]
         S += r * r
-    return a, b, S
+    return a, b, S, sw, sf, sff, sv, sfv
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _normal(v, tau, o0, o1, cubic, a, b, bfree, Fv, dFv, JtJ, Jtr):
-    # the normal equations of one edge in (a, b, d0, d1, d2, d3) at its profile Fv, dFv
-    J = np.zeros(6)
+def _at_angle(T, ja, fa, out):
+    # a table's row at an edge's angle: bins ja and ja + 1 mixed by fa (linear in the angle)
+    for i in range(T.shape[1]):
+        out[i] = T[ja, i] * (1.0 - fa) + T[ja + 1, i] * fa
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _normal(M, sw, sf, sff, sv, sfv, cubic, a, b, bfree, JtJ, Jtr):
+    # the normal equations of one edge in (a, b, d0, d1, d2, d3) from _profile's sums: the
+    # Jacobian is (1, F, -b g, -b g t, -b g t^2, -b g t^3 [cubic]), the residual
+    # v - a - b F
     JtJ[:, :] = 0.0
     Jtr[:] = 0.0
-    for p in range(o0, o1):
-        t = tau[p]
-        r = v[p] - a - b * Fv[p - o0]
-        g = -b * dFv[p - o0]
-        J[0] = 1.0
-        J[1] = Fv[p - o0] if bfree else 0.0
-        J[2] = g
-        J[3] = g * t
-        J[4] = g * t * t
-        J[5] = g * t * t * t * cubic
-        for k in range(6):
-            Jtr[k] += J[k] * r
-            for l in range(k + 1):
-                JtJ[k, l] += J[k] * J[l]
+    nk = 4 if cubic != 0.0 else 3
+    JtJ[0, 0] = sw
+    Jtr[0] = sv - a * sw - b * sf
+    if bfree:
+        JtJ[1, 0] = sf
+        JtJ[1, 1] = sff
+        Jtr[1] = sfv - a * sf - b * sff
+    for k in range(nk):
+        JtJ[2 + k, 0] = -b * M[_G + k]
+        if bfree:
+            JtJ[2 + k, 1] = -b * M[_GF + k]
+        for l in range(k + 1):
+            JtJ[2 + k, 2 + l] = b * b * M[_GG + k + l]
+        Jtr[2 + k] = -b * (M[_GV + k] - a * M[_G + k] - b * M[_GF + k])
     for k in range(6):
         for l in range(k):
             JtJ[l, k] = JtJ[k, l]
 
 
 @njit(cache=True, error_model="numpy")
-def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iterations,
+def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_iterations,
               converged_px):
     m = len(off) - 1
     p_out = np.zeros((m, 6))
@@ -114,20 +137,28 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iteratio
     for j in range(m):
         P = max(P, off[j + 1] - off[j])
     Fv = np.zeros(P)
-    dFv = np.zeros(P)
-    F1 = np.zeros(P)
-    dF1 = np.zeros(P)
+    X = F.shape[1]
+    Fe = np.zeros(X)
+    dFe = np.zeros(X)
+    M = np.zeros(_MOMENTS)
+    M1 = np.zeros(_MOMENTS)
     JtJ = np.zeros((6, 6))
     Jtr = np.zeros(6)
     A = np.zeros((6, 6))
     eye = np.eye(6)
     for j in range(m):
+        if skip[j]:
+            mis[j] = np.nan
+            continue
         o0, o1 = off[j], off[j + 1]
         ja, fa, cj, bj = j0[j], fy[j], cubic[j], bfix[j]
         bfree = np.isnan(bj)
         dj = d[j].copy()
-        a, b, S = _profile(v, tau, s, o0, o1, cj, ja, fa, dj, x0, h, F, dF, bj, Fv, dFv)
-        _normal(v, tau, o0, o1, cj, a, b, bfree, Fv, dFv, JtJ, Jtr)
+        _at_angle(F, ja, fa, Fe)
+        _at_angle(dF, ja, fa, dFe)
+        a, b, S, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, dj, x0, h, Fe, dFe,
+                                                 bj, Fv, M)
+        _normal(M, sw, sf, sff, sv, sfv, cj, a, b, bfree, JtJ, Jtr)
         lam = 1e-3
         ok = False
         for _ in range(max_iterations):
@@ -137,19 +168,22 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iteratio
                 A[k, k] += lam * JtJ[k, k]
             step = np.linalg.solve(A, Jtr)
             d1 = dj + step[2:]
-            a1, b1, S1 = _profile(v, tau, s, o0, o1, cj, ja, fa, d1, x0, h, F, dF, bj, F1,
-                                  dF1)
+            a1, b1, S1, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, d1, x0, h, Fe,
+                                                        dFe, bj, Fv, M1)
             better = S1 <= S
+            # a step this small barely damped (lam <= 1: at most halved) is the Gauss-Newton
+            # step within 2x: the curve is at its minimum to that, whether or not the
+            # misfit, flat there to rounding, went down
+            small = np.abs(step[2:]).max() < converged_px
+            near = small and lam <= 1.0
             if better:
                 dj, a, b, S = d1, a1, b1, S1
-                Fv, F1 = F1, Fv
-                dFv, dF1 = dF1, dFv
-                _normal(v, tau, o0, o1, cj, a, b, bfree, Fv, dFv, JtJ, Jtr)
+                M, M1 = M1, M
+                _normal(M, sw, sf, sff, sv, sfv, cj, a, b, bfree, JtJ, Jtr)
                 lam = max(lam * 0.3, 1e-7)
             else:
                 lam = lam * 10.0
-            small = np.abs(step[2:]).max() < converged_px
-            if (better and small) or lam > 1e6:
+            if (better and small) or near or lam > 1e6:
                 ok = True
                 break
         p_out[j, 0] = a
@@ -158,6 +192,115 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, max_iteratio
         done[j] = ok
         mis[j] = np.sqrt(S / (o1 - o0)) / abs(b)
     return p_out, done, mis
+
+
+@njit(cache=True, error_model="numpy")
+def plateau_counts(off, tau, s, curves, reach):
+    r'''(m,) each edge's pixels at least reach px inside its curve (d0..d3 in curves (m,4),
+the pixels as fit_edges')'''
+    m = len(off) - 1
+    out = np.zeros(m, np.int64)
+    for j in range(m):
+        d = curves[j]
+        c = 0
+        for q in range(off[j], off[j + 1]):
+            t = tau[q]
+            if s[q] - (d[0] + t * (d[1] + t * (d[2] + t * d[3]))) >= reach:
+                c += 1
+        out[j] = c
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def blur_step(off, v, tau, s, cubic, j0, fy, p, x0, h, F, dF, Fs, use):
+    r'''(H, G): the Gauss-Newton normal equation H dsigma = G of the blur the edges marked
+in use (m,) share, each edge's own (a, b, d0..d3) in p (m,6) eliminated (the Schur
+complement: their fits follow sigma, to first order). Fs (A,X) is dF/dsigma tabulated as
+F; the pixels and the rest as fit_edges'. Every edge's b is free, its d3 where cubic.
+Sums of moments as fit_edges' (_normal), with those of fs = dF/dsigma: sum fs, fs F,
+fs v, fs^2 and fs g t^k.'''
+    m = len(off) - 1
+    X = F.shape[1]
+    Htot = 0.0
+    Gtot = 0.0
+    A = np.zeros((6, 6))
+    r0 = np.zeros(6)
+    c = np.zeros(6)
+    M = np.zeros(_MOMENTS)
+    Ms = np.zeros(4)
+    Fe = np.zeros(X)
+    dFe = np.zeros(X)
+    Fse = np.zeros(X)
+    for j in range(m):
+        if not use[j]:
+            continue
+        ja, fa, cj = j0[j], fy[j], cubic[j]
+        _at_angle(F, ja, fa, Fe)
+        _at_angle(dF, ja, fa, dFe)
+        _at_angle(Fs, ja, fa, Fse)
+        a, b = p[j, 0], p[j, 1]
+        d = p[j, 2:]
+        M[:] = 0.0
+        Ms[:] = 0.0
+        sw = 0.0
+        sf = 0.0
+        sff = 0.0
+        sv = 0.0
+        sfv = 0.0
+        s1 = 0.0
+        sfs = 0.0
+        svs = 0.0
+        sss = 0.0
+        for q in range(off[j], off[j + 1]):
+            t = tau[q]
+            x = s[q] - (d[0] + t * (d[1] + t * (d[2] + t * d[3] * cj)))
+            fi = (x - x0) / h
+            vq = v[q]
+            if fi <= 0.0:
+                f, df, fs = 0.0, 0.0, 0.0
+            elif fi >= X - 1:
+                f, df, fs = 1.0, 0.0, 0.0
+            else:
+                i = int(fi)
+                fx = fi - i
+                f = Fe[i] * (1.0 - fx) + Fe[i + 1] * fx
+                df = dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
+                fs = Fse[i] * (1.0 - fx) + Fse[i + 1] * fx
+            if df != 0.0:
+                tk = 1.0
+                gg = df * df
+                for k in range(7):
+                    if k < 4:
+                        M[_G + k] += df * tk
+                        M[_GF + k] += df * f * tk
+                        M[_GV + k] += df * vq * tk
+                        Ms[k] += df * fs * tk
+                    M[_GG + k] += gg * tk
+                    tk *= t
+            sw += 1.0
+            sf += f
+            sff += f * f
+            sv += vq
+            sfv += f * vq
+            s1 += fs
+            sfs += f * fs
+            svs += vq * fs
+            sss += fs * fs
+        _normal(M, sw, sf, sff, sv, sfv, cj, a, b, True, A, r0)
+        if cj == 0.0:
+            A[5, 5] = 1.0
+        # J_sigma = b fs against the columns (1, F, -b g t^k) and the residual
+        c[0] = b * s1
+        c[1] = b * sfs
+        for k in range(4):
+            c[2 + k] = -b * b * Ms[k] if (k < 3 or cj != 0.0) else 0.0
+        e = b * b * sss
+        gs = b * (svs - a * s1 - b * sfs)
+        y = np.linalg.solve(A, c)
+        z = np.linalg.solve(A, r0)
+        Htot += e - (c * y).sum()
+        Gtot += gs - (c * z).sum()
+    return Htot, Gtot
 
 
 @njit(cache=True, error_model="numpy")
@@ -423,4 +566,4 @@ def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
-    return (tag_edge_pixels, fit_edges, meet_curves)
+    return (tag_edge_pixels, fit_edges, meet_curves, blur_step, plateau_counts)

@@ -197,12 +197,13 @@ its window, keeps pupil_apriltags' position'''
     return out
 
 
-def _refine_blurred(img, used, refined, blur, target, value_range):
+def _refine_blurred(img, used, refined, blur, target, value_range, quad_decimate=1):
     r'''The corners of a blurred image from the tags' whole border edges
-(targets.tag_edges), started from the window fit's corners where it kept them and from
-pupil_apriltags' elsewhere; the CornerFit, its info the blur's and the edge model's'''
+(targets.tag_edges), started from the window fit's corners where it kept them (the blur's
+quick look's few) and from pupil_apriltags' elsewhere; the CornerFit, its info the blur's
+and the edge model's'''
     from .boards import tag36h11_bits
-    from .tag_edges import refine_tag_edges
+    from .tag_edges import MAX_CORNER_SHIFT_PX, refine_tag_edges
     coarse = np.array([c for _, c in used])
     start = coarse if refined is None else np.where(np.isfinite(refined), refined, coarse)
     bits = np.array([tag36h11_bits(tag_id) for tag_id, _ in used])
@@ -215,9 +216,12 @@ pupil_apriltags' elsewhere; the CornerFit, its info the blur's and the edge mode
     first = int(spec.get("first_id", 0))
     grid = np.array([((t - first) % nx, (t - first) // nx) for t, _ in used])
     # an estimated blur's kind is chosen again on the whole edges (tag_edges._choose_kind)
+    # pupil_apriltags fits its quads on the image decimated by quad_decimate: its corners
+    # err by up to ~1.5 decimated px (4.6 px on 5120x3840 fisheyes, decimated by 3)
     fit = refine_tag_edges(img, start, blur["psf_sigma_px"], blur.get("psf_kind", "gaussian"),
                            bits=bits, grid=grid, gap_bits=gap_bits, value_range=value_range,
-                           choose_kind=blur.get("psf_source") == "estimated")
+                           choose_kind=blur.get("psf_source") == "estimated",
+                           start_error_px=MAX_CORNER_SHIFT_PX * max(1.0, float(quad_decimate)))
     fit.info.update({k: v for k, v in blur.items() if k.startswith("psf_") and k not in fit.info})
     return fit
 
@@ -303,7 +307,7 @@ ARGUMENTS
                                      **tag_window(target))
             if fit.info.get("stopped"):
                 fit = _refine_blurred(img, used, fit.q.reshape(-1, 4, 2), fit.info, target,
-                                      hi - lo)
+                                      hi - lo, quad_decimate)
         refined = fit.q.reshape(-1, 4, 2)
         used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
     for tag_id, c in used:

@@ -61,26 +61,30 @@ model error under the hazcam's distortion (0.0016 px RMS on blur without noise, 
 0.0009 for the corners kept without it) raised the realistic AprilTag / dots projection
 ratio of 17 as CAHVORE from 0.63 to 1.46 (docs/corners.md).
 
-The blur's kind. Handed an estimate (choose_kind), the first pass fits every edge with
-each kind of kernel at the same variance and keeps the one of least summed squared misfit
-(_choose_kind): the corner windows' estimate tells the kinds apart on too few pixels.
+The blur. Handed an estimate (choose_kind: the corner windows' quick look, one kind on
+BLUR_QUICK_SAMPLE corners), the first pass fits sigma on the edges: one Gauss-Newton step
+of the sigma all edges share, each edge's own parameters eliminated (_blur_step,
+targets._tag_edge_kernels.blur_step, with dF/dsigma tabulated beside F), for each kind of
+kernel (the second started at the first's variance, from its curves); the kind of least
+summed squared misfit after its step is kept (_choose_kind: the corner windows tell the
+kinds apart on too few pixels) with its sigma after the step (standard error 2e-4 - 9e-4
+px on the quick cameras' realistic renders, where the windows' median over 32 corners had
+~1e-3 and cost ~0.04 s per 1024x1024 image).
 
 The fit: Levenberg-Marquardt on (a, b, d0..d3) of every edge at once (compiled:
 targets._tag_edge_kernels), twice: the first pass fits each edge alone and places the
 second's pixels. A corner is dropped, with the reason, when either of its edges has too
 few pixels or sees only its light side, did not converge, misfits by more than MAX_MISFIT
 of its contrast, has too little contrast, or when the two curves do not meet within
-MAX_CORNER_SHIFT_PX of the corner they started from.
+MAX_CORNER_SHIFT_PX of the corner they started from (start_error_px in the first pass).
 
 Measured (benchmarks/bench_corners.py --targets apriltag --methods camval --response
-realistic; K = 16 renders, 6 poses; load 18): corner error RMS 0.0034 px (navcam 15),
-0.0075 (hazcam 17, 551 of 864 corners: the rest's bits are too small for the blur), 0.0065
-(hazcam 8 fisheye); the corner windows gave 0.014-0.03. CPU per image, whole detection
-(median, same benchmark, load 14-16): 0.19 s on 640x480, 0.24 s on 1024x1024 (this fit
-~0.1 s of it), 0.74 s on 5120x3840 (0.3 s of it the edges' Levenberg-Marquardt over their
-~10^6 pixels); the pixels, the fit and the edges' meeting points run compiled
-(targets._tag_edge_kernels), where a Python loop per edge and per corner took 0.27, 0.33
-and 0.83 s.
+realistic; K = 16 renders, 6 poses): corner error RMS 0.0032 px (navcam 15), 0.0059
+(hazcam 17 as CAHVORE, 573 of 864 corners: the rest's bits are too small for the blur),
+0.0058 (hazcam 8 fisheye), 0.0037 (camera 1, 5120x3840); the corner windows gave
+0.014-0.03. CPU per image, whole detection (median; docs/corners.md, "Blurred AprilTag
+detection time", load 3 on 2 cores): 0.043 s on 640x480, 0.090 s on 1024x1024, 0.30 s on
+5120x3840 (0.135, 0.194, 0.561 s before the blur was fitted on the edges, back to back).
 
 Sharp images keep the corner window model (targets.corners): it is exact there to 1e-7 px
 on the ray caster's area renders, which this model is not built to match (its F ignores
@@ -91,7 +95,7 @@ import functools
 
 import numpy as np
 
-from ._tag_edge_kernels import fit_edges, meet_curves, tag_edge_pixels
+from ._tag_edge_kernels import blur_step, fit_edges, meet_curves, plateau_counts, tag_edge_pixels
 from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, PSF_KINDS, CornerFit, blur_kernel
 
 # px added to every clearance: the coarse corners' error and the bend of an edge between
@@ -120,6 +124,9 @@ STRAIGHT_BEND_PX = 0.05
 MIN_PLATEAU_PIXELS = 10
 # converged when no curve coefficient moves by more than this (px): a tenth of 1e-3 px
 CONVERGED_PX = 1e-4
+# the blur's first pass (kind and sigma, each edge alone) only places the second pass's
+# pixels (SAFETY_PX of margin) and compares misfits, second order in a curve's error
+FIRST_PASS_CONVERGED_PX = 1e-3
 # the most the meeting point of two fitted edges may move from the corner it started at
 MAX_CORNER_SHIFT_PX = 2.0
 # the most Newton steps to where two fitted edges meet (they stop at a step below 1e-9 px)
@@ -145,38 +152,59 @@ def _trapezoid_cdf(x, u, w):
                                                                np.where(x < a, hi, 1.0))))
 
 
+def _phi_integral(y, sigma, order):
+    r'''The order-th (1 or 2) antiderivative in y of Phi(y / sigma), 0 at -infinity, and
+its derivative in sigma'''
+    from scipy.special import ndtr
+    z = y / sigma
+    pdf = np.exp(-0.5 * z * z) / np.sqrt(2.0 * np.pi)
+    if order == 1:
+        return sigma * (z * ndtr(z) + pdf), pdf
+    cdf = ndtr(z)
+    return sigma * sigma * 0.5 * ((z * z + 1.0) * cdf + z * pdf), sigma * cdf
+
+
 @functools.lru_cache(maxsize=8)
 def _edge_table(sigma, kind):
-    r'''(x0, F (A,X), dF/dx (A,X)): the blurred dark fraction at x px into the dark side, per
-angle bin phi_m = m pi/4 / (A-1) of the normal (folded: |n_x| >= |n_y|)'''
-    from scipy.special import ndtr
-    Z, W, _, _ = blur_kernel([sigma], kind)
-    Z, W = Z[0], W[0]
+    r'''(x0, F (A,X), dF/dx (A,X), dF/dsigma (A,X)): the blurred dark fraction at x px into
+the dark side, per angle bin phi_m = m pi/4 / (A-1) of the normal (folded: |n_x| >= |n_y|)'''
+    Z, W, _, dW = blur_kernel([sigma], kind)
+    Z, W, dW = Z[0], W[0], dW[0]
     reach = BLUR_REACH_SIGMAS * max(sigma, 0.3) + 2.0
     x = np.arange(-reach, reach + TABLE_STEP_PX / 2, TABLE_STEP_PX)
     phi = np.linspace(0.0, np.pi / 4, TABLE_ANGLES)
     F = np.zeros((len(phi), len(x)))
+    Fs = np.zeros((len(phi), len(x)))
     for m, p in enumerate(phi):
         u, w = np.cos(p), np.sin(p)
         if kind == "gaussian":
             # a Gaussian on the scene: E over the pixel's square of Phi((x - n.U) / sigma),
-            # smooth in U: Gauss-Legendre over the square
-            g, gw = np.polynomial.legendre.leggauss(12)
-            nu = (u * g[:, None] + w * g[None, :]).ravel() / 2.0
-            wu = (gw[:, None] * gw[None, :]).ravel() / 4.0
-            F[m] = (wu[:, None] * ndtr((x[None, :] - nu[:, None]) / sigma)).sum(0)
+            # n.U = u U1 + w U2: the mean over each uniform is a difference of Phi's
+            # antiderivative in x, closed form (within 2e-13 of a 12 x 12 Gauss-Legendre
+            # rule over the square, which took 0.024 s per table against 0.001)
+            if w < 1e-12:
+                hi, lo = _phi_integral(x + u / 2, sigma, 1), _phi_integral(x - u / 2, sigma, 1)
+                F[m], Fs[m] = (hi[0] - lo[0]) / u, (hi[1] - lo[1]) / u
+            else:
+                terms = [(sgn, _phi_integral(x + dx, sigma, 2)) for sgn, dx in
+                         ((1, (u + w) / 2), (-1, (u - w) / 2), (-1, -(u - w) / 2),
+                          (1, -(u + w) / 2))]
+                F[m] = sum(sgn * t[0] for sgn, t in terms) / (u * w)
+                Fs[m] = sum(sgn * t[1] for sgn, t in terms) / (u * w)
         else:
             # the sampled kernel's taps on the pixel image: the exact pixel fraction at
-            # each tap's offset
+            # each tap's offset (the taps fixed, their weights a function of sigma)
             proj = Z @ np.array([u, w])
-            F[m] = (W[:, None] * _trapezoid_cdf(x[None, :] - proj[:, None], u, w)).sum(0)
+            T = _trapezoid_cdf(x[None, :] - proj[:, None], u, w)
+            F[m] = (W[:, None] * T).sum(0)
+            Fs[m] = (dW[:, None] * T).sum(0)
     dF = np.gradient(F, TABLE_STEP_PX, axis=1)
-    return float(x[0]), F, dF
+    return float(x[0]), F, dF, Fs
 
 
 def _lookup(table, x, phi):
     r'''F(x) and F'(x) for the folded angles phi (same shape as x), linear in both'''
-    x0, F, dF = table
+    x0, F, dF = table[:3]
     A, X = F.shape
     fi = np.clip((x - x0) / TABLE_STEP_PX, 0.0, X - 1.000001)
     i = fi.astype(np.int64)
@@ -237,7 +265,7 @@ def _neighbours(grid, N):
 
 def refine_tag_edges(image, Q, sigma, kind="gaussian", *, bits=None, grid=None, gap_bits=2.4,
                      value_range=None, passes=2, max_misfit=MAX_MISFIT,
-                     min_contrast=MIN_CONTRAST, choose_kind=False):
+                     min_contrast=MIN_CONTRAST, choose_kind=False, start_error_px=None):
     r'''Corners of AprilTags from their four whole border edges; see the module docstring
 
 ARGUMENTS
@@ -250,13 +278,18 @@ ARGUMENTS
   edge is fitted together with the edges on the same board line of the adjacent tags
 - gap_bits: tag bits of light board between a tag and its neighbour (tag_spacing x 8)
 - value_range: the image's max - min (the contrast test's scale; default computed)
-- choose_kind: True: (sigma, kind) is an estimate; the kind is chosen here among
-  targets.corners.PSF_KINDS, each at the sigma of the same variance (_same_variance), by
-  the first pass's squared misfit summed over the edges every kind fitted (_choose_kind)
+- start_error_px: the most the first pass's corners may move from Q (default
+  MAX_CORNER_SHIFT_PX; the passes after it keep to MAX_CORNER_SHIFT_PX of the previous
+  pass's corners): a detector's coarse corners may err by more
+- choose_kind: True: (sigma, kind) is an estimate, a start: sigma is fitted on the edges
+  and the kind chosen among targets.corners.PSF_KINDS (the others started at the sigma of
+  the same variance, _same_variance) by the first pass's squared misfit summed over the
+  edges every kind fitted (_choose_kind)
 
 RETURNED VALUE: a targets.corners.CornerFit of the Ntags*4 corners (info: "corner_model",
-the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" used,
-"psf_kind_misfit": each kind's sum of squared misfits)
+the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" used (sigma
+fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
+"psf_kind_misfit": each kind's sum of squared misfits after its sigma step)
 '''
     img = np.asarray(image)
     H, W = img.shape
@@ -335,14 +368,15 @@ the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" use
                 # a long edge alone bends more than a quadratic follows on a fisheye
                 geo.append((i, k, ix, iy, t, s, L, e, n, last and L > CUBIC_EDGE_PX,
                             start[(i, k)], 2))
+        E = _Edges(img, geo, reach)
         if len(blurs) > 1:
-            (sigma, kind), table, fits, info = _choose_kind(img, geo, blurs, reach)
+            (sigma, kind), table, fits, info = _choose_kind(E, blurs)
             blurs = [(sigma, kind)]
             reach = BLUR_REACH_SIGMAS * sigma + np.sqrt(0.5)
         else:
-            fits = _fit_contrast_first(img, geo, table, reach)
+            fits = _fit_contrast_first(E, table)
         curves = {}
-        for (i, k, *_rest), (p, ok, mis) in zip(geo, fits, strict=True):
+        for (i, k, *_rest), p, ok, mis in zip(geo, *fits, strict=True):
             end = _rest[-1]
             mis_edge[i, k] = np.fmax(mis_edge[i, k], mis) if last else mis
             if not ok:
@@ -382,7 +416,9 @@ the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" use
             L, e, n = frames[(i, k)]
             shapes[(i, k)] = q[i, k] + (0.5 * L * (tau9 + 1.0))[:, None] * e \
                 + _curve_s(c, tau9)[:, None] * n
-        far = np.linalg.norm(qn - q, axis=-1) > MAX_CORNER_SHIFT_PX
+        # the first pass starts from Q, the next ones from the previous pass's corners
+        far = np.linalg.norm(qn - q, axis=-1) > (
+            start_error_px if npass == 0 and start_error_px else MAX_CORNER_SHIFT_PX)
         found = np.where(far[..., None], np.nan, qn)
         # a corner not found keeps its place for the next pass's chords (its edges are
         # fitted again, and judged there)
@@ -425,10 +461,10 @@ none has (a sampled kernel narrower than the pixel)'''
     return float(np.sqrt(v)) if v > 0 else 0.0
 
 
-def _choose_kind(img, geo, blurs, reach):
+def _choose_kind(E, blurs):
     r'''((sigma, kind), table, fits, info): the candidate blur whose edge fits (the first
 pass's, each edge alone) leave the least squared misfit summed over the edges every
-candidate fitted to convergence
+candidate fitted to convergence, each kind at the sigma the edges fit best (_blur_step)
 
 Why. targets.corners.estimate_blur picks the kind on ~32 corner windows of a few dozen
 pixels each: the two kinds at the same variance differ in the edge's shape by less than
@@ -437,58 +473,131 @@ px) it chose "gaussian" (sigma 0.75) for the response's sampled blur (0.7): the 
 corners were 0.011-0.020 px RMS off against 0.0055-0.0065 with the right kind (an edge seen
 mostly from its light side takes the profile's shape for its position). All the image's
 tag edges (10^4-10^6 pixels) tell the shapes apart; both kinds are judged on the same
-pixels, so the noise is common to both and no threshold enters.'''
+pixels, so the noise is common to both and no threshold enters. They tell sigma too: the
+windows' estimate is a median of per-corner fits scattered by ~0.005 px on the realistic
+images (standard error ~0.001 px from 32 corners, both kinds fitted: ~0.04 s per 1024x1024
+image), where the one sigma of every edge comes to 2e-4 - 9e-4 px (info
+"psf_sigma_se_px"); the windows' quick look (BLUR_QUICK_SAMPLE corners, one kind) only
+starts it, and may be far off (0.3 px on camera 17's small windows, estimate_blur): the
+first kind's sigma is stepped, the edges refitted, while a step exceeds FIRST_KIND_STEP_PX
+(a Gauss-Newton step leaves ~6% of the distance: from 0.05-0.1 px off, 0.003-0.006 px;
+from the realistic renders' quick look, 0.0015-0.006 px off, no refit). Each kind's
+misfit is compared at its sigma after one more step (predicted: S - G^2 / H, the step's
+own quadratic model), and the chosen kind takes that step. One step for the second kind:
+it starts at the first's variance, ~0.005 px from its own best sigma on the realistic
+renders, and its step lands within ~6e-4 px of the iterated sigma (1-3 standard errors);
+iterating it too, a refit of the edges per step (~8% of the detection's CPU), moved the
+quick cameras' corners by at most 0.0017 px and their RMS by at most 3e-6 px
+(benchmarks/bench_corners.py --response realistic --compare-q).'''
     out = []
     for sg, kd in blurs:
+        start = None
+        if out:
+            # the other kinds at the variance of the first one's stepped sigma, started from
+            # its curves: at the same variance the kinds' edges lie within ~0.01 px
+            sg = _same_variance(out[0][1] + out[0][4], out[0][0], kd)
+            if not sg > 0:
+                continue
+            start = out[0][3][0][:, 2:] * [1, 1, 1, 0]
         table = _table(sg, kd)
-        out.append((table, _fit_contrast_first(img, geo, table, reach)))
-    both = np.ones(len(geo), bool)
-    for _, fits in out:
-        both &= np.array([bool(f[1]) and bool(np.isfinite(f[2])) for f in fits])
-    n = np.array([len(g[2]) for g in geo], dtype=np.float64)
+        fits = _fit_contrast_first(E, table, start, FIRST_PASS_CONVERGED_PX)
+        step, dec, S, se = _blur_step(E, table, fits)
+        for _ in range(BLUR_STEPS if not out else 0):
+            # the first kind starts from the windows' quick look, which may be far off: its
+            # sigma is stepped (the edges refitted) while a step is above FIRST_KIND_STEP_PX
+            if not (abs(step) > FIRST_KIND_STEP_PX and sg + step > 0):
+                break
+            sg = sg + step
+            table = _table(sg, kd)
+            fits = _fit_contrast_first(E, table, fits[0][:, 2:] * [1, 1, 1, 0],
+                                       FIRST_PASS_CONVERGED_PX)
+            step, dec, S, se = _blur_step(E, table, fits)
+        out.append((kd, sg, table, fits, step, dec, S, se))
+    both = np.ones(E.m, bool)
+    for o in out:
+        both &= o[3][1] & np.isfinite(o[3][2])
     sums = []
-    for _, fits in out:
-        # mis = RMS / |b|: an edge's squared residual sum is n (mis b)^2
-        sq = np.array([(f[2] * f[0][1]) ** 2 for f in fits]) * n
-        sums.append(float(sq[both].sum()) if both.any() else np.inf)
+    for o in out:
+        p, _, mis = o[3]
+        # mis = RMS / |b|: an edge's squared residual sum is n (mis b)^2; less the step's
+        # predicted decrease
+        sq = (mis * p[:, 1]) ** 2 * E.n
+        sums.append(float(sq[both].sum()) - o[5] if both.any() else np.inf)
     best = int(np.argmin(sums))
-    sg, kd = blurs[best]
+    kd, sg, table, fits, step, _, _, se = out[best]
+    if sg + step > 0:
+        # one step: the fits stay those at sg (they only place the second pass's pixels)
+        sg = sg + step
+        table = _table(sg, kd)
     info = {"psf_sigma_px": sg, "psf_kind": kd, "psf_kind_chosen_by": "tag edges",
-            "psf_kind_misfit": {k: v for (_, k), v in zip(blurs, sums, strict=True)}}
-    return blurs[best], out[best][0], out[best][1], info
+            "psf_sigma_fitted_by": "tag edges", "psf_sigma_se_px": se,
+            "psf_kind_misfit": {o[0]: v for o, v in zip(out, sums, strict=True)}}
+    return (sg, kd), table, fits, info
 
 
-def _fit_contrast_first(img, geo, table, reach):
-    r'''_fit_edges: first the edges whose band reaches the dark plateau (MIN_PLATEAU_PIXELS
-at least reach px inside the curve), then the others with the contrast b given, the median
-of their tag's plateau edges (else of the image's): a band that sees only the light side of
-an edge (bits of 2-3 px across, a tag seen obliquely) cannot tell the contrast from the
-edge's position'''
-    deep = np.array([np.count_nonzero(g[5] - _curve_s(g[10], 2.0 * g[4] / g[6] - 1.0) >= reach)
-                     >= MIN_PLATEAU_PIXELS for g in geo])
-    fits = [None] * len(geo)
-    first = np.flatnonzero(deep)
-    if len(first):
-        for j, f in zip(first, _fit_edges(img, [geo[j] for j in first], table), strict=True):
-            fits[j] = f
+# Gauss-Newton steps of the first kind's sigma at most (each refits the edges)
+BLUR_STEPS = 4
+# the first kind's sigma is stepped again (the edges refitted) after a step larger than this
+# (px): a step leaves ~6% of itself (measured from 0.05-0.2 px off), so one below it leaves
+# < 6e-4 px, a tenth of the second kind's own start offset (~0.005 px at the same
+# variance, which its one step absorbs) and the kinds' misfits are compared near their best
+FIRST_KIND_STEP_PX = 0.01
+
+
+def _blur_step(E, table, fits):
+    r'''(step, predicted decrease of the summed squared misfit, misfit sum, standard error
+of sigma): a Gauss-Newton step of the one sigma of every edge fitted with its contrast free
+(targets._tag_edge_kernels.blur_step: each edge's own parameters follow it); step 0 where
+no edge tells'''
+    p, done, mis = fits
+    use = E.deep & done & np.isfinite(mis)
+    if not use.any():
+        return 0.0, 0.0, 0.0, float("nan")
+    x0, F, dF, Fs = table
+    H, G = blur_step(E.off, E.v, E.tau, E.s, E.cubic, E.j0, E.fy, p, x0, TABLE_STEP_PX, F,
+                     dF, Fs, use)
+    if not H > 0:
+        return 0.0, 0.0, 0.0, float("nan")
+    S = float(((mis[use] * p[use, 1]) ** 2 * E.n[use]).sum())
+    dof = max(float(E.n[use].sum()) - 6 * int(use.sum()) - 1, 1.0)
+    return G / H, G * G / H, S, float(np.sqrt(S / dof / H))
+
+
+def _fit_contrast_first(E, table, start=None, converged_px=CONVERGED_PX):
+    r'''_fit_edges: first the edges whose band reaches the dark plateau (E.deep), then the
+others with the contrast b given, the median of their tag's plateau edges (else of the
+image's): a band that sees only the light side of an edge (bits of 2-3 px across, a tag
+seen obliquely) cannot tell the contrast from the edge's position; start (m,4): the curves
+the fits start from (None: E.d). (p (m,6), converged (m,), misfit (m,))'''
+    deep = E.deep
+    free = np.full(E.m, np.nan)
+    p, done, mis = _fit_edges(E, table, free, start, skip=~deep, converged_px=converged_px)
     rest = np.flatnonzero(~deep)
     if not len(rest):
-        return fits
-    bs = {}
-    for j in first:
-        if fits[j][1]:
-            bs.setdefault(geo[j][0], []).append(fits[j][0][1])
-    every = [b for v in bs.values() for b in v]
-    if not every:
+        return p, done, mis
+    first = np.flatnonzero(deep & done)
+    if not len(first):
         # no edge sees its plateau: fit them all free (poorly conditioned, judged by misfit)
-        for j, f in zip(rest, _fit_edges(img, [geo[j] for j in rest], table), strict=True):
-            fits[j] = f
-        return fits
-    ball = float(np.median(every))
-    bfix = [float(np.median(bs[geo[j][0]])) if geo[j][0] in bs else ball for j in rest]
-    for j, f in zip(rest, _fit_edges(img, [geo[j] for j in rest], table, bfix), strict=True):
-        fits[j] = f
-    return fits
+        p2, d2, m2 = _fit_edges(E, table, free, start, skip=deep, converged_px=converged_px)
+    else:
+        bs = {}
+        for j in first:
+            bs.setdefault(int(E.tag[j]), []).append(p[j, 1])
+        med = {t: _median(b) for t, b in bs.items()}
+        ball = float(np.median(p[first, 1]))
+        bfix = free.copy()
+        bfix[rest] = [med.get(int(E.tag[j]), ball) for j in rest]
+        p2, d2, m2 = _fit_edges(E, table, bfix, start, skip=deep, converged_px=converged_px)
+    p[rest], done[rest], mis[rest] = p2[rest], d2[rest], m2[rest]
+    return p, done, mis
+
+
+def _median(x):
+    r'''np.median of a short list, the same value (np.median costs ~50 us a call, and a tag
+has 4 edges)'''
+    x = sorted(float(v) for v in x)
+    h = len(x) // 2
+    return x[h] if len(x) % 2 else (x[h - 1] + x[h]) / 2.0
 
 
 def _curve_s(d, tau):
@@ -517,31 +626,49 @@ the frame of its chord in Q (N,4,2), d3 = 0 (zeros where shapes has none)'''
     return out
 
 
-def _fit_edges(img, geo, table, bfix=None, converged_px=CONVERGED_PX):
+def _fit_edges(E, table, bfix, start=None, skip=None, converged_px=CONVERGED_PX):
     r'''Levenberg-Marquardt of every edge's (a, b, d0..d3), each on its own (compiled:
 targets._tag_edge_kernels.fit_edges), d3 = 0 unless the edge has its neighbours' pixels;
-bfix (m,) the contrast of the edges whose b is given (NaN: fitted): [(p (6,), converged,
-misfit RMS / contrast)] per edge'''
-    m = len(geo)
-    counts = np.array([len(g[2]) for g in geo], dtype=np.int64)
-    off = np.zeros(m + 1, np.int64)
-    np.cumsum(counts, out=off[1:])
-    ix = np.concatenate([g[2] for g in geo])
-    iy = np.concatenate([g[3] for g in geo])
-    v = img[iy, ix].astype(np.float64)
-    tau = np.concatenate([2.0 * g[4] / g[6] - 1.0 for g in geo])
-    s = np.concatenate([g[5] for g in geo]).astype(np.float64)
-    n = np.abs(np.array([g[8] for g in geo], dtype=np.float64).reshape(m, 2))
-    phi = np.arctan2(n.min(-1), n.max(-1))
-    cubic = np.array([float(g[9]) for g in geo])
-    x0, F, dF = table
-    A = F.shape[0]
-    fa = np.clip(phi / (np.pi / 4) * (A - 1), 0.0, A - 1.000001)
-    j0 = fa.astype(np.int64)
-    fy = fa - j0
-    bf = np.full(m, np.nan) if bfix is None else np.asarray(bfix, dtype=np.float64)
-    # the start: each edge's current curve (cubic term 0)
-    d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
-    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, TABLE_STEP_PX, F, dF, bf,
-                             MAX_ITERATIONS, float(converged_px))
-    return [(p[j], bool(done[j]), float(mis[j])) for j in range(m)]
+bfix (m,) the contrast of the edges whose b is given (NaN: fitted); start (m,4): the curves
+to start from (None, or a row not finite: E.d); skip (m,): edges not fitted. (p (m,6),
+converged (m,), misfit RMS / contrast (m,))'''
+    x0, F, dF = table[:3]
+    d = E.d
+    if start is not None:
+        start = np.asarray(start, dtype=np.float64).reshape(E.m, 4)
+        d = np.where(np.isfinite(start).all(-1)[:, None], start, d)
+    skip = np.zeros(E.m, bool) if skip is None else skip
+    return fit_edges(E.off, E.v, E.tau, E.s, E.cubic, E.j0, E.fy, np.ascontiguousarray(d),
+                     x0, TABLE_STEP_PX, F, dF, np.asarray(bfix, dtype=np.float64), skip,
+                     MAX_ITERATIONS, float(converged_px))
+
+
+class _Edges:
+    r'''The pixels of the edges geo in the arrays of targets._tag_edge_kernels.fit_edges
+(off, v, tau, s, cubic, j0, fy; d each edge's current curve, cubic term 0), with n (m,)
+each edge's pixel count, tag (m,) its tag and deep (m,): the edges whose band reaches the
+dark plateau (MIN_PLATEAU_PIXELS at least reach px inside the curve)'''
+
+    def __init__(self, img, geo, reach):
+        m = self.m = len(geo)
+        counts = np.array([len(g[2]) for g in geo], dtype=np.int64)
+        self.n = counts.astype(np.float64)
+        self.off = np.zeros(m + 1, np.int64)
+        np.cumsum(counts, out=self.off[1:])
+        ix = np.concatenate([g[2] for g in geo])
+        iy = np.concatenate([g[3] for g in geo])
+        self.v = img[iy, ix].astype(np.float64)
+        self.tau = np.concatenate([2.0 * g[4] / g[6] - 1.0 for g in geo])
+        self.s = np.concatenate([g[5] for g in geo]).astype(np.float64)
+        n = np.abs(np.array([g[8] for g in geo], dtype=np.float64).reshape(m, 2))
+        phi = np.arctan2(n.min(-1), n.max(-1))
+        self.cubic = np.array([float(g[9]) for g in geo])
+        fa = np.clip(phi / (np.pi / 4) * (TABLE_ANGLES - 1), 0.0, TABLE_ANGLES - 1.000001)
+        self.j0 = fa.astype(np.int64)
+        self.fy = fa - self.j0
+        self.d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
+        self.tag = np.array([g[0] for g in geo], dtype=np.int64)
+        # about the start curves (cubic term kept, as the band was placed)
+        self.deep = plateau_counts(self.off, self.tau, self.s, np.array(
+            [g[10] for g in geo], dtype=np.float64).reshape(m, 4), float(reach)) \
+            >= MIN_PLATEAU_PIXELS
