@@ -315,15 +315,19 @@ read"""
     return (_outline_polylines, _round_trip_kernel)
 
 
-def project_outlines(model, Rt_cam_board, cp):
+def project_outlines(model, Rt_cam_board, cp, *, Rt_ref_board=None, cam=None):
     r"""The projected outlines of a compiled pattern (Outlines), or None where the image of
-the board is not known to be bounded by them (see the module docstring)"""
+the board is not known to be bounded by them (see the module docstring); Rt_ref_board
+(compose(model.Rt_ref_cam(), Rt_cam_board)) and cam (the packed model) may be passed by
+a caller that has them"""
     import mrcal
 
     from reference_models import kernels
     segs, circles = board_features(cp)
-    Rt_ref_board = mrcal.compose_Rt(model.Rt_ref_cam(), np.asarray(Rt_cam_board, float))
-    cam = kernels.pack_model(model)
+    if Rt_ref_board is None:
+        Rt_ref_board = mrcal.compose_Rt(model.Rt_ref_cam(), np.asarray(Rt_cam_board, float))
+    if cam is None:
+        cam = kernels.pack_model(model)
     status, xy, q, starts, margin = _outline_polylines(segs, circles, Rt_ref_board, cam,
                                                        MAX_POINTS)
     if status != 0:
