@@ -548,25 +548,11 @@ poly[row:row + 2, :n] (signed by its orientation), about the circle's centre
 The polygon is a fan of triangles (centre, p_k, p_k+1); each triangle meets the
 disc in a region bounded by two radii (which cancel between neighbouring
 triangles) and, along the side p_k p_k+1, the side where it is inside the disc
-and the arc where it is outside. Consecutive arcs (sides outside the disc, the
-part of a side before it enters and after it leaves) are integrated as one arc
-from the first one's start to the last one's end: the moments are differences of
-their ends' values and telescope exactly, and the angles add up to the one arc's
-angle while every direction of the chain lies within 90 degrees of its start (each
-step's angle is then the difference of the two directions' angles from the start,
-in (-pi/2, pi/2)); a chain that would leave that half-plane is integrated and a new
-one started. An edge pixel then costs one arc (one atan2) per circle instead of
-three or four."""
+and the arc where it is outside."""
     a = 0.0
     mx = 0.0
     my = 0.0
     r2 = r * r
-    # the chain of arcs not integrated yet: from direction (sx, sy) to (ex, ey)
-    pend = False
-    sx = 0.0
-    sy = 0.0
-    ex = 0.0
-    ey = 0.0
     for k in range(n):
         kn = k + 1 if k + 1 < n else 0
         px = poly[row, k] - cx
@@ -590,52 +576,20 @@ three or four."""
         if disc <= 0.0 or t1 >= 1.0 or t2 <= 0.0:
             # the side lies outside the disc: the arc between its ends' directions
             if px * px + py * py > 0.0 and qx * qx + qy * qy > 0.0:
-                if pend and ex * sx + ey * sy > 0.0 and qx * sx + qy * sy > 0.0:
-                    ex = qx
-                    ey = qy
-                    continue
-                if pend:
-                    da, dmx, dmy = _arc_moments(sx, sy, ex, ey, r)
-                    a += da
-                    mx += dmx
-                    my += dmy
-                pend = True
-                sx = px
-                sy = py
-                ex = qx
-                ey = qy
-            elif pend:
-                da, dmx, dmy = _arc_moments(sx, sy, ex, ey, r)
+                da, dmx, dmy = _arc_moments(px, py, qx, qy, r)
                 a += da
                 mx += dmx
                 my += dmy
-                pend = False
             continue
         ux = px
         uy = py
         if t1 > 0.0:
             ux = px + t1 * dx
             uy = py + t1 * dy
-            if pend and ex * sx + ey * sy > 0.0 and ux * sx + uy * sy > 0.0:
-                ex = ux
-                ey = uy
-            else:
-                if pend:
-                    da, dmx, dmy = _arc_moments(sx, sy, ex, ey, r)
-                    a += da
-                    mx += dmx
-                    my += dmy
-                pend = True
-                sx = px
-                sy = py
-                ex = ux
-                ey = uy
-        if pend:
-            da, dmx, dmy = _arc_moments(sx, sy, ex, ey, r)
+            da, dmx, dmy = _arc_moments(px, py, ux, uy, r)
             a += da
             mx += dmx
             my += dmy
-            pend = False
         vx = qx
         vy = qy
         if t2 < 1.0:
@@ -646,16 +600,10 @@ three or four."""
         mx += dmx
         my += dmy
         if t2 < 1.0:
-            pend = True
-            sx = vx
-            sy = vy
-            ex = qx
-            ey = qy
-    if pend:
-        da, dmx, dmy = _arc_moments(sx, sy, ex, ey, r)
-        a += da
-        mx += dmx
-        my += dmy
+            da, dmx, dmy = _arc_moments(vx, vy, qx, qy, r)
+            a += da
+            mx += dmx
+            my += dmy
     return a, mx, my
 
 
