@@ -274,10 +274,15 @@ def _push_quadrants(stack, n, i0, i1, j0, j1):
 # too), and _supersample and _board_points are the largest kernels here: their literal
 # variants cost a fresh clone's first render ~45 of its ~105 CPU-s of compilation. The call
 # sites pass run-time expressions of those values instead (K < 0 is False, K > 0 True: K
-# >= 1; nk - nk + 1 is 1). Nor does any kernel here ask numba to inline a callee
-# (inline="always" types the callee's body again at every call site): LLVM inlines what
-# pays, and the first render compiles in ~33 CPU-s instead of ~57 (warm renders within
-# 2-5%, the images bit-identical).
+# >= 1; nk - nk + 1 is 1). Nor does a kernel here ask numba to inline a callee with
+# several call sites (inline="always" types the callee's body again at every call site):
+# LLVM inlines what pays, and the first render compiles in ~33 CPU-s instead of ~57 (warm
+# renders within 2-5%, the images bit-identical). The exceptions are the callees of area
+# coverage's path that have one call site each (_area_value, _area_circles, _area_error,
+# _area_pixel, _quad_value): typed once either way, and LLVM left them out of line; inlined,
+# navcam 15's edge pixels cost ~15% less CPU (pixel work and corner rays 17.4-18.6 ->
+# 14.4-16.1 ms on one thread, load 3-5), the images bit-identical (no fastmath: the same
+# operations in the same order).
 
 
 @njit(cache=True, error_model="numpy")
@@ -654,7 +659,7 @@ _clip variants when the four sides of the board and of a cell were four calls ea
     return n
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _area_circles(x, y, R, cand, pat):
     r"""(ncand, base): the circles whose outline lies within R of (x, y), into cand, and
 the material of the disc of radius R apart from them; ncand = -1 when they cannot
@@ -715,7 +720,7 @@ material is not uniform near here (cells)"""
     return n, base
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _quad_value(w0, gx, gy, ox, oy, cand, ncand, base, values, poly, pat):
     r"""The mean albedo over the quadrilateral poly[6:8, :4] (board) under the density
 w0 + g . (p - o); NaN when its cells are too many"""
@@ -800,7 +805,7 @@ poly[row:row + 2, :n]"""
     return (w0 + gx * (f[c] - ox) + gy * (f[c + 1] - oy)) * a + gx * mx + gy * my
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _area_pixel(cam, xf, ix, iy, n, jac, hess, cand, ncand, base, values, grid, poly, pat,
                 corners, r0, warm0):
     r"""The area coverage value of pixel (ix, iy) from an (n+1) x (n+1) grid of exact rays
@@ -880,7 +885,7 @@ at n = 1. warm0: the warm start of the pixel's centre (NaN: not known, solved he
     return acc * inv * inv, nrays
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _area_error(jac, hess):
     r"""The bound on the error of a pixel's area coverage (fraction of its area) at n = 1:
 the slivers between the polygon's straight sides and the bowed preimage of the
@@ -897,7 +902,7 @@ change across the pixel); both fall as 1/n^2 with n x n quadrilaterals"""
     return ((cu + cv) / (6.0 * D) + 0.25 * kappa * kappa) * (1.0 + FOOTPRINT_SAFETY)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _area_value(cam, xf, ix, iy, px, py, R, tol, jac, hess, cand, values, grid, poly, pat,
                 corners, r0, warm0):
     r"""The area coverage value of an edge pixel (board point (px, py) of its centre,

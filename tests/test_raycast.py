@@ -566,3 +566,47 @@ paints board over background here'''
     c = RaycastRenderer().render(model, target.pattern(), Rt, RenderSettings(spp=4))
     assert c.metadata["edges"] == "outlines"
     assert (np.abs(c.image - b.image) > 0.5).sum() > 100
+
+
+@pytest.mark.parametrize("R", [[0.0, 0.0, 0.0], [0.00096, -0.002183, 0.018547],
+                               [0.000998, 0.003762, -0.057232], [0.0, -0.4, 0.1],
+                               [0.0, -1.0, 0.2], [0.0, 0.0, -1e-6], [-1.2, 0.0, 0.0],
+                               [0.0, 0.01, 0.0]])
+def test_the_fold_check_is_skipped_only_where_the_distortion_cannot_fold(R):
+    r'''_cahvor_monotone (no round trip) exactly where g' = 1 + R0 + 3 R1 t + 5 R2 t^2 stays
+> 0 for every t = chi^2 >= 0: checked against g' on a dense grid of t (the vertex of the
+parabola falls inside it for these R; beyond it a positive R2 only grows g', a
+negative one makes it fall below 0 somewhere)'''
+    from renderers.raycast_outlines import _cahvor_monotone
+    model = CAHVOR(C=[0.0, 0.0, 0.0], A=[0.0, 0.0, 1.0], H=[500.0, 0.0, 512.0],
+                   V=[0.0, 500.0, 512.0], O=[0.0, 0.0, 1.0], R=R, width=1024, height=1024)
+    t = np.linspace(0.0, 1e7, 2_000_001)
+    t = np.concatenate((np.linspace(0.0, 10.0, 100_001), t))
+    brute = bool(np.all(1.0 + R[0] + 3.0 * R[1] * t + 5.0 * R[2] * t * t > 0.0))
+    assert _cahvor_monotone(model) == brute
+
+
+def test_a_monotone_cahvor_would_pass_the_fold_check():
+    r'''Where the fold check is skipped (navcam 15: a CAHVOR whose distortion increases
+everywhere), it would pass: every outline point of every pose is seen by its pixel's ray'''
+    import mrcal
+
+    from renderers.raycast_outlines import (
+        MAX_POINTS,
+        _cahvor_monotone,
+        _outline_polylines,
+        _round_trip,
+        board_features,
+    )
+    model = load_catalogue().get("15").model
+    assert _cahvor_monotone(model)
+    target = load_target("dots")
+    cp = compile_pattern(target.pattern())
+    segs, circles = board_features(cp)
+    cam = kernels.pack_model(model)
+    for Rt in plan_poses(model, target, n=6, seed=0):
+        Rt_ref_board = mrcal.compose_Rt(model.Rt_ref_cam(), Rt)
+        status, xy, q, starts, _ = _outline_polylines(segs, circles, Rt_ref_board, cam,
+                                                      MAX_POINTS)
+        assert status == 0
+        assert _round_trip(cam, Rt_ref_board, q, xy, starts)
