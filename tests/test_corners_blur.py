@@ -218,3 +218,22 @@ def test_window_shrinks_by_the_psf_reach():
     assert blurred_half_box(steps, 0.8, 1.0, 0.0)[0] == 0.8
     assert blurred_half_box(steps, 0.8, 1.0, 0.5)[0] == pytest.approx(1.0 - 1.5 / 5.0)
     assert np.isfinite(wedge_area(np.zeros(2), _unit(0.0), _unit(1.0)))
+
+
+@pytest.mark.parametrize("sigma, spread, n, blurred", [
+    (0.023, 0.033, 8, False),   # a sharp 5120x3840 fisheye render's quick look (camera 22)
+    (0.023, 0.001, 8, True),    # the same median, its 8 estimates agreeing: a real blur
+    (0.70, 0.02, 8, True),      # the realistic profile's sigma 0.7 px
+    (1e-5, 1e-5, 8, False),     # a sharp render's usual look
+    (0.05, float("nan"), 0, True),   # no spread to judge by: the median decides
+])
+def test_quick_look_stops_only_on_a_blur_beyond_its_own_scatter(sigma, spread, n, blurred):
+    r'''refine_corners(stop_if_blurred) leaves the window fit for the tag edges only when
+the quick look's blur exceeds BLUR_NEGLIGIBLE_PX by 3 standard errors of its median
+(1.2533 spread / sqrt(n)); a look within its scatter of that is checked by the full
+estimate (a sharp render of camera 22, 5120x3840 CAHVORE, read 0.023 +- 0.033 px on 8
+corners and its corners went to the tag edges: 100x the residual)'''
+    from targets.corners import _clearly_blurred
+    look = {"psf_sigma_px": sigma, "psf_sigma_spread_px": spread, "psf_estimates": n,
+            "psf_kind": "gaussian"}
+    assert _clearly_blurred(look) is blurred
