@@ -493,122 +493,26 @@ neighbours give (they differ only where two blobs are equally near a prediction)
 
 
 @njit(cache=True, error_model="numpy")
-def _block_sum(a, lo, n):
-    # numpy's pairwise summation of a[lo:lo + n] for n <= 128: eight running sums
-    if n < 8:
-        res = 0.0
-        for i in range(lo, lo + n):
-            res += a[i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    i = 8
-    while i < n - n % 8:
-        r0 += a[lo + i]
-        r1 += a[lo + i + 1]
-        r2 += a[lo + i + 2]
-        r3 += a[lo + i + 3]
-        r4 += a[lo + i + 4]
-        r5 += a[lo + i + 5]
-        r6 += a[lo + i + 6]
-        r7 += a[lo + i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@njit(cache=True, error_model="numpy")
-def _pairwise_sum(a, lo, n):
-    # numpy's sum of a[lo:lo + n], bit for bit: _block_sum up to 128 values, above that
-    # the sum of two halves (the first a multiple of 8), walked with an explicit stack
-    # (numba's cache cannot load a recursive function)
-    if n <= 128:
-        return _block_sum(a, lo, n)
-    los = np.empty(64, np.int64)
-    ns = np.empty(64, np.int64)
-    stage = np.zeros(64, np.int64)       # 0: not visited, 1: left pending, 2: right pending
-    lefts = np.empty(64)
-    sp = 0
-    los[0], ns[0], stage[0] = lo, n, 0
-    val = 0.0
-    while sp >= 0:
-        if ns[sp] <= 128:
-            val = _block_sum(a, los[sp], ns[sp])
-            sp -= 1
-            while sp >= 0:               # hand val up to the waiting parents
-                if stage[sp] == 1:       # its left half: now its right half
-                    lefts[sp] = val
-                    stage[sp] = 2
-                    n2 = ns[sp] // 2
-                    n2 -= n2 % 8
-                    los[sp + 1], ns[sp + 1], stage[sp + 1] = los[sp] + n2, ns[sp] - n2, 0
-                    sp += 1
-                    break
-                val = lefts[sp] + val    # its right half: its sum
-                sp -= 1
-            continue
-        n2 = ns[sp] // 2
-        n2 -= n2 % 8
-        stage[sp] = 1
-        los[sp + 1], ns[sp + 1], stage[sp + 1] = los[sp], n2, 0
-        sp += 1
-    return val
-
-
-@njit(cache=True, error_model="numpy")
-def _polygon_centroid(q, i, step, cross, wx, wy):
-    # targets.centroids.polygon_centroid of the polygon q[i, ::step], bit for bit: vertices
-    # relative to the first, numpy's sums; NaN, NaN for a non-finite vertex or a zero area
-    n = q.shape[1]
-    m = (n + step - 1) // step
-    x0, y0 = q[i, 0, 0], q[i, 0, 1]
-    finite = True
-    for j in range(m):
-        k = j * step
-        k1 = k + step if j + 1 < m else 0
-        x, y = q[i, k, 0] - x0, q[i, k, 1] - y0
-        xn, yn = q[i, k1, 0] - x0, q[i, k1, 1] - y0
-        if not (math.isfinite(q[i, k, 0]) and math.isfinite(q[i, k, 1])):
-            finite = False
-        c = x * yn - xn * y
-        cross[j] = c
-        wx[j] = (x + xn) * c
-        wy[j] = (y + yn) * c
-    a2 = _pairwise_sum(cross, 0, m)
-    if not finite or not abs(a2) > 0:
-        return np.nan, np.nan
-    return (_pairwise_sum(wx, 0, m) / (3.0 * a2) + x0,
-            _pairwise_sum(wy, 0, m) / (3.0 * a2) + y0)
-
-
-@njit(cache=True, error_model="numpy")
-def outline_centroids(q, out):
-    r"""Each polygon's area centroid Richardson-extrapolated from every other vertex, and
-the estimate of its error: targets.centroids.expected_centroids' arithmetic per dot
-
-q (Ndots, N, 2), N a multiple of 4: the projected outline points of each dot; out
-(Ndots, 3) <- cx, cy and the larger coordinate of |c - c'| / 15, c' the Richardson value
-of every other vertex (its error is 16 times c's). NaN where a vertex is not finite or
-a polygon has no area. The arithmetic is targets.centroids' numpy computation
-(polygon_centroid, _richardson_centroid), its sums in numpy's pairwise order: the same
-bits (the calibrators' bias takes these centroids, and mrcal's fits are chaotic in
-their last bits: harness/calibrators/mrcal_fit.py)."""
-    n = q.shape[1]
-    cross, wx, wy = np.empty(n), np.empty(n), np.empty(n)
-    for i in range(q.shape[0]):
-        c1x, c1y = _polygon_centroid(q, i, 1, cross, wx, wy)
-        c2x, c2y = _polygon_centroid(q, i, 2, cross, wx, wy)
-        c4x, c4y = _polygon_centroid(q, i, 4, cross, wx, wy)
-        cx = c1x + (c1x - c2x) / 3.0
-        cy = c1y + (c1y - c2y) / 3.0
-        hx = c2x + (c2x - c4x) / 3.0
-        hy = c2y + (c2y - c4y) / 3.0
-        out[i, 0] = cx
-        out[i, 1] = cy
-        out[i, 2] = max(abs(cx - hx) / 15.0, abs(cy - hy) / 15.0)
+def polygon_terms(q, cross, wx, wy, bad):
+    r"""The shoelace terms of each closed polygon q[i] (n, N, 2), vertices taken relative
+to its first: cross[i, k] = x_k y_k+1 - x_k+1 y_k, wx[i, k] = (x_k + x_k+1) cross[i, k],
+wy likewise (n, N each); bad[i]: a vertex is not finite. The arithmetic of
+targets.centroids.polygon_centroid, element by element (its sums stay numpy's)."""
+    n, N = q.shape[0], q.shape[1]
+    for i in range(n):
+        x0, y0 = q[i, 0, 0], q[i, 0, 1]
+        b = False
+        for k in range(N):
+            k1 = k + 1 if k + 1 < N else 0
+            x, y = q[i, k, 0] - x0, q[i, k, 1] - y0
+            xn, yn = q[i, k1, 0] - x0, q[i, k1, 1] - y0
+            if not (math.isfinite(q[i, k, 0]) and math.isfinite(q[i, k, 1])):
+                b = True
+            c = x * yn - xn * y
+            cross[i, k] = c
+            wx[i, k] = (x + xn) * c
+            wy[i, k] = (y + yn) * c
+        bad[i] = b
 
 
 @njit(cache=True, error_model="numpy")
@@ -773,4 +677,4 @@ longer calls it (dot_centroid's prefix pass does the dilations); it stays as the
 statement of the dilations cv2.dilate gives, and a kernel listed here that no job calls
 would never be cached, so every warm-up would render again.'''
     return (dot_centroid, mark_flags, histogram_counts, label_boxes, grow_lattice,
-            outline_centroids)
+            polygon_terms)
