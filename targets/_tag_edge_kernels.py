@@ -40,6 +40,23 @@ _MOMENTS = 19
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _add_moments(M, Ms, df, f, fs, vp, t, with_fs):
+    # one pixel's terms of the moments M (see _G..): g = df, g t^k, g F t^k, g v t^k
+    # (k <= 3), g^2 t^k (k <= 6); with_fs: also g fs t^k (k <= 3) into Ms (blur_step's)
+    tk = 1.0
+    gg = df * df
+    for k in range(7):
+        if k < 4:
+            M[_G + k] += df * tk
+            M[_GF + k] += df * f * tk
+            M[_GV + k] += df * vp * tk
+            if with_fs:
+                Ms[k] += df * fs * tk
+        M[_GG + k] += gg * tk
+        tk *= t
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _profile(v, tau, s, o0, o1, cubic, d, x0, h, Fe, dFe, bfix, Fv, M):
     # F at every pixel of one edge (into Fv; Fe, dFe: F and F' at the edge's angle, _at_angle),
     # the moments M of its normal equations, and the light level a, contrast b and squared
@@ -66,15 +83,7 @@ def _profile(v, tau, s, o0, o1, cubic, d, x0, h, Fe, dFe, bfix, Fv, M):
             f = Fe[i] * (1.0 - fx) + Fe[i + 1] * fx
             df = dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
         if df != 0.0:
-            tk = 1.0
-            gg = df * df
-            for k in range(7):
-                if k < 4:
-                    M[_G + k] += df * tk
-                    M[_GF + k] += df * f * tk
-                    M[_GV + k] += df * vp * tk
-                M[_GG + k] += gg * tk
-                tk *= t
+            _add_moments(M, M, df, f, 0.0, vp, t, False)
         Fv[p - o0] = f
         sw += 1.0
         sf += f
@@ -267,16 +276,7 @@ fs v, fs^2 and fs g t^k.'''
                 df = dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
                 fs = Fse[i] * (1.0 - fx) + Fse[i + 1] * fx
             if df != 0.0:
-                tk = 1.0
-                gg = df * df
-                for k in range(7):
-                    if k < 4:
-                        M[_G + k] += df * tk
-                        M[_GF + k] += df * f * tk
-                        M[_GV + k] += df * vq * tk
-                        Ms[k] += df * fs * tk
-                    M[_GG + k] += gg * tk
-                    tk *= t
+                _add_moments(M, Ms, df, f, fs, vq, t, True)
             sw += 1.0
             sf += f
             sff += f * f

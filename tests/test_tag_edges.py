@@ -167,11 +167,16 @@ px wider (the corner windows' quick look has been 0.3 px off on small tags)'''
     fit = refine_tag_edges(im, Q + 0.2, start, "gaussian", bits=bits, grid=grid,
                            value_range=1.0, choose_kind=True)
     assert fit.info["psf_kind"] == "sampled"
+    _assert_sigma_and_corners_of_the_right_blur(fit, im, Q, bits, grid)
+
+
+def _assert_sigma_and_corners_of_the_right_blur(fit, im, Q, bits, grid, sigma=0.7):
+    r'''fit's sigma within 4 of its standard errors of sigma (a Gaussian estimate's
+1-in-16000 tail; the standard error itself ~1e-3 px on the tags' ~10^4 edge pixels at the
+noise), and its corners those of the right blur given (fit's kind), to 0.002 px RMS'''
     se = fit.info["psf_sigma_se_px"]
-    # 4 standard errors: a Gaussian estimate's 1-in-16000 tail; se itself ~1e-3 px on the
-    # 9 tags' ~10^4 edge pixels at the profile's noise
-    assert 0 < se < 0.003 and abs(fit.info["psf_sigma_px"] - 0.7) < 4 * se, (se, fit.info)
-    right = refine_tag_edges(im, Q + 0.2, 0.7, "sampled", bits=bits, grid=grid,
+    assert 0 < se < 0.003 and abs(fit.info["psf_sigma_px"] - sigma) < 4 * se, (se, fit.info)
+    right = refine_tag_edges(im, Q + 0.2, sigma, fit.info["psf_kind"], bits=bits, grid=grid,
                              value_range=1.0)
     e = np.linalg.norm(fit.q - right.q, axis=-1)
     assert np.isfinite(e).sum() == np.isfinite(right.q[:, 0]).sum() > 0
@@ -216,12 +221,6 @@ fraction of the noise floor. Measured over 3 seeds: sigma 0.7000-0.7015, standar
     fit = refine_tag_edges(im, Q + 0.2, start, "sampled", bits=bits, grid=grid,
                            value_range=1.0, choose_kind=True)
     assert fit.info["psf_kind"] == "gaussian", fit.info
-    se = fit.info["psf_sigma_se_px"]
-    assert 0 < se < 0.003 and abs(fit.info["psf_sigma_px"] - 0.7) < 4 * se, (se, fit.info)
-    right = refine_tag_edges(im, Q + 0.2, 0.7, "gaussian", bits=bits, grid=grid,
-                             value_range=1.0)
-    e = np.linalg.norm(fit.q - right.q, axis=-1)
-    assert np.isfinite(e).sum() == np.isfinite(right.q[:, 0]).sum() > 0
-    assert float(np.sqrt(np.nanmean(e ** 2))) < 0.002, e
+    _assert_sigma_and_corners_of_the_right_blur(fit, im, Q, bits, grid)
     rms, n = _rms(fit.q, Q)
     assert n == Q.size // 2 and rms < 0.01, rms
