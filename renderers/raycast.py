@@ -322,7 +322,13 @@ SYNOPSIS
     p_board = p_ref @ Rt[:3].T + Rt[3]
 '''
     import mrcal
-    return mrcal.invert_Rt(mrcal.compose_Rt(model.Rt_ref_cam(), _check_pose(Rt_cam_board)))
+    return mrcal.invert_Rt(_Rt_ref_board(model, Rt_cam_board))
+
+
+def _Rt_ref_board(model, Rt_cam_board):
+    r'''compose(model.Rt_ref_cam(), Rt_cam_board), the pose checked (_check_pose)'''
+    import mrcal
+    return mrcal.compose_Rt(model.Rt_ref_cam(), _check_pose(Rt_cam_board))
 
 
 def board_image_box(model, Rt_cam_board, rect, margin_px=BOX_MARGIN_PX, *, Rt_ref_board=None,
@@ -488,7 +494,7 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
         cp = self._compiled(scene)
         import mrcal
         # Rt_board_ref(model, Rt_cam_board), its inverse and the packed model once
-        Rt_ref_board = mrcal.compose_Rt(model.Rt_ref_cam(), _check_pose(Rt_cam_board))
+        Rt_ref_board = _Rt_ref_board(model, Rt_cam_board)
         Rt = mrcal.invert_Rt(Rt_ref_board)
         cam, noncentral = kernels.pack_model(model), not model.is_central
         if self.threads is not None:
