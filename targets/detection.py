@@ -191,3 +191,16 @@ img8 = round(255 * clip(img, 0, 1)) (round half to even, as numpy's round).
     if not finite:
         return None
     return img, img8, (lo, hi)
+
+
+def median(v):
+    r'''np.median of a finite 1-D array, the same value bit for bit, without its overhead
+
+The middle order statistic, or the mean (a + b)/2 of the two middle ones as np.median
+takes it; np.median costs 30-50 us a call (targets.detect_dots' board level takes 3 per
+dot, targets.tag_edges one per tag).'''
+    k = len(v) // 2
+    if len(v) % 2:
+        return np.partition(v, k)[k]
+    p = np.partition(v, (k - 1, k))
+    return (p[k - 1] + p[k]) / 2

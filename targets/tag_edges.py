@@ -97,6 +97,7 @@ import numpy as np
 
 from ._tag_edge_kernels import blur_step, fit_edges, meet_curves, plateau_counts, tag_edge_pixels
 from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, PSF_KINDS, CornerFit, blur_kernel
+from .detection import median
 
 # px added to every clearance: the coarse corners' error and the bend of an edge between
 # them (a homography of the 4 corners places the cells; the sagitta of a hazcam's 60 px
@@ -583,21 +584,13 @@ the fits start from (None: E.d). (p (m,6), converged (m,), misfit (m,))'''
         bs = {}
         for j in first:
             bs.setdefault(int(E.tag[j]), []).append(p[j, 1])
-        med = {t: _median(b) for t, b in bs.items()}
+        med = {t: float(median(np.array(b))) for t, b in bs.items()}
         ball = float(np.median(p[first, 1]))
         bfix = free.copy()
         bfix[rest] = [med.get(int(E.tag[j]), ball) for j in rest]
         p2, d2, m2 = _fit_edges(E, table, bfix, start, skip=deep, converged_px=converged_px)
     p[rest], done[rest], mis[rest] = p2[rest], d2[rest], m2[rest]
     return p, done, mis
-
-
-def _median(x):
-    r'''np.median of a short list, the same value (np.median costs ~50 us a call, and a tag
-has 4 edges)'''
-    x = sorted(float(v) for v in x)
-    h = len(x) // 2
-    return x[h] if len(x) % 2 else (x[h - 1] + x[h]) / 2.0
 
 
 def _curve_s(d, tau):

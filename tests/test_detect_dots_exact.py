@@ -3,8 +3,8 @@ r'''The dot detector's shortcuts give bit for bit what the plain computations gi
 _label_stack labels many boxes in one call: each box's components, their order, stats
 and centroids must be those of the box labelled alone (as the detector did before, one
 connectedComponentsWithStats call per box), and _label_image the label image they made.
-The other shortcuts (_median, _histogram, _label_whole, _dot_centroid, ...) are compared
-with the numpy/OpenCV computations they replace.
+The other shortcuts (targets.detection.median, _histogram, _label_whole, _dot_centroid,
+...) are compared with the numpy/OpenCV computations they replace.
 '''
 
 import cv2
@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from targets import detect_dots as dd
+from targets.detection import median
 
 
 def _label_boxes_one_by_one(img, thr, boxes):
@@ -122,7 +123,7 @@ odd and even rows and columns) decides the stats' order'''
 def test_median_is_np_median(n):
     rng = np.random.default_rng(n)
     for v in (rng.normal(size=n), np.round(rng.normal(size=n), 1), np.full(n, 0.3)):
-        m = dd._median(v.copy())
+        m = median(v.copy())
         assert m == np.median(v) and type(m) is type(np.median(v))
 
 
