@@ -98,6 +98,37 @@ is C1 in the offsets, the sampled weights are smooth in sigma)'''
     assert np.abs(dD_ds - num).max() < 1e-5 * max(1.0, np.abs(num).max())
 
 
+@pytest.mark.parametrize("widen", [0.0, 0.1])
+def test_sampled_taps_share_the_sharp_pixels(widen):
+    r'''The sampled kernel's taps sit at whole-pixel offsets: the compiled model takes each
+tap's sharp pixel from one grid over the window's box (_grid_wedge_model). It equals the
+numpy reference's sum over the taps of wedge_area and its derivatives (an X junction: two
+wedges) to rounding (1e-12: ~25 taps of terms of order 1, added in another order)'''
+    centres = _grid(6) + np.array([3.0, -2.0])
+    c = np.array([3.3, -2.2])
+    angles = np.radians([20.0, 115.0, 200.0, 295.0])
+    uu = np.stack([_unit(a) for a in angles])
+    first, second = np.array([[0, 2]]), np.array([[1, 3]])
+    Z, W, dZ, dW = blur_kernel([0.7], "sampled")
+    D, dD_dc, dD_dt, dD_ds = wedge_model(centres[None], np.array([0]), c[None], uu[None],
+                                         first, second, widen, Z, W, dZ, dW)
+    ref = [np.zeros(D.shape[1:]), np.zeros(dD_dc.shape[1:]), np.zeros(dD_dt.shape[1:]),
+           np.zeros(D.shape[1:])]
+    for z, wq, dwq in zip(Z[0], W[0], dW[0], strict=True):
+        d = centres + z - c
+        for i1, i2 in ((0, 1), (2, 3)):
+            A, dA_dc, dA_dt1, dA_dt2 = wedge_area(
+                d, np.broadcast_to(uu[i1], d.shape), np.broadcast_to(uu[i2], d.shape), True,
+                widen)
+            ref[0] += wq * A
+            ref[1] += wq * dA_dc
+            ref[2][:, i1] += wq * dA_dt1
+            ref[2][:, i2] += wq * dA_dt2
+            ref[3] += dwq * A
+    for got, want in zip((D[0], dD_dc[0], dD_dt[0], dD_ds[0]), ref, strict=True):
+        assert np.abs(got - want).max() < 1e-12
+
+
 def test_blurred_model_numpy_reference_equals_compiled():
     from targets.corners import _fit
     img, q, dirs, steps = _chessboard_corner_image(0.7, "sampled", seed=None)
