@@ -43,6 +43,10 @@ CLASSIC_FLAGS = 3     # cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IM
 NOT_SADDLE = "not a saddle"
 # how far along the diagonals (in grid steps) a corner's saddle is checked
 SADDLE_PROBE = 0.15
+# x_junction_blur's match of the sampled kernel's added blur to an estimate's (px): far
+# below the estimate's own scatter (~1e-3 px), and at most this many secant steps
+X_BLUR_TOLERANCE_PX = 1e-6
+X_BLUR_SECANT_STEPS = 20
 ALL_TRANSFORMS = [(swap, fa, fb) for swap in (False, True) for fa in (False, True)
                   for fb in (False, True)]
 
@@ -88,6 +92,36 @@ square (or an edge) fails.'''
     if contrast is None:
         contrast = float(img.max() - img.min())
     return np.abs(a - b) / 2 > contrast / 3
+
+
+def x_junction_blur(sigma, kind):
+    r'''The sigma of the "sampled" blur kernel (targets.corners.blur_kernel) that adds the
+variance of (sigma, kind) to the pixel's own area
+
+Why. A chessboard corner is an X junction: two straight edges crossing, its dark region
+point-symmetric about the corner, and so is its image under any point-symmetric blur. A
+model blurred by a point-symmetric kernel of another shape or width misfits every pixel
+pair (c + u, c - u) alike, where the corner's derivative is opposite: to first order the
+fitted corner does not move (tests/test_chessboard_blur.py measures it), unlike an
+AprilTag's L-shaped corner, which a wrong kernel moves into its dark wedge. So the X
+junctions need no choice of kernel kind (two blurred fits of 32 corners, ~0.04 s per
+1024x1024 image) and take the kind whose taps at whole-pixel offsets share the sharp
+pixels (targets._corner_kernels, ~2.5x cheaper than the Gaussian kind's 25 offsets) at
+the blur's variance: added_blur_px of the taps matched by secant steps (the taps' variance
+is sigma^2 + 1/12 above sigma ~0.5 px, less below, where the pixel's own width dominates).
+'''
+    from .corners import added_blur_px
+    want = added_blur_px(sigma, kind)
+    # secant steps on the taps' added blur, monotone in sigma, from the large-sigma formula
+    s0 = float(np.sqrt(max(want * want - 1.0 / 12.0, 0.0))) + 0.05
+    s1 = s0 + 0.05
+    f0, f1 = added_blur_px(s0, "sampled") - want, added_blur_px(s1, "sampled") - want
+    for _ in range(X_BLUR_SECANT_STEPS):
+        if abs(f1) < X_BLUR_TOLERANCE_PX or f1 == f0:
+            break
+        s0, s1 = s1, max(s1 - f1 * (s1 - s0) / (f1 - f0), 1e-3)
+        f0, f1 = f1, added_blur_px(s1, "sampled") - want
+    return s1
 
 
 def _expected_squares(target):
@@ -258,9 +292,23 @@ ARGUMENTS
     dropped = {NOT_SADDLE: int(not_saddle.sum())} if not_saddle.any() else {}
     if refine is True:
         from .corners import chessboard_clearance, chessboard_half_box, refine_chessboard_corners
-        fit = refine_chessboard_corners(img, G, chessboard_half_box(target),
-                                        clearance=chessboard_clearance(target),
-                                        value_range=hi - lo, psf_sigma_px=psf_sigma_px)
+        window = dict(half_box=chessboard_half_box(target),
+                      clearance=chessboard_clearance(target), value_range=hi - lo)
+        fit = refine_chessboard_corners(img, G, psf_sigma_px=psf_sigma_px,
+                                        stop_if_blurred=psf_sigma_px is None, **window)
+        if fit.info.get("stopped"):
+            # blurred: the corner windows' look at the blur (or their full estimate) stopped
+            # the fit; the X junctions are fitted with the sampled kernel of its variance
+            look = fit.info
+            sigma = x_junction_blur(look["psf_sigma_px"], look.get("psf_kind", "gaussian"))
+            fit = refine_chessboard_corners(img, G, psf_sigma_px=sigma, psf_kind="sampled",
+                                            **window)
+            fit.info.update({"psf_source": f"{look.get('psf_source', 'estimated')} "
+                             f"({look.get('psf_kind', 'gaussian')} "
+                             f"{look['psf_sigma_px']:.4f} px), as the sampled kernel of its "
+                             f"variance"})
+            fit.info.update({k: v for k, v in look.items()
+                             if k.startswith("psf_") and k not in fit.info})
         info.update({k: v for k, v in fit.info.items() if k.startswith("psf_")})
         # the refiner calls the corners rejected above "not detected"
         dropped.update({k: v for k, v in fit.dropped().items() if k != "not detected"})
