@@ -40,7 +40,9 @@ same board line as edge k of its row's (k = 0, 2) or column's (k = 1, 3) neighbo
 STRAIGHT_BEND_PX) edge is fitted as one cubic through its own and both neighbours' pixels
 (~3.6 edge lengths: the noise averaged over 3x the pixels, the corner inside the span);
 a long bent one (a fisheye's big tags: a cubic over that span misses the line by 0.02 px)
-once per corner, with the neighbour's edge beyond that corner. An end without a
+once per corner, with the nearer half of the neighbour's edge beyond that corner
+(NEIGHBOUR_REACH: over the whole neighbour the cubic still missed the line by 0.005-0.008
+px at the big tags' corners). An end without a
 neighbour takes the edge alone (a cubic when longer than CUBIC_EDGE_PX).
 
 The pixels. Each edge uses the pixels that see no other feature of the board through the
@@ -120,6 +122,16 @@ CUBIC_EDGE_PX = 64.0
 # still takes both neighbours (navcam 15's realistic corners 0.0047 -> 0.0034 px RMS with
 # them; hazcam 8's tags, bent 0.2-0.4 px, unchanged)
 STRAIGHT_BEND_PX = 0.05
+# a long bent edge's per-corner fit takes its neighbour's pixels out to this fraction of the
+# neighbour's length past the gap: its nearer half. A cubic over this edge and the whole
+# neighbour (~2.3 edge lengths) misses a fisheye's bent board line: noise-free blurred
+# corners of MER hazcam 8's big tags (100-150 px) 0.005-0.008 px RMS, of the nearest pose
+# 0.0064 (this edge alone, a cubic: 0.0007, but its corner at the span's end: 0.0086 px
+# RMS with the realistic noise, against 0.0059). Reach 0.5: 0.0025 noise-free on that
+# pose, 0.0053 realistic (0.7, the corner at the span's middle: 0.0049 / 0.0055; 0.25:
+# 0.0011 / 0.0056); on camera 1 (5120x3840, not used to choose it) realistic 0.0037 ->
+# 0.0025 px RMS, max 0.021 -> 0.011 (docs/corners.md)
+NEIGHBOUR_REACH = 0.5
 # pixels on the dark plateau (beyond the blur's reach inside the edge) an edge needs for its
 # own contrast; with fewer it takes its tag's (_fit_contrast_first)
 MIN_PLATEAU_PIXELS = 10
@@ -361,8 +373,14 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 mid = 0.5 * (q[m[0], m[1]] + q[m[0], (m[1] + 1) % 4])
                 ends[0 if (mid - q[i, k]) @ e < 0 else 1] = m
             for end, m in ends.items():
-                jx = np.concatenate((ix, own[m][0]))
-                jy = np.concatenate((iy, own[m][1]))
+                # the neighbour's pixels out to NEIGHBOUR_REACH of its length past the gap
+                # (u: px along this edge's chord from its corner k; this edge is 0..L)
+                nb = np.stack((own[m][0], own[m][1]), -1) - q[i, k]
+                u = nb @ e
+                reach_px = gap_bits * L / 8.0 + NEIGHBOUR_REACH * own[m][4]
+                near = (u <= L + reach_px) if end == 1 else (u >= -reach_px)
+                jx = np.concatenate((ix, own[m][0][near]))
+                jy = np.concatenate((iy, own[m][1][near]))
                 r = np.stack((jx, jy), -1) - q[i, k]
                 geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], end))
             if len(ends) < 2:
