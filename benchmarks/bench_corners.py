@@ -64,9 +64,10 @@ FAMILY_ORDER = ("CAHV", "CAHVOR", "CAHVORE")
 
 
 def render_images(directory, camera, tname, spp, nposes, coverage="point"):
-    r'''family, target, [(image, truth (N,2), bias (N,2))] of one camera and target, rendered
-once into directory; bias: harness.calibrators.bias.corner_bias under the true model and
-pose (what jpl's bias loop subtracts once it has converged)'''
+    r'''family, target, [(image, truth (N,2), bias (N,2) or (N,4))] of one camera and target,
+rendered once into directory; bias: harness.calibrators.bias.corner_bias under the true
+model and pose (what jpl's bias loop subtracts once it has converged), a chessboard's
+with its lines' (corner_bias(lines=True)) in columns 2-3'''
     from harness.calibrators.bias import corner_bias
     from harness.campaign import load_campaign
     from harness.jobs import expand_jobs
@@ -103,8 +104,13 @@ pose (what jpl's bias loop subtracts once it has converged)'''
             np.save(directory / f"cam{camera}_{tname}_{tag}_{i}.npy", np.asarray(r.image))
     for i, Rt in enumerate(poses):
         img = np.load(directory / f"cam{camera}_{tname}_{tag}_{i}.npy")
-        out.append((img, projected_points(truth, target, Rt),
-                    corner_bias(truth, target, Rt, target.points())))
+        # the bias of the window's free rays, and of its lines (CORNER_LINES: a blurred
+        # chessboard's) as a second column pair
+        bias = corner_bias(truth, target, Rt, target.points())
+        if tname == "chessboard":
+            bias = np.concatenate((bias, corner_bias(truth, target, Rt, target.points(),
+                                                     lines=True)), axis=-1)
+        out.append((img, projected_points(truth, target, Rt), bias))
     return job.family, target, out
 
 
@@ -167,6 +173,7 @@ def main():
     from harness.calibrators.bias import WINDOW_BIASED
     from harness.records import git_commit
     from targets.detect import detect
+    from targets.detection import CORNER_LINES
 
     rows = []
     for cam in args.cameras.split(","):
@@ -197,10 +204,13 @@ def main():
                         _compare_q(before[key], det.q, truth, changes)
                     # the bias the calibrators' bias step subtracts: the window model's
                     # corners only (tag-edge corners of blurred images have none)
-                    b = bias
+                    b = bias[:, :2]
                     if det.corner_model is not None:
                         biased = np.isin(det.corner_model, WINDOW_BIASED)
-                        b = np.where(biased[:, None], bias, 0.0)
+                        b = np.where(biased[:, None], b, 0.0)
+                        if bias.shape[-1] == 4:
+                            lines = det.corner_model == CORNER_LINES
+                            b = np.where(lines[:, None], bias[:, 2:], b)
                     ec = np.linalg.norm(det.q - b - truth, axis=-1)
                     cerrs.append(ec[np.isfinite(ec)])
                     found += int(det.n_found)

@@ -890,6 +890,9 @@ CHESSBOARD_HALF_BOX = 0.45
 # is a square away (its mark dots: chessboard_clearance)
 TAG_CLEARANCE_BITS = 1.0
 CHESSBOARD_CLEARANCE = 1.0
+# a chessboard corner's rays (refine_chessboard_corners, corner_rays: +x, +y, -x, -y along
+# the board) that are one straight line through it, tied when the image is blurred
+CHESSBOARD_LINES = ((0, 2), (1, 3))
 
 
 def refine_tag_corners(image, Q, half_box=TAG_HALF_BOX_BITS, clearance=TAG_CLEARANCE_BITS,
@@ -981,7 +984,7 @@ The four edges at a corner run along the grid lines towards the neighbouring cor
     dirs = np.stack((ex, ey, -ex, -ey), axis=2).reshape(-1, 4, 2)
     steps = np.stack((ex, ey), axis=-1).reshape(-1, 2, 2)
     return refine_corners(image, G.reshape(-1, 2), dirs, [(0, 1), (2, 3)], steps, half_box,
-                          clearance=clearance, lines=[(0, 2), (1, 3)], **options)
+                          clearance=clearance, lines=CHESSBOARD_LINES, **options)
 
 
 def _grid_step(G, axis):
@@ -1031,7 +1034,7 @@ SYNOPSIS
 
 
 def curvature_bias(q, tangents, curvatures, wedges, steps, half_box, notch=None,
-                   max_window_px=MAX_WINDOW_PX):
+                   max_window_px=MAX_WINDOW_PX, lines=()):
     r'''Where refine_corners puts a corner whose edges are curved, minus the corner: px
 
 SYNOPSIS
@@ -1046,7 +1049,9 @@ the area between the curve and its tangent inside the pixel, k (s1^3 - s0^3) / 6
 over the tangent's stretch [s0, s1] in it (to first order in k). The fit's
 response to that change is its linearised least-squares step, (J^T J)^-1 J^T dv,
 in the window the refiner would use about the true corner. First order in k:
-the neglected terms are k^2 w^3 (1e-6 px for k = 1e-3/px, w = 8 px).
+the neglected terms are k^2 w^3 (1e-6 px for k = 1e-3/px, w = 8 px). lines: pairs of
+rays fitted as one straight line (refine_corners' lines on a blurred image: one angle,
+the pair's two columns of the Jacobian summed).
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     N = len(q)
@@ -1078,6 +1083,15 @@ the neglected terms are k^2 w^3 (1e-6 px for k = 1e-3/px, w = 8 px).
     from ._corner_kernels import curvature_terms
     D, dD_dc, dD_dt, dv = curvature_terms(np.ascontiguousarray(d), np.ascontiguousarray(u),
                                           first, second, np.ascontiguousarray(k[idx]))
+    if len(lines):
+        tied = [tuple(p) for p in lines]
+        free = [r for r in range(R) if not any(r in p for p in tied)]
+        T = np.zeros((R, len(tied) + len(free)))
+        for col, (i, j) in enumerate(tied):
+            T[i, col] = T[j, col] = 1.0
+        for col, r in enumerate(free, start=len(tied)):
+            T[r, col] = 1.0
+        dD_dt = dD_dt @ T
     J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], dD_dc, dD_dt), axis=-1)
     Jw = J * w[..., None]
     JtJ = Jw.transpose(0, 2, 1) @ J + 1e-12 * np.eye(J.shape[-1])

@@ -40,7 +40,13 @@ OpenCV's pixel convention is camval's (pixel centres at integers).
 
 import numpy as np
 
-from .detection import MIN_POINTS_FOR_POSE, failed, result, working_image
+from .detection import (
+    CORNER_LINES,
+    MIN_POINTS_FOR_POSE,
+    failed,
+    result,
+    working_image,
+)
 
 DETECTOR = "chessboard"
 # images larger than twice this (smaller side) are searched at a reduced size first
@@ -322,5 +328,11 @@ ARGUMENTS
         dropped.update({k: v for k, v in fit.dropped().items() if k != "not detected"})
         G = fit.q.reshape(ny, nx, 2)
     info["corners_dropped"] = dropped
+    # blurred, the fit tied each pair of opposite rays into one line: its curvature bias is
+    # the lines' (harness.calibrators.bias.corner_bias(lines=True)); sharp, None: the
+    # window's (as every corner target's before CORNER_LINES)
+    corner_model = None
+    if refine is True and float(info.get("psf_sigma_px") or 0.0) > 0.0:
+        corner_model = CORNER_LINES
     return result(target, G.reshape(-1, 2), DETECTOR,
-                  min_found=min_found, info=info)
+                  min_found=min_found, info=info, corner_model=corner_model)

@@ -80,6 +80,11 @@ corner_model: (N,) str, the model each found corner's position comes from (CORNE
 # edges that distortion bends its corner moves by the curvature bias that
 # harness.calibrators.bias.corner_bias computes and the calibrators subtract
 CORNER_WINDOW = "corner window"
+# targets.corners.refine_corners on a blurred image: a chessboard's opposite rays are tied
+# into one straight line each (targets.corners.CHESSBOARD_LINES); a line fitted to an edge
+# that distortion bends through the corner moves it otherwise than two free rays do (about
+# -1.9x as far on MER hazcam 8), corner_bias(lines=True)
+CORNER_LINES = "corner window, lines"
 # targets.tag_edges (blurred images): the meeting point of a tag's two whole border edges,
 # each fitted as a curve; no window, no curvature bias
 TAG_EDGES = "tag edges"

@@ -83,7 +83,8 @@ MAX_CORNER_SHIFT_PX of the corner they started from (start_error_px in the first
 Measured (benchmarks/bench_corners.py --targets apriltag --methods camval --response
 realistic; K = 16 renders, 6 poses): corner error RMS 0.0032 px (navcam 15), 0.0059
 (hazcam 17 as CAHVORE, 573 of 864 corners: the rest's bits are too small for the blur),
-0.0058 (hazcam 8 fisheye), 0.0037 (camera 1, 5120x3840); the corner windows gave
+0.0053 (hazcam 8 fisheye), 0.0025 (camera 1, 5120x3840; 0.0059 and 0.0037 before
+NEIGHBOUR_REACH); the corner windows gave
 0.014-0.03. CPU per image, whole detection (median; docs/corners.md, "Blurred AprilTag
 detection time", load 3 on 2 cores): 0.043 s on 640x480, 0.090 s on 1024x1024, 0.30 s on
 5120x3840 (0.135, 0.194, 0.561 s before the blur was fitted on the edges, back to back).

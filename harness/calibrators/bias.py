@@ -33,7 +33,7 @@ where the observations' corner_model says so (WINDOW_BIASED).
 import numpy as np
 
 from reference_models.poseutils import transform_point_Rt
-from targets.detection import CORNER_WINDOW
+from targets.detection import CORNER_LINES, CORNER_WINDOW
 
 NOUTLINE = 1440
 # outline points per dot for the bias of a JPL model (targets.centroids.expected_centroids):
@@ -129,12 +129,12 @@ SYNOPSIS
 # targets whose points are corners refined by targets.corners
 CORNER_KINDS = ("apriltag", "chessboard")
 # the corner models (Observations.corner_model) whose corners carry corner_bias
-WINDOW_BIASED = (CORNER_WINDOW,)
+WINDOW_BIASED = (CORNER_WINDOW, CORNER_LINES)
 # the edges' tangents and curvatures from projections this far along them (window units)
 CORNER_DIFF_STEP = 0.05
 
 
-def corner_bias(model, target, Rt_cam_board, p_board):
+def corner_bias(model, target, Rt_cam_board, p_board, lines=False):
     r'''refined corner - projected corner, px: the bias of straight rays on curved edges
 
 SYNOPSIS
@@ -144,9 +144,11 @@ SYNOPSIS
 Each edge leaving a corner (targets.corners.corner_rays) is projected at +-h
 along the board (h = CORNER_DIFF_STEP window units) for its image tangent and
 curvature; targets.corners.curvature_bias turns them into the shift of the
-refiner's fit. NaN where a point does not project.
+refiner's fit. NaN where a point does not project. lines=True: a chessboard's corners
+fitted with each pair of opposite rays one line (Detection.corner_model CORNER_LINES: a
+blurred image).
 '''
-    from targets.corners import corner_rays, curvature_bias
+    from targets.corners import CHESSBOARD_LINES, corner_rays, curvature_bias
     rays, unit, wedges, window = corner_rays(target)
     if len(rays) != len(p_board):
         return np.full((len(p_board), 2), np.nan)
@@ -162,7 +164,9 @@ refiner's fit. NaN where a point does not project.
     tangents = d1 / speed[..., None]
     curvatures = (d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]) / speed ** 3
     steps = np.stack((d1[:, 0], d1[:, 1]), axis=-1) * unit
-    return curvature_bias(q0[:, 0], tangents, curvatures, wedges, steps, **window)
+    tied = CHESSBOARD_LINES if lines and target.kind == "chessboard" else ()
+    return curvature_bias(q0[:, 0], tangents, curvatures, wedges, steps, lines=tied,
+                          **window)
 
 
 def bias_step(model, target, Rt_cam_board, p_board, b_prev=None, views=None,
@@ -178,9 +182,9 @@ SYNOPSIS
 The bias of every dot under the current model and poses Rt_cam_board
 (Nposes,4,3); poses outside `views` (when given) get none. For a corner target,
 corner_model (Nposes,Npoints) str (Observations.corner_model) gives the corner
-model of each detection: only the WINDOW_BIASED ones get corner_bias, the rest
-0 (None: every corner is the window model's). `change` is the largest change of
-the bias since b_prev (its largest value on the first pass).
+model of each detection: only the WINDOW_BIASED ones get corner_bias (CORNER_LINES's with
+its lines tied), the rest 0 (None: every corner is the window model's). `change` is the
+largest change of the bias since b_prev (its largest value on the first pass).
 '''
     if target is None:
         return None, None
@@ -191,6 +195,11 @@ the bias since b_prev (its largest value on the first pass).
         return None, None
     b = np.array(b)
     if corner_model is not None and getattr(target, "kind", "dots") in CORNER_KINDS:
+        corner_model = np.asarray(corner_model)
+        for i, Rt in enumerate(Rt_cam_board):
+            tied = corner_model[i] == CORNER_LINES
+            if tied.any() and (views is None or i in views):
+                b[i][tied] = corner_bias(model, target, Rt, p_board[i], lines=True)[tied]
         b[~np.isin(corner_model, WINDOW_BIASED)] = 0.0
     change = float(np.nanmax(np.abs(b if b_prev is None else b - b_prev)))
     return b, change
