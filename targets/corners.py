@@ -654,6 +654,18 @@ sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1
             "psf_sigma_spread_px": float(1.4826 * np.median(np.abs(est - med)))}
 
 
+def _ray_angles(tied, R):
+    r'''T (R,L): ray r turns with angle parameter l where T[r, l] = 1: each pair (i, j) of
+tied (one straight line) one parameter, then each other ray its own'''
+    free = [r for r in range(R) if not any(r in p for p in tied)]
+    T = np.zeros((R, len(tied) + len(free)))
+    for col, (i, j) in enumerate(tied):
+        T[i, col] = T[j, col] = 1.0
+    for col, r in enumerate(free, start=len(tied)):
+        T[r, col] = 1.0
+    return T
+
+
 def _fit(image, q0, directions, wedges, steps, half_box, *, notch=None,
          max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
@@ -725,15 +737,11 @@ line through the corner when sigma > 0)'''
     # line are tied: four free rays let a blurred X junction fit a kinked X whose apex
     # slides along it (0.25 px on navcam 15 chessboards, sigma 0.7 px)
     tied = [tuple(p) for p in lines] if (float(sigma) > 0.0 or fit_sigma) else []
-    free = [r for r in range(R) if not any(r in p for p in tied)]
-    T = np.zeros((R, len(tied) + len(free)))
-    for col, (i, j) in enumerate(tied):
-        T[i, col] = T[j, col] = 1.0
+    T = _ray_angles(tied, R)
+    for i, j in tied:
         # start the line from both rays' directions, exactly opposite
         phi = np.arctan2(u[:, i, 1] - u[:, j, 1], u[:, i, 0] - u[:, j, 0])
         theta[:, i], theta[:, j] = phi, phi + np.pi
-    for col, r in enumerate(free, start=len(tied)):
-        T[r, col] = 1.0
     L = T.shape[1]
     blurred = float(sigma) > 0.0 or fit_sigma
 
@@ -1084,14 +1092,7 @@ the pair's two columns of the Jacobian summed).
     D, dD_dc, dD_dt, dv = curvature_terms(np.ascontiguousarray(d), np.ascontiguousarray(u),
                                           first, second, np.ascontiguousarray(k[idx]))
     if len(lines):
-        tied = [tuple(p) for p in lines]
-        free = [r for r in range(R) if not any(r in p for p in tied)]
-        T = np.zeros((R, len(tied) + len(free)))
-        for col, (i, j) in enumerate(tied):
-            T[i, col] = T[j, col] = 1.0
-        for col, r in enumerate(free, start=len(tied)):
-            T[r, col] = 1.0
-        dD_dt = dD_dt @ T
+        dD_dt = dD_dt @ _ray_angles([tuple(p) for p in lines], R)
     J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], dD_dc, dD_dt), axis=-1)
     Jw = J * w[..., None]
     JtJ = Jw.transpose(0, 2, 1) @ J + 1e-12 * np.eye(J.shape[-1])
