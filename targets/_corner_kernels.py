@@ -364,6 +364,47 @@ its centre is within max_px of q0; on_image when it lies in the (H, W) image'''
     return inside, on_image
 
 
+@njit(cache=True, error_model="numpy")
+def window_pixels(ix, iy, inside, rows, img):
+    r'''v, w (m,P) and centres (m,P,2) of the windows rows (m,) of targets.corners._window's
+ix, iy, inside (n,Pall): each row's inside pixels first, then the others, both in their
+order (numpy's stable argsort of ~inside), cut to P = the most inside pixels of any of
+those rows; v the image's values (float64) at the pixels clipped to the image, w 1.0
+inside and 0.0 elsewhere, centres the pixels' (x, y): the numpy expressions of
+targets.corners._fit in one pass (the same values)'''
+    H, W = img.shape
+    m = len(rows)
+    Pall = ix.shape[1]
+    P = 0
+    for j in range(m):
+        k = 0
+        for p in range(Pall):
+            if inside[rows[j], p]:
+                k += 1
+        P = max(P, k)
+    v = np.empty((m, P))
+    w = np.empty((m, P))
+    centres = np.empty((m, P, 2))
+    for j in range(m):
+        n = rows[j]
+        k = 0
+        for sweep in range(2):
+            want = sweep == 0
+            for p in range(Pall):
+                if k == P:
+                    break
+                if inside[n, p] != want:
+                    continue
+                x = ix[n, p]
+                y = iy[n, p]
+                v[j, k] = float(img[min(max(y, 0), H - 1), min(max(x, 0), W - 1)])
+                w[j, k] = 1.0 if want else 0.0
+                centres[j, k, 0] = float(x)
+                centres[j, k, 1] = float(y)
+                k += 1
+    return v, w, centres
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _block_sum(a, lo, n):
     # numpy's pairwise_sum on n <= 128 values: eight lanes, then the rest one by one
@@ -398,14 +439,26 @@ def _block_sum(a, lo, n):
 def _pairwise_sum(a, n):
     r'''a[:n].sum() in numpy's order (its pairwise summation: halves split at a multiple of
 8 down to blocks of at most 128, each summed in 8 lanes), so that light_levels equals the
-numpy expressions it replaces bit for bit. numpy recurses; this walks the same tree with
-its own stacks (numba's cache does not take recursive kernels).'''
+numpy expressions it replaces bit for bit (_pairwise_walk)'''
     if n <= 128:
         return _block_sum(a, 0, n)
-    tlo = np.empty(128, np.int64)      # tasks: start, length, children summed yet
-    tn = np.empty(128, np.int64)
-    tdone = np.empty(128, np.bool_)
-    vals = np.empty(128)
+    tlo, tn, tdone, vals = _walk_stacks()
+    return _pairwise_walk(a, n, tlo, tn, tdone, vals)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _walk_stacks():
+    # _pairwise_walk's task and value stacks: 128 entries hold any length numpy's tree
+    # reaches (3 tasks per level, ~log2(n / 128) levels)
+    return (np.empty(128, np.int64), np.empty(128, np.int64), np.empty(128, np.bool_),
+            np.empty(128))
+
+
+@njit(cache=True, error_model="numpy")
+def _pairwise_walk(a, n, tlo, tn, tdone, vals):
+    r'''_pairwise_sum of n > 128 values on the caller's stacks (_walk_stacks: a caller
+summing many arrays allocates them once). numpy recurses; this walks the same tree with
+its own stacks (numba's cache does not take recursive kernels).'''
     nt = 1
     nv = 0
     tlo[0], tn[0], tdone[0] = 0, n, False
@@ -428,6 +481,14 @@ its own stacks (numba's cache does not take recursive kernels).'''
     return vals[0]
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _sum_on(a, n, tlo, tn, tdone, vals):
+    # _pairwise_sum on the caller's stacks
+    if n <= 128:
+        return _block_sum(a, 0, n)
+    return _pairwise_walk(a, n, tlo, tn, tdone, vals)
+
+
 @njit(cache=True, error_model="numpy")
 def light_levels(s, D, w, v):
     r'''The light level a, contrast b, weighted misfit S (m,) and residuals r (m,P) of the
@@ -444,6 +505,7 @@ in targets.corners._fit in their order, sums in numpy's pairwise order: equal bi
     t2 = np.empty(P)
     t3 = np.empty(P)
     t4 = np.empty(P)
+    tlo, tn, tdone, vals = _walk_stacks()
     for j in range(m):
         n = s[j]
         for p in range(P):
@@ -453,11 +515,11 @@ in targets.corners._fit in their order, sums in numpy's pairwise order: equal bi
             t2[p] = wd * D[j, p]
             t3[p] = w[n, p] * v[n, p]
             t4[p] = wd * v[n, p]
-        sw = _pairwise_sum(t0, P)
-        sd = _pairwise_sum(t1, P)
-        sdd = _pairwise_sum(t2, P)
-        sv = _pairwise_sum(t3, P)
-        sdv = _pairwise_sum(t4, P)
+        sw = _sum_on(t0, P, tlo, tn, tdone, vals)
+        sd = _sum_on(t1, P, tlo, tn, tdone, vals)
+        sdd = _sum_on(t2, P, tlo, tn, tdone, vals)
+        sv = _sum_on(t3, P, tlo, tn, tdone, vals)
+        sdv = _sum_on(t4, P, tlo, tn, tdone, vals)
         det = sw * sdd - sd * sd
         bj = (sw * sdv - sd * sv) / det
         aj = (sv - bj * sd) / sw
@@ -467,7 +529,7 @@ in targets.corners._fit in their order, sums in numpy's pairwise order: equal bi
             t0[p] = (w[n, p] * rp) * rp
         a[j] = aj
         b[j] = bj
-        S[j] = _pairwise_sum(t0, P)
+        S[j] = _sum_on(t0, P, tlo, tn, tdone, vals)
     return a, b, S, r
 
 
@@ -609,8 +671,8 @@ of operations and numpy's summation order (_block_sum): the same bits.'''
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup)'''
-    return (wedge_model, normal_equations, window_mask, image_range_u8, light_levels,
-            lm_accept, curvature_terms)
+    return (wedge_model, normal_equations, window_mask, window_pixels, image_range_u8,
+            light_levels, lm_accept, curvature_terms)
 
 
 @njit(cache=True, error_model="numpy")

@@ -695,16 +695,14 @@ line through the corner when sigma > 0)'''
     reasons[idx[off]] = "window off the image"
     reasons[idx[few]] = "window too small"
     keep = ~off & ~few
-    idx, ix, iy, mask = idx[keep], ix[keep], iy[keep], inside[keep]
+    rows = np.flatnonzero(keep)
+    idx = idx[rows]
     if not len(idx):
         return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix)
-    # each window's pixels first, then only as many columns as the largest window has
-    order = np.argsort(~mask, axis=-1, kind="stable")[:, :int(mask.sum(-1).max())]
-    ix, iy, mask = (np.take_along_axis(x, order, axis=-1) for x in (ix, iy, mask))
-    H, W = img.shape
-    v = img[np.clip(iy, 0, H - 1), np.clip(ix, 0, W - 1)].astype(np.float64)
-    w = mask.astype(np.float64)
-    centres = np.stack((ix, iy), axis=-1).astype(np.float64)
+    # each window's pixels first, then only as many columns as the largest window has: the
+    # pixels' values (float64), weights (1 inside) and centres, one compiled pass
+    from ._corner_kernels import window_pixels
+    v, w, centres = window_pixels(ix, iy, inside, rows, img)
 
     # the rays' angles; each wedge (i, j) oriented per corner so that its angle is below pi
     u = dirs[idx]
