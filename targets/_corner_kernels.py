@@ -11,7 +11,7 @@ SYNOPSIS
     # of each wedge (counter-clockwise, below pi); Z (m,M,2) offsets (px) and W (m,M)
     # weights of each corner's blur kernel, dZ, dW their derivatives in the blur's sigma
     # (targets.corners.blur_kernel); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R), dD_ds (m,P)
-    JtJ, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r)  # the fit's normal equations
+    A, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r, lam)  # the damped normal equations
     a, b, S, r = light_levels(s, D, w, v)   # light level, contrast, misfit, residuals
     lm_accept(s, step, S1, c1, t1, g1, D1, ..., converged, px, wpx)  # accept/damp/converge
     inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, max_px, H, W)
@@ -272,10 +272,14 @@ def wedge_model(centres, s, c, uu, first, second, widen, Z, W, dZ, dW):
 
 
 @njit(cache=True, error_model="numpy")
-def normal_equations(s, D, dD_dc, dD_dt, b, w, r):
-    r'''J^T W J (m,K,K) and J^T W r (m,K) of the corners s, J = [1, D, b dD_dc, b dD_dt]
-(the Jacobian refine_corners builds in numpy; summed pixel by pixel, so equal to numpy's
-matmul to rounding, not bit for bit)'''
+def normal_equations(s, D, dD_dc, dD_dt, b, w, r, lam):
+    r'''J^T W J (m,K,K) damped as Levenberg-Marquardt takes it, and J^T W r (m,K) of the
+corners s, J = [1, D, b dD_dc, b dD_dt] (the Jacobian refine_corners builds in numpy;
+summed pixel by pixel, so equal to numpy's matmul to rounding, not bit for bit)
+
+The damping is targets.corners._fit's numpy expression JtJ + (lam[s, None] * diag)[:, :,
+None] * eye + 1e-12 * eye (diag: JtJ's diagonal, eye: the identity), element by element
+in its order (the same bits), in place of its three temporary (m,K,K) arrays.'''
     m = len(s)
     P = D.shape[1]
     R = dD_dt.shape[2]
@@ -320,6 +324,12 @@ matmul to rounding, not bit for bit)'''
         for k in range(K):
             for ll in range(k):
                 JtJ[j, k, ll] = JtJ[j, ll, k]
+        for k in range(K):
+            J[k] = lam[n] * JtJ[j, k, k]
+        for k in range(K):
+            for ll in range(K):
+                e = 1.0 if k == ll else 0.0
+                JtJ[j, k, ll] = (JtJ[j, k, ll] + J[k] * e) + 1e-12 * e
     return JtJ, Jtr
 
 

@@ -798,8 +798,9 @@ line through the corner when sigma > 0)'''
         s = np.flatnonzero(~converged)
         # Jacobian of the model in (a, b, cx, cy, theta...) for the corners still fitting
         if kernel == "numba":
+            # damped in the kernel, with the numpy branch's arithmetic
             from ._corner_kernels import normal_equations
-            JtJ, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r)
+            A, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r, lam)
         else:
             J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
                                 b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]),
@@ -807,9 +808,9 @@ line through the corner when sigma > 0)'''
             Jw = J * w[s][..., None]
             JtJ = Jw.transpose(0, 2, 1) @ J
             Jtr = (Jw.transpose(0, 2, 1) @ r[s][..., None])[..., 0]
-        diag = np.einsum("nii->ni", JtJ)
-        step = np.linalg.solve(JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye,
-                               Jtr[..., None])[..., 0]
+            diag = np.einsum("nii->ni", JtJ)
+            A = JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye
+        step = np.linalg.solve(A, Jtr[..., None])[..., 0]
         c1 = c[s] + step[:, 2:4]
         t1 = theta[s] + step[:, 4:4 + L] @ T.T
         # the model is even in sigma: keep it positive
