@@ -11,9 +11,10 @@ SYNOPSIS
     # of each wedge (counter-clockwise, below pi); Z (m,M,2) offsets (px) and W (m,M)
     # weights of each corner's blur kernel, dZ, dW their derivatives in the blur's sigma
     # (targets.corners.blur_kernel); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R), dD_ds (m,P)
-    A, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r, lam)  # the damped normal equations
+    JtJ, Jtr = normal_equations(D, dD_dc, dD_dt, b, w, r)   # the fit's normal equations
+    A = lm_system(s, JtJ, lam)              # damped, of the corners s
     a, b, S, r = light_levels(s, D, w, v)   # light level, contrast, misfit, residuals
-    lm_accept(s, step, S1, c1, t1, g1, D1, ..., converged, px, wpx)  # accept/damp/converge
+    lm_accept(s, step, S1, c1, t1, g1, D1, ..., JtJ, Jtr, px, wpx)  # accept/damp/converge
     inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, max_px, H, W)
     finite, lo, hi, img8 = image_range_u8(img, scale)   # targets.detection.working_image
 
@@ -271,66 +272,86 @@ def wedge_model(centres, s, c, uu, first, second, widen, Z, W, dZ, dW):
     return D, dD_dc, dD_dt, dD_ds
 
 
-@njit(cache=True, error_model="numpy")
-def normal_equations(s, D, dD_dc, dD_dt, b, w, r, lam):
-    r'''J^T W J (m,K,K) damped as Levenberg-Marquardt takes it, and J^T W r (m,K) of the
-corners s, J = [1, D, b dD_dc, b dD_dt] (the Jacobian refine_corners builds in numpy;
-summed pixel by pixel, so equal to numpy's matmul to rounding, not bit for bit)
-
-The damping is targets.corners._fit's numpy expression JtJ + (lam[s, None] * diag)[:, :,
-None] * eye + 1e-12 * eye (diag: JtJ's diagonal, eye: the identity), element by element
-in its order (the same bits), in place of its three temporary (m,K,K) arrays.'''
-    m = len(s)
+@njit(cache=True, error_model="numpy", inline="always")
+def _corner_sums(JtJ, Jtr, n, D, dD_dc, dD_dt, j, bn, w, r, J):
+    # J^T W J and J^T W r of corner n (rows n of JtJ, Jtr, w) from row j of its model D,
+    # dD_dc, dD_dt and residuals r, contrast bn; J a scratch (K,)
     P = D.shape[1]
     R = dD_dt.shape[2]
     K = 4 + R
-    JtJ = np.zeros((m, K, K))
-    Jtr = np.zeros((m, K))
+    JtJ[n, :, :] = 0.0
+    Jtr[n, :] = 0.0
+    for p in range(P):
+        wp = w[n, p]
+        if wp == 0.0:
+            continue
+        J[0] = 1.0
+        J[1] = D[j, p]
+        J[2] = bn * dD_dc[j, p, 0]
+        J[3] = bn * dD_dc[j, p, 1]
+        for k in range(R):
+            J[4 + k] = bn * dD_dt[j, p, k]
+        rp = r[j, p]
+        # a pixel no ray crosses (most of a sharp window) has no geometric derivative:
+        # its +-0 terms leave every sum as it is, so only (1, D) are accumulated
+        flat = rp - rp == 0.0
+        for k in range(2, K):
+            if J[k] != 0.0:
+                flat = False
+                break
+        if flat:
+            Jtr[n, 0] += wp * rp
+            JtJ[n, 0, 0] += wp
+            JtJ[n, 0, 1] += wp * J[1]
+            jw = J[1] * wp
+            Jtr[n, 1] += jw * rp
+            JtJ[n, 1, 1] += jw * J[1]
+            continue
+        for k in range(K):
+            jw = J[k] * wp
+            Jtr[n, k] += jw * rp
+            for ll in range(k, K):
+                JtJ[n, k, ll] += jw * J[ll]
+    for k in range(K):
+        for ll in range(k):
+            JtJ[n, k, ll] = JtJ[n, ll, k]
+
+
+@njit(cache=True, error_model="numpy")
+def normal_equations(D, dD_dc, dD_dt, b, w, r):
+    r'''J^T W J (n,K,K) and J^T W r (n,K) of every corner, J = [1, D, b dD_dc, b dD_dt] (the
+Jacobian refine_corners builds in numpy; summed pixel by pixel, so equal to numpy's
+matmul to rounding, not bit for bit). lm_accept keeps them for the corners whose model
+a step changes; lm_system damps them.'''
+    n = D.shape[0]
+    K = 4 + dD_dt.shape[2]
+    JtJ = np.empty((n, K, K))
+    Jtr = np.empty((n, K))
     J = np.empty(K)
+    for k in range(n):
+        _corner_sums(JtJ, Jtr, k, D, dD_dc, dD_dt, k, b[k], w, r, J)
+    return JtJ, Jtr
+
+
+@njit(cache=True, error_model="numpy")
+def lm_system(s, JtJ, lam):
+    r'''The Levenberg-Marquardt matrices (m,K,K) of the corners s: targets.corners._fit's
+numpy expression JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye (diag:
+JtJ[s]'s diagonal, eye: the identity) element by element in its order (the same bits),
+without its three temporary (m,K,K) arrays'''
+    m = len(s)
+    K = JtJ.shape[1]
+    A = np.empty((m, K, K))
+    dk = np.empty(K)
     for j in range(m):
         n = s[j]
-        bn = b[n]
-        for p in range(P):
-            wp = w[n, p]
-            if wp == 0.0:
-                continue
-            J[0] = 1.0
-            J[1] = D[n, p]
-            J[2] = bn * dD_dc[n, p, 0]
-            J[3] = bn * dD_dc[n, p, 1]
-            for k in range(R):
-                J[4 + k] = bn * dD_dt[n, p, k]
-            rp = r[n, p]
-            # a pixel no ray crosses (most of a sharp window) has no geometric derivative:
-            # its +-0 terms leave every sum as it is, so only (1, D) are accumulated
-            flat = rp - rp == 0.0
-            for k in range(2, K):
-                if J[k] != 0.0:
-                    flat = False
-                    break
-            if flat:
-                Jtr[j, 0] += wp * rp
-                JtJ[j, 0, 0] += wp
-                JtJ[j, 0, 1] += wp * J[1]
-                jw = J[1] * wp
-                Jtr[j, 1] += jw * rp
-                JtJ[j, 1, 1] += jw * J[1]
-                continue
-            for k in range(K):
-                jw = J[k] * wp
-                Jtr[j, k] += jw * rp
-                for ll in range(k, K):
-                    JtJ[j, k, ll] += jw * J[ll]
         for k in range(K):
-            for ll in range(k):
-                JtJ[j, k, ll] = JtJ[j, ll, k]
-        for k in range(K):
-            J[k] = lam[n] * JtJ[j, k, k]
+            dk[k] = lam[n] * JtJ[n, k, k]
         for k in range(K):
             for ll in range(K):
                 e = 1.0 if k == ll else 0.0
-                JtJ[j, k, ll] = (JtJ[j, k, ll] + J[k] * e) + 1e-12 * e
-    return JtJ, Jtr
+                A[j, k, ll] = (JtJ[n, k, ll] + dk[k] * e) + 1e-12 * e
+    return A
 
 
 @njit(cache=True, error_model="numpy")
@@ -619,18 +640,23 @@ s of CPU on a 5120x3840 float32 image against 0.038 for a float min/max (load 8,
 
 
 @njit(cache=True, error_model="numpy")
-def lm_accept(s, step, S1, c1, t1, g1, D1, dD_dc1, dD_dt1, a1, b1, r1, c, theta, sig, D,
-              dD_dc, dD_dt, a, b, S, r, lam, prev, converged, converged_px, max_window_px):
+def lm_accept(s, step, S1, c1, t1, g1, D1, dD_dc1, dD_dt1, a1, b1, r1, w, c, theta, sig, a,
+              b, S, lam, prev, converged, JtJ, Jtr, converged_px, max_window_px):
     r'''The end of one Levenberg-Marquardt iteration of targets.corners._fit, in place: for
-each corner n = s[j] whose trial (S1, c1, t1, g1, D1, ... of row j) lowers its misfit S[n],
-take the trial's geometry, model and light levels; damp the corner (lam) down after a
-step that lowered the misfit and was no zig-zag (a step back along the last accepted one,
-prev), else up; keep the accepted step in prev; mark it converged on a small accepted step
-(corner move < converged_px, ray turn x max_window_px < converged_px) or when its
-damping passed 1e6 with a small step. The numpy expressions it replaces, in their order
-of operations and numpy's summation order (_block_sum): the same bits.'''
+each corner n = s[j] whose trial (S1, c1, t1, g1, a1, b1 of row j) lowers its misfit S[n],
+take the trial's geometry and light levels; damp the corner (lam) down after a step that
+lowered the misfit and was no zig-zag (a step back along the last accepted one, prev),
+else up; keep the accepted step in prev; mark it converged on a small accepted step
+(corner move < converged_px, ray turn x max_window_px < converged_px) or when its damping
+passed 1e6 with a small step. The numpy expressions it replaces, in their order of
+operations and numpy's summation order (_block_sum): the same bits.
+
+The trial's model (D1, dD_dc1, dD_dt1, r1 of row j, w of row n) enters only the next
+iteration's normal equations: a corner that takes it and still fits gets its JtJ[n],
+Jtr[n] (normal_equations' sums) from it here, instead of a copy of those (P,...) rows.'''
     m, K = step.shape
     tmp = np.empty(K)
+    J = np.empty(JtJ.shape[1])
     for j in range(m):
         n = s[j]
         better = S1[j] <= S[n]
@@ -650,13 +676,9 @@ of operations and numpy's summation order (_block_sum): the same bits.'''
             c[n, 1] = c1[j, 1]
             theta[n, :] = t1[j, :]
             sig[n] = g1[j]
-            D[n, :] = D1[j, :]
-            dD_dc[n, :, :] = dD_dc1[j, :, :]
-            dD_dt[n, :, :] = dD_dt1[j, :, :]
             a[n] = a1[j]
             b[n] = b1[j]
             S[n] = S1[j]
-            r[n, :] = r1[j, :]
         if better and not zig:
             lam[n] = max(lam[n] * 0.3, 1e-6)
         else:
@@ -676,13 +698,15 @@ of operations and numpy's summation order (_block_sum): the same bits.'''
                 turn = max(turn, x)
         small = (dc < converged_px) and (turn * max_window_px < converged_px)
         converged[n] = (better and small) or ((lam[n] > 1e6) and (dc < converged_px))
+        if better and not converged[n]:
+            _corner_sums(JtJ, Jtr, n, D1, dD_dc1, dD_dt1, j, b1[j], w, r1, J)
 
 
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup)'''
-    return (wedge_model, normal_equations, window_mask, window_pixels, image_range_u8,
-            light_levels, lm_accept, curvature_terms)
+    return (wedge_model, normal_equations, lm_system, window_mask, window_pixels,
+            image_range_u8, light_levels, lm_accept, curvature_terms)
 
 
 @njit(cache=True, error_model="numpy")

@@ -793,14 +793,18 @@ line through the corner when sigma > 0)'''
     converged = np.zeros(n, bool)
     it = 0
     eye = np.eye(K)
+    if kernel == "numba":
+        # each corner's normal equations, kept from one step that changes its model to the
+        # next (lm_accept): the model's (P,...) arrays are not carried over
+        from ._corner_kernels import lm_accept, lm_system, normal_equations
+        JtJ_all, Jtr_all = normal_equations(D, dD_dc, dD_dt, b, w, r)
     while it < MAX_ITERATIONS and not converged.all():
         it += 1
         s = np.flatnonzero(~converged)
         # Jacobian of the model in (a, b, cx, cy, theta...) for the corners still fitting
         if kernel == "numba":
             # damped in the kernel, with the numpy branch's arithmetic
-            from ._corner_kernels import normal_equations
-            A, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r, lam)
+            A, Jtr = lm_system(s, JtJ_all, lam), Jtr_all[s]
         else:
             J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
                                 b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]),
@@ -820,11 +824,11 @@ line through the corner when sigma > 0)'''
         a1, b1, S1, r1 = linear(s, D1)
         if kernel == "numba":
             # the acceptance, damping and convergence of the numpy branch below, compiled:
-            # one call for its ~20 array operations per iteration (the same bits)
-            from ._corner_kernels import lm_accept
+            # one call for its ~20 array operations per iteration (the same bits), and the
+            # normal equations of the corners whose model changed
             lm_accept(s, np.ascontiguousarray(step), S1, c1, np.ascontiguousarray(t1),
                       np.ascontiguousarray(g1, dtype=np.float64), D1, dD_dc1, dD_dt1, a1, b1,
-                      r1, c, theta, sig, D, dD_dc, dD_dt, a, b, S, r, lam, prev, converged,
+                      r1, w, c, theta, sig, a, b, S, lam, prev, converged, JtJ_all, Jtr_all,
                       float(converged_px), float(max_window_px))
             continue
         better = S1 <= S[s]
