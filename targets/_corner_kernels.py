@@ -11,9 +11,10 @@ SYNOPSIS
     # of each wedge (counter-clockwise, below pi); Z (m,M,2) offsets (px) and W (m,M)
     # weights of each corner's blur kernel, dZ, dW their derivatives in the blur's sigma
     # (targets.corners.blur_kernel); D (m,P), dD_dc (m,P,2), dD_dt (m,P,R), dD_ds (m,P)
-    JtJ, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r)  # the fit's normal equations
+    JtJ, Jtr = normal_equations(D, dD_dc, dD_dt, b, w, r)   # the fit's normal equations
+    A = lm_system(s, JtJ, lam)              # damped, of the corners s
     a, b, S, r = light_levels(s, D, w, v)   # light level, contrast, misfit, residuals
-    lm_accept(s, step, S1, c1, t1, g1, D1, ..., converged, px, wpx)  # accept/damp/converge
+    lm_accept(s, step, S1, c1, t1, g1, D1, ..., JtJ, Jtr, px, wpx)  # accept/damp/converge
     inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, max_px, H, W)
     finite, lo, hi, img8 = image_range_u8(img, scale)   # targets.detection.working_image
 
@@ -350,56 +351,86 @@ def wedge_model(centres, s, c, uu, first, second, widen, Z, W, dZ, dW):
     return D, dD_dc, dD_dt, dD_ds
 
 
-@njit(cache=True, error_model="numpy")
-def normal_equations(s, D, dD_dc, dD_dt, b, w, r):
-    r'''J^T W J (m,K,K) and J^T W r (m,K) of the corners s, J = [1, D, b dD_dc, b dD_dt]
-(the Jacobian refine_corners builds in numpy; summed pixel by pixel, so equal to numpy's
-matmul to rounding, not bit for bit)'''
-    m = len(s)
+@njit(cache=True, error_model="numpy", inline="always")
+def _corner_sums(JtJ, Jtr, n, D, dD_dc, dD_dt, j, bn, w, r, J):
+    # J^T W J and J^T W r of corner n (rows n of JtJ, Jtr, w) from row j of its model D,
+    # dD_dc, dD_dt and residuals r, contrast bn; J a scratch (K,)
     P = D.shape[1]
     R = dD_dt.shape[2]
     K = 4 + R
-    JtJ = np.zeros((m, K, K))
-    Jtr = np.zeros((m, K))
+    JtJ[n, :, :] = 0.0
+    Jtr[n, :] = 0.0
+    for p in range(P):
+        wp = w[n, p]
+        if wp == 0.0:
+            continue
+        J[0] = 1.0
+        J[1] = D[j, p]
+        J[2] = bn * dD_dc[j, p, 0]
+        J[3] = bn * dD_dc[j, p, 1]
+        for k in range(R):
+            J[4 + k] = bn * dD_dt[j, p, k]
+        rp = r[j, p]
+        # a pixel no ray crosses (most of a sharp window) has no geometric derivative:
+        # its +-0 terms leave every sum as it is, so only (1, D) are accumulated
+        flat = rp - rp == 0.0
+        for k in range(2, K):
+            if J[k] != 0.0:
+                flat = False
+                break
+        if flat:
+            Jtr[n, 0] += wp * rp
+            JtJ[n, 0, 0] += wp
+            JtJ[n, 0, 1] += wp * J[1]
+            jw = J[1] * wp
+            Jtr[n, 1] += jw * rp
+            JtJ[n, 1, 1] += jw * J[1]
+            continue
+        for k in range(K):
+            jw = J[k] * wp
+            Jtr[n, k] += jw * rp
+            for ll in range(k, K):
+                JtJ[n, k, ll] += jw * J[ll]
+    for k in range(K):
+        for ll in range(k):
+            JtJ[n, k, ll] = JtJ[n, ll, k]
+
+
+@njit(cache=True, error_model="numpy")
+def normal_equations(D, dD_dc, dD_dt, b, w, r):
+    r'''J^T W J (n,K,K) and J^T W r (n,K) of every corner, J = [1, D, b dD_dc, b dD_dt] (the
+Jacobian refine_corners builds in numpy; summed pixel by pixel, so equal to numpy's
+matmul to rounding, not bit for bit). lm_accept keeps them for the corners whose model
+a step changes; lm_system damps them.'''
+    n = D.shape[0]
+    K = 4 + dD_dt.shape[2]
+    JtJ = np.empty((n, K, K))
+    Jtr = np.empty((n, K))
     J = np.empty(K)
+    for k in range(n):
+        _corner_sums(JtJ, Jtr, k, D, dD_dc, dD_dt, k, b[k], w, r, J)
+    return JtJ, Jtr
+
+
+@njit(cache=True, error_model="numpy")
+def lm_system(s, JtJ, lam):
+    r'''The Levenberg-Marquardt matrices (m,K,K) of the corners s: targets.corners._fit's
+numpy expression JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye (diag:
+JtJ[s]'s diagonal, eye: the identity) element by element in its order (the same bits),
+without its three temporary (m,K,K) arrays'''
+    m = len(s)
+    K = JtJ.shape[1]
+    A = np.empty((m, K, K))
+    dk = np.empty(K)
     for j in range(m):
         n = s[j]
-        bn = b[n]
-        for p in range(P):
-            wp = w[n, p]
-            if wp == 0.0:
-                continue
-            J[0] = 1.0
-            J[1] = D[n, p]
-            J[2] = bn * dD_dc[n, p, 0]
-            J[3] = bn * dD_dc[n, p, 1]
-            for k in range(R):
-                J[4 + k] = bn * dD_dt[n, p, k]
-            rp = r[n, p]
-            # a pixel no ray crosses (most of a sharp window) has no geometric derivative:
-            # its +-0 terms leave every sum as it is, so only (1, D) are accumulated
-            flat = rp - rp == 0.0
-            for k in range(2, K):
-                if J[k] != 0.0:
-                    flat = False
-                    break
-            if flat:
-                Jtr[j, 0] += wp * rp
-                JtJ[j, 0, 0] += wp
-                JtJ[j, 0, 1] += wp * J[1]
-                jw = J[1] * wp
-                Jtr[j, 1] += jw * rp
-                JtJ[j, 1, 1] += jw * J[1]
-                continue
-            for k in range(K):
-                jw = J[k] * wp
-                Jtr[j, k] += jw * rp
-                for ll in range(k, K):
-                    JtJ[j, k, ll] += jw * J[ll]
         for k in range(K):
-            for ll in range(k):
-                JtJ[j, k, ll] = JtJ[j, ll, k]
-    return JtJ, Jtr
+            dk[k] = lam[n] * JtJ[n, k, k]
+        for k in range(K):
+            for ll in range(K):
+                e = 1.0 if k == ll else 0.0
+                A[j, k, ll] = (JtJ[n, k, ll] + dk[k] * e) + 1e-12 * e
+    return A
 
 
 @njit(cache=True, error_model="numpy")
@@ -443,6 +474,47 @@ its centre is within max_px of q0; on_image when it lies in the (H, W) image'''
     return inside, on_image
 
 
+@njit(cache=True, error_model="numpy")
+def window_pixels(ix, iy, inside, rows, img):
+    r'''v, w (m,P) and centres (m,P,2) of the windows rows (m,) of targets.corners._window's
+ix, iy, inside (n,Pall): each row's inside pixels first, then the others, both in their
+order (numpy's stable argsort of ~inside), cut to P = the most inside pixels of any of
+those rows; v the image's values (float64) at the pixels clipped to the image, w 1.0
+inside and 0.0 elsewhere, centres the pixels' (x, y): the numpy expressions of
+targets.corners._fit in one pass (the same values)'''
+    H, W = img.shape
+    m = len(rows)
+    Pall = ix.shape[1]
+    P = 0
+    for j in range(m):
+        k = 0
+        for p in range(Pall):
+            if inside[rows[j], p]:
+                k += 1
+        P = max(P, k)
+    v = np.empty((m, P))
+    w = np.empty((m, P))
+    centres = np.empty((m, P, 2))
+    for j in range(m):
+        n = rows[j]
+        k = 0
+        for sweep in range(2):
+            want = sweep == 0
+            for p in range(Pall):
+                if k == P:
+                    break
+                if inside[n, p] != want:
+                    continue
+                x = ix[n, p]
+                y = iy[n, p]
+                v[j, k] = float(img[min(max(y, 0), H - 1), min(max(x, 0), W - 1)])
+                w[j, k] = 1.0 if want else 0.0
+                centres[j, k, 0] = float(x)
+                centres[j, k, 1] = float(y)
+                k += 1
+    return v, w, centres
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _block_sum(a, lo, n):
     # numpy's pairwise_sum on n <= 128 values: eight lanes, then the rest one by one
@@ -477,14 +549,26 @@ def _block_sum(a, lo, n):
 def _pairwise_sum(a, n):
     r'''a[:n].sum() in numpy's order (its pairwise summation: halves split at a multiple of
 8 down to blocks of at most 128, each summed in 8 lanes), so that light_levels equals the
-numpy expressions it replaces bit for bit. numpy recurses; this walks the same tree with
-its own stacks (numba's cache does not take recursive kernels).'''
+numpy expressions it replaces bit for bit (_pairwise_walk)'''
     if n <= 128:
         return _block_sum(a, 0, n)
-    tlo = np.empty(128, np.int64)      # tasks: start, length, children summed yet
-    tn = np.empty(128, np.int64)
-    tdone = np.empty(128, np.bool_)
-    vals = np.empty(128)
+    tlo, tn, tdone, vals = _walk_stacks()
+    return _pairwise_walk(a, n, tlo, tn, tdone, vals)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _walk_stacks():
+    # _pairwise_walk's task and value stacks: 128 entries hold any length numpy's tree
+    # reaches (3 tasks per level, ~log2(n / 128) levels)
+    return (np.empty(128, np.int64), np.empty(128, np.int64), np.empty(128, np.bool_),
+            np.empty(128))
+
+
+@njit(cache=True, error_model="numpy")
+def _pairwise_walk(a, n, tlo, tn, tdone, vals):
+    r'''_pairwise_sum of n > 128 values on the caller's stacks (_walk_stacks: a caller
+summing many arrays allocates them once). numpy recurses; this walks the same tree with
+its own stacks (numba's cache does not take recursive kernels).'''
     nt = 1
     nv = 0
     tlo[0], tn[0], tdone[0] = 0, n, False
@@ -507,6 +591,14 @@ its own stacks (numba's cache does not take recursive kernels).'''
     return vals[0]
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _sum_on(a, n, tlo, tn, tdone, vals):
+    # _pairwise_sum on the caller's stacks
+    if n <= 128:
+        return _block_sum(a, 0, n)
+    return _pairwise_walk(a, n, tlo, tn, tdone, vals)
+
+
 @njit(cache=True, error_model="numpy")
 def light_levels(s, D, w, v):
     r'''The light level a, contrast b, weighted misfit S (m,) and residuals r (m,P) of the
@@ -523,6 +615,7 @@ in targets.corners._fit in their order, sums in numpy's pairwise order: equal bi
     t2 = np.empty(P)
     t3 = np.empty(P)
     t4 = np.empty(P)
+    tlo, tn, tdone, vals = _walk_stacks()
     for j in range(m):
         n = s[j]
         for p in range(P):
@@ -532,11 +625,11 @@ in targets.corners._fit in their order, sums in numpy's pairwise order: equal bi
             t2[p] = wd * D[j, p]
             t3[p] = w[n, p] * v[n, p]
             t4[p] = wd * v[n, p]
-        sw = _pairwise_sum(t0, P)
-        sd = _pairwise_sum(t1, P)
-        sdd = _pairwise_sum(t2, P)
-        sv = _pairwise_sum(t3, P)
-        sdv = _pairwise_sum(t4, P)
+        sw = _sum_on(t0, P, tlo, tn, tdone, vals)
+        sd = _sum_on(t1, P, tlo, tn, tdone, vals)
+        sdd = _sum_on(t2, P, tlo, tn, tdone, vals)
+        sv = _sum_on(t3, P, tlo, tn, tdone, vals)
+        sdv = _sum_on(t4, P, tlo, tn, tdone, vals)
         det = sw * sdd - sd * sd
         bj = (sw * sdv - sd * sv) / det
         aj = (sv - bj * sd) / sw
@@ -546,7 +639,7 @@ in targets.corners._fit in their order, sums in numpy's pairwise order: equal bi
             t0[p] = (w[n, p] * rp) * rp
         a[j] = aj
         b[j] = bj
-        S[j] = _pairwise_sum(t0, P)
+        S[j] = _sum_on(t0, P, tlo, tn, tdone, vals)
     return a, b, S, r
 
 
@@ -626,18 +719,23 @@ s of CPU on a 5120x3840 float32 image against 0.038 for a float min/max (load 8,
 
 
 @njit(cache=True, error_model="numpy")
-def lm_accept(s, step, S1, c1, t1, g1, D1, dD_dc1, dD_dt1, a1, b1, r1, c, theta, sig, D,
-              dD_dc, dD_dt, a, b, S, r, lam, prev, converged, converged_px, max_window_px):
+def lm_accept(s, step, S1, c1, t1, g1, D1, dD_dc1, dD_dt1, a1, b1, r1, w, c, theta, sig, a,
+              b, S, lam, prev, converged, JtJ, Jtr, converged_px, max_window_px):
     r'''The end of one Levenberg-Marquardt iteration of targets.corners._fit, in place: for
-each corner n = s[j] whose trial (S1, c1, t1, g1, D1, ... of row j) lowers its misfit S[n],
-take the trial's geometry, model and light levels; damp the corner (lam) down after a
-step that lowered the misfit and was no zig-zag (a step back along the last accepted one,
-prev), else up; keep the accepted step in prev; mark it converged on a small accepted step
-(corner move < converged_px, ray turn x max_window_px < converged_px) or when its
-damping passed 1e6 with a small step. The numpy expressions it replaces, in their order
-of operations and numpy's summation order (_block_sum): the same bits.'''
+each corner n = s[j] whose trial (S1, c1, t1, g1, a1, b1 of row j) lowers its misfit S[n],
+take the trial's geometry and light levels; damp the corner (lam) down after a step that
+lowered the misfit and was no zig-zag (a step back along the last accepted one, prev),
+else up; keep the accepted step in prev; mark it converged on a small accepted step
+(corner move < converged_px, ray turn x max_window_px < converged_px) or when its damping
+passed 1e6 with a small step. The numpy expressions it replaces, in their order of
+operations and numpy's summation order (_block_sum): the same bits.
+
+The trial's model (D1, dD_dc1, dD_dt1, r1 of row j, w of row n) enters only the next
+iteration's normal equations: a corner that takes it and still fits gets its JtJ[n],
+Jtr[n] (normal_equations' sums) from it here, instead of a copy of those (P,...) rows.'''
     m, K = step.shape
     tmp = np.empty(K)
+    J = np.empty(JtJ.shape[1])
     for j in range(m):
         n = s[j]
         better = S1[j] <= S[n]
@@ -657,13 +755,9 @@ of operations and numpy's summation order (_block_sum): the same bits.'''
             c[n, 1] = c1[j, 1]
             theta[n, :] = t1[j, :]
             sig[n] = g1[j]
-            D[n, :] = D1[j, :]
-            dD_dc[n, :, :] = dD_dc1[j, :, :]
-            dD_dt[n, :, :] = dD_dt1[j, :, :]
             a[n] = a1[j]
             b[n] = b1[j]
             S[n] = S1[j]
-            r[n, :] = r1[j, :]
         if better and not zig:
             lam[n] = max(lam[n] * 0.3, 1e-6)
         else:
@@ -683,13 +777,15 @@ of operations and numpy's summation order (_block_sum): the same bits.'''
                 turn = max(turn, x)
         small = (dc < converged_px) and (turn * max_window_px < converged_px)
         converged[n] = (better and small) or ((lam[n] > 1e6) and (dc < converged_px))
+        if better and not converged[n]:
+            _corner_sums(JtJ, Jtr, n, D1, dD_dc1, dD_dt1, j, b1[j], w, r1, J)
 
 
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup)'''
-    return (wedge_model, normal_equations, window_mask, image_range_u8, light_levels,
-            lm_accept, curvature_terms)
+    return (wedge_model, normal_equations, lm_system, window_mask, window_pixels,
+            image_range_u8, light_levels, lm_accept, curvature_terms)
 
 
 @njit(cache=True, error_model="numpy")

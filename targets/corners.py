@@ -710,16 +710,14 @@ line through the corner when sigma > 0)'''
     reasons[idx[off]] = "window off the image"
     reasons[idx[few]] = "window too small"
     keep = ~off & ~few
-    idx, ix, iy, mask = idx[keep], ix[keep], iy[keep], inside[keep]
+    rows = np.flatnonzero(keep)
+    idx = idx[rows]
     if not len(idx):
         return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix)
-    # each window's pixels first, then only as many columns as the largest window has
-    order = np.argsort(~mask, axis=-1, kind="stable")[:, :int(mask.sum(-1).max())]
-    ix, iy, mask = (np.take_along_axis(x, order, axis=-1) for x in (ix, iy, mask))
-    H, W = img.shape
-    v = img[np.clip(iy, 0, H - 1), np.clip(ix, 0, W - 1)].astype(np.float64)
-    w = mask.astype(np.float64)
-    centres = np.stack((ix, iy), axis=-1).astype(np.float64)
+    # each window's pixels first, then only as many columns as the largest window has: the
+    # pixels' values (float64), weights (1 inside) and centres, one compiled pass
+    from ._corner_kernels import window_pixels
+    v, w, centres = window_pixels(ix, iy, inside, rows, img)
 
     # the rays' angles; each wedge (i, j) oriented per corner so that its angle is below pi
     u = dirs[idx]
@@ -806,13 +804,18 @@ line through the corner when sigma > 0)'''
     converged = np.zeros(n, bool)
     it = 0
     eye = np.eye(K)
+    if kernel == "numba":
+        # each corner's normal equations, kept from one step that changes its model to the
+        # next (lm_accept): the model's (P,...) arrays are not carried over
+        from ._corner_kernels import lm_accept, lm_system, normal_equations
+        JtJ_all, Jtr_all = normal_equations(D, dD_dc, dD_dt, b, w, r)
     while it < MAX_ITERATIONS and not converged.all():
         it += 1
         s = np.flatnonzero(~converged)
         # Jacobian of the model in (a, b, cx, cy, theta...) for the corners still fitting
         if kernel == "numba":
-            from ._corner_kernels import normal_equations
-            JtJ, Jtr = normal_equations(s, D, dD_dc, dD_dt, b, w, r)
+            # damped in the kernel, with the numpy branch's arithmetic
+            A, Jtr = lm_system(s, JtJ_all, lam), Jtr_all[s]
         else:
             J = np.concatenate((np.ones(D[s].shape + (1,)), D[s][..., None],
                                 b[s, None, None] * dD_dc[s], b[s, None, None] * dD_dt[s]),
@@ -820,9 +823,9 @@ line through the corner when sigma > 0)'''
             Jw = J * w[s][..., None]
             JtJ = Jw.transpose(0, 2, 1) @ J
             Jtr = (Jw.transpose(0, 2, 1) @ r[s][..., None])[..., 0]
-        diag = np.einsum("nii->ni", JtJ)
-        step = np.linalg.solve(JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye,
-                               Jtr[..., None])[..., 0]
+            diag = np.einsum("nii->ni", JtJ)
+            A = JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye
+        step = np.linalg.solve(A, Jtr[..., None])[..., 0]
         c1 = c[s] + step[:, 2:4]
         t1 = theta[s] + step[:, 4:4 + L] @ T.T
         # the model is even in sigma: keep it positive
@@ -832,11 +835,11 @@ line through the corner when sigma > 0)'''
         a1, b1, S1, r1 = linear(s, D1)
         if kernel == "numba":
             # the acceptance, damping and convergence of the numpy branch below, compiled:
-            # one call for its ~20 array operations per iteration (the same bits)
-            from ._corner_kernels import lm_accept
+            # one call for its ~20 array operations per iteration (the same bits), and the
+            # normal equations of the corners whose model changed
             lm_accept(s, np.ascontiguousarray(step), S1, c1, np.ascontiguousarray(t1),
                       np.ascontiguousarray(g1, dtype=np.float64), D1, dD_dc1, dD_dt1, a1, b1,
-                      r1, c, theta, sig, D, dD_dc, dD_dt, a, b, S, r, lam, prev, converged,
+                      r1, w, c, theta, sig, a, b, S, lam, prev, converged, JtJ_all, Jtr_all,
                       float(converged_px), float(max_window_px))
             continue
         better = S1 <= S[s]

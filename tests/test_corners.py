@@ -322,8 +322,11 @@ def test_compiled_iteration_end_is_the_numpy_one(K):
     # lm_accept replaces the numpy acceptance / damping / convergence of one iteration of
     # _fit: elementwise arithmetic and comparisons in the same order and sums in numpy's
     # order (K < 8 one by one, 8 or more in 8 lanes), so the same state bit for bit, on
-    # accepted and rejected steps, zig-zags, huge dampings and a NaN step (a singular solve)
-    from targets._corner_kernels import lm_accept
+    # accepted and rejected steps, zig-zags, huge dampings and a NaN step (a singular solve);
+    # and the next iteration's damped normal equations (lm_system) of the corners still
+    # fitting are those of the state numpy's branch leaves, bit for bit (the same sums of
+    # the same rows), where lm_accept keeps JtJ, Jtr instead of the model's rows
+    from targets._corner_kernels import lm_accept, lm_system, normal_equations
     rng = np.random.default_rng(K)
     n, m, P, Rt = 40, 30, 17, K - 4
     s = np.sort(rng.choice(n, m, replace=False))
@@ -335,6 +338,8 @@ def test_compiled_iteration_end_is_the_numpy_one(K):
           "a": rng.uniform(size=n), "b": rng.uniform(size=n), "S": rng.uniform(size=n),
           "r": rng.standard_normal((n, P)), "lam": 10.0 ** rng.uniform(-7, 7, n),
           "prev": rng.standard_normal((n, K)) * 1e-4, "converged": np.zeros(n, bool)}
+    st["dD_dc"][:, :5] = st["dD_dt"][:, :5] = 0.0      # pixels no ray crosses
+    w = (rng.uniform(size=(n, P)) > 0.2).astype(float)
     st["prev"][s[:5]] = -step[:5]                      # zig-zags
     trial = {"S": st["S"][s] * rng.uniform(0.5, 1.5, m), "c": rng.standard_normal((m, 2)),
              "theta": rng.standard_normal((m, Rt)), "sig": rng.uniform(size=m),
@@ -356,10 +361,23 @@ def test_compiled_iteration_end_is_the_numpy_one(K):
     small = (dc < px) & (np.abs(step[:, 4:]).max(-1) * wpx < px)
     want["converged"][s] = (better & small) | ((lam[s] > 1e6) & (dc < px))
     got = {k: v.copy() for k, v in st.items()}
+    JtJ, Jtr = normal_equations(st["D"], st["dD_dc"], st["dD_dt"], st["b"], w, st["r"])
     lm_accept(s, step, trial["S"], trial["c"], trial["theta"], trial["sig"], trial["D"],
-              trial["dD_dc"], trial["dD_dt"], trial["a"], trial["b"], trial["r"], got["c"],
-              got["theta"], got["sig"], got["D"], got["dD_dc"], got["dD_dt"], got["a"],
-              got["b"], got["S"], got["r"], got["lam"], got["prev"], got["converged"], px, wpx)
+              trial["dD_dc"], trial["dD_dt"], trial["a"], trial["b"], trial["r"], w, got["c"],
+              got["theta"], got["sig"], got["a"], got["b"], got["S"], got["lam"], got["prev"],
+              got["converged"], JtJ, Jtr, px, wpx)
     assert better.any() and (~better).any() and zig.any() and want["converged"].any()
-    for k in want:
+    for k in ("c", "theta", "sig", "a", "b", "S", "lam", "prev", "converged"):
         assert np.array_equal(got[k], want[k], equal_nan=True), k
+    s2 = np.flatnonzero(~want["converged"])
+    JtJ2, Jtr2 = normal_equations(want["D"], want["dD_dc"], want["dD_dt"], want["b"], w,
+                                  want["r"])
+    assert np.array_equal(lm_system(s2, JtJ, got["lam"]), lm_system(s2, JtJ2, want["lam"]),
+                          equal_nan=True)
+    assert np.array_equal(Jtr[s2], Jtr2[s2], equal_nan=True)
+    # the damping is the numpy expression of _fit's numpy branch, bit for bit
+    eye = np.eye(K)
+    diag = np.einsum("nii->ni", JtJ2[s2])
+    assert np.array_equal(lm_system(s2, JtJ2, want["lam"]),
+                          JtJ2[s2] + (want["lam"][s2, None] * diag)[:, :, None] * eye
+                          + 1e-12 * eye)
