@@ -342,8 +342,13 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         status, Ls, es, ns, off, pix, piy, pt, ps = tag_edge_pixels(
             q, live, np.zeros((N, 8, 8), bool) if bits is None else bits, bits is not None,
             Hc, curves, reach, gap_bits, SAFETY_PX, PLATEAU_PX, MIN_EDGE_PIXELS, W, H)
+        # edges seen from their light side only (status 2): their pixels are clean of the
+        # data row, but too few on the dark side to place the edge alone
+        weak = set()
         for i, k in zip(*np.nonzero(status < 4), strict=True):
-            if status[i, k]:
+            if status[i, k] == 2:
+                weak.add((i, k))
+            elif status[i, k]:
                 why_edge[i, k] = _EDGE_STATUS[status[i, k]]
                 continue
             a, b = off[4 * i + k], off[4 * i + k + 1]
@@ -368,7 +373,15 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 jx = np.concatenate([ix] + [own[m][0] for m in members])
                 jy = np.concatenate([iy] + [own[m][1] for m in members])
                 r = np.stack((jx, jy), -1) - q[i, k]
+                if (i, k) in weak and not _sees_dark(r @ e, r @ n, L, start[(i, k)]):
+                    why_edge[i, k] = _EDGE_STATUS[2]
+                    continue
                 geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], 2))
+                continue
+            if (i, k) in weak and last:
+                # a weak edge is placed by its board line's neighbours' dark sides only
+                # on the one cubic through the three (a short or straight edge's)
+                why_edge[i, k] = _EDGE_STATUS[2]
                 continue
             for m in members:
                 mid = 0.5 * (q[m[0], m[1]] + q[m[0], (m[1] + 1) % 4])
@@ -388,6 +401,10 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 # a long edge alone bends more than a quadratic follows on a fisheye
                 geo.append((i, k, ix, iy, t, s, L, e, n, last and L > CUBIC_EDGE_PX,
                             start[(i, k)], 2))
+        if not geo:
+            # every edge seen from its light side only, none placed by its neighbours: each
+            # has its reason
+            break
         E = _Edges(img, geo, reach)
         if len(blurs) > 1:
             (sigma, kind), table, fits, info = _choose_kind(E, blurs)
@@ -433,6 +450,9 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         for (i, k, end), c in curves.items():
             if end != 2 and (i, k, 2) in curves:
                 continue
+            if (i, k) in weak and why_edge[i, k]:
+                # a weak edge's failed fit alone places nothing: the chord does
+                continue
             L, e, n = frames[(i, k)]
             shapes[(i, k)] = q[i, k] + (0.5 * L * (tau9 + 1.0))[:, None] * e \
                 + _curve_s(c, tau9)[:, None] * n
@@ -462,6 +482,15 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                      info={**info, "corner_model": "tag edges",
                            "edge_misfit_median": float(np.median(mis_edge[good]))
                            if good.any() else float("nan")})
+
+
+def _sees_dark(t, s, L, d):
+    r'''True where the pixels (t, s) of an edge's fit, in its chord's frame (length L), have
+MIN_EDGE_PIXELS // 2 on the dark side of its curve d (d0..d3): the count
+targets._tag_edge_kernels.tag_edge_pixels asks of an edge alone'''
+    dark = s - _curve_s(d, 2.0 * t / L - 1.0) >= 0.0
+    return min(np.count_nonzero(dark & (t < 0.0)), np.count_nonzero(dark & (t > L))) \
+        >= MIN_EDGE_PIXELS // 2
 
 
 def _table(sigma, kind):
