@@ -54,10 +54,14 @@ The cells are placed along the edge by the homography of the tag's four current 
 across it by the depth from the fitted curve, in the adjacent edges' bits (an oblique tag
 has bits of two sizes), with SAFETY_PX more margin. An edge whose band has no dark
 plateau (bits of 2-3 px across) takes its tag's contrast b from the edges that have one
-(_fit_contrast_first); an edge that sees only its light side is dropped. On bits under
-~3.5 px at sigma 0.7 (camera 17's 2.8 px) every dark-side pixel sees the data row inside
-the border, so ~40% of camera 17's edges are dropped that way where a light data cell lines
-them. Modelling the data row's light instead (F(x) - gl F(x - wl), the cells placed by the
+(_fit_contrast_first). On bits under ~3.5 px at sigma 0.7 (camera 17's 2.8 px) every
+dark-side pixel sees the data row inside the border, so where a light data cell lines an
+edge its band keeps too few dark-side pixels to place it alone ("seen from its light side
+only": ~40% of camera 17's edges). Such a weak edge's pixels (its light side, clean of the
+data row) still join its board line's fits, and it is placed, its corners kept, only on
+the one cubic through it and both neighbours where that fit sees the dark side beyond both
+its ends (_sees_dark: interpolated between dark sides, not extrapolated); elsewhere it is
+dropped with that reason. Modelling the data row's light instead (F(x) - gl F(x - wl), the cells placed by the
 tag's homography; commits 73e4c2b, fdce4a3, reverted) kept 854 of 864 corners, but their
 model error under the hazcam's distortion (0.0016 px RMS on blur without noise, against
 0.0009 for the corners kept without it) raised the realistic AprilTag / dots projection
@@ -81,8 +85,9 @@ of its contrast, has too little contrast, or when the two curves do not meet wit
 MAX_CORNER_SHIFT_PX of the corner they started from (start_error_px in the first pass).
 
 Measured (benchmarks/bench_corners.py --targets apriltag --methods camval --response
-realistic; K = 16 renders, 6 poses): corner error RMS 0.0032 px (navcam 15), 0.0059
-(hazcam 17 as CAHVORE, 573 of 864 corners: the rest's bits are too small for the blur),
+realistic; K = 16 renders, 6 poses): corner error RMS 0.0032 px (navcam 15), 0.0052
+(hazcam 17 as CAHVORE, 652 of 864 corners: the rest's bits are too small for the blur;
+0.0059 over 573 before the weak edges joined their board lines),
 0.0053 (hazcam 8 fisheye), 0.0025 (camera 1, 5120x3840; 0.0059 and 0.0037 before
 NEIGHBOUR_REACH); the corner windows gave
 0.014-0.03. CPU per image, whole detection (median; docs/corners.md, "Blurred AprilTag
