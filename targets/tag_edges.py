@@ -61,11 +61,11 @@ only": ~40% of camera 17's edges). Such a weak edge's pixels (its light side, cl
 data row) still join its board line's fits, and it is placed, its corners kept, only on
 the one cubic through it and both neighbours where that fit sees the dark side beyond both
 its ends (_sees_dark: interpolated between dark sides, not extrapolated); elsewhere it is
-dropped with that reason. Modelling the data row's light instead (F(x) - gl F(x - wl), the cells placed by the
-tag's homography; commits 73e4c2b, fdce4a3, reverted) kept 854 of 864 corners, but their
-model error under the hazcam's distortion (0.0016 px RMS on blur without noise, against
-0.0009 for the corners kept without it) raised the realistic AprilTag / dots projection
-ratio of 17 as CAHVORE from 0.63 to 1.46 (docs/corners.md).
+dropped with that reason. Modelling the data row's light instead (F(x) - gl F(x - wl),
+the cells placed by the tag's homography; commits 73e4c2b, fdce4a3, reverted) kept 854 of
+864 corners, but their model error under the hazcam's distortion (0.0016 px RMS on blur
+without noise, against 0.0009 for the corners kept without it) raised the realistic
+AprilTag / dots projection ratio of 17 as CAHVORE from 0.63 to 1.46 (docs/corners.md).
 
 The blur. Handed an estimate (choose_kind: the corner windows' quick look, one kind on
 BLUR_QUICK_SAMPLE corners), the first pass fits sigma on the edges: one Gauss-Newton step
