@@ -405,7 +405,8 @@ Q (N,4,2) the tags' corners, live (N,) those to do; bits (N,8,8) their cells (Tr
 have_bits False: unknown, every data bit may be light); H (N,3,3) each tag's image -> cells
 homography; curves (N,4,4) each edge's (d0..d3) in its chord's frame. Returns status (N,4)
 (0: pixels found; 1: edge too short for its blur or too few pixels; 2: seen from its light
-side only; 3: off the image; 4: tag not live), L (N,4), e, n (N,4,2) each edge's chord
+side only, fewer than min_pixels // 2 on its dark side: its pixels are returned all the same;
+3: off the image; 4: tag not live), L (N,4), e, n (N,4,2) each edge's chord
 length, direction and normal into the tag, off (N*4+1,) and the pixels (ix, iy, t, s):
 edge (i, k)'s are [off[4i+k], off[4i+k+1]).'''
     N = Q.shape[0]
@@ -507,12 +508,13 @@ edge (i, k)'s are [off[4i+k], off[4i+k+1]).'''
                     dark += 1
                 lo_x, hi_x = min(lo_x, oix[p]), max(hi_x, oix[p])
                 lo_y, hi_y = min(lo_y, oiy[p]), max(hi_y, oiy[p])
-            if dark < min_pixels // 2:
-                status[i, k] = 2
-                continue
             if lo_x < 0 or lo_y < 0 or hi_x >= width or hi_y >= height:
                 status[i, k] = 3
                 continue
+            if dark < min_pixels // 2:
+                # its pixels are kept: fitted with its board line's neighbours, which see
+                # their dark side, the line may still be placed (targets.tag_edges)
+                status[i, k] = 2
             c = c1
     off[4 * N] = c
     return status, Ls, es, ns, off, oix[:c], oiy[:c], ot[:c], os_[:c]

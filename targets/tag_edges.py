@@ -54,14 +54,18 @@ The cells are placed along the edge by the homography of the tag's four current 
 across it by the depth from the fitted curve, in the adjacent edges' bits (an oblique tag
 has bits of two sizes), with SAFETY_PX more margin. An edge whose band has no dark
 plateau (bits of 2-3 px across) takes its tag's contrast b from the edges that have one
-(_fit_contrast_first); an edge that sees only its light side is dropped. On bits under
-~3.5 px at sigma 0.7 (camera 17's 2.8 px) every dark-side pixel sees the data row inside
-the border, so ~40% of camera 17's edges are dropped that way where a light data cell lines
-them. Modelling the data row's light instead (F(x) - gl F(x - wl), the cells placed by the
-tag's homography; commits 73e4c2b, fdce4a3, reverted) kept 854 of 864 corners, but their
-model error under the hazcam's distortion (0.0016 px RMS on blur without noise, against
-0.0009 for the corners kept without it) raised the realistic AprilTag / dots projection
-ratio of 17 as CAHVORE from 0.63 to 1.46 (docs/corners.md).
+(_fit_contrast_first). On bits under ~3.5 px at sigma 0.7 (camera 17's 2.8 px) every
+dark-side pixel sees the data row inside the border, so where a light data cell lines an
+edge its band keeps too few dark-side pixels to place it alone ("seen from its light side
+only": ~40% of camera 17's edges). Such a weak edge's pixels (its light side, clean of the
+data row) still join its board line's fits, and it is placed, its corners kept, only on
+the one cubic through it and both neighbours where that fit sees the dark side beyond both
+its ends (_sees_dark: interpolated between dark sides, not extrapolated); elsewhere it is
+dropped with that reason. Modelling the data row's light instead (F(x) - gl F(x - wl),
+the cells placed by the tag's homography; commits 73e4c2b, fdce4a3, reverted) kept 854 of
+864 corners, but their model error under the hazcam's distortion (0.0016 px RMS on blur
+without noise, against 0.0009 for the corners kept without it) raised the realistic
+AprilTag / dots projection ratio of 17 as CAHVORE from 0.63 to 1.46 (docs/corners.md).
 
 The blur. Handed an estimate (choose_kind: the corner windows' quick look, one kind on
 BLUR_QUICK_SAMPLE corners), the first pass fits sigma on the edges: one Gauss-Newton step
@@ -81,8 +85,9 @@ of its contrast, has too little contrast, or when the two curves do not meet wit
 MAX_CORNER_SHIFT_PX of the corner they started from (start_error_px in the first pass).
 
 Measured (benchmarks/bench_corners.py --targets apriltag --methods camval --response
-realistic; K = 16 renders, 6 poses): corner error RMS 0.0032 px (navcam 15), 0.0059
-(hazcam 17 as CAHVORE, 573 of 864 corners: the rest's bits are too small for the blur),
+realistic; K = 16 renders, 6 poses): corner error RMS 0.0032 px (navcam 15), 0.0052
+(hazcam 17 as CAHVORE, 652 of 864 corners: the rest's bits are too small for the blur;
+0.0059 over 573 before the weak edges joined their board lines),
 0.0053 (hazcam 8 fisheye), 0.0025 (camera 1, 5120x3840; 0.0059 and 0.0037 before
 NEIGHBOUR_REACH); the corner windows gave
 0.014-0.03. CPU per image, whole detection (median; docs/corners.md, "Blurred AprilTag
@@ -342,8 +347,13 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         status, Ls, es, ns, off, pix, piy, pt, ps = tag_edge_pixels(
             q, live, np.zeros((N, 8, 8), bool) if bits is None else bits, bits is not None,
             Hc, curves, reach, gap_bits, SAFETY_PX, PLATEAU_PX, MIN_EDGE_PIXELS, W, H)
+        # edges seen from their light side only (status 2): their pixels are clean of the
+        # data row, but too few on the dark side to place the edge alone
+        weak = set()
         for i, k in zip(*np.nonzero(status < 4), strict=True):
-            if status[i, k]:
+            if status[i, k] == 2:
+                weak.add((i, k))
+            elif status[i, k]:
                 why_edge[i, k] = _EDGE_STATUS[status[i, k]]
                 continue
             a, b = off[4 * i + k], off[4 * i + k + 1]
@@ -368,7 +378,15 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 jx = np.concatenate([ix] + [own[m][0] for m in members])
                 jy = np.concatenate([iy] + [own[m][1] for m in members])
                 r = np.stack((jx, jy), -1) - q[i, k]
+                if (i, k) in weak and not _sees_dark(r @ e, r @ n, L, start[(i, k)]):
+                    why_edge[i, k] = _EDGE_STATUS[2]
+                    continue
                 geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], 2))
+                continue
+            if (i, k) in weak and last:
+                # a weak edge is placed by its board line's neighbours' dark sides only
+                # on the one cubic through the three (a short or straight edge's)
+                why_edge[i, k] = _EDGE_STATUS[2]
                 continue
             for m in members:
                 mid = 0.5 * (q[m[0], m[1]] + q[m[0], (m[1] + 1) % 4])
@@ -388,6 +406,10 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 # a long edge alone bends more than a quadratic follows on a fisheye
                 geo.append((i, k, ix, iy, t, s, L, e, n, last and L > CUBIC_EDGE_PX,
                             start[(i, k)], 2))
+        if not geo:
+            # every edge seen from its light side only, none placed by its neighbours: each
+            # has its reason
+            break
         E = _Edges(img, geo, reach)
         if len(blurs) > 1:
             (sigma, kind), table, fits, info = _choose_kind(E, blurs)
@@ -433,6 +455,9 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         for (i, k, end), c in curves.items():
             if end != 2 and (i, k, 2) in curves:
                 continue
+            if (i, k) in weak and why_edge[i, k]:
+                # a weak edge's failed fit alone places nothing: the chord does
+                continue
             L, e, n = frames[(i, k)]
             shapes[(i, k)] = q[i, k] + (0.5 * L * (tau9 + 1.0))[:, None] * e \
                 + _curve_s(c, tau9)[:, None] * n
@@ -462,6 +487,24 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                      info={**info, "corner_model": "tag edges",
                            "edge_misfit_median": float(np.median(mis_edge[good]))
                            if good.any() else float("nan")})
+
+
+def _sees_dark(t, s, L, d):
+    r'''True where the pixels (t, s) of a weak edge's fit (its board line's, in its chord's
+frame, length L) see the dark side of its curve d (d0..d3) beyond both its ends (t < 0 and
+t > L: the edge's place is interpolated between them, not extrapolated), MIN_EDGE_PIXELS //
+2 of them in all: the count targets._tag_edge_kernels.tag_edge_pixels asks of an edge alone
+
+Why. An edge seen from its light side only (tag bits under ~3.5 px at sigma 0.7: every
+dark-side pixel sees the light data row inside the 1-bit border) has its own pixels' light
+side, clean of the data row; the board line's cubic through it and its neighbours is placed
+across it by the neighbours' dark sides. On MER hazcam 17 as CAHVORE (realistic,
+benchmarks/bench_corners.py): 81 more corners of 864, at 0.0068 px RMS against the others'
+0.0049; with dark pixels beyond one end only (the line extrapolated), 154 more at 0.0095,
+max 0.046 px (the others' 0.022).'''
+    dark = s - _curve_s(d, 2.0 * t / L - 1.0) >= 0.0
+    lo, hi = np.count_nonzero(dark & (t < 0.0)), np.count_nonzero(dark & (t > L))
+    return min(lo, hi) > 0 and lo + hi >= MIN_EDGE_PIXELS // 2
 
 
 def _table(sigma, kind):

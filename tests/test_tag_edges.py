@@ -17,9 +17,10 @@ REALISTIC = {"full_well_e": 20000, "psf": {"kind": "gaussian", "sigma_px": 0.7},
 BLUR = {"psf": {"kind": "gaussian", "sigma_px": 0.7}}
 
 
-def _tag_grid(bit_px, n=3, K=16, pitch_bits=10.4):
+def _tag_grid(bit_px, n=3, K=16, pitch_bits=10.4, cells=None):
     r'''An n x n grid of tags (ids 0..n^2-1) through one homography, bits of bit_px, K x K
-subsamples per pixel: (image, corners (n*n,4,2), (col, row) of each tag)'''
+subsamples per pixel: (image, corners (n*n,4,2), (col, row) of each tag); cells (n*n,8,8):
+the tags' cells (True = light) instead of tag36h11's'''
     ang = np.radians(7.0)
     Hb = np.array([[np.cos(ang), -np.sin(ang), 30.3], [np.sin(ang), np.cos(ang), 20.7],
                    [2e-4, -1e-4, 1.0]])
@@ -36,7 +37,7 @@ subsamples per pixel: (image, corners (n*n,4,2), (col, row) of each tag)'''
     img = np.full((H, W), 0.9)
     sub = (np.arange(K) + 0.5) / K - 0.5
     for tid, Qt in enumerate(Q):
-        bits = tag36h11_bits(tid)
+        bits = tag36h11_bits(tid) if cells is None else cells[tid]
         Hc = _homographies(Qt[None])[0]
         x0, y0 = np.floor(Qt.min(0)).astype(int) - 2
         x1, y1 = np.ceil(Qt.max(0)).astype(int) + 2
@@ -112,6 +113,32 @@ seeing the data bits: every corner is dropped, with why'''
     assert np.all(np.isnan(fit.q))
     assert all(r for r in fit.reasons)
     assert any("light side only" in r or "too short" in r for r in fit.reasons)
+
+
+def test_an_edge_seen_from_its_light_side_is_placed_by_its_board_lines_neighbours():
+    r'''Bits of 2.8 px (MER hazcam 17's) at sigma 0.7: the border is narrower than the
+blur's reach, so an edge whose data row is light has no dark-side pixel clean of it ("seen
+from its light side only"). The middle tag of a 3 x 3 grid has a light interior, the
+others a dark one: each of its edges lies on a board line between two edges that see
+their dark side, and the line's one cubic through the three places it. Noise-free, its
+corners are the truth to the render's sampling (K = 16, as
+test_blurred_tag_corners_from_the_whole_edges; measured: the middle tag's 0.0006 px RMS,
+the others' 0.0009); the middle tag's own edges alone are not enough (a grid without
+board lines drops them)'''
+    cells = np.zeros((9, 8, 8), bool)
+    cells[4, 1:7, 1:7] = True
+    img, Q, grid = _tag_grid(2.8, cells=cells)
+    im = ResponseChain.from_config(BLUR).apply(img).image.astype(np.float64)
+    fit = refine_tag_edges(im, Q + 0.3, 0.7, "sampled", bits=cells, grid=grid,
+                           value_range=1.0)
+    assert fit.dropped() == {}, fit.dropped()
+    rms, n = _rms(fit.q, Q)
+    assert n == Q.size // 2 and rms < 0.002, rms
+    middle, _ = _rms(fit.q.reshape(9, 4, 2)[4], Q[4])
+    assert middle < 0.002, middle
+    alone = refine_tag_edges(im, Q + 0.3, 0.7, "sampled", bits=cells, value_range=1.0)
+    assert np.all(np.isnan(alone.q.reshape(9, 4, 2)[4]))
+    assert all("light side only" in r for r in alone.reasons.reshape(9, 4)[4])
 
 
 @pytest.mark.slow
