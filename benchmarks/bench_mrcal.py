@@ -105,7 +105,7 @@ def _stage_observations(campaign, specs, path):
 
     from bench_stages import _jobs_of
 
-    from harness.stages import camera_stage, cached_target, observations_from, poses_stage
+    from harness.stages import cached_target, camera_stage, observations_from, poses_stage
 
     with open(path, "rb") as f:
         stored = pickle.load(f)
