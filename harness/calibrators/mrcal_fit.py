@@ -27,8 +27,9 @@ The recipe (../shared/FINDINGS.md): seed fx, fy, cx, cy from the board
 homographies (cv2.initCameraMatrix2D), board poses from
 mrcal.estimate_monocular_calobject_poses_Rt_tocam, a pinhole solve, then the
 lens model with distortions frozen, then everything (restarted while it gains, on
-every other row and column of the grid first, then on all of it). No outlier
-rejection.
+every other row and column of the grid first, then on all of it; a CAHVOR or
+CAHVORE fit jumps on along its R0 / focal-length valley after each restart:
+VALLEY_JUMP_MAX). No outlier rejection.
 Regularisation is off (it biases fx/R0 by up to 100 px on exact data) except
 for the splined model, which needs it. mrcal's rms_reproj_error__pixels is per
 coordinate and includes regularisation: residuals are computed here, per
