@@ -4,10 +4,15 @@ SYNOPSIS
 
     OPENBLAS_NUM_THREADS=1 uv run python benchmarks/bench_mrcal.py \
         [--jobs 15/CAHVOR,17/CAHVORE,...] [--obs /tmp/camval_bench_mrcal_obs.pkl] [--profile]
+    OPENBLAS_NUM_THREADS=1 uv run python benchmarks/bench_mrcal.py \
+        --stages /tmp/camval_bench_fits.pkl [--jobs ...]   # bench_fits.py's saved images
 
 For each job (camera/family of --campaign, default the paper campaign) the
 images are rendered and the dots detected once and kept in the --obs pickle
-(bench_stages.observations). Then, as a campaign record does
+(bench_stages.observations); with --stages, the observations are made from the
+detections that `bench_fits.py run --stages` kept (the campaign's own poses and
+detections, so the fits are those of a campaign's records bit for bit; a job not
+kept there is an error). Then, as a campaign record does
 (harness.job_records): the mrcal fit (calibrate_stage), the comparison with the
 truth (compare_stage) and the verdict with its exact fit warm-started from the
 image fit. Each job is timed in process CPU seconds (time.process_time; set
@@ -94,6 +99,29 @@ def _figure(d, *keys):
     return d
 
 
+def _stage_observations(campaign, specs, path):
+    r'''{spec: (obs, truth, target)} from bench_fits.py's --stages pickle, as run_job makes them'''
+    import pickle
+
+    from bench_stages import _jobs_of
+
+    from harness.stages import cached_target, camera_stage, observations_from, poses_stage
+
+    with open(path, "rb") as f:
+        stored = pickle.load(f)
+    out = {}
+    for spec, job in zip(specs, _jobs_of(campaign, specs), strict=True):
+        if job.key not in stored:
+            raise SystemExit(f"{path} has no images of {job.key}: run bench_fits.py run "
+                             f"--stages {path} --jobs {spec} first")
+        _, truth = camera_stage(job)
+        target = cached_target(job.target)
+        poses = poses_stage(truth, target, job.poses_n, job.poses_seed, job.poses_cover)
+        out[spec] = (observations_from(truth, target, poses, stored[job.key].detections),
+                     truth, target)
+    return out
+
+
 def run(args, out):
     import cProfile
     import io
@@ -110,7 +138,8 @@ def run(args, out):
 
     counted = _Counted(mrcal)
     mrcal.optimize = counted
-    data = observations(args.campaign, args.jobs, args.obs)
+    data = (_stage_observations(args.campaign, args.jobs, args.stages) if args.stages
+            else observations(args.campaign, args.jobs, args.obs))
     head = (f"{'job':<12} {'fit s':>6} {'n':>3} {'opt s':>6} {'exact s':>7} {'n':>3} "
             f"{'proj rms':>9} {'resid rms':>9} {'x resid':>9} {'floor':>9} {'renderer':>9}")
     print(head)
@@ -194,6 +223,8 @@ def arguments(ap):
     ap.add_argument("--jobs", type=common.ids, default=common.ids(DEFAULT_JOBS))
     ap.add_argument("--obs", type=Path, default=Path("/tmp/camval_bench_mrcal_obs.pkl"),
                     help="where the observations are kept between runs")
+    ap.add_argument("--stages", type=Path, default=None,
+                    help="bench_fits.py's --stages pickle: the observations from its images")
     ap.add_argument("--profile", action="store_true", help="cProfile each job")
     return ap
 

@@ -49,7 +49,10 @@ def test_exact_recovery_every_catalogue_model(key, truth):
 
 
 def _grid_shapes(monkeypatch):
+    # the grids of the mrcal.optimize calls, valley jumps off: these tests count restarts
+    # (a jump adds a distortion-frozen solve after each; test_valley_jumps_... tests them)
     import mrcal
+    monkeypatch.setattr(mrcal_fit, "VALLEY_JUMP_MAX", 0)
     shapes = []
     optimize = mrcal.optimize
 
@@ -271,6 +274,43 @@ def _noisy(truth, sigma, seed=1):
     obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET))
     rng = np.random.default_rng(seed)
     return obs.replace(q=obs.q + rng.normal(scale=sigma, size=obs.q.shape))
+
+
+def test_valley_jumps_reach_the_minimum_the_crawl_stops_short_of(monkeypatch):
+    # the MER A hazcam (slot 5) as a CAHVOR, theta 90.018 deg: mrcal reaches it only in the
+    # limit of its R0 / focal-length valley (R0 -> -0.94); restarts alone crawl 1-2% a
+    # restart there, and the gain rule stops them halfway (R0 -0.32 here)
+    import math
+
+    import mrcal
+
+    from harness.stages import camera_truth
+    _, truth = camera_truth(5, "CAHVOR")
+    sigma = 1e-3
+    obs = _noisy(truth, sigma)
+    optimize, restarts = mrcal.optimize, []
+
+    def spy(*args, **kw):
+        restarts.append(bool(kw.get("do_optimize_intrinsics_distortions")))
+        return optimize(*args, **kw)
+    monkeypatch.setattr(mrcal, "optimize", spy)
+    r = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False)
+    assert r.ok, r.reason
+    # at its minimum: the residual RMS of a least-squares fit is the noise's (sigma per
+    # coordinate, sqrt(2) sigma per point) less the fitted parameters' share, never above
+    assert r.residual_stats()["rms"] < math.sqrt(2) * sigma
+    assert r.info["intrinsics"][6] < -0.9
+    # and the truth's projection within a few sigma of the noise
+    assert projection_difference(truth, r.model, mode="rotation", step=64)["rms"] < 3 * sigma
+    n_on = sum(restarts)
+    restarts.clear()
+    monkeypatch.setattr(mrcal_fit, "VALLEY_JUMP_MAX", 0)
+    off = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False)
+    assert off.ok, off.reason
+    # without the jumps the restarts stop in the valley, its misfit far above the noise
+    # (harness.verdict.MISFIT_FACTOR x)
+    assert off.residual_stats()["rms"] > 3 * math.sqrt(2) * sigma
+    assert n_on <= 2 * sum(restarts)
 
 
 def test_a_misfit_that_spends_its_restarts_restarts_once_afterwards(monkeypatch):

@@ -27,8 +27,9 @@ The recipe (../shared/FINDINGS.md): seed fx, fy, cx, cy from the board
 homographies (cv2.initCameraMatrix2D), board poses from
 mrcal.estimate_monocular_calobject_poses_Rt_tocam, a pinhole solve, then the
 lens model with distortions frozen, then everything (restarted while it gains, on
-every other row and column of the grid first, then on all of it). No outlier
-rejection.
+every other row and column of the grid first, then on all of it; a CAHVOR or
+CAHVORE fit jumps on along its R0 / focal-length valley after each restart:
+VALLEY_JUMP_MAX). No outlier rejection.
 Regularisation is off (it biases fx/R0 by up to 100 px on exact data) except
 for the splined model, which needs it. mrcal's rms_reproj_error__pixels is per
 coordinate and includes regularisation: residuals are computed here, per
@@ -151,6 +152,28 @@ BIAS_RELATIVE = 0.05
 # bias the start computed at its final model (_start_bias): one polish and one bias pass
 # where that bias still holds for the exact observations' model.
 WARM_RESTARTS = 1
+# LENSMODEL_CAHVOR's R0 / focal-length valley: a restart of mrcal.optimize crawls along it
+# at libdogleg's iteration limit (300 steps of a trust region held at ~0.02 by the valley's
+# curvature, rho ~0.57: 37 ms on the coarse grid), 1-10% of RMS per restart: 23 restarts
+# for 13 CAHVOR of the paper campaign (R0 -0.15 -> -0.46, fx 4259 -> 6689 px, fx e held).
+# So after each restart that moved (valley_jump), the state is moved on along the restart's
+# own step in the valley's natural coordinates (log fx, log fy, cx, cy, alpha, beta, log e,
+# R1 / e, R2 / e; e = 1 + R0: the gauge family of the module docstring), t = 1, 2, 4, ...
+# VALLEY_JUMP_MAX times that step, with the core and board poses settled to each (a
+# distortion-frozen solve, ~0.5 ms), while the RMS falls; the best is kept and the restarts
+# go on from it. A restart and its jump gain together (the stop rule's gain): a jump puts
+# the state where the next restart settles the distortions rather than crawls. The linear
+# extrapolation alone, without that settling solve, left the valley's floor at a quarter of
+# one restart's step (RMS x30). Jumps keep the principal point inside the image: the
+# valley's limit of a misfit (e -> 0, a skew emulated) ran 1 CAHVOR's cx to -3e4 px and its
+# projection 1e8 px off at the corners. Measured (paper campaign, bench_mrcal.py --stages,
+# load 5-6): CAHVOR image fits 12.1 -> 8.5 CPU s (13 CAHVOR 1.19 -> 0.54 s, 5 CAHVOR
+# 0.70 -> 0.31 s: 4 refit restarts reach its minimum at R0 -0.94 where 6 + 10 crawled).
+# Judged records end in the same minima; floor-far ones stop elsewhere along their valley
+# (most further: lower residuals and floors). LENSMODEL_CAHVORE has the same R terms and
+# valley: its E0, E1, E2 are extrapolated as they are (CAHVORE image fits 8.75 -> 7.7 CPU s,
+# 5 CAHVORE 0.93 -> 0.60 s, its projection bit for bit at 4 digits).
+VALLEY_JUMP_MAX = 8
 
 
 def uses_world_frame(known_poses=False, **options):
@@ -538,16 +561,73 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
             # a crawl the coarse grid just found limits this one too
             restarts(1, 1 if crawl is not None else limit)
 
+    # the R0 / focal-length valley of LENSMODEL_CAHVOR and _CAHVORE: see VALLEY_JUMP_MAX
+    valley = VALLEY_JUMP_MAX >= 1 and warm is None and (
+        lensmodel == "LENSMODEL_CAHVOR" or lensmodel.startswith("LENSMODEL_CAHVORE"))
+
+    def valley_u():
+        # the valley's natural coordinates: log fx, log fy, cx, cy, alpha, beta, log e,
+        # R1 / e, R2 / e (e = 1 + R0), then CAHVORE's E0, E1, E2 as they are; None where
+        # e <= 0 (no jump from there)
+        if not valley:
+            return None
+        i = problem["intrinsics"][0]
+        e = 1.0 + i[6]
+        if not (e > 0 and i[0] > 0 and i[1] > 0):
+            return None
+        return np.array([math.log(i[0]), math.log(i[1]), i[2], i[3], i[4], i[5],
+                         math.log(e), i[7] / e, i[8] / e, *i[9:]])
+
+    def valley_move(u, step):
+        # the intrinsics at natural coordinates u, then the core and the board poses
+        # settled to them (a pinhole-like solve of a few steps)
+        e = math.exp(u[6])
+        problem["intrinsics"][0] = [math.exp(u[0]), math.exp(u[1]), u[2], u[3], u[4], u[5],
+                                    e - 1.0, u[7] * e, u[8] * e, *u[9:]]
+        solve(step, do_optimize_intrinsics_core=True, do_optimize_intrinsics_distortions=False)
+
+    def valley_jump(step, u_before, r):
+        # from the state a restart reached (RMS r, natural coordinates u), the states
+        # u + t (u - u_before), t = 1, 2, 4, ..., VALLEY_JUMP_MAX, each with its core and
+        # board poses settled, while the RMS keeps falling; the best one is kept (or none:
+        # the restart's own state). Returns the RMS of the state kept
+        u = valley_u()
+        cx, cy = problem["intrinsics"][0, 2:4]
+        if u is None or not (0.0 <= cx <= W - 1 and 0.0 <= cy <= H - 1):
+            return r
+        d = u - u_before
+        if not np.all(np.isfinite(d)):
+            return r
+        start = _snapshot(problem)
+        best = (r, None)
+        t = 1
+        while t <= VALLEY_JUMP_MAX:
+            valley_move(u + t * d, step)
+            r_t = problem_rms(step)
+            cx, cy = problem["intrinsics"][0, 2:4]
+            if not (r_t < best[0] and 0.0 <= cx <= W - 1 and 0.0 <= cy <= H - 1):
+                break
+            best = (r_t, _snapshot(problem))
+            _restore(problem, start)
+            t *= 2
+        _restore(problem, start if best[1] is None else best[1])
+        return best[0]
+
     def restarts(step, limit):
         # restarts on the grid of every step-th row and column while each gains (the first
-        # one too, over the state it starts from); returns the RMS
+        # one too, over the state it starts from); returns the RMS. Along the CAHVOR valley,
+        # each restart is followed by a jump along its own step (valley_jump)
         nonlocal crawl
         rms_prev = problem_rms(step)
-        for _ in range(limit):
+        for n in range(limit):
+            u_before = valley_u()
             solve(step, do_optimize_intrinsics_core=True,
                   do_optimize_intrinsics_distortions=True)
             r = problem_rms(step)
             gain = POLISH_GAIN_FINE if r < FINE_RMS else POLISH_GAIN
+            if n + 1 < limit and u_before is not None and r >= 1e-10:
+                # the restart and the jump after it gain together
+                r = valley_jump(step, u_before, r)
             if r < 1e-10 or r > gain * rms_prev:
                 return r
             last_gain, rms_prev = 1.0 - r / rms_prev, r
