@@ -1479,10 +1479,13 @@ material), else of its own centre ray."""
                 for i in range(x0, x1 + 1):
                     corners[0, j, i - x0] = math.nan
         for iy in range(r0, r1):
+            # the code of the pixel to the left when it is not an edge pixel (else -1)
+            left = -1
             for ix in range(x0, x1):
                 k = iy - r0 + 1
                 c = ix - x0 + 1
                 if mask[iy - r0, ix]:
+                    left = -1
                     nedge += 1
                     if hok[k, c] and _on_board(hx[k, c], hy[k, c], rect):
                         nboard += 1
@@ -1504,8 +1507,8 @@ material), else of its own centre ray."""
                     nfallback += how == 3
                     continue
                 # 2 m + on board, from a neighbour of the same region or the centre ray
-                if ix > x0 and not mask[iy - r0, ix - 1]:
-                    cd = code[iy - r0, ix - 1 - x0]
+                if left >= 0:
+                    cd = left
                 elif iy > r0 and not mask[iy - r0 - 1, ix]:
                     cd = code[iy - r0 - 1, ix - x0]
                 else:
@@ -1522,6 +1525,7 @@ material), else of its own centre ray."""
                     else:
                         cd = 2 * bg
                 code[iy - r0, ix - x0] = cd
+                left = cd
                 out[iy, ix] = values[cd // 2]
                 nboard += cd % 2
     _band_stats(stats, nrays, nsuper, nboard, ntiles, nedge, nonfinite, narea, nfallback)
