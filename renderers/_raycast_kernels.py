@@ -807,16 +807,17 @@ poly[row:row + 2, :n]"""
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _area_pixel(cam, xf, ix, iy, n, jac, hess, cand, ncand, base, values, grid, poly, pat,
-                corners, r0, warm0):
+                corners, k, c, warm0):
     r"""The area coverage value of pixel (ix, iy) from an (n+1) x (n+1) grid of exact rays
 (see above); returns (value, rays), value NaN where it cannot be computed
 
 jac[0:4] = (dx/dqx, dy/dqx, dx/dqy, dy/dqy) at the pixel centre, hess[0:6] =
 (P_uu, P_uv, P_vv) (x, y each): the quadratic model of the board points of the
 neighbouring pixel centres, for the density.
-corners[0:2, k, c]: the board points of the pixel corners (c - 0.5, r0 + k - 0.5)
-traced so far in this band (NaN: not yet), shared between neighbouring pixels
-at n = 1. warm0: the warm start of the pixel's centre (NaN: not known, solved here).
+corners[0:2, k - 1 + j, c - 1 + i]: the board points of the pixel corners (ix - 0.5 + i,
+iy - 0.5 + j) traced so far in this band or tile (NaN: not yet), shared between
+neighbouring pixels at n = 1 (k, c: the pixel's row and column in the centre rays'
+arrays, _render_pixel). warm0: the warm start of the pixel's centre (NaN: not known, solved here).
 """
     warm = (math.nan, 0.0, 0.0, 0.0)
     have_warm = False
@@ -826,10 +827,10 @@ at n = 1. warm0: the warm start of the pixel's centre (NaN: not known, solved he
         y = iy - 0.5 + j * inv
         for i in range(n + 1):
             if n == 1:
-                bx = corners[0, iy - r0 + j, ix + i]
+                bx = corners[0, k - 1 + j, c - 1 + i]
                 if bx == bx:
                     grid[0, j, i] = bx
-                    grid[1, j, i] = corners[1, iy - r0 + j, ix + i]
+                    grid[1, j, i] = corners[1, k - 1 + j, c - 1 + i]
                     continue
             if not have_warm:
                 warm = warm0
@@ -845,8 +846,8 @@ at n = 1. warm0: the warm start of the pixel's centre (NaN: not known, solved he
             grid[0, j, i] = bx
             grid[1, j, i] = by
             if n == 1:
-                corners[0, iy - r0 + j, ix + i] = bx
-                corners[1, iy - r0 + j, ix + i] = by
+                corners[0, k - 1 + j, c - 1 + i] = bx
+                corners[1, k - 1 + j, c - 1 + i] = by
     acc = 0.0
     for j in range(n):
         dv = (j + 0.5) * inv - 0.5
@@ -904,7 +905,7 @@ change across the pixel); both fall as 1/n^2 with n x n quadrilaterals"""
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _area_value(cam, xf, ix, iy, px, py, R, tol, jac, hess, cand, values, grid, poly, pat,
-                corners, r0, warm0):
+                corners, k, c, warm0):
     r"""The area coverage value of an edge pixel (board point (px, py) of its centre,
 footprint radius R): the subdivision n from the error bound, then _area_pixel;
 (NaN, rays) where it is not computed (the pixel is then point sampled)"""
@@ -919,7 +920,7 @@ footprint radius R): the subdivision n from the error bound, then _area_pixel;
         if n > AREA_MAX_SUBDIVISION:
             return math.nan, 0
     return _area_pixel(cam, xf, ix, iy, n, jac, hess, cand, ncand, base, values, grid, poly,
-                       pat, corners, r0, warm0)
+                       pat, corners, k, c, warm0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -1028,7 +1029,7 @@ ray (reference_models.kernels.warm_start; NaN: solved where needed)"""
             hess[4] = d2yx
             hess[5] = d2yy
             v, n = _area_value(cam, xf, ix, iy, px, py, r, tol, jac, hess, cand, values, grid,
-                               poly, pat, corners, iy - k + 1, warm0)
+                               poly, pat, corners, k, c, warm0)
             if v - v == 0.0:
                 # a mean of albedos in [0, 1]: the sum of signed moments can round past the
                 # ends (-2e-16 where a pixel is all background 0)
@@ -1123,22 +1124,28 @@ disc lies inside the board rectangle or wholly outside it)"""
 
 
 @njit(cache=True, error_model="numpy")
-def _band_scratch(K, nvalues, T, W, area):
+def _band_scratch(K, nvalues, T, W, area, tile):
     r"""The work arrays of a band of at most T image rows of width W, allocated once per
 thread and reused for each of its bands: (hx, hy, hok, hu, hchi, need, code, blocks,
 bmask, btiles, counts, offs (the K subsample offsets), stack, jac, cand, hess, grid,
-poly, corners). hx, hy, hok (T + 2, W + 2): the board points of the band's centre rays (band
-row k = iy - r0 + 1, column c = ix + 1), hu, hchi the u, chi of their Newton solves
-(_trace_needed); need, code: a tile's (_render_band_outline); blocks:
-_render_band's stack; bmask (T, W): the band's edge pixels, btiles (1, ceil(W / T)) its
-tiles that hold one; corners (2, T + 1, W + 1)
-in area mode: the board points of the band's pixel corners, NaN until traced (each
-band and tile resets what it reads)"""
-    hx = np.empty((T + 2, W + 2))
-    hy = np.empty((T + 2, W + 2))
-    hok = np.zeros((T + 2, W + 2), dtype=np.uint8)
-    hu = np.empty((T + 2, W + 2))
-    hchi = np.empty((T + 2, W + 2))
+poly, corners). hx, hy, hok (T + 2, Nc): the board points of the centre rays of the
+band (_render_band: Nc = W + 2, band row k = iy - r0 + 1, column c = ix + 1) or, with
+tile, of one tile's window (_render_band_outline: Nc = T + 2, c = ix - x0 + 1), hu, hchi
+the u, chi of their Newton solves (_trace_needed); need, code: a tile's
+(_render_band_outline); blocks: _render_band's stack; bmask (T, W): the band's edge
+pixels, btiles (1, ceil(W / T)) its tiles that hold one; corners (2, T + 1, Nc - 1) in
+area mode: the board points of the pixel corners of the band (or tile), NaN until
+traced (each band and tile resets what it reads).
+
+A tile's window, not the band's, is what _render_band_outline reads: its arrays stay
+in the core's cache (a 5120-pixel band's are 8 MB, and a tile's rays and corners were
+stored to lines evicted since the band's last tile)."""
+    nc = T + 2 if tile else W + 2
+    hx = np.empty((T + 2, nc))
+    hy = np.empty((T + 2, nc))
+    hok = np.zeros((T + 2, nc), dtype=np.uint8)
+    hu = np.empty((T + 2, nc))
+    hchi = np.empty((T + 2, nc))
     need = np.zeros((T + 2, T + 2), dtype=np.uint8)
     code = np.empty((T, T), dtype=np.int64)
     blocks = np.empty((4 * (int(math.log2(T)) + 3), 4), dtype=np.int64)
@@ -1154,7 +1161,7 @@ band and tile resets what it reads)"""
     hess = np.zeros(6)
     grid = np.empty((2, AREA_MAX_SUBDIVISION + 1, AREA_MAX_SUBDIVISION + 1))
     poly = np.empty((8, AREA_MAX_VERTICES))
-    corners = np.full((2, T + 1, W + 1) if area else (2, 1, 1), math.nan)
+    corners = np.full((2, T + 1, nc - 1) if area else (2, 1, 1), math.nan)
     return (hx, hy, hok, hu, hchi, need, code, blocks, bmask, btiles, counts, offs, stack, jac,
             cand, hess, grid, poly, corners)
 
@@ -1367,21 +1374,21 @@ chords[bstart[b]:bstart[b+1]]"""
 
 @njit(cache=True, error_model="numpy")
 def _trace_needed(cam, xf, noncentral, r0, x0, x1, nk, need, hx, hy, hok, hu, hchi):
-    r"""The board points of the centre rays of the band grid points (k, c) marked in need
-(band rows 0..nk-1, columns x0..x1+1: need[k, c - x0]), traced along each row's runs
-of marked points (each next ray's Newton started from the previous one's
-prediction), and the u, chi of their Newton solves (the warm starts of their pixels'
-other rays); returns the number of rays"""
+    r"""The board points of the centre rays of the tile's grid points (k, c) marked in need
+(band rows 0..nk-1, columns c = 0..x1-x0+1: image x = x0 + c - 1), traced along each
+row's runs of marked points (each next ray's Newton started from the previous one's
+prediction), into hx, hy, hok [k, c], and the u, chi of their Newton solves (the warm
+starts of their pixels' other rays); returns the number of rays"""
     central = cam[_KIND] == KIND_CAHV
     nrays = 0
     for k in range(nk):
         y = r0 + k - 1.0
         warm = (math.nan, 0.0, 0.0, 0.0)
-        for c in range(x0, x1 + 2):
-            if not need[k, c - x0]:
+        for c in range(x1 - x0 + 2):
+            if not need[k, c]:
                 warm = (math.nan, 0.0, 0.0, 0.0)
                 continue
-            s, vx, vy, vz, u, chi = _ray_warm_chi(cam, c - 1.0, y, warm, True)
+            s, vx, vy, vz, u, chi = _ray_warm_chi(cam, x0 + c - 1.0, y, warm, True)
             if not central:
                 warm = _warm_coefficients(cam, u, chi)
             ok, x, yb = _hit(xf, s if noncentral else 0.0, vx, vy, vz)
@@ -1470,12 +1477,15 @@ material), else of its own centre ray."""
         if area:
             for j in range(r1 - r0 + 1):
                 for i in range(x0, x1 + 1):
-                    corners[0, j, i] = math.nan
+                    corners[0, j, i - x0] = math.nan
         for iy in range(r0, r1):
+            # the code of the pixel to the left when it is not an edge pixel (else -1)
+            left = -1
             for ix in range(x0, x1):
                 k = iy - r0 + 1
-                c = ix + 1
+                c = ix - x0 + 1
                 if mask[iy - r0, ix]:
+                    left = -1
                     nedge += 1
                     if hok[k, c] and _on_board(hx[k, c], hy[k, c], rect):
                         nboard += 1
@@ -1497,12 +1507,12 @@ material), else of its own centre ray."""
                     nfallback += how == 3
                     continue
                 # 2 m + on board, from a neighbour of the same region or the centre ray
-                if ix > x0 and not mask[iy - r0, ix - 1]:
-                    cd = code[iy - r0, ix - 1 - x0]
+                if left >= 0:
+                    cd = left
                 elif iy > r0 and not mask[iy - r0 - 1, ix]:
                     cd = code[iy - r0 - 1, ix - x0]
                 else:
-                    if need[k, c - x0]:
+                    if need[k, c]:
                         ok = hok[k, c]
                         bx = hx[k, c]
                         by = hy[k, c]
@@ -1515,6 +1525,7 @@ material), else of its own centre ray."""
                     else:
                         cd = 2 * bg
                 code[iy - r0, ix - x0] = cd
+                left = cd
                 out[iy, ix] = values[cd // 2]
                 nboard += cd % 2
     _band_stats(stats, nrays, nsuper, nboard, ntiles, nedge, nonfinite, narea, nfallback)
@@ -1664,7 +1675,8 @@ allocated once. A band's pixels do not depend on which thread renders it."""
         # the scratch arrays live until _render_bands returns
         _render_bands(taken, T, cam, noncentral, xf, K, adaptive, values, out, stats,
                       pat, qbox, area, tol, outline_known, outline,
-                      _band_scratch(K, values.shape[0], T, W, area))
+                      _band_scratch(K, values.shape[0], T, W, area,
+                                    outline_known and adaptive))
 
 
 def compiled_entry_points():

@@ -128,6 +128,10 @@ TILE = 32
 BOX_MARGIN_PX = 2.0
 MAX_OUTLINE_STEP_PX = 4.0
 MAX_BUCKETS = 1 << 22
+# a renderer keeps the compiled patterns of this many patterns, the last drawn: a campaign's
+# worker alternates targets between jobs, and an AprilTag grid's compile_pattern and
+# board features cost ~15 ms
+KEEP_PATTERNS = 4
 # coverage = "area": the bound on the error of an edge pixel's covered area, as a
 # fraction of the pixel's area (renderers._raycast_kernels, "Area coverage"); 1e-4 is
 # 1/300 of the K = 16 grid's resolution of one edge pixel (1/32)
@@ -421,7 +425,7 @@ images agree to rounding (tests/test_raycast.py).
             raise CamvalError(f"threads = {threads!r}; expected a positive integer")
         self.threads = threads
         self.outlines = bool(outlines)
-        self._pattern = (None, None)
+        self._patterns = []     # (pattern, CompiledPattern), the last drawn last
         # every pixel of an image is written: a render takes a buffer its caller has
         # dropped instead of faulting in fresh memory (renderers.memory.ImagePool)
         self._images = ImagePool()
@@ -431,11 +435,12 @@ images agree to rounding (tests/test_raycast.py).
         return f"raycast {RAYCAST_VERSION} (numba {numba.__version__})"
 
     def _compiled(self, pattern):
-        last = self._pattern
-        if last[0] is pattern:
-            return last[1]
+        for i, (p, cp) in enumerate(self._patterns):
+            if p is pattern:
+                self._patterns.append(self._patterns.pop(i))
+                return cp
         cp = compile_pattern(pattern)
-        self._pattern = (pattern, cp)
+        self._patterns = self._patterns[-(KEEP_PATTERNS - 1):] + [(pattern, cp)]
         return cp
 
     # --- rendering -----------------------------------------------------------

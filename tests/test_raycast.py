@@ -322,6 +322,19 @@ def test_target_objects_render_like_their_pattern():
     assert np.array_equal(a, b) and len(np.unique(a)) > 3
 
 
+def test_patterns_drawn_in_turn_are_compiled_once_and_render_alike():
+    model = small_models()["cahvor"]
+    tags, dots = load_target("apriltag"), dot_pattern()
+    Rt = board_pose(model, 1.2, (10, 10, 0), centre=tags.centre()[:2])
+    r = RaycastRenderer()
+    first = [r.render(model, p, Rt, RenderSettings(spp=2)).image for p in (tags, dots)]
+    compiled = [r._compiled(p) for p in (tags.pattern(), dots)]
+    # a worker's jobs alternate targets: each pattern keeps its compiled form
+    again = [r.render(model, p, Rt, RenderSettings(spp=2)).image for p in (tags, dots)]
+    assert [r._compiled(p) for p in (tags.pattern(), dots)] == compiled
+    assert all(np.array_equal(a, b) for a, b in zip(first, again, strict=True))
+
+
 def test_images_held_are_never_rendered_into_and_dropped_ones_are_reused():
     model = small_models()["cahvor"]
     pattern = dot_pattern()
