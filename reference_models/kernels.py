@@ -309,17 +309,9 @@ For code written against the model interface (project, Rt_ref_cam, family, ...).
     def __init__(self, model):
         self.model = model
         self.cam = pack_model(model)
-        self._Rt_ref_cam = None
 
     def __getattr__(self, name):
         return getattr(self.model, name)
-
-    def Rt_ref_cam(self):
-        r'''model.Rt_ref_cam(), computed once (a copy each call): the calibrators' bias step
-asks for it twice per pose (harness.calibrators.bias), ~0.1 ms each for a JPL model'''
-        if self._Rt_ref_cam is None:
-            self._Rt_ref_cam = self.model.Rt_ref_cam()
-        return self._Rt_ref_cam.copy()
 
     def project(self, p):
         return project_packed(self.cam, p)
