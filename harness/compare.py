@@ -272,14 +272,9 @@ image grid of a 5120x3840 camera, 77k rows: 3-6 ms, a grid projection's worth).'
 def _fit_rotation(fit, p_cam, q, nmax=2000):
     r'''The rotation R minimising |fit(R p_cam) - q| (p_cam in the truth's camera frame)
 
-Gauss-Newton from no rotation, with scipy's forward-difference Jacobian differenced
-once, at no rotation (chord steps: 1 projection each instead of 4): the two frames
-differ by a small rotation r on which the pixels depend almost linearly, the Jacobian
-changing by ~|r| of itself, so each step leaves ~|r| of the error it corrects.
-Where a chord step settles, does not shrink or does not lower the sum of squares, the
-Jacobian is differenced again where the fit is and that step decides, as every step
-did with a fresh Jacobian: the same stop (~11 projections where 4 a step took ~19). A
-step that does not lower
+Gauss-Newton from no rotation, with scipy's forward-difference Jacobian: the two
+frames differ by a small rotation on which the pixels depend almost linearly, so it
+reaches the minimum in 2-3 steps (4 projections each). A step that does not lower
 the sum of squares ends it where it is when that step is rounding
 (ROTATION_ROUNDING_PX: far floors, whose px residuals round the last steps);
 MINPACK's Levenberg-Marquardt (scipy least_squares "lm", tolerances 1e-15) takes
@@ -306,22 +301,10 @@ px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
     with np.errstate(all="ignore"):
         f = res(r)
         cost = f @ f
-        J = forward_difference(res, r, f)
-        fresh = True        # J was differenced at r (not at an earlier point: a chord step)
-        moved_last = np.inf
-        # a chord step and the Jacobian's differencing each take one turn: twice the
-        # steps of a Jacobian each
-        for _ in range(2 * ROTATION_GN_STEPS):
+        for _ in range(ROTATION_GN_STEPS):
+            J = forward_difference(res, r, f)
             step = np.linalg.lstsq(J, -f, rcond=None)[0]
             moved = np.max(np.abs(J @ step))
-            if not fresh and (moved <= ROTATION_SETTLED_PX or not moved <= moved_last):
-                # the chord's steps stop where the residuals are orthogonal to the OLD
-                # Jacobian's columns, ~|r| |f| short of the minimum (far floors: residuals
-                # of px), or do not shrink: the stop and the steps are judged, as before,
-                # by the Jacobian where the fit is
-                J, fresh = forward_difference(res, r, f), True
-                continue
-            moved_last = moved
             if moved <= ROTATION_SETTLED_PX:
                 # settled: at the minimum the steps are the rounding of f and of the
                 # differenced J (~1e-12 rad where the fits differ by px), and comparing sums
@@ -330,14 +313,10 @@ px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
             f1 = res(r + step)
             cost1 = f1 @ f1
             if not cost1 <= cost:
-                if not fresh:
-                    J, fresh = forward_difference(res, r, f), True
-                    continue
                 if moved <= ROTATION_ROUNDING_PX:
                     return R_from_r(r)
                 break
             r, f, cost = r + step, f1, cost1
-            fresh = False
         # scipy's 2-point Jacobian, bit for bit, remembering the last point's residuals and
         # Jacobian (scipy asks for the Jacobian at the solution again when MINPACK returns)
         fun, jac = remembering(res, lambda r, f0: forward_difference(res, r, f0))
