@@ -300,7 +300,7 @@ as it fits it (_fit_rotation).
         R0 = float(fit.R[0])
         if float(ref.R[0]) != R0:
             # the same projection in fit's R0 gauge, on the truth's own frame's points
-            ref, R0 = with_R0(ref, R0), None
+            ref, R0 = _moved_to_R0(ref, R0), None
     _, p_ref, p_cam = truth_points(truth, range_m, step, R0=R0)
     with np.errstate(all="ignore"):
         if mode == "world":
@@ -331,6 +331,23 @@ as it fits it (_fit_rotation).
         out["rotation_deg"] = math.degrees(math.acos(max(-1.0, min(1.0,
                                                                    (np.trace(R) - 1) / 2))))
     return out
+
+
+# _moved_to_R0's last (model, R0, moved model): fit_comparison compares the same two fits in
+# each mode, and the moved model, the same object each time, keeps fit_pixels' memo of its
+# pixels (mode "intrinsics" reuses mode "rotation"'s: one projection of the image grid less)
+_MOVED = [None]
+
+
+def _moved_to_R0(model, R0):
+    r'''with_R0(model, R0), kept for the last model and R0 asked (models are frozen: keyed
+on the object itself)'''
+    hit = _MOVED[0]
+    if hit is not None and hit[0] is model and hit[1] == R0:
+        return hit[2]
+    moved = with_R0(model, R0)
+    _MOVED[0] = (model, R0, moved)     # one tuple: atomic for a worker's threads
+    return moved
 
 
 def _world(res):
