@@ -996,10 +996,15 @@ projection difference (the rotation's own freedom projected out).
     w, V = np.linalg.eigh(Js.T @ Js)
     keep = w > w[-1] * 1e-15
     Ninv = (V[:, keep] / w[keep]) @ V[:, keep].T
-    cov = Ninv @ (Js.T @ (Js * var_row[:, None])) @ Ninv / np.outer(s_col, s_col)
-    cov = cov[:lin.n_model, :lin.n_model]
-    # a variance below zero is rounding in a direction the fit barely determines
-    var = np.maximum(np.einsum("ij,jk,ik->i", G, cov, G), 0.0)
+    # the model block as a Gram matrix: cov = F^T D F with F (2N, n_model) the image rows'
+    # influence on the model parameters. A variance a^T cov a is then taken as the sum of
+    # squares sum_i D_i (F a)_i^2, never below zero: the triple product a^T cov a cancels
+    # to rounding in a direction the fit barely determines (mrcal's CAHVOR R0 valley: its
+    # projection sigma came out 0.0 on catalogue slot 16, leaving only the gate's floor)
+    nm = lin.n_model
+    F = Js @ (Ninv[:, :nm] / s_col[:nm])
+    cov = F.T @ (F * var_row[:, None])
+    var = _variances(F, var_row, G)
     sigma = {}
     for k, v in zip(names, var, strict=True):
         base = k.split("[")[0]
@@ -1010,7 +1015,7 @@ projection difference (the rotation's own freedom projected out).
     for k in VECTOR_PARAMS:
         if k in sigma:
             sigma[k] = math.sqrt(sigma[k])
-    sigma["projection_rms"] = _projection_sigma(m0, P, Jg, cov)
+    sigma["projection_rms"] = _projection_sigma(m0, P, Jg, F, var_row)
     # the joint test's covariance adds the renderer resolution (joint_resolution_cov)
     res_cov = joint_resolution_cov(Ninv, s_col, len(lin.pose))[:lin.n_model, :lin.n_model]
     return {"sigma": sigma, "joint": joint_of_fit(names, q0, G, cov + res_cov, ref),
@@ -1047,9 +1052,16 @@ them (model_jacobians' steps of V, O, R and E), the same numbers.'''
     return grid
 
 
-def _projection_sigma(m0, P, Jg, cov):
+def _variances(F, var_row, A):
+    r'''diag(A cov A^T) for cov = F^T diag(var_row) F, as sums of squares (each >= 0)'''
+    B = F @ A.T
+    return var_row @ (B * B)
+
+
+def _projection_sigma(m0, P, Jg, F, var_row):
     r'''Expected RMS px over the points P of the rotation-mode projection difference, from
-Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covariance'''
+Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covariance
+F^T diag(var_row) F (scatter)'''
     project, Rt_ref_cam = _projector(m0), m0.Rt_ref_cam()
 
     def rotated(w):
@@ -1063,7 +1075,7 @@ Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covar
         return None
     Qw, _ = np.linalg.qr(Jw)
     Jg = Jg - Qw @ (Qw.T @ Jg)          # the rotation fitted between the two fits
-    return float(math.sqrt(max(0.0, np.einsum("ij,jk,ik->", Jg, cov, Jg)) / M))
+    return float(math.sqrt(_variances(F, var_row, Jg).sum() / M))
 
 
 def z_scores(renderer, sigma):

@@ -527,3 +527,24 @@ fitted); start_bias hands it on only for an ok start of observations of the same
                                        Rt_ref_board=obs.Rt_ref_board[:3])) is None
     assert start_bias(res.replace(status="failed"), obs) is None
     assert start_bias(None, obs) is None
+
+
+def test_variances_are_sums_of_squares_in_an_ill_conditioned_direction():
+    # two parameter columns that differ by 1e-2 in 1e8 (mrcal's CAHVOR R0 / focal valley:
+    # the fit barely tells them apart) and the quantity that is their difference. Its
+    # variance is eps^2 g^T D g = 1e-4 x 3; the covariance's entries are ~1e16, so the
+    # triple product a^T cov a cancels to rounding of order 1 (it came out <= 0 on a real
+    # record). As sums of squares it is the difference of the columns, computed to
+    # 1e-8 / 1e-2 = 1e-6 relative.
+    rng = np.random.default_rng(3)
+    f = 1e8 * (1.0 + rng.random(50))
+    g = rng.standard_normal(50)
+    eps = 1e-2
+    F = np.stack([f, f + eps * g], axis=1)
+    D = 0.5 + rng.random(50)
+    A = np.array([[1.0, -1.0], [1.0, 0.0]])
+    v = verdict._variances(F, D, A)
+    exact = eps ** 2 * float(D @ (g * g))
+    assert v[0] > 0
+    assert abs(v[0] - exact) <= 1e-5 * exact
+    assert abs(v[1] - float(D @ (f * f))) <= 1e-12 * v[1]
