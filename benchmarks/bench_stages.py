@@ -79,7 +79,7 @@ and median) and poses/<job key> (CPU seconds of each job, min over repeats).
         for job, truth, target in setups:
             c0 = time.process_time()
             try:
-                poses_stage(truth, target, job.poses_n, job.poses_seed)
+                poses_stage(truth, target, job.poses_n, job.poses_seed, job.poses_cover)
                 planned[job.key] = True
             except StageFailed as e:
                 planned[job.key] = e.reason

@@ -316,7 +316,8 @@ def job_inputs(job):
                                                            "poses_stage"))
     _, truth = camera_stage(job)
     target = cached_target(job.target)
-    return truth, target, poses_stage(truth, target, job.poses_n, job.poses_seed)
+    return truth, target, poses_stage(truth, target, job.poses_n, job.poses_seed,
+                                       job.poses_cover)
 
 
 def catalogue_slots(size=None):
