@@ -188,18 +188,27 @@ largest change of the bias since b_prev (its largest value on the first pass).
 '''
     if target is None:
         return None, None
-    b = [centroid_bias(model, target, Rt, p_board[i])
-         if views is None or i in views else np.zeros((p_board.shape[-2], 2))
-         for i, Rt in enumerate(Rt_cam_board)]
+    corners = corner_model is not None and getattr(target, "kind", "dots") in CORNER_KINDS
+    if corners:
+        corner_model = np.asarray(corner_model)
+
+    def pose_bias(i, Rt):
+        if views is not None and i not in views:
+            return np.zeros((p_board.shape[-2], 2))
+        tied = corner_model[i] == CORNER_LINES if corners else None
+        if tied is None or not tied.any():
+            return centroid_bias(model, target, Rt, p_board[i])
+        # corners fitted with their opposite rays tied: the lines' bias, computed once (the
+        # window's only for corners of the window model beside them)
+        b = corner_bias(model, target, Rt, p_board[i], lines=True)
+        if not tied.all():
+            b[~tied] = corner_bias(model, target, Rt, p_board[i])[~tied]
+        return b
+    b = [pose_bias(i, Rt) for i, Rt in enumerate(Rt_cam_board)]
     if any(x is None for x in b):
         return None, None
     b = np.array(b)
-    if corner_model is not None and getattr(target, "kind", "dots") in CORNER_KINDS:
-        corner_model = np.asarray(corner_model)
-        for i, Rt in enumerate(Rt_cam_board):
-            tied = corner_model[i] == CORNER_LINES
-            if tied.any() and (views is None or i in views):
-                b[i][tied] = corner_bias(model, target, Rt, p_board[i], lines=True)[tied]
+    if corners:
         b[~np.isin(corner_model, WINDOW_BIASED)] = 0.0
     change = float(np.nanmax(np.abs(b if b_prev is None else b - b_prev)))
     return b, change
