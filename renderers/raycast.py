@@ -435,12 +435,13 @@ images agree to rounding (tests/test_raycast.py).
         return f"raycast {RAYCAST_VERSION} (numba {numba.__version__})"
 
     def _compiled(self, pattern):
-        for i, (p, cp) in enumerate(self._patterns):
-            if p is pattern:
-                self._patterns.append(self._patterns.pop(i))
-                return cp
-        cp = compile_pattern(pattern)
-        self._patterns = self._patterns[-(KEEP_PATTERNS - 1):] + [(pattern, cp)]
+        # the list is replaced, never changed in place: a worker's threads may share the
+        # renderer (its ImagePool's lock), and a reader then walks a whole list
+        kept = self._patterns
+        hit = next((cp for p, cp in kept if p is pattern), None)
+        cp = compile_pattern(pattern) if hit is None else hit
+        others = [x for x in kept if x[0] is not pattern]
+        self._patterns = others[len(others) - (KEEP_PATTERNS - 1):] + [(pattern, cp)]
         return cp
 
     # --- rendering -----------------------------------------------------------
