@@ -105,7 +105,7 @@ def _stage_observations(campaign, specs, path):
 
     from bench_stages import _jobs_of
 
-    from harness.stages import cached_target, camera_stage, observations_from, poses_stage
+    from harness.stages import observations_from
 
     with open(path, "rb") as f:
         stored = pickle.load(f)
@@ -114,9 +114,7 @@ def _stage_observations(campaign, specs, path):
         if job.key not in stored:
             raise SystemExit(f"{path} has no images of {job.key}: run bench_fits.py run "
                              f"--stages {path} --jobs {spec} first")
-        _, truth = camera_stage(job)
-        target = cached_target(job.target)
-        poses = poses_stage(truth, target, job.poses_n, job.poses_seed, job.poses_cover)
+        truth, target, poses = common.job_inputs(job)
         out[spec] = (observations_from(truth, target, poses, stored[job.key].detections),
                      truth, target)
     return out
