@@ -997,14 +997,18 @@ projection difference (the rotation's own freedom projected out).
     keep = w > w[-1] * 1e-15
     Ninv = (V[:, keep] / w[keep]) @ V[:, keep].T
     # the model block as a Gram matrix: cov = F^T D F with F (2N, n_model) the image rows'
-    # influence on the model parameters. A variance a^T cov a is then taken as the sum of
-    # squares sum_i D_i (F a)_i^2, never below zero: the triple product a^T cov a cancels
-    # to rounding in a direction the fit barely determines (mrcal's CAHVOR R0 valley: its
-    # projection sigma came out 0.0 on catalogue slot 16, leaving only the gate's floor)
+    # influence on the model parameters, factored cov = R^T R by the QR decomposition of
+    # D^1/2 F (R: n_model x n_model). A variance a^T cov a is then the sum of squares
+    # |R a|^2, never below zero: the triple product a^T cov a cancels to rounding in a
+    # direction the fit barely determines (mrcal's CAHVOR R0 valley: its projection sigma
+    # came out 0.0 on catalogue slot 16, leaving only the gate's floor). Householder QR is
+    # backward stable: |R a| carries the rounding of |D^1/2 F a| itself (relative eps
+    # |F| |a| / |F a|), at n_model columns instead of 2N per quantity.
     nm = lin.n_model
     F = Js @ (Ninv[:, :nm] / s_col[:nm])
-    cov = F.T @ (F * var_row[:, None])
-    var = _variances(F, var_row, G)
+    R = _gram_factor(F, var_row)
+    cov = R.T @ R
+    var = _variances(R, G)
     sigma = {}
     for k, v in zip(names, var, strict=True):
         base = k.split("[")[0]
@@ -1015,7 +1019,7 @@ projection difference (the rotation's own freedom projected out).
     for k in VECTOR_PARAMS:
         if k in sigma:
             sigma[k] = math.sqrt(sigma[k])
-    sigma["projection_rms"] = _projection_sigma(m0, P, Jg, F, var_row)
+    sigma["projection_rms"] = _projection_sigma(m0, P, Jg, R)
     # the joint test's covariance adds the renderer resolution (joint_resolution_cov)
     res_cov = joint_resolution_cov(Ninv, s_col, len(lin.pose))[:lin.n_model, :lin.n_model]
     return {"sigma": sigma, "joint": joint_of_fit(names, q0, G, cov + res_cov, ref),
@@ -1052,16 +1056,22 @@ them (model_jacobians' steps of V, O, R and E), the same numbers.'''
     return grid
 
 
-def _variances(F, var_row, A):
-    r'''diag(A cov A^T) for cov = F^T diag(var_row) F, as sums of squares (each >= 0)'''
-    B = F @ A.T
-    return var_row @ (B * B)
+def _gram_factor(F, var_row):
+    r'''R (n, n) with R^T R = F^T diag(var_row) F: the R of the QR decomposition of
+diag(var_row)^1/2 F (see _scatter)'''
+    return np.linalg.qr(F * np.sqrt(var_row)[:, None], mode="r")
 
 
-def _projection_sigma(m0, P, Jg, F, var_row):
+def _variances(R, A):
+    r'''diag(A cov A^T) for cov = R^T R, as sums of squares (each >= 0)'''
+    B = A @ R.T
+    return np.einsum("ij,ij->i", B, B)
+
+
+def _projection_sigma(m0, P, Jg, R):
     r'''Expected RMS px over the points P of the rotation-mode projection difference, from
 Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covariance
-F^T diag(var_row) F (scatter)'''
+R^T R (scatter)'''
     project, Rt_ref_cam = _projector(m0), m0.Rt_ref_cam()
 
     def rotated(w):
@@ -1075,7 +1085,7 @@ F^T diag(var_row) F (scatter)'''
         return None
     Qw, _ = np.linalg.qr(Jw)
     Jg = Jg - Qw @ (Qw.T @ Jg)          # the rotation fitted between the two fits
-    return float(math.sqrt(_variances(F, var_row, Jg).sum() / M))
+    return float(math.sqrt(_variances(R, Jg).sum() / M))
 
 
 def z_scores(renderer, sigma):
