@@ -510,36 +510,3 @@ def test_a_warm_fit_starts_from_the_bias_of_its_start(monkeypatch):
                      start=image.replace(info={**image.info, "bias": None}))
     assert bare.ok and len(biases) >= 2, bare.info["passes"]
     assert projection_difference(truth, bare.model, mode="rotation", step=64)["max"] < 1e-4
-
-
-def test_the_settled_polish_does_not_repeat_the_coarse_restarts_of_its_refit(monkeypatch):
-    # navcam 15's CAHVOR on dot centroids (their bias ~0.1 px) with 1e-3 px of noise: the
-    # bias passes refit on the coarse grid, each run of restarts ending by its gain rule;
-    # once the bias settles, the polish goes straight to the full grid (the coarse grid's
-    # restarts on the same observations, no solve between, would only confirm that they
-    # had ended)
-    import sys
-
-    import mrcal
-    truth = dict(MODELS)["15"]
-    obs = _centroid_obs(truth, 1e-3)
-    monkeypatch.setattr(mrcal_fit, "VALLEY_JUMP_MAX", 0)
-    calls = []
-    optimize = mrcal.optimize
-
-    def spy(*args, **kw):
-        names, f = [], sys._getframe(1)
-        while f is not None and f.f_code.co_name != "_fit_poses":
-            names.append(f.f_code.co_name)
-            f = f.f_back
-        calls.append(("settled" in names, "refit" in names, kw["observations_board"].shape[1]))
-        return optimize(*args, **kw)
-    monkeypatch.setattr(mrcal, "optimize", spy)
-    r = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth)
-    assert r.ok and r.info["bias_corrected"], r.reason
-    settled = [i for i, c in enumerate(calls) if c[0]]
-    assert settled and calls[settled[0] - 1][1], calls   # a refit's solve, then the settled
-    assert all(calls[i][2] == 10 for i in settled), calls  # ... polish's, full grid only
-    # and the fit is within its noise: 1e-3 px on 600 points moves a 45-parameter fit's
-    # projection by ~1e-3 sqrt(45 / 1200) ~ 2e-4 px RMS
-    assert compare(r, truth)["projection"]["rotation"]["rms"] < 1e-3

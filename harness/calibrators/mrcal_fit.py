@@ -527,15 +527,6 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
         # the start misfits: the exact observations' fit is the same coarse fit of it
         crawl = {**start.info["crawl"], "from_start": True}
 
-    # (the observations, solves so far) when the coarse grid's restarts last ended by
-    # their gain rule: the settled polish that follows a refit on the same observations, with
-    # no solve between, starts on the full grid (the repeated coarse restart only confirmed
-    # the end, at 33 ms a call where it crawled at libdogleg's limit: 27 calls, 0.9 CPU s of
-    # the 25 CAHVOR/CAHVORE jobs of benchmarks/bench_mrcal.py --stages; image fits 16.7 ->
-    # 15.1 CPU s, exact fits 1.98 -> 1.80, load 9-12; fits whose confirming restart gained
-    # nothing bit for bit the same, 5/15/19 judged ones among them)
-    coarse_converged = None
-
     def misfit_coarse():
         # a misfit's polishes end on the coarse grid once the bias has settled and the
         # residuals are still MISFIT_FACTOR x the noise (settled_misfit_verdict: crawl
@@ -560,10 +551,7 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
         # grid's restarts (settled_misfit_verdict) limits the full grid's to one
         nonlocal crawl
         limit = min(limit or max_restarts, max_restarts)
-        converged = coarse_converged is not None and coarse_converged[1] == iterations \
-            and coarse_converged[0] is problem["observations_board"]
-        if not converged:
-            restarts(coarse, 1 if crawl is not None else limit)
+        restarts(coarse, 1 if crawl is not None else limit)
         if settle and full and coarse > 1 and warm is None and limit == max_restarts > 1 \
                 and not (crawl or {}).get("settled"):
             if crawl is None:
@@ -633,7 +621,7 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
         # restarts on the grid of every step-th row and column while each gains (the first
         # one too, over the state it starts from); returns the RMS. Along the CAHVOR valley,
         # each restart is followed by a jump along its own step (valley_jump)
-        nonlocal crawl, coarse_converged
+        nonlocal crawl
         rms_prev = problem_rms(step)
         for n in range(limit):
             u_before = valley_u()
@@ -645,11 +633,6 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
                 # the restart and the jump after it gain together
                 r = valley_jump(step, u_before, r)
             if r < 1e-10 or r > gain * rms_prev:
-                if step == coarse > 1:
-                    # the coarse grid's restarts ended by their gain rule on these
-                    # observations: a polish that follows with no solve between does not
-                    # repeat them (coarse_converged)
-                    coarse_converged = (problem["observations_board"], iterations)
                 return r
             last_gain, rms_prev = 1.0 - r / rms_prev, r
         # every restart of the budget still gained: a crawl (a warm fit's single restart is
