@@ -175,6 +175,31 @@ WARM_RESTARTS = 1
 # valley: its E0, E1, E2 are extrapolated as they are (CAHVORE image fits 8.75 -> 7.7 CPU s,
 # 5 CAHVORE 0.93 -> 0.60 s, its projection bit for bit at 4 digits).
 VALLEY_JUMP_MAX = 8
+# Where the CPU goes now and what did not pay (session 13, benchmarks/bench_mrcal.py --stages
+# on its 25 CAHVOR / CAHVORE paper jobs, load 9-12): image fits 16.7 CPU s, 84% inside
+# mrcal.optimize (cProfile); by phase: the refits' coarse restarts 7.0 s (178 calls, 39 ms:
+# libdogleg's iteration limit), the race's coarse restarts 2.6 s, its regularised full-grid
+# start with the pinhole solves 2.4 s, the settled polish 1.1 s full + 0.9 s coarse; exact
+# fits 2.0 s. Tried, measured, not taken:
+# - the settled polish skipping the coarse restarts its refit had just ended by the gain rule
+#   (same observations, no solve between): image fits -1.6 CPU s, but the clean renderer gate
+#   lost a judged record (2 CAHVORE, pose seed 1, theta 89.84 deg): there the repeated
+#   restart gained again and went on to the R0 gauge's limit (exact fit 2.9e-7 px RMS);
+#   without it the settled misfit verdict fell on the refit's state (0.9 px, 19x its noise
+#   estimate) and the floor came out far. A restart after one that gained < POLISH_GAIN can
+#   gain again: the gain rule's end is no fixed point.
+# - restarts ending once one moved the fitted projections by less than the noise's scatter
+#   in them (grid_noise_rms x sqrt(parameters / coordinates)): 28 of 280 restarts fewer,
+#   image fits -2%; but grid_noise_rms errs high on a misfit (0.047 px on that 2 CAHVORE,
+#   whose detection noise was 7.8e-5 px): the unsafe side for a stop rule, open to the
+#   same failure (not gated).
+# - the warm exact fit straight to the full grid: no faster (its full-grid restart crawls
+#   instead) and less exact (13 CAHVOR's exact fit 9e-8 -> 2e-5 px RMS, floor 5e-7 -> 4.5e-4
+#   px): the coarse restart is the cheap part of its convergence.
+# - VALLEY_JUMP_MAX 1024: the same (jumps end where the RMS rises, not at the cap).
+# - the race's regularised start solved on the coarse grid first: the full-grid solve after
+#   it still runs to the iteration limit (3 CAHVOR 148 -> 37 + 147 ms): the regularised
+#   problem has the valley too (it stops at fx 2288 or 2473 px depending on the start).
 
 
 def uses_world_frame(known_poses=False, **options):
