@@ -1024,14 +1024,15 @@ SYNOPSIS
     # rays (N,R,3) unit board directions of the edges leaving each of target.points();
     # unit: board length of one window unit (a square, a tag bit); wedges as
     # refine_chessboard_corners / refine_tag_corners use them; window {"half_box",
-    # "notch"}: the window the detector fits (curvature_bias's keywords)
+    # "notch", "clearance"}: the window the detector fits (curvature_bias's keywords)
 '''
     p = target.points()
     if target.kind == "chessboard":
         ex, ey = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
         rays = np.broadcast_to(np.stack((ex, ey, -ex, -ey)), (len(p), 4, 3)).copy()
         return rays, float(target.spec["square"]), [(0, 1), (2, 3)], {
-            "half_box": chessboard_half_box(target), "notch": None}
+            "half_box": chessboard_half_box(target), "notch": None,
+            "clearance": chessboard_clearance(target)}
     if target.kind == "apriltag":
         Q = p.reshape(-1, 4, 3)
         nxt = np.roll(Q, -1, axis=1) - Q
@@ -1040,12 +1041,12 @@ SYNOPSIS
         rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
         w = tag_window(target)
         return rays, float(target.spec["tag_size"]) / 8.0, [(0, 1)], {
-            "half_box": w["half_box"], "notch": w.get("notch")}
+            "half_box": w["half_box"], "notch": w.get("notch"), "clearance": w["clearance"]}
     raise ValueError(f"corner_rays() needs a chessboard or apriltag target; got {target.kind!r}")
 
 
 def curvature_bias(q, tangents, curvatures, wedges, steps, half_box, notch=None,
-                   max_window_px=MAX_WINDOW_PX, lines=()):
+                   max_window_px=MAX_WINDOW_PX, lines=(), sigma=0.0, clearance=None):
     r'''Where refine_corners puts a corner whose edges are curved, minus the corner: px
 
 SYNOPSIS
@@ -1063,6 +1064,18 @@ in the window the refiner would use about the true corner. First order in k:
 the neglected terms are k^2 w^3 (1e-6 px for k = 1e-3/px, w = 8 px). lines: pairs of
 rays fitted as one straight line (refine_corners' lines on a blurred image: one angle,
 the pair's two columns of the Jacobian summed).
+
+sigma > 0: the corners were fitted on a blurred image with the "sampled" kernel of that
+sigma (blur_kernel; what detect_chessboard fits X junctions with), and the bias is that
+fit's: every pixel term (the model's columns and the bent edges' added area) is the
+kernel's sum of the sharp terms at the pixel's taps (whole-pixel offsets: the terms are
+computed once on the window's square grown by the taps' reach), in the window the
+blurred fit keeps (blurred_half_box with clearance, default half_box; the notch is left
+as it is). Both matter and pull apart: the taps reach past the window's edge, where the
+edges have bent further (more bias), and the blurred window is smaller (less); on MER
+hazcams 8 and 17 (area renders, the response's sampled blur of 0.7 px, no noise) the
+corners moved by 0.65-1.14x the sharp terms' lines bias, by 0.995-1.010x this one
+(docs/corners.md, "The lines' bias under blur").
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     N = len(q)
@@ -1077,10 +1090,26 @@ the pair's two columns of the Jacobian summed).
         return out
     idx = np.flatnonzero(ok)
     big = (1 << 40, 1 << 40)
+    sigma = float(sigma)
+    if sigma > 0.0:
+        half_box = blurred_half_box(steps[idx], half_box,
+                                    half_box if clearance is None else clearance, sigma)
     ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px, notch)
+    w = inside.astype(np.float64)
+    taps = 0
+    if sigma > 0.0:
+        Z, W, _, _ = blur_kernel(sigma, "sampled")
+        Z, W = np.rint(Z[0]).astype(np.int64), W[0]
+        taps = int(np.abs(Z).max())
+        # the window's square (rows of oy, then ox, as _window's) grown by the taps' reach
+        r = int(max_window_px) + taps
+        off = np.arange(-r, r + 1)
+        oy, ox = np.meshgrid(off, off, indexing="ij")
+        c0 = np.round(q[idx]).astype(np.int64)
+        ix = c0[:, 0:1] + ox.ravel()
+        iy = c0[:, 1:2] + oy.ravel()
     centres = np.stack((ix, iy), axis=-1).astype(np.float64)
     d = centres - q[idx, None, :]
-    w = inside.astype(np.float64)
     n, R = k[idx].shape
     wedges = np.asarray(wedges, dtype=np.int64).reshape(-1, 2)
     u = t[idx]
@@ -1094,6 +1123,18 @@ the pair's two columns of the Jacobian summed).
     from ._corner_kernels import curvature_terms
     D, dD_dc, dD_dt, dv = curvature_terms(np.ascontiguousarray(d), np.ascontiguousarray(u),
                                           first, second, np.ascontiguousarray(k[idx]))
+    if taps:
+        # each window pixel's blurred term: the taps' weighted sum of the sharp terms
+        side, inner = 2 * r + 1, 2 * (r - taps) + 1
+
+        def blurred(T):
+            T = T.reshape((n, side, side) + T.shape[2:])
+            acc = np.zeros((n, inner, inner) + T.shape[3:])
+            for (zx, zy), wz in zip(Z, W, strict=True):
+                if wz != 0.0:
+                    acc += wz * T[:, taps + zy:taps + zy + inner, taps + zx:taps + zx + inner]
+            return acc.reshape((n, inner * inner) + T.shape[3:])
+        D, dD_dc, dD_dt, dv = blurred(D), blurred(dD_dc), blurred(dD_dt), blurred(dv)
     if len(lines):
         dD_dt = dD_dt @ _ray_angles([tuple(p) for p in lines], R)
     J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], dD_dc, dD_dt), axis=-1)
