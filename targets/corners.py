@@ -1099,8 +1099,10 @@ corners moved by 0.65-1.14x the sharp terms' lines bias, by 0.995-1.010x this on
     taps = 0
     if sigma > 0.0:
         Z, W, _, _ = blur_kernel(sigma, "sampled")
-        Z, W = np.rint(Z[0]).astype(np.int64), W[0]
-        taps = int(np.abs(Z).max())
+        taps = int(np.rint(np.abs(Z[0]).max()))
+        # the kernel is the outer product of its 1-D taps k (Z's offsets -taps..taps along
+        # both axes, rows first): k is W's row sums
+        k1 = W[0].reshape(2 * taps + 1, 2 * taps + 1).sum(axis=1)
         # the window's square (rows of oy, then ox, as _window's) grown by the taps' reach
         r = int(max_window_px) + taps
         off = np.arange(-r, r + 1)
@@ -1124,17 +1126,18 @@ corners moved by 0.65-1.14x the sharp terms' lines bias, by 0.995-1.010x this on
     D, dD_dc, dD_dt, dv = curvature_terms(np.ascontiguousarray(d), np.ascontiguousarray(u),
                                           first, second, np.ascontiguousarray(k[idx]))
     if taps:
-        # each window pixel's blurred term: the taps' weighted sum of the sharp terms
+        # each window pixel's blurred terms: the taps' weighted sum of the sharp terms, one
+        # axis at a time (the kernel is separable), all terms stacked
         side, inner = 2 * r + 1, 2 * (r - taps) + 1
-
-        def blurred(T):
-            T = T.reshape((n, side, side) + T.shape[2:])
-            acc = np.zeros((n, inner, inner) + T.shape[3:])
-            for (zx, zy), wz in zip(Z, W, strict=True):
-                if wz != 0.0:
-                    acc += wz * T[:, taps + zy:taps + zy + inner, taps + zx:taps + zx + inner]
-            return acc.reshape((n, inner * inner) + T.shape[3:])
-        D, dD_dc, dD_dt, dv = blurred(D), blurred(dD_dc), blurred(dD_dt), blurred(dv)
+        T = np.concatenate((D[..., None], dD_dc, dD_dt, dv[..., None]), axis=-1)
+        # B (side, inner): output pixel i sums input pixels i..i + 2 taps
+        B = np.zeros((side, inner))
+        for j in range(2 * taps + 1):
+            B[np.arange(inner) + j, np.arange(inner)] = k1[j]
+        T = T.reshape(n, side, side, -1).transpose(0, 1, 3, 2) @ B      # (n,y,C,x')
+        T = (T.transpose(0, 3, 2, 1) @ B).transpose(0, 3, 1, 2)          # (n,y',x',C)
+        T = T.reshape(n, inner * inner, -1)
+        D, dD_dc, dD_dt, dv = T[..., 0], T[..., 1:3], T[..., 3:3 + R], T[..., 3 + R]
     if len(lines):
         dD_dt = dD_dt @ _ray_angles([tuple(p) for p in lines], R)
     J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], dD_dc, dD_dt), axis=-1)
