@@ -356,9 +356,9 @@ def blurred_half_box(steps, half_box, clearance, sigma):
     r'''(N,) window half-widths (board units) that keep a blurred neighbour out
 
 The window's pixels must not see the nearest other feature, clearance board units from
-the corner along the box's axes: the PSF spreads it by BLUR_REACH_SIGMAS sigma px, which
-is (that / the smallest image step of one board unit) board units. Never above half_box
-(the sharp image's window).
+the corner along the box's axes (a number or (N,)): the PSF spreads it by
+BLUR_REACH_SIGMAS sigma px, which is (that / the smallest image step of one board unit)
+board units. Never above half_box (the sharp image's window).
 '''
     steps = np.asarray(steps, dtype=np.float64).reshape(-1, 2, 2)
     smin = np.full(len(steps), np.nan)
@@ -422,8 +422,8 @@ ARGUMENTS
   the pixel image); None (default): estimate_blur picks the one that fits the image
   better ("gaussian" when psf_sigma_px is given)
 - clearance: board units from the corner to the nearest other feature along the box's
-  axes (default half_box: no room to spare): the window shrinks so that the blurred
-  feature stays out of it (blurred_half_box)
+  axes, a number or (N,) one per corner (default half_box: no room to spare): the window
+  shrinks so that the blurred feature stays out of it (blurred_half_box)
 - lines: pairs of rays (i, j) that are one straight line through the corner (a
   chessboard's); fitted as one angle when the image is blurred
 - notch: None (the window is the box), or board units: the pixels reaching past notch
@@ -463,7 +463,6 @@ places the windows), then estimate_blur fits sigma per corner on up to BLUR_SAMP
 and takes the median; fit.info has "psf_sigma_px", "psf_source" (given / estimated) and
 the estimate's spread.
 '''
-    clearance = float(half_box) if clearance is None else float(clearance)
     if notch is not None:
         notch_clearance = float(notch) if notch_clearance is None else float(notch_clearance)
 
@@ -471,6 +470,9 @@ the estimate's spread.
         return None if notch is None else blurred_half_box(steps, notch, notch_clearance, sigma)
     q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
     steps = np.asarray(steps, dtype=np.float64).reshape(len(q0), 2, 2)
+    # a number, or one per corner
+    clearance = np.broadcast_to(np.asarray(half_box if clearance is None else clearance,
+                                           dtype=np.float64), (len(q0),))
     info = {}
     options = dict(options, lines=lines)
     if psf_sigma_px is None:
@@ -506,9 +508,9 @@ the estimate's spread.
                       axis=-1)
         return f, good, d, s2
 
-    def quick_look(f, good, d, s2):
+    def quick_look(f, good, d, s2, idx):
         # a sharp image (every clean render) is told by a few corners and one kind
-        return estimate_blur(image, f.q[good], d, wedges, s2, half_box, clearance,
+        return estimate_blur(image, f.q[good], d, wedges, s2, half_box, clearance[idx][good],
                              kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE, **notches, **options)
     look = None
     if psf_sigma_px is None and stop_if_blurred:
@@ -521,7 +523,7 @@ the estimate's spread.
                               .round().astype(np.int64))] if len(live) else live
         f, good, d, s2 = first_pass(pick)
         if good.any():
-            look = quick_look(f, good, d, s2)
+            look = quick_look(f, good, d, s2, pick)
             if _clearly_blurred(look):
                 q = np.full(q0.shape, np.nan)
                 q[pick] = f.q
@@ -538,10 +540,11 @@ the estimate's spread.
     if psf_sigma_px is None:
         # the full estimate (both kinds, BLUR_SAMPLE corners) only when the quick look sees
         # a blur
-        info = look if look is not None else quick_look(fit, ok, dirs, steps2)
+        info = look if look is not None else quick_look(fit, ok, dirs, steps2,
+                                                        np.arange(len(q0)))
         if added_blur_px(info["psf_sigma_px"], info["psf_kind"]) >= BLUR_NEGLIGIBLE_PX:
             info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box,
-                                 clearance, kinds=kinds, **notches, **options)
+                                 clearance[ok], kinds=kinds, **notches, **options)
         options["psf_kind"] = info["psf_kind"]
     sigma = info["psf_sigma_px"]
     if added_blur_px(sigma, options.get("psf_kind", "gaussian")) < BLUR_NEGLIGIBLE_PX:
@@ -552,7 +555,7 @@ the estimate's spread.
         return CornerFit(q=fit.q, reasons=fit.reasons, misfit=fit.misfit, npixels=fit.npixels,
                          iterations=fit.iterations, directions=fit.directions,
                          info=dict(info, stopped="blurred: first pass only"))
-    hb2 = blurred_half_box(steps2, half_box, clearance, sigma)
+    hb2 = blurred_half_box(steps2, half_box, clearance[ok], sigma)
     nb2 = notched(steps2, sigma)
     fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, hb2, notch=nb2, sigma=sigma, **options)
     q, reasons = fit.q.copy(), fit.reasons.copy()
@@ -619,6 +622,7 @@ sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1
     sample = BLUR_SAMPLE if sample is None else int(sample)
     pick = np.unique(np.linspace(0, n - 1, min(n, sample)).round().astype(np.int64))
     steps = np.asarray(steps, dtype=np.float64).reshape(n, 2, 2)[pick]
+    clearance = np.broadcast_to(np.asarray(clearance, dtype=np.float64), (n,))[pick]
     hb = blurred_half_box(steps, half_box, clearance, BLUR_PROBE_PX)
     if notch is not None and notch_clearance is None:
         notch_clearance = notch
@@ -964,17 +968,29 @@ sqrt(2)/2 - r of the corner along the diagonal, where the box reaches sqrt(2) ha
 
 
 def chessboard_clearance(target):
-    r'''Board units (squares) a chessboard's window may reach before a blurred neighbour
+    r'''(N,) board units (squares) each chessboard corner's window may reach before a
+blurred neighbour (target.points()' order, iy * nx + ix)
 
 The next corner is a square away; a mark dot of radius r squares in a square's middle is
-0.5 - r / sqrt(2) away along the box's axes (its nearest point to the box's corner, taken
-along the axes: conservative by up to sqrt(2)).
+0.5 - r / sqrt(2) away along the box's axes from the four corners of its square (its
+nearest point to the box's corner, taken along the axes: conservative by up to
+sqrt(2)), and 1.5 - r or more from any other corner. Only the corners of a marked
+square keep the dot's clearance: a blurred window shrinks by 3 sigma from it, and on a
+640x480 hazcam's squares of ~10 px every corner's window had shrunk below
+MIN_WINDOW_PIXELS where only 12 of 100 corners touch a dot (camera 17: 52 of 528
+corners away from the dots dropped, "window too small").
 '''
+    nx, ny = target.grid_shape
+    out = np.full((ny, nx), float(CHESSBOARD_CLEARANCE))
     mark = target.spec.get("orientation_mark")
     if mark is None:
-        return CHESSBOARD_CLEARANCE
+        return out.ravel()
     r = 0.5 * float(mark["dot_diameter"]) / float(target.spec["square"])
-    return min(CHESSBOARD_CLEARANCE, 0.5 - r / np.sqrt(2.0))
+    near = min(float(CHESSBOARD_CLEARANCE), 0.5 - r / np.sqrt(2.0))
+    # square (sx, sy) spans the corners ix in {sx - 1, sx}, iy in {sy - 1, sy}
+    for sx, sy in mark["squares"]:
+        out[max(sy - 1, 0):min(sy + 1, ny), max(sx - 1, 0):min(sx + 1, nx)] = near
+    return out.ravel()
 
 
 def refine_chessboard_corners(image, G, half_box=CHESSBOARD_HALF_BOX,
@@ -1070,12 +1086,12 @@ sigma (blur_kernel; what detect_chessboard fits X junctions with), and the bias 
 fit's: every pixel term (the model's columns and the bent edges' added area) is the
 kernel's sum of the sharp terms at the pixel's taps (whole-pixel offsets: the terms are
 computed once on the window's square grown by the taps' reach), in the window the
-blurred fit keeps (blurred_half_box with clearance, default half_box; the notch is left
-as it is). Both matter and pull apart: the taps reach past the window's edge, where the
-edges have bent further (more bias), and the blurred window is smaller (less); on MER
-hazcams 8 and 17 (area renders, the response's sampled blur of 0.7 px, no noise) the
-corners moved by 0.65-1.14x the sharp terms' lines bias, by 0.995-1.010x this one
-(docs/corners.md, "The lines' bias under blur").
+blurred fit keeps (blurred_half_box with clearance, a number or (N,), default half_box;
+the notch is left as it is). Both matter and pull apart: the taps reach past the window's
+edge, where the edges have bent further (more bias), and the blurred window is smaller
+(less); on MER hazcams 8 and 17 (area renders, the response's sampled blur of 0.7 px, no
+noise) the corners moved by 0.65-1.14x the sharp terms' lines bias, by 0.995-1.010x this
+one (docs/corners.md, "The lines' bias under blur").
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     N = len(q)
@@ -1092,8 +1108,9 @@ corners moved by 0.65-1.14x the sharp terms' lines bias, by 0.995-1.010x this on
     big = (1 << 40, 1 << 40)
     sigma = float(sigma)
     if sigma > 0.0:
-        half_box = blurred_half_box(steps[idx], half_box,
-                                    half_box if clearance is None else clearance, sigma)
+        clearance = np.broadcast_to(np.asarray(half_box if clearance is None else clearance,
+                                               dtype=np.float64), (N,))
+        half_box = blurred_half_box(steps[idx], half_box, clearance[idx], sigma)
     ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px, notch)
     w = inside.astype(np.float64)
     taps = 0
