@@ -187,3 +187,27 @@ CAHVORE fisheye, tests/test_corner_model_bias.py; exact observations)'''
     f = obs.found[0]
     free = corner_bias(truth, t, Rts[0], obs.p_board[0])[f]
     assert (want[0][f] * free).sum() < 0
+
+
+def test_only_the_marked_squares_corners_keep_the_dots_clearance():
+    r'''chessboard_clearance per corner: the four corners of each marked square are 0.5 - r /
+sqrt(2) squares from its dot along the box's axes (r the dot's radius in squares), every
+other corner a square from the next one; corner_rays hands the same to the bias model'''
+    from targets.corners import CHESSBOARD_CLEARANCE, chessboard_clearance, corner_rays
+    t = load_target("chessboard")
+    nx, ny = t.grid_shape
+    c = chessboard_clearance(t)
+    assert c.shape == (nx * ny,)
+    r = 0.5 * t.spec["orientation_mark"]["dot_diameter"] / t.spec["square"]
+    near = np.zeros((ny, nx), bool)
+    for sx, sy in t.spec["orientation_mark"]["squares"]:
+        near[sy - 1:sy + 1, sx - 1:sx + 1] = True       # corners (sx-1..sx, sy-1..sy)
+    near = near.ravel()
+    assert np.allclose(c[near], 0.5 - r / np.sqrt(2.0), rtol=0, atol=1e-15)
+    assert (c[~near] == CHESSBOARD_CLEARANCE).all()
+    assert near.sum() == 4 * len(t.spec["orientation_mark"]["squares"])
+    # the corners' board positions: each near corner is a corner of a marked square
+    p = t.points()[near, :2] / t.spec["square"]
+    centres = np.array(t.spec["orientation_mark"]["squares"], dtype=float) - 0.5
+    assert np.isclose(np.abs(p[:, None] - centres[None]).max(-1), 0.5).any(-1).all()
+    assert np.array_equal(corner_rays(t)[3]["clearance"], c)
