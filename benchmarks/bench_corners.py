@@ -64,10 +64,12 @@ FAMILY_ORDER = ("CAHV", "CAHVOR", "CAHVORE")
 
 
 def render_images(directory, camera, tname, spp, nposes, coverage="point"):
-    r'''family, target, [(image, truth (N,2), bias (N,2) or (N,4))] of one camera and target,
-rendered once into directory; bias: harness.calibrators.bias.corner_bias under the true
-model and pose (what jpl's bias loop subtracts once it has converged), a chessboard's
-with its lines' (corner_bias(lines=True)) in columns 2-3'''
+    r'''family, target, [(image, truth (N,2), bias (N,2) or (N,4), Rt_cam_board)], model:
+one camera and target, rendered once into directory; bias:
+harness.calibrators.bias.corner_bias under the true model and pose (what jpl's bias loop
+subtracts once it has converged), a chessboard's with its sharp lines'
+(corner_bias(lines=True)) in columns 2-3 (a blurred detection's under its own blur:
+corner_bias(model, target, Rt_cam_board, ..., blur_px=det.corner_blur_px))'''
     from harness.calibrators.bias import corner_bias
     from harness.campaign import load_campaign
     from harness.jobs import expand_jobs
@@ -110,8 +112,8 @@ with its lines' (corner_bias(lines=True)) in columns 2-3'''
         if tname == "chessboard":
             bias = np.concatenate((bias, corner_bias(truth, target, Rt, target.points(),
                                                      lines=True)), axis=-1)
-        out.append((img, projected_points(truth, target, Rt), bias))
-    return job.family, target, out
+        out.append((img, projected_points(truth, target, Rt), bias, Rt))
+    return job.family, target, out, truth
 
 
 def timing_rows(rows):
@@ -170,7 +172,7 @@ def main():
         doc = tomllib.loads((ROOT / "campaigns" / "response.toml").read_text())
         chain = ResponseChain.from_config(doc["response"][args.response])
 
-    from harness.calibrators.bias import WINDOW_BIASED
+    from harness.calibrators.bias import WINDOW_BIASED, corner_bias
     from harness.records import git_commit
     from targets.detect import detect
     from targets.detection import CORNER_LINES
@@ -178,17 +180,17 @@ def main():
     rows = []
     for cam in args.cameras.split(","):
         for tname in args.targets.split(","):
-            family, target, images = render_images(args.images, cam, tname, args.spp,
-                                                   args.poses, args.coverage)
+            family, target, images, camera_model = render_images(
+                args.images, cam, tname, args.spp, args.poses, args.coverage)
             if chain is not None:
-                images = [(chain.apply(img, seed=i).image, truth, b)
-                          for i, (img, truth, b) in enumerate(images)]
+                images = [(chain.apply(img, seed=i).image, truth, b, Rt)
+                          for i, (img, truth, b, Rt) in enumerate(images)]
             for method, refine in METHODS[tname]:
                 if args.methods and not any(w in method for w in args.methods.split(",")):
                     continue
                 errs, cerrs, secs, cpus, found, dropped, sig = [], [], [], [], 0, {}, []
                 changes = []
-                for n_img, (img, truth, bias) in enumerate(images):
+                for n_img, (img, truth, bias, Rt) in enumerate(images):
                     opts = {}
                     if refine is True and args.psf_sigma is not None:
                         opts["psf_sigma_px"] = args.psf_sigma
@@ -210,7 +212,11 @@ def main():
                         b = np.where(biased[:, None], b, 0.0)
                         if bias.shape[-1] == 4:
                             lines = det.corner_model == CORNER_LINES
-                            b = np.where(lines[:, None], bias[:, 2:], b)
+                            bl = bias[:, 2:]
+                            if lines.any() and det.corner_blur_px > 0.0:
+                                bl = corner_bias(camera_model, target, Rt, target.points(),
+                                                 lines=True, blur_px=det.corner_blur_px)
+                            b = np.where(lines[:, None], bl, b)
                     ec = np.linalg.norm(det.q - b - truth, axis=-1)
                     cerrs.append(ec[np.isfinite(ec)])
                     found += int(det.n_found)

@@ -451,12 +451,15 @@ themselves (exact observations: the warm-up, the model benchmark's floors)'''
     from harness.calibrators.base import Observations
     q = np.stack([np.asarray(getattr(d, "q", d), dtype=np.float64) for d in detections])
     ids = target.point_ids() if hasattr(target, "point_ids") else None
-    # the corner model of each detection travels to the calibrators' bias step
+    # the corner model of each detection, and the blur it was fitted under, travel to the
+    # calibrators' bias step
     models = [getattr(d, "corner_model", None) for d in detections]
+    blurs = np.array([float(getattr(d, "corner_blur_px", 0.0)) for d in detections])
     return Observations.from_camera_poses(
         q, np.asarray(target.points(), dtype=np.float64), (truth.width, truth.height),
         poses, truth.Rt_ref_cam(), point_ids=ids,
-        corner_model=None if any(m is None for m in models) else np.stack(models))
+        corner_model=None if any(m is None for m in models) else np.stack(models),
+        corner_blur_px=blurs if blurs.any() else None)
 
 
 def calibrate_stage(name, obs, target, model, truth, options):

@@ -356,9 +356,9 @@ def blurred_half_box(steps, half_box, clearance, sigma):
     r'''(N,) window half-widths (board units) that keep a blurred neighbour out
 
 The window's pixels must not see the nearest other feature, clearance board units from
-the corner along the box's axes: the PSF spreads it by BLUR_REACH_SIGMAS sigma px, which
-is (that / the smallest image step of one board unit) board units. Never above half_box
-(the sharp image's window).
+the corner along the box's axes (a number or (N,)): the PSF spreads it by
+BLUR_REACH_SIGMAS sigma px, which is (that / the smallest image step of one board unit)
+board units. Never above half_box (the sharp image's window).
 '''
     steps = np.asarray(steps, dtype=np.float64).reshape(-1, 2, 2)
     smin = np.full(len(steps), np.nan)
@@ -422,8 +422,8 @@ ARGUMENTS
   the pixel image); None (default): estimate_blur picks the one that fits the image
   better ("gaussian" when psf_sigma_px is given)
 - clearance: board units from the corner to the nearest other feature along the box's
-  axes (default half_box: no room to spare): the window shrinks so that the blurred
-  feature stays out of it (blurred_half_box)
+  axes, a number or (N,) one per corner (default half_box: no room to spare): the window
+  shrinks so that the blurred feature stays out of it (blurred_half_box)
 - lines: pairs of rays (i, j) that are one straight line through the corner (a
   chessboard's); fitted as one angle when the image is blurred
 - notch: None (the window is the box), or board units: the pixels reaching past notch
@@ -463,7 +463,6 @@ places the windows), then estimate_blur fits sigma per corner on up to BLUR_SAMP
 and takes the median; fit.info has "psf_sigma_px", "psf_source" (given / estimated) and
 the estimate's spread.
 '''
-    clearance = float(half_box) if clearance is None else float(clearance)
     if notch is not None:
         notch_clearance = float(notch) if notch_clearance is None else float(notch_clearance)
 
@@ -471,6 +470,9 @@ the estimate's spread.
         return None if notch is None else blurred_half_box(steps, notch, notch_clearance, sigma)
     q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
     steps = np.asarray(steps, dtype=np.float64).reshape(len(q0), 2, 2)
+    # a number, or one per corner
+    clearance = np.broadcast_to(np.asarray(half_box if clearance is None else clearance,
+                                           dtype=np.float64), (len(q0),))
     info = {}
     options = dict(options, lines=lines)
     if psf_sigma_px is None:
@@ -506,9 +508,9 @@ the estimate's spread.
                       axis=-1)
         return f, good, d, s2
 
-    def quick_look(f, good, d, s2):
+    def quick_look(f, good, d, s2, idx):
         # a sharp image (every clean render) is told by a few corners and one kind
-        return estimate_blur(image, f.q[good], d, wedges, s2, half_box, clearance,
+        return estimate_blur(image, f.q[good], d, wedges, s2, half_box, clearance[idx][good],
                              kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE, **notches, **options)
     look = None
     if psf_sigma_px is None and stop_if_blurred:
@@ -521,7 +523,7 @@ the estimate's spread.
                               .round().astype(np.int64))] if len(live) else live
         f, good, d, s2 = first_pass(pick)
         if good.any():
-            look = quick_look(f, good, d, s2)
+            look = quick_look(f, good, d, s2, pick)
             if _clearly_blurred(look):
                 q = np.full(q0.shape, np.nan)
                 q[pick] = f.q
@@ -538,10 +540,11 @@ the estimate's spread.
     if psf_sigma_px is None:
         # the full estimate (both kinds, BLUR_SAMPLE corners) only when the quick look sees
         # a blur
-        info = look if look is not None else quick_look(fit, ok, dirs, steps2)
+        info = look if look is not None else quick_look(fit, ok, dirs, steps2,
+                                                        np.arange(len(q0)))
         if added_blur_px(info["psf_sigma_px"], info["psf_kind"]) >= BLUR_NEGLIGIBLE_PX:
             info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box,
-                                 clearance, kinds=kinds, **notches, **options)
+                                 clearance[ok], kinds=kinds, **notches, **options)
         options["psf_kind"] = info["psf_kind"]
     sigma = info["psf_sigma_px"]
     if added_blur_px(sigma, options.get("psf_kind", "gaussian")) < BLUR_NEGLIGIBLE_PX:
@@ -552,7 +555,7 @@ the estimate's spread.
         return CornerFit(q=fit.q, reasons=fit.reasons, misfit=fit.misfit, npixels=fit.npixels,
                          iterations=fit.iterations, directions=fit.directions,
                          info=dict(info, stopped="blurred: first pass only"))
-    hb2 = blurred_half_box(steps2, half_box, clearance, sigma)
+    hb2 = blurred_half_box(steps2, half_box, clearance[ok], sigma)
     nb2 = notched(steps2, sigma)
     fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, hb2, notch=nb2, sigma=sigma, **options)
     q, reasons = fit.q.copy(), fit.reasons.copy()
@@ -619,6 +622,7 @@ sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1
     sample = BLUR_SAMPLE if sample is None else int(sample)
     pick = np.unique(np.linspace(0, n - 1, min(n, sample)).round().astype(np.int64))
     steps = np.asarray(steps, dtype=np.float64).reshape(n, 2, 2)[pick]
+    clearance = np.broadcast_to(np.asarray(clearance, dtype=np.float64), (n,))[pick]
     hb = blurred_half_box(steps, half_box, clearance, BLUR_PROBE_PX)
     if notch is not None and notch_clearance is None:
         notch_clearance = notch
@@ -964,17 +968,29 @@ sqrt(2)/2 - r of the corner along the diagonal, where the box reaches sqrt(2) ha
 
 
 def chessboard_clearance(target):
-    r'''Board units (squares) a chessboard's window may reach before a blurred neighbour
+    r'''(N,) board units (squares) each chessboard corner's window may reach before a
+blurred neighbour (target.points()' order, iy * nx + ix)
 
 The next corner is a square away; a mark dot of radius r squares in a square's middle is
-0.5 - r / sqrt(2) away along the box's axes (its nearest point to the box's corner, taken
-along the axes: conservative by up to sqrt(2)).
+0.5 - r / sqrt(2) away along the box's axes from the four corners of its square (its
+nearest point to the box's corner, taken along the axes: conservative by up to
+sqrt(2)), and 1.5 - r or more from any other corner. Only the corners of a marked
+square keep the dot's clearance: a blurred window shrinks by 3 sigma from it, and on a
+640x480 hazcam's squares of ~10 px every corner's window had shrunk below
+MIN_WINDOW_PIXELS where only 12 of 100 corners touch a dot (camera 17: 52 of 528
+corners away from the dots dropped, "window too small").
 '''
+    nx, ny = target.grid_shape
+    out = np.full((ny, nx), float(CHESSBOARD_CLEARANCE))
     mark = target.spec.get("orientation_mark")
     if mark is None:
-        return CHESSBOARD_CLEARANCE
+        return out.ravel()
     r = 0.5 * float(mark["dot_diameter"]) / float(target.spec["square"])
-    return min(CHESSBOARD_CLEARANCE, 0.5 - r / np.sqrt(2.0))
+    near = min(float(CHESSBOARD_CLEARANCE), 0.5 - r / np.sqrt(2.0))
+    # square (sx, sy) spans the corners ix in {sx - 1, sx}, iy in {sy - 1, sy}
+    for sx, sy in mark["squares"]:
+        out[max(sy - 1, 0):min(sy + 1, ny), max(sx - 1, 0):min(sx + 1, nx)] = near
+    return out.ravel()
 
 
 def refine_chessboard_corners(image, G, half_box=CHESSBOARD_HALF_BOX,
@@ -1024,14 +1040,15 @@ SYNOPSIS
     # rays (N,R,3) unit board directions of the edges leaving each of target.points();
     # unit: board length of one window unit (a square, a tag bit); wedges as
     # refine_chessboard_corners / refine_tag_corners use them; window {"half_box",
-    # "notch"}: the window the detector fits (curvature_bias's keywords)
+    # "notch", "clearance"}: the window the detector fits (curvature_bias's keywords)
 '''
     p = target.points()
     if target.kind == "chessboard":
         ex, ey = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
         rays = np.broadcast_to(np.stack((ex, ey, -ex, -ey)), (len(p), 4, 3)).copy()
         return rays, float(target.spec["square"]), [(0, 1), (2, 3)], {
-            "half_box": chessboard_half_box(target), "notch": None}
+            "half_box": chessboard_half_box(target), "notch": None,
+            "clearance": chessboard_clearance(target)}
     if target.kind == "apriltag":
         Q = p.reshape(-1, 4, 3)
         nxt = np.roll(Q, -1, axis=1) - Q
@@ -1040,12 +1057,12 @@ SYNOPSIS
         rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
         w = tag_window(target)
         return rays, float(target.spec["tag_size"]) / 8.0, [(0, 1)], {
-            "half_box": w["half_box"], "notch": w.get("notch")}
+            "half_box": w["half_box"], "notch": w.get("notch"), "clearance": w["clearance"]}
     raise ValueError(f"corner_rays() needs a chessboard or apriltag target; got {target.kind!r}")
 
 
 def curvature_bias(q, tangents, curvatures, wedges, steps, half_box, notch=None,
-                   max_window_px=MAX_WINDOW_PX, lines=()):
+                   max_window_px=MAX_WINDOW_PX, lines=(), sigma=0.0, clearance=None):
     r'''Where refine_corners puts a corner whose edges are curved, minus the corner: px
 
 SYNOPSIS
@@ -1063,6 +1080,18 @@ in the window the refiner would use about the true corner. First order in k:
 the neglected terms are k^2 w^3 (1e-6 px for k = 1e-3/px, w = 8 px). lines: pairs of
 rays fitted as one straight line (refine_corners' lines on a blurred image: one angle,
 the pair's two columns of the Jacobian summed).
+
+sigma > 0: the corners were fitted on a blurred image with the "sampled" kernel of that
+sigma (blur_kernel; what detect_chessboard fits X junctions with), and the bias is that
+fit's: every pixel term (the model's columns and the bent edges' added area) is the
+kernel's sum of the sharp terms at the pixel's taps (whole-pixel offsets: the terms are
+computed once on the window's square grown by the taps' reach), in the window the
+blurred fit keeps (blurred_half_box with clearance, a number or (N,), default half_box;
+the notch is left as it is). Both matter and pull apart: the taps reach past the window's
+edge, where the edges have bent further (more bias), and the blurred window is smaller
+(less); on MER hazcams 8 and 17 (area renders, the response's sampled blur of 0.7 px, no
+noise) the corners moved by 0.65-1.14x the sharp terms' lines bias, by 0.995-1.010x this
+one (docs/corners.md, "The lines' bias under blur").
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     N = len(q)
@@ -1077,10 +1106,29 @@ the pair's two columns of the Jacobian summed).
         return out
     idx = np.flatnonzero(ok)
     big = (1 << 40, 1 << 40)
+    sigma = float(sigma)
+    if sigma > 0.0:
+        clearance = np.broadcast_to(np.asarray(half_box if clearance is None else clearance,
+                                               dtype=np.float64), (N,))
+        half_box = blurred_half_box(steps[idx], half_box, clearance[idx], sigma)
     ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px, notch)
+    w = inside.astype(np.float64)
+    taps = 0
+    if sigma > 0.0:
+        Z, W, _, _ = blur_kernel(sigma, "sampled")
+        taps = int(np.rint(np.abs(Z[0]).max()))
+        # the kernel is the outer product of its 1-D taps k (Z's offsets -taps..taps along
+        # both axes, rows first): k is W's row sums
+        k1 = W[0].reshape(2 * taps + 1, 2 * taps + 1).sum(axis=1)
+        # the window's square (rows of oy, then ox, as _window's) grown by the taps' reach
+        r = int(max_window_px) + taps
+        off = np.arange(-r, r + 1)
+        oy, ox = np.meshgrid(off, off, indexing="ij")
+        c0 = np.round(q[idx]).astype(np.int64)
+        ix = c0[:, 0:1] + ox.ravel()
+        iy = c0[:, 1:2] + oy.ravel()
     centres = np.stack((ix, iy), axis=-1).astype(np.float64)
     d = centres - q[idx, None, :]
-    w = inside.astype(np.float64)
     n, R = k[idx].shape
     wedges = np.asarray(wedges, dtype=np.int64).reshape(-1, 2)
     u = t[idx]
@@ -1094,6 +1142,19 @@ the pair's two columns of the Jacobian summed).
     from ._corner_kernels import curvature_terms
     D, dD_dc, dD_dt, dv = curvature_terms(np.ascontiguousarray(d), np.ascontiguousarray(u),
                                           first, second, np.ascontiguousarray(k[idx]))
+    if taps:
+        # each window pixel's blurred terms: the taps' weighted sum of the sharp terms, one
+        # axis at a time (the kernel is separable), all terms stacked
+        side, inner = 2 * r + 1, 2 * (r - taps) + 1
+        T = np.concatenate((D[..., None], dD_dc, dD_dt, dv[..., None]), axis=-1)
+        # B (side, inner): output pixel i sums input pixels i..i + 2 taps
+        B = np.zeros((side, inner))
+        for j in range(2 * taps + 1):
+            B[np.arange(inner) + j, np.arange(inner)] = k1[j]
+        T = T.reshape(n, side, side, -1).transpose(0, 1, 3, 2) @ B      # (n,y,C,x')
+        T = (T.transpose(0, 3, 2, 1) @ B).transpose(0, 3, 1, 2)          # (n,y',x',C)
+        T = T.reshape(n, inner * inner, -1)
+        D, dD_dc, dD_dt, dv = T[..., 0], T[..., 1:3], T[..., 3:3 + R], T[..., 3 + R]
     if len(lines):
         dD_dt = dD_dt @ _ray_angles([tuple(p) for p in lines], R)
     J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], dD_dc, dD_dt), axis=-1)

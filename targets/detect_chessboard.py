@@ -182,8 +182,10 @@ ARGUMENTS
 - refine: True: polish the corners with cv2.cornerSubPix, then fit the corner model
   (targets.corners); "subpix": cornerSubPix only; False: OpenCV's corners as found
 - psf_sigma_px: the image's Gaussian blur (px) for the corner model when known (e.g. a
-  campaign's response profile); None (default): estimated from the image
-  (targets.corners.estimate_blur); info["psf_sigma_px"] has the value used
+  campaign's response profile; fitted as the sampled kernel of its variance,
+  x_junction_blur); None (default): estimated from the image
+  (targets.corners.estimate_blur); info["psf_sigma_px"] has the sampled kernel's sigma
+  used, as det.corner_blur_px (the blurred corners' bias depends on it)
 - reduced_search: on large images, search at reduced size first (falls back to full
   size when a corner wanders off its refinement window)
 - classic_first: with refine, try OpenCV's findChessboardCorners (quad-based) before the
@@ -308,8 +310,14 @@ ARGUMENTS
         from .corners import chessboard_clearance, chessboard_half_box, refine_chessboard_corners
         window = dict(half_box=chessboard_half_box(target),
                       clearance=chessboard_clearance(target), value_range=hi - lo)
-        fit = refine_chessboard_corners(img, G, psf_sigma_px=psf_sigma_px,
-                                        stop_if_blurred=psf_sigma_px is None, **window)
+        given = {"psf_sigma_px": psf_sigma_px}
+        if psf_sigma_px is not None and float(psf_sigma_px) > 0.0:
+            # a given Gaussian blur: the X junctions take the sampled kernel of its variance
+            # too, the one kernel their lines' bias knows (corner_blur_px)
+            given = {"psf_sigma_px": x_junction_blur(float(psf_sigma_px), "gaussian"),
+                     "psf_kind": "sampled"}
+        fit = refine_chessboard_corners(img, G, stop_if_blurred=psf_sigma_px is None,
+                                        **given, **window)
         if fit.info.get("stopped"):
             # blurred: the corner windows' look at the blur (or their full estimate) stopped
             # the fit; the X junctions are fitted with the sampled kernel of its variance
@@ -329,10 +337,11 @@ ARGUMENTS
         G = fit.q.reshape(ny, nx, 2)
     info["corners_dropped"] = dropped
     # blurred, the fit tied each pair of opposite rays into one line: its curvature bias is
-    # the lines' (harness.calibrators.bias.corner_bias(lines=True)); sharp, None: the
+    # the lines' under the sampled kernel it was fitted with
+    # (harness.calibrators.bias.corner_bias(lines=True, blur_px)); sharp, None: the
     # window's (as every corner target's before CORNER_LINES)
-    corner_model = None
+    corner_model, blur = None, 0.0
     if refine is True and float(info.get("psf_sigma_px") or 0.0) > 0.0:
-        corner_model = CORNER_LINES
-    return result(target, G.reshape(-1, 2), DETECTOR,
-                  min_found=min_found, info=info, corner_model=corner_model)
+        corner_model, blur = CORNER_LINES, float(info["psf_sigma_px"])
+    return result(target, G.reshape(-1, 2), DETECTOR, min_found=min_found, info=info,
+                  corner_model=corner_model, corner_blur_px=blur)

@@ -51,6 +51,9 @@ corner_model: (N,) str, the model each found corner's position comes from (CORNE
             found), or None when the detector does not say (dots; a corner detector that
             leaves it None has its corners taken as CORNER_WINDOW's). The calibrators' bias
             step (harness.calibrators.bias.corner_bias) corrects only CORNER_WINDOW's.
+corner_blur_px: the sigma (px) of the "sampled" blur kernel (targets.corners.blur_kernel)
+            that the CORNER_LINES corners were fitted with (their bias depends on it); 0
+            for a sharp fit
 '''
 
     q: np.ndarray
@@ -63,6 +66,7 @@ corner_model: (N,) str, the model each found corner's position comes from (CORNE
     detector: str = ""
     info: dict = dataclasses.field(default_factory=dict)
     corner_model: np.ndarray = None
+    corner_blur_px: float = 0.0
 
     def as_dict(self):
         return {"status": self.status, "reason": self.reason, "n_expected": self.n_expected,
@@ -72,7 +76,7 @@ corner_model: (N,) str, the model each found corner's position comes from (CORNE
                 "point_ids": None if self.point_ids is None else self.point_ids.tolist(),
                 "info": self.info,
                 "corner_model": None if self.corner_model is None else
-                self.corner_model.tolist()}
+                self.corner_model.tolist(), "corner_blur_px": float(self.corner_blur_px)}
 
 
 # The corner models a detector's corners come from (Detection.corner_model):
@@ -123,13 +127,14 @@ def on_one_line(p_board, tol=1e-9):
     return bool(s[1] <= tol * max(s[0], 1e-300))
 
 
-def result(target, q, detector, min_found=None, info=None, corner_model=None):
+def result(target, q, detector, min_found=None, info=None, corner_model=None,
+           corner_blur_px=0.0):
     r'''A Detection from (N,2) positions with NaN for missing points
 
 min_found: fewest points for status "ok" (None: all of them). Found points that lie on
 one line of the board give no pose (MIN_POINTS_FOR_POSE): "failed" with that reason.
 corner_model: the corner model of every point (a str) or of each ((N,) str), or None
-(Detection.corner_model).'''
+(Detection.corner_model); corner_blur_px: Detection.corner_blur_px.'''
     q = np.asarray(q, dtype=np.float64)
     found = np.all(np.isfinite(q), axis=-1)
     n = int(found.sum())
@@ -145,10 +150,12 @@ corner_model: the corner model of every point (a str) or of each ((N,) str), or 
         return Detection(q=q, found=found, status="failed", reason=why,
                          n_expected=target.Npoints, n_found=n, point_ids=target.point_ids(),
                          detector=detector, info=info or {},
-                         corner_model=corner_models(corner_model, found))
+                         corner_model=corner_models(corner_model, found),
+                         corner_blur_px=float(corner_blur_px))
     return Detection(q=q, found=found, status="ok", reason="", n_expected=target.Npoints,
                      n_found=n, point_ids=target.point_ids(), detector=detector,
-                     info=info or {}, corner_model=corner_models(corner_model, found))
+                     info=info or {}, corner_model=corner_models(corner_model, found),
+                     corner_blur_px=float(corner_blur_px))
 
 
 def as_float_image(image, dtype=np.float64):

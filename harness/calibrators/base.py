@@ -78,6 +78,8 @@ Rt_ref_board: (Nposes,4,3) surveyed board poses in the world frame, or None
 point_ids:    (Npoints,) ids of the points (for the record), or None
 corner_model: (Nposes,Npoints) str, the corner model of each detection
               (targets.detection.Detection.corner_model), or None (not recorded)
+corner_blur_px: (Nposes,) float, the blur kernel's sigma each pose's CORNER_LINES corners
+              were fitted with (Detection.corner_blur_px; 0 sharp), or None (0)
 '''
 
     q: np.ndarray
@@ -86,6 +88,7 @@ corner_model: (Nposes,Npoints) str, the corner model of each detection
     Rt_ref_board: np.ndarray = None
     point_ids: np.ndarray = None
     corner_model: np.ndarray = None
+    corner_blur_px: np.ndarray = None
 
     def __post_init__(self):
         q = np.array(self.q, dtype=np.float64)
@@ -119,6 +122,12 @@ corner_model: (Nposes,Npoints) str, the corner model of each detection
                 raise CalibratorError(f"corner_model must have shape (Nposes,Npoints) = "
                                       f"{q.shape[:2]}; got {m.shape}")
             object.__setattr__(self, "corner_model", m)
+        if self.corner_blur_px is not None:
+            s = np.array(self.corner_blur_px, dtype=np.float64)
+            if s.shape != q.shape[:1]:
+                raise CalibratorError(f"corner_blur_px must have shape (Nposes,) = "
+                                      f"({q.shape[0]},); got {s.shape}")
+            object.__setattr__(self, "corner_blur_px", s)
 
     @property
     def Nposes(self):
@@ -156,7 +165,7 @@ SYNOPSIS
 
     @classmethod
     def from_camera_poses(cls, q, p_board, imagersize, Rt_cam_board=None, Rt_ref_cam=None,
-                          point_ids=None, corner_model=None):
+                          point_ids=None, corner_model=None, corner_blur_px=None):
         r'''Observations from board poses in a camera frame (what a render sidecar gives)
 
 SYNOPSIS
@@ -166,7 +175,8 @@ SYNOPSIS
 
 The survey in the world frame is Rt_ref_board = Rt_ref_cam o Rt_cam_board;
 without Rt_cam_board the poses are unknown. Rt_ref_cam defaults to identity.
-corner_model: the detections' corner models (the field above), or None.
+corner_model, corner_blur_px: the detections' corner models and blurs (the fields
+above), or None.
 '''
         Rt_ref_board = None
         if Rt_cam_board is not None:
@@ -176,7 +186,8 @@ corner_model: the detections' corner models (the field above), or None.
             Rt_ref_board = np.stack([mrcal.compose_Rt(Rt, np.asarray(x, dtype=np.float64))
                                      for x in Rt_cam_board])
         return cls(q=q, p_board=p_board, imagersize=imagersize, Rt_ref_board=Rt_ref_board,
-                   point_ids=point_ids, corner_model=corner_model)
+                   point_ids=point_ids, corner_model=corner_model,
+                   corner_blur_px=corner_blur_px)
 
 
 @dataclass(frozen=True, eq=False)

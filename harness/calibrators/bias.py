@@ -134,7 +134,7 @@ WINDOW_BIASED = (CORNER_WINDOW, CORNER_LINES)
 CORNER_DIFF_STEP = 0.05
 
 
-def corner_bias(model, target, Rt_cam_board, p_board, lines=False):
+def corner_bias(model, target, Rt_cam_board, p_board, lines=False, blur_px=0.0):
     r'''refined corner - projected corner, px: the bias of straight rays on curved edges
 
 SYNOPSIS
@@ -146,7 +146,10 @@ along the board (h = CORNER_DIFF_STEP window units) for its image tangent and
 curvature; targets.corners.curvature_bias turns them into the shift of the
 refiner's fit. NaN where a point does not project. lines=True: a chessboard's corners
 fitted with each pair of opposite rays one line (Detection.corner_model CORNER_LINES: a
-blurred image).
+blurred image); blur_px: the sigma of the "sampled" kernel they were fitted with
+(Detection.corner_blur_px), whose taps and smaller window curvature_bias then takes (0:
+the sharp pixel terms, which leave 0.65-1.14x of a blurred fit's shift unexplained on
+MER hazcams).
 '''
     from targets.corners import CHESSBOARD_LINES, corner_rays, curvature_bias
     rays, unit, wedges, window = corner_rays(target)
@@ -166,16 +169,17 @@ blurred image).
     steps = np.stack((d1[:, 0], d1[:, 1]), axis=-1) * unit
     tied = CHESSBOARD_LINES if lines and target.kind == "chessboard" else ()
     return curvature_bias(q0[:, 0], tangents, curvatures, wedges, steps, lines=tied,
-                          **window)
+                          sigma=blur_px, **window)
 
 
 def bias_step(model, target, Rt_cam_board, p_board, b_prev=None, views=None,
-              corner_model=None):
+              corner_model=None, corner_blur_px=None):
     r'''One pass of the iterated bias correction the calibrators share
 
 SYNOPSIS
 
-    b, change = bias_step(model, target, Rts, obs.p_board, b_prev, views, obs.corner_model)
+    b, change = bias_step(model, target, Rts, obs.p_board, b_prev, views, obs.corner_model,
+                          obs.corner_blur_px)
     # b has shape (Nposes,Npoints,2), or is None when the target has no dots
     q_used = obs.q - b
 
@@ -183,8 +187,10 @@ The bias of every dot under the current model and poses Rt_cam_board
 (Nposes,4,3); poses outside `views` (when given) get none. For a corner target,
 corner_model (Nposes,Npoints) str (Observations.corner_model) gives the corner
 model of each detection: only the WINDOW_BIASED ones get corner_bias (CORNER_LINES's with
-its lines tied), the rest 0 (None: every corner is the window model's). `change` is the
-largest change of the bias since b_prev (its largest value on the first pass).
+its lines tied, under the blur corner_blur_px (Nposes,) gives each pose: the sampled
+kernel's sigma they were fitted with, Observations.corner_blur_px; None: 0), the rest 0
+(None: every corner is the window model's). `change` is the largest change of the bias
+since b_prev (its largest value on the first pass).
 '''
     if target is None:
         return None, None
@@ -200,7 +206,9 @@ largest change of the bias since b_prev (its largest value on the first pass).
             return centroid_bias(model, target, Rt, p_board[i])
         # corners fitted with their opposite rays tied: the lines' bias, computed once (the
         # window's only for corners of the window model beside them)
-        b = corner_bias(model, target, Rt, p_board[i], lines=True)
+        blur = 0.0 if corner_blur_px is None else float(corner_blur_px[i])
+        b = corner_bias(model, target, Rt, p_board[i], lines=True,
+                        blur_px=blur if np.isfinite(blur) else 0.0)
         if not tied.all():
             b[~tied] = corner_bias(model, target, Rt, p_board[i])[~tied]
         return b
