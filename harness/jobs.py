@@ -23,7 +23,9 @@ that does not read the world frame. run_campaign() folds such jobs into one
 the images are rendered once, the world-frame calibrators (jpl) fit each
 camera, and each camera gets its own records, compared with its own truth,
 with info["shared"] saying what was computed for which camera
-(harness.job_records).
+(harness.job_records). A fit that does not read the world frame is compared,
+and judged (harness.verdict: its exact observations and exact fit), in the
+camera frame (camera_frame_model), the same bits for twins: computed once.
 '''
 
 import re

@@ -45,10 +45,14 @@ verdict.renderer.joint all of them at once by their full covariance (chi2, dof
 and its equivalent Gaussian z: joint_statistic). The notes
 above scatter() say where that noise model stops holding.
 
-The exact fit is computed per camera, also for twins (harness.jobs): their
-exact observations agree to ~1e-12 px, not bit for bit, and an ill-conditioned
-fit lands far apart from such differences (mrcal CAHVOR of camera 17: px),
-which would make a twin's shared record differ from its unshared one.
+Twins (harness.jobs): the exact observations are computed from camera-frame
+quantities (the planned board poses, the truth in its own camera frame:
+harness.jobs.camera_frame_model), the same bits for twin cameras, so a campaign
+computes them once, and the exact fit of a calibrator that does not read the world
+frame too (exact_fit). Bit for bit matters: computed from each camera's world frame
+they agree to ~1e-12 px only, and an ill-conditioned fit lands far apart from such
+differences (mrcal CAHVOR of camera 17: px), which would make a twin's shared record
+differ from its unshared one. jpl reads the world frame and fits every camera.
 
 The exact fit starts from the image fit (exact_fit(start=...), harness.job_records):
 the two sets of observations differ by the detection error (~1e-3 px), so it converges
