@@ -212,6 +212,42 @@ def test_shared_records_equal_unshared_records(tmp_path):
         assert _without_sharing_info(again["records"][k]) == _without_sharing_info(alone[k]), k
 
 
+@pytest.mark.slow
+def test_shared_corner_records_equal_unshared_records(tmp_path, monkeypatch):
+    r'''A corner target under other render settings than the reference render: the
+verdict renders the reference corners (harness.verdict.reference_corners) once, for
+both cameras, through the camera-frame model, and the records are those of an
+unshared run'''
+    spec = {"cameras": [17, 18], "models": ["CAHVORE"], "targets": ["apriltag"],
+            "renderer": [{"name": "raycast", "spp": 4}],
+            "calibrator": [{"name": "jpl"}, {"name": "opencv", "models": ["OPENCV5"]}]}
+    from harness import verdict
+    renders = []
+    reference_corners = verdict.reference_corners
+
+    def counted(truth, target, Rts):
+        renders.append(len(Rts))
+        return reference_corners(truth, target, Rts)
+    monkeypatch.setattr(verdict, "reference_corners", counted)   # workers=1: in this process
+    docs = {}
+    for share in (True, False):
+        verdict._EXACT_OBS.clear()
+        c = parse_campaign(dict(spec, share_identical_cameras=share), source="c.toml")
+        docs[share] = run_campaign(c, tmp_path / str(share), workers=1, progress=False)
+    # rendered once for both cameras in each run: in the unshared one camera 18's job finds
+    # camera 17's in the process's memo (the same bits: same poses, detections and
+    # camera-frame model)
+    assert renders == [6, 6]
+    shared, alone = docs[True]["records"], docs[False]["records"]
+    assert sorted(shared) == sorted(alone) and len(shared) == 4
+    for k in shared:
+        assert shared[k]["status"] == "ok", (k, shared[k]["reason"])
+        assert _without_sharing_info(shared[k]) == _without_sharing_info(alone[k]), k
+    key = "{}/CAHVORE/apriltag/raycast[spp=4,adaptive,coverage=area]/{}"
+    assert shared[key.format(18, "opencv[OPENCV5]")]["info"]["shared"]["stages"][-2:] == \
+        ["compare", "verdict"]
+
+
 def test_a_job_function_that_forgets_a_twin_leaves_it_to_resume(tmp_path):
     from harness.executors import run_jobs
     from harness.records import RunStore
