@@ -131,6 +131,7 @@ def run(args, out):
 
     import harness.stages
     from harness.job_records import _verdict
+    from harness.jobs import camera_frame_model
 
     stages = types.SimpleNamespace(calibrate_stage=harness.stages.calibrate_stage)
 
@@ -163,7 +164,10 @@ def run(args, out):
             out.add(f"mrcal/{spec}", status="failed", reason=res.reason)
             print(f"{spec:<12} failed: {res.reason}")
             continue
-        params, projection, _ = compare_stage(truth, res)
+        # compared and judged in the truth's camera frame, as harness.job_records does for a
+        # fit that does not read the world frame
+        frame = camera_frame_model(truth)
+        params, projection, _ = compare_stage(frame, res)
         sec, exact_cpu = {}, []
 
         def timed_stage(*a, exact_cpu=exact_cpu, **kw):   # the verdict's exact fit, CPU s
@@ -175,8 +179,8 @@ def run(args, out):
         c0 = time.process_time()
         harness.stages.calibrate_stage = timed_stage
         try:
-            verdict, _ = _verdict("mrcal", truth.family, {}, obs, target, truth, res, params,
-                                  projection, None, {}, sec)
+            verdict, _ = _verdict("mrcal", truth.family, {}, obs, target, truth, frame, res,
+                                  params, projection, {}, sec)
         finally:
             harness.stages.calibrate_stage = stages.calibrate_stage
         verdict_cpu = time.process_time() - c0

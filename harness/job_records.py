@@ -83,7 +83,9 @@ def calibrator_records(job, ctx, fits, shared):
 
 fits: None, or {(calibrator, model, options): CalibrationResult} shared by the
 cameras of a twin group: a calibrator that does not read the world frame fits
-once (on observations without the surveyed poses) and the other cameras reuse it.
+once (on observations without the surveyed poses) and the other cameras reuse it,
+with its comparison and verdict (_calibrator_record: computed in the camera frame,
+the same bits for every twin).
 shared: the record's info["shared"] ({"twins": [...]} for the camera that ran
 the stages, {"with": key, "stages": [...]} for its twins), or None.
 '''
@@ -93,15 +95,19 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
     from harness.campaign import MODEL_CHOICE, POSE_COUNT
 
     from . import verdict as vd
+    from .jobs import camera_frame_model
     records = []
     exact_caches = {}   # per pose count: this camera's exact observations and detection
     # the job's detections are the verdict's reference corners: not rendered again
     own_reference = vd.is_reference_render(job.renderer, job.settings, job.response)
+    # the truth in its own camera frame: what fits that do not read the world frame are
+    # compared with (one object for the camera's records: the comparisons' memos)
+    camera = camera_frame_model(ctx["truth"])
     for cal, model, options in job.calibrators:     # noise (verdict)
         choice = options.get(MODEL_CHOICE)   # why "best" chose this model: the record's, not
         n_poses = options.get(POSE_COUNT)    # the fit's; so is its pose count
         options = {k: v for k, v in options.items() if k not in (MODEL_CHOICE, POSE_COUNT)}
-        res, info = None, shared
+        res, info, k = None, shared, None
         cctx = pose_subset(ctx, n_poses)
         exact_cache = exact_caches.setdefault(cctx["poses_used"]["n"], {})
         if own_reference:
@@ -119,8 +125,9 @@ the stages, {"with": key, "stages": [...]} for its twins), or None.
             if info is not None and "with" in info and "stages" not in info:
                 info = dict(info, stages=list(TWIN_STAGES))
             records.append(_calibrator_record(job, cal, model, options, res=res, shared=info,
-                                              choice=choice, fits=fits,
-                                              exact_cache=exact_cache, **cctx))
+                                              choice=choice, fits=fits, fit_key=k,
+                                              camera=camera, exact_cache=exact_cache,
+                                              **cctx))
         except Exception as e:  # a bug after the calibrator ran: this record only
             tb = traceback.extract_tb(e.__traceback__)[-1]
             records.append(_record(job, cal, model, ctx["entry"], status="failed",
@@ -193,7 +200,8 @@ def pose_subset(ctx, n):
 n None (or every pose): ctx itself. Otherwise the observations, the detections'
 summary and the renders' summary cover the first n poses only (the campaign's
 shared poses: a calibrator at the campaign's n gets the record it had without the
-extra poses; the seconds stay those of the job). ctx["poses_used"] =
+extra poses; the seconds stay those of the job), and so do the planned board poses
+(ctx["Rt_cam_board"], when run_job gives them). ctx["poses_used"] =
 {"n": poses fitted, "rendered": poses of the job} (the record's info["poses"]).
 '''
     obs = ctx["obs"]
@@ -210,7 +218,10 @@ extra poses; the seconds stay those of the job). ctx["poses_used"] =
     out["obs"] = dataclasses.replace(
         obs, q=obs.q[:n],
         p_board=obs.p_board[:n] if getattr(obs.p_board, "ndim", 2) == 3 else obs.p_board,
-        Rt_ref_board=None if obs.Rt_ref_board is None else obs.Rt_ref_board[:n])
+        Rt_ref_board=None if obs.Rt_ref_board is None else obs.Rt_ref_board[:n],
+        corner_model=None if obs.corner_model is None else obs.corner_model[:n])
+    if ctx.get("Rt_cam_board") is not None:
+        out["Rt_cam_board"] = ctx["Rt_cam_board"][:n]
     det = dict(ctx["detections"])
     per_pose = list(det.get("per_pose", []))
     if len(per_pose) == total:
@@ -231,10 +242,20 @@ extra poses; the seconds stay those of the job). ctx["poses_used"] =
 
 def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, seconds,
                        detections, artifacts, rversion, render_info, features, res=None,
-                       shared=None, choice=None, fits=None, exact_cache=None,
-                       poses_used=None):
+                       shared=None, choice=None, fits=None, fit_key=None, camera=None,
+                       exact_cache=None, poses_used=None, Rt_cam_board=None):
     r'''Calibrate (unless res is given: a fit shared with a twin), compare, keep the map
--> one record dict'''
+-> one record dict
+
+A fit that does not read the world frame (res.world_frame False) is compared with the
+truth in its own camera frame (camera: harness.jobs.camera_frame_model(truth)), and so
+is its verdict: the same numbers, to the last bits of the rotation into that frame,
+and the same bits for twins, whose camera-frame models are the same. A twin's record of
+a shared fit (fits, fit_key: calibrator_records) then takes the comparison and verdict
+computed for the first camera with those bits (its seconds 0, info["shared"]["stages"]
+naming them).'''
+    import copy
+
     import numpy as np
     reused = res is not None and shared is not None and "calibrate" in shared.get("stages", ())
     if res is None:
@@ -261,16 +282,31 @@ def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, s
         return _record(job, cal, model, entry, status=res.status, stage="calibrate",
                        reason=res.reason or "(no reason given)", artifacts=artifacts,
                        **common)
-    t0 = time.perf_counter()
-    try:
-        params, projection, themap = compare_stage(truth, res)
-    except Exception as e:
+    frame = truth if res.world_frame or camera is None else camera
+    key = None
+    if fits is not None and fit_key is not None and frame is camera:
+        key = ("compare+verdict", fit_key, _bits_key(camera, Rt_cam_board, obs))
+    hit = fits.get(key) if key is not None else None
+    if hit is not None and hit[0] is res:
+        params, projection, themap, verdict, reason = copy.deepcopy(hit[1:])
+        sec.update(compare=0.0, exact_fit=0.0, exact_observations=0.0, verdict=0.0)
+        info["shared"] = dict(shared, stages=list(shared.get("stages", ()))
+                              + ["compare", "verdict"])
+    else:
+        t0 = time.perf_counter()
+        try:
+            params, projection, themap = compare_stage(frame, res)
+        except Exception as e:
+            sec["compare"] = time.perf_counter() - t0
+            return _record(job, cal, model, entry, status="failed", stage="compare",
+                           reason=failure_reason(e), artifacts=artifacts, **common)
         sec["compare"] = time.perf_counter() - t0
-        return _record(job, cal, model, entry, status="failed", stage="compare",
-                       reason=failure_reason(e), artifacts=artifacts, **common)
-    sec["compare"] = time.perf_counter() - t0
-    verdict, reason = _verdict(cal, model, options, obs, target, truth, res, params,
-                               projection, fits, {} if exact_cache is None else exact_cache, sec)
+        verdict, reason = _verdict(cal, model, options, obs, target, truth, frame, res,
+                                   params, projection,
+                                   {} if exact_cache is None else exact_cache, sec,
+                                   Rt_cam_board)
+        if key is not None:
+            fits[key] = (res,) + copy.deepcopy((params, projection, themap, verdict, reason))
     arts = dict(artifacts)
     if job.keep_maps and job.run_dir and themap is not None:
         rel = Path("maps") / (slug(job.fullname(cal, model)) + ".npy")
@@ -282,27 +318,40 @@ def _calibrator_record(job, cal, model, options, *, obs, target, truth, entry, s
                    artifacts=arts, verdict=verdict, reason=reason, **common)
 
 
-def _verdict(cal, model, options, obs, target, truth, res, params, projection, fits, cache,
-             sec):
+def _bits_key(camera, Rt_cam_board, obs):
+    r'''Every bit a camera-frame comparison and verdict read besides the fit: the
+camera-frame model, the planned poses and the detections'''
+    import hashlib
+
+    import numpy as np
+
+    from .compare import _model_key
+    h = hashlib.sha256(repr(_model_key(camera)).encode())
+    for a in (Rt_cam_board, obs.q, obs.p_board, obs.corner_model):
+        h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def _verdict(cal, model, options, obs, target, truth, frame, res, params, projection, cache,
+             sec, Rt_cam_board=None):
     r'''(record's verdict, reason) of an ok record (harness.verdict): the fit of the exact
-observations (shared by twins like the image fits), floor / renderer / total; sec gets
-"exact_fit" (the extra fit, 0 when reused), "exact_observations" (computing them: once
-per camera and pose count, ~0 for the job's other calibrators) and "verdict" (its
-comparisons and scatter). The reason
-is the floor's, in words, when the floor is far from the truth; a verdict that cannot
-be computed says why in verdict["error"] and leaves the record ok.'''
+observations, floor / renderer / total against frame (the truth, or for a fit that
+does not read the world frame the truth in its camera frame: _calibrator_record); sec
+gets "exact_fit" (the extra fit, 0 when reused: a twin's fit that does not read the
+world frame, harness.verdict.exact_fit), "exact_observations" (computing them: once
+per camera and pose count, ~0 for the job's other calibrators and for twins) and
+"verdict" (its comparisons and scatter). The reason is the floor's, in words, when the
+floor is far from the truth; a verdict that cannot be computed says why in
+verdict["error"] and leaves the record ok.'''
     from . import verdict as vd
     t0 = time.perf_counter()
     try:
-        # not shared with twins (fits=None): their exact observations agree to ~1e-12 px,
-        # not bit for bit, and an ill-conditioned fit (mrcal CAHVOR of camera 17) lands
-        # px apart from such differences: shared records must equal unshared ones
         exact, noise, reused = vd.exact_fit(cal, model, options, obs, target, truth, cache,
-                                            None, start=res)
+                                            start=res, Rt_cam_board=Rt_cam_board)
         t1 = time.perf_counter()
         sec["exact_fit"] = 0.0 if reused else float(exact.seconds)
         sec["exact_observations"] = max(0.0, t1 - t0 - sec["exact_fit"])
-        v = vd.assess(truth, res, exact, noise, params, projection, obs=obs)
+        v = vd.assess(frame, res, exact, noise, params, projection, obs=obs)
         sec["verdict"] = time.perf_counter() - t1
     except Exception as e:  # the record's own figures stand; its verdict says why not
         tb = traceback.extract_tb(e.__traceback__)[-1]

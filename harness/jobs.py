@@ -23,7 +23,9 @@ that does not read the world frame. run_campaign() folds such jobs into one
 the images are rendered once, the world-frame calibrators (jpl) fit each
 camera, and each camera gets its own records, compared with its own truth,
 with info["shared"] saying what was computed for which camera
-(harness.job_records).
+(harness.job_records). A fit that does not read the world frame is compared,
+and judged (harness.verdict: its exact observations and exact fit), in the
+camera frame (camera_frame_model), the same bits for twins: computed once.
 '''
 
 import re
@@ -216,6 +218,43 @@ the images of a for the same camera-frame board poses.
     except (CamvalError, ValueError, FloatingPointError):
         return False
     return True
+
+
+def camera_frame_model(model):
+    r'''The model moved into its own camera frame: what twins share, bit for bit
+
+SYNOPSIS
+
+    m = camera_frame_model(truth)       # m.Rt_ref_cam() ~ identity, m.C = 0
+    m.project(p_cam)                    # ~ truth.project(p_cam carried to the world)
+
+A JPL-family model's C, A, H, V (and O) carried into its camera frame
+(Rt_ref_cam: p_cam = (p_ref - C) @ R, vectors v @ R; R, E and the image size
+kept). It images every camera-frame point as the model does, to the last bits
+of that rotation. Two twins (same_camera) that differ by a translation, or by
+a rotation of the world whose matrix entries are 0 and +-1 (a stereo partner,
+a camera yawed 180 deg about a world axis: every twin of the catalogue), give
+the same numbers here bit for bit, where their own projections of the same camera-frame
+points differ in the last bits (the world-frame C and rotation enter them):
+what is computed from this model and camera-frame poses (the verdict's exact
+observations, a fit that does not read the world frame and its comparisons)
+is then the same for both, and a campaign computes it once
+(harness.verdict.exact_fit, harness.job_records). Twins related by another
+rotation get models that differ in the last bits: nothing is shared then.
+Any other model is returned as it is.
+'''
+    import numpy as np
+
+    from reference_models.cahvore import FAMILIES
+    if getattr(model, "family", None) not in FAMILIES:
+        return model
+    R = model.Rt_ref_cam()[:3]
+    moved = {"C": np.zeros(3)}
+    for k in ("A", "H", "V", "O"):
+        v = getattr(model, k, None)
+        if v is not None:
+            moved[k] = v @ R
+    return model.replace(**moved)
 
 
 def camera_frame_exact(renderer_name):

@@ -136,7 +136,7 @@ A job with twins (group_twins) gives the records of each of its cameras.
     ctx = dict(obs=obs, target=target, truth=truth, entry=entry, seconds=seconds,
                detections=detections, artifacts=artifacts, rversion=rversion,
                render_info=render_info, features=features,
-               render_metadata=list(out.metadata))
+               render_metadata=list(out.metadata), Rt_cam_board=list(poses))
     job_stage(job, "calibrate + verdict (" + ", ".join(sorted({c for c, _, _ in job.calibrators}))
               + ")")
     fits = {} if len(members) > 1 else None

@@ -45,10 +45,14 @@ verdict.renderer.joint all of them at once by their full covariance (chi2, dof
 and its equivalent Gaussian z: joint_statistic). The notes
 above scatter() say where that noise model stops holding.
 
-The exact fit is computed per camera, also for twins (harness.jobs): their
-exact observations agree to ~1e-12 px, not bit for bit, and an ill-conditioned
-fit lands far apart from such differences (mrcal CAHVOR of camera 17: px),
-which would make a twin's shared record differ from its unshared one.
+Twins (harness.jobs): the exact observations are computed from camera-frame
+quantities (the planned board poses, the truth in its own camera frame:
+harness.jobs.camera_frame_model), the same bits for twin cameras, so a campaign
+computes them once, and the exact fit of a calibrator that does not read the world
+frame too (exact_fit). Bit for bit matters: computed from each camera's world frame
+they agree to ~1e-12 px only, and an ill-conditioned fit lands far apart from such
+differences (mrcal CAHVOR of camera 17: px), which would make a twin's shared record
+differ from its unshared one. jpl reads the world frame and fits every camera.
 
 The exact fit starts from the image fit (exact_fit(start=...), harness.job_records):
 the two sets of observations differ by the detection error (~1e-3 px), so it converges
@@ -139,15 +143,23 @@ deterministic render and detector), and reference_corners need not render again'
     return renderer_key(renderer, own) == renderer_key(renderer, ref)
 
 
-def exact_observations(obs, truth, target, reference=None):
+def exact_observations(obs, truth, target, reference=None, Rt_cam_board=None):
     r'''The observations a perfect renderer would give, at the same poses
 
 SYNOPSIS
 
     obs_x = exact_observations(obs, truth, target)   # obs.q replaced; same mask
+    obs_x = exact_observations(obs, truth, target, Rt_cam_board=poses)   # the planned
+                                                     # camera-frame poses (Nposes,4,3)
 
-obs must hold the surveyed board poses (Rt_ref_board, as observations_from
-gives). For a dot target, the exact dot centroids (a perfect renderer and a
+Rt_cam_board: the board poses in the truth's camera frame, as the campaign planned
+them (harness.stages.poses_stage); None: from the surveyed poses of obs
+(Rt_ref_board, as observations_from gives: Rt_cam_board_from, one rigid motion and
+back). The positions are computed through the truth in its own camera frame
+(harness.jobs.camera_frame_model): from the planned poses they are then the same
+bits for two twin cameras (harness.jobs), which a campaign computes once (exact_fit).
+
+For a dot target, the exact dot centroids (a perfect renderer and a
 perfect detector: the dot detector's errors on exact renders are small and
 independent from dot to dot, ~0.0005 px). For corner targets, the corners the
 detector finds on a perfect render (reference_corners): the corner refiner's
@@ -162,13 +174,18 @@ corners when the caller has them (the job's own detections when its images are t
 reference render: is_reference_render), else they are rendered here.
 '''
     from targets.centroids import expected_centroids, projected_points
-    Rts = Rt_cam_board_from(obs, truth)
+
+    from .jobs import camera_frame_model
+    if Rt_cam_board is None:
+        Rt_cam_board = Rt_cam_board_from(obs, truth)
+    Rts = np.asarray(Rt_cam_board, dtype=np.float64)
+    camera = camera_frame_model(truth)
     exact = expected_centroids if target.kind == "dots" else projected_points
-    q = np.stack([exact(truth, target, Rt) for Rt in Rts])
+    q = np.stack([exact(camera, target, Rt) for Rt in Rts])
     model = None
     if target.kind != "dots":
         if reference is None:
-            ref, model = reference_corners(truth, target, Rts)
+            ref, model = reference_corners(camera, target, Rts)
         else:
             # the job's own detections: their corner models are obs's
             ref, model = np.asarray(reference, dtype=np.float64), obs.corner_model
@@ -516,19 +533,26 @@ def _assess(truth, res, exact_res, noise, total_params, total_projection, second
     return jsonable(out)
 
 
-def exact_fit(cal, model, options, obs, target, truth, cache, fits=None, start=None):
+def exact_fit(cal, model, options, obs, target, truth, cache, start=None, Rt_cam_board=None):
     r'''The calibrator's fit of the exact observations -> (CalibrationResult, noise, reused)
 
 obs: the job's observations (with the surveyed poses); cache: a dict kept for
 one camera's records (the exact observations and the detection noise are
 computed once per camera; cache["reference"], when the caller sets it, holds the
-reference corners: exact_observations). fits: None (what harness.job_records passes: see
-the module docstring on twins), or a dict shared by cameras known to give
-bit-identical exact observations: a calibrator that does not read the world
-frame then fits them once, on observations without the surveyed poses, and
-the others reuse it (reused True). Otherwise a fit of bit-identical inputs made
-earlier in this process (another renderer of the same camera and poses) is
-reused (reused True; see _exact_key).
+reference corners: exact_observations). Rt_cam_board: the planned camera-frame board
+poses (exact_observations; harness.job_records passes them).
+
+Twins (harness.jobs): the exact observations are computed from the truth in its own
+camera frame (harness.jobs.camera_frame_model) and the planned poses, so two twin
+cameras, which share the poses and the detections, get the same bits: they are
+computed once per process for those bits (_exact_observations), and so is the fit of a
+calibrator that does not read the world frame (harness.calibrators.uses_world_frame):
+it fits the observations without the surveyed poses, with the camera-frame model as
+the truth (a calibrator reads only the truth's type and linearity), so its inputs,
+and its result, are the same for every twin. A fit of bit-identical inputs made
+earlier in this process (a twin, another renderer of the same camera and poses) is
+reused (reused True; see _exact_key). A calibrator that reads the world frame (jpl)
+fits each camera: its inputs hold the camera's surveyed poses.
 
 start: None (a cold fit, as the calibrator fits images), or the image fit (an ok
 CalibrationResult): a calibrator whose fit() takes start= (jpl, mrcal, OpenCV) fits
@@ -545,22 +569,18 @@ campaign) at the cost of a second fit (jpl on an AprilGrid: ~0.4 CPU-s a record)
 '''
     from harness.calibrators import uses_world_frame
 
+    from .jobs import camera_frame_model
     from .stages import calibrate_stage
     if "obs" not in cache:
-        cache["obs"] = exact_observations(obs, truth, target, cache.get("reference"))
-        cache["noise"] = detection_noise(obs, cache["obs"])
+        q, corner_model, cache["noise"] = _exact_observations(
+            obs, truth, target, cache.get("reference"), Rt_cam_board)
+        cache["obs"] = obs.replace(q=q, corner_model=corner_model)
     obs_x, noise = cache["obs"], cache["noise"]
     if start is not None and np.array_equal(obs_x.q, obs.q, equal_nan=True):
         return start, noise, True
     options = warm_options(cal, options, start)
-    if fits is not None and not uses_world_frame(cal, options):
-        k = ("exact", cal, model, repr(sorted((a, b) for a, b in options.items()
-                                              if a != "start")), _start_key(start))
-        if k in fits:
-            return fits[k], noise, True
-        fits[k] = calibrate_stage(cal, obs_x.replace(Rt_ref_board=None), target, model,
-                                  truth, options)
-        return fits[k], noise, False
+    if not uses_world_frame(cal, options):
+        obs_x, truth = obs_x.replace(Rt_ref_board=None), camera_frame_model(truth)
     key = _exact_key(cal, model, options, obs_x, target, truth)
     with _EXACT_LOCK:
         hit = _EXACT_FITS.get(key)
@@ -574,6 +594,43 @@ campaign) at the cost of a second fit (jpl on an AprilGrid: ~0.4 CPU-s a record)
     return res, noise, False
 
 
+def _exact_observations(obs, truth, target, reference, Rt_cam_board):
+    r'''(q, corner model, detection noise) of exact_observations(), made once per process
+for the same bits of what they are computed from: the truth in its camera frame
+(harness.jobs.camera_frame_model), the camera-frame poses, the detections (their
+mask and the noise), the board and the reference corners. Twins have the same bits
+of all of them (exact_fit); from the surveyed poses (Rt_cam_board None) the poses
+differ in their last bits, and each camera computes its own.'''
+    import hashlib
+
+    from .compare import _model_key
+    from .jobs import camera_frame_model
+    if Rt_cam_board is None:
+        Rt_cam_board = Rt_cam_board_from(obs, truth)
+    Rt_cam_board = np.asarray(Rt_cam_board, dtype=np.float64)
+    h = hashlib.sha256()
+    for a in (Rt_cam_board, obs.q, obs.p_board, reference,
+              None if reference is None else obs.corner_model):
+        h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
+    h.update(repr((getattr(target, "name", None), getattr(target, "source", None),
+                   target.kind, _model_key(camera_frame_model(truth)))).encode())
+    key = h.hexdigest()
+    with _EXACT_LOCK:
+        hit = _EXACT_OBS.get(key)
+    if hit is None:
+        obs_x = exact_observations(obs, truth, target, reference, Rt_cam_board)
+        for a in (obs_x.q, obs_x.corner_model):
+            if a is not None:
+                a.setflags(write=False)    # shared by the twins' records
+        hit = (obs_x.q, obs_x.corner_model, detection_noise(obs, obs_x))
+        with _EXACT_LOCK:
+            _EXACT_OBS[key] = hit
+            while len(_EXACT_OBS) > EXACT_OBS_MEMO:
+                del _EXACT_OBS[next(iter(_EXACT_OBS))]
+    q, corner_model, noise = hit
+    return q, corner_model, noise
+
+
 # The exact fit depends on the calibrator, its model and options, the exact observations
 # (truth, poses, the detected mask), the target and what the calibrator reads of the truth;
 # a cold fit (start=None) not on the renderer: the jobs of one camera and pose set under
@@ -582,10 +639,15 @@ campaign) at the cost of a second fit (jpl on an AprilGrid: ~0.4 CPU-s a record)
 # reused only for the same image fit (a warm fit costs a few solver steps; reusing another
 # renderer's would measure the image fit against an exact fit near ANOTHER image fit, the
 # "different minima" of mrcal's flat valleys). Keyed on every bit of those inputs; the
-# calibrators are deterministic, so a hit is the same fit.
+# calibrators are deterministic, so a hit is the same fit. A fit that does not read the
+# world frame is keyed without the surveyed poses and on the camera-frame model: the same
+# key for twins (exact_fit).
 EXACT_FITS_MEMO = 64
 _EXACT_FITS = {}
 _EXACT_LOCK = threading.Lock()
+# _exact_observations' memo: a job's cameras (a camera and its twins) follow each other
+EXACT_OBS_MEMO = 8
+_EXACT_OBS = {}
 
 
 def _exact_key(cal, model, options, obs_x, target, truth):
@@ -593,7 +655,7 @@ def _exact_key(cal, model, options, obs_x, target, truth):
 
     from .compare import _model_key
     h = hashlib.sha256()
-    for a in (obs_x.q, obs_x.p_board, obs_x.Rt_ref_board):
+    for a in (obs_x.q, obs_x.p_board, obs_x.Rt_ref_board, obs_x.corner_model):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
     start = options.get("start")
     h.update(repr(_start_key(start)).encode())

@@ -14,7 +14,14 @@ import pytest
 
 from harness.calibrators import uses_world_frame
 from harness.campaign import CampaignError, load_campaign, parse_campaign
-from harness.jobs import camera_frame_exact, expand_jobs, group_twins, same_camera
+from harness.compare import _model_key
+from harness.jobs import (
+    camera_frame_exact,
+    camera_frame_model,
+    expand_jobs,
+    group_twins,
+    same_camera,
+)
 from harness.records import RunStore, job_filename, without_timings
 from harness.runner import run_campaign, stage_seconds
 from reference_models.cahvore import truncate
@@ -73,6 +80,44 @@ def test_paper_campaign_folds_the_derived_slots():
     assert sorted(members) == sorted(j.key for j in jobs)
     # the pancams' CAHVORE jobs are not-applicable (no CAHVORE of a CAHVOR): not folded
     assert "14/CAHVORE/dots/raycast[spp=16,adaptive,coverage=area]" in {j.key for j in grouped}
+
+
+@pytest.mark.parametrize("a, b", [(8, 5), (8, 6), (8, 7), (12, 9), (12, 10), (12, 11),
+                                  (13, 14), (17, 18)])
+def test_twins_have_the_same_camera_frame_model_bit_for_bit(a, b):
+    # what the verdict computes from it (harness.verdict.exact_fit) is then computed once
+    for family in ("CAHV", "CAHVOR", "CAHVORE"):
+        if family == "CAHVORE" and a == 13:    # the pancams are CAHVOR
+            continue
+        ma, mb = camera_frame_model(_model(a, family)), camera_frame_model(_model(b, family))
+        assert _model_key(ma) == _model_key(mb)
+
+
+def test_the_camera_frame_model_images_the_camera_frame_as_the_model_does():
+    from targets.centroids import board_to_ref
+    for slot in (7, 15, 17, 21):
+        m = _model(slot)
+        c = camera_frame_model(m)
+        assert np.array_equal(c.C, np.zeros(3)) and type(c) is type(m)
+        # its camera frame is its world frame: the identity, to rounding
+        assert np.allclose(c.Rt_ref_cam(), np.vstack((np.eye(3), np.zeros(3))), atol=1e-15)
+        p_cam = np.array([[0.3, -0.2, 2.0], [-1.0, 0.5, 4.0], [0.0, 0.0, 0.4]])
+        I = np.vstack((np.eye(3), np.zeros(3)))
+        q = m.project(board_to_ref(m, I, p_cam))
+        # the same pixels to the rounding of one rotation (1e-16 relative) over ~1e3 px
+        assert np.max(np.abs(c.project(p_cam) - q)) < 1e-9
+    # a same_camera twin by an arbitrary rotation: the same camera, not the same bits
+    m = _model(15)
+    th = 0.3
+    R = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1.0]])
+    turned = m.replace(C=m.C @ R.T, A=m.A @ R.T, H=m.H @ R.T, V=m.V @ R.T, O=m.O @ R.T)
+    assert same_camera(m, turned)
+    assert _model_key(camera_frame_model(m)) != _model_key(camera_frame_model(turned))
+    # any other model: itself
+    from harness.calibrators.opencv_fit import OpenCVModel
+    cv = OpenCVModel("OPENCV5", np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]),
+                     np.zeros(5), 640, 480)
+    assert camera_frame_model(cv) is cv
 
 
 def test_only_exact_renderers_and_clean_jobs_share():
@@ -137,13 +182,18 @@ def test_shared_records_equal_unshared_records(tmp_path):
     key = "18/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]"
     jpl, mrcal = shared[key + "/jpl[CAHVOR]"], shared[key + "/mrcal[CAHVOR]"]
     assert jpl["info"]["shared"] == {"with": "17", "stages": ["poses", "render", "detect"]}
+    # mrcal does not read the world frame: its fit, comparison and verdict (computed in the
+    # camera frame, the same bits for both cameras) are the first camera's
     assert mrcal["info"]["shared"] == {"with": "17",
-                                       "stages": ["poses", "render", "detect", "calibrate"]}
+                                       "stages": ["poses", "render", "detect", "calibrate",
+                                                  "compare", "verdict"]}
     jpl17 = "17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHVOR]"
     assert shared[jpl17]["info"]["shared"] == {"twins": ["18"]}
     # the twin's own work is timed, the shared work is not counted twice
     assert jpl["seconds"]["render"] == 0.0 and jpl["seconds"]["detect"] == 0.0
     assert jpl["seconds"]["calibrate"] > 0.0 and mrcal["seconds"]["calibrate"] == 0.0
+    assert jpl["seconds"]["exact_fit"] > 0.0
+    assert all(mrcal["seconds"][k] == 0.0 for k in ("compare", "exact_fit", "verdict"))
     assert jpl["seconds"]["render_per_image"] == \
         shared["17/CAHVOR/dots/raycast[spp=4,adaptive,coverage=area]/jpl[CAHVOR]"]["seconds"]["render_per_image"]
     # the images are counted once: the twin rendered none
@@ -160,6 +210,42 @@ def test_shared_records_equal_unshared_records(tmp_path):
     assert again["execution"]["jobs_run"] == 1 and again["execution"]["twins"] == {}
     for k in shared:
         assert _without_sharing_info(again["records"][k]) == _without_sharing_info(alone[k]), k
+
+
+@pytest.mark.slow
+def test_shared_corner_records_equal_unshared_records(tmp_path, monkeypatch):
+    r'''A corner target under other render settings than the reference render: the
+verdict renders the reference corners (harness.verdict.reference_corners) once, for
+both cameras, through the camera-frame model, and the records are those of an
+unshared run'''
+    spec = {"cameras": [17, 18], "models": ["CAHVORE"], "targets": ["apriltag"],
+            "renderer": [{"name": "raycast", "spp": 4}],
+            "calibrator": [{"name": "jpl"}, {"name": "opencv", "models": ["OPENCV5"]}]}
+    from harness import verdict
+    renders = []
+    reference_corners = verdict.reference_corners
+
+    def counted(truth, target, Rts):
+        renders.append(len(Rts))
+        return reference_corners(truth, target, Rts)
+    monkeypatch.setattr(verdict, "reference_corners", counted)   # workers=1: in this process
+    docs = {}
+    for share in (True, False):
+        verdict._EXACT_OBS.clear()
+        c = parse_campaign(dict(spec, share_identical_cameras=share), source="c.toml")
+        docs[share] = run_campaign(c, tmp_path / str(share), workers=1, progress=False)
+    # rendered once for both cameras in each run: in the unshared one camera 18's job finds
+    # camera 17's in the process's memo (the same bits: same poses, detections and
+    # camera-frame model)
+    assert renders == [6, 6]
+    shared, alone = docs[True]["records"], docs[False]["records"]
+    assert sorted(shared) == sorted(alone) and len(shared) == 4
+    for k in shared:
+        assert shared[k]["status"] == "ok", (k, shared[k]["reason"])
+        assert _without_sharing_info(shared[k]) == _without_sharing_info(alone[k]), k
+    key = "{}/CAHVORE/apriltag/raycast[spp=4,adaptive,coverage=area]/{}"
+    assert shared[key.format(18, "opencv[OPENCV5]")]["info"]["shared"]["stages"][-2:] == \
+        ["compare", "verdict"]
 
 
 def test_a_job_function_that_forgets_a_twin_leaves_it_to_resume(tmp_path):

@@ -138,15 +138,35 @@ calibrator's own level (jpl: exact to ~1e-6 px), and total = floor + renderer'''
            status="ok", verdict=v).as_dict()
 
 
-def test_twins_share_the_exact_fit(navcam):
+def test_twins_share_the_exact_observations_and_the_exact_fit(navcam):
+    r'''A twin (the camera moved 0.1 m along H', as the catalogue's stereo partners): the
+same detections at the same planned poses give the same exact observations, bit for
+bit, and the same fit of a calibrator that does not read the world frame (made once);
+jpl, which reads the surveyed poses, fits each camera'''
     truth, target, poses, obs = navcam
-    fits = {}
-    a, _, reused_a = verdict.exact_fit("mrcal", "CAHVOR", {}, obs, target, truth, {}, fits)
-    b, _, reused_b = verdict.exact_fit("mrcal", "CAHVOR", {}, obs, target, truth, {}, fits)
-    assert (reused_a, reused_b) == (False, True) and a is b
-    verdict._EXACT_FITS.clear()
-    c, _, reused_c = verdict.exact_fit("jpl", "CAHVOR", {}, obs, target, truth, {}, fits)
-    assert not reused_c        # jpl reads the world frame: each twin fits its own
+    twin = truth.replace(C=truth.C + 0.1 * truth.photogrammetric().Hp)
+    obs_t = stages.observations_from(twin, target, poses, list(obs.q))
+    assert not np.array_equal(obs_t.Rt_ref_board, obs.Rt_ref_board)
+    ca, ct = {}, {}
+    a, na, ra = verdict.exact_fit("mrcal", "CAHVOR", {}, obs, target, truth, ca,
+                                  Rt_cam_board=poses)
+    b, nb, rb = verdict.exact_fit("mrcal", "CAHVOR", {}, obs_t, target, twin, ct,
+                                  Rt_cam_board=poses)
+    assert (ra, rb) == (False, True) and a is b and nb == na
+    assert np.array_equal(ca["obs"].q, ct["obs"].q, equal_nan=True)
+    # each camera's exact observations keep its own surveyed poses (jpl reads them)
+    assert np.array_equal(ct["obs"].Rt_ref_board, obs_t.Rt_ref_board)
+    c, _, rc = verdict.exact_fit("jpl", "CAHVOR", {}, obs, target, truth, ca,
+                                 Rt_cam_board=poses)
+    d, _, rd = verdict.exact_fit("jpl", "CAHVOR", {}, obs_t, target, twin, ct,
+                                 Rt_cam_board=poses)
+    assert not rc and not rd and c is not d
+    # from the surveyed poses instead of the planned ones (no Rt_cam_board), the twins'
+    # exact observations agree to rounding (one rigid motion and back: ~1e-12 px of
+    # ~1000 px coordinates), not bit for bit
+    x = verdict.exact_observations(obs_t, twin, target)
+    ok = np.isfinite(x.q)
+    assert np.max(np.abs(x.q[ok] - ca["obs"].q[ok])) < 1e-9
 
 
 def test_an_exact_fit_of_the_same_inputs_is_made_once_per_process(navcam):
