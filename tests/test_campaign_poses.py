@@ -104,14 +104,20 @@ def test_jobs_render_the_most_poses_and_each_calibrator_fits_its_own():
 def test_pose_subset_slices_observations_and_summaries():
     from harness.calibrators.base import Observations
     q = np.arange(5 * 4 * 2, dtype=np.float64).reshape(5, 4, 2)
+    models = np.array([["lines", "x", "lines", "x"]] * 5)
+    blur = np.array([0.0, 0.5, 0.6, 0.7, 0.8])
     obs = Observations(q=q, p_board=np.zeros((4, 3)), imagersize=(10, 10),
-                       Rt_ref_board=np.zeros((5, 4, 3)))
+                       Rt_ref_board=np.zeros((5, 4, 3)), corner_model=models,
+                       corner_blur_px=blur)
     ctx = {"obs": obs, "detections": {"n_expected": 20, "n_found": 17,
                                       "per_pose": [4, 4, 1, 4, 4], "failed_poses": [2, 4]},
            "render_info": {"images": 5}, "render_metadata": [{"samples": 10}] * 5}
     sub = pose_subset(ctx, 3)
     assert sub["obs"].q.shape == (3, 4, 2) and sub["obs"].Rt_ref_board.shape == (3, 4, 3)
     assert np.array_equal(sub["obs"].q, q[:3])
+    # the detections' corner models and blurs, per pose like q
+    assert sub["obs"].corner_model.shape == (3, 4)
+    assert np.array_equal(sub["obs"].corner_blur_px, blur[:3])
     assert sub["detections"] == {"n_expected": 12, "n_found": 9, "per_pose": [4, 4, 1],
                                  "failed_poses": [2]}
     assert sub["render_info"] == {"images": 3, "samples": 30}
