@@ -40,14 +40,15 @@ same board line as edge k of its row's (k = 0, 2) or column's (k = 1, 3) neighbo
 error of that corner (_span_choice: bias^2 + variance, both computed per edge from the
 first pass): the edge alone, the edge with the nearer half of its board line's neighbour
 beyond that corner (NEIGHBOUR_REACH), or the edge with both its neighbours (~3.6 edge
-lengths: the noise averaged over 3x the pixels, the corner inside the span); each a
-quadratic or a cubic. The long span averages the noise; a shorter one follows a bent line
-(a fisheye's big tags near the image's corner: a cubic over the three edges missed the
-line by up to 0.04 px). The choice weighs the two on the image's own numbers, no length
-or bend threshold: it replaced a rule chosen on MER hazcam 8 (the three edges' cubic for
-an edge up to 64 px or bent by up to 0.05 px, else per corner), which left 0.0091 px RMS,
-max 0.040 on the corner pose of tests/test_tag_edges_fisheye.py's constructed fisheye
-(now 0.0034, max 0.020: the rest are corners of weak edges, below).
+lengths: the noise averaged over 3x the pixels, the corner inside the span), a cubic, or
+over the three a quadratic (CANDIDATES). The long span averages the noise; a shorter one
+follows a bent line (a fisheye's big tags near the image's corner: a cubic over the
+three edges missed the line by up to 0.04 px). The choice weighs the two on the image's
+own numbers, no length or bend threshold: it replaced a rule chosen on MER hazcam 8 (the
+three edges' cubic for an edge up to 64 px or bent by up to 0.05 px, else per corner),
+which left 0.0091 px RMS, max 0.040 on the corner pose of
+tests/test_tag_edges_fisheye.py's constructed fisheye (now 0.0034, max 0.020: the rest
+are corners of weak edges, below).
 
 The pixels. Each edge uses the pixels that see no other feature of the board through the
 blur: a pixel at distance x and position t is kept where the light gap outside the tag
@@ -375,7 +376,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # each edge's last fit, per corner, the span and degree of least expected error
         # (_span_choice: bias^2 + variance from the first pass's curves and noise): the edge
         # alone, with its board line's neighbour beyond that corner (NEIGHBOUR_REACH of it),
-        # or with all its board line's neighbours; a quadratic or a cubic
+        # or with all its board line's neighbours (CANDIDATES)
         choice = {}
         if last and npass > 0:
             choice = _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits,
@@ -510,10 +511,13 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
 
 
 # the span/degree candidates of an edge's last fit, per corner (targets.tag_edges._span_choice):
-# the edge alone, the edge and its board line's neighbour beyond that corner
-# (NEIGHBOUR_REACH of it), the edge and all its board line's neighbours; each a quadratic or
-# a cubic
-SPANS = ("alone", "corner", "line")
+# the edge alone or with its board line's neighbour beyond that corner (NEIGHBOUR_REACH of
+# it), a cubic; the edge with all its board line's neighbours, a quadratic or a cubic. A
+# quadratic over a short span has its corner at the span's end, where its bias is the
+# line's third derivative, which the reference tells only by its curves' disagreement: on
+# MER hazcam 17's realistic renders those were chosen on that noise (max corner error 0.025
+# px against 0.022 without them; RMS 0.0051 against 0.0050)
+CANDIDATES = (("alone", 3), ("corner", 3), ("line", 2), ("line", 3))
 # the board line's reference (_span_choice): its polynomial degree from the first pass's
 # curves of 1, 2 or 3 edges (3 samples each): the edge's own quadratic; with one neighbour a
 # quartic (one sample of 6 to spare); with both a quintic (3 to spare: the quartic and quintic
@@ -577,9 +581,9 @@ def _powers(tau, n):
 
 
 def _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits, pixels, grid=None):
-    r'''{(i, k): (choice at corner k, choice at corner k+1)}, each a (span, degree) of SPANS x
-(2, 3): the fit of each edge (not weak) with the least expected squared error of its corner
-across the edge, bias^2 + variance
+    r'''{(i, k): (choice at corner k, choice at corner k+1)}, each a (span, degree) of
+CANDIDATES: the fit of each edge (not weak) with the least expected squared error of its
+corner across the edge, bias^2 + variance
 
 Why. A cubic over the edge and both its board line's neighbours (~3.6 edge lengths)
 averages the noise over three edges' pixels, but misses a line bent more than a cubic
@@ -600,7 +604,7 @@ corner on the image's own numbers:
   reference's noise (the first pass's curves' covariance) makes its square too large by
   its variance, which is subtracted: an unbiased estimate of bias^2. That estimate is as
   noisy as the fit it judges (on navcam 15's straight lines, the three edges' cubic:
-  0.0011 px against its own scatter 0.0012), and the least of six noisy estimates picks a
+  0.0011 px against its own scatter 0.0012), and the least of four noisy estimates picks a
   short span too often; the bend is the lens's, smooth across the image, so the estimate
   is pooled over the same edge of the 3 x 3 tags round it (`grid`; realistic corners of
   hazcam 17 0.0057 -> 0.0051 px RMS, hazcam 8 0.0054 -> 0.0049, navcam 15 0.0033 ->
@@ -713,30 +717,31 @@ grid: refine_tag_edges' (None: no pooling)'''
         # a span is judged only where the reference covers it: its neighbours' curves in it
         # (a neighbour without one, seen from its light side, would be extrapolated over)
         covered = use[:, 1:] | ~has
-        for span, M, ok in (("alone", m_own, use[:, 0]),
-                            ("corner", m_near, use[:, 0] & has[:, end] & use[:, 1 + end]),
-                            ("line", m_all, use[:, 0] & has.any(1) & covered.all(1))):
-            for deg in (2, 3):
-                A, B = _normal_matrix(M, deg)
-                vc = np.zeros(deg + 3)
-                vc[2:] = tc ** np.arange(deg + 1)
-                z = _solve(A, vc[:, None])[..., 0]
-                var = z @ vc
-                # the bias's functional on the reference's coefficients (those above its
-                # degree are 0), and its noise through the first pass's curves
-                h = np.einsum("nk,nkl->nl", z, B) - tc ** np.arange(6)
-                bias = (h * ref).sum(-1)
-                um = np.einsum("ncs,ncsd->ncd", np.einsum("nk,nks->ns", h, R).reshape(Ne, 3, S),
-                               dS)
-                bvar = np.einsum("ncd,ncde,nce->n", um, Ginv, um)
-                # bias^2 less its estimate's noise, pooled, kept >= 0
-                b2 = np.where(ok & np.isfinite(bias * bvar), bias * bias - bvar, 0.0)
-                nok = pool @ ok
-                b2 = np.where(nok > 0, (pool @ b2) / np.where(nok > 0, nok, 1.0), 0.0)
-                risk = np.where(ok & (var > 0), np.maximum(b2, 0.0) + var, np.inf)
-                for j in np.flatnonzero(risk < best[:, end]):
-                    best[j, end] = risk[j]
-                    out[keys[j]][end] = (span, deg)
+        spans = {"alone": (m_own, use[:, 0]),
+                 "corner": (m_near, use[:, 0] & has[:, end] & use[:, 1 + end]),
+                 "line": (m_all, use[:, 0] & has.any(1) & covered.all(1))}
+        for span, deg in CANDIDATES:
+            M, ok = spans[span]
+            A, B = _normal_matrix(M, deg)
+            vc = np.zeros(deg + 3)
+            vc[2:] = tc ** np.arange(deg + 1)
+            z = _solve(A, vc[:, None])[..., 0]
+            var = z @ vc
+            # the bias's functional on the reference's coefficients (those above its
+            # degree are 0), and its noise through the first pass's curves
+            h = np.einsum("nk,nkl->nl", z, B) - tc ** np.arange(6)
+            bias = (h * ref).sum(-1)
+            um = np.einsum("ncs,ncsd->ncd", np.einsum("nk,nks->ns", h, R).reshape(Ne, 3, S),
+                           dS)
+            bvar = np.einsum("ncd,ncde,nce->n", um, Ginv, um)
+            # bias^2 less its estimate's noise, pooled, kept >= 0
+            b2 = np.where(ok & np.isfinite(bias * bvar), bias * bias - bvar, 0.0)
+            nok = pool @ ok
+            b2 = np.where(nok > 0, (pool @ b2) / np.where(nok > 0, nok, 1.0), 0.0)
+            risk = np.where(ok & (var > 0), np.maximum(b2, 0.0) + var, np.inf)
+            for j in np.flatnonzero(risk < best[:, end]):
+                best[j, end] = risk[j]
+                out[keys[j]][end] = (span, deg)
     return {key: tuple(v) for key, v in out.items() if None not in v and key not in weak}
 
 
