@@ -555,15 +555,16 @@ _BINOMIAL = np.array([[math.comb(r, c) for c in range(SPAN_MOMENTS - SPAN_GG)]
 
 
 def _moved(mu, alpha, beta):
-    r'''The moments mu (P, SPAN_MOMENTS) of edge_moments in a frame where tau' = alpha + beta
-tau (alpha, beta (P,)): each sum of w tau'^k by the binomial expansion'''
-    k = np.arange(SPAN_MOMENTS - SPAN_GG)
-    T = _BINOMIAL * alpha[:, None, None] ** np.clip(k[:, None] - k[None, :], 0, None) \
-        * beta[:, None, None] ** k[None, :] * (k[None, :] <= k[:, None])
+    r'''The moments mu (..., P, SPAN_MOMENTS) of edge_moments in a frame where tau' = alpha +
+beta tau (alpha, beta (P,)): each sum of w tau'^k by the binomial expansion'''
+    K = SPAN_MOMENTS - SPAN_GG
+    k = np.arange(K)
+    T = _BINOMIAL * np.vander(alpha, K, increasing=True)[:, np.clip(k[:, None] - k, 0, None)] \
+        * np.vander(beta, K, increasing=True)[:, None, :]
     out = mu.copy()
     for lo, hi in ((SPAN_G, SPAN_FG), (SPAN_FG, SPAN_GG), (SPAN_GG, SPAN_MOMENTS)):
         n = hi - lo
-        out[:, lo:hi] = np.einsum("pkj,pj->pk", T[:, :n, :n], mu[:, lo:hi])
+        out[..., lo:hi] = np.einsum("pkj,...pj->...pk", T[:, :n, :n], mu[..., lo:hi])
     return out
 
 
@@ -662,8 +663,9 @@ grid: refine_tag_edges' (None: no pooling)'''
         # the neighbour's end nearer this edge: tau = -1 where its direction runs away
         low = (c > 0) == (pe == 1)
         near = np.where(low[:, None], [[True, cut >= 0, False]], [[False, cut >= 0, True]])
-        m_nb[pj, pe, 0] = _moved(mom[pm].sum(1), alpha, beta)
-        m_nb[pj, pe, 1] = _moved((mom[pm] * near[..., None]).sum(1), alpha, beta)
+        moved = _moved(np.stack((mom[pm].sum(1), (mom[pm] * near[..., None]).sum(1))), alpha,
+                       beta)
+        m_nb[pj, pe, 0], m_nb[pj, pe, 1] = moved
     m_all = m_own + m_nb[:, 0, 0] + m_nb[:, 1, 0]
     has = np.array([[end in at for end in (0, 1)] for at in ends])
     # the reference: samples of the first pass's curves of the edge (slot 0) and its
@@ -710,39 +712,44 @@ grid: refine_tag_edges' (None: no pooling)'''
         cell = np.asarray(grid).reshape(-1, 2)[ik[:, 0]]
         pool = ((np.abs(cell[:, None] - cell[None]).max(-1) <= 1)
                 & (ik[:, None, 1] == ik[None, :, 1])).astype(np.float64)
-    out = {key: [None, None] for key in keys}
-    best = np.full((Ne, 2), np.inf)
-    for end, tc in ((0, -1.0), (1, 1.0)):
-        m_near = m_own + m_nb[:, end, 1]
-        # a span is judged only where the reference covers it: its neighbours' curves in it
-        # (a neighbour without one, seen from its light side, would be extrapolated over)
-        covered = use[:, 1:] | ~has
-        spans = {"alone": (m_own, use[:, 0]),
-                 "corner": (m_near, use[:, 0] & has[:, end] & use[:, 1 + end]),
-                 "line": (m_all, use[:, 0] & has.any(1) & covered.all(1))}
-        for span, deg in CANDIDATES:
-            M, ok = spans[span]
-            A, B = _normal_matrix(M, deg)
-            vc = np.zeros(deg + 3)
-            vc[2:] = tc ** np.arange(deg + 1)
-            z = _solve(A, vc[:, None])[..., 0]
-            var = z @ vc
-            # the bias's functional on the reference's coefficients (those above its
-            # degree are 0), and its noise through the first pass's curves
-            h = np.einsum("nk,nkl->nl", z, B) - tc ** np.arange(6)
-            bias = (h * ref).sum(-1)
-            um = np.einsum("ncs,ncsd->ncd", np.einsum("nk,nks->ns", h, R).reshape(Ne, 3, S),
-                           dS)
-            bvar = np.einsum("ncd,ncde,nce->n", um, Ginv, um)
-            # bias^2 less its estimate's noise, pooled, kept >= 0
-            b2 = np.where(ok & np.isfinite(bias * bvar), bias * bias - bvar, 0.0)
-            nok = pool @ ok
-            b2 = np.where(nok > 0, (pool @ b2) / np.where(nok > 0, nok, 1.0), 0.0)
-            risk = np.where(ok & (var > 0), np.maximum(b2, 0.0) + var, np.inf)
-            for j in np.flatnonzero(risk < best[:, end]):
-                best[j, end] = risk[j]
-                out[keys[j]][end] = (span, deg)
-    return {key: tuple(v) for key, v in out.items() if None not in v and key not in weak}
+    # a span is judged only where the reference covers it: its neighbours' curves in it
+    # (a neighbour without one, seen from its light side, would be extrapolated over)
+    covered = (use[:, 1:] | ~has).all(1)
+    spans = {"alone": lambda end: (m_own, use[:, 0]),
+             "corner": lambda end: (m_own + m_nb[:, end, 1],
+                                    use[:, 0] & has[:, end] & use[:, 1 + end]),
+             "line": lambda end: (m_all, use[:, 0] & has.any(1) & covered)}
+    combos = [(end, span, deg) for end in (0, 1) for span, deg in CANDIDATES]
+    risk = np.full((len(combos), Ne), np.inf)
+    for deg in sorted({c[2] for c in combos}):
+        sel = [i for i, c in enumerate(combos) if c[2] == deg]
+        M, ok = (np.stack(x) for x in zip(*[spans[combos[i][1]](combos[i][0]) for i in sel],
+                                           strict=True))
+        tc = np.array([2.0 * combos[i][0] - 1.0 for i in sel])
+        A, B = _normal_matrix(M, deg)
+        vc = np.zeros((len(sel), 1, deg + 3, 1))
+        vc[:, 0, 2:, 0] = tc[:, None] ** np.arange(deg + 1)
+        z = _solve(A, vc)[..., 0]
+        var = np.einsum("xnk,xk->xn", z, vc[:, 0, :, 0])
+        # the bias's functional on the reference's coefficients (those above its degree
+        # are 0), and its noise through the first pass's curves
+        h = np.einsum("xnk,xnkl->xnl", z, B) - (tc[:, None] ** np.arange(6))[:, None]
+        bias = (h * ref).sum(-1)
+        um = np.einsum("xnms,nmsd->xnmd",
+                       np.einsum("xnk,nks->xns", h, R).reshape(len(sel), Ne, 3, S), dS)
+        bvar = np.einsum("xnmd,nmde,xnme->xn", um, Ginv, um)
+        # bias^2 less its estimate's noise, pooled, kept >= 0
+        b2 = np.where(ok & np.isfinite(bias * bvar), bias * bias - bvar, 0.0)
+        nok = ok @ pool.T
+        b2 = np.where(nok > 0, (b2 @ pool.T) / np.where(nok > 0, nok, 1.0), 0.0)
+        risk[sel] = np.where(ok & (var > 0), np.maximum(b2, 0.0) + var, np.inf)
+    out = {}
+    n = len(CANDIDATES)
+    pick = [np.argmin(risk[n * end:n * (end + 1)], axis=0) for end in (0, 1)]
+    fine = np.isfinite(risk[:n].min(0)) & np.isfinite(risk[n:].min(0))
+    for j in np.flatnonzero(fine):
+        out[keys[j]] = (CANDIDATES[pick[0][j]], CANDIDATES[pick[1][j]])
+    return {key: v for key, v in out.items() if key not in weak}
 
 
 def _sees_dark(t, s, L, d):
