@@ -90,14 +90,16 @@ of its contrast, has too little contrast, or when the two curves do not meet wit
 MAX_CORNER_SHIFT_PX of the corner they started from (start_error_px in the first pass).
 
 Measured (benchmarks/bench_corners.py --targets apriltag --methods camval --response
-realistic; K = 16 renders, 6 poses): corner error RMS 0.0032 px (navcam 15), 0.0052
-(hazcam 17 as CAHVORE, 652 of 864 corners: the rest's bits are too small for the blur;
-0.0059 over 573 before the weak edges joined their board lines),
-0.0053 (hazcam 8 fisheye), 0.0025 (camera 1, 5120x3840; 0.0059 and 0.0037 before
-NEIGHBOUR_REACH); the corner windows gave
-0.014-0.03. CPU per image, whole detection (median; docs/corners.md, "Blurred AprilTag
-detection time", load 3 on 2 cores): 0.043 s on 640x480, 0.090 s on 1024x1024, 0.30 s on
-5120x3840 (0.135, 0.194, 0.561 s before the blur was fitted on the edges, back to back).
+realistic; K = 16 renders, 6 poses): corner error RMS / max 0.0029 / 0.0134 px (navcam 15),
+0.0050 / 0.0220 (hazcam 17 as CAHVORE, 652 of 864 corners: the rest's bits are too small
+for the blur; 0.0059 over 573 before the weak edges joined their board lines), 0.0050 /
+0.0293 (hazcam 8 fisheye), 0.0023 / 0.0089 (camera 1, 5120x3840; 0.0059 and 0.0037 before
+NEIGHBOUR_REACH); with the length rule before _span_choice 0.0032 / 0.0135, 0.0052 /
+0.0218, 0.0053 / 0.0293, 0.0025 / 0.0112; the corner windows gave 0.014-0.03. CPU per
+image, whole detection (median; docs/corners.md, "Blurred AprilTag detection time", load 3
+on 2 cores): 0.043 s on 640x480, 0.090 s on 1024x1024, 0.30 s on 5120x3840 (0.135, 0.194,
+0.561 s before the blur was fitted on the edges, back to back); _span_choice adds ~0.011 s
+per 1024x1024 image (hazcam 8 realistic, back to back at load 6-9: 0.106 -> 0.117 s).
 
 Sharp images keep the corner window model (targets.corners): it is exact there to 1e-7 px
 on the ray caster's area renders, which this model is not built to match (its F ignores
