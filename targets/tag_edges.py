@@ -739,7 +739,7 @@ grid: refine_tag_edges' (None: no pooling)'''
         bias = (h * ref).sum(-1)
         um = np.einsum("xnms,nmsd->xnmd",
                        np.einsum("xnk,nks->xns", h, R).reshape(len(sel), Ne, 3, S), dS)
-        bvar = np.einsum("xnmd,nmde,xnme->xn", um, Ginv, um)
+        bvar = (np.einsum("xnmd,nmde->xnme", um, Ginv) * um).sum((-2, -1))
         # bias^2 less its estimate's noise, pooled, kept >= 0
         b2 = np.where(ok & np.isfinite(bias * bvar), bias * bias - bvar, 0.0)
         nok = ok @ pool.T
