@@ -564,8 +564,62 @@ of Pa (M,2), La (M,), ea, na (M,2), da (M,4) and of the b ones.'''
     return out
 
 
+# the moments edge_moments sums per edge (w the pixel's weight, F, g = F' its profile and
+# slope, tau its position): w, w F, w F^2; w g tau^k and w F g tau^k (k <= 5: a quintic
+# reference's projection); w g^2 tau^k (k <= 8: a cubic's normal matrix, k <= 6, and its
+# projection of the quintic)
+SPAN_W, SPAN_G, SPAN_FG, SPAN_GG = 0, 3, 9, 15
+SPAN_MOMENTS = 24
+
+
+@njit(cache=True, error_model="numpy")
+def edge_moments(t, s, a, b, d, L, j0, fy, cuts, x0, h, F, dF):
+    r'''(m, 3, SPAN_MOMENTS): each edge's moments (SPAN_W..) over its pixels [a[j], b[j]) of
+t, s (its own chord frame, length L[j], curve d[j] = d0..d2, its normal's angle bin j0[j],
+fy[j]) in three bins of their position tau = 2 t / L[j] - 1 along it: below cuts[0], up to
+cuts[1], beyond; F, g = F' at x = s - d(tau) from the table (x0, h, F, dF (A,X)): the
+moments of the normal equations of a curve fitted along the edge, in units of the contrast
+and the noise, its light level and contrast free (targets.tag_edges._span_choice)'''
+    m = len(a)
+    out = np.zeros((m, 3, SPAN_MOMENTS))
+    X = dF.shape[1]
+    for j in range(m):
+        ja, fa = j0[j], fy[j]
+        for q in range(a[j], b[j]):
+            tau = 2.0 * t[q] / L[j] - 1.0
+            x = s[q] - (d[j, 0] + tau * (d[j, 1] + tau * d[j, 2]))
+            fi = (x - x0) / h
+            c = 0 if tau < cuts[0] else (1 if tau <= cuts[1] else 2)
+            if fi <= 0.0 or fi >= X - 1:
+                f = 0.0 if fi <= 0.0 else 1.0
+                out[j, c, SPAN_W] += 1.0
+                out[j, c, SPAN_W + 1] += f
+                out[j, c, SPAN_W + 2] += f
+                continue
+            i = int(fi)
+            fx = fi - i
+            f = (F[ja, i] * (1.0 - fx) + F[ja, i + 1] * fx) * (1.0 - fa) \
+                + (F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx) * fa
+            g = (dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx) * (1.0 - fa) \
+                + (dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx) * fa
+            out[j, c, SPAN_W] += 1.0
+            out[j, c, SPAN_W + 1] += f
+            out[j, c, SPAN_W + 2] += f * f
+            fg = f * g
+            gg = g * g
+            tk = 1.0
+            for k in range(9):
+                if k < 6:
+                    out[j, c, SPAN_G + k] += g * tk
+                    out[j, c, SPAN_FG + k] += fg * tk
+                out[j, c, SPAN_GG + k] += gg * tk
+                tk *= tau
+    return out
+
+
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
-    return (tag_edge_pixels, fit_edges, meet_curves, blur_step, plateau_counts)
+    return (tag_edge_pixels, fit_edges, meet_curves, blur_step, plateau_counts,
+            edge_moments)

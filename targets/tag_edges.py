@@ -36,14 +36,19 @@ depends on it) and interpolated linearly (errors ~1e-5 of the contrast).
 
 Board lines. An AprilGrid's tags stand in rows and columns: edge k of a tag lies on the
 same board line as edge k of its row's (k = 0, 2) or column's (k = 1, 3) neighbours
-(`grid`). A short (L <= CUBIC_EDGE_PX) or nearly straight (first-pass bend <=
-STRAIGHT_BEND_PX) edge is fitted as one cubic through its own and both neighbours' pixels
-(~3.6 edge lengths: the noise averaged over 3x the pixels, the corner inside the span);
-a long bent one (a fisheye's big tags: a cubic over that span misses the line by 0.02 px)
-once per corner, with the nearer half of the neighbour's edge beyond that corner
-(NEIGHBOUR_REACH: over the whole neighbour the cubic still missed the line by 0.005-0.008
-px at the big tags' corners). An end without a
-neighbour takes the edge alone (a cubic when longer than CUBIC_EDGE_PX).
+(`grid`). Each edge's last fit takes, per corner, the span and degree of least expected
+error of that corner (_span_choice: bias^2 + variance, both computed per edge from the
+first pass): the edge alone, the edge with the nearer half of its board line's neighbour
+beyond that corner (NEIGHBOUR_REACH), or the edge with both its neighbours (~3.6 edge
+lengths: the noise averaged over 3x the pixels, the corner inside the span), a cubic, or
+over the three a quadratic (CANDIDATES). The long span averages the noise; a shorter one
+follows a bent line (a fisheye's big tags near the image's corner: a cubic over the
+three edges missed the line by up to 0.04 px). The choice weighs the two on the image's
+own numbers, no length or bend threshold: it replaced a rule chosen on MER hazcam 8 (the
+three edges' cubic for an edge up to 64 px or bent by up to 0.05 px, else per corner),
+which left 0.0091 px RMS, max 0.040 on the corner pose of
+tests/test_tag_edges_fisheye.py's constructed fisheye (now 0.0034, max 0.020: the rest
+are corners of weak edges, below).
 
 The pixels. Each edge uses the pixels that see no other feature of the board through the
 blur: a pixel at distance x and position t is kept where the light gap outside the tag
@@ -85,14 +90,16 @@ of its contrast, has too little contrast, or when the two curves do not meet wit
 MAX_CORNER_SHIFT_PX of the corner they started from (start_error_px in the first pass).
 
 Measured (benchmarks/bench_corners.py --targets apriltag --methods camval --response
-realistic; K = 16 renders, 6 poses): corner error RMS 0.0032 px (navcam 15), 0.0052
-(hazcam 17 as CAHVORE, 652 of 864 corners: the rest's bits are too small for the blur;
-0.0059 over 573 before the weak edges joined their board lines),
-0.0053 (hazcam 8 fisheye), 0.0025 (camera 1, 5120x3840; 0.0059 and 0.0037 before
-NEIGHBOUR_REACH); the corner windows gave
-0.014-0.03. CPU per image, whole detection (median; docs/corners.md, "Blurred AprilTag
-detection time", load 3 on 2 cores): 0.043 s on 640x480, 0.090 s on 1024x1024, 0.30 s on
-5120x3840 (0.135, 0.194, 0.561 s before the blur was fitted on the edges, back to back).
+realistic; K = 16 renders, 6 poses): corner error RMS / max 0.0029 / 0.0134 px (navcam 15),
+0.0050 / 0.0220 (hazcam 17 as CAHVORE, 652 of 864 corners: the rest's bits are too small
+for the blur; 0.0059 over 573 before the weak edges joined their board lines), 0.0050 /
+0.0293 (hazcam 8 fisheye), 0.0023 / 0.0089 (camera 1, 5120x3840; 0.0059 and 0.0037 before
+NEIGHBOUR_REACH); with the length rule before _span_choice 0.0032 / 0.0135, 0.0052 /
+0.0218, 0.0053 / 0.0293, 0.0025 / 0.0112; the corner windows gave 0.014-0.03. CPU per
+image, whole detection (median; docs/corners.md, "Blurred AprilTag detection time", load 3
+on 2 cores): 0.043 s on 640x480, 0.090 s on 1024x1024, 0.30 s on 5120x3840 (0.135, 0.194,
+0.561 s before the blur was fitted on the edges, back to back); _span_choice adds ~0.011 s
+per 1024x1024 image (hazcam 8 realistic, back to back at load 6-9: 0.106 -> 0.117 s).
 
 Sharp images keep the corner window model (targets.corners): it is exact there to 1e-7 px
 on the ray caster's area renders, which this model is not built to match (its F ignores
@@ -100,10 +107,23 @@ the edge's bend and the tabulation's rounding at sigma 0).
 '''
 
 import functools
+import math
 
 import numpy as np
 
-from ._tag_edge_kernels import blur_step, fit_edges, meet_curves, plateau_counts, tag_edge_pixels
+from ._tag_edge_kernels import (
+    SPAN_FG,
+    SPAN_G,
+    SPAN_GG,
+    SPAN_MOMENTS,
+    SPAN_W,
+    blur_step,
+    edge_moments,
+    fit_edges,
+    meet_curves,
+    plateau_counts,
+    tag_edge_pixels,
+)
 from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, PSF_KINDS, CornerFit, blur_kernel
 from .detection import median
 
@@ -119,15 +139,6 @@ MIN_EDGE_PIXELS = 40
 # them add nothing to the edge's position
 PLATEAU_PX = 1.0
 MAX_ITERATIONS = 30
-# an edge fitted alone longer than this (px) gets a cubic: on a fisheye (MER hazcam 8,
-# tags of 90-120 px) a quadratic missed the bent edge's ends by 0.009 px RMS, a cubic by
-# 0.0007 (noise-free blur, K = 16 renders); shorter edges are noise-limited, and a cubic's
-# end point is noisier than a quadratic's
-CUBIC_EDGE_PX = 64.0
-# the bend (px: the first pass's quadratic term, the edge's sagitta) below which a long edge
-# still takes both neighbours (navcam 15's realistic corners 0.0047 -> 0.0034 px RMS with
-# them; hazcam 8's tags, bent 0.2-0.4 px, unchanged)
-STRAIGHT_BEND_PX = 0.05
 # a long bent edge's per-corner fit takes its neighbour's pixels out to this fraction of the
 # neighbour's length past the gap: its nearer half. A cubic over this edge and the whole
 # neighbour (~2.3 edge lengths) misses a fisheye's bent board line: noise-free blurred
@@ -333,6 +344,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
     mis_edge = np.full((N, 4), np.nan)
     far = np.zeros((N, 4), bool)
     found = np.full((N, 4, 2), np.nan)
+    noise = 0.0
     for npass in range(passes):
         # the passes before the last only place its pixels: each edge alone
         last = npass == passes - 1
@@ -340,6 +352,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         own, start = {}, {}
         live = np.all(np.isfinite(q), axis=(1, 2))
         why_edge[~live] = "not detected"
+        # the edges whose curve is the previous pass's fit (not the chord)
+        curved = set(shapes)
         curves = _curves_in_frames(q, live, shapes)
         Hc = np.zeros((N, 3, 3))
         if bits is not None and live.any():
@@ -361,51 +375,56 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             start[(i, k)] = curves[i, k]
         if not own:
             break
-        # each corner's two board lines, in the edge's own frame: a short or nearly straight
-        # edge with both its board line's neighbours (3 edges, ~3.6 edge lengths); a long
-        # bent one (such a span would outgrow a cubic on a fisheye) per corner, with
-        # the neighbour beyond that corner (the corner inside the span, near its middle);
-        # an end without a neighbour (the board's border, a tag not found) takes the edge
-        # alone (end 2)
+        # each edge's last fit, per corner, the span and degree of least expected error
+        # (_span_choice: bias^2 + variance from the first pass's curves and noise): the edge
+        # alone, with its board line's neighbour beyond that corner (NEIGHBOUR_REACH of it),
+        # or with all its board line's neighbours (CANDIDATES)
+        choice = {}
+        if last and npass > 0:
+            choice = _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits,
+                                  (pix, piy, pt, ps, off), grid)
         geo = []
         for (i, k), (ix, iy, t, s, L, e, n) in own.items():
-            ends = {}
             # the first pass only places the second's pixels: each edge alone
             members = [m for m in (nbrs.get((i, k), []) if last else []) if m in own]
-            bend = abs(start[(i, k)][2])
-            if members and (L <= CUBIC_EDGE_PX or bend <= STRAIGHT_BEND_PX):
-                # a short edge (noise-limited): one cubic through it and both neighbours'
+            if (i, k) in weak and last:
+                # a weak edge is placed by its board line's neighbours' dark sides only, on
+                # the one cubic through the three
                 jx = np.concatenate([ix] + [own[m][0] for m in members])
                 jy = np.concatenate([iy] + [own[m][1] for m in members])
                 r = np.stack((jx, jy), -1) - q[i, k]
-                if (i, k) in weak and not _sees_dark(r @ e, r @ n, L, start[(i, k)]):
+                if not members or not _sees_dark(r @ e, r @ n, L, start[(i, k)]):
                     why_edge[i, k] = _EDGE_STATUS[2]
                     continue
                 geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], 2))
                 continue
-            if (i, k) in weak and last:
-                # a weak edge is placed by its board line's neighbours' dark sides only
-                # on the one cubic through the three (a short or straight edge's)
-                why_edge[i, k] = _EDGE_STATUS[2]
-                continue
+            ends = {}
             for m in members:
                 mid = 0.5 * (q[m[0], m[1]] + q[m[0], (m[1] + 1) % 4])
                 ends[0 if (mid - q[i, k]) @ e < 0 else 1] = m
-            for end, m in ends.items():
-                # the neighbour's pixels out to NEIGHBOUR_REACH of its length past the gap
-                # (u: px along this edge's chord from its corner k; this edge is 0..L)
-                nb = np.stack((own[m][0], own[m][1]), -1) - q[i, k]
-                u = nb @ e
-                reach_px = gap_bits * L / 8.0 + NEIGHBOUR_REACH * own[m][4]
-                near = (u <= L + reach_px) if end == 1 else (u >= -reach_px)
-                jx = np.concatenate((ix, own[m][0][near]))
-                jy = np.concatenate((iy, own[m][1][near]))
+            picks = choice.get((i, k), (("alone", 2), ("alone", 2)))
+            # one fit where both corners chose the same (a "corner" span differs per end)
+            tags = [2] if picks[0] == picks[1] and picks[0][0] != "corner" else [0, 1]
+            for end in tags:
+                span, deg = picks[0 if end == 2 else end]
+                if span == "alone":
+                    geo.append((i, k, ix, iy, t, s, L, e, n, deg == 3, start[(i, k)], end))
+                    continue
+                if span == "line":
+                    jx = np.concatenate([ix] + [own[m][0] for m in members])
+                    jy = np.concatenate([iy] + [own[m][1] for m in members])
+                else:
+                    # the neighbour's pixels out to NEIGHBOUR_REACH of its length past the
+                    # gap (u: px along this edge's chord from its corner k; this edge is 0..L)
+                    m = ends[end]
+                    nb = np.stack((own[m][0], own[m][1]), -1) - q[i, k]
+                    u = nb @ e
+                    reach_px = gap_bits * L / 8.0 + NEIGHBOUR_REACH * own[m][4]
+                    near = (u <= L + reach_px) if end == 1 else (u >= -reach_px)
+                    jx = np.concatenate((ix, own[m][0][near]))
+                    jy = np.concatenate((iy, own[m][1][near]))
                 r = np.stack((jx, jy), -1) - q[i, k]
-                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], end))
-            if len(ends) < 2:
-                # a long edge alone bends more than a quadratic follows on a fisheye
-                geo.append((i, k, ix, iy, t, s, L, e, n, last and L > CUBIC_EDGE_PX,
-                            start[(i, k)], 2))
+                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, deg == 3, start[(i, k)], end))
         if not geo:
             # every edge seen from its light side only, none placed by its neighbours: each
             # has its reason
@@ -429,6 +448,10 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 why_edge[i, k] = f"misfit: {mis:.3g} of the contrast"
             curves[(i, k, end)] = p[2:]
         frames = {(g[0], g[1]): (g[6], g[7], g[8]) for g in geo}
+        good = np.isfinite(fits[2]) & fits[1]
+        # the next pass's measure of the image's noise: the edges' median misfit (RMS over
+        # the contrast; each edge alone, noise-free a quadratic's model error)
+        noise = float(np.median(fits[2][good])) if good.any() else 0.0
 
         def curve(i, k, end, curves=curves):
             return curves[(i, k, end)] if (i, k, end) in curves else curves[(i, k, 2)]
@@ -487,6 +510,248 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                      info={**info, "corner_model": "tag edges",
                            "edge_misfit_median": float(np.median(mis_edge[good]))
                            if good.any() else float("nan")})
+
+
+# the span/degree candidates of an edge's last fit, per corner (targets.tag_edges._span_choice):
+# the edge alone or with its board line's neighbour beyond that corner (NEIGHBOUR_REACH of
+# it), a cubic; the edge with all its board line's neighbours, a quadratic or a cubic. A
+# quadratic over a short span has its corner at the span's end, where its bias is the
+# line's third derivative, which the reference tells only by its curves' disagreement: on
+# MER hazcam 17's realistic renders those were chosen on that noise (max corner error 0.025
+# px against 0.022 without them; RMS 0.0051 against 0.0050)
+CANDIDATES = (("alone", 3), ("corner", 3), ("line", 2), ("line", 3))
+# the board line's reference (_span_choice): its polynomial degree from the first pass's
+# curves of 1, 2 or 3 edges (3 samples each): the edge's own quadratic; with one neighbour a
+# quartic (one sample of 6 to spare); with both a quintic (3 to spare: the quartic and quintic
+# terms a cubic over the line cannot follow)
+REFERENCE_DEGREE = {1: 2, 2: 4, 3: 5}
+# where each first-pass quadratic is sampled (tau of its own chord): the zeros of the third
+# Legendre polynomial, where a least-squares quadratic meets a cubic curve it was fitted to
+_SAMPLE_TAU = np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)])
+
+
+def _normal_matrix(mu, deg):
+    r'''(I (..., deg+3, deg+3), B (..., deg+3, 6)) from span_moments' sums mu (...,
+SPAN_MOMENTS): the normal matrix of (light level, contrast, d0..d_deg), in units of the
+contrast, and B r its right-hand side for a pixel data g r(tau) (a curve r = sum r_l tau^l
+off the one fitted, l <= 5)'''
+    n = deg + 1
+    W, G, FG, GG = (mu[..., SPAN_W:SPAN_G], mu[..., SPAN_G:SPAN_FG], mu[..., SPAN_FG:SPAN_GG],
+                    mu[..., SPAN_GG:])
+    shape = mu.shape[:-1]
+    I = np.zeros(shape + (n + 2, n + 2))
+    I[..., 0, 0], I[..., 0, 1], I[..., 1, 1] = W[..., 0], W[..., 1], W[..., 2]
+    I[..., 1, 0] = W[..., 1]
+    I[..., 0, 2:], I[..., 1, 2:] = G[..., :n], FG[..., :n]
+    I[..., 2:, 0], I[..., 2:, 1] = G[..., :n], FG[..., :n]
+    idx = np.arange(n)[:, None] + np.arange(n)[None, :]
+    I[..., 2:, 2:] = GG[..., idx]
+    B = np.zeros(shape + (n + 2, 6))
+    B[..., 0, :], B[..., 1, :] = G, FG
+    B[..., 2:, :] = GG[..., np.arange(n)[:, None] + np.arange(6)[None, :]]
+    return I, B
+
+
+_BINOMIAL = np.array([[math.comb(r, c) for c in range(SPAN_MOMENTS - SPAN_GG)]
+                      for r in range(SPAN_MOMENTS - SPAN_GG)], dtype=np.float64)
+
+
+def _moved(mu, alpha, beta):
+    r'''The moments mu (..., P, SPAN_MOMENTS) of edge_moments in a frame where tau' = alpha +
+beta tau (alpha, beta (P,)): each sum of w tau'^k by the binomial expansion'''
+    K = SPAN_MOMENTS - SPAN_GG
+    k = np.arange(K)
+    T = _BINOMIAL * np.vander(alpha, K, increasing=True)[:, np.clip(k[:, None] - k, 0, None)] \
+        * np.vander(beta, K, increasing=True)[:, None, :]
+    out = mu.copy()
+    for lo, hi in ((SPAN_G, SPAN_FG), (SPAN_FG, SPAN_GG), (SPAN_GG, SPAN_MOMENTS)):
+        n = hi - lo
+        out[..., lo:hi] = np.einsum("pkj,...pj->...pk", T[:, :n, :n], mu[..., lo:hi])
+    return out
+
+
+def _solve(A, b):
+    r'''A^-1 b for a stack of normal matrices A (..., n, n), b (..., n, k); a singular one
+(an edge without pixels on its profile's slope) by its pseudo-inverse'''
+    try:
+        return np.linalg.solve(A, np.broadcast_to(b, A.shape[:-1] + b.shape[-1:]))
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(A) @ b
+
+
+def _powers(tau, n):
+    return np.asarray(tau, dtype=np.float64)[..., None] ** np.arange(n)
+
+
+def _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits, pixels, grid=None):
+    r'''{(i, k): (choice at corner k, choice at corner k+1)}, each a (span, degree) of
+CANDIDATES: the fit of each edge (not weak) with the least expected squared error of its
+corner across the edge, bias^2 + variance
+
+Why. A cubic over the edge and both its board line's neighbours (~3.6 edge lengths)
+averages the noise over three edges' pixels, but misses a line bent more than a cubic
+follows (a fisheye's big tags near the image's corner: 0.01-0.04 px); a shorter span or a
+higher degree follows the bend and lets more noise through. Each candidate is judged per
+corner on the image's own numbers:
+
+- variance: the corner's (tau = -1 or 1 of the edge's chord, across it) under the
+  candidate's linearised least squares, light level and contrast free, from the pixels'
+  information (F, F'(x) about the first pass's curves, over the noise: the first pass's
+  median misfit; targets._tag_edge_kernels.edge_moments, moved into the edge's frame by
+  _moved). Checked against 8 noise seeds on navcam 15's realistic renders: the predicted
+  corner scatter 0.0017 px (the three edges' cubic) and 0.0051 (a quadratic alone), the
+  measured 0.0018 and 0.0048 (medians);
+- bias: the candidate's weighted least-squares projection of the board line's reference
+  (a polynomial, REFERENCE_DEGREE, through the first pass's curves of the edge and its
+  neighbours, sampled at _SAMPLE_TAU) at the corner, less the reference there. The
+  reference's noise (the first pass's curves' covariance) makes its square too large by
+  its variance, which is subtracted: an unbiased estimate of bias^2. That estimate is as
+  noisy as the fit it judges (on navcam 15's straight lines, the three edges' cubic:
+  0.0011 px against its own scatter 0.0012), and the least of four noisy estimates picks a
+  short span too often; the bend is the lens's, smooth across the image, so the estimate
+  is pooled over the same edge of the 3 x 3 tags round it (`grid`; realistic corners of
+  hazcam 17 0.0057 -> 0.0051 px RMS, hazcam 8 0.0054 -> 0.0049, navcam 15 0.0033 ->
+  0.0030) and kept >= 0.
+
+A span is judged only where the reference covers it: its neighbours' curves fitted in the
+first pass (one seen from its light side only would be extrapolated over: a quadratic
+over the line was chosen on the fisheye's corner pose and missed it by 0.029 px).
+
+own: {(i, k): (ix, iy, t, s, L, e, n)}; start: each edge's first-pass curve (d0..d2) in its
+frame; weak: the edges seen from their light side only (no choice: the three edges'
+cubic places them); curved: the edges whose start is a fit (not the chord); nbrs:
+_neighbours; q (N,4,2) the corners; table: _edge_table; noise: misfit RMS / contrast;
+pixels: (ix, iy, t, s, a) of tag_edge_pixels: edge (i, k)'s are [a[4i+k], a[4i+k+1]);
+grid: refine_tag_edges' (None: no pooling)'''
+    ix, iy, pt, ps, off = pixels
+    # every edge's own moments (a weak one's curve may still be a neighbour's reference)
+    keys = list(own)
+    row = {key: j for j, key in enumerate(keys)}
+    # every edge's moments about its first-pass curve, in its own frame, in three bins
+    # along it: its nearer NEIGHBOUR_REACH from either end and the rest
+    Ne = len(keys)
+    ik = np.array(keys)
+    flat = 4 * ik[:, 0] + ik[:, 1]
+    Ls = np.array([own[key][4] for key in keys])
+    es = np.array([own[key][5] for key in keys])
+    ns = np.array([own[key][6] for key in keys])
+    ds = np.array([start[key][:3] for key in keys])
+    qs = q[ik[:, 0], ik[:, 1]]
+    fa = np.clip(np.arctan2(np.abs(ns).min(-1), np.abs(ns).max(-1)) / (np.pi / 4)
+                 * (TABLE_ANGLES - 1), 0.0, TABLE_ANGLES - 1.000001)
+    j0 = fa.astype(np.int64)
+    cut = 2.0 * NEIGHBOUR_REACH - 1.0
+    cuts = np.array([min(cut, -cut), max(cut, -cut)])
+    mom = edge_moments(pt, ps, off[flat], off[flat + 1], ds, Ls, j0, fa - j0, cuts, table[0],
+                       TABLE_STEP_PX, table[1], table[2]) / max(noise, 1e-12) ** 2
+    m_own = mom.sum(1)
+    # each end's board line neighbour, its moments moved into this edge's frame (tau
+    # affine in the neighbour's own tau along its chord): all of them, and those of its
+    # nearer part (NEIGHBOUR_REACH of it)
+    pairs = [(j, row[m]) for j, key in enumerate(keys) for m in nbrs.get(key, ()) if m in row]
+    ends = [{} for _ in keys]
+    m_nb = np.zeros((Ne, 2, 2, SPAN_MOMENTS))
+    if pairs:
+        pj, pm = np.array(pairs).T
+        e = es[pj]
+        mid = 0.5 * (q[ik[pm, 0], ik[pm, 1]] + q[ik[pm, 0], (ik[pm, 1] + 1) % 4])
+        pe = np.where(((mid - qs[pj]) * e).sum(-1) < 0, 0, 1)
+        for j, end, r in zip(pj.tolist(), pe.tolist(), pm.tolist(), strict=True):
+            ends[j][end] = keys[r]
+        L, Lm = Ls[pj], Ls[pm]
+        c = (es[pm] * e).sum(-1)
+        alpha = (2.0 * ((qs[pm] - qs[pj]) * e).sum(-1) + Lm * c) / L - 1.0
+        beta = Lm * c / L
+        # the neighbour's end nearer this edge: tau = -1 where its direction runs away
+        low = (c > 0) == (pe == 1)
+        near = np.where(low[:, None], [[True, cut >= 0, False]], [[False, cut >= 0, True]])
+        moved = _moved(np.stack((mom[pm].sum(1), (mom[pm] * near[..., None]).sum(1))), alpha,
+                       beta)
+        m_nb[pj, pe, 0], m_nb[pj, pe, 1] = moved
+    m_all = m_own + m_nb[:, 0, 0] + m_nb[:, 1, 0]
+    has = np.array([[end in at for end in (0, 1)] for at in ends])
+    # the reference: samples of the first pass's curves of the edge (slot 0) and its
+    # neighbours at ends 0, 1 (slots 1, 2), in the edge's frame
+    S = len(_SAMPLE_TAU)
+    tau_s = np.zeros((Ne, 3, S))
+    v_s = np.zeros((Ne, 3, S))
+    use = np.zeros((Ne, 3), bool)
+    proj = np.zeros((Ne, 3))
+    Vs = _powers(_SAMPLE_TAU, 3)
+    # the first pass's curve of each edge alone: its (d0, d1, d2)'s covariance
+    own_G = _solve(_normal_matrix(m_own, 2)[0], np.eye(5)[None, :, 2:])[:, 2:, :]
+    trip = [(j, c, row[m]) for j, key in enumerate(keys)
+            for c, m in enumerate((key, ends[j].get(0), ends[j].get(1)))
+            if m is not None and m in curved]
+    Ginv = np.zeros((Ne, 3, 3, 3))
+    if trip:
+        tj, tc_, tm = np.array(trip).T
+        e, n, nm = es[tj], ns[tj], ns[tm]
+        P = (qs[tm] - qs[tj])[:, None] \
+            + ((_SAMPLE_TAU + 1.0) * 0.5)[None, :, None] * (Ls[tm, None] * es[tm])[:, None, :] \
+            + (ds[tm] @ Vs.T)[..., None] * nm[:, None, :]
+        tau_s[tj, tc_] = 2.0 * (P * e[:, None]).sum(-1) / Ls[tj, None] - 1.0
+        v_s[tj, tc_] = (P * n[:, None]).sum(-1)
+        use[tj, tc_] = True
+        proj[tj, tc_] = (nm * n).sum(-1)
+        Ginv[tj, tc_] = own_G[tm]
+    nc = use.sum(1)
+    R = np.zeros((Ne, 6, 3 * S))
+    for cnt, D in REFERENCE_DEGREE.items():
+        sel = np.flatnonzero(nc == cnt)
+        if not len(sel):
+            continue
+        w = np.repeat(use[sel], S, axis=1).astype(np.float64)
+        V = _powers(tau_s[sel].reshape(len(sel), -1), D + 1) * w[..., None]
+        R[sel, :D + 1] = np.linalg.solve(V.transpose(0, 2, 1) @ V, V.transpose(0, 2, 1))
+    ref = np.einsum("nks,ns->nk", R, v_s.reshape(Ne, -1))
+    # the samples' sensitivity to each curve's (d0, d1, d2), across this edge's frame
+    dS = (proj * use)[..., None, None] * Vs[None, None]
+    # the bias pooled over the same edge of the tags round it (a 3 x 3 block of the grid):
+    # the bend is the lens's, smooth across the image, the estimates' noise independent
+    pool = np.eye(Ne)
+    if grid is not None:
+        cell = np.asarray(grid).reshape(-1, 2)[ik[:, 0]]
+        pool = ((np.abs(cell[:, None] - cell[None]).max(-1) <= 1)
+                & (ik[:, None, 1] == ik[None, :, 1])).astype(np.float64)
+    # a span is judged only where the reference covers it: its neighbours' curves in it
+    # (a neighbour without one, seen from its light side, would be extrapolated over)
+    covered = (use[:, 1:] | ~has).all(1)
+    spans = {"alone": lambda end: (m_own, use[:, 0]),
+             "corner": lambda end: (m_own + m_nb[:, end, 1],
+                                    use[:, 0] & has[:, end] & use[:, 1 + end]),
+             "line": lambda end: (m_all, use[:, 0] & has.any(1) & covered)}
+    combos = [(end, span, deg) for end in (0, 1) for span, deg in CANDIDATES]
+    risk = np.full((len(combos), Ne), np.inf)
+    for deg in sorted({c[2] for c in combos}):
+        sel = [i for i, c in enumerate(combos) if c[2] == deg]
+        M, ok = (np.stack(x) for x in zip(*[spans[combos[i][1]](combos[i][0]) for i in sel],
+                                           strict=True))
+        tc = np.array([2.0 * combos[i][0] - 1.0 for i in sel])
+        A, B = _normal_matrix(M, deg)
+        vc = np.zeros((len(sel), 1, deg + 3, 1))
+        vc[:, 0, 2:, 0] = tc[:, None] ** np.arange(deg + 1)
+        z = _solve(A, vc)[..., 0]
+        var = np.einsum("xnk,xk->xn", z, vc[:, 0, :, 0])
+        # the bias's functional on the reference's coefficients (those above its degree
+        # are 0), and its noise through the first pass's curves
+        h = np.einsum("xnk,xnkl->xnl", z, B) - (tc[:, None] ** np.arange(6))[:, None]
+        bias = (h * ref).sum(-1)
+        um = np.einsum("xnms,nmsd->xnmd",
+                       np.einsum("xnk,nks->xns", h, R).reshape(len(sel), Ne, 3, S), dS)
+        bvar = (np.einsum("xnmd,nmde->xnme", um, Ginv) * um).sum((-2, -1))
+        # bias^2 less its estimate's noise, pooled, kept >= 0
+        b2 = np.where(ok & np.isfinite(bias * bvar), bias * bias - bvar, 0.0)
+        nok = ok @ pool.T
+        b2 = np.where(nok > 0, (b2 @ pool.T) / np.where(nok > 0, nok, 1.0), 0.0)
+        risk[sel] = np.where(ok & (var > 0), np.maximum(b2, 0.0) + var, np.inf)
+    out = {}
+    n = len(CANDIDATES)
+    pick = [np.argmin(risk[n * end:n * (end + 1)], axis=0) for end in (0, 1)]
+    fine = np.isfinite(risk[:n].min(0)) & np.isfinite(risk[n:].min(0))
+    for j in np.flatnonzero(fine):
+        out[keys[j]] = (CANDIDATES[pick[0][j]], CANDIDATES[pick[1][j]])
+    return {key: v for key, v in out.items() if key not in weak}
 
 
 def _sees_dark(t, s, L, d):

@@ -1,6 +1,7 @@
 r'''targets.tag_edges on a fisheye built here (not a catalogue slot): blurred AprilTag
-corners from the exact ray caster against the exact corner projections, and
-NEIGHBOUR_REACH (chosen on catalogue camera 8, the MER hazcam) checked on another camera'''
+corners from the exact ray caster against the exact corner projections on all six planned
+poses (the span/degree chosen per corner, tag_edges._span_choice), and NEIGHBOUR_REACH
+(chosen on catalogue camera 8, the MER hazcam) checked on another camera'''
 
 import numpy as np
 import pytest
@@ -35,15 +36,15 @@ is wider at fewer pixels, so the board lines bend more per pixel'''
 
 @pytest.fixture(scope="module")
 def scene():
-    r'''(camera, poses, {pose index: (blurred noise-free image, exact corners)}) for the
-near pose 0 (tags of 40-94 px edges, the biggest and most bent) and the middle tilted
-pose 5'''
+    r'''(camera, poses, {pose index: (blurred noise-free image, exact corners)}) for the six
+planned poses: the near pose 0 (tags of 40-94 px edges), the four corner poses 1-4 (tilted
+boards in the fisheye's corners, tags of 20-80 px) and the middle tilted pose 5'''
     m = _fisheye()
     poses = plan_poses(m, TARGET, n=6, seed=0)
     r = get_renderer("raycast")
     chain = ResponseChain.from_config(BLUR)
     out = {}
-    for i in (0, 5):
+    for i in range(6):
         img = r.render(m, TARGET.pattern(), poses[i], RenderSettings(spp=16)).image
         out[i] = (chain.apply(img).image, projected_points(m, TARGET, poses[i]))
     return m, poses, out
@@ -64,28 +65,25 @@ def _rms(e):
 @pytest.mark.slow
 def test_blurred_fisheye_corners_from_the_edges(scene):
     r'''Noise-free blur (the realistic profile's PSF, sigma 0.7 px), blur kind and sigma
-estimated by the detector as in a campaign. The render is exact to ~1e-4 px of edge
-(area coverage); what is left is the edge model's: a cubic for a fisheye's bent board
-line (the module's docstring: 0.005-0.008 px RMS over this edge and its whole neighbour,
-~0.0025 at reach 0.5 on camera 8's near pose; an outer-ring edge has no neighbour and
-takes a cubic alone, its corner at the span's end). Bar: issue 16's 0.005 px RMS (what
-the corners must reach for the recalibration), max 0.03 px (~6x the RMS: the outer
-ring's corners, at the span's end, carry the cubic's largest miss). Measured (h-fish):
-pose 0 144/144 corners kept, 0.0038 RMS, max 0.0145 (a board line's end; the inner tags'
-maxima 0.0002-0.0069); pose 5 128/144 (the rest's bits too small for the blur), 0.0021 RMS,
-max 0.0088. Not asserted: the four corner poses (1-4, tilted boards in the fisheye's
-corners, tags of 20-80 px) measured 0.0015, 0.0045, 0.0091, 0.0029 px RMS, max up to
-0.040 px (pose 3): beyond the bar on pose 3. There the worst are the big tags nearest
-the image corner (edges of 51-66 px, x 650-770 of 800): edges of L <= CUBIC_EDGE_PX (64,
-chosen on camera 8) take one cubic over ~3.6 edge lengths of a strongly bent line, or a
-quadratic alone at a line's end; with CUBIC_EDGE_PX monkeypatched to 40, pose 3 measured
-0.0024 RMS, max 0.0094 (pose 0: 0.0017, max 0.0069), 8 corners fewer kept'''
+estimated by the detector as in a campaign, every planned pose. The render is exact to
+~1e-4 px of edge (area coverage); what is left is the edge model's: each edge's span and
+degree per corner chosen by bias^2 + variance (tag_edges._span_choice; noise-free, the
+variance is the tabulation's, so the least bias wins). Bar: issue 16's 0.005 px RMS (what
+the corners must reach for the recalibration) on every pose, max 0.03 px (~6x the RMS: a
+board line's end, or a weak edge placed by its neighbours). Measured (h-cubic): poses 0-5
+0.0016, 0.0010, 0.0017, 0.0034, 0.0008, 0.0011 px RMS, max 0.0069, 0.0065, 0.0123, 0.0199,
+0.0049, 0.0110; 144, 127, 124, 122, 144, 128 of 144 corners kept (the rest's bits too small
+for the blur). Before, with a length rule chosen on camera 8 (the three edges' cubic up to
+64 px): 0.0038, 0.0015, 0.0045, 0.0091, 0.0029, 0.0021, max up to 0.040 (pose 3's big tags
+near the image corner, edges of 51-66 px). Pose 3's maximum, 0.020 px, is a tag whose
+edges are seen from their light side only, placed by their board lines (the same under
+any span choice: 0.0032 px RMS on that pose for the best choice per corner in hindsight)'''
     _, _, images = scene
     for i, (im, truth) in images.items():
         e, det = _errors(im, truth)
         assert abs(det.info["psf_sigma_px"] - 0.7) < 0.01, det.info["psf_sigma_px"]
-        # the near pose's tags are all big enough for the blur; pose 5 drops the far
-        # row's small ones with a reason
+        # the near pose's tags are all big enough for the blur; the others drop the small
+        # far ones with a reason
         assert e.size >= (TARGET.Npoints if i == 0 else 0.8 * TARGET.Npoints), (i, e.size)
         assert _rms(e) < 0.005 and e.max() < 0.03, (i, _rms(e), e.max())
 
