@@ -762,8 +762,8 @@ block (y // 2, x // 2 in the box) orders them."""
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup). Not dilations(): the detector no
-longer calls it (dot_centroid takes the dilations row by row from the mask's runs); it stays as the tests'
-statement of the dilations cv2.dilate gives, and a kernel listed here that no job calls
-would never be cached, so every warm-up would render again.'''
+longer calls it (dot_centroid takes the dilations row by row from the mask's runs); it
+stays as the tests' statement of the dilations cv2.dilate gives, and a kernel listed here
+that no job calls would never be cached, so every warm-up would render again.'''
     return (dot_centroid, mark_flags, histogram_counts, label_boxes, grow_lattice,
             polygon_terms)
