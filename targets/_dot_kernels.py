@@ -195,45 +195,119 @@ fraction of np.sort's time)"""
 
 
 @njit(cache=True, error_model="numpy")
+def _row_runs(mask):
+    r"""The runs of each row of mask (uint8, 0/1): (rs, re, row0), row y's runs [rs[k],
+re[k]) for k in row0[y]..row0[y + 1] - 1, left to right"""
+    h, w = mask.shape
+    rs = np.empty(h * ((w + 1) // 2) + 1, np.int64)
+    re = np.empty(len(rs), np.int64)
+    row0 = np.empty(h + 1, np.int64)
+    n = 0
+    for y in range(h):
+        row0[y] = n
+        x = 0
+        while x < w:
+            if not mask[y, x]:
+                x += 1
+                continue
+            rs[n] = x
+            while x < w and mask[y, x]:
+                x += 1
+            re[n] = x
+            n += 1
+    row0[h] = n
+    return rs, re, row0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _dilated_row(Y, h, w, rs, re, row0, lo, hi, a, b):
+    r"""Row Y of the mask whose runs are (rs, re, row0) (_row_runs) dilated by the element
+of rows (lo, hi) (element_rows()), as sorted disjoint intervals [a[k], b[k]) (written to
+a, b; their count returned): each run [s, e) of row Y - i + r gives [s + lo[i], e + hi[i])
+clipped to the crop (_dilation_steps' intervals), and their union is taken"""
+    r = len(lo) // 2
+    m = 0
+    for i in range(len(lo)):
+        y = Y - i + r
+        if lo[i] > hi[i] or y < 0 or y >= h:
+            continue
+        for k in range(row0[y], row0[y + 1]):
+            s, e = max(rs[k] + lo[i], 0), min(re[k] + hi[i], w)
+            if s < e:
+                # insertion by start (a few intervals: one or two a row of a dot)
+                t = m
+                while t > 0 and a[t - 1] > s:
+                    a[t], b[t] = a[t - 1], b[t - 1]
+                    t -= 1
+                a[t], b[t] = s, e
+                m += 1
+    # merge the overlapping and touching ones
+    out = 0
+    for k in range(m):
+        if out and a[k] <= b[out - 1]:
+            b[out - 1] = max(b[out - 1], b[k])
+        else:
+            a[out], b[out] = a[k], b[k]
+            out += 1
+    return out
+
+
+@njit(cache=True, error_model="numpy")
 def dot_centroid(crop, mask, free, has_free, lo_w, hi_w, lo_r, hi_r, xa, ya, min_ring):
     r"""(status, x, y): the centroid of the blob mask (uint8) in crop (float64 or float32,
 any strides: a view of the image; not written), crop[0, 0] being pixel (xa, ya); free
 (bool, read only if has_free) the pixels of no blob; the elements' rows from
 element_rows(); see the module docstring
 
-Two passes over the crop: the prefix sums of the dilations (_dilation_steps) mark the
-window and collect the ring's pixels in raster order; the weights are then summed over
-each row's window columns only (first..last window pixel of the row). A float32 pixel
-is taken as its float64 value, as numpy's astype gives it."""
+The window and the outer dilation are taken row by row as intervals from the mask's
+runs (_dilated_row: the pixels dilations() gives), so that only the ring's and the
+window's pixels are read, in raster order: the ring's collected (the plane's points),
+then the weights summed over the window. A float32 pixel is taken as its float64 value,
+as numpy's astype gives it."""
     h, w = mask.shape
-    d = _dilation_steps(mask, lo_w, hi_w, lo_r, hi_r)
-    window = np.empty((h, w), np.bool_)
-    first = np.empty(h, np.int64)     # the window's columns of row y: first[y]..last[y]
-    last = np.empty(h, np.int64)
+    rs, re, row0 = _row_runs(mask)
+    runs = 1
+    for y in range(h):
+        runs = max(runs, row0[y + 1] - row0[y])
+    cap = len(lo_r) * runs + 1
+    # the window's intervals of every row: row y's are wa[wrow[y]:wrow[y + 1]]
+    wa = np.empty(h * len(lo_w) * runs + 1, np.int64)
+    wb = np.empty(len(wa), np.int64)
+    wrow = np.empty(h + 1, np.int64)
+    oa = np.empty(cap, np.int64)
+    ob = np.empty(cap, np.int64)
+    nwin = 0
     v = np.empty(h * w)
     rx = np.empty(h * w, np.int64)
     ry = np.empty(h * w, np.int64)
     n = 0
     sx, sy = 0, 0
     for y in range(h):
-        cw = cr = 0
-        first[y], last[y] = w, -1
-        for x in range(w):
-            cw += d[0, y, x]
-            cr += d[1, y, x]
-            win = cw > 0
-            window[y, x] = win
-            if win:
-                if first[y] == w:
-                    first[y] = x
-                last[y] = x
-            elif cr > 0 and (not has_free or free[y, x]):
-                v[n] = crop[y, x]
-                rx[n] = x + xa
-                ry[n] = y + ya
-                sx += x + xa
-                sy += y + ya
-                n += 1
+        wrow[y] = nwin
+        nw = _dilated_row(y, h, w, rs, re, row0, lo_w, hi_w, wa[nwin:], wb[nwin:])
+        no = _dilated_row(y, h, w, rs, re, row0, lo_r, hi_r, oa, ob)
+        # the ring: the outer intervals' pixels outside the window's, left to right
+        k = nwin
+        for t in range(no):
+            x = oa[t]
+            while x < ob[t]:
+                while k < nwin + nw and wb[k] <= x:
+                    k += 1
+                if k < nwin + nw and wa[k] <= x:
+                    x = wb[k]           # inside the window: skip it
+                    continue
+                end = ob[t] if k == nwin + nw else min(ob[t], wa[k])
+                for xx in range(x, end):
+                    if not has_free or free[y, xx]:
+                        v[n] = crop[y, xx]
+                        rx[n] = xx + xa
+                        ry[n] = y + ya
+                        sx += xx + xa
+                        sy += y + ya
+                        n += 1
+                x = end
+        nwin += nw
+    wrow[h] = nwin
     plane = n >= min_ring
     level = 0.0
     coef = np.zeros(3)
@@ -271,23 +345,26 @@ is taken as its float64 value, as numpy's astype gives it."""
     else:
         level = -np.inf
         for y in range(h):
-            for x in range(first[y], last[y] + 1):
-                if window[y, x] and crop[y, x] > level:
-                    level = crop[y, x]
+            for k in range(wrow[y], wrow[y + 1]):
+                for x in range(wa[k], wb[k]):
+                    if crop[y, x] > level:
+                        level = crop[y, x]
     s = sxw = syw = 0.0
+    c0, c1 = coef[0], coef[1]
+    if not plane:       # the level as a plane of slope 0: the same b at every pixel
+        c0, c1, xm = level, 0.0, 0.0
     for y in range(h):
         # the plane's y term of the row: the same value and sum order as per pixel
-        yterm = coef[2] * (float(y + ya) - ym)
-        for x in range(first[y], last[y] + 1):
-            if not window[y, x]:
-                continue
-            b = coef[0] + coef[1] * (float(x + xa) - xm) + yterm if plane else level
-            wgt = 1.0 - crop[y, x] / b
-            if not math.isfinite(wgt) or wgt <= 0.0:
-                continue
-            s += wgt
-            sxw += wgt * x      # crop coordinates: sums of smaller terms, less rounding
-            syw += wgt * y
+        yterm = coef[2] * (float(y + ya) - ym) if plane else 0.0
+        row = crop[y]
+        for k in range(wrow[y], wrow[y + 1]):
+            for x in range(wa[k], wb[k]):
+                b = c0 + c1 * (float(x + xa) - xm) + yterm
+                wgt = 1.0 - row[x] / b
+                if math.isfinite(wgt) and wgt > 0.0:
+                    s += wgt
+                    sxw += wgt * x  # crop coordinates: sums of smaller terms, less rounding
+                    syw += wgt * y
     if not s > 0:
         return 0, 0.0, 0.0
     return 1, xa + sxw / s, ya + syw / s
@@ -520,11 +597,22 @@ def histogram_counts(v, edges, lo, scale):
     r'''The counts of detect_dots._histogram (np.histogram's) in one pass over v: each
 value's bin estimated as min((v - lo) scale, bins - 1) in v's precision (lo and scale
 of the edges' type), then moved one bin down or up against its edges, so that it counts
-in the bin [edges[i], edges[i+1]) that holds it, the last bin closed'''
+in the bin [edges[i], edges[i+1]) that holds it, the last bin closed
+
+A run of equal values (==) counts once, by its length: they fall in one bin (the bin
+is found from comparisons and differences of equal values), and a render's subsample
+is mostly runs (99% of a 5120x3840 dot render's values equal the one before): 3.4 ->
+1.6 ms on its 1.2 M values, where adding 1 to one bin per value waited for the last
+addition to the same bin.'''
     bins = len(edges) - 1
     n = np.zeros(bins, np.intp)
-    for k in range(len(v)):
+    N = len(v)
+    k = 0
+    while k < N:
         b = v[k]
+        j = k + 1
+        while j < N and v[j] == b:
+            j += 1
         f = (b - lo) * scale
         if f > bins - 1:
             f = bins - 1
@@ -533,7 +621,8 @@ in the bin [edges[i], edges[i+1]) that holds it, the last bin closed'''
             i -= 1
         elif i < bins - 1 and b >= edges[i + 1]:
             i += 1
-        n[i] += 1
+        n[i] += j - k
+        k = j
     return n
 
 
@@ -673,8 +762,8 @@ block (y // 2, x // 2 in the box) orders them."""
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup). Not dilations(): the detector no
-longer calls it (dot_centroid's prefix pass does the dilations); it stays as the tests'
-statement of the dilations cv2.dilate gives, and a kernel listed here that no job calls
-would never be cached, so every warm-up would render again.'''
+longer calls it (dot_centroid takes the dilations row by row from the mask's runs); it
+stays as the tests' statement of the dilations cv2.dilate gives, and a kernel listed here
+that no job calls would never be cached, so every warm-up would render again.'''
     return (dot_centroid, mark_flags, histogram_counts, label_boxes, grow_lattice,
             polygon_terms)

@@ -17,6 +17,14 @@ A mirror-imaged camera (model.mirrored, e.g. behind a fold mirror) shows every
 tag mirrored, which decodes as no tag at all; when no tag of the board decodes,
 the flipped image is tried and the corners are flipped back (info["mirrored"]).
 
+The quad search runs on the image decimated (decimate_for); a large image's is tried
+first TRIAL_DECIMATION_FACTOR times coarser and kept when it missed no tag of the board
+(_search_complete: every tag decoded, or tags big enough that one half their size would
+still be found) and the image is sharp (the blurred model starts from the coarse
+corners, whose error grows with the decimation): on 5120x3840 renders 0.013 s of CPU
+for pupil_apriltags instead of 0.030, the refined corners within 1.4e-6 px of the finer
+search's (benchmarks/bench_corners.py --compare-q, cameras 1 and 21).
+
 Pixel convention: the AprilTag library puts the centre of pixel (0,0) at
 (0.5, 0.5) (its corners came out +0.50 px in x and y against exact projections,
 measured in tests/test_detect.py), camval at (0,0): corners are shifted by
@@ -167,6 +175,30 @@ the refined corners within 8e-6 px of the undecimated search's.'''
     return max(1, int(min(shape[:2]) // DECIMATED_MIN_SIDE_PX))
 
 
+# a tag whose bit spans fewer decimated px than this may be missed by the quad search:
+# every tag decoded at >= 1.95 decimated px a bit, some lost at 1.1-1.47 (renders of the
+# 1024x1024 camera 5 and the 640x480 hazcam 17, 6 poses each, decimations 1-6)
+MIN_DECIMATED_BIT_PX = 2.0
+# a large image's quad search is tried first this many times coarser than decimate_for's
+# (pupil_apriltags decodes and refines the edges at full resolution either way): on
+# 5120x3840 renders (cameras 1 and 21, tag bits 17-40 px) decimation 6 found every tag,
+# 27 ms of CPU against 44 at 3, the refined corners within 1.4e-6 px of decimation 3's
+TRIAL_DECIMATION_FACTOR = 2
+
+
+def _search_complete(tags, index, quad_decimate, max_hamming):
+    r'''Whether a quad search decimated by quad_decimate missed no tag of the board: every
+tag of the board decoded, or the smallest decoded tag of the board so large that a tag
+half its size keeps MIN_DECIMATED_BIT_PX decimated px a bit (a tilted board's far tags,
+a board partly out of view)'''
+    board = {t.tag_id for t in tags if t.hamming <= max_hamming and 4 * t.tag_id in index}
+    if len(board) * 4 == len(index):
+        return True
+    sides = [np.linalg.norm(t.corners - np.roll(t.corners, 1, axis=0), axis=-1).min()
+             for t in tags if t.tag_id in board]
+    return bool(sides) and min(sides) / 8.0 / quad_decimate >= 2.0 * MIN_DECIMATED_BIT_PX
+
+
 # detectors live as long as the process: the option sets are few
 @functools.cache
 def _detector(quad_decimate, quad_sigma, refine_edges, decode_sharpening):
@@ -226,53 +258,26 @@ and the edge model's'''
     return fit
 
 
-def detect_apriltags(image, target, *, max_hamming=1, min_found=4, quad_decimate=None,
-                     quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25, refine=True,
-                     psf_sigma_px=None):
-    r'''Detect an AprilTag grid; see the module docstring
-
-SYNOPSIS
-
-    det = detect_apriltags(image, target)
-
-ARGUMENTS
-
-- image: (H,W) float in [0,1], or uint8/uint16 (converted to 8 bits for the detector)
-- target: an "apriltag" targets.boards.Target
-- max_hamming: largest number of corrected bit errors accepted
-- min_found: fewest corners for status "ok" (default 4: one tag)
-- quad_decimate, quad_sigma, refine_edges, decode_sharpening: pupil_apriltags' options;
-  quad_decimate None: decimate_for(image shape) (the quads only: decoding and the corners
-  use the full image)
-- refine: True: fit the corner model (targets.corners); "subpix": polish each corner with
-  cv2.cornerSubPix in a window of half a tag bit; False: pupil_apriltags' corners
-- psf_sigma_px: the image's Gaussian blur (px) for the corner model when known (e.g. a
-  campaign's response profile); None (default): estimated from the image
-  (targets.corners.estimate_blur); info["psf_sigma_px"] has the value used
-'''
-    if target.kind != "apriltag":
-        return failed(target, f"detect_apriltags() needs an apriltag target; got "
-                      f"{target.kind!r}", DETECTOR)
-    work = working_image(image)
-    if work is None:
-        return failed(target, "the image has non-finite pixels", DETECTOR)
-    img, img8, (lo, hi) = work
-    if quad_decimate is None:
-        quad_decimate = decimate_for(img8.shape)
+def _search(img8, index, quad_decimate, quad_sigma, refine_edges, decode_sharpening):
+    r'''(tags, mirrored): pupil_apriltags' tags of the 8-bit image, or of its mirror image
+when no tag of the board (index: {point id: row}) decodes in it but some do there'''
     detector = _detector(float(quad_decimate), float(quad_sigma), int(refine_edges),
                          float(decode_sharpening))
-    ids = target.point_ids()
-    index = {int(pid): k for k, pid in enumerate(ids)}
     tags = detector.detect(img8)
-    mirrored = False
     if not any(4 * t.tag_id in index for t in tags):
         # a mirror-imaged camera shows every tag mirrored, which decodes as nothing: try
         # the flipped image (pixel x there is W-1-x here)
         flipped = detector.detect(np.ascontiguousarray(img8[:, ::-1]))
         if any(4 * t.tag_id in index for t in flipped):
-            tags, mirrored = flipped, True
+            return flipped, True
+    return tags, False
+
+
+def _board_tags(tags, mirrored, index, img, max_hamming, refine):
+    r'''(used, rejected): [(tag id, its 4 corners (4,2) in camval's pixel convention)] of
+the decoded tags of the board (cornerSubPix-polished with refine "subpix"), and the
+counts of the tags left out by reason'''
     W = img.shape[1]
-    q = np.full((len(ids), 2), np.nan)
     seen = {}
     img32 = img if img.dtype == np.float32 or refine != "subpix" else img.astype(np.float32)
     rejected = {"hamming": 0, "not_on_board": 0, "duplicate": 0}
@@ -296,25 +301,83 @@ ARGUMENTS
         if refine == "subpix":
             c = _refine(img32, c)
         used.append((tag_id, c))
-    if refine is True and used:
-        from .corners import refine_tag_corners, tag_window
-        if psf_sigma_px:
-            fit = _refine_blurred(img, used, None, {"psf_sigma_px": float(psf_sigma_px),
-                                                    "psf_source": "given"}, target, hi - lo)
-        else:
-            fit = refine_tag_corners(img, np.array([c for _, c in used]), value_range=hi - lo,
-                                     psf_sigma_px=psf_sigma_px, stop_if_blurred=True,
-                                     **tag_window(target))
-            if fit.info.get("stopped"):
-                fit = _refine_blurred(img, used, fit.q.reshape(-1, 4, 2), fit.info, target,
-                                      hi - lo, quad_decimate)
-        refined = fit.q.reshape(-1, 4, 2)
-        used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
+    return used, rejected
+
+
+def detect_apriltags(image, target, *, max_hamming=1, min_found=4, quad_decimate=None,
+                     quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25, refine=True,
+                     psf_sigma_px=None):
+    r'''Detect an AprilTag grid; see the module docstring
+
+SYNOPSIS
+
+    det = detect_apriltags(image, target)
+
+ARGUMENTS
+
+- image: (H,W) float in [0,1], or uint8/uint16 (converted to 8 bits for the detector)
+- target: an "apriltag" targets.boards.Target
+- max_hamming: largest number of corrected bit errors accepted
+- min_found: fewest corners for status "ok" (default 4: one tag)
+- quad_decimate, quad_sigma, refine_edges, decode_sharpening: pupil_apriltags' options;
+  quad_decimate None: TRIAL_DECIMATION_FACTOR x decimate_for(image shape) where that is
+  above 1, kept when that search missed no tag (_search_complete), else decimate_for's
+  (the quads only: decoding and the corners use the full image; info["quad_decimate"]
+  has the one used)
+- refine: True: fit the corner model (targets.corners); "subpix": polish each corner with
+  cv2.cornerSubPix in a window of half a tag bit; False: pupil_apriltags' corners
+- psf_sigma_px: the image's Gaussian blur (px) for the corner model when known (e.g. a
+  campaign's response profile); None (default): estimated from the image
+  (targets.corners.estimate_blur); info["psf_sigma_px"] has the value used
+'''
+    if target.kind != "apriltag":
+        return failed(target, f"detect_apriltags() needs an apriltag target; got "
+                      f"{target.kind!r}", DETECTOR)
+    work = working_image(image)
+    if work is None:
+        return failed(target, "the image has non-finite pixels", DETECTOR)
+    img, img8, (lo, hi) = work
+    ids = target.point_ids()
+    index = {int(pid): k for k, pid in enumerate(ids)}
+    # a large image's quads are searched coarser first, kept when that search missed no
+    # tag (_search_complete) and the image is sharp; else searched again at decimate_for's
+    # decimation (the blurred model starts from the coarse corners: tag_edges' search
+    # grows with their error, which grows with the decimation)
+    fine = decimate_for(img8.shape)
+    trials = [quad_decimate] if quad_decimate is not None else \
+        [TRIAL_DECIMATION_FACTOR * fine, fine] if fine > 1 and refine is True \
+        and not psf_sigma_px else [fine]
+    for k, quad_decimate in enumerate(trials):
+        last = k == len(trials) - 1
+        tags, mirrored = _search(img8, index, quad_decimate, quad_sigma, refine_edges,
+                                 decode_sharpening)
+        if not last and not _search_complete(tags, index, quad_decimate, max_hamming):
+            continue
+        used, rejected = _board_tags(tags, mirrored, index, img, max_hamming, refine)
+        if refine is True and used:
+            from .corners import refine_tag_corners, tag_window
+            if psf_sigma_px:
+                fit = _refine_blurred(img, used, None, {"psf_sigma_px": float(psf_sigma_px),
+                                                        "psf_source": "given"}, target,
+                                      hi - lo)
+            else:
+                fit = refine_tag_corners(img, np.array([c for _, c in used]),
+                                         value_range=hi - lo, psf_sigma_px=psf_sigma_px,
+                                         stop_if_blurred=True, **tag_window(target))
+                if fit.info.get("stopped"):
+                    if not last:
+                        continue
+                    fit = _refine_blurred(img, used, fit.q.reshape(-1, 4, 2), fit.info,
+                                          target, hi - lo, quad_decimate)
+            refined = fit.q.reshape(-1, 4, 2)
+            used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
+        break
+    q = np.full((len(ids), 2), np.nan)
     for tag_id, c in used:
         for k in range(4):
             q[index[4 * tag_id + k]] = c[k]
     info = {"Ntags_decoded": len(tags), "Ntags_used": int(np.isfinite(q[:, 0]).sum() // 4),
-            "rejected": rejected, "mirrored": mirrored}
+            "rejected": rejected, "mirrored": mirrored, "quad_decimate": quad_decimate}
     if refine is True and used:
         info["corners_dropped"] = fit.dropped()
         info.update({k: v for k, v in fit.info.items() if k.startswith("psf_")})

@@ -386,6 +386,63 @@ catalogue's 1024x1024 cameras decode every tag of their planned poses undecimate
         assert min(shape) // k >= DECIMATED_MIN_SIDE_PX or k == 1
 
 
+def _large_tag_image(pose, distance_scale):
+    r'''(image, target): the ray caster's render of the AprilTag grid through a 2048x2048
+camera (decimate_for 2) at planned pose `pose` moved distance_scale times as far'''
+    from renderers.base import RenderSettings, get_renderer
+    t = load_target("apriltag")
+    m = pinhole(2048, 2048, 1600.0, R=WIDE["R"])
+    Rt = plan_poses(m, t, seed=0)[pose].copy()
+    Rt[3] *= distance_scale
+    return get_renderer("raycast").render(m, t.pattern(), Rt, RenderSettings(spp=16)).image, t
+
+
+def test_apriltag_quads_of_a_large_image_searched_coarser_when_no_tag_is_missed():
+    r'''A 2048x2048 image whose 36 tags (bits of 22 px and more) all decode in the quad
+search decimated by 4: that search is kept, and the refined corners are those of the
+search decimated by 2 (the corner fit starts from the coarse corners and stops at a step
+below CONVERGED_PX, 1e-4 px: the two starts end within that; measured 5e-7 px)'''
+    from targets.detect_apriltag import TRIAL_DECIMATION_FACTOR, decimate_for
+    img, t = _large_tag_image(0, 1.0)
+    det = detect(img, t)
+    fine = detect(img, t, quad_decimate=decimate_for(img.shape))
+    assert det.info["quad_decimate"] == TRIAL_DECIMATION_FACTOR * decimate_for(img.shape) == 4
+    assert det.status == fine.status == "ok" and det.n_found == fine.n_found == 144
+    assert np.array_equal(det.found, fine.found)
+    assert np.max(np.abs(det.q - fine.q)[det.found]) < 1e-4
+
+
+def test_apriltag_quads_of_a_large_image_searched_again_when_tags_are_missed():
+    r'''A tilted board far away (tag bits down to 3.7 px): the search decimated by 4 decodes
+a few of its tags only, so the search decimated by decimate_for's 2 gives the detection,
+the one that decimation gives when asked for'''
+    img, t = _large_tag_image(3, 3.0)
+    coarse = detect(img, t, quad_decimate=4, refine=False)
+    assert coarse.info["Ntags_decoded"] < 36
+    det = detect(img, t)
+    fine = detect(img, t, quad_decimate=2)
+    assert det.info["quad_decimate"] == 2 and det.info["Ntags_decoded"] == 36
+    assert det.n_found == fine.n_found and np.array_equal(det.q, fine.q, equal_nan=True)
+
+
+def test_search_complete_needs_every_tag_or_tags_twice_the_smallest_searchable():
+    from targets.detect_apriltag import MIN_DECIMATED_BIT_PX, Tag, _search_complete
+    index = {4 * i + k: 4 * i + k for i in range(4) for k in range(4)}
+
+    def tag(i, side, hamming=0):
+        return Tag(i, hamming, np.array([[0, 0], [side, 0], [side, side], [0, side]], float))
+    # every tag of the board, however small
+    assert _search_complete([tag(i, 8.0) for i in range(4)], index, 4, 1)
+    # one missing: the decoded ones must keep 2 x MIN_DECIMATED_BIT_PX decimated px a bit
+    big = 8 * 2 * MIN_DECIMATED_BIT_PX * 4
+    assert _search_complete([tag(i, big) for i in range(3)], index, 4, 1)
+    assert not _search_complete([tag(i, 0.99 * big) for i in range(3)], index, 4, 1)
+    # a tag beyond max_hamming or off the board does not count
+    assert not _search_complete([tag(0, 8.0), tag(1, 8.0), tag(2, 8.0), tag(3, 8.0, 2)],
+                                index, 4, 1)
+    assert not _search_complete([tag(9, big)], index, 4, 1)
+
+
 def test_mark_flags_follow_perspective_on_the_lattice_edge():
     # a board seen obliquely through a wide lens: blob areas fall 1.41x a row (measured
     # on a hazcam render whose detection failed), marks 1.96x their row (the dot target's
