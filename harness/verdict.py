@@ -696,8 +696,10 @@ where it gives them faster: jpl_linearisation, posed_linearisation)'''
         r'''[d f(model(x)) / d x[:n_model] for f in fs]: each (len(f), n_model)
 
 Central differences, as _central_jacobian takes them (the same numbers), with each
-stepped model built once for every f: building a model and its frame costs as much
+stepped model built once for every f (and without its geometry's checks:
+reference_models.cahvore.checked_once): building a model and its frame costs as much
 as a function of it.'''
+        from reference_models.cahvore import checked_once
         n, rest = self.n_model, self.x0[self.n_model:]
         x0, h = self.x0[:n], self.steps[:n]
         cols = [[] for _ in fs]
@@ -705,8 +707,9 @@ as a function of it.'''
             xp, xm = x0.copy(), x0.copy()
             xp[i] += h[i]
             xm[i] -= h[i]
-            mp = self.model(np.concatenate((xp, rest)))
-            mm = self.model(np.concatenate((xm, rest)))
+            with checked_once():    # steps of the fitted model, checked by the fit
+                mp = self.model(np.concatenate((xp, rest)))
+                mm = self.model(np.concatenate((xm, rest)))
             for c, f in zip(cols, fs, strict=True):
                 c.append((np.asarray(f(mp), dtype=np.float64).ravel()
                           - np.asarray(f(mm), dtype=np.float64).ravel()) / (xp[i] - xm[i]))
