@@ -818,9 +818,15 @@ regularised, an unknown model type).'''
     x0 = np.concatenate((intr0, np.zeros(6 * Np)))
     pb = [obs.p_board[i][found[i]] for i in range(Np)]
 
+    def rotated(i, w):
+        R = _rodrigues(w) @ Rts[i][:3]
+        return pb[i] @ R.T
+    # the board points at each pose's own rotation (no rotation step: the Jacobian's
+    # intrinsics and translation steps, every projection at the solution), rotated once
+    at_pose = [rotated(i, np.zeros(3)) for i in range(Np)]
+
     def pose_points(i, d):
-        R = _rodrigues(d[:3]) @ Rts[i][:3]
-        return pb[i] @ R.T + Rts[i][3] + d[3:]
+        return (rotated(i, d[:3]) if d[:3].any() else at_pose[i]) + Rts[i][3] + d[3:]
 
     def project(x):
         cam = projector(x[:nth])
