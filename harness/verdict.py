@@ -758,8 +758,10 @@ where it gives them faster: jpl_linearisation, posed_linearisation)'''
         r'''[d f(model(x)) / d x[:n_model] for f in fs]: each (len(f), n_model)
 
 Central differences, as _central_jacobian takes them (the same numbers), with each
-stepped model built once for every f: building a model and its frame costs as much
+stepped model built once for every f (and without its geometry's checks:
+reference_models.cahvore.checked_once): building a model and its frame costs as much
 as a function of it.'''
+        from reference_models.cahvore import checked_once
         n, rest = self.n_model, self.x0[self.n_model:]
         x0, h = self.x0[:n], self.steps[:n]
         cols = [[] for _ in fs]
@@ -767,8 +769,9 @@ as a function of it.'''
             xp, xm = x0.copy(), x0.copy()
             xp[i] += h[i]
             xm[i] -= h[i]
-            mp = self.model(np.concatenate((xp, rest)))
-            mm = self.model(np.concatenate((xm, rest)))
+            with checked_once():    # steps of the fitted model, checked by the fit
+                mp = self.model(np.concatenate((xp, rest)))
+                mm = self.model(np.concatenate((xm, rest)))
             for c, f in zip(cols, fs, strict=True):
                 c.append((np.asarray(f(mp), dtype=np.float64).ravel()
                           - np.asarray(f(mm), dtype=np.float64).ravel()) / (xp[i] - xm[i]))
@@ -877,9 +880,15 @@ regularised, an unknown model type).'''
     x0 = np.concatenate((intr0, np.zeros(6 * Np)))
     pb = [obs.p_board[i][found[i]] for i in range(Np)]
 
+    def rotated(i, w):
+        R = _rodrigues(w) @ Rts[i][:3]
+        return pb[i] @ R.T
+    # the board points at each pose's own rotation (no rotation step: the Jacobian's
+    # intrinsics and translation steps, every projection at the solution), rotated once
+    at_pose = [rotated(i, np.zeros(3)) for i in range(Np)]
+
     def pose_points(i, d):
-        R = _rodrigues(d[:3]) @ Rts[i][:3]
-        return pb[i] @ R.T + Rts[i][3] + d[3:]
+        return (rotated(i, d[:3]) if d[:3].any() else at_pose[i]) + Rts[i][3] + d[3:]
 
     def project(x):
         cam = projector(x[:nth])
@@ -889,25 +898,32 @@ regularised, an unknown model type).'''
     h = np.concatenate((1e-6 * np.maximum(np.abs(intr0), 1.0), np.full(6 * Np, 1e-6)))
 
     def jacobian():
-        # a pose's six numbers move its own points only: its columns are differenced on
-        # those rows (the same numbers as differencing everything, at a sixth of the cost)
-        # and the intrinsics' columns project every pose's points at once: at the solution
-        # (no pose step: the identity rotation, exactly) they are the same camera-frame
-        # points for each intrinsics step, transformed once
+        # a pose's six numbers move its own points only: the k-th number of every pose is
+        # stepped at once, each pose's rows differenced on its own step (the same numbers as
+        # differencing each column on everything: the projection is point by point), 12
+        # projections of the points for all the poses' columns; the intrinsics' columns
+        # project every pose's points at once: at the solution (no pose step: the identity
+        # rotation, exactly) they are the same camera-frame points for each intrinsics
+        # step, transformed once
         J = np.zeros((2 * len(pose), len(x0)))
-        p0 = np.concatenate([pose_points(i, x0[nth + 6 * i: nth + 6 * i + 6])
-                             for i in range(Np) if len(pb[i])], axis=0)
+        used = [i for i in range(Np) if len(pb[i])]
+        p0 = np.concatenate([pose_points(i, x0[nth + 6 * i: nth + 6 * i + 6]) for i in used],
+                            axis=0)
         J[:, :nth] = _central_jacobian(lambda t: projector(t)(p0), intr0, h[:nth])
         cam0 = projector(intr0)
-        row = 0
-        for i in range(Np):
-            n = len(pb[i])
-            if not n:
-                continue
-            cols = slice(nth + 6 * i, nth + 6 * i + 6)
-            J[2 * row: 2 * (row + n), cols] = _central_jacobian(
-                lambda d, i=i: cam0(pose_points(i, d)), x0[cols], h[cols])
-            row += n
+        rows = np.repeat(np.arange(len(used)), [2 * len(pb[i]) for i in used])
+        for k in range(6):
+            cols = nth + 6 * np.asarray(used) + k
+            xp, xm = x0.copy(), x0.copy()
+            xp[cols] += h[cols]
+            xm[cols] -= h[cols]
+            fp = np.asarray(cam0(np.concatenate(
+                [pose_points(i, xp[nth + 6 * i: nth + 6 * i + 6]) for i in used], axis=0)),
+                dtype=np.float64).ravel()
+            fm = np.asarray(cam0(np.concatenate(
+                [pose_points(i, xm[nth + 6 * i: nth + 6 * i + 6]) for i in used], axis=0)),
+                dtype=np.float64).ravel()
+            J[np.arange(len(rows)), cols[rows]] = (fp - fm) / (xp - xm)[cols[rows]]
         return J
 
     return Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h, n_model=nth,

@@ -41,8 +41,10 @@ A and O are unit vectors: they are normalised on construction (files round
 them to a few digits), and a vector whose norm is far from 1 is an error.
 '''
 
+import contextlib
 import dataclasses
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,6 +79,29 @@ def _unit(name, value):
     if abs(n - 1.0) <= 4 * np.finfo(np.float64).eps:
         return v
     return v / n
+
+
+# checked_once(): set in a thread while it builds the small steps of a model checked already
+_STEPS = threading.local()
+
+
+@contextlib.contextmanager
+def checked_once():
+    r'''Models built inside (this thread) skip the checks of their geometry: the focal
+lengths against A (_check_linear) and O facing forward. Their fields are still converted,
+normalised and frozen as always: the same model, bit for bit, when it passes the checks.
+
+For the finite-difference steps of a model that passed them (harness.verdict's
+Jacobians: steps of 1e-6 of each parameter's size): the checks are continuous in the
+parameters and hold at the model with margins of order one (an angle of 1e-3 rad from
+the limits, a focal length of 1e-6 |H|, O . A > 0), which such a step does not cross;
+they cost as much as the function of the stepped model they feed.'''
+    prev = getattr(_STEPS, "on", False)
+    _STEPS.on = True
+    try:
+        yield
+    finally:
+        _STEPS.on = prev
 
 
 def _freeze(obj, name, v):
@@ -131,7 +156,8 @@ class _Linear:
             if isinstance(n, bool) or not float(n).is_integer() or n <= 0:
                 raise ModelError(f"image {name} must be a positive integer; got {n!r}")
             object.__setattr__(self, name, int(n))
-        self._check_linear()
+        if not getattr(_STEPS, "on", False):
+            self._check_linear()
 
     def _check_linear(self):
         ph = self.photogrammetric()
@@ -310,7 +336,7 @@ class CAHVOR(_Linear):
         _freeze(self, "O", _unit("O", self.O))
         _freeze(self, "R", _vec3("R", self.R))
         super().__post_init__()
-        if self.O @ self.A <= 0.0:
+        if self.O @ self.A <= 0.0 and not getattr(_STEPS, "on", False):
             raise ModelError("O points away from A (expected the optical axis to face forward)")
 
     def __repr__(self):

@@ -482,6 +482,28 @@ with differencing its projection'''
         assert J.shape == ref.shape and np.all(np.abs(J - ref) <= 1e-6 * scale)
 
 
+def test_checked_once_builds_the_same_model_without_its_geometry_checks():
+    r'''reference_models.cahvore.checked_once (model_jacobians' stepped models): the fields are
+converted, normalised and frozen as always (a model that passes the checks comes out bit
+for bit the same); only the geometry checks are skipped, inside the context only'''
+    from reference_models.cahvore import CAHVORE, ModelError, checked_once
+    _, truth = stages.camera_truth("15", "CAHVOR")
+    kw = dict(C=truth.C, A=truth.A * (1 + 1e-9), H=truth.H, V=truth.V, O=truth.O, R=truth.R,
+              E=np.array([0.0, 0.01, -0.02]), model_type=3, linearity=0.5,
+              width=truth.width, height=truth.height)
+    a = CAHVORE(**kw)
+    with checked_once():
+        b = CAHVORE(**kw)
+        # A along H: no horizontal focal length, built unchecked inside the context
+        CAHVORE(**{**kw, "H": 5.0 * truth.A})
+    for f in ("C", "A", "H", "V", "O", "R", "E"):
+        assert np.array_equal(getattr(a, f), getattr(b, f))
+        assert not getattr(b, f).flags.writeable
+    assert b.linearity == a.linearity and b.width == a.width
+    with pytest.raises(ModelError, match="parallel"):
+        CAHVORE(**{**kw, "H": 5.0 * truth.A})
+
+
 def test_is_reference_render_names_the_reference_settings_only():
     # the default ray caster at K=16 adaptive (area coverage by default, given or not) is the
     # reference render; any other sampling, renderer or a camera response is not
