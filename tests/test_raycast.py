@@ -702,3 +702,31 @@ everywhere), it would pass: every outline point of every pose is seen by its pix
                                                       MAX_POINTS)
         assert status == 0
         assert _round_trip(cam, Rt_ref_board, q, xy, starts)
+
+
+def test_a_reused_buffer_gives_the_image_a_fresh_one_gives():
+    r'''A renderer renders into the buffer of the image its caller dropped, and does not
+write again the tiles that already hold their value (the background around the board):
+the images are those of a fresh renderer bit for bit, whatever was rendered before
+(another pose, another pattern, another background albedo, a board filling the image,
+a board behind the camera: blank), and they are read-only (a caller writing into one
+would make the buffer's tiles unknown)'''
+    model = catalogue_models()["slot15"]
+    target = load_target("dots")
+    poses = plan_poses(model, target, n=3, seed=0)
+    dots = target.pattern()
+    dark = dot_pattern(n=8, spacing=0.05, r=0.015, background=0.6)
+    behind = board_pose(model, -1.0)
+    close = board_pose(model, 0.25, centre=(0.17, 0.17))
+    sequence = [(dots, poses[0]), (dots, poses[1]), (dark, close), (dots, poses[2]),
+                (dots, behind), (dark, poses[0]), (dots, poses[0]), (dots, poses[0])]
+    shared = RaycastRenderer()
+    s = RenderSettings(spp=4)
+    for pattern, Rt in sequence:
+        got = shared.render(model, pattern, Rt, s).image
+        want = RaycastRenderer().render(model, pattern, Rt, s).image
+        assert np.array_equal(got, want)
+        assert not got.flags.writeable
+        with pytest.raises(ValueError):
+            got[0, 0] = 0.5
+        del got, want
