@@ -389,6 +389,20 @@ again past chi ~ 2.2, about 106 degrees from O) see their boards within ~50 degr
     return bool(ok)
 
 
+def warm_fold_check():
+    r"""Compile (or load) the fold check's kernel (_round_trip_kernel) on a one-point
+polyline, with the argument types of a render's call
+
+A render skips the check where the board lies short of the fold (_fold_free): none of
+the paper's renders calls it, so a warm-up that only renders (harness.warmup) would
+leave it uncompiled, and the cache check of compiled_entry_points() would ask for the
+warm-up again in every campaign."""
+    from reference_models.kernels import NCAM
+    pts = np.zeros((4, 2))[:1]       # a row slice, as _outline_polylines' q[:pos]
+    _round_trip_kernel(np.zeros(NCAM), np.zeros(15), pts, pts.copy(),
+                       np.array([0, 1], dtype=np.int64), 1.0)
+
+
 def compiled_entry_points():
     r"""The compiled kernels here (numba dispatchers): what harness.warmup's cache checks
 read"""
