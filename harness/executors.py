@@ -70,12 +70,27 @@ def local_context():
     r'''The multiprocessing context of local worker processes (the warm-up's too)
 
 forkserver, not fork: the parent may hold threads (the progress bar, BLAS). The
-server imports harness.runner once; each worker forks from it, and the warm-up's
-processes and the jobs' workers share it.'''
+server imports harness.runner and numba once (numba's import, ~0.19 CPU-s, starts no
+thread; its parallel kernels' threads start at their first call, in a worker); each
+worker forks from it, and the warm-up's processes and the jobs' workers share it.'''
     import multiprocessing
     ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["harness.runner"])
+    ctx.set_forkserver_preload(["harness.runner", "numba"])
     return ctx
+
+
+def start_local_workers(executor="local", workers=None):
+    r'''Start the fork server of local worker processes now (local_context), so that its
+start-up (a Python process importing harness.runner, ~0.2 CPU-s) runs while the caller
+prepares the jobs instead of before the first job; nothing for Dask or one worker
+
+The server is multiprocessing's, started once per process: the pool's workers and the
+warm-up's fork from it whenever they start.'''
+    if executor != "local" or (workers is not None and workers <= 1):
+        return
+    from multiprocessing import forkserver
+    local_context()
+    forkserver.ensure_running()
 
 
 def _init_worker(pid, threads):

@@ -41,7 +41,7 @@ import time
 import traceback
 from pathlib import Path
 
-from .executors import run_jobs
+from .executors import run_jobs, start_local_workers
 from .job_records import (
     calibrator_records,
     failure_records,
@@ -212,6 +212,8 @@ The document's "execution" says how the jobs ran (and the warm-up's seconds).
 def _run_campaign(campaign, run_dir, executor, workers, scheduler, resume, bar, entries,
                   warm):
     from .campaign import resolve_best
+    # the workers' fork server starts while the jobs are prepared (on the other core)
+    start_local_workers(executor, workers)
     if resume:
         store = RunStore.open(run_dir)
     else:

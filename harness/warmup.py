@@ -152,6 +152,12 @@ settings and first pose) -> (done, failed)'''
                 failed[key].append(f"{job.key}: {out.failure.stage}: {out.failure.reason}")
         except Exception as e:  # not-applicable family, invisible target: try the next job
             failed.setdefault(key, []).append(f"{job.key}: {failure_reason(e)}")
+    if any(j.renderer == "raycast" for j in jobs):
+        try:
+            from renderers.raycast_outlines import warm_fold_check
+            warm_fold_check()   # the renders above may not have needed it
+        except Exception as e:
+            failed[("raycast", "fold check")] = [f"raycast fold check: {failure_reason(e)}"]
     if any((j.response or {}).get("saturation", {}).get("blooming") for j in jobs):
         try:
             import numpy as np

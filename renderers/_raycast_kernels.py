@@ -1167,9 +1167,11 @@ stored to lines evicted since the band's last tile)."""
 
 
 @njit(cache=True, error_model="numpy")
-def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, stats, pat, qbox,
-                 area, tol, scratch):
+def _render_band(r0, r1, T, cam, noncentral, xf, K, adaptive, values, out, filled, stats, pat,
+                 qbox, area, tol, scratch):
     H, W = out.shape
+    # no tile of the band is taken to hold one value afterwards (render_kernel's filled)
+    filled[:] = math.nan
     nk = r1 - r0 + 2
     # board points of the centre rays of image rows r0-1 .. r1 (band row k = iy - r0 + 1)
     # and columns -1 .. W (band column c = ix + 1)
@@ -1402,8 +1404,8 @@ starts of their pixels' other rays); returns the number of rays"""
 
 
 @njit(cache=True, error_model="numpy")
-def _render_band_outline(r0, r1, T, cam, noncentral, xf, K, values, out, stats, pat, qbox,
-                         area, tol, outline, scratch):
+def _render_band_outline(r0, r1, T, cam, noncentral, xf, K, values, out, filled, stats, pat,
+                         qbox, area, tol, outline, scratch):
     r"""_render_band where the edge pixels are known from the outlines: outline = (q,
 margin, bstart, chords) (band_chords)
 
@@ -1453,13 +1455,17 @@ material), else of its own centre ray."""
                     m = _material(bx, by, pat)
                     onboard = _on_board(bx, by, rect)
             v = values[m]
-            for iy in range(r0, r1):
-                for ix in range(x0, x1):
-                    out[iy, ix] = v
+            # a tile that already holds v throughout (render_kernel's filled) is not written
+            if not (filled[x0 // T] == v):
+                for iy in range(r0, r1):
+                    for ix in range(x0, x1):
+                        out[iy, ix] = v
+                filled[x0 // T] = v
             if onboard:
                 nboard += (r1 - r0) * (x1 - x0)
             continue
         ntiles += 1
+        filled[x0 // T] = math.nan
         # the centre rays the edge pixels read: theirs and their neighbours'
         for k in range(nk):
             for c in range(x1 - x0 + 2):
@@ -1614,7 +1620,7 @@ def _borrowed_scratch(scratch):
 
 
 @njit(cache=True, error_model="numpy")
-def _render_bands(taken, T, cam, noncentral, xf, K, adaptive, values, out, stats, pat,
+def _render_bands(taken, T, cam, noncentral, xf, K, adaptive, values, out, filled, stats, pat,
                   qbox, area, tol, outline_known, outline, owned):
     r"""Render the bands not taken yet, one at a time (taken[0]: the next band, _take), from
 _borrowed arrays: no reference counting per pixel; the caller holds the arrays they
@@ -1625,6 +1631,7 @@ alias (its arguments and the thread's scratch arrays, owned) until this returns"
     bxf = _borrowed(xf)
     bvalues = _borrowed(values)
     bout = _borrowed(out)
+    bfilled = _borrowed(filled)
     bstats = _borrowed(stats)
     bqbox = _borrowed(qbox)
     bpat = (_borrowed(pat[0]), _borrowed(pat[1]))
@@ -1640,16 +1647,22 @@ alias (its arguments and the thread's scratch arrays, owned) until this returns"
             continue
         if outline_known and adaptive:
             _render_band_outline(r0, r1, T, bcam, noncentral, bxf, K, bvalues, bout,
-                                 bstats[b], bpat, bqbox, area, tol, boutline, scratch)
+                                 bfilled[b], bstats[b], bpat, bqbox, area, tol, boutline,
+                                 scratch)
         else:
             _render_band(r0, r1, T, bcam, noncentral, bxf, K, adaptive, bvalues, bout,
-                         bstats[b], bpat, bqbox, area, tol, scratch)
+                         bfilled[b], bstats[b], bpat, bqbox, area, tol, scratch)
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def render_kernel(cam, noncentral, xf, K, adaptive, T, values, out, stats, pat, qbox, nthreads,
-                  area, tol, outline_known, outline):
+def render_kernel(cam, noncentral, xf, K, adaptive, T, values, out, filled, stats, pat, qbox,
+                  nthreads, area, tol, outline_known, outline):
     r"""Render the image `out` (H,W) float32 in bands of T rows and tiles of T columns
+
+filled (Nbands, Ntiles) float64: the albedo value every pixel of tile (band, column)
+of `out` holds on entry, NaN where not known; a tile the render fills with that same
+value is not written again (a buffer of an earlier image: renderers.memory.ImagePool),
+and on return it says what the tiles hold (NaN for a tile of several values).
 
 stats (Nbands,6) receives per band: rays traced, supersampled pixels, pixels
 whose centre ray sees the board, blocks of pixels tested (outline: tiles with
@@ -1673,7 +1686,7 @@ allocated once. A band's pixels do not depend on which thread renders it."""
     taken = np.zeros(1, dtype=np.int64)
     for _ in prange(nthreads):
         # the scratch arrays live until _render_bands returns
-        _render_bands(taken, T, cam, noncentral, xf, K, adaptive, values, out, stats,
+        _render_bands(taken, T, cam, noncentral, xf, K, adaptive, values, out, filled, stats,
                       pat, qbox, area, tol, outline_known, outline,
                       _band_scratch(K, values.shape[0], T, W, area,
                                     outline_known and adaptive))

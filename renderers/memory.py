@@ -14,7 +14,8 @@ SYNOPSIS
     # failed render; the command line prints one line and exits with status 2)
 
     pool = ImagePool()
-    out = pool.empty((H, W), np.float32)   # a buffer nothing else holds, or a new one
+    out, filled = pool.take((H, W), np.float32, (Nbands, Ntiles))   # a buffer nothing
+    # else holds (or a new one) and the value each of its tiles holds (NaN: unknown)
 
 A render is refused when the arrays it must allocate, counted from the image
 size, the renderer path and the supersampling, exceed the memory this process
@@ -181,14 +182,18 @@ limit: bytes (default: memory_limit()). Returns the MemoryEstimate otherwise.
 
 
 class ImagePool:
-    r'''Image buffers handed out again once nothing else holds them
+    r'''Image buffers handed out again once nothing else holds them, with what their tiles hold
 
 SYNOPSIS
 
     pool = ImagePool(keep=2)
-    out = pool.empty((H, W), np.float32)   # uninitialised, C-contiguous (H,W)
-    # ... fill out, hand it to the caller; once the caller drops out and every
-    # view of it, a later pool.empty of that shape returns the same memory
+    out, filled = pool.take((H, W), np.float32, (Nbands, Ntiles))
+    # out: uninitialised (or an earlier image), C-contiguous (H,W), writeable;
+    # filled: float64 (Nbands, Ntiles), the value each tile of out holds throughout
+    # (NaN: not known), kept with the buffer: the writer updates it as it writes.
+    # ... fill out, then hand it to the caller read-only (out.flags.writeable = False);
+    # once the caller drops out and every view of it, a later take of that shape
+    # returns the same memory, writeable again, with its filled
 
 A fresh array of an image's size is fresh memory: a 5120x3840 float32 image
 is 79 MB, and the kernel faults in and zeroes every page of it as the render
@@ -196,7 +201,14 @@ first writes it (with numpy's transparent huge pages on a virtual machine, the
 first such arrays of a process also fault in the host's memory behind them:
 0.1-0.25 CPU-s each measured, against ~0.12 CPU-s for the whole render of such
 an image). A renderer that writes every pixel of its image can take a buffer
-from the pool instead: memory it used before, already mapped.
+from the pool instead: memory it used before, already mapped; and where it
+knows a tile already holds the value it would write (the background around a
+board, the same from pose to pose), it need not write it again (writing 79 MB
+costs ~9 ms).
+
+That knowledge holds only while nobody else writes into the buffer: the
+renderer hands its images out read-only, so a caller that would change one
+in place gets numpy's error instead (it copies first).
 
 A buffer is free when nothing but the pool refers to it: the array handed out is
 the buffer, every numpy view of it (a slice, a reshape) keeps a reference to it
@@ -214,26 +226,32 @@ peak RSS 410 -> 415 MB for 1/CAHV/dots, 456 -> 505 MB for 3/CAHVORE/apriltag).
         self.keep = int(keep)
         self._key = None
         self._buffers = []
+        self._filled = []
         self._lock = threading.Lock()
         # the references to a buffer held only by the pool, as _references counts them
         probe = [np.empty(1)]
         self._idle = _references(probe, 0)
 
-    def empty(self, shape, dtype):
-        r'''An uninitialised C-contiguous array of shape and dtype: a pooled buffer that
-nothing else holds, else a new one (pooled when fewer than `keep` are)'''
-        key = (tuple(int(n) for n in shape), np.dtype(dtype))
+    def take(self, shape, dtype, tiles):
+        r'''(array, filled): an uninitialised C-contiguous writeable array of shape and dtype,
+a pooled buffer that nothing else holds, else a new one (pooled when fewer than `keep`
+are); filled, float64 of shape tiles, what its tiles hold (NaN for a new buffer)'''
+        key = (tuple(int(n) for n in shape), np.dtype(dtype), tuple(int(n) for n in tiles))
         with self._lock:
             if key != self._key:
                 self._key = key
                 self._buffers = []
+                self._filled = []
             for i in range(len(self._buffers)):
                 if _references(self._buffers, i) <= self._idle:
-                    return self._buffers[i]
+                    self._buffers[i].flags.writeable = True
+                    return self._buffers[i], self._filled[i]
             out = np.empty(key[0], dtype=key[1])
+            filled = np.full(key[2], np.nan)
             if len(self._buffers) < self.keep:
                 self._buffers.append(out)
-            return out
+                self._filled.append(filled)
+            return out, filled
 
 
 def _references(buffers, i):

@@ -7,7 +7,7 @@ SYNOPSIS
 
     r = RaycastRenderer()
     result = r.render(model, pattern, Rt_cam_board, RenderSettings(spp=16))
-    # result.image has shape (model.height, model.width), float32 in [0,1]
+    # result.image has shape (model.height, model.width), float32 in [0,1], read-only
     # result.metadata: renderer, version, settings, seconds, coverage, samples, ...
     point = r.render(model, pattern, Rt_cam_board,
                      RenderSettings(spp=16, options={"coverage": "point"}))
@@ -103,7 +103,10 @@ No ray is cached between renders (RAYCAST_VERSION 3.0): a render traces the
 rays it reads. The image's memory is: a render writes every pixel, into a
 buffer of an earlier image that its caller has dropped where there is one
 (renderers.memory.ImagePool; fresh memory costs page faults, and the first
-79 MB arrays of a process cost about as much CPU again as their render).
+79 MB arrays of a process cost about as much CPU again as their render),
+except a tile of one value that the buffer already holds throughout (the
+background around the board: writing a 5120x3840 image costs ~9 ms). The
+image is handed out read-only, so that nobody changes what the buffer holds.
 '''
 
 import math
@@ -451,7 +454,8 @@ images agree to rounding (tests/test_raycast.py).
 SYNOPSIS
 
     result = renderer.render(model, pattern, Rt_cam_board, RenderSettings(spp=16))
-    # result.image: (model.height, model.width) float32 in [0,1]
+    # result.image: (model.height, model.width) float32 in [0,1], read-only (its buffer
+    # is rendered into again once dropped: renderers.memory.ImagePool)
 
 ARGUMENTS
 
@@ -529,11 +533,18 @@ area_point_sampled_fraction (edge pixels K x K point sampled instead / pixels).
         t = Rt[3]
         O = cam[12:15]
         xf = np.concatenate((R.ravel(), R @ model.C + t, R @ O))
-        out = self._images.empty((H, W), np.float32)
-        stats = np.zeros((-(-H // TILE), 8 if area else 6), dtype=np.int64)
-        kern.render_kernel(cam, noncentral, xf, K, adaptive, TILE, cp.values, out, stats,
-                           cp.kernel_args(), qbox, numba.get_num_threads(), area, tol,
-                           outlines is not None, outline)
+        nbands = -(-H // TILE)
+        out, filled = self._images.take((H, W), np.float32, (nbands, -(-W // TILE)))
+        stats = np.zeros((nbands, 8 if area else 6), dtype=np.int64)
+        try:
+            kern.render_kernel(cam, noncentral, xf, K, adaptive, TILE, cp.values, out, filled,
+                               stats, cp.kernel_args(), qbox, numba.get_num_threads(), area,
+                               tol, outlines is not None, outline)
+        except BaseException:
+            filled[:] = np.nan
+            raise
+        # the buffer's tiles are known (filled) only while nobody else writes into it
+        out.flags.writeable = False
         total = stats.sum(axis=0)
         if total[5] != 0:
             raise RendererError(f"the ray-cast renderer produced {int(total[5])} non-finite "

@@ -41,7 +41,11 @@ except where no fold can happen: a CAHVOR whose polynomial chi (1 + R0 + R1 chi^
 R2 chi^4) increases for every chi >= 0 (_cahvor_monotone) maps each direction in
 front of O to one chi, hence to one pixel, and each pixel's ray back to the one root
 (the same rays, the round trip would pass: it costs ~13000 rays, 1.4 ms of a
-1024x1024 navcam's render, the largest serial part).
+1024x1024 navcam's render, the largest serial part), and where the board lies short
+of the fold: the polynomial increasing up to a bound of the chi of every board point,
+from the corners' angles to O and, for a noncentral CAHVORE, the pupil shift
+(_fold_free; the round trip of camera 1's AprilTag grid costs 9.3 ms per image,
+its dots 4.1 ms).
 The board is convex and the region of angles from O where the projection is
 one to one is a cone about O (convex up to 90 degrees; beyond, its
 complement is a cone about -O that a board with every corner in front of the
@@ -71,8 +75,14 @@ import numpy as np
 from numba import njit, prange
 
 from reference_models.kernels import (
+    _C,
+    _E,
     _KIND,
+    _L,
+    _O,
+    _R,
     KIND_CAHV,
+    KIND_CAHVORE,
     _ray_warm_chi,
     _warm_coefficients,
     project_point,
@@ -89,6 +99,8 @@ PROJECTION_SLOP_PX = 1e-6
 # a pixel's ray meets the board within this fraction of the board's size of the point
 # projected to it (exact rays: ~1e-12; a fold in the projection: far more)
 ROUND_TRIP_TOLERANCE = 1e-7
+# _fold_free: a CAHVORE board point's theta is taken within this of its angle from O (rad)
+FOLD_THETA_SLACK = 0.1
 # a feature needing more points than this is not outlined (the renderer tests its pixels)
 MAX_POINTS = 1 << 20
 
@@ -309,6 +321,88 @@ g(chi) = u has one root, the one the pixel's ray is solved for."""
     return c > 0.0 and a - b * b / (4.0 * c) > 0.0
 
 
+def _fold_free(cam, Rt_ref_board, rect):
+    r"""Whether no point of the board rect (xmin, xmax, ymin, ymax) lies beyond a fold of
+a CAHVOR or CAHVORE cam (packed): g(chi) = chi (1 + R0 + R1 chi^2 + R2 chi^4) strictly
+increasing for chi in [0, chi_max], chi_max bounding the chi of every board point
+
+Then every outline point passes the round trip (_round_trip), which is skipped. A
+board point p (d = p - C at angle alpha from O) projects at the theta of CAHVORE's
+equation r sin(theta - alpha) = (theta - sin theta) E(theta) (r = |d|; CAHVOR and E = 0:
+theta = alpha), and every point of the line of angle theta through C + s(theta) O at
+p's azimuth solves it with that theta: it is the ray of theta's pixel. That pixel's
+ray is solved back from its u = g(chi(theta)); when g increases on [0, chi_max] (chi
+increases with theta in the model's domain) the root is that chi, so the ray is p's
+line and meets the board plane at p. The bound: alpha over the board is largest at a
+corner (the points within an angle a < 90 degrees of O from C form a convex cone:
+alpha is quasi-convex on the rectangle), and |theta - alpha| <= asin(delta) with delta
+= (Theta - sin Theta) max|E| / r_min (Theta = pi / (2 |L|), beyond which a point does
+not project; r_min the distance from C to the board), the projection's Newton solve
+starting at alpha. chi_max takes 10% more than that bound. False (the round trip
+runs) for a board corner 90 degrees or more from O, or delta >= 0.1 (a pupil shift
+comparable to the board's distance). The paper's 5120x3840 CAHVOREs (R2 < 0: g falls
+again past chi ~ 2.2, about 106 degrees from O) see their boards within ~50 degrees."""
+    C = cam[_C:_C + 3]
+    O = cam[_O:_O + 3]
+    r0, r1, r2 = cam[_R], cam[_R + 1], cam[_R + 2]
+    xmin, xmax, ymin, ymax = (float(v) for v in rect)
+    R, t = Rt_ref_board[:3], Rt_ref_board[3]
+    corners = np.array([[xmin, ymin, 0.0], [xmax, ymin, 0.0], [xmax, ymax, 0.0],
+                        [xmin, ymax, 0.0]]) @ R.T + t
+    d = corners - C
+    zeta = d @ O
+    ell = np.linalg.norm(d - zeta[:, None] * O, axis=-1)
+    alpha = float(np.arctan2(ell, zeta).max())
+    if not (alpha < 0.5 * math.pi):
+        return False
+    theta = alpha
+    if cam[_KIND] == KIND_CAHVORE:
+        L = float(cam[_L])
+        # theta within FOLD_THETA_SLACK of alpha: the pupil term bounded up to that angle
+        top = alpha + FOLD_THETA_SLACK
+        if not (top * abs(L) < 0.5 * math.pi):
+            return False
+        e = np.abs(cam[_E:_E + 3])
+        emax = e[0] + e[1] * top ** 2 + e[2] * top ** 4
+        # the distance from C to the rectangle: C in board coordinates, clamped into it
+        cb = R.T @ (C - t)
+        near = np.array([min(max(cb[0], xmin), xmax), min(max(cb[1], ymin), ymax), 0.0])
+        rmin = float(np.linalg.norm(cb - near))
+        delta = (top - math.sin(top)) * emax / rmin if rmin > 0.0 else math.inf
+        if not (delta < math.sin(FOLD_THETA_SLACK)):
+            return False
+        theta = alpha + math.asin(delta)
+        chi = (math.tan(L * theta) / L if L > 1e-15 else
+               math.sin(L * theta) / L if L < -1e-15 else theta)
+    else:
+        chi = math.tan(theta)
+    tmax = (1.1 * chi) ** 2
+    # g'(t = chi^2) = 1 + R0 + 3 R1 t + 5 R2 t^2 > 0 on [0, tmax]: at both ends and at the
+    # parabola's vertex when it lies inside
+    def gp(t):
+        return 1.0 + r0 + 3.0 * r1 * t + 5.0 * r2 * t * t
+    ok = gp(0.0) > 0.0 and gp(tmax) > 0.0
+    if ok and r2 != 0.0:
+        tv = -3.0 * r1 / (10.0 * r2)
+        if 0.0 < tv < tmax:
+            ok = gp(tv) > 0.0
+    return bool(ok)
+
+
+def warm_fold_check():
+    r"""Compile (or load) the fold check's kernel (_round_trip_kernel) on a one-point
+polyline, with the argument types of a render's call
+
+A render skips the check where the board lies short of the fold (_fold_free): none of
+the paper's renders calls it, so a warm-up that only renders (harness.warmup) would
+leave it uncompiled, and the cache check of compiled_entry_points() would ask for the
+warm-up again in every campaign."""
+    from reference_models.kernels import NCAM
+    pts = np.zeros((4, 2))[:1]       # a row slice, as _outline_polylines' q[:pos]
+    _round_trip_kernel(np.zeros(NCAM), np.zeros(15), pts, pts.copy(),
+                       np.array([0, 1], dtype=np.int64), 1.0)
+
+
 def compiled_entry_points():
     r"""The compiled kernels here (numba dispatchers): what harness.warmup's cache checks
 read"""
@@ -334,6 +428,7 @@ a caller that has them"""
         return None
     closed = np.concatenate((np.zeros(len(segs), np.uint8), np.ones(len(circles), np.uint8)))
     if not (model.family == "CAHV" or _cahvor_monotone(model)
+            or _fold_free(cam, Rt_ref_board, cp.f[:4])
             or _round_trip(cam, Rt_ref_board, q, xy, starts)):
         return None
     return Outlines(q=q, starts=starts, closed=closed, margin=margin)

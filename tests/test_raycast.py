@@ -560,14 +560,7 @@ so the outline does not bound the board's image; the pixels are tested (edges
 paints board over background here'''
     from renderers import raycast_outlines
     from targets.poses import plan_poses
-    f = 330.0
-    t = math.radians(1.2)
-    O = np.array([math.sin(t), 0.3 * math.sin(t), math.cos(t)])
-    A = np.array([0.0, 0.0, 1.0])
-    model = CAHVORE(C=[0.0, 0.0, 0.0], A=A, H=np.array([f, 0, 0]) + 642.1 * A,
-                    V=np.array([0, f, 0]) + 478.7 * A, O=O / np.linalg.norm(O),
-                    R=[0.0, 0.08, -0.02], E=[0.004, 0.012, -0.003], model_type=3,
-                    linearity=0.6, width=1280, height=960)
+    model = _folding_cahvore()
     target = load_target("dots")
     Rt = plan_poses(model, target, n=6, seed=0)[4]
     a = RaycastRenderer().render(model, target.pattern(), Rt, RenderSettings(spp=4))
@@ -599,6 +592,92 @@ negative one makes it fall below 0 somewhere)'''
     assert _cahvor_monotone(model) == brute
 
 
+def _folding_cahvore():
+    r'''A wide CAHVORE (E != 0) whose distortion chi (1 + R1 chi^2 + R2 chi^4) has its maximum
+(u = 2.02 at chi = 2.14, 667 px from the centre) inside its image'''
+    f = 330.0
+    t = math.radians(1.2)
+    O = np.array([math.sin(t), 0.3 * math.sin(t), math.cos(t)])
+    A = np.array([0.0, 0.0, 1.0])
+    return CAHVORE(C=[0.0, 0.0, 0.0], A=A, H=np.array([f, 0, 0]) + 642.1 * A,
+                   V=np.array([0, f, 0]) + 478.7 * A, O=O / np.linalg.norm(O),
+                   R=[0.0, 0.08, -0.02], E=[0.004, 0.012, -0.003], model_type=3,
+                   linearity=0.6, width=1280, height=960)
+
+
+def _fold_cases():
+    r'''(name, model, target name, [Rt_cam_board]): cameras whose distortion folds inside
+or just outside their field (R2 < 0), central and noncentral, and catalogue cameras'''
+    cases = [("folding", _folding_cahvore(), "dots"), ("folding", _folding_cahvore(), "apriltag")]
+    f = 300.0
+    A = np.array([0.0, 0.0, 1.0])
+    for k, (R, E, L) in enumerate((([0.0, 0.05, -0.03], [0.01, 0.02, -0.01], 0.37),
+                                   ([0.0, 0.1, -0.2], [0.0, 0.0, 0.0], 0.0),
+                                   ([0.0, 0.02, -0.01], [0.05, 0.05, -0.02], 0.8),
+                                   ([0.0, 0.0, -0.005], [0.002, 0.001, 0.0], -0.3))):
+        t = math.radians(2.0)
+        O = np.array([math.sin(t), -0.5 * math.sin(t), math.cos(t)])
+        cases.append((f"synthetic{k}", CAHVORE(
+            C=[0.0, 0.0, 0.0], A=A, H=np.array([f, 0, 0]) + 640.0 * A,
+            V=np.array([0, f, 0]) + 480.0 * A, O=O / np.linalg.norm(O), R=R, E=E,
+            model_type=3, linearity=L, width=1280, height=960), "dots"))
+        cases.append((f"synthetic{k}-cahvor", CAHVOR(
+            C=[0.0, 0.0, 0.0], A=A, H=np.array([f, 0, 0]) + 640.0 * A,
+            V=np.array([0, f, 0]) + 480.0 * A, O=O / np.linalg.norm(O), R=R,
+            width=1280, height=960), "dots"))
+    cat = load_catalogue()
+    for slot in ("1", "17", "21"):
+        cases.append((f"slot{slot}", cat.get(slot).model, "dots"))
+    return cases
+
+
+def test_a_board_the_fold_bound_clears_passes_the_round_trip():
+    r'''_fold_free (no round trip) only where the round trip passes: on folding cameras
+(the maximum of the distortion inside the image or near it) and catalogue cameras, over
+poses from the planner (covering the field) and poses pushed towards the image's edges
+and closer (boards out to the fold). _fold_free is a sufficient condition: where it
+holds, every outline point must be seen by its pixel's ray (the round trip, exact rays,
+to 1e-7 of the board's size). On the folding camera it must not clear every pose (its
+fourth planned pose reaches past the fold: test_a_board_past_a_folding_distortion_...)'''
+    import mrcal
+
+    from renderers.raycast_outlines import (
+        MAX_POINTS,
+        _fold_free,
+        _outline_polylines,
+        _round_trip,
+        board_features,
+    )
+    cleared = failed = 0
+    for name, model, tname in _fold_cases():
+        target = load_target(tname)
+        cp = compile_pattern(target.pattern())
+        segs, circles = board_features(cp)
+        cam = kernels.pack_model(model)
+        poses = plan_poses(model, target, n=6, seed=0)
+        for Rt in list(poses):
+            for shift, scale in ((0.3, 1.0), (0.6, 0.8), (-0.5, 0.7)):
+                Rt2 = np.array(Rt, dtype=np.float64)
+                Rt2[3] = Rt2[3] * scale + shift * abs(Rt2[3, 2]) * np.array([1.0, 0.6, 0.0])
+                poses.append(Rt2)
+        for i, Rt in enumerate(poses):
+            Rt_ref_board = mrcal.compose_Rt(model.Rt_ref_cam(), Rt)
+            status, xy, q, starts, _ = _outline_polylines(segs, circles, Rt_ref_board, cam,
+                                                          MAX_POINTS)
+            if status != 0:
+                continue
+            free = _fold_free(cam, Rt_ref_board, cp.f[:4])
+            trip = _round_trip(cam, Rt_ref_board, q, xy, starts)
+            assert trip or not free, f"{name} pose {i}: cleared but folds"
+            cleared += free
+            failed += not trip
+        if name == "folding" and tname == "dots":
+            Rt_ref_board = mrcal.compose_Rt(model.Rt_ref_cam(), poses[4])
+            assert not _fold_free(cam, Rt_ref_board, cp.f[:4])
+    # the bound clears most boards, and the cases do reach folds
+    assert cleared > 50 and failed > 5
+
+
 def test_a_monotone_cahvor_would_pass_the_fold_check():
     r'''Where the fold check is skipped (navcam 15: a CAHVOR whose distortion increases
 everywhere), it would pass: every outline point of every pose is seen by its pixel's ray'''
@@ -623,3 +702,31 @@ everywhere), it would pass: every outline point of every pose is seen by its pix
                                                       MAX_POINTS)
         assert status == 0
         assert _round_trip(cam, Rt_ref_board, q, xy, starts)
+
+
+def test_a_reused_buffer_gives_the_image_a_fresh_one_gives():
+    r'''A renderer renders into the buffer of the image its caller dropped, and does not
+write again the tiles that already hold their value (the background around the board):
+the images are those of a fresh renderer bit for bit, whatever was rendered before
+(another pose, another pattern, another background albedo, a board filling the image,
+a board behind the camera: blank), and they are read-only (a caller writing into one
+would make the buffer's tiles unknown)'''
+    model = catalogue_models()["slot15"]
+    target = load_target("dots")
+    poses = plan_poses(model, target, n=3, seed=0)
+    dots = target.pattern()
+    dark = dot_pattern(n=8, spacing=0.05, r=0.015, background=0.6)
+    behind = board_pose(model, -1.0)
+    close = board_pose(model, 0.25, centre=(0.17, 0.17))
+    sequence = [(dots, poses[0]), (dots, poses[1]), (dark, close), (dots, poses[2]),
+                (dots, behind), (dark, poses[0]), (dots, poses[0]), (dots, poses[0])]
+    shared = RaycastRenderer()
+    s = RenderSettings(spp=4)
+    for pattern, Rt in sequence:
+        got = shared.render(model, pattern, Rt, s).image
+        want = RaycastRenderer().render(model, pattern, Rt, s).image
+        assert np.array_equal(got, want)
+        assert not got.flags.writeable
+        with pytest.raises(ValueError):
+            got[0, 0] = 0.5
+        del got, want

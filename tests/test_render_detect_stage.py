@@ -64,3 +64,16 @@ def test_failures_come_in_the_order_of_the_stages(job):
     with pytest.raises(StageFailed) as e:
         render_detect_stage(bad, truth, target, broken)
     assert e.value.stage == "render"
+
+
+def test_images_dropped_by_the_caller_are_rendered_into_one_buffer(job):
+    r'''iter_renders holds no image while the next pose renders: a caller that drops each
+image gets the next one in the same memory (renderers.memory.ImagePool), so a job of
+5120x3840 images faults in one 79 MB buffer, not two'''
+    from harness.stages import iter_renders
+    j, truth, target, poses = job
+    addresses = []
+    for result, _ in iter_renders(j.renderer, truth, target, poses, j.settings):
+        addresses.append(result.image.__array_interface__["data"][0])
+        del result
+    assert len(poses) == 3 and len(set(addresses)) == 1
