@@ -43,6 +43,11 @@ NUMBA_RENDERERS = {"raycast": ("renderers._raycast_kernels", "renderers.raycast_
 # target kinds whose detector calls numba kernels -> their module
 NUMBA_DETECTORS = {"dots": "targets._dot_kernels", "apriltag": "targets._corner_kernels",
                    "chessboard": "targets._corner_kernels"}
+# the AprilTag detector's blurred path (targets.tag_edges: it takes it when the image's
+# measured blur says so) -> its module; warmed by a job whose camera response blurs
+# (BLURRING_STAGES) on its own kind (_render_kinds): the sharp kinds never call it
+BLURRED_DETECTORS = {"apriltag": "targets._tag_edge_kernels"}
+BLURRING_STAGES = ("psf", "motion_blur")
 # calibrators whose fit calls numba kernels -> their module
 NUMBA_CALIBRATORS = {"jpl": "harness.calibrators._jpl_kernels",
                      "opencv": "harness.calibrators.opencv_fit"}
@@ -119,13 +124,25 @@ def _kind(target_name):
         return None
 
 
+def _blurred(job):
+    r'''The job's target kind whose blurred detection path its camera response calls
+(BLURRED_DETECTORS), or None'''
+    kind = _kind(job.target)
+    if kind in BLURRED_DETECTORS and any(k in BLURRING_STAGES for k in (job.response or {})):
+        return kind
+    return None
+
+
 def _render_kinds(jobs):
     r'''(kind, job) in the order _warm_renders tries them: each (renderer, family, target)
 with its jobs from the smallest image up (by job.cost: the cheapest render), then each
 (renderer, target) with its largest image first: a detector may take another path, with
 other types, for a large image (targets.detect_dots reads one above 4.5 Mpx as float32)'''
     ordered = sorted(jobs, key=lambda j: j.cost)
-    return ([((j.renderer, j.family, j.target), j) for j in ordered]
+    # a job whose response blurs an AprilTag grid is its own kind (_blurred): the sharp
+    # job of its renderer, family and target does not call the blurred path's kernels
+    return ([((j.renderer, j.family, j.target) + (("blurred",) if _blurred(j) else ()), j)
+             for j in ordered]
             + [((j.renderer, j.target, "largest"), j) for j in reversed(ordered)])
 
 
@@ -285,7 +302,8 @@ fails later, in its own record.
             pass
     cached = [] if force else [n for n in renderers + calibrators if kernels_cached(n)]
     detectors = sorted({NUMBA_DETECTORS[k] for k in map(_kind, {j.target for j in jobs})
-                        if k in NUMBA_DETECTORS})
+                        if k in NUMBA_DETECTORS}
+                       | {BLURRED_DETECTORS[k] for k in map(_blurred, jobs) if k})
     if not _modules_cached(detectors):   # the render set runs the detectors
         cached = [c for c in cached if c not in renderers]
     render_jobs = [j for j in jobs if j.renderer in renderers and j.renderer not in cached]

@@ -109,3 +109,75 @@ def test_warm_up_compiles_every_kernel_the_jobs_call(tmp_path):
                          capture_output=True, text=True, cwd=ROOT, timeout=600, env=env)
     assert cli.returncode == 0, cli.stderr
     assert "nothing to compile; cached already: raycast, jpl" in cli.stderr
+
+
+def test_a_blurring_response_makes_the_blurred_apriltag_path_its_own_kind():
+    from harness.warmup import BLURRED_DETECTORS, _blurred, _render_kinds
+    doc = {"cameras": [17], "models": ["CAHVORE"], "targets": ["apriltag", "dots"],
+           "renderer": [{"name": "raycast", "response": ["clean", "realistic"]}],
+           "response": {"clean": {}, "realistic": {"psf": {"kind": "gaussian",
+                                                           "sigma_px": 0.7}}}}
+    jobs = expand_jobs(parse_campaign(doc))
+    blurred = {j.key: _blurred(j) for j in jobs}
+    # the blurred AprilTag job only: its detector takes targets.tag_edges' kernels
+    assert sorted(v for v in blurred.values() if v) == ["apriltag"]
+    assert BLURRED_DETECTORS["apriltag"] == "targets._tag_edge_kernels"
+    kinds = {k for k, _ in _render_kinds(jobs)}
+    assert ("raycast", "CAHVORE", "apriltag", "blurred") in kinds
+    assert ("raycast", "CAHVORE", "apriltag") in kinds          # the sharp one stays
+    assert not any(len(k) == 4 and k[2] == "dots" for k in kinds)
+
+
+# In a fresh numba cache: the warm-up of a sharp AprilTag job (as the install step's warm-up
+# of the paper campaign leaves the cache), then that of the same job under a camera response
+# that blurs, then (argument "job", a fresh process, as a worker) the blurred job: the blurred
+# path's kernels (targets._tag_edge_kernels) loaded from the cache, none compiled (a miss)
+_BLURRED = r'''
+import json, sys
+from numba.core.dispatcher import Dispatcher
+from harness.campaign import parse_campaign
+from harness.jobs import expand_jobs
+from harness.warmup import warm_up
+
+def main():
+    doc = {"cameras": [17], "models": ["CAHVORE"], "targets": ["apriltag"],
+           "calibrator": [{"name": "jpl"}],
+           "renderer": [{"name": "raycast", "spp": 4, "response": ["clean", "realistic"]}],
+           "response": {"clean": {},
+                        "realistic": {"psf": {"kind": "gaussian", "sigma_px": 0.7}}}}
+    jobs = expand_jobs(parse_campaign(doc))
+    if sys.argv[1] == "warm":
+        sharp = warm_up([j for j in jobs if not j.response], workers=2)
+        print(json.dumps({"sharp": sharp, "warm_up": warm_up(jobs, workers=2)}))
+        return
+    from harness.runner import run_job
+    recs = [r for j in jobs if j.response for r in run_job(j)["records"]]
+    import targets._tag_edge_kernels as T
+    kernels = [v for v in vars(T).values() if isinstance(v, Dispatcher)]
+    print(json.dumps({"statuses": [r["status"] for r in recs],
+                      "missed": sum(len(v.stats.cache_misses) for v in kernels),
+                      "hits": sum(len(v.stats.cache_hits) for v in kernels)}))
+
+if __name__ == "__main__":
+    main()
+'''
+
+
+@pytest.mark.slow
+def test_warm_up_compiles_the_blurred_apriltag_path(tmp_path):
+    script = tmp_path / "blurred.py"
+    script.write_text(_BLURRED)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    docs = []
+    for step in ("warm", "job"):
+        out = subprocess.run([sys.executable, str(script), step], capture_output=True,
+                             text=True, cwd=ROOT, timeout=3600, env=env)
+        assert out.returncode == 0, out.stderr[-3000:]
+        docs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    warm, job = docs
+    assert warm["sharp"]["renders"][0] == "raycast/CAHVORE/apriltag"
+    # the render set ran again for the blurred kind: its detector's kernels were not cached
+    assert "raycast/CAHVORE/apriltag/blurred" in warm["warm_up"]["renders"]
+    assert set(job["statuses"]) == {"ok"}
+    # the worker's detector took the blurred path, its kernels loaded from the cache
+    assert job["hits"] > 0 and job["missed"] == 0, job
