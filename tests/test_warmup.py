@@ -86,15 +86,22 @@ if __name__ == "__main__":
 '''
 
 
-@pytest.mark.slow
-def test_warm_up_compiles_every_kernel_the_jobs_call(tmp_path):
-    script = tmp_path / "coverage.py"
-    script.write_text(_COVERAGE)
+def _fresh_cache_script(tmp_path, source, *args):
+    r'''(the JSON document a script's last line prints, its environment): source run as a
+script in this repository with args, in a numba cache directory of its own under tmp_path
+(kept for the next call: the same cache)'''
+    script = tmp_path / "script.py"
+    script.write_text(source)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
-    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True,
                          cwd=ROOT, timeout=3600, env=env)
     assert out.returncode == 0, out.stderr[-3000:]
-    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    return json.loads(out.stdout.strip().splitlines()[-1]), env
+
+
+@pytest.mark.slow
+def test_warm_up_compiles_every_kernel_the_jobs_call(tmp_path):
+    doc, env = _fresh_cache_script(tmp_path, _COVERAGE)
     assert doc["warm_up"]["renders"] == [
         "raycast/CAHVORE/dots", "raycast/CAHVORE/apriltag", "raycast/CAHV/dots",
         "raycast/CAHVOR/dots", "raycast/dots/largest", "raycast/apriltag/largest"]
@@ -165,16 +172,8 @@ if __name__ == "__main__":
 
 @pytest.mark.slow
 def test_warm_up_compiles_the_blurred_apriltag_path(tmp_path):
-    script = tmp_path / "blurred.py"
-    script.write_text(_BLURRED)
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
-    docs = []
-    for step in ("warm", "job"):
-        out = subprocess.run([sys.executable, str(script), step], capture_output=True,
-                             text=True, cwd=ROOT, timeout=3600, env=env)
-        assert out.returncode == 0, out.stderr[-3000:]
-        docs.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    warm, job = docs
+    warm, _ = _fresh_cache_script(tmp_path, _BLURRED, "warm")
+    job, _ = _fresh_cache_script(tmp_path, _BLURRED, "job")
     assert warm["sharp"]["renders"][0] == "raycast/CAHVORE/apriltag"
     # the render set ran again for the blurred kind: its detector's kernels were not cached
     assert "raycast/CAHVORE/apriltag/blurred" in warm["warm_up"]["renders"]
