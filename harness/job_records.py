@@ -328,7 +328,7 @@ camera-frame model, the planned poses and the detections'''
 
     from .compare import _model_key
     h = hashlib.sha256(repr(_model_key(camera)).encode())
-    for a in (Rt_cam_board, obs.q, obs.p_board, obs.corner_model):
+    for a in (Rt_cam_board, obs.q, obs.p_board, obs.corner_model, obs.corner_blur_px):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
     return h.hexdigest()
 

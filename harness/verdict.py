@@ -171,7 +171,11 @@ and the floor holds the detector's share. NaN where obs has NaN (the detector di
 not find the point) or the truth cannot image the point; a corner found in the
 images but not on the reference render takes its exact projection. reference: the reference
 corners when the caller has them (the job's own detections when its images are the
-reference render: is_reference_render), else they are rendered here.
+reference render: is_reference_render), else they are rendered here. The exact
+observations' corner blurs (Observations.corner_blur_px, what the bias step corrects the
+board lines' corners under) are those of the reference corners' detections: obs's for
+the job's own, the reference render's (sharp: None) otherwise, never the blur of images
+the reference corners were not detected on.
 '''
     from targets.centroids import expected_centroids, projected_points
 
@@ -182,13 +186,15 @@ reference render: is_reference_render), else they are rendered here.
     camera = camera_frame_model(truth)
     exact = expected_centroids if target.kind == "dots" else projected_points
     q = np.stack([exact(camera, target, Rt) for Rt in Rts])
-    model = None
+    model, blur = None, None
     if target.kind != "dots":
         if reference is None:
-            ref, model = reference_corners(camera, target, Rts)
+            ref, model, blur = reference_corners(camera, target, Rts)
+            blur = blur if blur.any() else None
         else:
-            # the job's own detections: their corner models are obs's
+            # the job's own detections: their corner models and blurs are obs's
             ref, model = np.asarray(reference, dtype=np.float64), obs.corner_model
+            blur = obs.corner_blur_px
         q = np.where(np.isfinite(ref), ref, q)
         # a corner the reference render did not give takes its exact projection, which
         # has no corner bias to correct
@@ -196,7 +202,7 @@ reference render: is_reference_render), else they are rendered here.
             model = np.where(np.isfinite(ref[..., 0]), model, EXACT_PROJECTION)
             model = np.where(obs.found, model, "")
     q = np.where(obs.found[..., None], q, np.nan)
-    return obs.replace(q=q, corner_model=model)
+    return obs.replace(q=q, corner_model=model, corner_blur_px=blur)
 
 
 # the corner model of an exact observation that is the corner's projection (Observations
@@ -206,9 +212,10 @@ EXACT_PROJECTION = "exact projection"
 
 def reference_corners(truth, target, Rts):
     r'''The detector's points on camval's exact renders of the poses (REFERENCE_RENDER):
-(Nposes,Npoints,2), NaN where it finds none, and their corner models (Nposes,Npoints) str
-(Detection.corner_model; None when the detector does not record them); one image in
-memory at a time'''
+(Nposes,Npoints,2), NaN where it finds none, their corner models (Nposes,Npoints) str
+(Detection.corner_model; None when the detector does not record them) and the blurs
+their board lines' corners were fitted under (Nposes,) px (Detection.corner_blur_px);
+one image in memory at a time'''
     from renderers.base import RenderSettings
     from targets.detect import detect
 
@@ -217,14 +224,16 @@ memory at a time'''
     rs = RenderSettings(spp=REFERENCE_RENDER["spp"], adaptive=REFERENCE_RENDER["adaptive"],
                         options=dict(REFERENCE_RENDER["options"]))
     pattern = target.pattern()
-    out, models = [], []
+    out, models, blurs = [], [], []
     for Rt in Rts:
         image = renderer.render(truth, pattern, Rt, rs).image
         det = detect(image, target)
         out.append(np.asarray(det.q, dtype=np.float64))
         models.append(det.corner_model)
+        blurs.append(float(getattr(det, "corner_blur_px", 0.0)))
         del image
-    return np.stack(out), None if any(m is None for m in models) else np.stack(models)
+    return (np.stack(out), None if any(m is None for m in models) else np.stack(models),
+            np.array(blurs))
 
 
 def detection_noise(obs, obs_exact):
@@ -572,9 +581,9 @@ campaign) at the cost of a second fit (jpl on an AprilGrid: ~0.4 CPU-s a record)
     from .jobs import camera_frame_model
     from .stages import calibrate_stage
     if "obs" not in cache:
-        q, corner_model, cache["noise"] = _exact_observations(
+        q, corner_model, blur, cache["noise"] = _exact_observations(
             obs, truth, target, cache.get("reference"), Rt_cam_board)
-        cache["obs"] = obs.replace(q=q, corner_model=corner_model)
+        cache["obs"] = obs.replace(q=q, corner_model=corner_model, corner_blur_px=blur)
     obs_x, noise = cache["obs"], cache["noise"]
     if start is not None and np.array_equal(obs_x.q, obs.q, equal_nan=True):
         return start, noise, True
@@ -595,8 +604,8 @@ campaign) at the cost of a second fit (jpl on an AprilGrid: ~0.4 CPU-s a record)
 
 
 def _exact_observations(obs, truth, target, reference, Rt_cam_board):
-    r'''(q, corner model, detection noise) of exact_observations(), made once per process
-for the same bits of what they are computed from: the truth in its camera frame
+    r'''(q, corner model, corner blur, detection noise) of exact_observations(), made once
+per process for the same bits of what they are computed from: the truth in its camera frame
 (harness.jobs.camera_frame_model), the camera-frame poses, the detections (their
 mask and the noise), the board and the reference corners. Twins have the same bits
 of all of them (exact_fit); from the surveyed poses (Rt_cam_board None) the poses
@@ -610,7 +619,8 @@ differ in their last bits, and each camera computes its own.'''
     Rt_cam_board = np.asarray(Rt_cam_board, dtype=np.float64)
     h = hashlib.sha256()
     for a in (Rt_cam_board, obs.q, obs.p_board, reference,
-              None if reference is None else obs.corner_model):
+              None if reference is None else obs.corner_model,
+              None if reference is None else obs.corner_blur_px):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
     h.update(repr((getattr(target, "name", None), getattr(target, "source", None),
                    target.kind, _model_key(camera_frame_model(truth)))).encode())
@@ -622,13 +632,12 @@ differ in their last bits, and each camera computes its own.'''
         for a in (obs_x.q, obs_x.corner_model):
             if a is not None:
                 a.setflags(write=False)    # shared by the twins' records
-        hit = (obs_x.q, obs_x.corner_model, detection_noise(obs, obs_x))
+        hit = (obs_x.q, obs_x.corner_model, obs_x.corner_blur_px, detection_noise(obs, obs_x))
         with _EXACT_LOCK:
             _EXACT_OBS[key] = hit
             while len(_EXACT_OBS) > EXACT_OBS_MEMO:
                 del _EXACT_OBS[next(iter(_EXACT_OBS))]
-    q, corner_model, noise = hit
-    return q, corner_model, noise
+    return hit
 
 
 # The exact fit depends on the calibrator, its model and options, the exact observations
@@ -655,7 +664,8 @@ def _exact_key(cal, model, options, obs_x, target, truth):
 
     from .compare import _model_key
     h = hashlib.sha256()
-    for a in (obs_x.q, obs_x.p_board, obs_x.Rt_ref_board, obs_x.corner_model):
+    for a in (obs_x.q, obs_x.p_board, obs_x.Rt_ref_board, obs_x.corner_model,
+              obs_x.corner_blur_px):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
     start = options.get("start")
     h.update(repr(_start_key(start)).encode())

@@ -451,6 +451,13 @@ def test_corner_targets_are_judged_against_the_detector_on_exact_renders():
                      R=truth.R, width=W, height=H)
     dx = (observe(shifted).q - obs_x.q)[..., 0][obs.found]
     assert abs(np.median(dx) - 0.01) < 0.002
+    # detections fitted under a blur (a response's PSF): the exact observations' corners come
+    # from the sharp reference render, and so does the blur the bias step corrects them
+    # under; the job's own detections as the reference keep theirs
+    blurred = obs.replace(corner_blur_px=np.full(len(poses), 0.7))
+    assert verdict.exact_observations(blurred, truth, target).corner_blur_px is None
+    own = verdict.exact_observations(blurred, truth, target, reference=obs.q)
+    assert np.array_equal(own.corner_blur_px, blurred.corner_blur_px)
 
 
 @pytest.mark.parametrize("cal, model", [("jpl", "CAHVOR"), ("mrcal", "CAHVOR"),
