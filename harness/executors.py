@@ -71,11 +71,12 @@ def local_context():
 
 forkserver, not fork: the parent may hold threads (the progress bar, BLAS). The
 server imports harness.runner and numba once (numba's import, ~0.19 CPU-s, starts no
-thread; its parallel kernels' threads start at their first call, in a worker); each
-worker forks from it, and the warm-up's processes and the jobs' workers share it.'''
+thread; its parallel kernels' threads start at their first call, in a worker) and loads
+the serial kernels numba's disk cache holds (harness._forkserver); each worker forks from
+it, and the warm-up's processes and the jobs' workers share it.'''
     import multiprocessing
     ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["harness.runner", "numba"])
+    ctx.set_forkserver_preload(["harness.runner", "numba", "harness._forkserver"])
     return ctx
 
 

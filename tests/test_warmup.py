@@ -116,6 +116,48 @@ def test_warm_up_compiles_every_kernel_the_jobs_call(tmp_path):
                          capture_output=True, text=True, cwd=ROOT, timeout=600, env=env)
     assert cli.returncode == 0, cli.stderr
     assert "nothing to compile; cached already: raycast, jpl" in cli.stderr
+    # the fork server's preload (harness.warmup.load_cached_kernels): its workers start with
+    # the serial kernels of the current cache in memory, not the parallel ones (loading those
+    # starts numba's thread pool, which a fork does not carry over); a cache older than
+    # reference_models/kernels.py is left to the workers (the warm-up drops it)
+    current, _ = _fresh_cache_script(tmp_path, _PRELOAD, "current")
+    assert current["worker"]["targets._dot_kernels"], current
+    assert all(n >= 1 for n in current["worker"]["targets._dot_kernels"].values()), current
+    assert current["worker"]["renderers._raycast_kernels"] == {"render_kernel": 0,
+                                                                "band_chords": 1}, current
+    assert current["loaded"] > 10 and not current["threads"], current
+    stale, _ = _fresh_cache_script(tmp_path, _PRELOAD, "stale")
+    assert set(stale["worker"]["targets._dot_kernels"].values()) == {0}, stale
+    assert stale["worker"]["renderers._raycast_kernels"]["band_chords"] == 1, stale
+
+
+_PRELOAD = r'''
+import json, os, sys
+
+def overloads(modname):
+    import importlib
+    return {k.__name__: len(k.overloads)
+            for k in importlib.import_module(modname).compiled_entry_points()}
+
+def main():
+    import reference_models.kernels as rk
+    import targets._dot_kernels as D
+    if sys.argv[1] == "stale":
+        t = os.path.getmtime(rk.__file__) - 60
+        for k in D.compiled_entry_points():
+            os.utime(k._cache._cache_file._index_path, (t, t))
+    from harness.executors import local_pool
+    with local_pool(2) as pool:
+        worker = {m: pool.submit(overloads, m).result()
+                  for m in ("targets._dot_kernels", "renderers._raycast_kernels")}
+    import numba.np.ufunc.parallel as P
+    from harness.warmup import load_cached_kernels
+    n = load_cached_kernels()
+    print(json.dumps({"worker": worker, "loaded": n, "threads": bool(P._is_initialized)}))
+
+if __name__ == "__main__":
+    main()
+'''
 
 
 def test_a_blurring_response_makes_the_blurred_apriltag_path_its_own_kind():
