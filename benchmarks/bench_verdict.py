@@ -9,14 +9,19 @@ SYNOPSIS
     uv run --frozen python benchmarks/bench_verdict.py Q.pkl --profile 25
 
 Replays harness.verdict.assess() on the inputs verdict_capture.py kept (the same
-image fit, exact fit, noise and observations each time), timing each record (CPU
+image fit, exact fit, noise and observations each time), each right after the
+record's own comparison with the truth (harness.stages.compare_stage, untimed and
+unprofiled: the campaign's order, so the memos of the truth's grid and of the fits'
+pixels hold what they hold in a campaign), timing each record (CPU
 seconds, best of --repeats) and collecting every sigma and z-score of its
-renderer comparison and the expected projection sigma. --save writes those
+renderer comparison and the expected projection sigma, and every leaf of the
+verdict (numbers, flags, reasons; not its seconds). --save writes those
 figures; --steps F scales the linearisation's finite-difference steps (compared
 with a run at 1, the sigmas' own numerical noise); --compare prints, for every
 quantity, the largest relative change against a saved file, |after - before| /
 |before| over all records, with the absolute change beside it (and the
-records where a sigma appeared or vanished). --profile N prints cProfile's N
+records where a sigma appeared or vanished), and how many of the verdicts' leaves
+are not the same bits. --profile N prints cProfile's N
 most expensive functions over one pass. Results (per-calibrator CPU seconds
 and the largest changes) go to a JSON document via benchmarks/common.py.
 '''
@@ -30,7 +35,7 @@ import common
 
 
 def _figures(v):
-    r'''{"sigma.<q>": x, "z.<q>": x, "<part>.<mode>.rms": px} of one verdict'''
+    r'''{"sigma.<q>": x, "z.<q>": x, "<part>.<mode>_rms": px} of one verdict'''
     out = {}
     for part in ("renderer", "floor"):
         proj = (v.get(part) or {}).get("projection") or {}
@@ -45,6 +50,31 @@ def _figures(v):
             if x is not None:
                 out[f"{part}.{k}"] = float(x)
     return out
+
+
+def _flat(v, prefix=""):
+    r'''Every leaf of a verdict (numbers, strings, flags, None) by its path, its seconds
+left out: what --compare holds bit for bit'''
+    if isinstance(v, dict):
+        out = {}
+        for k, x in v.items():
+            if k != "seconds":
+                out.update(_flat(x, f"{prefix}{k}."))
+        return out
+    if isinstance(v, (list, tuple)):
+        out = {}
+        for i, x in enumerate(v):
+            out.update(_flat(x, f"{prefix}{i}."))
+        return out
+    return {prefix.rstrip("."): v}
+
+
+def _prime(a):
+    r'''The record's own comparison with the truth (harness.stages.compare_stage), as the
+campaign computes it just before the verdict (harness.job_records): the memos of the
+truth's grid and of the fit's pixels then hold what they hold in a campaign'''
+    from harness.stages import compare_stage
+    compare_stage(a[0], a[1])
 
 
 def main(argv=None):
@@ -71,8 +101,9 @@ def main(argv=None):
     with open(args.inputs, "rb") as f:
         cases = [c for c in pickle.load(f) if args.match in c[0]]
     out = common.Results("bench_verdict", args)
-    figures, cpu = {}, {}
+    figures, cpu, leaves = {}, {}, {}
     for _name, a, kw in cases:        # warm every import and cache once
+        _prime(a)
         vd.assess(*a, **kw)
     if args.profile:
         import cProfile
@@ -80,16 +111,21 @@ def main(argv=None):
         pr = cProfile.Profile()
         pr.enable()
         for _name, a, kw in cases:
+            pr.disable()
+            _prime(a)
+            pr.enable()
             vd.assess(*a, **kw)
         pr.disable()
         pstats.Stats(pr).sort_stats("cumulative").print_stats(args.profile)
     for name, a, kw in cases:
         best = math.inf
         for _ in range(max(1, args.repeats)):
+            _prime(a)
             c0 = time.process_time()
             v = vd.assess(*a, **kw)
             best = min(best, time.process_time() - c0)
         figures[name] = _figures(v)
+        leaves[name] = _flat(v)
         cal = a[1].calibrator
         cpu.setdefault(cal, []).append(best)
     total = sum(sum(x) for x in cpu.values())
@@ -101,11 +137,13 @@ def main(argv=None):
     out.add("cpu/all", cpu_s=total)
     if args.save:
         with open(args.save, "w") as f:
-            json.dump(figures, f, indent=1, sort_keys=True)
+            json.dump({"figures": figures, "leaves": leaves}, f, indent=1, sort_keys=True)
         print(f"wrote {args.save}")
     if args.compare:
         with open(args.compare) as f:
             before = json.load(f)
+        before_leaves = before.get("leaves", {})
+        before = before.get("figures", before)
         worst, changed = {}, []
         for name, fig in figures.items():
             b = before.get(name, {})
@@ -124,6 +162,19 @@ def main(argv=None):
             print(f"  {name}: present in one only: {keys[:6]}")
         print(f"  {len(changed)} records with quantities present in one only")
         out.add("change/present_in_one_only", records=[n for n, _ in changed])
+        if before_leaves:
+            diff = {n: [k for k in set(lv) | set(before_leaves.get(n, {}))
+                        if lv.get(k, "-") != before_leaves.get(n, {}).get(k, "-")]
+                    for n, lv in leaves.items()}
+            diff = {n: ks for n, ks in diff.items() if ks}
+            n_leaves = sum(len(lv) for lv in leaves.values())
+            print(f"every figure of the verdicts ({n_leaves} in {len(leaves)} records): "
+                  f"{sum(len(k) for k in diff.values())} differ (not bit for bit) in "
+                  f"{len(diff)} records")
+            for n, ks in list(diff.items())[:8]:
+                print(f"  {n}: {sorted(ks)[:6]}")
+            out.add("change/leaves", leaves=n_leaves, differ=sum(len(k) for k in diff.values()),
+                    records=sorted(diff))
     out.write()
 
 
