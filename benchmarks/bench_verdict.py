@@ -22,7 +22,8 @@ quantity, the largest relative change against a saved file, |after - before| /
 |before| over all records, with the absolute change beside it (and the
 records where a sigma appeared or vanished), and how many of the verdicts' leaves
 are not the same bits. --profile N prints cProfile's N
-most expensive functions over one pass. Results (per-calibrator CPU seconds
+most expensive functions over one pass; --parts times the verdict's floor, renderer
+comparison and scatter apart, per calibrator. Results (per-calibrator CPU seconds
 and the largest changes) go to a JSON document via benchmarks/common.py.
 '''
 
@@ -77,6 +78,36 @@ truth's grid and of the fit's pixels then hold what they hold in a campaign'''
     compare_stage(a[0], a[1])
 
 
+def _parts(cases, out):
+    r'''CPU seconds of the verdict's parts per calibrator, as assess() computes them: the
+floor (skipped where the exact fit IS the image fit: the record's own comparison), the
+renderer comparison and the scatter, each record after its own comparison (_prime)'''
+    from harness import blas
+    from harness import verdict as vd
+    parts = {}
+    for _name, a, kw in cases:
+        truth, res, exact = a[0], a[1], a[2]
+        if exact.status != "ok" or exact.model is None:
+            continue
+        _prime(a)
+        t = [time.process_time()]
+        with blas.one_thread():
+            if exact is not res:
+                vd.floor_comparison(truth, exact)
+            t.append(time.process_time())
+            vd.fit_comparison(exact.model, res.model, truth, res.theta_estimated,
+                              res.world_frame and exact.world_frame)
+            t.append(time.process_time())
+            vd.scatter(res, exact, kw["obs"], truth)
+            t.append(time.process_time())
+        p = parts.setdefault(res.calibrator, [0.0, 0.0, 0.0])
+        for i in range(3):
+            p[i] += t[i + 1] - t[i]
+    for cal, (fl, rd, sc) in sorted(parts.items()):
+        print(f"{cal:8s} parts CPU: floor {fl:6.3f} s, renderer {rd:6.3f} s, scatter {sc:6.3f} s")
+        out.add(f"parts/{cal}", floor_s=fl, renderer_s=rd, scatter_s=sc)
+
+
 def main(argv=None):
     ap = common.parser(__doc__, repeats=1, warmup=0)
     ap.add_argument("inputs", help="a pickle from verdict_capture.py")
@@ -84,6 +115,10 @@ def main(argv=None):
     ap.add_argument("--compare", help="a --save file to compare with")
     ap.add_argument("--profile", type=int, default=0, help="print the N top functions")
     ap.add_argument("--match", default="", help="only records whose fullname contains this")
+    ap.add_argument("--parts", action="store_true",
+                    help="also time the verdict's three parts per calibrator: the floor "
+                         "(exact fit vs truth), the renderer comparison (image fit vs exact "
+                         "fit) and the scatter")
     ap.add_argument("--steps", type=float, default=1.0,
                     help="scale the finite-difference steps of the linearisation by this "
                          "(with --compare against a run at 1: the sigmas' numerical noise)")
@@ -128,6 +163,8 @@ def main(argv=None):
         leaves[name] = _flat(v)
         cal = a[1].calibrator
         cpu.setdefault(cal, []).append(best)
+    if args.parts:
+        _parts(cases, out)
     total = sum(sum(x) for x in cpu.values())
     for cal, xs in sorted(cpu.items()):
         print(f"{cal:8s} {len(xs):3d} records  verdict CPU {sum(xs):7.3f} s "
