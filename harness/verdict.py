@@ -1229,7 +1229,7 @@ JOINT_EIGEN_CUT = 1e-8
 JOINT_RESOLUTION_Z = 6.0
 
 
-def joint_statistic(d, S, cut=JOINT_EIGEN_CUT):
+def joint_statistic(d, S, cut=JOINT_EIGEN_CUT, basis=None):
     r'''The Mahalanobis distance of differences d under their covariance S
 
 SYNOPSIS
@@ -1245,6 +1245,8 @@ is left out with its difference. z: the Gaussian z whose two-sided tail has the
 probability of chi2 under the chi-square distribution with dof degrees of freedom
 (joint_z), so z = 6 is as strict as the per-quantity gate's z = 6.
 Returns {"chi2", "dof", "z", "n"} (n quantities taken), chi2 and z None when dof is 0.
+basis: a JointBasis(S, cut) to take the eigen-directions from (joint_of_fit: one
+decomposition of S for the statistic and every fault sigma; the same numbers).
 '''
     d = np.asarray(d, dtype=np.float64)
     S = np.asarray(S, dtype=np.float64)
@@ -1253,7 +1255,7 @@ Returns {"chi2", "dof", "z", "n"} (n quantities taken), chi2 and z None when dof
     out = {"chi2": None, "dof": 0, "z": None, "n": int(ok.sum())}
     if not ok.any():
         return out
-    V, w = _joint_basis(S, s, ok, cut)
+    V, w = (basis or JointBasis(S, cut)).of(s, ok)
     u = V.T @ (d[ok] / s[ok])
     chi2 = float(np.sum(u * u / w))
     dof = len(w)
@@ -1268,6 +1270,22 @@ def _joint_basis(S, s, ok, cut):
     return V[:, keep], w[keep]
 
 
+class JointBasis:
+    r'''_joint_basis of one covariance S and cut, decomposed once per set of quantities:
+joint_of_fit asks it for the statistic and for each minimum-detectable fault, on the
+same quantities (all of them, unless a difference is not finite): one eigh, not six'''
+
+    def __init__(self, S, cut=JOINT_EIGEN_CUT):
+        self.S, self.cut, self._memo = S, cut, {}
+
+    def of(self, s, ok):
+        key = ok.tobytes()
+        hit = self._memo.get(key)
+        if hit is None:
+            hit = self._memo[key] = _joint_basis(self.S, s, ok, self.cut)
+        return hit
+
+
 def joint_resolution_cov(Ninv, s_col, n_points):
     r'''The resolution covariance of the fit's parameters (see JOINT_RESOLUTION_Z):
 r^2 n_points (J^T J)^+, from _scatter's Ninv = (Js^T Js)^+ of the column-scaled Jacobian
@@ -1276,16 +1294,18 @@ Js = J / s_col; under it a move dx has Mahalanobis distance^2 = |J dx|^2 / (n_po
     return r * r * n_points * Ninv / np.outer(s_col, s_col)
 
 
-def joint_fault_sigma(v, S, cut=JOINT_EIGEN_CUT):
+def joint_fault_sigma(v, S, cut=JOINT_EIGEN_CUT, basis=None):
     r'''The sigma the joint statistic sees a fault by: a fault moving the quantities by
 d x v (v (m,): the move per unit fault) adds (d / sigma)^2 to chi2; None when v lies in
-the directions left out (joint_statistic's cut) or has no component in S's support'''
+the directions left out (joint_statistic's cut) or has no component in S's support;
+basis: as joint_statistic's'''
     v = np.asarray(v, dtype=np.float64)
-    s = np.sqrt(np.maximum(np.diag(np.asarray(S, dtype=np.float64)), 0.0))
+    S = np.asarray(S, dtype=np.float64)
+    s = np.sqrt(np.maximum(np.diag(S), 0.0))
     ok = (s > 0) & np.isfinite(s)
     if not ok.any():
         return None
-    V, w = _joint_basis(S, s, ok, cut)
+    V, w = (basis or JointBasis(S, cut)).of(s, ok)
     u = V.T @ (v[ok] / s[ok])
     q = float(np.sum(u * u / w))
     return 1.0 / math.sqrt(q) if q > 0 else None
@@ -1345,7 +1365,8 @@ the fit's covariance plus the resolution term joint_resolution_cov), with the si
 minimum-detectable fault is seen by ("fault_sigma", joint_fault_sigma)'''
     S = G @ cov @ G.T
     d = np.array([q0[k] for k in names], dtype=np.float64)
-    out = joint_statistic(d, S)
-    out["fault_sigma"] = {p: joint_fault_sigma(v, S)
+    basis = JointBasis(S)
+    out = joint_statistic(d, S, basis=basis)
+    out["fault_sigma"] = {p: joint_fault_sigma(v, S, basis=basis)
                           for p, v in _joint_fault_directions(names, ref).items()}
     return out
