@@ -24,9 +24,11 @@ verdict.renderer.sigma (the scatter of the image fit under the measured
 detection noise): |AFTER - BEFORE| / sigma of the record's total parameter error
 (params), of its renderer part (verdict.renderer) and of its floor
 (verdict.floor); projection_rms for the projection RMS (rotation mode). Prints the
-largest per record kind and overall, the records whose status changed and the
-largest changes of records without a sigma (absolute). Records:
-diff/<calibrator>/<part> (max_z, where) and diff/max.
+largest per record kind and overall, the largest over the records judged in both
+(verdict.floor_far false), the records whose status or verdict flags (floor_far,
+fits_disagree) changed and the largest changes of records without a sigma
+(absolute). Records: diff/<calibrator>/<part> (max_z, where), diff/<calibrator>/judged,
+diff/flags_changed and diff/max.
 '''
 
 import json
@@ -203,6 +205,10 @@ projection RMS'''
     return out
 
 
+# the verdict's flags a change must keep (diff lists each record whose flag changed)
+FLAGS = ("floor_far", "fits_disagree")
+
+
 def part_diff(args, out):
     r'''How far AFTER's records lie from BEFORE's, in units of BEFORE's sigma (module doc)'''
     a, b = _load_records(args.before), _load_records(args.after)
@@ -212,6 +218,8 @@ def part_diff(args, out):
     worst = {}        # (calibrator, part) -> (z, fullname, quantity, before, after)
     nosigma = {}      # calibrator -> (|change|, fullname, quantity, before, after)
     per_record = []   # (z, fullname, part, quantity, before, after, projection z)
+    judged = {}       # calibrator -> (z, fullname, part, quantity): records judged in both
+    flags = []        # (fullname, flag, before, after): a verdict flag that changed
     n = 0
     for k in sorted(set(a) & set(b)):
         ra, rb = a[k], b[k]
@@ -248,6 +256,14 @@ def part_diff(args, out):
                     nosigma[cal] = (d, k, q, qa[key], qb[key])
         if mine[0] > 0:
             per_record.append((mine[0], k, *mine[1:], proj_z))
+        for flag in FLAGS:
+            fa, fb = _get(ra, "verdict", flag), _get(rb, "verdict", flag)
+            if fa != fb:
+                flags.append((k, flag, fa, fb))
+        if _get(ra, "verdict", "floor_far") is False and _get(rb, "verdict", "floor_far") is False:
+            w = judged.get(cal)
+            if w is None or mine[0] > w[0]:
+                judged[cal] = (mine[0], k, mine[1], mine[2])
     print(f"{n} records ok in both; {len(missing)} in one run only; "
           f"{len(status)} changed status")
     for k, sa, sb in status:
@@ -259,6 +275,15 @@ def part_diff(args, out):
                 quantity=q, before=x, after=y)
         if z > overall[0]:
             overall = (z, k)
+    for cal, (z, k, part, q) in sorted(judged.items()):
+        print(f"{cal:<7} judged    max |change|/sigma {z:9.3g}  {k} {part} {q} (records "
+              f"whose verdict has floor_far false in both)")
+        out.add(f"diff/{cal}/judged", max_z=z if math.isfinite(z) else None, worst_record=k,
+                part=part, quantity=q)
+    print(f"{len(flags)} verdict flags changed ({', '.join(FLAGS)})")
+    for k, flag, fa, fb in flags:
+        print(f"  {flag} {k}: {fa!r} -> {fb!r}")
+    out.add("diff/flags_changed", n=len(flags), changes=[list(f) for f in flags])
     for cal, (d, k, q, x, y) in sorted(nosigma.items()):
         print(f"{cal:<7} without sigma: max |change| {d:.3g}  {k} {q}: {x!r} -> {y!r}")
     if per_record and args.top:

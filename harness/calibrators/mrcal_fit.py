@@ -200,6 +200,39 @@ VALLEY_JUMP_MAX = 8
 # - the race's regularised start solved on the coarse grid first: the full-grid solve after
 #   it still runs to the iteration limit (3 CAHVOR 148 -> 37 + 147 ms): the regularised
 #   problem has the valley too (it stops at fx 2288 or 2473 px depending on the start).
+# - (session 14; the code: git show 927011e) the valley's restarts as Levenberg-Marquardt on
+#   mrcal.optimizer_callback's Jacobian in the valley's natural coordinates: log fx, log fy,
+#   O's image (cx + fx tan(alpha), cy + fy tan(beta) / cos(alpha): fixed where e -> 0 runs
+#   fx and cx off together), alpha, beta, log e, R1 / e, R2 / e, E; damped normal equations
+#   of the column-scaled Jacobian by eigen-decomposition (condition ~1e14), up to 100 steps
+#   per restart. Without O's image among the coordinates the valley still curves (rho ~0.3
+#   per step; 870 Jacobians for a synthetic 5 CAHVOR), with it 76-115 (0.24 s against the
+#   crawl's 1.04). On the paper campaign (bench_mrcal.py --stages, load 11-13): image fits
+#   16.4 -> 12.4 CPU s, exact fits 1.94 -> 1.19 (bench_fits.py: 16.9 -> 13.0 and
+#   2.19 -> 1.43), every exact-recovery test held. Not taken: it fails issue 18's bar
+#   because it converges where the crawl stops short. Judged records the crawl brings to
+#   their minimum end there (5, 13, 15 CAHVOR, 5, 17, 19 CAHVORE: image-fit residuals equal
+#   to 4-5 digits), but the judged 16 and 17 CAHVOR reach deeper minima (residual RMS
+#   7.46e-4 -> 6.17e-4 and 1.742e-3 -> 1.718e-3 px; 17's exact fit 3.3e-4 -> 7.8e-9 px, its
+#   floor 2.8e-3 -> 1.0e-7 px and renderer difference 1.7e-4 -> 3.5e-3 px, z 1.2), 19 and
+#   21 CAHVOR go on to the R0 gauge's limit and turn from floor_far to judged (floors 0.058
+#   -> 1.6e-6 and 0.045 -> 0.0084 px), and 1 CAHVOR's limit (e -> 0) puts its projection
+#   6.8e7 px off at the corners. Holding cx, cy inside the image (valley_jump's rule) stopped
+#   5 CAHVOR on that edge (residual 6.8e-4 -> 0.17 px, fits_disagree on slots 5-8). And a
+#   gauge figure at the R0 limit is resolved beyond any solver's convergence: 5 CAHVOR's
+#   R0_frac (-313109.26 vs -313108.88, sigma 1.35e-4) moved 2.8e3 sigma at 1e-6 relative
+#   with the image fit's residual the same. So a solver that converges cannot keep every
+#   judged record in place: the crawl's stopping point is what the records hold. The clean
+#   renderer gate (every slot and extra, seeds 0-2, load 11-17) passes with it as with
+#   main's code, 0 false alarms, and judges more: mrcal CAHVOR 22 -> 36 of 72 records,
+#   CAHVORE 10 -> 11 of 33 (benchmarks/bench_fits.py diff per seed: 18 floor_far -> judged
+#   flips, none the other way); its image fits 0.820 -> 0.734 s per ok record.
+# - nor is there a floor-far record's cost left after its misfit verdict for any other rule
+#   to take: on the 25 jobs above (load 14-17), 14.14 of the 14.30 CPU s of mrcal.optimize
+#   in image fits come before the first crawl_verdict / settled_misfit_verdict (the settled
+#   one falls after the settled polish's coarse restarts, the last of a fit's work; only
+#   21 CAHVOR gets a crawl_verdict, at call 51 of 53). The judged records (5, 13, 15, 16,
+#   17 CAHVOR, 5, 17, 19 CAHVORE) take 3.9 s of it, the floor-far ones 10.4 s.
 
 
 def uses_world_frame(known_poses=False, **options):
