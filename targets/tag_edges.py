@@ -121,6 +121,7 @@ from ._tag_edge_kernels import (
     edge_moments,
     fit_edges,
     meet_curves,
+    noise_moments,
     plateau_counts,
     tag_edge_pixels,
 )
@@ -345,6 +346,9 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
     far = np.zeros((N, 4), bool)
     found = np.full((N, 4, 2), np.nan)
     noise = 0.0
+    # the pixels' noise variance as a line in their value (None: every pixel alike): the
+    # first pass's fits tell it, the later passes weight their pixels by its inverse
+    line = None
     for npass in range(passes):
         # the passes before the last only place its pixels: each edge alone
         last = npass == passes - 1
@@ -382,7 +386,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         choice = {}
         if last and npass > 0:
             choice = _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits,
-                                  (pix, piy, pt, ps, off), grid)
+                                  (pix, piy, pt, ps, off), grid,
+                                  _weights(line, img[piy, pix]))
         geo = []
         for (i, k), (ix, iy, t, s, L, e, n) in own.items():
             # the first pass only places the second's pixels: each edge alone
@@ -429,7 +434,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             # every edge seen from its light side only, none placed by its neighbours: each
             # has its reason
             break
-        E = _Edges(img, geo, reach)
+        E = _Edges(img, geo, reach, line)
         if len(blurs) > 1:
             (sigma, kind), table, fits, info = _choose_kind(E, blurs)
             blurs = [(sigma, kind)]
@@ -450,8 +455,11 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         frames = {(g[0], g[1]): (g[6], g[7], g[8]) for g in geo}
         good = np.isfinite(fits[2]) & fits[1]
         # the next pass's measure of the image's noise: the edges' median misfit (RMS over
-        # the contrast; each edge alone, noise-free a quadratic's model error)
+        # the contrast; each edge alone, noise-free a quadratic's model error), and how it
+        # varies with the pixel's value
         noise = float(np.median(fits[2][good])) if good.any() else 0.0
+        if line is None and not last:
+            line = _noise_line(E, table, fits[0], good)
 
         def curve(i, k, end, curves=curves):
             return curves[(i, k, end)] if (i, k, end) in curves else curves[(i, k, 2)]
@@ -583,7 +591,8 @@ def _powers(tau, n):
     return np.asarray(tau, dtype=np.float64)[..., None] ** np.arange(n)
 
 
-def _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits, pixels, grid=None):
+def _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits, pixels, grid=None,
+                 weights=None):
     r'''{(i, k): (choice at corner k, choice at corner k+1)}, each a (span, degree) of
 CANDIDATES: the fit of each edge (not weak) with the least expected squared error of its
 corner across the edge, bias^2 + variance
@@ -622,7 +631,7 @@ frame; weak: the edges seen from their light side only (no choice: the three edg
 cubic places them); curved: the edges whose start is a fit (not the chord); nbrs:
 _neighbours; q (N,4,2) the corners; table: _edge_table; noise: misfit RMS / contrast;
 pixels: (ix, iy, t, s, a) of tag_edge_pixels: edge (i, k)'s are [a[4i+k], a[4i+k+1]);
-grid: refine_tag_edges' (None: no pooling)'''
+grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None: alike)'''
     ix, iy, pt, ps, off = pixels
     # every edge's own moments (a weak one's curve may still be a neighbour's reference)
     keys = list(own)
@@ -642,7 +651,8 @@ grid: refine_tag_edges' (None: no pooling)'''
     j0 = fa.astype(np.int64)
     cut = 2.0 * NEIGHBOUR_REACH - 1.0
     cuts = np.array([min(cut, -cut), max(cut, -cut)])
-    mom = edge_moments(pt, ps, off[flat], off[flat + 1], ds, Ls, j0, fa - j0, cuts, table[0],
+    wt = np.ones(len(pt)) if weights is None else weights
+    mom = edge_moments(pt, ps, wt, off[flat], off[flat + 1], ds, Ls, j0, fa - j0, cuts, table[0],
                        TABLE_STEP_PX, table[1], table[2]) / max(noise, 1e-12) ** 2
     m_own = mom.sum(1)
     # each end's board line neighbour, its moments moved into this edge's frame (tau
@@ -882,7 +892,7 @@ no edge tells'''
     if not use.any():
         return 0.0, 0.0, 0.0, float("nan")
     x0, F, dF, Fs = table
-    H, G = blur_step(E.off, E.v, E.tau, E.s, E.cubic, E.j0, E.fy, p, x0, TABLE_STEP_PX, F,
+    H, G = blur_step(E.off, E.v, E.w, E.tau, E.s, E.cubic, E.j0, E.fy, p, x0, TABLE_STEP_PX, F,
                      dF, Fs, use)
     if not H > 0:
         return 0.0, 0.0, 0.0, float("nan")
@@ -918,6 +928,45 @@ the fits start from (None: E.d). (p (m,6), converged (m,), misfit (m,))'''
         p2, d2, m2 = _fit_edges(E, table, bfix, start, skip=deep, converged_px=converged_px)
     p[rest], done[rest], mis[rest] = p2[rest], d2[rest], m2[rest]
     return p, done, mis
+
+
+def _noise_line(E, table, p, use):
+    r'''(c0, c1, scale, lo, hi): the pixels' noise variance as a line in their value, E r^2
+= c0 + c1 v, from the residuals of the fits p (m,6) of the edges in use (m,) (least squares
+of r^2 on the fitted value, noise_moments), scale: the mean of r^2 over those pixels, lo, hi:
+the least and largest fitted value (where the line was measured); None
+where the line is no variance (c1 <= 0: no noise that grows with the signal, e.g. a
+noise-free image's model errors; or not positive over the fitted values)
+
+Why. A camera's pixel noise is shot noise and read noise: its variance grows with the
+signal (the realistic profile: 20000 e- at 1.0, 12 e- read noise; the tags' black 0.1 has
+~1/8 of the board's 0.9 variance). Least squares weighted by the inverse variance places an
+edge with ~0.8 of the variance of the unweighted fit's (1/F-information over a blurred
+edge's band, the fit's light level and contrast free).'''
+    x0, F = table[0], table[1]
+    n, s1, s2, r2, r2mu, lo, hi = noise_moments(E.off, E.v, E.tau, E.s, E.cubic, E.j0, E.fy,
+                                               p, x0, TABLE_STEP_PX, F, use)
+    det = n * s2 - s1 * s1
+    if not (n > 2 and det > 0):
+        return None
+    c1 = (n * r2mu - s1 * r2) / det
+    c0 = (r2 - c1 * s1) / n
+    if not (c1 > 0 and c0 + c1 * lo > 0 and c0 + c1 * hi > 0):
+        return None
+    return c0, c1, r2 / n, lo, hi
+
+
+def _weights(line, v):
+    r'''The pixels' weights for values v: the inverse of their noise variance (_noise_line's
+line), in units of its mean over the first pass's pixels (a pixel of average noise weighs 1:
+the fits' misfits stay the noise of such a pixel); every pixel 1 where line is None. The
+variance is the line's at the observed value (kept to the values it was measured on): a
+pixel's noise moves its weight by ~its relative noise (1e-2), which biases every pixel's
+level alike to first order (by -c1), the light level a takes it up.'''
+    if line is None:
+        return np.ones(len(v))
+    c0, c1, scale, lo, hi = line
+    return scale / (c0 + c1 * np.clip(np.asarray(v, dtype=np.float64), lo, hi))
 
 
 def _curve_s(d, tau):
@@ -958,7 +1007,7 @@ converged (m,), misfit RMS / contrast (m,))'''
         start = np.asarray(start, dtype=np.float64).reshape(E.m, 4)
         d = np.where(np.isfinite(start).all(-1)[:, None], start, d)
     skip = np.zeros(E.m, bool) if skip is None else skip
-    return fit_edges(E.off, E.v, E.tau, E.s, E.cubic, E.j0, E.fy, np.ascontiguousarray(d),
+    return fit_edges(E.off, E.v, E.w, E.tau, E.s, E.cubic, E.j0, E.fy, np.ascontiguousarray(d),
                      x0, TABLE_STEP_PX, F, dF, np.asarray(bfix, dtype=np.float64), skip,
                      MAX_ITERATIONS, float(converged_px))
 
@@ -969,7 +1018,7 @@ class _Edges:
 each edge's pixel count, tag (m,) its tag and deep (m,): the edges whose band reaches the
 dark plateau (MIN_PLATEAU_PIXELS at least reach px inside the curve)'''
 
-    def __init__(self, img, geo, reach):
+    def __init__(self, img, geo, reach, line=None):
         m = self.m = len(geo)
         counts = np.array([len(g[2]) for g in geo], dtype=np.int64)
         self.n = counts.astype(np.float64)
@@ -978,6 +1027,7 @@ dark plateau (MIN_PLATEAU_PIXELS at least reach px inside the curve)'''
         ix = np.concatenate([g[2] for g in geo])
         iy = np.concatenate([g[3] for g in geo])
         self.v = img[iy, ix].astype(np.float64)
+        self.w = _weights(line, self.v)
         self.tau = np.concatenate([2.0 * g[4] / g[6] - 1.0 for g in geo])
         self.s = np.concatenate([g[5] for g in geo]).astype(np.float64)
         n = np.abs(np.array([g[8] for g in geo], dtype=np.float64).reshape(m, 2))
