@@ -25,7 +25,9 @@ each seed in turn, one run directory per seed under --keep) and tabulates issue 
 bar: target / dots ratio of jpl's residual RMS and projection difference RMS per camera and
 family, pooled over the seeds (the RMS over the seeds of each, then the ratio), with each
 seed's ratios and the corners kept. --run DIR tabulates such a DIR (its seed-* run
-directories) again.
+directories) again. --dots-from DIR takes the dots' records from DIR's seed-* runs (a run of
+the same cameras and seeds: the dots do not change with a corner detector) and runs the
+corner targets only.
 
 Writes one JSON document, <out-dir>/<UTC stamp>-bench_corner_campaign.json
 (benchmarks/common.Results): a record per campaign record (fullname as the
@@ -84,7 +86,8 @@ def run_seeds(args):
     for seed in args.seeds:
         doc = tomllib.loads((common.CAMPAIGNS / "response-corners.toml").read_text())
         doc.update(name=f"corner-ratio-seed{seed}", keep_maps=False, seed=int(seed),
-                   targets=sorted({"dots", *args.targets}), models=args.models,
+                   targets=sorted(set(args.targets) | ({"dots"} if not args.dots_from else set())),
+                   models=args.models,
                    cameras=[int(c) if c.isdigit() else c for c in args.cameras])
         doc["poses"]["seed"] = int(seed)
         doc["calibrator"] = [c for c in doc["calibrator"] if c["name"] == "jpl"]
@@ -96,13 +99,18 @@ def run_seeds(args):
     return top
 
 
-def ratio_table(top, profile, out):
-    r'''Print and record the target / dots ratios of the runs under top (its seed-* dirs)'''
+def ratio_table(top, profile, out, dots_from=None):
+    r'''Print and record the target / dots ratios of the runs under top (its seed-* dirs;
+the dots' from dots_from's where given)'''
     import math
     rows = {}
     seeds = sorted(Path(top).glob("seed-*"), key=lambda p: int(p.name.split("-")[1]))
     for d in seeds:
-        for r in records_of(d):
+        recs = records_of(d)
+        if dots_from:
+            recs = [r for r in recs if r["target"] != "dots"] + [
+                r for r in records_of(Path(dots_from) / d.name) if r["target"] == "dots"]
+        for r in recs:
             if (r.get("settings") or {}).get("response") != profile or r["status"] != "ok":
                 continue
             c = cell(r, BAR_PX)
@@ -184,12 +192,14 @@ def main():
     ap.add_argument("--response", default=None,
                     help="profile of campaigns/response-corners.toml: the ratio mode")
     ap.add_argument("--seeds", type=slots, default="0-3", help="the ratio mode's seeds")
+    ap.add_argument("--dots-from", type=Path, default=None,
+                    help="the ratio mode's dots records from this earlier run's seed-* dirs")
     args = ap.parse_args()
     out = common.Results(SCRIPT, args)
     if args.response:
         with common.Stopwatch() as sw:
             top = args.run or run_seeds(args)
-        ratio_table(top, args.response, out)
+        ratio_table(top, args.response, out, args.dots_from)
         print(f"({sw.wall_s:.0f} s; run directories under {top})")
         out.write()
         return 0

@@ -252,6 +252,16 @@ the least and the largest mu'''
 
 
 @njit(cache=True, error_model="numpy")
+def pixel_weights(v, c0, c1, scale, lo, hi):
+    r'''(n,) scale / (c0 + c1 v) of the values v (n,) kept to [lo, hi]: the inverse of the
+noise variance line targets.tag_edges._noise_line fitted, in units of scale'''
+    out = np.empty(len(v))
+    for q in range(len(v)):
+        out[q] = scale / (c0 + c1 * min(max(v[q], lo), hi))
+    return out
+
+
+@njit(cache=True, error_model="numpy")
 def plateau_counts(off, tau, s, curves, reach):
     r'''(m,) each edge's pixels at least reach px inside its curve (d0..d3 in curves (m,4),
 the pixels as fit_edges')'''
@@ -678,4 +688,4 @@ def compiled_entry_points():
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
     return (tag_edge_pixels, fit_edges, meet_curves, blur_step, plateau_counts,
-            edge_moments, noise_moments)
+            edge_moments, noise_moments, pixel_weights)

@@ -122,6 +122,7 @@ from ._tag_edge_kernels import (
     fit_edges,
     meet_curves,
     noise_moments,
+    pixel_weights,
     plateau_counts,
     tag_edge_pixels,
 )
@@ -965,8 +966,7 @@ pixel's noise moves its weight by ~its relative noise (1e-2), which biases every
 level alike to first order (by -c1), the light level a takes it up.'''
     if line is None:
         return np.ones(len(v))
-    c0, c1, scale, lo, hi = line
-    return scale / (c0 + c1 * np.clip(np.asarray(v, dtype=np.float64), lo, hi))
+    return pixel_weights(np.asarray(v, dtype=np.float64), *(float(x) for x in line))
 
 
 def _curve_s(d, tau):
@@ -1020,25 +1020,28 @@ dark plateau (MIN_PLATEAU_PIXELS at least reach px inside the curve)'''
 
     def __init__(self, img, geo, reach, line=None):
         m = self.m = len(geo)
-        counts = np.array([len(g[2]) for g in geo], dtype=np.int64)
+        # the entries' fields as columns (one pass over geo, then whole-array arithmetic)
+        tag, _, gx, gy, gt, gs, gL, _, gn, gc, gd, _ = zip(*geo, strict=True)
+        counts = np.fromiter(map(len, gx), dtype=np.int64, count=m)
         self.n = counts.astype(np.float64)
         self.off = np.zeros(m + 1, np.int64)
         np.cumsum(counts, out=self.off[1:])
-        ix = np.concatenate([g[2] for g in geo])
-        iy = np.concatenate([g[3] for g in geo])
+        ix = np.concatenate(gx)
+        iy = np.concatenate(gy)
         self.v = img[iy, ix].astype(np.float64)
         self.w = _weights(line, self.v)
-        self.tau = np.concatenate([2.0 * g[4] / g[6] - 1.0 for g in geo])
-        self.s = np.concatenate([g[5] for g in geo]).astype(np.float64)
-        n = np.abs(np.array([g[8] for g in geo], dtype=np.float64).reshape(m, 2))
+        self.tau = 2.0 * np.concatenate(gt) / np.repeat(np.array(gL, dtype=np.float64),
+                                                         counts) - 1.0
+        self.s = np.concatenate(gs).astype(np.float64)
+        n = np.abs(np.stack(gn).astype(np.float64).reshape(m, 2))
         phi = np.arctan2(n.min(-1), n.max(-1))
-        self.cubic = np.array([float(g[9]) for g in geo])
+        self.cubic = np.array(gc, dtype=np.float64)
         fa = np.clip(phi / (np.pi / 4) * (TABLE_ANGLES - 1), 0.0, TABLE_ANGLES - 1.000001)
         self.j0 = fa.astype(np.int64)
         self.fy = fa - self.j0
-        self.d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
-        self.tag = np.array([g[0] for g in geo], dtype=np.int64)
+        d = np.stack(gd).astype(np.float64).reshape(m, 4)
+        self.d = d * [1, 1, 1, 0]
+        self.tag = np.array(tag, dtype=np.int64)
         # about the start curves (cubic term kept, as the band was placed)
-        self.deep = plateau_counts(self.off, self.tau, self.s, np.array(
-            [g[10] for g in geo], dtype=np.float64).reshape(m, 4), float(reach)) \
+        self.deep = plateau_counts(self.off, self.tau, self.s, d, float(reach)) \
             >= MIN_PLATEAU_PIXELS
