@@ -482,17 +482,22 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 np.array([f[2] for f in fb]), np.array([curve(i, k, 0) for i, k in meets]),
                 MEET_ITERATIONS)
         # the next pass places its pixels about these curves, its chords through these corners
+        # (none after the last pass); an edge fitted per corner keeps its end 1's curve
+        pick = {} if last else {
+            (i, k): c for (i, k, end), c in curves.items()
+            if not (end != 2 and (i, k, 2) in curves)
+            # a weak edge's failed fit alone places nothing: the chord does
+            and not ((i, k) in weak and why_edge[i, k])}
         shapes = {}
-        tau9 = np.linspace(-1.0, 1.0, 9)
-        for (i, k, end), c in curves.items():
-            if end != 2 and (i, k, 2) in curves:
-                continue
-            if (i, k) in weak and why_edge[i, k]:
-                # a weak edge's failed fit alone places nothing: the chord does
-                continue
-            L, e, n = frames[(i, k)]
-            shapes[(i, k)] = q[i, k] + (0.5 * L * (tau9 + 1.0))[:, None] * e \
-                + _curve_s(c, tau9)[:, None] * n
+        if pick:
+            tau9 = np.linspace(-1.0, 1.0, 9)
+            keys = list(pick)
+            ki, kk = np.array(keys).T
+            L, e, n = (np.array([frames[key][f] for key in keys]) for f in range(3))
+            c = np.array(list(pick.values()))
+            pts = q[ki, kk][:, None, :] + (0.5 * L[:, None] * (tau9 + 1.0))[..., None] \
+                * e[:, None, :] + _curve_s(c.T[..., None], tau9)[..., None] * n[:, None, :]
+            shapes = dict(zip(keys, pts, strict=True))
         # the first pass starts from Q, the next ones from the previous pass's corners
         far = np.linalg.norm(qn - q, axis=-1) > (
             start_error_px if npass == 0 and start_error_px else MAX_CORNER_SHIFT_PX)
