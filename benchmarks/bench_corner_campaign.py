@@ -25,7 +25,7 @@ each seed in turn, one run directory per seed under --keep) and tabulates issue 
 bar: target / dots ratio of jpl's residual RMS and projection difference RMS per camera and
 family, pooled over the seeds (the RMS over the seeds of each, then the ratio), with each
 seed's ratios and the corners kept. --run DIR tabulates such a DIR (its seed-* run
-directories) again; --response psf is the realistic profile's blur alone (no noise: the
+directories) again; --response blur is the realistic profile's blur alone (no noise: the
 targets' model errors). --dots-from DIR takes the dots' records from DIR's seed-* runs (a run of
 the same cameras and seeds: the dots do not change with a corner detector) and runs the
 corner targets only.
@@ -92,8 +92,8 @@ def run_seeds(args):
                    cameras=[int(c) if c.isdigit() else c for c in args.cameras])
         doc["poses"]["seed"] = int(seed)
         doc["calibrator"] = [c for c in doc["calibrator"] if c["name"] == "jpl"]
-        # "psf": the realistic profile's blur alone (no noise): what the corner models leave
-        doc["response"].setdefault("psf", {"psf": doc["response"]["realistic"]["psf"]})
+        # "blur": the realistic profile's blur alone (no noise): what the corner models leave
+        doc["response"].setdefault("blur", {"psf": doc["response"]["realistic"]["psf"]})
         for r in doc["renderer"]:
             r["response"] = [args.response]
         campaign = parse_campaign(doc, source="response-corners.toml (bench_corner_campaign)",
