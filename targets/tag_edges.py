@@ -969,9 +969,11 @@ the fits' misfits stay the noise of such a pixel); every pixel 1 where line is N
 variance is the line's at the observed value (kept to the values it was measured on): a
 pixel's noise moves its weight by ~its relative noise (1e-2), which biases every pixel's
 level alike to first order (by -c1), the light level a takes it up.'''
-    if line is None:
-        return np.ones(len(v))
-    return pixel_weights(np.asarray(v, dtype=np.float64), *(float(x) for x in line))
+    # every pixel 1 through the same kernel (1 / (1 + 0 v) is 1 exactly): a blurred image
+    # without noise calls it too, and a warm-up of either compiles it
+    c0, c1, scale, lo, hi = (1.0, 0.0, 1.0, -np.inf, np.inf) if line is None else line
+    return pixel_weights(np.asarray(v, dtype=np.float64), float(c0), float(c1), float(scale),
+                         float(lo), float(hi))
 
 
 def _curve_s(d, tau):
