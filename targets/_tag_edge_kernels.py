@@ -252,6 +252,34 @@ the least and the largest mu'''
 
 
 @njit(cache=True, error_model="numpy")
+def sampled_table(x, proj, W, dW, u, w, F, Fs):
+    r'''One angle's row of the sampled kernel's table (targets.tag_edges._edge_table): F[i] =
+sum over the taps k of W[k] P(u U1 + w U2 <= x[i] - proj[k]) (U1, U2 uniform on [-1/2, 1/2]:
+the pixel's square seen across the edge, u >= w >= 0, u > 0), Fs the same with dW; the taps
+summed in their order (as numpy's sum over the first axis)'''
+    a = 0.5 * (u + w)
+    b = 0.5 * (u - w)
+    for i in range(len(x)):
+        F[i] = 0.0
+        Fs[i] = 0.0
+    for k in range(len(proj)):
+        for i in range(len(x)):
+            y = x[i] - proj[k]
+            if y <= -a:
+                t = 0.0
+            elif y < -b:
+                t = (y + a) ** 2 / (2 * u * w) if w > 0 else 0.0
+            elif y <= b:
+                t = 0.5 + y / u
+            elif y < a:
+                t = 1.0 - (a - y) ** 2 / (2 * u * w) if w > 0 else 1.0
+            else:
+                t = 1.0
+            F[i] += W[k] * t
+            Fs[i] += dW[k] * t
+
+
+@njit(cache=True, error_model="numpy")
 def pixel_weights(v, c0, c1, scale, lo, hi):
     r'''(n,) scale / (c0 + c1 v) of the values v (n,) kept to [lo, hi]: the inverse of the
 noise variance line targets.tag_edges._noise_line fitted, in units of scale'''
@@ -688,4 +716,4 @@ def compiled_entry_points():
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
     return (tag_edge_pixels, fit_edges, meet_curves, blur_step, plateau_counts,
-            edge_moments, noise_moments, pixel_weights)
+            edge_moments, noise_moments, pixel_weights, sampled_table)

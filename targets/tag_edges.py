@@ -124,6 +124,7 @@ from ._tag_edge_kernels import (
     noise_moments,
     pixel_weights,
     plateau_counts,
+    sampled_table,
     tag_edge_pixels,
 )
 from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, PSF_KINDS, CornerFit, blur_kernel
@@ -171,19 +172,6 @@ TABLE_ANGLES = 9
 TABLE_SIGMA_STEP_PX = 1e-3
 
 
-def _trapezoid_cdf(x, u, w):
-    r'''P(u U1 + w U2 <= x), U1, U2 uniform on [-1/2, 1/2], u >= w >= 0, u > 0'''
-    a = 0.5 * (u + w)
-    b = 0.5 * (u - w)
-    x = np.asarray(x, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lo = np.where(w > 0, (x + a) ** 2 / (2 * u * w), 0.0)
-        hi = np.where(w > 0, 1.0 - (a - x) ** 2 / (2 * u * w), 1.0)
-    mid = 0.5 + x / u
-    return np.where(x <= -a, 0.0, np.where(x < -b, lo, np.where(x <= b, mid,
-                                                               np.where(x < a, hi, 1.0))))
-
-
 def _phi_integral(y, sigma, order):
     r'''The order-th (1 or 2) antiderivative in y of Phi(y / sigma), 0 at -infinity, and
 its derivative in sigma'''
@@ -226,10 +214,7 @@ the dark side, per angle bin phi_m = m pi/4 / (A-1) of the normal (folded: |n_x|
         else:
             # the sampled kernel's taps on the pixel image: the exact pixel fraction at
             # each tap's offset (the taps fixed, their weights a function of sigma)
-            proj = Z @ np.array([u, w])
-            T = _trapezoid_cdf(x[None, :] - proj[:, None], u, w)
-            F[m] = (W[:, None] * T).sum(0)
-            Fs[m] = (dW[:, None] * T).sum(0)
+            sampled_table(x, Z @ np.array([u, w]), W, dW, u, w, F[m], Fs[m])
     dF = np.gradient(F, TABLE_STEP_PX, axis=1)
     return float(x[0]), F, dF, Fs
 
