@@ -19,6 +19,17 @@ the run (default: a temporary directory). Identical cameras (the MER hazcam twin
 share their images and fit (the campaign's share_identical_cameras): their rows are
 the same numbers.
 
+--response PROFILE --seeds 0-3 instead runs campaigns/response-corners.toml (dots beside the
+corner targets, jpl, that profile only; the campaign's noise seed and its poses' seed set to
+each seed in turn, one run directory per seed under --keep) and tabulates issue 16's second
+bar: target / dots ratio of jpl's residual RMS and projection difference RMS per camera and
+family, pooled over the seeds (the RMS over the seeds of each, then the ratio), with each
+seed's ratios and the corners kept. --run DIR tabulates such a DIR (its seed-* run
+directories) again; --response blur is the realistic profile's blur alone (no noise: the
+targets' model errors). --dots-from DIR takes the dots' records from DIR's seed-* runs (a run of
+the same cameras and seeds: the dots do not change with a corner detector) and runs the
+corner targets only.
+
 Writes one JSON document, <out-dir>/<UTC stamp>-bench_corner_campaign.json
 (benchmarks/common.Results): a record per campaign record (fullname as the
 campaign's) with the figures above, and corners/summary: the cells, how many are
@@ -38,10 +49,10 @@ BAR_PX = 0.005
 
 
 def slots(text):
-    r'''"1-22" or "5,8,15" -> ["1", ..., "22"] / ["5", "8", "15"]'''
+    r'''"1-22" or "5,8,15" -> ["1", ..., "22"] / ["5", "8", "15"]; a model file's path as it is'''
     out = []
     for part in common.ids(text):
-        if "-" in part:
+        if "-" in part and all(x.isdigit() for x in part.split("-")):
             lo, hi = (int(x) for x in part.split("-"))
             out.extend(str(i) for i in range(lo, hi + 1))
         else:
@@ -64,6 +75,75 @@ def run(args):
     run_dir = args.keep or Path(tempfile.mkdtemp(prefix="camval-corners-")) / "run"
     run_campaign(campaign, run_dir, workers=args.jobs, progress=True)
     return run_dir
+
+
+def run_seeds(args):
+    r'''The response campaign once per seed -> the directory holding seed-<n>/ run dirs'''
+    import tomllib
+
+    from common import parse_campaign, run_campaign
+
+    top = args.keep or Path(tempfile.mkdtemp(prefix="camval-corner-ratio-"))
+    for seed in args.seeds:
+        doc = tomllib.loads((common.CAMPAIGNS / "response-corners.toml").read_text())
+        doc.update(name=f"corner-ratio-seed{seed}", keep_maps=False, seed=int(seed),
+                   targets=sorted(set(args.targets) | ({"dots"} if not args.dots_from else set())),
+                   models=args.models,
+                   cameras=[int(c) if c.isdigit() else c for c in args.cameras])
+        doc["poses"]["seed"] = int(seed)
+        doc["calibrator"] = [c for c in doc["calibrator"] if c["name"] == "jpl"]
+        # "blur": the realistic profile's blur alone (no noise): what the corner models leave
+        doc["response"].setdefault("blur", {"psf": doc["response"]["realistic"]["psf"]})
+        for r in doc["renderer"]:
+            r["response"] = [args.response]
+        campaign = parse_campaign(doc, source="response-corners.toml (bench_corner_campaign)",
+                                  base_dir=common.CAMPAIGNS)
+        run_campaign(campaign, top / f"seed-{seed}", workers=args.jobs, progress=True)
+    return top
+
+
+def ratio_table(top, profile, out, dots_from=None):
+    r'''Print and record the target / dots ratios of the runs under top (its seed-* dirs;
+the dots' from dots_from's where given)'''
+    import math
+    rows = {}
+    seeds = sorted(Path(top).glob("seed-*"), key=lambda p: int(p.name.split("-")[1]))
+    for d in seeds:
+        recs = records_of(d)
+        if dots_from:
+            recs = [r for r in recs if r["target"] != "dots"] + [
+                r for r in records_of(Path(dots_from) / d.name) if r["target"] == "dots"]
+        for r in recs:
+            if (r.get("settings") or {}).get("response") != profile or r["status"] != "ok":
+                continue
+            c = cell(r, BAR_PX)
+            rows.setdefault((str(r["camera"]), r.get("model"), r["target"]), {})[d.name] = (
+                c["residual_rms_px"], c["projection_rms_px"], c["found"], c["expected"])
+
+    def pooled(per, i):
+        return math.sqrt(sum(v[i] ** 2 for v in per.values()) / len(per))
+
+    print(f"\n{profile}: target / dots jpl ratio, residual RMS / projection difference RMS, "
+          f"pooled over {len(seeds)} seeds (RMS over the seeds, then the ratio); per seed; kept")
+    for (cam, fam, tgt), per in sorted(rows.items()):
+        dots = rows.get((cam, fam, "dots"))
+        if tgt == "dots" or not dots:
+            continue
+        both = [s for s in per if s in dots]
+        per, dp = {s: per[s] for s in both}, {s: dots[s] for s in both}
+        rr, pr = pooled(per, 0) / pooled(dp, 0), pooled(per, 1) / pooled(dp, 1)
+        each = [(per[s][0] / dp[s][0], per[s][1] / dp[s][1]) for s in both]
+        kept = [per[s][2] for s in both]
+        print(f"{cam:>5s} {fam:8s} {tgt:10s} {rr:5.2f} / {pr:5.2f}   "
+              + ", ".join(f"{a:.2f} / {b:.2f}" for a, b in each)
+              + f"   kept {min(kept)}-{max(kept)} of {per[both[0]][3]}"
+              + f"   px {pooled(per, 0):.5f} / {pooled(per, 1):.5f}"
+              + f" (dots {pooled(dp, 0):.5f} / {pooled(dp, 1):.5f})")
+        out.add(f"ratio/{profile}/{cam}/{fam}/{tgt}", {
+            "residual_ratio": rr, "projection_ratio": pr, "seeds": both,
+            "per_seed": each, "kept": kept,
+            "residual_rms_px": pooled(per, 0), "projection_rms_px": pooled(per, 1),
+            "dots_residual_rms_px": pooled(dp, 0), "dots_projection_rms_px": pooled(dp, 1)})
 
 
 def records_of(run_dir):
@@ -112,8 +192,20 @@ def main():
     ap.add_argument("--run", type=Path, default=None,
                     help="tabulate this existing run directory instead of running")
     ap.add_argument("--bar", type=float, default=BAR_PX, help="px (issue 16: 0.005)")
+    ap.add_argument("--response", default=None,
+                    help="profile of campaigns/response-corners.toml: the ratio mode")
+    ap.add_argument("--seeds", type=slots, default="0-3", help="the ratio mode's seeds")
+    ap.add_argument("--dots-from", type=Path, default=None,
+                    help="the ratio mode's dots records from this earlier run's seed-* dirs")
     args = ap.parse_args()
     out = common.Results(SCRIPT, args)
+    if args.response:
+        with common.Stopwatch() as sw:
+            top = args.run or run_seeds(args)
+        ratio_table(top, args.response, out, args.dots_from)
+        print(f"({sw.wall_s:.0f} s; run directories under {top})")
+        out.write()
+        return 0
     with common.Stopwatch() as sw:
         run_dir = args.run or run(args)
     cells = []

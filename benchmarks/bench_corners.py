@@ -22,7 +22,8 @@ goes through every method:
   search, then targets.corners)
 
 --response NAME passes every image through that profile of campaigns/response.toml
-(renderers.response; seed = the image's index) before detection; --psf-sigma hands camval's
+(renderers.response; seed = the image's index; "blur": the realistic profile's PSF alone)
+before detection; --psf-sigma hands camval's
 refiner a known blur (px; default: it estimates the blur from the image); --methods keeps
 the methods whose name contains one of the comma-separated words.
 
@@ -79,9 +80,11 @@ corner_bias(model, target, Rt_cam_board, ..., blur_px=det.corner_blur_px))'''
 
     jobs = [j for j in expand_jobs(load_campaign(ROOT / "campaigns" / "quick.toml"))
             if j.camera == str(camera)]
-    if not jobs:
-        jobs = [j for j in expand_jobs(load_campaign(ROOT / "campaigns" / "paper.toml"))
-                if j.camera == str(camera)]
+    for other in ("paper.toml", "response-corners.toml"):
+        if not jobs:
+            # a model file's camera by its file name (its key is its path)
+            jobs = [j for j in expand_jobs(load_campaign(ROOT / "campaigns" / other))
+                    if str(camera) in (j.camera, Path(j.camera).name)]
     # the camera's own model: the richest family it can be taken as
     for job in sorted(jobs, key=lambda j: -FAMILY_ORDER.index(j.family)):
         try:
@@ -94,8 +97,9 @@ corner_bias(model, target, Rt_cam_board, ..., blur_px=det.corner_blur_px))'''
     out = []
     directory.mkdir(parents=True, exist_ok=True)
     tag = f"k{spp}" + ("" if coverage == "point" else f"{coverage}")
+    name = f"cam{camera}".replace("/", "_")
     missing = [i for i in range(len(poses))
-               if not (directory / f"cam{camera}_{tname}_{tag}_{i}.npy").exists()]
+               if not (directory / f"{name}_{tname}_{tag}_{i}.npy").exists()]
     if missing:
         settings = dict(job.settings, spp=spp)
         if coverage != "point":
@@ -103,9 +107,9 @@ corner_bias(model, target, Rt_cam_board, ..., blur_px=det.corner_blur_px))'''
         results, _, _ = render_stage(job.renderer, truth, target,
                                      [poses[i] for i in missing], settings)
         for i, r in zip(missing, results, strict=True):
-            np.save(directory / f"cam{camera}_{tname}_{tag}_{i}.npy", np.asarray(r.image))
+            np.save(directory / f"{name}_{tname}_{tag}_{i}.npy", np.asarray(r.image))
     for i, Rt in enumerate(poses):
-        img = np.load(directory / f"cam{camera}_{tname}_{tag}_{i}.npy")
+        img = np.load(directory / f"{name}_{tname}_{tag}_{i}.npy")
         # the bias of the window's free rays, and of its lines (CORNER_LINES: a blurred
         # chessboard's) as a second column pair
         bias = corner_bias(truth, target, Rt, target.points())
@@ -170,6 +174,8 @@ def main():
 
         from renderers.response import ResponseChain
         doc = tomllib.loads((ROOT / "campaigns" / "response.toml").read_text())
+        # "blur": the realistic profile's PSF alone (no noise: the corner models' own error)
+        doc["response"].setdefault("blur", {"psf": doc["response"]["realistic"]["psf"]})
         chain = ResponseChain.from_config(doc["response"][args.response])
 
     from harness.calibrators.bias import WINDOW_BIASED, corner_bias

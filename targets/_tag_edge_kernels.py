@@ -9,16 +9,17 @@ SYNOPSIS
                                                          min_pixels, W, H_img)
     # every edge's band of pixels (targets.tag_edges._EDGE_STATUS says why an edge has none)
 
-    p, done, mis = fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip,
+    p, done, mis = fit_edges(off, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip,
                              max_iterations, converged_px)
     # the m edges' pixels one after another: edge j's are [off[j], off[j+1]) of v (values),
-    # tau (positions along the chord, -1..1) and s (distances from it, px); cubic (m,) 1.0
+    # w (weights: the inverse of each pixel's noise variance, to a common scale), tau
+    # (positions along the chord, -1..1) and s (distances from it, px); cubic (m,) 1.0
     # where d3 is fitted; j0, fy (m,): the angle bin and fraction of each edge's normal;
     # d (m,4) the start curves; x0, h, F, dF (A,X): targets.tag_edges._edge_table; bfix
     # (m,) the contrast of an edge whose b is given (NaN: fitted); skip (m,) edges left
     # alone (p 0, done False, mis NaN)
     # p (m,6) the fitted (a, b, d0, d1, d2, d3); done (m,) converged; mis (m,) the RMS
-    # misfit over the contrast
+    # misfit over the contrast (weighted: that of a pixel of weight 1)
     q = meet_curves(Pa, La, ea, na, da, Pb, Lb, eb, nb, db, iterations)
     # (M,2) where each edge a meets its edge b near a's end and b's start
 
@@ -40,27 +41,29 @@ _MOMENTS = 19
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _add_moments(M, Ms, df, f, fs, vp, t, with_fs):
-    # one pixel's terms of the moments M (see _G..): g = df, g t^k, g F t^k, g v t^k
-    # (k <= 3), g^2 t^k (k <= 6); with_fs: also g fs t^k (k <= 3) into Ms (blur_step's)
+def _add_moments(M, Ms, df, f, fs, vp, t, with_fs, wp):
+    # one pixel's terms of the moments M (see _G..), each times the pixel's weight wp: g =
+    # df, g t^k, g F t^k, g v t^k (k <= 3), g^2 t^k (k <= 6); with_fs: also g fs t^k (k <= 3)
+    # into Ms (blur_step's)
     tk = 1.0
-    gg = df * df
+    wdf = wp * df
+    gg = wdf * df
     for k in range(7):
         if k < 4:
-            M[_G + k] += df * tk
-            M[_GF + k] += df * f * tk
-            M[_GV + k] += df * vp * tk
+            M[_G + k] += wdf * tk
+            M[_GF + k] += wdf * f * tk
+            M[_GV + k] += wdf * vp * tk
             if with_fs:
-                Ms[k] += df * fs * tk
+                Ms[k] += wdf * fs * tk
         M[_GG + k] += gg * tk
         tk *= t
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _profile(v, tau, s, o0, o1, cubic, d, x0, h, Fe, dFe, bfix, Fv, M):
+def _profile(v, w, tau, s, o0, o1, cubic, d, x0, h, Fe, dFe, bfix, Fv, M):
     # F at every pixel of one edge (into Fv; Fe, dFe: F and F' at the edge's angle, _at_angle),
     # the moments M of its normal equations, and the light level a, contrast b and squared
-    # misfit S that fit them
+    # misfit S that fit them; every sum weighted by the pixels' weights w (sw = sum w)
     X = Fe.shape[0]
     sw = 0.0
     sf = 0.0
@@ -82,14 +85,16 @@ def _profile(v, tau, s, o0, o1, cubic, d, x0, h, Fe, dFe, bfix, Fv, M):
             fx = fi - i
             f = Fe[i] * (1.0 - fx) + Fe[i + 1] * fx
             df = dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
+        wp = w[p]
         if df != 0.0:
-            _add_moments(M, M, df, f, 0.0, vp, t, False)
+            _add_moments(M, M, df, f, 0.0, vp, t, False, wp)
         Fv[p - o0] = f
-        sw += 1.0
-        sf += f
-        sff += f * f
-        sv += vp
-        sfv += f * vp
+        sw += wp
+        wf = wp * f
+        sf += wf
+        sff += wf * f
+        sv += wp * vp
+        sfv += wf * vp
     if np.isnan(bfix):
         b = (sw * sfv - sf * sv) / (sw * sff - sf * sf)
     else:
@@ -98,7 +103,7 @@ def _profile(v, tau, s, o0, o1, cubic, d, x0, h, Fe, dFe, bfix, Fv, M):
     S = 0.0
     for p in range(o0, o1):
         r = v[p] - a - b * Fv[p - o0]
-        S += r * r
+        S += w[p] * r * r
     return a, b, S, sw, sf, sff, sv, sfv
 
 
@@ -136,7 +141,7 @@ def _normal(M, sw, sf, sff, sv, sfv, cubic, a, b, bfree, JtJ, Jtr):
 
 
 @njit(cache=True, error_model="numpy")
-def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_iterations,
+def fit_edges(off, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_iterations,
               converged_px):
     m = len(off) - 1
     p_out = np.zeros((m, 6))
@@ -165,8 +170,8 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
         dj = d[j].copy()
         _at_angle(F, ja, fa, Fe)
         _at_angle(dF, ja, fa, dFe)
-        a, b, S, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, dj, x0, h, Fe, dFe,
-                                                 bj, Fv, M)
+        a, b, S, sw, sf, sff, sv, sfv = _profile(v, w, tau, s, o0, o1, cj, dj, x0, h, Fe,
+                                                 dFe, bj, Fv, M)
         _normal(M, sw, sf, sff, sv, sfv, cj, a, b, bfree, JtJ, Jtr)
         lam = 1e-3
         ok = False
@@ -177,8 +182,8 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
                 A[k, k] += lam * JtJ[k, k]
             step = np.linalg.solve(A, Jtr)
             d1 = dj + step[2:]
-            a1, b1, S1, sw, sf, sff, sv, sfv = _profile(v, tau, s, o0, o1, cj, d1, x0, h, Fe,
-                                                        dFe, bj, Fv, M1)
+            a1, b1, S1, sw, sf, sff, sv, sfv = _profile(v, w, tau, s, o0, o1, cj, d1, x0, h,
+                                                        Fe, dFe, bj, Fv, M1)
             better = S1 <= S
             # a step this small barely damped (lam <= 1: at most halved) is the Gauss-Newton
             # step within 2x: the curve is at its minimum to that, whether or not the
@@ -199,8 +204,89 @@ def fit_edges(off, v, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max_it
         p_out[j, 1] = b
         p_out[j, 2:] = dj
         done[j] = ok
-        mis[j] = np.sqrt(S / (o1 - o0)) / abs(b)
+        mis[j] = np.sqrt(S / sw) / abs(b)
     return p_out, done, mis
+
+
+@njit(cache=True, error_model="numpy")
+def noise_moments(off, v, tau, s, cubic, j0, fy, p, x0, h, F, use):
+    r'''(7,): sums over the pixels of the edges in use (m,) of 1, mu, mu^2, r^2 and mu r^2,
+mu = a + b F the fitted value of a pixel and r = v - mu its residual, under the fits p
+(m,6) (fit_edges'; the pixels and the rest as its): the normal equations of the noise
+variance as a line in the value, E r^2 = c0 + c1 mu (targets.tag_edges._noise_line); then
+the least and the largest mu'''
+    m = len(off) - 1
+    X = F.shape[1]
+    out = np.zeros(7)
+    out[5] = np.inf
+    out[6] = -np.inf
+    Fe = np.zeros(X)
+    for j in range(m):
+        if not use[j]:
+            continue
+        _at_angle(F, j0[j], fy[j], Fe)
+        a, b, cj = p[j, 0], p[j, 1], cubic[j]
+        d = p[j, 2:]
+        for q in range(off[j], off[j + 1]):
+            t = tau[q]
+            x = s[q] - (d[0] + t * (d[1] + t * (d[2] + t * d[3] * cj)))
+            fi = (x - x0) / h
+            if fi <= 0.0:
+                f = 0.0
+            elif fi >= X - 1:
+                f = 1.0
+            else:
+                i = int(fi)
+                fx = fi - i
+                f = Fe[i] * (1.0 - fx) + Fe[i + 1] * fx
+            mu = a + b * f
+            r2 = (v[q] - mu) ** 2
+            out[0] += 1.0
+            out[1] += mu
+            out[2] += mu * mu
+            out[3] += r2
+            out[4] += mu * r2
+            out[5] = min(out[5], mu)
+            out[6] = max(out[6], mu)
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def sampled_table(x, proj, W, dW, u, w, F, Fs):
+    r'''One angle's row of the sampled kernel's table (targets.tag_edges._edge_table): F[i] =
+sum over the taps k of W[k] P(u U1 + w U2 <= x[i] - proj[k]) (U1, U2 uniform on [-1/2, 1/2]:
+the pixel's square seen across the edge, u >= w >= 0, u > 0), Fs the same with dW; the taps
+summed in their order (as numpy's sum over the first axis)'''
+    a = 0.5 * (u + w)
+    b = 0.5 * (u - w)
+    for i in range(len(x)):
+        F[i] = 0.0
+        Fs[i] = 0.0
+    for k in range(len(proj)):
+        for i in range(len(x)):
+            y = x[i] - proj[k]
+            if y <= -a:
+                t = 0.0
+            elif y < -b:
+                t = (y + a) ** 2 / (2 * u * w) if w > 0 else 0.0
+            elif y <= b:
+                t = 0.5 + y / u
+            elif y < a:
+                t = 1.0 - (a - y) ** 2 / (2 * u * w) if w > 0 else 1.0
+            else:
+                t = 1.0
+            F[i] += W[k] * t
+            Fs[i] += dW[k] * t
+
+
+@njit(cache=True, error_model="numpy")
+def pixel_weights(v, c0, c1, scale, lo, hi):
+    r'''(n,) scale / (c0 + c1 v) of the values v (n,) kept to [lo, hi]: the inverse of the
+noise variance line targets.tag_edges._noise_line fitted, in units of scale'''
+    out = np.empty(len(v))
+    for q in range(len(v)):
+        out[q] = scale / (c0 + c1 * min(max(v[q], lo), hi))
+    return out
 
 
 @njit(cache=True, error_model="numpy")
@@ -221,11 +307,12 @@ the pixels as fit_edges')'''
 
 
 @njit(cache=True, error_model="numpy")
-def blur_step(off, v, tau, s, cubic, j0, fy, p, x0, h, F, dF, Fs, use):
+def blur_step(off, v, w, tau, s, cubic, j0, fy, p, x0, h, F, dF, Fs, use):
     r'''(H, G): the Gauss-Newton normal equation H dsigma = G of the blur the edges marked
 in use (m,) share, each edge's own (a, b, d0..d3) in p (m,6) eliminated (the Schur
 complement: their fits follow sigma, to first order). Fs (A,X) is dF/dsigma tabulated as
-F; the pixels and the rest as fit_edges'. Every edge's b is free, its d3 where cubic.
+F; the pixels, their weights w and the rest as fit_edges'. Every edge's b is free, its d3
+where cubic.
 Sums of moments as fit_edges' (_normal), with those of fs = dF/dsigma: sum fs, fs F,
 fs v, fs^2 and fs g t^k.'''
     m = len(off) - 1
@@ -275,17 +362,20 @@ fs v, fs^2 and fs g t^k.'''
                 f = Fe[i] * (1.0 - fx) + Fe[i + 1] * fx
                 df = dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
                 fs = Fse[i] * (1.0 - fx) + Fse[i + 1] * fx
+            wq = w[q]
             if df != 0.0:
-                _add_moments(M, Ms, df, f, fs, vq, t, True)
-            sw += 1.0
-            sf += f
-            sff += f * f
-            sv += vq
-            sfv += f * vq
-            s1 += fs
-            sfs += f * fs
-            svs += vq * fs
-            sss += fs * fs
+                _add_moments(M, Ms, df, f, fs, vq, t, True, wq)
+            sw += wq
+            wf = wq * f
+            sf += wf
+            sff += wf * f
+            sv += wq * vq
+            sfv += wf * vq
+            wfs = wq * fs
+            s1 += wfs
+            sfs += f * wfs
+            svs += vq * wfs
+            sss += fs * wfs
         _normal(M, sw, sf, sff, sv, sfv, cj, a, b, True, A, r0)
         if cj == 0.0:
             A[5, 5] = 1.0
@@ -573,13 +663,14 @@ SPAN_MOMENTS = 24
 
 
 @njit(cache=True, error_model="numpy")
-def edge_moments(t, s, a, b, d, L, j0, fy, cuts, x0, h, F, dF):
+def edge_moments(t, s, wt, a, b, d, L, j0, fy, cuts, x0, h, F, dF):
     r'''(m, 3, SPAN_MOMENTS): each edge's moments (SPAN_W..) over its pixels [a[j], b[j]) of
-t, s (its own chord frame, length L[j], curve d[j] = d0..d2, its normal's angle bin j0[j],
-fy[j]) in three bins of their position tau = 2 t / L[j] - 1 along it: below cuts[0], up to
-cuts[1], beyond; F, g = F' at x = s - d(tau) from the table (x0, h, F, dF (A,X)): the
-moments of the normal equations of a curve fitted along the edge, in units of the contrast
-and the noise, its light level and contrast free (targets.tag_edges._span_choice)'''
+t, s, weighted by wt (fit_edges' w) (its own chord frame, length L[j], curve d[j] =
+d0..d2, its normal's angle bin j0[j], fy[j]) in three bins of their position tau = 2 t /
+L[j] - 1 along it: below cuts[0], up to cuts[1], beyond; F, g = F' at x = s - d(tau) from
+the table (x0, h, F, dF (A,X)): the moments of the normal equations of a curve fitted along
+the edge, in units of the contrast and the noise, its light level and contrast free
+(targets.tag_edges._span_choice)'''
     m = len(a)
     out = np.zeros((m, 3, SPAN_MOMENTS))
     X = dF.shape[1]
@@ -590,11 +681,12 @@ and the noise, its light level and contrast free (targets.tag_edges._span_choice
             x = s[q] - (d[j, 0] + tau * (d[j, 1] + tau * d[j, 2]))
             fi = (x - x0) / h
             c = 0 if tau < cuts[0] else (1 if tau <= cuts[1] else 2)
+            wq = wt[q]
             if fi <= 0.0 or fi >= X - 1:
                 f = 0.0 if fi <= 0.0 else 1.0
-                out[j, c, SPAN_W] += 1.0
-                out[j, c, SPAN_W + 1] += f
-                out[j, c, SPAN_W + 2] += f
+                out[j, c, SPAN_W] += wq
+                out[j, c, SPAN_W + 1] += wq * f
+                out[j, c, SPAN_W + 2] += wq * f
                 continue
             i = int(fi)
             fx = fi - i
@@ -602,15 +694,17 @@ and the noise, its light level and contrast free (targets.tag_edges._span_choice
                 + (F[ja + 1, i] * (1.0 - fx) + F[ja + 1, i + 1] * fx) * fa
             g = (dF[ja, i] * (1.0 - fx) + dF[ja, i + 1] * fx) * (1.0 - fa) \
                 + (dF[ja + 1, i] * (1.0 - fx) + dF[ja + 1, i + 1] * fx) * fa
-            out[j, c, SPAN_W] += 1.0
-            out[j, c, SPAN_W + 1] += f
-            out[j, c, SPAN_W + 2] += f * f
-            fg = f * g
-            gg = g * g
+            wf = wq * f
+            out[j, c, SPAN_W] += wq
+            out[j, c, SPAN_W + 1] += wf
+            out[j, c, SPAN_W + 2] += wf * f
+            wg = wq * g
+            fg = wf * g
+            gg = wg * g
             tk = 1.0
             for k in range(9):
                 if k < 6:
-                    out[j, c, SPAN_G + k] += g * tk
+                    out[j, c, SPAN_G + k] += wg * tk
                     out[j, c, SPAN_FG + k] += fg * tk
                 out[j, c, SPAN_GG + k] += gg * tk
                 tk *= tau
@@ -622,4 +716,4 @@ def compiled_entry_points():
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
     return (tag_edge_pixels, fit_edges, meet_curves, blur_step, plateau_counts,
-            edge_moments)
+            edge_moments, noise_moments, pixel_weights, sampled_table)

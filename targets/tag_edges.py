@@ -84,7 +84,10 @@ px on the quick cameras' realistic renders, where the windows' median over 32 co
 
 The fit: Levenberg-Marquardt on (a, b, d0..d3) of every edge at once (compiled:
 targets._tag_edge_kernels), twice: the first pass fits each edge alone and places the
-second's pixels. A corner is dropped, with the reason, when either of its edges has too
+second's pixels; the second weights each pixel by the inverse of its noise variance, a line
+in its value fitted to the first pass's residuals (_noise_line: shot noise grows with the
+signal; realistic corners 0.0029 -> 0.0027 px RMS on navcam 15, 0.0050 -> 0.0045 on hazcam
+17 as CAHVORE). A corner is dropped, with the reason, when either of its edges has too
 few pixels or sees only its light side, did not converge, misfits by more than MAX_MISFIT
 of its contrast, has too little contrast, or when the two curves do not meet within
 MAX_CORNER_SHIFT_PX of the corner they started from (start_error_px in the first pass).
@@ -121,7 +124,10 @@ from ._tag_edge_kernels import (
     edge_moments,
     fit_edges,
     meet_curves,
+    noise_moments,
+    pixel_weights,
     plateau_counts,
+    sampled_table,
     tag_edge_pixels,
 )
 from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, PSF_KINDS, CornerFit, blur_kernel
@@ -169,19 +175,6 @@ TABLE_ANGLES = 9
 TABLE_SIGMA_STEP_PX = 1e-3
 
 
-def _trapezoid_cdf(x, u, w):
-    r'''P(u U1 + w U2 <= x), U1, U2 uniform on [-1/2, 1/2], u >= w >= 0, u > 0'''
-    a = 0.5 * (u + w)
-    b = 0.5 * (u - w)
-    x = np.asarray(x, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lo = np.where(w > 0, (x + a) ** 2 / (2 * u * w), 0.0)
-        hi = np.where(w > 0, 1.0 - (a - x) ** 2 / (2 * u * w), 1.0)
-    mid = 0.5 + x / u
-    return np.where(x <= -a, 0.0, np.where(x < -b, lo, np.where(x <= b, mid,
-                                                               np.where(x < a, hi, 1.0))))
-
-
 def _phi_integral(y, sigma, order):
     r'''The order-th (1 or 2) antiderivative in y of Phi(y / sigma), 0 at -infinity, and
 its derivative in sigma'''
@@ -224,10 +217,7 @@ the dark side, per angle bin phi_m = m pi/4 / (A-1) of the normal (folded: |n_x|
         else:
             # the sampled kernel's taps on the pixel image: the exact pixel fraction at
             # each tap's offset (the taps fixed, their weights a function of sigma)
-            proj = Z @ np.array([u, w])
-            T = _trapezoid_cdf(x[None, :] - proj[:, None], u, w)
-            F[m] = (W[:, None] * T).sum(0)
-            Fs[m] = (dW[:, None] * T).sum(0)
+            sampled_table(x, Z @ np.array([u, w]), W, dW, u, w, F[m], Fs[m])
     dF = np.gradient(F, TABLE_STEP_PX, axis=1)
     return float(x[0]), F, dF, Fs
 
@@ -345,6 +335,9 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
     far = np.zeros((N, 4), bool)
     found = np.full((N, 4, 2), np.nan)
     noise = 0.0
+    # the pixels' noise variance as a line in their value (None: every pixel alike): the
+    # first pass's fits tell it, the later passes weight their pixels by its inverse
+    line = None
     for npass in range(passes):
         # the passes before the last only place its pixels: each edge alone
         last = npass == passes - 1
@@ -382,7 +375,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         choice = {}
         if last and npass > 0:
             choice = _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits,
-                                  (pix, piy, pt, ps, off), grid)
+                                  (pix, piy, pt, ps, off), grid,
+                                  _weights(line, img[piy, pix]))
         geo = []
         for (i, k), (ix, iy, t, s, L, e, n) in own.items():
             # the first pass only places the second's pixels: each edge alone
@@ -429,7 +423,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             # every edge seen from its light side only, none placed by its neighbours: each
             # has its reason
             break
-        E = _Edges(img, geo, reach)
+        E = _Edges(img, geo, reach, line)
         if len(blurs) > 1:
             (sigma, kind), table, fits, info = _choose_kind(E, blurs)
             blurs = [(sigma, kind)]
@@ -450,8 +444,11 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         frames = {(g[0], g[1]): (g[6], g[7], g[8]) for g in geo}
         good = np.isfinite(fits[2]) & fits[1]
         # the next pass's measure of the image's noise: the edges' median misfit (RMS over
-        # the contrast; each edge alone, noise-free a quadratic's model error)
+        # the contrast; each edge alone, noise-free a quadratic's model error), and how it
+        # varies with the pixel's value
         noise = float(np.median(fits[2][good])) if good.any() else 0.0
+        if line is None and not last:
+            line = _noise_line(E, table, fits[0], good)
 
         def curve(i, k, end, curves=curves):
             return curves[(i, k, end)] if (i, k, end) in curves else curves[(i, k, 2)]
@@ -473,17 +470,22 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 np.array([f[2] for f in fb]), np.array([curve(i, k, 0) for i, k in meets]),
                 MEET_ITERATIONS)
         # the next pass places its pixels about these curves, its chords through these corners
+        # (none after the last pass); an edge fitted per corner keeps its end 1's curve
+        pick = {} if last else {
+            (i, k): c for (i, k, end), c in curves.items()
+            if not (end != 2 and (i, k, 2) in curves)
+            # a weak edge's failed fit alone places nothing: the chord does
+            and not ((i, k) in weak and why_edge[i, k])}
         shapes = {}
-        tau9 = np.linspace(-1.0, 1.0, 9)
-        for (i, k, end), c in curves.items():
-            if end != 2 and (i, k, 2) in curves:
-                continue
-            if (i, k) in weak and why_edge[i, k]:
-                # a weak edge's failed fit alone places nothing: the chord does
-                continue
-            L, e, n = frames[(i, k)]
-            shapes[(i, k)] = q[i, k] + (0.5 * L * (tau9 + 1.0))[:, None] * e \
-                + _curve_s(c, tau9)[:, None] * n
+        if pick:
+            tau9 = np.linspace(-1.0, 1.0, 9)
+            keys = list(pick)
+            ki, kk = np.array(keys).T
+            L, e, n = (np.array([frames[key][f] for key in keys]) for f in range(3))
+            c = np.array(list(pick.values()))
+            pts = q[ki, kk][:, None, :] + (0.5 * L[:, None] * (tau9 + 1.0))[..., None] \
+                * e[:, None, :] + _curve_s(c.T[..., None], tau9)[..., None] * n[:, None, :]
+            shapes = dict(zip(keys, pts, strict=True))
         # the first pass starts from Q, the next ones from the previous pass's corners
         far = np.linalg.norm(qn - q, axis=-1) > (
             start_error_px if npass == 0 and start_error_px else MAX_CORNER_SHIFT_PX)
@@ -583,7 +585,8 @@ def _powers(tau, n):
     return np.asarray(tau, dtype=np.float64)[..., None] ** np.arange(n)
 
 
-def _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits, pixels, grid=None):
+def _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits, pixels, grid=None,
+                 weights=None):
     r'''{(i, k): (choice at corner k, choice at corner k+1)}, each a (span, degree) of
 CANDIDATES: the fit of each edge (not weak) with the least expected squared error of its
 corner across the edge, bias^2 + variance
@@ -622,7 +625,7 @@ frame; weak: the edges seen from their light side only (no choice: the three edg
 cubic places them); curved: the edges whose start is a fit (not the chord); nbrs:
 _neighbours; q (N,4,2) the corners; table: _edge_table; noise: misfit RMS / contrast;
 pixels: (ix, iy, t, s, a) of tag_edge_pixels: edge (i, k)'s are [a[4i+k], a[4i+k+1]);
-grid: refine_tag_edges' (None: no pooling)'''
+grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None: alike)'''
     ix, iy, pt, ps, off = pixels
     # every edge's own moments (a weak one's curve may still be a neighbour's reference)
     keys = list(own)
@@ -642,7 +645,8 @@ grid: refine_tag_edges' (None: no pooling)'''
     j0 = fa.astype(np.int64)
     cut = 2.0 * NEIGHBOUR_REACH - 1.0
     cuts = np.array([min(cut, -cut), max(cut, -cut)])
-    mom = edge_moments(pt, ps, off[flat], off[flat + 1], ds, Ls, j0, fa - j0, cuts, table[0],
+    wt = np.ones(len(pt)) if weights is None else weights
+    mom = edge_moments(pt, ps, wt, off[flat], off[flat + 1], ds, Ls, j0, fa - j0, cuts, table[0],
                        TABLE_STEP_PX, table[1], table[2]) / max(noise, 1e-12) ** 2
     m_own = mom.sum(1)
     # each end's board line neighbour, its moments moved into this edge's frame (tau
@@ -882,7 +886,7 @@ no edge tells'''
     if not use.any():
         return 0.0, 0.0, 0.0, float("nan")
     x0, F, dF, Fs = table
-    H, G = blur_step(E.off, E.v, E.tau, E.s, E.cubic, E.j0, E.fy, p, x0, TABLE_STEP_PX, F,
+    H, G = blur_step(E.off, E.v, E.w, E.tau, E.s, E.cubic, E.j0, E.fy, p, x0, TABLE_STEP_PX, F,
                      dF, Fs, use)
     if not H > 0:
         return 0.0, 0.0, 0.0, float("nan")
@@ -918,6 +922,46 @@ the fits start from (None: E.d). (p (m,6), converged (m,), misfit (m,))'''
         p2, d2, m2 = _fit_edges(E, table, bfix, start, skip=deep, converged_px=converged_px)
     p[rest], done[rest], mis[rest] = p2[rest], d2[rest], m2[rest]
     return p, done, mis
+
+
+def _noise_line(E, table, p, use):
+    r'''(c0, c1, scale, lo, hi): the pixels' noise variance as a line in their value, E r^2
+= c0 + c1 v, from the residuals of the fits p (m,6) of the edges in use (m,) (least squares
+of r^2 on the fitted value, noise_moments), scale: the mean of r^2 over those pixels, lo, hi:
+the least and largest fitted value (where the line was measured); None
+where the line is no variance (c1 <= 0: no noise that grows with the signal, e.g. a
+noise-free image's model errors; or not positive over the fitted values)
+
+Why. A camera's pixel noise is shot noise and read noise: its variance grows with the
+signal (the realistic profile: 20000 e- at 1.0, 12 e- read noise; the tags' black 0.1 has
+~1/8 of the board's 0.9 variance). Least squares weighted by the inverse variance places an
+edge with ~0.8 of the variance of the unweighted fit's (1/F-information over a blurred
+edge's band, the fit's light level and contrast free).'''
+    x0, F = table[0], table[1]
+    n, s1, s2, r2, r2mu, lo, hi = noise_moments(E.off, E.v, E.tau, E.s, E.cubic, E.j0, E.fy,
+                                               p, x0, TABLE_STEP_PX, F, use)
+    det = n * s2 - s1 * s1
+    if not (n > 2 and det > 0):
+        return None
+    c1 = (n * r2mu - s1 * r2) / det
+    c0 = (r2 - c1 * s1) / n
+    if not (c1 > 0 and c0 + c1 * lo > 0 and c0 + c1 * hi > 0):
+        return None
+    return c0, c1, r2 / n, lo, hi
+
+
+def _weights(line, v):
+    r'''The pixels' weights for values v: the inverse of their noise variance (_noise_line's
+line), in units of its mean over the first pass's pixels (a pixel of average noise weighs 1:
+the fits' misfits stay the noise of such a pixel); every pixel 1 where line is None. The
+variance is the line's at the observed value (kept to the values it was measured on): a
+pixel's noise moves its weight by ~its relative noise (1e-2), which biases every pixel's
+level alike to first order (by -c1), the light level a takes it up.'''
+    # every pixel 1 through the same kernel (1 / (1 + 0 v) is 1 exactly): a blurred image
+    # without noise calls it too, and a warm-up of either compiles it
+    c0, c1, scale, lo, hi = (1.0, 0.0, 1.0, -np.inf, np.inf) if line is None else line
+    return pixel_weights(np.asarray(v, dtype=np.float64), float(c0), float(c1), float(scale),
+                         float(lo), float(hi))
 
 
 def _curve_s(d, tau):
@@ -958,7 +1002,7 @@ converged (m,), misfit RMS / contrast (m,))'''
         start = np.asarray(start, dtype=np.float64).reshape(E.m, 4)
         d = np.where(np.isfinite(start).all(-1)[:, None], start, d)
     skip = np.zeros(E.m, bool) if skip is None else skip
-    return fit_edges(E.off, E.v, E.tau, E.s, E.cubic, E.j0, E.fy, np.ascontiguousarray(d),
+    return fit_edges(E.off, E.v, E.w, E.tau, E.s, E.cubic, E.j0, E.fy, np.ascontiguousarray(d),
                      x0, TABLE_STEP_PX, F, dF, np.asarray(bfix, dtype=np.float64), skip,
                      MAX_ITERATIONS, float(converged_px))
 
@@ -969,26 +1013,30 @@ class _Edges:
 each edge's pixel count, tag (m,) its tag and deep (m,): the edges whose band reaches the
 dark plateau (MIN_PLATEAU_PIXELS at least reach px inside the curve)'''
 
-    def __init__(self, img, geo, reach):
+    def __init__(self, img, geo, reach, line=None):
         m = self.m = len(geo)
-        counts = np.array([len(g[2]) for g in geo], dtype=np.int64)
+        # the entries' fields as columns (one pass over geo, then whole-array arithmetic)
+        tag, _, gx, gy, gt, gs, gL, _, gn, gc, gd, _ = zip(*geo, strict=True)
+        counts = np.fromiter(map(len, gx), dtype=np.int64, count=m)
         self.n = counts.astype(np.float64)
         self.off = np.zeros(m + 1, np.int64)
         np.cumsum(counts, out=self.off[1:])
-        ix = np.concatenate([g[2] for g in geo])
-        iy = np.concatenate([g[3] for g in geo])
+        ix = np.concatenate(gx)
+        iy = np.concatenate(gy)
         self.v = img[iy, ix].astype(np.float64)
-        self.tau = np.concatenate([2.0 * g[4] / g[6] - 1.0 for g in geo])
-        self.s = np.concatenate([g[5] for g in geo]).astype(np.float64)
-        n = np.abs(np.array([g[8] for g in geo], dtype=np.float64).reshape(m, 2))
+        self.w = _weights(line, self.v)
+        self.tau = 2.0 * np.concatenate(gt) / np.repeat(np.array(gL, dtype=np.float64),
+                                                         counts) - 1.0
+        self.s = np.concatenate(gs).astype(np.float64)
+        n = np.abs(np.stack(gn).astype(np.float64).reshape(m, 2))
         phi = np.arctan2(n.min(-1), n.max(-1))
-        self.cubic = np.array([float(g[9]) for g in geo])
+        self.cubic = np.array(gc, dtype=np.float64)
         fa = np.clip(phi / (np.pi / 4) * (TABLE_ANGLES - 1), 0.0, TABLE_ANGLES - 1.000001)
         self.j0 = fa.astype(np.int64)
         self.fy = fa - self.j0
-        self.d = np.array([g[10] for g in geo], dtype=np.float64).reshape(m, 4) * [1, 1, 1, 0]
-        self.tag = np.array([g[0] for g in geo], dtype=np.int64)
+        d = np.stack(gd).astype(np.float64).reshape(m, 4)
+        self.d = d * [1, 1, 1, 0]
+        self.tag = np.array(tag, dtype=np.int64)
         # about the start curves (cubic term kept, as the band was placed)
-        self.deep = plateau_counts(self.off, self.tau, self.s, np.array(
-            [g[10] for g in geo], dtype=np.float64).reshape(m, 4), float(reach)) \
+        self.deep = plateau_counts(self.off, self.tau, self.s, d, float(reach)) \
             >= MIN_PLATEAU_PIXELS

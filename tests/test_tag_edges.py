@@ -101,6 +101,33 @@ square root is ~6), and below 0.008 px'''
     assert e < 0.008 and 4 * e < w, (e, w)
 
 
+def test_the_pixels_noise_line_is_the_sensors(monkeypatch):
+    r'''The second pass weights each pixel by the inverse of its noise variance, a line in
+its value fitted to the first pass's residuals (tag_edges._noise_line). Under the realistic
+profile that line is the sensor's: shot noise c1 = 1 / full well (image value 1.0 = 20000
+e-), read noise and quantisation c0 = (12^2 + 4.88^2 / 12) / 20000^2. Asserted: the line's
+variance at the tags' black (0.1) and the board's white (0.9) within 8% of the sensor's
+(each from thousands of residuals: standard error ~2%; c0 alone is ~7% of the black's
+variance, too small to assert by itself). Measured: -2.8% and +0.1%.'''
+    import targets.tag_edges as te
+    seen = []
+    orig = te._noise_line
+
+    def spy(*args):
+        seen.append(orig(*args))
+        return seen[-1]
+    monkeypatch.setattr(te, "_noise_line", spy)
+    img, Q, grid = _tag_grid(6.0)
+    bits = np.array([tag36h11_bits(t) for t in range(len(Q))])
+    im = ResponseChain.from_config(REALISTIC).apply(img, seed=0).image.astype(np.float64)
+    # the response's PSF is the sampled kernel (renders blurred on the pixel grid)
+    te.refine_tag_edges(im, Q, 0.7, "sampled", bits=bits, grid=grid, value_range=1.0)
+    c0, c1 = seen[-1][:2]
+    sensor = (12.0 ** 2 + (20000 / 4095) ** 2 / 12) / 20000 ** 2
+    for v in (0.1, 0.9):
+        assert abs((c0 + c1 * v) / (sensor + v / 20000) - 1.0) < 0.08, (v, seen[-1])
+
+
 def test_tags_too_small_for_the_blur_are_dropped_with_a_reason():
     r'''Bits of 2.5 px: the border (one bit) is narrower than the blur's reach (3 sigma +
 the pixel's half-diagonal, 2.8 px), so no band sees the dark side of an edge without
