@@ -11,6 +11,7 @@ SYNOPSIS
     is_mark = K.mark_flags(ab, node, area, ratio_threshold, R)     # detect_dots.mark_flags
     counts = K.histogram_counts(v, edges, lo, scale)               # detect_dots._histogram
     comps, pixels = K.label_boxes(img, thr, boxes)                 # detect_dots._label_stack
+    K.reduce4_and_subsample(img, small, sub, step)                 # detect_dots._scan
 
 One call per dot instead of about forty numpy and OpenCV calls (their overhead was most
 of the detector's time: ~250 us a dot). The arithmetic is detect_dots._dot_centroid's
@@ -627,6 +628,40 @@ addition to the same bin.'''
 
 
 @njit(cache=True, error_model="numpy")
+def reduce4_and_subsample(img, small, sub, step):
+    r"""small[Y, X] = the average of img's 4x4 block (Y, X) as cv2.resize(img, (W // 4, H // 4),
+interpolation=cv2.INTER_AREA) computes it for whole blocks, and sub = img[::step, ::step],
+in one pass over img (H and W multiples of 4; img float32 or float64, small of img's type)
+
+cv2 takes an integer scale of 4 through its scalar area loop (its vector loop is for a
+scale of 2): the block's 16 pixels summed in the image's type in raster order, four at a
+time, sum += ((a + b) + c) + d, one group of four a row here, then times 1/16 (exact).
+Row by row (a running sum of each block row) so that img is read in order, once."""
+    H, W = img.shape
+    w = W // 4
+    acc = np.empty(w, img.dtype)
+    sixteenth = img.dtype.type(0.0625)
+    for Y in range(H // 4):
+        for r in range(4):
+            y = 4 * Y + r
+            row = img[y]
+            if r == 0:
+                for X in range(w):
+                    x = 4 * X
+                    acc[X] = ((row[x] + row[x + 1]) + row[x + 2]) + row[x + 3]
+            else:
+                for X in range(w):
+                    x = 4 * X
+                    acc[X] += ((row[x] + row[x + 1]) + row[x + 2]) + row[x + 3]
+            if y % step == 0:
+                out = sub[y // step]
+                for j in range(len(out)):
+                    out[j] = row[j * step]
+        for X in range(w):
+            small[Y, X] = acc[X] * sixteenth
+
+
+@njit(cache=True, error_model="numpy")
 def _root(parent, i):
     while parent[i] != i:
         parent[i] = parent[parent[i]]
@@ -766,4 +801,4 @@ longer calls it (dot_centroid takes the dilations row by row from the mask's run
 stays as the tests' statement of the dilations cv2.dilate gives, and a kernel listed here
 that no job calls would never be cached, so every warm-up would render again.'''
     return (dot_centroid, mark_flags, histogram_counts, label_boxes, grow_lattice,
-            polygon_terms)
+            polygon_terms, reduce4_and_subsample)
