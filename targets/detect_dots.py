@@ -520,17 +520,23 @@ pieces of about chunk box tests'''
 
 def _dot_masks(masks, stats, label, xa, ya, xb, yb, crowded):
     r'''(mask, free) over the crop [ya:yb, xa:xb] of blob `label`: its pixels (uint8) and
-the pixels of no blob (bool), or None when no other blob comes into the crop
+the pixels of no blob (_dot_free), as the numpy centroid (_dot_centroid) takes them
 
 masks, stats: as _blobs_from_reduced() gives them: the blob's mask is copied into the
-crop, and the label image (_label_image) made only when another blob's box reaches it
-(crowded: _crowded()'s value for this crop).'''
+crop (the compiled centroid reads masks[label] where it lies instead).'''
     x, y, w, h = stats[label, :4].tolist()
     mask = np.zeros((yb - ya, xb - xa), np.uint8)
     mask[y - ya:y - ya + h, x - xa:x - xa + w] = masks[label]
+    return mask, _dot_free(masks, stats, xa, ya, xb, yb, crowded)
+
+
+def _dot_free(masks, stats, xa, ya, xb, yb, crowded):
+    r'''The pixels of no blob (bool) over the crop [ya:yb, xa:xb], or None when no other blob
+comes into it: the label image (_label_image) is made only when another blob's box
+reaches the crop (crowded: _crowded()'s value for this crop)'''
     if not crowded:
-        return mask, None
-    return mask, _label_image(masks, stats, xa, ya, xb, yb) == 0
+        return None
+    return _label_image(masks, stats, xa, ya, xb, yb) == 0
 
 
 def _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya):
@@ -702,22 +708,24 @@ ARGUMENTS
     crowded = _crowded(stats, dots, *crops)
     # the threshold as _label_stack compared the pixels with it
     thr_labelled = np.result_type(img, thr).type(np.float64(thr) if exact64 else thr)
-    for label, xa, ya, xb, yb, near, gx, gy in zip(
-            dots.tolist(), *(c.tolist() for c in crops), crowded.tolist(), ix, iy, strict=True):
+    for label, bx, by, xa, ya, xb, yb, near, gx, gy in zip(
+            dots.tolist(), x0[dots].tolist(), y0[dots].tolist(), *(c.tolist() for c in crops),
+            crowded.tolist(), ix, iy, strict=True):
         # the source pixels (their float64 values), whatever precision the labelling used:
         # a view of img when img holds them (the kernel reads float32 as float64)
         crop = img[ya:yb, xa:xb] if img_is_source else \
             as_float_image(np.asarray(image)[ya:yb, xa:xb])
-        mask, free = _dot_masks(masks, stats, label, xa, ya, xb, yb, near and not whole)
+        free = _dot_free(masks, stats, xa, ya, xb, yb, near and not whole)
         if near and whole:   # the pixels of no blob: the light ones, as labelled
             free = ~(img[ya:yb, xa:xb] < thr_labelled)
         status = -1
-        if rows is not None:
+        if rows is not None:    # (the blob's mask over its box, where it lies in the crop)
             status, cx, cy = _kernels.dot_centroid(
-                crop, mask, _NO_FREE if free is None else free, free is not None, *rows,
-                xa, ya, MIN_RING_FOR_PLANE)
+                crop, masks[label], bx - xa, by - ya, _NO_FREE if free is None else free,
+                free is not None, *rows, xa, ya, MIN_RING_FOR_PLANE)
         if status < 0:      # a degenerate plane fit (numpy's solve or lstsq), or no kernel
             crop = np.array(crop, dtype=np.float64)     # a copy: _dot_centroid writes it
+            mask = _dot_masks(masks, stats, label, xa, ya, xb, yb, False)[0]
             c = _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya)
             status, (cx, cy) = (0, (0, 0)) if c is None else (1, c)
         if status:
