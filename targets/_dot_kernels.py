@@ -807,6 +807,10 @@ def compiled_entry_points():
 warm-up's check of numba's cache (harness.warmup). Not dilations(): the detector no
 longer calls it (dot_centroid takes the dilations row by row from the mask's runs); it
 stays as the tests' statement of the dilations cv2.dilate gives, and a kernel listed here
-that no job calls would never be cached, so every warm-up would render again.'''
+that no job calls would never be cached, so every warm-up would render again. Nor
+reduce4_and_subsample(): only images above detect_dots.LARGE_IMAGE_PIXELS call it, so a
+campaign of smaller cameras never caches it; a change of this file makes the listed
+kernels' caches stale too (numba stamps a cache with its source file), and the warm-up
+detects the largest image of each target (harness.warmup._render_kinds), which compiles it.'''
     return (dot_centroid, mark_flags, histogram_counts, label_boxes, grow_lattice,
-            polygon_terms, reduce4_and_subsample)
+            polygon_terms)
