@@ -5,12 +5,14 @@ SYNOPSIS
     from targets import _dot_kernels as K
 
     rows = K.element_rows(win_kernel) + K.element_rows(ring_kernel)   # (lo, hi) twice
-    status, cx, cy = K.dot_centroid(crop, mask, free, has_free, *rows, xa, ya, min_ring)
+    status, cx, cy = K.dot_centroid(crop, mask, mx, my, free, has_free, *rows, xa, ya,
+                                    min_ring)
     # status 1: centroid (cx, cy); 0: no weight (no centroid); -1: a degenerate plane fit
     # (a zero pivot): the caller computes this dot the numpy way (detect_dots._dot_centroid)
     is_mark = K.mark_flags(ab, node, area, ratio_threshold, R)     # detect_dots.mark_flags
     counts = K.histogram_counts(v, edges, lo, scale)               # detect_dots._histogram
     comps, pixels = K.label_boxes(img, thr, boxes)                 # detect_dots._label_stack
+    K.reduce4_and_subsample(img, small, sub, step)                 # detect_dots._scan
 
 One call per dot instead of about forty numpy and OpenCV calls (their overhead was most
 of the detector's time: ~250 us a dot). The arithmetic is detect_dots._dot_centroid's
@@ -195,25 +197,30 @@ fraction of np.sort's time)"""
 
 
 @njit(cache=True, error_model="numpy")
-def _row_runs(mask):
-    r"""The runs of each row of mask (uint8, 0/1): (rs, re, row0), row y's runs [rs[k],
-re[k]) for k in row0[y]..row0[y + 1] - 1, left to right"""
-    h, w = mask.shape
-    rs = np.empty(h * ((w + 1) // 2) + 1, np.int64)
+def _row_runs(mask, mx, my, h, w):
+    r"""The runs of each row of an (h, w) crop whose only set pixels are those of mask (0/1,
+uint8 or bool) placed with its pixel [0, 0] at the crop's (mx, my): (rs, re, row0), crop
+row y's runs [rs[k], re[k]) for k in row0[y]..row0[y + 1] - 1, left to right, in crop
+columns; only mask's pixels are read"""
+    mh, mw = mask.shape
+    rs = np.empty(mh * ((mw + 1) // 2) + 1, np.int64)
     re = np.empty(len(rs), np.int64)
-    row0 = np.empty(h + 1, np.int64)
+    row0 = np.zeros(h + 1, np.int64)
     n = 0
     for y in range(h):
         row0[y] = n
+        my_ = y - my
+        if my_ < 0 or my_ >= mh:
+            continue
         x = 0
-        while x < w:
-            if not mask[y, x]:
+        while x < mw:
+            if not mask[my_, x]:
                 x += 1
                 continue
-            rs[n] = x
-            while x < w and mask[y, x]:
+            rs[n] = x + mx
+            while x < mw and mask[my_, x]:
                 x += 1
-            re[n] = x
+            re[n] = x + mx
             n += 1
     row0[h] = n
     return rs, re, row0
@@ -253,19 +260,21 @@ clipped to the crop (_dilation_steps' intervals), and their union is taken"""
 
 
 @njit(cache=True, error_model="numpy")
-def dot_centroid(crop, mask, free, has_free, lo_w, hi_w, lo_r, hi_r, xa, ya, min_ring):
-    r"""(status, x, y): the centroid of the blob mask (uint8) in crop (float64 or float32,
-any strides: a view of the image; not written), crop[0, 0] being pixel (xa, ya); free
-(bool, read only if has_free) the pixels of no blob; the elements' rows from
-element_rows(); see the module docstring
+def dot_centroid(crop, mask, mx, my, free, has_free, lo_w, hi_w, lo_r, hi_r, xa, ya,
+                 min_ring):
+    r"""(status, x, y): the centroid of the blob mask (uint8 or bool, over the blob's box,
+whose pixel [0, 0] is the crop's (mx, my); the crop's other pixels are not the blob's) in
+crop (float64 or float32, any strides: a view of the image; not written), crop[0, 0]
+being pixel (xa, ya); free (bool, over the crop, read only if has_free) the pixels of no
+blob; the elements' rows from element_rows(); see the module docstring
 
 The window and the outer dilation are taken row by row as intervals from the mask's
 runs (_dilated_row: the pixels dilations() gives), so that only the ring's and the
 window's pixels are read, in raster order: the ring's collected (the plane's points),
 then the weights summed over the window. A float32 pixel is taken as its float64 value,
 as numpy's astype gives it."""
-    h, w = mask.shape
-    rs, re, row0 = _row_runs(mask)
+    h, w = crop.shape
+    rs, re, row0 = _row_runs(mask, mx, my, h, w)
     runs = 1
     for y in range(h):
         runs = max(runs, row0[y + 1] - row0[y])
@@ -627,6 +636,40 @@ addition to the same bin.'''
 
 
 @njit(cache=True, error_model="numpy")
+def reduce4_and_subsample(img, small, sub, step):
+    r"""small[Y, X] = the average of img's 4x4 block (Y, X) as cv2.resize(img, (W // 4, H // 4),
+interpolation=cv2.INTER_AREA) computes it for whole blocks, and sub = img[::step, ::step],
+in one pass over img (H and W multiples of 4; img float32 or float64, small of img's type)
+
+cv2 takes an integer scale of 4 through its scalar area loop (its vector loop is for a
+scale of 2): the block's 16 pixels summed in the image's type in raster order, four at a
+time, sum += ((a + b) + c) + d, one group of four a row here, then times 1/16 (exact).
+Row by row (a running sum of each block row) so that img is read in order, once."""
+    H, W = img.shape
+    w = W // 4
+    acc = np.empty(w, img.dtype)
+    sixteenth = img.dtype.type(0.0625)
+    for Y in range(H // 4):
+        for r in range(4):
+            y = 4 * Y + r
+            row = img[y]
+            if r == 0:
+                for X in range(w):
+                    x = 4 * X
+                    acc[X] = ((row[x] + row[x + 1]) + row[x + 2]) + row[x + 3]
+            else:
+                for X in range(w):
+                    x = 4 * X
+                    acc[X] += ((row[x] + row[x + 1]) + row[x + 2]) + row[x + 3]
+            if y % step == 0:
+                out = sub[y // step]
+                for j in range(len(out)):
+                    out[j] = row[j * step]
+        for X in range(w):
+            small[Y, X] = acc[X] * sixteenth
+
+
+@njit(cache=True, error_model="numpy")
 def _root(parent, i):
     while parent[i] != i:
         parent[i] = parent[parent[i]]
@@ -764,6 +807,10 @@ def compiled_entry_points():
 warm-up's check of numba's cache (harness.warmup). Not dilations(): the detector no
 longer calls it (dot_centroid takes the dilations row by row from the mask's runs); it
 stays as the tests' statement of the dilations cv2.dilate gives, and a kernel listed here
-that no job calls would never be cached, so every warm-up would render again.'''
+that no job calls would never be cached, so every warm-up would render again. Nor
+reduce4_and_subsample(): only images above detect_dots.LARGE_IMAGE_PIXELS call it, so a
+campaign of smaller cameras never caches it; a change of this file makes the listed
+kernels' caches stale too (numba stamps a cache with its source file), and the warm-up
+detects the largest image of each target (harness.warmup._render_kinds), which compiles it.'''
     return (dot_centroid, mark_flags, histogram_counts, label_boxes, grow_lattice,
             polygon_terms)

@@ -56,7 +56,6 @@ NEIGHBOUR_TOLERANCE = 0.3      # of the local spacing
 AREA_RATIO_MAX = 4.0           # between neighbouring blobs
 NSEEDS = 6
 OTSU_PIXELS = 1_000_000        # the threshold is computed on about this many pixels
-SCAN_ROWS = 64                 # image rows at a time in _scan: 1.3 MB of 5120x3840 float32
 # above this many pixels the blobs are located in an image reduced REDUCTION times, and
 # labelled at full resolution in their boxes only (5120x3840: 0.1 s instead of 1 s)
 LARGE_IMAGE_PIXELS = 4_500_000
@@ -135,7 +134,7 @@ would skip a NaN); where img sums to an overflow it is computed the numpy way.''
     return img.min(), img.max()
 
 
-def _scan(img, s, step, rows=SCAN_ROWS):
+def _scan(img, s, step):
     r'''(small, sub): the reduced image _reduce(img, s) and the subsample img[::step, ::step]
 (a contiguous copy, raveled), in one pass over img
 
@@ -144,22 +143,16 @@ SYNOPSIS
     small, sub = _scan(img, 4, 4)
     reason = _image_problem(img, small)     # the range, only where small leaves it open
 
-Band by band of about `rows` rows (a multiple of s and step), while the band is in the
-cache: 3 passes over a 5120x3840 image from memory cost 4 ms more. A band reduces to the
-rows of the reduced image that its s x s blocks make, when the image is a whole number
-of blocks (cv2's area average of whole blocks); otherwise the whole image is reduced.'''
-    import cv2
+For s = 4 (REDUCTION) and an image of whole 4x4 blocks, one compiled pass
+(targets._dot_kernels.reduce4_and_subsample: cv2's area average of whole blocks, bit for
+bit): 5120x3840 float32 in 8 ms of CPU where cv2.resize and the subsample's copy took 12
+(load 10, 2 cores). Otherwise cv2 reduces the image and the subsample is copied after.'''
     H, W = img.shape
-    if H % s or W % s:
+    if s != 4 or H % s or W % s or img.dtype not in (np.float32, np.float64):
         return _reduce(img, s), img[::step, ::step].ravel()
-    band = rows - rows % math.lcm(s, step) or math.lcm(s, step)
     small = np.empty((H // s, W // s), img.dtype)
     sub = np.empty((-(-H // step), -(-W // step)), img.dtype)
-    for r in range(0, H, band):
-        b = img[r:r + band]
-        cv2.resize(b, (W // s, len(b) // s), dst=small[r // s:(r + len(b)) // s],
-                   interpolation=cv2.INTER_AREA)
-        sub[r // step:-(-(r + len(b)) // step)] = b[::step, ::step]
+    _kernels.reduce4_and_subsample(img, small, sub, step)
     return small, sub.ravel()
 
 
@@ -527,17 +520,23 @@ pieces of about chunk box tests'''
 
 def _dot_masks(masks, stats, label, xa, ya, xb, yb, crowded):
     r'''(mask, free) over the crop [ya:yb, xa:xb] of blob `label`: its pixels (uint8) and
-the pixels of no blob (bool), or None when no other blob comes into the crop
+the pixels of no blob (_dot_free), as the numpy centroid (_dot_centroid) takes them
 
 masks, stats: as _blobs_from_reduced() gives them: the blob's mask is copied into the
-crop, and the label image (_label_image) made only when another blob's box reaches it
-(crowded: _crowded()'s value for this crop).'''
+crop (the compiled centroid reads masks[label] where it lies instead).'''
     x, y, w, h = stats[label, :4].tolist()
     mask = np.zeros((yb - ya, xb - xa), np.uint8)
     mask[y - ya:y - ya + h, x - xa:x - xa + w] = masks[label]
+    return mask, _dot_free(masks, stats, xa, ya, xb, yb, crowded)
+
+
+def _dot_free(masks, stats, xa, ya, xb, yb, crowded):
+    r'''The pixels of no blob (bool) over the crop [ya:yb, xa:xb], or None when no other blob
+comes into it: the label image (_label_image) is made only when another blob's box
+reaches the crop (crowded: _crowded()'s value for this crop)'''
     if not crowded:
-        return mask, None
-    return mask, _label_image(masks, stats, xa, ya, xb, yb) == 0
+        return None
+    return _label_image(masks, stats, xa, ya, xb, yb) == 0
 
 
 def _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya):
@@ -709,22 +708,24 @@ ARGUMENTS
     crowded = _crowded(stats, dots, *crops)
     # the threshold as _label_stack compared the pixels with it
     thr_labelled = np.result_type(img, thr).type(np.float64(thr) if exact64 else thr)
-    for label, xa, ya, xb, yb, near, gx, gy in zip(
-            dots.tolist(), *(c.tolist() for c in crops), crowded.tolist(), ix, iy, strict=True):
+    for label, bx, by, xa, ya, xb, yb, near, gx, gy in zip(
+            dots.tolist(), x0[dots].tolist(), y0[dots].tolist(), *(c.tolist() for c in crops),
+            crowded.tolist(), ix, iy, strict=True):
         # the source pixels (their float64 values), whatever precision the labelling used:
         # a view of img when img holds them (the kernel reads float32 as float64)
         crop = img[ya:yb, xa:xb] if img_is_source else \
             as_float_image(np.asarray(image)[ya:yb, xa:xb])
-        mask, free = _dot_masks(masks, stats, label, xa, ya, xb, yb, near and not whole)
+        free = _dot_free(masks, stats, xa, ya, xb, yb, near and not whole)
         if near and whole:   # the pixels of no blob: the light ones, as labelled
             free = ~(img[ya:yb, xa:xb] < thr_labelled)
         status = -1
-        if rows is not None:
+        if rows is not None:    # (the blob's mask over its box, where it lies in the crop)
             status, cx, cy = _kernels.dot_centroid(
-                crop, mask, _NO_FREE if free is None else free, free is not None, *rows,
-                xa, ya, MIN_RING_FOR_PLANE)
+                crop, masks[label], bx - xa, by - ya, _NO_FREE if free is None else free,
+                free is not None, *rows, xa, ya, MIN_RING_FOR_PLANE)
         if status < 0:      # a degenerate plane fit (numpy's solve or lstsq), or no kernel
             crop = np.array(crop, dtype=np.float64)     # a copy: _dot_centroid writes it
+            mask = _dot_masks(masks, stats, label, xa, ya, xb, yb, False)[0]
             c = _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya)
             status, (cx, cy) = (0, (0, 0)) if c is None else (1, c)
         if status:

@@ -338,20 +338,24 @@ camera: every target found with all its points, dots at their exact centroids'''
             assert np.nanmax(err) < {"dots": 0.05, "apriltag": 1.0, "chessboard": 0.5}[name], where
 
 
+@pytest.mark.parametrize("reduction", [2, 4])
 @pytest.mark.parametrize("dtype", ["float32", "uint8"])
-def test_large_image_path_gives_the_full_labelling(dots, monkeypatch, dtype):
+def test_large_image_path_gives_the_full_labelling(dots, monkeypatch, dtype, reduction):
     r'''Above LARGE_IMAGE_PIXELS the blobs are located in a reduced image and labelled in
 their boxes: the dots, their centroids and the numbering are bit for bit those of the full
-labelling. The threshold is lowered here so that a 320x240 render takes that path.'''
+labelling. The threshold is lowered here so that a 320x240 render takes that path (a
+reduction of 4, the compiled reduction targets._dot_kernels.reduce4_and_subsample: 640x480,
+whose dots keep the reduced image's size of those of 320x240 reduced twice).'''
     from targets import detect_dots as dd
-    m = pinhole(WIDE["width"], WIDE["height"], WIDE["f"], R=WIDE["R"])
+    k = reduction // 2
+    m = pinhole(k * WIDE["width"], k * WIDE["height"], k * WIDE["f"], R=WIDE["R"])
     Rt = plan_poses(m, dots, seed=0)[0]
     img = render(m, dots.pattern(), Rt, K=4).astype(np.float32)
     if dtype == "uint8":
         img = np.round(img * 255).astype(np.uint8)
     full = detect(img, dots)
     monkeypatch.setattr(dd, "LARGE_IMAGE_PIXELS", 1000)
-    monkeypatch.setattr(dd, "REDUCTION", 2)
+    monkeypatch.setattr(dd, "REDUCTION", reduction)
     calls = []
     real = dd._blobs_from_reduced
     monkeypatch.setattr(dd, "_blobs_from_reduced",

@@ -47,9 +47,9 @@ def test_an_element_with_a_gap_in_a_row_is_refused():
     assert lo.tolist() == [0, -2, -2, -2, 0] and hi.tolist() == [0, 2, 2, 2, 0]
 
 
-def _kernel_centroid(crop, mask, free, xa, ya):
+def _kernel_centroid(crop, mask, free, xa, ya, mx=0, my=0):
     rows = K.element_rows(dd._disk(2)) + K.element_rows(dd._disk(5))
-    status, cx, cy = K.dot_centroid(np.ascontiguousarray(crop), mask,
+    status, cx, cy = K.dot_centroid(np.ascontiguousarray(crop), mask, mx, my,
                                     NO_FREE if free is None else free, free is not None,
                                     *rows, xa, ya, dd.MIN_RING_FOR_PLANE)
     assert status in (0, 1)
@@ -81,6 +81,10 @@ image, where numpy's sums of x w round the most'''
                                    ya + offset[1])
             got = _kernel_centroid(crop, mask, free, xa + offset[0], ya + offset[1])
             assert (got is None) == (ref is None)
+            # the blob's mask over its box only, placed in the crop: the same pixels read
+            box = (labels[y0:y0 + h, x0:x0 + w] == label)
+            assert _kernel_centroid(crop, box, free, xa + offset[0], ya + offset[1],
+                                    x0 - xa, y0 - ya) == got
             if ref is not None:
                 assert np.max(np.abs(np.subtract(got, ref))) < 1e-9
                 checked += 1
