@@ -279,7 +279,9 @@ def _noisy(truth, sigma, seed=1):
 def test_valley_jumps_reach_the_minimum_the_crawl_stops_short_of(monkeypatch):
     # the MER A hazcam (slot 5) as a CAHVOR, theta 90.018 deg: mrcal reaches it only in the
     # limit of its R0 / focal-length valley (R0 -> -0.94); restarts alone crawl 1-2% a
-    # restart there, and the gain rule stops them halfway (R0 -0.32 here)
+    # restart there, and the gain rule stops them halfway (R0 -0.32 here). The restarts
+    # here are mrcal.optimize's with their jumps (VALLEY_LM 0; the LM's own test below)
+    monkeypatch.setattr(mrcal_fit, "VALLEY_LM", 0)
     import math
 
     import mrcal
@@ -311,6 +313,35 @@ def test_valley_jumps_reach_the_minimum_the_crawl_stops_short_of(monkeypatch):
     # (harness.verdict.MISFIT_FACTOR x)
     assert off.residual_stats()["rms"] > 3 * math.sqrt(2) * sigma
     assert n_on <= 2 * sum(restarts)
+
+
+def test_a_valley_restart_that_leaves_the_image_is_made_by_mrcal_optimize(monkeypatch):
+    # the valley's Levenberg-Marquardt (_valley_lm) taken to a misfit's e -> 0 limit, where
+    # fx and cx run off together: that restart is undone and made by mrcal.optimize with its
+    # jump, and so is every later one of the fit: the fit is the one without the LM, bit for
+    # bit (one process: the same arithmetic)
+    from harness.stages import camera_truth
+    _, truth = camera_truth(5, "CAHVOR")
+    obs = _noisy(truth, 1e-3)
+    monkeypatch.setattr(mrcal_fit, "VALLEY_LM", 0)
+    plain = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False)
+    monkeypatch.setattr(mrcal_fit, "VALLEY_LM", 100)
+    lm = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False)
+    calls = []
+
+    def runaway(kw, problem, nint, max_iter):
+        calls.append(max_iter)
+        problem["intrinsics"][0, 2] = -3e4
+    monkeypatch.setattr(mrcal_fit, "_valley_lm", runaway)
+    r = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False)
+    assert calls == [100]
+    assert r.ok and plain.ok and lm.ok
+    np.testing.assert_array_equal(r.info["intrinsics"], plain.info["intrinsics"])
+    # the LM itself reaches the same minimum as the crawl with its jumps: the residual RMS
+    # at the noise (1e-3 px per coordinate, sqrt(2) x per point, less the parameters' share)
+    for fit in (plain, lm):
+        assert fit.residual_stats()["rms"] < np.sqrt(2) * 1e-3
+    assert lm.info["intrinsics"][0] == pytest.approx(plain.info["intrinsics"][0], rel=1e-3)
 
 
 def test_a_misfit_that_spends_its_restarts_restarts_once_afterwards(monkeypatch):

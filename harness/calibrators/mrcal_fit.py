@@ -175,6 +175,29 @@ WARM_RESTARTS = 1
 # valley: its E0, E1, E2 are extrapolated as they are (CAHVORE image fits 8.75 -> 7.7 CPU s,
 # 5 CAHVORE 0.93 -> 0.60 s, its projection bit for bit at 4 digits).
 VALLEY_JUMP_MAX = 8
+# A restart of a CAHVOR / CAHVORE fit without a warm start is, instead of mrcal.optimize and
+# its valley jump, Levenberg-Marquardt on mrcal.optimizer_callback's Jacobian in the valley's
+# natural coordinates (_valley_lm), at most VALLEY_LM iterations (0: mrcal.optimize). The
+# coordinates: log fx, log fy, O's image (cx + fx tan(alpha), cy + fy tan(beta) / cos(alpha):
+# fixed where e -> 0 runs fx and cx off together), alpha, beta, log e, R1 / e, R2 / e, E;
+# without O's image the valley still curves (870 Jacobians for a synthetic 5 CAHVOR against
+# 76-115, 0.24 CPU s against the crawl's 1.04). A restart of it that leaves the principal
+# point outside the image (a misfit's e -> 0 limit: 1 CAHVOR's projection 6.8e7 px off at the
+# corners) is undone and made by mrcal.optimize, and so is every later one of that fit
+# (lm_off); refusing its steps that leave the image instead stopped 5 CAHVOR's image fit on
+# that edge (0.17 px RMS against 6.8e-4). Measured (session 14, benchmarks/bench_fits.py on
+# the paper campaign's renders, back to back, load 6-8): mrcal calibrate 16.3 -> 13.6 CPU s,
+# exact fits 2.02 -> 1.68. It converges where mrcal.optimize's crawl along the valley stopped
+# short, so records moved where the crawl had held them: 19 CAHVOR reaches the R0 gauge's
+# limit (image fit 8.1e-3 -> 7.9e-5 px RMS) and turns from floor_far to judged; judged 16 and
+# 17 CAHVOR reach deeper minima (residual RMS 7.46e-4 -> 6.17e-4 and 1.742e-3 -> 1.718e-3
+# px; 17's exact fit 3.3e-4 -> 7.8e-9 px, floor 2.8e-3 -> 1e-7 px, renderer difference
+# 1.7e-4 -> 3.5e-3 px at z 1.2: the scatter along the valley that the two crawls' common
+# stopping point had hidden); the gauge figures at the R0 limit (R0_frac) move by 1e3+
+# sigma at 1e-6 relative, beyond any solver's convergence. The clean renderer gate (every
+# slot and extra, seeds 0-2) passes with 0 false alarms and judges more: mrcal CAHVOR 22 ->
+# 29 records (twins once), CAHVORE 10.
+VALLEY_LM = 100
 # Where the CPU goes now and what did not pay (session 13, benchmarks/bench_mrcal.py --stages
 # on its 25 CAHVOR / CAHVORE paper jobs, load 9-12): image fits 16.7 CPU s, 84% inside
 # mrcal.optimize (cProfile); by phase: the refits' coarse restarts 7.0 s (178 calls, 39 ms:
@@ -200,33 +223,6 @@ VALLEY_JUMP_MAX = 8
 # - the race's regularised start solved on the coarse grid first: the full-grid solve after
 #   it still runs to the iteration limit (3 CAHVOR 148 -> 37 + 147 ms): the regularised
 #   problem has the valley too (it stops at fx 2288 or 2473 px depending on the start).
-# - (session 14; the code: git show 927011e) the valley's restarts as Levenberg-Marquardt on
-#   mrcal.optimizer_callback's Jacobian in the valley's natural coordinates: log fx, log fy,
-#   O's image (cx + fx tan(alpha), cy + fy tan(beta) / cos(alpha): fixed where e -> 0 runs
-#   fx and cx off together), alpha, beta, log e, R1 / e, R2 / e, E; damped normal equations
-#   of the column-scaled Jacobian by eigen-decomposition (condition ~1e14), up to 100 steps
-#   per restart. Without O's image among the coordinates the valley still curves (rho ~0.3
-#   per step; 870 Jacobians for a synthetic 5 CAHVOR), with it 76-115 (0.24 s against the
-#   crawl's 1.04). On the paper campaign (bench_mrcal.py --stages, load 11-13): image fits
-#   16.4 -> 12.4 CPU s, exact fits 1.94 -> 1.19 (bench_fits.py: 16.9 -> 13.0 and
-#   2.19 -> 1.43), every exact-recovery test held. Not taken: it fails issue 18's bar
-#   because it converges where the crawl stops short. Judged records the crawl brings to
-#   their minimum end there (5, 13, 15 CAHVOR, 5, 17, 19 CAHVORE: image-fit residuals equal
-#   to 4-5 digits), but the judged 16 and 17 CAHVOR reach deeper minima (residual RMS
-#   7.46e-4 -> 6.17e-4 and 1.742e-3 -> 1.718e-3 px; 17's exact fit 3.3e-4 -> 7.8e-9 px, its
-#   floor 2.8e-3 -> 1.0e-7 px and renderer difference 1.7e-4 -> 3.5e-3 px, z 1.2), 19 and
-#   21 CAHVOR go on to the R0 gauge's limit and turn from floor_far to judged (floors 0.058
-#   -> 1.6e-6 and 0.045 -> 0.0084 px), and 1 CAHVOR's limit (e -> 0) puts its projection
-#   6.8e7 px off at the corners. Holding cx, cy inside the image (valley_jump's rule) stopped
-#   5 CAHVOR on that edge (residual 6.8e-4 -> 0.17 px, fits_disagree on slots 5-8). And a
-#   gauge figure at the R0 limit is resolved beyond any solver's convergence: 5 CAHVOR's
-#   R0_frac (-313109.26 vs -313108.88, sigma 1.35e-4) moved 2.8e3 sigma at 1e-6 relative
-#   with the image fit's residual the same. So a solver that converges cannot keep every
-#   judged record in place: the crawl's stopping point is what the records hold. The clean
-#   renderer gate (every slot and extra, seeds 0-2, load 11-17) passes with it as with
-#   main's code, 0 false alarms, and judges more: mrcal CAHVOR 22 -> 36 of 72 records,
-#   CAHVORE 10 -> 11 of 33 (benchmarks/bench_fits.py diff per seed: 18 floor_far -> judged
-#   flips, none the other way); its image fits 0.820 -> 0.734 s per ok record.
 # - nor is there a floor-far record's cost left after its misfit verdict for any other rule
 #   to take: on the 25 jobs above (load 14-17), 14.14 of the 14.30 CPU s of mrcal.optimize
 #   in image fits come before the first crawl_verdict / settled_misfit_verdict (the settled
@@ -583,6 +579,7 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
     # the bias settled end far above it (settled_misfit_verdict): every later polish
     # restarts once only (on the coarse grid only, for a model with distortions: misfit_coarse)
     crawl = None
+    lm_off = False    # a restart of _valley_lm left the image: mrcal.optimize from then on
     if warm is not None and ((start.info or {}).get("crawl") or {}).get("settled"):
         # the start misfits: the exact observations' fit is the same coarse fit of it
         crawl = {**start.info["crawl"], "from_start": True}
@@ -681,12 +678,36 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
         # restarts on the grid of every step-th row and column while each gains (the first
         # one too, over the state it starts from); returns the RMS. Along the CAHVOR valley,
         # each restart is followed by a jump along its own step (valley_jump)
-        nonlocal crawl
+        nonlocal crawl, lm_off
         rms_prev = problem_rms(step)
         for n in range(limit):
             u_before = valley_u()
-            solve(step, do_optimize_intrinsics_core=True,
-                  do_optimize_intrinsics_distortions=True)
+            if VALLEY_LM and u_before is not None and not known_poses and not lm_off:
+                kw = dict(problem, do_optimize_intrinsics_core=True,
+                          do_optimize_intrinsics_distortions=True)
+                if step > 1:
+                    kw["observations_board"] = np.ascontiguousarray(
+                        problem["observations_board"][:, ::step, ::step])
+                    kw["calibration_object_spacing"] = spacing * step
+                before = _snapshot(problem)
+                _valley_lm(kw, problem, nint, VALLEY_LM)
+                cx, cy = problem["intrinsics"][0, 2:4]
+                if 0.0 <= cx <= W - 1 and 0.0 <= cy <= H - 1:
+                    u_before = None
+                else:
+                    # the valley's limit of a misfit (e -> 0, fx and cx running off
+                    # together: 1 CAHVOR's projection 6.8e7 px off at the corners): this
+                    # restart as mrcal.optimize's, with its jump, keeping the principal
+                    # point in the image (refusing the LM's steps that leave it instead
+                    # stopped 5 CAHVOR's image fit at 0.17 px on its way); from then on
+                    # every restart of this fit is (lm_off)
+                    _restore(problem, before)
+                    lm_off = True
+                    solve(step, do_optimize_intrinsics_core=True,
+                          do_optimize_intrinsics_distortions=True)
+            else:
+                solve(step, do_optimize_intrinsics_core=True,
+                      do_optimize_intrinsics_distortions=True)
             r = problem_rms(step)
             gain = POLISH_GAIN_FINE if r < FINE_RMS else POLISH_GAIN
             if n + 1 < limit and u_before is not None and r >= 1e-10:
@@ -965,6 +986,121 @@ def _warm_start(start, lensmodel, nint, Nposes, origin):
         return None
     Rt_board_grid = _Rt_board_grid(origin)
     return intr.copy(), np.array([mrcal.compose_Rt(Rt, Rt_board_grid) for Rt in Rts])
+
+
+# _valley_lm's damping: LAM0 x the largest eigenvalue of the column-scaled J^T J to start,
+# divided by at most 1 / LAM_DOWN after a step the quadratic model predicted well
+LAM0 = 1e-6
+LAM_DOWN = 0.01
+
+
+def _valley_u(p, nint):
+    # the natural coordinates of intrinsics p: O's image (cx + fx tan(alpha), cy + fy
+    # tan(beta) / cos(alpha)) stays put where e -> 0 runs fx to infinity and cx with it
+    e = 1.0 + p[6]
+    ta, tb, ca = math.tan(p[4]), math.tan(p[5]), math.cos(p[4])
+    return np.concatenate(([math.log(p[0]), math.log(p[1]), p[2] + p[0] * ta,
+                            p[3] + p[1] * tb / ca, p[4], p[5],
+                            math.log(e), p[7] / e, p[8] / e], p[9:nint]))
+
+
+def _valley_p(u):
+    e = math.exp(u[6])
+    fx, fy = math.exp(u[0]), math.exp(u[1])
+    ta, tb, ca = math.tan(u[4]), math.tan(u[5]), math.cos(u[4])
+    return np.concatenate(([fx, fy, u[2] - fx * ta, u[3] - fy * tb / ca, u[4], u[5],
+                            e - 1.0, u[7] * e, u[8] * e], u[9:]))
+
+
+def _valley_T(u, nint):
+    # d intrinsics / d u
+    pi = _valley_p(u)
+    fx, fy, e = pi[0], pi[1], 1.0 + pi[6]
+    ta, tb = math.tan(u[4]), math.tan(u[5])
+    sa, ca = math.sin(u[4]), math.cos(u[4])
+    T = np.eye(nint)
+    T[0, 0], T[1, 1] = fx, fy
+    T[2, 0], T[2, 4] = -fx * ta, -fx * (1.0 + ta * ta)
+    T[3, 1], T[3, 4], T[3, 5] = -fy * tb / ca, -fy * tb * sa / (ca * ca), \
+        -fy * (1.0 + tb * tb) / ca
+    T[6, 6] = e
+    T[7, 6], T[8, 6], T[7, 7], T[8, 8] = pi[7], pi[8], e, e
+    return T
+
+
+def _valley_lm(kw, problem, nint, max_iter, rel_tol=1e-10):
+    r'''Levenberg-Marquardt on mrcal.optimizer_callback (kw: its arguments, problem's arrays
+among them) in the valley's natural coordinates u (_valley_u: log fx, log fy, the image of
+O, alpha, beta, log e, R1 / e, R2 / e, CAHVORE's E; e = 1 + R0), the board poses as they
+are; written back into problem. The normal equations of the column-scaled Jacobian are
+solved by eigen-decomposition (their condition ~1e14 in the valley), Nielsen's damping
+update (its decrease capped at LAM_DOWN), until a step gains less than rel_tol of the
+cost or after max_iter steps. Returns the final cost x.x, or None where it does not
+apply (the state is not intrinsics + board poses, or e <= 0)'''
+    import mrcal
+    b, x, J = mrcal.optimizer_callback(**kw, no_factorization=True)[:3]
+    n = len(b)
+    nf = problem["rt_ref_frame"].size
+    if n != nint + nf:
+        return None
+    scale = np.ones(n)
+    mrcal.unpack_state(scale, **kw)
+    p = b * scale
+    if not (p[0] > 0 and p[1] > 0 and 1.0 + p[6] > 0):
+        return None
+    u = np.concatenate((_valley_u(p[:nint], nint), p[nint:]))
+    cost = float(x @ x)
+    lam, nu = None, 2.0
+
+    def put(v):
+        problem["intrinsics"][0] = _valley_p(v[:nint])
+        problem["rt_ref_frame"].reshape(-1)[:] = v[nint:]
+
+    for _ in range(max_iter):
+        Jr = J.toarray() / scale
+        Jr[:, :nint] = Jr[:, :nint] @ _valley_T(u[:nint], nint)
+        d = np.sqrt((Jr * Jr).sum(axis=0))
+        d[d == 0] = 1.0
+        Js = Jr / d
+        A = Js.T @ Js
+        g = Js.T @ x
+        w, V = np.linalg.eigh(A)
+        w = np.maximum(w, 0.0)
+        Vg = V.T @ g
+        S0 = w[-1]
+        if lam is None:
+            lam = LAM0 * S0
+        accepted = False
+        while lam < 1e16 * S0:
+            ds = -V @ (Vg / (w + lam))
+            pred = -(2.0 * float(ds @ g) + float(ds @ (A @ ds)))
+            v = u + ds / d
+            pv = _valley_p(v[:nint])
+            if np.all(np.isfinite(v)) and np.all(np.isfinite(pv)):
+                put(v)
+                x_new = mrcal.optimizer_callback(**kw, no_jacobian=True,
+                                                 no_factorization=True)[1]
+                c_new = float(x_new @ x_new)
+            else:
+                c_new = math.inf
+            rho = (cost - c_new) / pred if pred > 0 else -1.0
+            if rho > 0:
+                accepted = True
+                break
+            lam *= nu
+            nu *= 2.0
+        if not accepted:
+            put(u)
+            return cost
+        gain = cost - c_new
+        u, cost = v, c_new
+        lam *= max(LAM_DOWN, 1.0 - (2.0 * rho - 1.0) ** 3)
+        nu = 2.0
+        if gain <= rel_tol * cost:
+            break
+        x, J = mrcal.optimizer_callback(**kw, no_factorization=True)[1:3]
+    put(u)
+    return cost
 
 
 def _snapshot(problem):
