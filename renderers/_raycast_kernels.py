@@ -1516,13 +1516,11 @@ material), else of its own centre ray."""
                 for i in range(x0, x1 + 1):
                     corners[0, j, i - x0] = math.nan
         for iy in range(r0, r1):
-            # the code of the pixel to the left when it is not an edge pixel (else -1)
-            left = -1
-            for ix in range(x0, x1):
+            ix = x0
+            while ix < x1:
                 k = iy - r0 + 1
                 c = ix - x0 + 1
                 if mask[iy - r0, ix]:
-                    left = -1
                     nedge += 1
                     if hok[k, c] and _on_board(hx[k, c], hy[k, c], rect):
                         nboard += 1
@@ -1542,11 +1540,12 @@ material), else of its own centre ray."""
                     nsuper += how != 0
                     narea += how == 2
                     nfallback += how == 3
+                    ix += 1
                     continue
-                # 2 m + on board, from a neighbour of the same region or the centre ray
-                if left >= 0:
-                    cd = left
-                elif iy > r0 and not mask[iy - r0 - 1, ix]:
+                # a run of pixels that are not edge pixels, up to the next edge pixel: one
+                # region, whose 2 m + on board comes from the pixel above the run's first one
+                # when that is not an edge pixel either, else from the first one's centre ray
+                if iy > r0 and not mask[iy - r0 - 1, ix]:
                     cd = code[iy - r0 - 1, ix - x0]
                 else:
                     if need[k, c]:
@@ -1561,10 +1560,13 @@ material), else of its own centre ray."""
                         cd = 2 * _material(bx, by, pat) + _on_board(bx, by, rect)
                     else:
                         cd = 2 * bg
-                code[iy - r0, ix - x0] = cd
-                left = cd
-                out[iy, ix] = values[cd // 2]
-                nboard += cd % 2
+                run = ix + 1
+                while run < x1 and not mask[iy - r0, run]:
+                    run += 1
+                code[iy - r0, ix - x0:run - x0] = cd
+                out[iy, ix:run] = values[cd // 2]
+                nboard += (run - ix) * (cd % 2)
+                ix = run
     _band_stats(stats, nrays, nsuper, nboard, ntiles, nedge, nonfinite, narea, nfallback)
 
 
