@@ -645,17 +645,48 @@ number of vertices"""
 
 
 @njit(cache=True, error_model="numpy")
+def _side_test(poly, src, n, axis, value, keep_above):
+    r"""(every vertex kept, every vertex dropped) of the polygon poly[src:src + 2, :n] by
+_clip's test against the side (`axis`, value, keep_above): the same signed differences"""
+    inside = True
+    outside = True
+    for k in range(n):
+        b = (poly[src, k] if axis == 0 else poly[src + 1, k]) - value
+        if not keep_above:
+            b = -b
+        inside = inside and b >= 0.0
+        outside = outside and b < 0.0
+    return inside, outside
+
+
+@njit(cache=True, error_model="numpy")
 def _clip_box(poly, row, n, x0, x1, y0, y1):
     r"""Clip the polygon poly[row:row + 2, :n] to the box [x0, x1] x [y0, y1] (result in
 poly[row:row + 2], poly[2:4] is scratch); returns its number of vertices
 
 The sides are clipped in a loop, so that _clip's arguments are run-time values: numba
 compiles a callee once per combination of literal arguments at its call sites (eight
-_clip variants when the four sides of the board and of a cell were four calls each)."""
+_clip variants when the four sides of the board and of a cell were four calls each).
+A side that keeps every vertex is not clipped (_clip would return the polygon as it
+is, vertex for vertex: most sides of a cell an edge pixel's quadrilateral reaches into),
+and a side that drops every vertex ends the clip with nothing (as _clip would)."""
+    src = row
     for side in range(4):
-        first = side % 2 == 0
+        keep_above = side % 2 == 0
+        axis = side // 2
         value = x0 if side == 0 else (x1 if side == 1 else (y0 if side == 2 else y1))
-        n = _clip(poly, row if first else 2, n, side // 2, value, first, 2 if first else row)
+        inside, outside = _side_test(poly, src, n, axis, value, keep_above)
+        if inside:
+            continue
+        if outside:
+            return 0
+        dst = 2 if src == row else row
+        n = _clip(poly, src, n, axis, value, keep_above, dst)
+        src = dst
+    if src != row:
+        for k in range(n):
+            poly[row, k] = poly[src, k]
+            poly[row + 1, k] = poly[src + 1, k]
     return n
 
 
@@ -1457,9 +1488,9 @@ material), else of its own centre ray."""
             v = values[m]
             # a tile that already holds v throughout (render_kernel's filled) is not written
             if not (filled[x0 // T] == v):
+                # row slices: an element loop compiled to scattered stores
                 for iy in range(r0, r1):
-                    for ix in range(x0, x1):
-                        out[iy, ix] = v
+                    out[iy, x0:x1] = v
                 filled[x0 // T] = v
             if onboard:
                 nboard += (r1 - r0) * (x1 - x0)
@@ -1485,13 +1516,11 @@ material), else of its own centre ray."""
                 for i in range(x0, x1 + 1):
                     corners[0, j, i - x0] = math.nan
         for iy in range(r0, r1):
-            # the code of the pixel to the left when it is not an edge pixel (else -1)
-            left = -1
-            for ix in range(x0, x1):
+            ix = x0
+            while ix < x1:
                 k = iy - r0 + 1
                 c = ix - x0 + 1
                 if mask[iy - r0, ix]:
-                    left = -1
                     nedge += 1
                     if hok[k, c] and _on_board(hx[k, c], hy[k, c], rect):
                         nboard += 1
@@ -1511,11 +1540,12 @@ material), else of its own centre ray."""
                     nsuper += how != 0
                     narea += how == 2
                     nfallback += how == 3
+                    ix += 1
                     continue
-                # 2 m + on board, from a neighbour of the same region or the centre ray
-                if left >= 0:
-                    cd = left
-                elif iy > r0 and not mask[iy - r0 - 1, ix]:
+                # a run of pixels that are not edge pixels, up to the next edge pixel: one
+                # region, whose 2 m + on board comes from the pixel above the run's first one
+                # when that is not an edge pixel either, else from the first one's centre ray
+                if iy > r0 and not mask[iy - r0 - 1, ix]:
                     cd = code[iy - r0 - 1, ix - x0]
                 else:
                     if need[k, c]:
@@ -1530,10 +1560,13 @@ material), else of its own centre ray."""
                         cd = 2 * _material(bx, by, pat) + _on_board(bx, by, rect)
                     else:
                         cd = 2 * bg
-                code[iy - r0, ix - x0] = cd
-                left = cd
-                out[iy, ix] = values[cd // 2]
-                nboard += cd % 2
+                run = ix + 1
+                while run < x1 and not mask[iy - r0, run]:
+                    run += 1
+                code[iy - r0, ix - x0:run - x0] = cd
+                out[iy, ix:run] = values[cd // 2]
+                nboard += (run - ix) * (cd % 2)
+                ix = run
     _band_stats(stats, nrays, nsuper, nboard, ntiles, nedge, nonfinite, narea, nfallback)
 
 

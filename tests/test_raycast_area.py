@@ -136,6 +136,40 @@ def test_clipping_a_quadrilateral_by_a_box(row):
     assert a == pytest.approx(1.0, abs=1e-14)
 
 
+def _clip_sides(poly, row, n, x0, x1, y0, y1):
+    # the four sides clipped one after the other, each by _clip (what _clip_box did before
+    # it skipped the sides that keep every vertex)
+    for side in range(4):
+        first = side % 2 == 0
+        value = (x0, x1, y0, y1)[side]
+        n = kern._clip(poly, row if first else 2, n, side // 2, value, first, 2 if first else row)
+    return n
+
+
+@pytest.mark.parametrize("row", [0, 4])
+def test_clip_box_skips_only_what_clipping_would_not_change(row):
+    # quadrilaterals inside the box, across one, two or four of its sides, outside it, and
+    # with vertices on its sides: _clip_box gives _clip's polygons, vertex for vertex (the
+    # same floating-point operations, so the area coverage of a pixel is unchanged)
+    rng = np.random.default_rng(1)
+    quads = [np.array([[0.2, 0.8, 0.7, 0.1], [0.1, 0.2, 0.9, 0.6]]),
+             np.array([[0.0, 1.0, 1.0, 0.0], [0.0, 0.0, 1.0, 1.0]]),
+             np.array([[1.5, 2.0, 2.0, 1.5], [0.1, 0.1, 0.5, 0.5]])]
+    quads += [c + rng.uniform(-0.6, 0.6, (2, 1)) + rng.uniform(-0.2, 0.2, (2, 4))
+              for c in [np.array([[0.0, 1.0, 1.0, 0.0], [0.0, 0.0, 1.0, 1.0]])] * 200]
+    kept = 0
+    for q in quads:
+        a = np.full((6, kern.AREA_MAX_VERTICES), np.nan)
+        a[row:row + 2, :4] = q
+        b = a.copy()
+        na = kern._clip_box(a, row, 4, 0.0, 1.0, 0.0, 1.0)
+        nb = _clip_sides(b, row, 4, 0.0, 1.0, 0.0, 1.0)
+        assert na == nb
+        np.testing.assert_array_equal(a[row:row + 2, :na], b[row:row + 2, :nb])
+        kept += nb >= 3
+    assert kept > 100
+
+
 # --- pixels against an exact line-by-line integral ---------------------------------------------
 @njit(cache=False)
 def _exact_pixels(cam, xf, pix, lines, values, pat):
