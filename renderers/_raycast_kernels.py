@@ -802,7 +802,10 @@ w0 + g . (p - o); NaN when its cells are too many"""
         cx1 = min(int(math.floor((xhi - f[F_CELLS]) / cs)), nx - 1)
         cy0 = max(int(math.floor((ylo - f[F_CELLS + 1]) / cs)), 0)
         cy1 = min(int(math.floor((yhi - f[F_CELLS + 1]) / cs)), ny - 1)
-        if (cx1 - cx0 + 1) * (cy1 - cy0 + 1) > AREA_MAX_CELLS:
+        # (no cell under it where either range is empty: beyond the grid on both axes, two
+        # negative lengths made a positive count, and the AprilTag board's margin corners
+        # were point sampled)
+        if cx0 <= cx1 and cy0 <= cy1 and (cx1 - cx0 + 1) * (cy1 - cy0 + 1) > AREA_MAX_CELLS:
             return math.nan
         for cy in range(cy0, cy1 + 1):
             for cx in range(cx0, cx1 + 1):
