@@ -1085,7 +1085,9 @@ The four edges at a corner run along the grid lines towards the neighbouring cor
 
     def kappa(q):
         Q = q.reshape(G.shape)
-        return np.fmax(_grid_curvature(Q, axis=1), _grid_curvature(Q, axis=0)).ravel()
+        # NaN where either line's curvature is unknown (a corner on the grid's edge): its
+        # strips would follow that line too
+        return np.maximum(_grid_curvature(Q, axis=1), _grid_curvature(Q, axis=0)).ravel()
     return refine_corners(image, G.reshape(-1, 2), dirs, [(0, 1), (2, 3)], steps, half_box,
                           clearance=clearance, lines=CHESSBOARD_LINES, line_curvature=kappa,
                           **options)
@@ -1093,8 +1095,9 @@ The four edges at a corner run along the grid lines towards the neighbouring cor
 
 def _grid_curvature(G, axis):
     r'''(ny,nx) curvature (1/px) of the grid line along an axis at each corner: the turn
-from the step before it to the step after it over their mean length; NaN without both
-neighbours'''
+from the step before it to the step after it over their mean length; a corner at the
+line's end takes the next corner's (the same line a square on); NaN where neither has
+both neighbours'''
     fwd = np.full(G.shape, np.nan)
     bwd = np.full(G.shape, np.nan)
     if axis == 1:
@@ -1104,7 +1107,12 @@ neighbours'''
         fwd[:-1] = G[1:] - G[:-1]
         bwd[1:] = G[1:] - G[:-1]
     turn = np.arctan2(_cross(bwd, fwd), (bwd * fwd).sum(-1))
-    return np.abs(turn) / (0.5 * (np.linalg.norm(fwd, axis=-1) + np.linalg.norm(bwd, axis=-1)))
+    k = np.abs(turn) / (0.5 * (np.linalg.norm(fwd, axis=-1) + np.linalg.norm(bwd, axis=-1)))
+    k = np.moveaxis(k, axis, 0).copy()
+    if len(k) > 2:
+        k[0] = np.where(np.isnan(k[0]), k[1], k[0])
+        k[-1] = np.where(np.isnan(k[-1]), k[-2], k[-1])
+    return np.moveaxis(k, 0, axis)
 
 
 def _grid_step(G, axis):
