@@ -245,14 +245,21 @@ offset over them, kappa L^2 / 6, reaches LINES_BIAS_PX, none where that is in th
 
 
 def test_blurred_corner_window_holds_its_line_strips():
-    r'''On squares of 44 px (a navcam's) the blurred fit's window reaches along the lines
-past the MAX_WINDOW_PX box ((2 x 8 + 1)^2 = 289 pixels at most): the box's pixels plus
-four strips of ~14 px (22 - 8) by ~3 px; noise-free, the corner is where it is (the
-model is exact for the sampled kernel: 2e-3 px, as on 19 px squares)'''
+    r'''On squares of 44 px (a navcam's) the blurred fit's window reaches along straight
+lines past the MAX_WINDOW_PX box ((2 x 8 + 1)^2 = 289 pixels at most): the box's pixels
+plus four strips of ~14 px (22 - 8) by ~3 px; noise-free, the corner is where it is (the
+model is exact for the sampled kernel: 2e-3 px, as on 19 px squares). Without the lines'
+curvature (refine_chessboard_corners takes it from the first pass's grid, NaN where a
+neighbour is missing, as here) the box alone'''
+    from targets.corners import CHESSBOARD_HALF_BOX, CHESSBOARD_LINES, refine_corners
     img, q, dirs, steps = _chessboard_corner_image(0.7, "sampled", seed=None, size=100,
                                                    c=(49.37, 50.81))
     steps = steps * (44.0 / 19.0)
-    fit = refine_chessboard_corners(img, _as_grid(q + 0.2, dirs, steps))
-    assert fit.info["psf_kind"] == "sampled"
-    assert 289 + 4 * 13 * 2 < fit.npixels[4] < 289 + 4 * 14 * 5, fit.npixels[4]
-    assert np.linalg.norm(fit.q[4] - q[0]) < 2e-3
+    args = (img, q + 0.2, dirs, [(0, 1), (2, 3)], steps, CHESSBOARD_HALF_BOX)
+    opts = dict(clearance=1.0, lines=CHESSBOARD_LINES, psf_sigma_px=0.7, psf_kind="sampled")
+    fit = refine_corners(*args, line_curvature=lambda q: np.zeros(len(q)), **opts)
+    assert 289 + 4 * 13 * 2 < fit.npixels[0] < 289 + 4 * 15 * 5, fit.npixels[0]
+    assert np.linalg.norm(fit.q[0] - q[0]) < 2e-3
+    box = refine_corners(*args, **opts)
+    assert box.npixels[0] <= 289
+    assert np.linalg.norm(box.q[0] - q[0]) < 2e-3
