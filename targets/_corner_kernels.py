@@ -15,7 +15,8 @@ SYNOPSIS
     A = lm_system(s, JtJ, lam)              # damped, of the corners s
     a, b, S, r = light_levels(s, D, w, v)   # light level, contrast, misfit, residuals
     lm_accept(s, step, S1, c1, t1, g1, D1, ..., JtJ, Jtr, px, wpx)  # accept/damp/converge
-    inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, max_px, H, W)
+    inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, max_px,
+                                   lines_box, strip_px, lines_px, H, W)
     finite, lo, hi, img8 = image_range_u8(img, scale)   # targets.detection.working_image
 
 With M > 1 the dark area of each pixel is blurred: D = sum_q W_q A(d + Z_q), the
@@ -228,9 +229,13 @@ def _grid_wedge_model(centres, s, c, uu, first, second, widen, Z, W, dW):
         box[j, 0], box[j, 1] = x0 - reach, y0 - reach
         box[j, 2], box[j, 3] = x1 - x0 + 2 * reach + 1, y1 - y0 + 2 * reach + 1
         ncell = max(ncell, box[j, 2] * box[j, 3])
-    GA = np.zeros((m, ncell))
-    Gc = np.zeros((m, ncell, 2))
-    Gt = np.zeros((m, ncell, R))
+    # one corner's cells at a time, only those a window pixel's tap lands on (a chessboard
+    # corner's window of strips along its lines has a box mostly of cells no tap needs)
+    GA = np.zeros((1, ncell))
+    Gc = np.zeros((1, ncell, 2))
+    Gt = np.zeros((1, ncell, R))
+    need = np.zeros(ncell, np.bool_)
+    live = np.zeros(ncell, np.bool_)
     D = np.zeros((m, P))
     dD_dc = np.zeros((m, P, 2))
     dD_dt = np.zeros((m, P, R))
@@ -238,10 +243,27 @@ def _grid_wedge_model(centres, s, c, uu, first, second, widen, Z, W, dW):
     for j in range(m):
         n = s[j]
         x0, y0, nx, ny = box[j, 0], box[j, 1], box[j, 2], box[j, 3]
-        for iy in range(ny):
-            for ix in range(nx):
-                _sharp_pixel(j, n, iy * nx + ix, (x0 + ix) - c[j, 0], (y0 + iy) - c[j, 1],
-                             uu, first, second, half, GA, Gc, Gt)
+        need[:nx * ny] = False
+        for p in range(P):
+            px = int(centres[n, p, 0]) - x0
+            py = int(centres[n, p, 1]) - y0
+            for q in range(M):
+                if W[j, q] != 0.0 or dW[j, q] != 0.0:
+                    need[(py + int(Z[j, q, 1])) * nx + px + int(Z[j, q, 0])] = True
+        for k in range(nx * ny):
+            if need[k]:
+                GA[0, k] = 0.0
+                Gc[0, k, 0] = 0.0
+                Gc[0, k, 1] = 0.0
+                for i in range(R):
+                    Gt[0, k, i] = 0.0
+                iy, ix = k // nx, k % nx
+                _sharp_pixel(0, n, k, (x0 + ix) - c[j, 0], (y0 + iy) - c[j, 1],
+                             uu[j:j + 1], first, second, half, GA, Gc, Gt)
+                # a cell no ray crosses has +-0 derivatives: adding them changes no sum
+                live[k] = Gc[0, k, 0] != 0.0 or Gc[0, k, 1] != 0.0
+                for i in range(R):
+                    live[k] = live[k] or Gt[0, k, i] != 0.0
         for p in range(P):
             px = int(centres[n, p, 0]) - x0
             py = int(centres[n, p, 1]) - y0
@@ -251,12 +273,14 @@ def _grid_wedge_model(centres, s, c, uu, first, second, widen, Z, W, dW):
                 if wq == 0.0 and dwq == 0.0:
                     continue
                 k = (py + int(Z[j, q, 1])) * nx + px + int(Z[j, q, 0])
-                D[j, p] += wq * GA[j, k]
-                dD_ds[j, p] += dwq * GA[j, k]
-                dD_dc[j, p, 0] += wq * Gc[j, k, 0]
-                dD_dc[j, p, 1] += wq * Gc[j, k, 1]
+                D[j, p] += wq * GA[0, k]
+                dD_ds[j, p] += dwq * GA[0, k]
+                if not live[k]:
+                    continue
+                dD_dc[j, p, 0] += wq * Gc[0, k, 0]
+                dD_dc[j, p, 1] += wq * Gc[0, k, 1]
                 for i in range(R):
-                    dD_dt[j, p, i] += wq * Gt[j, k, i]
+                    dD_dt[j, p, i] += wq * Gt[0, k, i]
     return D, dD_dc, dD_dt, dD_ds
 
 
@@ -434,12 +458,16 @@ without its three temporary (m,K,K) arrays'''
 
 
 @njit(cache=True, error_model="numpy")
-def window_mask(ix, iy, q0, Ainv, half_box, notch, max_px, H, W):
+def window_mask(ix, iy, q0, Ainv, half_box, notch, max_px, lines_box, strip_px, lines_px, H, W):
     r'''inside, on_image (n,P) of each corner's window (targets.corners._window, whose
 numpy arithmetic this repeats pixel by pixel in the same order): pixel (ix, iy) is inside
 when every corner of its square maps by Ainv (n,2,2) to board offsets within half_box (n,)
 of q0 (n,2) along both axes, not past notch (n,; NaN: no notch) along both at once, and
-its centre is within max_px of q0; on_image when it lies in the (H, W) image'''
+its centre is within max_px of q0; or, where lines_box (n,) is finite, when its centre
+lies within strip_px (px) of one of the board axes' lines through q0 and lines_px of q0
+along both image axes (lines_px (n,)), and its square within lines_box board units along
+both board axes (strips along a chessboard corner's two lines); on_image when it lies in the (H, W)
+image'''
     n, P = ix.shape
     inside = np.zeros((n, P), np.bool_)
     on_image = np.zeros((n, P), np.bool_)
@@ -447,29 +475,47 @@ its centre is within max_px of q0; on_image when it lies in the (H, W) image'''
         a00, a01, a10, a11 = Ainv[j, 0, 0], Ainv[j, 0, 1], Ainv[j, 1, 0], Ainv[j, 1, 1]
         hb = half_box[j]
         nt = notch[j]
+        lb = lines_box[j]
+        strips = not np.isnan(lb)
+        # px per board unit across each axis' line: board offset v / |row 1| is the
+        # distance from the u axis' line (and u / |row 0| from the v axis')
+        n0 = np.sqrt(a00 * a00 + a01 * a01)
+        n1 = np.sqrt(a10 * a10 + a11 * a11)
         for p in range(P):
             x = ix[j, p]
             y = iy[j, p]
             on_image[j, p] = x >= 0 and x < W and y >= 0 and y < H
             dx = x - q0[j, 0]
             dy = y - q0[j, 1]
-            if not (abs(dx) <= max_px and abs(dy) <= max_px):
-                continue
-            ok = True
-            umax = -np.inf
-            vmax = -np.inf
-            for k in range(4):
-                rx = dx + _SX[k]
-                ry = dy + _SY[k]
-                bu = a00 * rx + a01 * ry
-                bv = a10 * rx + a11 * ry
-                if not (abs(bu) <= hb and abs(bv) <= hb):
-                    ok = False
-                    break
-                umax = max(umax, bu)
-                vmax = max(vmax, bv)
-            if ok and not np.isnan(nt):
-                ok = not (umax > nt and vmax > nt)
+            ok = False
+            if abs(dx) <= max_px and abs(dy) <= max_px:
+                ok = True
+                umax = -np.inf
+                vmax = -np.inf
+                for k in range(4):
+                    rx = dx + _SX[k]
+                    ry = dy + _SY[k]
+                    bu = a00 * rx + a01 * ry
+                    bv = a10 * rx + a11 * ry
+                    if not (abs(bu) <= hb and abs(bv) <= hb):
+                        ok = False
+                        break
+                    umax = max(umax, bu)
+                    vmax = max(vmax, bv)
+                if ok and not np.isnan(nt):
+                    ok = not (umax > nt and vmax > nt)
+            if not ok and strips and abs(dx) <= lines_px[j] and abs(dy) <= lines_px[j]:
+                cu = a00 * dx + a01 * dy
+                cv = a10 * dx + a11 * dy
+                if abs(cv) <= strip_px * n1 or abs(cu) <= strip_px * n0:
+                    ok = True
+                    for k in range(4):
+                        rx = dx + _SX[k]
+                        ry = dy + _SY[k]
+                        if not (abs(a00 * rx + a01 * ry) <= lb
+                                and abs(a10 * rx + a11 * ry) <= lb):
+                            ok = False
+                            break
             inside[j, p] = ok
     return inside, on_image
 

@@ -370,12 +370,59 @@ board units. Never above half_box (the sharp image's window).
     return np.minimum(float(half_box), np.where(np.isfinite(hb), hb, float(half_box)))
 
 
-def _window(q0, steps, half_box, shape, max_px, notch=None):
+def line_strips(steps, clearance, sigma, curvature):
+    r'''The strips a blurred chessboard corner's window adds along its two lines:
+(lines_box (N,), strip_px, lines_px (N,)); lines_box NaN where there are none; see
+refine_corners
+
+Each line through an X junction is a straight edge as far as the next corner, a square
+away, whose perpendicular line the blur spreads BLUR_REACH_SIGMAS sigma px towards it:
+the strips keep to clearance (board units, a number or (N,)) less that reach less
+LINES_SLACK (the local affine map's error there) along both board axes. Across a line a
+pixel's value moves with the line's offset as the edge profile's slope, a Gaussian of
+sigma_e = sqrt(added blur^2 + 1/12) px (the pixel's own square), so its information as
+the slope squared, a Gaussian of sigma_e / sqrt(2): the pixels whose centres lie within
+STRIP_SIGMAS sigma_e of the line hold 99.5% of it (strip_px; the window's box has the
+light levels). Along it the noise of the line's offset at the corner falls as
+1 / sqrt(length), and the edge information per px of line as 1 / sigma_e: lines_px =
+MAX_WINDOW_PX x sigma_e / sqrt(1/12), the length whose information is the sharp
+window's (MAX_WINDOW_PX of a sharp edge, sigma_e = sqrt(1/12)): 22 px at the
+`realistic` profile's 0.7 px (its sampled kernel adds 0.755 px), where the box alone
+(MAX_WINDOW_PX) left the corner noise 1.7x the sharp window's per unit of image noise.
+
+A bent line (curvature (N,), 1/px: the larger of the corner's two lines') leaves its
+tangent by kappa s^2 / 2 at s px, and a straight line fitted over +-L moves by about its
+mean, kappa L^2 / 6: curvature_bias removes that, but the window's length depends on the
+curvature, which the detector estimates from its grid (its second differences) and the
+calibrators' bias step takes from the model: 10% between them moves that bias by ~10%.
+So the strips end where it reaches LINES_BIAS_PX (10% of it is 1e-4 px, a fiftieth of
+the bar's 0.005). Where that leaves no more than the box, no strips (NaN; NaN curvature:
+none either): a fisheye's bent lines (MER hazcams, kappa ~1e-3 / px) keep the box alone.
+'''
+    steps = np.asarray(steps, dtype=np.float64).reshape(-1, 2, 2)
+    sigma = float(sigma)
+    se = math.sqrt(added_blur_px(sigma, "sampled") ** 2 + 1.0 / 12.0)
+    box = blurred_half_box(steps, np.inf, clearance, sigma) - LINES_SLACK
+    k = np.abs(np.broadcast_to(np.asarray(curvature, dtype=np.float64), (len(steps),)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bent = np.sqrt(6.0 * LINES_BIAS_PX / k)
+    reach = np.minimum(MAX_WINDOW_PX * se * math.sqrt(12.0), bent)
+    none = ~(reach > MAX_WINDOW_PX)
+    box = np.where(none, np.nan, box)
+    reach = np.where(none, 0.0, reach)
+    return box, STRIP_SIGMAS * se, reach
+
+
+def _window(q0, steps, half_box, shape, max_px, notch=None, strips=None):
     r'''(N,P) pixel indices ix, iy and mask of each corner's window (half_box: a number
 or (N,) per corner; notch: None, or a number or (N,): the pixels reaching past notch board
-units along both axes at once are left out, an L-shaped window)'''
+units along both axes at once are left out, an L-shaped window; strips: None, or
+line_strips' (lines_box, strip_px, lines_px): the pixels along the board axes' lines
+added)'''
     half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (len(q0),))
-    r = int(max_px)
+    lines_box, strip_px, lines_px = (np.full(len(q0), np.nan), 0.0, np.zeros(len(q0))) \
+        if strips is None else strips
+    r = int(max(max_px, np.max(lines_px, initial=0.0)))
     off = np.arange(-r, r + 1)
     oy, ox = np.meshgrid(off, off, indexing="ij")
     ox, oy = ox.ravel(), oy.ravel()
@@ -387,18 +434,21 @@ units along both axes at once are left out, an L-shaped window)'''
     from ._corner_kernels import window_mask
     notch = np.full(len(q0), np.nan) if notch is None else \
         np.broadcast_to(np.asarray(notch, dtype=np.float64), (len(q0),))
+    lines_box = np.broadcast_to(np.asarray(lines_box, dtype=np.float64), (len(q0),))
     # writable C arrays always (broadcast_to's are read-only): one compiled signature, the
     # one harness.warmup compiles
-    q0, Ainv, half_box, notch = (np.require(a, np.float64, ("C", "W"))
-                                 for a in (q0, np.linalg.inv(steps), half_box, notch))
+    q0, Ainv, half_box, notch, lines_box, lines_px = (
+        np.require(a, np.float64, ("C", "W"))
+        for a in (q0, np.linalg.inv(steps), half_box, notch, lines_box, lines_px))
     inside, on_image = window_mask(ix, iy, q0, Ainv, half_box, notch, float(max_px),
+                                   lines_box, float(strip_px), lines_px,
                                    int(shape[0]), int(shape[1]))
     return ix, iy, inside, on_image
 
 
 def refine_corners(image, q0, directions, wedges, steps, half_box, *, psf_sigma_px=None,
                    psf_kind=None, clearance=None, lines=(), notch=None, notch_clearance=None,
-                   stop_if_blurred=False, **options):
+                   stop_if_blurred=False, line_curvature=None, **options):
     r'''Refine corners by fitting the area-sampled wedge model; see the module docstring
 
 SYNOPSIS
@@ -425,7 +475,10 @@ ARGUMENTS
   axes, a number or (N,) one per corner (default half_box: no room to spare): the window
   shrinks so that the blurred feature stays out of it (blurred_half_box)
 - lines: pairs of rays (i, j) that are one straight line through the corner (a
-  chessboard's); fitted as one angle when the image is blurred
+  chessboard's); fitted as one angle when the image is blurred, the blurred fit's window
+  then adding strips along them (line_strips) as far as line_curvature allows: a
+  function of the first pass's corners (N,2) (NaN where dropped) giving the lines'
+  curvature at each corner (N,), 1/px; default None: no strips
 - notch: None (the window is the box), or board units: the pixels reaching past notch
   along both axes at once (the quadrant the steps' columns point into) are left out, an
   L-shaped window about a corner whose model holds only in a strip along its edges there
@@ -557,7 +610,14 @@ the estimate's spread.
                          info=dict(info, stopped="blurred: first pass only"))
     hb2 = blurred_half_box(steps2, half_box, clearance[ok], sigma)
     nb2 = notched(steps2, sigma)
-    fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, hb2, notch=nb2, sigma=sigma, **options)
+    # a blurred X junction's lines are straight edges a square long: the window adds
+    # strips along them (line_strips)
+    # (the first pass's corners give the curvature: the coarse ones, ~0.1 px off, read
+    # ~7e-5 / px on a navcam's straight 45 px squares, which would end its strips at 8 px)
+    strips = line_strips(steps2, clearance[ok], sigma, line_curvature(fit.q)[ok]) \
+        if sigma > 0.0 and len(lines) and line_curvature is not None else None
+    fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, hb2, notch=nb2, sigma=sigma,
+                strips=strips, **options)
     q, reasons = fit.q.copy(), fit.reasons.copy()
     misfit, npix, directions = fit.misfit.copy(), fit.npixels.copy(), fit.directions.copy()
     if nb2 is not None:
@@ -674,7 +734,7 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, notch=None,
          max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
          converged_px=CONVERGED_PX, kernel="numba", value_range=None, sigma=0.0,
-         fit_sigma=False, lines=(), psf_kind="gaussian"):
+         fit_sigma=False, lines=(), psf_kind="gaussian", strips=None):
     r'''One pass of refine_corners (the window about q0, half_box a number or (N,); widen:
 see wedge_area; kernel: "numba" the compiled pixel-area model of targets._corner_kernels,
 "numpy" wedge_area's; sigma: the Gaussian blur, px, fitted per corner from there with
@@ -705,8 +765,11 @@ line through the corner when sigma > 0)'''
     half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (N,))
     if notch is not None:
         notch = np.broadcast_to(np.asarray(notch, dtype=np.float64), (N,))[idx]
+    if strips is not None:
+        strips = (np.broadcast_to(np.asarray(strips[0], dtype=np.float64), (N,))[idx],
+                  strips[1], np.broadcast_to(np.asarray(strips[2], dtype=np.float64), (N,))[idx])
     ix, iy, inside, on_image = _window(q0[idx], steps[idx], half_box[idx], img.shape,
-                                       max_window_px, notch)
+                                       max_window_px, notch, strips)
     off = (inside & ~on_image).any(axis=-1)
     n_in = (inside & on_image).sum(axis=-1)
     npix[idx] = n_in
@@ -908,6 +971,15 @@ CHESSBOARD_CLEARANCE = 1.0
 # a chessboard corner's rays (refine_chessboard_corners, corner_rays: +x, +y, -x, -y along
 # the board) that are one straight line through it, tied when the image is blurred
 CHESSBOARD_LINES = ((0, 2), (1, 3))
+# board units a blurred chessboard corner's line strips keep short of the next feature's
+# blur (line_strips) for the local affine map's error there: the steps are central
+# differences over a square either side, and a board's perspective and the lens' scale
+# change the step across a square by a few %; as an AprilTag window's TAG_SLACK_BITS
+LINES_SLACK = 0.2
+# the line strips' half-width in the edge profile's sigma (line_strips)
+STRIP_SIGMAS = 2.0
+# the largest bias (px) of a straight line fitted over a bent line's strips (line_strips)
+LINES_BIAS_PX = 1e-3
 
 
 def refine_tag_corners(image, Q, half_box=TAG_HALF_BOX_BITS, clearance=TAG_CLEARANCE_BITS,
@@ -1010,8 +1082,37 @@ The four edges at a corner run along the grid lines towards the neighbouring cor
     ey = _grid_step(G, axis=0)
     dirs = np.stack((ex, ey, -ex, -ey), axis=2).reshape(-1, 4, 2)
     steps = np.stack((ex, ey), axis=-1).reshape(-1, 2, 2)
+
+    def kappa(q):
+        Q = q.reshape(G.shape)
+        # NaN where either line's curvature is unknown (a corner on the grid's edge): its
+        # strips would follow that line too
+        return np.maximum(_grid_curvature(Q, axis=1), _grid_curvature(Q, axis=0)).ravel()
     return refine_corners(image, G.reshape(-1, 2), dirs, [(0, 1), (2, 3)], steps, half_box,
-                          clearance=clearance, lines=CHESSBOARD_LINES, **options)
+                          clearance=clearance, lines=CHESSBOARD_LINES, line_curvature=kappa,
+                          **options)
+
+
+def _grid_curvature(G, axis):
+    r'''(ny,nx) curvature (1/px) of the grid line along an axis at each corner: the turn
+from the step before it to the step after it over their mean length; a corner at the
+line's end takes the next corner's (the same line a square on); NaN where neither has
+both neighbours'''
+    fwd = np.full(G.shape, np.nan)
+    bwd = np.full(G.shape, np.nan)
+    if axis == 1:
+        fwd[:, :-1] = G[:, 1:] - G[:, :-1]
+        bwd[:, 1:] = G[:, 1:] - G[:, :-1]
+    else:
+        fwd[:-1] = G[1:] - G[:-1]
+        bwd[1:] = G[1:] - G[:-1]
+    turn = np.arctan2(_cross(bwd, fwd), (bwd * fwd).sum(-1))
+    k = np.abs(turn) / (0.5 * (np.linalg.norm(fwd, axis=-1) + np.linalg.norm(bwd, axis=-1)))
+    k = np.moveaxis(k, axis, 0).copy()
+    if len(k) > 2:
+        k[0] = np.where(np.isnan(k[0]), k[1], k[0])
+        k[-1] = np.where(np.isnan(k[-1]), k[-2], k[-1])
+    return np.moveaxis(k, 0, axis)
 
 
 def _grid_step(G, axis):
@@ -1110,8 +1211,13 @@ one (docs/corners.md, "The lines' bias under blur").
     if sigma > 0.0:
         clearance = np.broadcast_to(np.asarray(half_box if clearance is None else clearance,
                                                dtype=np.float64), (N,))
+        strips = line_strips(steps[idx], clearance[idx], sigma, np.abs(k[idx]).max(-1)) \
+            if len(lines) else None
         half_box = blurred_half_box(steps[idx], half_box, clearance[idx], sigma)
-    ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px, notch)
+    else:
+        strips = None
+    ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px, notch,
+                                strips)
     w = inside.astype(np.float64)
     taps = 0
     if sigma > 0.0:
@@ -1121,7 +1227,8 @@ one (docs/corners.md, "The lines' bias under blur").
         # both axes, rows first): k is W's row sums
         k1 = W[0].reshape(2 * taps + 1, 2 * taps + 1).sum(axis=1)
         # the window's square (rows of oy, then ox, as _window's) grown by the taps' reach
-        r = int(max_window_px) + taps
+        r = int(max(max_window_px, 0.0 if strips is None else np.max(strips[2], initial=0.0))) \
+            + taps
         off = np.arange(-r, r + 1)
         oy, ox = np.meshgrid(off, off, indexing="ij")
         c0 = np.round(q[idx]).astype(np.int64)

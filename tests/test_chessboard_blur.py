@@ -211,3 +211,55 @@ other corner a square from the next one; corner_rays hands the same to the bias 
     centres = np.array(t.spec["orientation_mark"]["squares"], dtype=float) - 0.5
     assert np.isclose(np.abs(p[:, None] - centres[None]).max(-1), 0.5).any(-1).all()
     assert np.array_equal(corner_rays(t)[3]["clearance"], c)
+
+
+def test_line_strips_follow_the_blur_and_the_squares():
+    r'''The strips a blurred X junction's window adds along its lines: as long as the
+sharp window's MAX_WINDOW_PX in edge information (x sigma_e / sqrt(1/12): 22 px at the
+realistic 0.7 px, whose sampled kernel adds 0.755 px: a pixel-integrated Gaussian),
+STRIP_SIGMAS edge-profile sigmas wide, and a square less the next line's blur reach and
+LINES_SLACK long in board units; a bent line's strips end where a straight line's mean
+offset over them, kappa L^2 / 6, reaches LINES_BIAS_PX, none where that is in the box'''
+    from targets.corners import (
+        LINES_BIAS_PX,
+        LINES_SLACK,
+        MAX_WINDOW_PX,
+        STRIP_SIGMAS,
+        line_strips,
+    )
+    steps = np.array([[[44.0, 3.0], [-2.0, 40.0]]])
+    box, strip, reach = line_strips(steps, 1.0, 0.7, 0.0)
+    se = np.sqrt(added_blur_px(0.7, "sampled") ** 2 + 1.0 / 12.0)
+    assert 0.75 < added_blur_px(0.7, "sampled") < 0.76
+    assert reach == pytest.approx(MAX_WINDOW_PX * se * np.sqrt(12.0), rel=1e-12)
+    assert 22.0 < reach < 22.8
+    assert strip == pytest.approx(STRIP_SIGMAS * se, rel=1e-12)
+    smin = np.linalg.svd(steps[0], compute_uv=False)[-1]
+    assert box[0] == pytest.approx(1.0 - 3.0 * 0.7 / smin - LINES_SLACK, rel=1e-12)
+    # a line bent by kappa leaves its tangent by kappa s^2 / 2 at s px
+    steps3 = np.repeat(steps, 3, axis=0)
+    box, _, reach = line_strips(steps3, 1.0, 0.7, [2e-5, 1e-3, np.nan])
+    assert 2e-5 * reach[0] ** 2 / 6.0 == pytest.approx(LINES_BIAS_PX)    # 17.3 px
+    assert reach[1] == 0.0 and np.isnan(box[1])     # 2.4 px: within the box
+    assert reach[2] == 0.0 and np.isnan(box[2])
+
+
+def test_blurred_corner_window_holds_its_line_strips():
+    r'''On squares of 44 px (a navcam's) the blurred fit's window reaches along straight
+lines past the MAX_WINDOW_PX box ((2 x 8 + 1)^2 = 289 pixels at most): the box's pixels
+plus four strips of ~14 px (22 - 8) by ~3 px; noise-free, the corner is where it is (the
+model is exact for the sampled kernel: 2e-3 px, as on 19 px squares). Without the lines'
+curvature (refine_chessboard_corners takes it from the first pass's grid, NaN where a
+neighbour is missing, as here) the box alone'''
+    from targets.corners import CHESSBOARD_HALF_BOX, CHESSBOARD_LINES, refine_corners
+    img, q, dirs, steps = _chessboard_corner_image(0.7, "sampled", seed=None, size=100,
+                                                   c=(49.37, 50.81))
+    steps = steps * (44.0 / 19.0)
+    args = (img, q + 0.2, dirs, [(0, 1), (2, 3)], steps, CHESSBOARD_HALF_BOX)
+    opts = dict(clearance=1.0, lines=CHESSBOARD_LINES, psf_sigma_px=0.7, psf_kind="sampled")
+    fit = refine_corners(*args, line_curvature=lambda q: np.zeros(len(q)), **opts)
+    assert 289 + 4 * 13 * 2 < fit.npixels[0] < 289 + 4 * 15 * 5, fit.npixels[0]
+    assert np.linalg.norm(fit.q[0] - q[0]) < 2e-3
+    box = refine_corners(*args, **opts)
+    assert box.npixels[0] <= 289
+    assert np.linalg.norm(box.q[0] - q[0]) < 2e-3
