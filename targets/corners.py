@@ -1093,11 +1093,9 @@ The four edges at a corner run along the grid lines towards the neighbouring cor
                           **options)
 
 
-def _grid_curvature(G, axis):
-    r'''(ny,nx) curvature (1/px) of the grid line along an axis at each corner: the turn
-from the step before it to the step after it over their mean length; a corner at the
-line's end takes the next corner's (the same line a square on); NaN where neither has
-both neighbours'''
+def _grid_differences(G, axis):
+    r'''(fwd, bwd) (ny,nx,2): each corner's image step to the next and from the previous corner
+along an axis, NaN where that neighbour is beyond the grid'''
     fwd = np.full(G.shape, np.nan)
     bwd = np.full(G.shape, np.nan)
     if axis == 1:
@@ -1106,6 +1104,15 @@ both neighbours'''
     else:
         fwd[:-1] = G[1:] - G[:-1]
         bwd[1:] = G[1:] - G[:-1]
+    return fwd, bwd
+
+
+def _grid_curvature(G, axis):
+    r'''(ny,nx) curvature (1/px) of the grid line along an axis at each corner: the turn
+from the step before it to the step after it over their mean length; a corner at the
+line's end takes the next corner's (the same line a square on); NaN where neither has
+both neighbours'''
+    fwd, bwd = _grid_differences(G, axis)
     turn = np.arctan2(_cross(bwd, fwd), (bwd * fwd).sum(-1))
     k = np.abs(turn) / (0.5 * (np.linalg.norm(fwd, axis=-1) + np.linalg.norm(bwd, axis=-1)))
     k = np.moveaxis(k, axis, 0).copy()
@@ -1118,14 +1125,7 @@ both neighbours'''
 def _grid_step(G, axis):
     r'''(ny,nx,2) image step to the next corner along an axis: central difference where both
 neighbours are found, else one-sided, NaN for a corner with neither'''
-    fwd = np.full(G.shape, np.nan)
-    bwd = np.full(G.shape, np.nan)
-    if axis == 1:
-        fwd[:, :-1] = G[:, 1:] - G[:, :-1]
-        bwd[:, 1:] = G[:, 1:] - G[:, :-1]
-    else:
-        fwd[:-1] = G[1:] - G[:-1]
-        bwd[1:] = G[1:] - G[:-1]
+    fwd, bwd = _grid_differences(G, axis)
     both = 0.5 * (fwd + bwd)
     return np.where(np.isfinite(both), both, np.where(np.isfinite(fwd), fwd, bwd))
 
