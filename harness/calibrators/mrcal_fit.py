@@ -544,15 +544,19 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
         d = d[w]
         return float(np.sqrt(np.mean((d * d).sum(axis=-1))))
 
-    def solve(step=1, **flags):
-        nonlocal iterations
+    def problem_kw(step=1, **flags):
+        # mrcal's arguments for the problem on the grid of every step-th row and column
         kw = dict(problem)
         kw.update(flags)
         if step > 1:
             kw["observations_board"] = np.ascontiguousarray(
                 problem["observations_board"][:, ::step, ::step])
             kw["calibration_object_spacing"] = spacing * step
-        mrcal.optimize(**kw)
+        return kw
+
+    def solve(step=1, **flags):
+        nonlocal iterations
+        mrcal.optimize(**problem_kw(step, **flags))
         iterations += 1  # mrcal does not report its solver's iteration count
         if not np.all(np.isfinite(problem["intrinsics"])):
             raise CalibrationFailed("diverged: mrcal returned non-finite intrinsics")
@@ -683,14 +687,10 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
         for n in range(limit):
             u_before = valley_u()
             if VALLEY_LM and u_before is not None and not known_poses and not lm_off:
-                kw = dict(problem, do_optimize_intrinsics_core=True,
-                          do_optimize_intrinsics_distortions=True)
-                if step > 1:
-                    kw["observations_board"] = np.ascontiguousarray(
-                        problem["observations_board"][:, ::step, ::step])
-                    kw["calibration_object_spacing"] = spacing * step
                 before = _snapshot(problem)
-                _valley_lm(kw, problem, nint, VALLEY_LM)
+                _valley_lm(problem_kw(step, do_optimize_intrinsics_core=True,
+                                      do_optimize_intrinsics_distortions=True),
+                           problem, nint, VALLEY_LM)
                 cx, cy = problem["intrinsics"][0, 2:4]
                 if 0.0 <= cx <= W - 1 and 0.0 <= cy <= H - 1:
                     u_before = None
