@@ -109,32 +109,27 @@ instead of loading them itself on its first job: numba's typing and target regis
 took 0.45 s of the first job's pose planning in each worker, the detectors' kernels 0.3-0.5 s
 of its first detection (paper campaign, idle). Only what is certainly current loads: a
 signature in its kernel's cache index (numba's stamp of the kernel's own source), an index
-no older than reference_models/kernels.py (drop_stale_caches' rule; the warm-up drops the
-stale ones later, in the campaign's process). A kernel missing or stale here is loaded or
-compiled by the worker on first call, as without this. Parallel kernels (the ray caster's
+no older than reference_models/kernels.py (reference_models.kernels.stale_cache,
+drop_stale_caches' rule; the warm-up drops the stale ones later, in the campaign's
+process). A kernel missing or stale here is loaded or compiled by the worker on first
+call, as without this. Parallel kernels (the ray caster's
 bands) are left to the workers: loading one starts numba's thread pool, which a fork does
 not carry over. Never raises: numba's private cache API changing costs only the time.'''
-    import os
-
-    import reference_models.kernels as rk
+    from reference_models.kernels import stale_cache
     n = 0
     try:
         from numba.core.registry import cpu_target
         cpu_target.typing_context.refresh()
         cpu_target.target_context.refresh()
-        source = os.path.getmtime(rk.__file__)
         for modname in _kernel_modules():
             for kernel in _entry_points(modname):
-                cache = kernel._cache
-                index = cache._cache_file._index_path
-                if (kernel.targetoptions.get("parallel") or not os.path.exists(index)
-                        or os.path.getmtime(index) < source):
+                if kernel.targetoptions.get("parallel") or stale_cache(kernel):
                     continue
-                for key in cache._cache_file._load_index():
+                for key in _numba_cache_index(kernel):
                     sig = key[0]    # (signature, target machine, ...)
                     if sig in kernel.overloads:
                         continue
-                    cres = cache.load_overload(sig, kernel.targetctx)
+                    cres = kernel._cache.load_overload(sig, kernel.targetctx)
                     if cres is None:
                         continue
                     # what numba's Dispatcher.compile does with a cache hit

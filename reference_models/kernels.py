@@ -656,12 +656,18 @@ RETURNED VALUE
 
 The names of the kernels whose cache was dropped.
 '''
-    source = os.path.getmtime(__file__)
     dropped = []
     for kernel in dispatchers:
-        cache = getattr(kernel, "_cache", None)
-        path = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
-        if path and os.path.exists(path) and os.path.getmtime(path) < source:
-            cache.flush()
+        if stale_cache(kernel):
+            kernel._cache.flush()
             dropped.append(kernel.__name__)
     return dropped
+
+
+def stale_cache(kernel):
+    r'''True when numba's on-disk cache index of a kernel that calls the functions here is
+older than this file (drop_stale_caches' rule); False without an index or a cache'''
+    path = getattr(getattr(getattr(kernel, "_cache", None), "_cache_file", None),
+                   "_index_path", None)
+    return bool(path) and os.path.exists(path) and \
+        os.path.getmtime(path) < os.path.getmtime(__file__)
