@@ -109,11 +109,12 @@ instead of loading them itself on its first job: numba's typing and target regis
 took 0.45 s of the first job's pose planning in each worker, the detectors' kernels 0.3-0.5 s
 of its first detection (paper campaign, idle). Only what is certainly current loads: a
 signature in its kernel's cache index (numba's stamp of the kernel's own source), an index
-no older than reference_models/kernels.py (reference_models.kernels.stale_cache,
-drop_stale_caches' rule; the warm-up drops the stale ones later, in the campaign's
-process). A kernel missing or stale here is loaded or compiled by the worker on first
-call, as without this. Parallel kernels (the ray caster's
-bands) are left to the workers: loading one starts numba's thread pool, which a fork does
+no older than reference_models/kernels.py for the COMPILED_MODULES that carry that file's
+code (reference_models.kernels.stale_cache, drop_stale_caches' rule; the warm-up drops the
+stale ones later, in the campaign's process; the other modules' caches do not depend on
+that file, so its mtime says nothing about them). A kernel missing or stale here is
+loaded or compiled by the worker on first call, as without this. Parallel kernels (the ray
+caster's bands) are left to the workers: loading one starts numba's thread pool, which a fork does
 not carry over. Never raises: numba's private cache API changing costs only the time.'''
     from reference_models.kernels import stale_cache
     n = 0
@@ -123,7 +124,8 @@ not carry over. Never raises: numba's private cache API changing costs only the 
         cpu_target.target_context.refresh()
         for modname in _kernel_modules():
             for kernel in _entry_points(modname):
-                if kernel.targetoptions.get("parallel") or stale_cache(kernel):
+                if kernel.targetoptions.get("parallel") or (
+                        modname in COMPILED_MODULES and stale_cache(kernel)):
                     continue
                 for key in _numba_cache_index(kernel):
                     sig = key[0]    # (signature, target machine, ...)

@@ -119,7 +119,8 @@ def test_warm_up_compiles_every_kernel_the_jobs_call(tmp_path):
     # the fork server's preload (harness.warmup.load_cached_kernels): its workers start with
     # the serial kernels of the current cache in memory, not the parallel ones (loading those
     # starts numba's thread pool, which a fork does not carry over); a cache older than
-    # reference_models/kernels.py is left to the workers (the warm-up drops it)
+    # reference_models/kernels.py is left to the workers for the modules that carry that
+    # file's code (the warm-up drops it); a detector's cache does not depend on it
     current, _ = _fresh_cache_script(tmp_path, _PRELOAD, "current")
     assert current["worker"]["targets._dot_kernels"], current
     assert all(n >= 1 for n in current["worker"]["targets._dot_kernels"].values()), current
@@ -127,8 +128,8 @@ def test_warm_up_compiles_every_kernel_the_jobs_call(tmp_path):
                                                                 "band_chords": 1}, current
     assert current["loaded"] > 10 and not current["threads"], current
     stale, _ = _fresh_cache_script(tmp_path, _PRELOAD, "stale")
-    assert set(stale["worker"]["targets._dot_kernels"].values()) == {0}, stale
-    assert stale["worker"]["renderers._raycast_kernels"]["band_chords"] == 1, stale
+    assert all(n >= 1 for n in stale["worker"]["targets._dot_kernels"].values()), stale
+    assert stale["worker"]["renderers._raycast_kernels"]["band_chords"] == 0, stale
 
 
 _PRELOAD = r'''
@@ -144,7 +145,8 @@ def main():
     import targets._dot_kernels as D
     if sys.argv[1] == "stale":
         t = os.path.getmtime(rk.__file__) - 60
-        for k in D.compiled_entry_points():
+        import renderers._raycast_kernels as R
+        for k in [*D.compiled_entry_points(), *R.compiled_entry_points()]:
             os.utime(k._cache._cache_file._index_path, (t, t))
     from harness.executors import local_pool
     with local_pool(2) as pool:
