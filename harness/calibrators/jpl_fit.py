@@ -31,7 +31,9 @@ The procedure:
    calibrator that can recover theta. The residuals project with the compiled
    projection of reference_models.kernels (model.project to < 1e-10 px).
 3. CAHVOR from the CAHV fit with O = A, R = 0 (O a unit vector like A), then
-   CAHVORE from the CAHVOR fit with E = 0, type and linearity fixed.
+   CAHVORE from the CAHVOR fit with E = 0, type and linearity fixed. A CAHVORE of
+   linearity < 1 (no CAHVOR inside it) starts instead from the CAHV fit of the points
+   near the image centre (_central), with O = A, R = E = 0.
 4. Second pass (bias_correction=True): each detection is corrected by the
    dot-centroid bias (expected centroid of the projected dot outline minus the
    projection of its centre) computed with the current model and the surveyed
@@ -76,6 +78,9 @@ LIBRARY = "scipy"
 MODELS = FAMILIES
 STAGES = {"CAHV": ("CAHV",), "CAHVOR": ("CAHV", "CAHVOR"),
           "CAHVORE": ("CAHV", "CAHVOR", "CAHVORE")}
+# fewest central points a CAHVORE's pinhole start is fitted to (_central): twice the CAHV
+# DLT's minimum of 6, so that a few points at the edge of the region do not decide it
+CENTRAL_MIN_POINTS = 12
 # residual given to the solver for a point the trial model cannot project
 UNPROJECTABLE_RESIDUAL = 1e4
 # smallest/largest singular value of the centred world points below which they are coplanar
@@ -308,11 +313,23 @@ SYNOPSIS
     # info: {"nfev": int, "stages": [...]}
 
 m0 (optional) starts the last stage from that model instead of the staged
-initialisation (the second pass starts from the first pass's result).
+initialisation (the second pass starts from the first pass's result). Without m0, a
+CAHVORE of linearity < 1 starts from the central points' CAHV (_central), its stages
+marked {"points": "central"}.
 '''
     nfev = 0
     stages = []
-    if m0 is None:
+    if m0 is None and family == "CAHVORE" and linearity is not None and linearity < 1:
+        # CAHVORE of linearity < 1 does not contain CAHVOR (E = 0 leaves its angular
+        # mapping, not perspective): a CAHVOR stage fitted over a wide field is a compromise
+        # from which the CAHVORE solver can stall (14-35 px on a constructed 116 deg
+        # CAHVORE, tests/test_jpl_fit.py). Its start is the pinhole of the central points
+        # instead, where the field angle is small and the mapping near perspective
+        m, info = fit_model(*_central(p, q, width, height), "CAHV", width, height)
+        nfev += info["nfev"]
+        stages += [dict(x, points="central") for x in info["stages"]]
+        todo = (family,)
+    elif m0 is None:
         m = dlt_cahv(p, q, width, height)
         todo = STAGES[family]
     else:
@@ -326,6 +343,22 @@ initialisation (the second pass starts from the first pass's result).
         stages.append({"family": stage, "nfev": int(sol.nfev), "status": int(sol.status),
                        "rms": float(np.sqrt(np.mean(r * r)))})
     return m, {"nfev": nfev, "stages": stages}
+
+
+def _central(p, q, width, height):
+    r'''(p, q) of the points within half the half-diagonal of the image centre, where a
+CAHVORE's field angle is smallest (its mapping nearest a pinhole): the start of a
+CAHVORE fit of linearity < 1 (fit_model). All points when fewer than CENTRAL_MIN_POINTS
+lie there or they are coplanar (the DLT needs two non-coplanar poses)'''
+    c = np.array([width, height], dtype=np.float64) / 2
+    inner = np.linalg.norm(q - c, axis=-1) < 0.5 * np.linalg.norm(c)
+    if inner.sum() < CENTRAL_MIN_POINTS:
+        return p, q
+    try:
+        check_not_coplanar(p[inner])
+    except CalibrationFailed:
+        return p, q
+    return p[inner], q[inner]
 
 
 def Rt_cam_board_of(model, Rt_ref_board):
