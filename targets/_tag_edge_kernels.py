@@ -30,7 +30,9 @@ fitted by Levenberg-Marquardt, each edge on its own (targets.tag_edges._fit_edge
 '''
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 # the moments _profile sums over an edge's pixels for its normal equations (_normal): with
 # g = F'(x) and t the position tau, sum g t^k, sum g F t^k, sum g v t^k (k = 0..3) and
@@ -711,9 +713,80 @@ the edge, in units of the contrast and the noise, its light level and contrast f
     return out
 
 
+@intrinsic
+def _fma(typingctx, a, b, c):
+    # a b + c rounded once (LLVM's llvm.fma: the hardware's instruction, else libm's fma)
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [d], ir.FunctionType(d, [d, d, d]))
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
+# how fit_pixels takes a piece of an edge's pixels: all of them in their own chord's frame
+# (tag_edge_pixels' t, s); all of them in the fit's frame; those of them at most reach px
+# beyond the fit's chord's end (u <= L + reach, u along it from its start); those at least
+# reach px before its start (u >= -reach)
+PIECE_OWN, PIECE_ALL, PIECE_BEYOND_END, PIECE_BEFORE_START = 0, 1, 2, 3
+
+
+@njit(cache=True, error_model="numpy")
+def fit_pixels(ix, iy, t, s, off, fit_off, piece_edge, piece_mode, piece_reach, P0, e, n, L):
+    r'''The pixels of every fit of targets.tag_edges' last pass, one fit after another: fit
+f is the pieces [fit_off[f], fit_off[f+1]) of piece_edge (edges of tag_edge_pixels: edge c's
+pixels are [off[c], off[c+1]) of ix, iy, t, s), each taken as piece_mode says (PIECE_OWN..,
+piece_reach its px), in the frame of the fit's chord (from P0[f] (F,2), direction e[f],
+normal n[f], length L[f]). Returns (out_off (F+1,), ix, iy, t, s): fit f's pixels are
+[out_off[f], out_off[f+1]).
+
+A pixel's t and s in the fit's frame are r.e and r.n, r its centre less P0, each rounded as
+fma(r_x, e_x, r_y e_y): as numpy's r @ e rounds them on this machine (OpenBLAS's dgemv
+kernel; 2 or more rows), which this replaced (targets.tag_edges: the corners the same
+bits).'''
+    F = len(L)
+    cap = 0
+    for c in range(len(piece_edge)):
+        cap += off[piece_edge[c] + 1] - off[piece_edge[c]]
+    oix = np.empty(cap, np.int64)
+    oiy = np.empty(cap, np.int64)
+    ot = np.empty(cap)
+    os_ = np.empty(cap)
+    out_off = np.zeros(F + 1, np.int64)
+    q = 0
+    for f in range(F):
+        out_off[f] = q
+        px, py = P0[f, 0], P0[f, 1]
+        ex, ey, nx, ny = e[f, 0], e[f, 1], n[f, 0], n[f, 1]
+        for c in range(fit_off[f], fit_off[f + 1]):
+            mode = piece_mode[c]
+            hi = L[f] + piece_reach[c]
+            lo = -piece_reach[c]
+            for p in range(off[piece_edge[c]], off[piece_edge[c] + 1]):
+                if mode == PIECE_OWN:
+                    tp, sp = t[p], s[p]
+                else:
+                    rx = ix[p] - px
+                    ry = iy[p] - py
+                    tp = _fma(rx, ex, ry * ey)
+                    if (mode == PIECE_BEYOND_END and not tp <= hi) or \
+                            (mode == PIECE_BEFORE_START and not tp >= lo):
+                        continue
+                    sp = _fma(rx, nx, ry * ny)
+                oix[q] = ix[p]
+                oiy[q] = iy[p]
+                ot[q] = tp
+                os_[q] = sp
+                q += 1
+    out_off[F] = q
+    return out_off, oix[:q], oiy[:q], ot[:q], os_[:q]
+
+
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
-    return (tag_edge_pixels, fit_edges, meet_curves, blur_step, plateau_counts,
+    return (tag_edge_pixels, fit_pixels, fit_edges, meet_curves, blur_step, plateau_counts,
             edge_moments, noise_moments, pixel_weights, sampled_table)

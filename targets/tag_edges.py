@@ -115,6 +115,10 @@ import math
 import numpy as np
 
 from ._tag_edge_kernels import (
+    PIECE_ALL,
+    PIECE_BEFORE_START,
+    PIECE_BEYOND_END,
+    PIECE_OWN,
     SPAN_FG,
     SPAN_G,
     SPAN_GG,
@@ -123,6 +127,7 @@ from ._tag_edge_kernels import (
     blur_step,
     edge_moments,
     fit_edges,
+    fit_pixels,
     meet_curves,
     noise_moments,
     pixel_weights,
@@ -377,20 +382,21 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             choice = _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits,
                                   (pix, piy, pt, ps, off), grid,
                                   _weights(line, img[piy, pix]))
-        geo = []
-        for (i, k), (ix, iy, t, s, L, e, n) in own.items():
+        # each fit: (i, k, L, e, n, cubic, start curve, end, weak) and its pieces, (its
+        # index, the edge whose pixels, how taken: targets._tag_edge_kernels.PIECE_OWN..,
+        # reach px); fit_pixels gathers them all in one pass
+        geo, pieces = [], []
+        for (i, k), (_, _, _, _, L, e, n) in own.items():
             # the first pass only places the second's pixels: each edge alone
             members = [m for m in (nbrs.get((i, k), []) if last else []) if m in own]
             if (i, k) in weak and last:
                 # a weak edge is placed by its board line's neighbours' dark sides only, on
-                # the one cubic through the three
-                jx = np.concatenate([ix] + [own[m][0] for m in members])
-                jy = np.concatenate([iy] + [own[m][1] for m in members])
-                r = np.stack((jx, jy), -1) - q[i, k]
-                if not members or not _sees_dark(r @ e, r @ n, L, start[(i, k)]):
+                # the one cubic through the three (_sees_dark, once its pixels are gathered)
+                if not members:
                     why_edge[i, k] = _EDGE_STATUS[2]
                     continue
-                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], 2))
+                pieces += [(len(geo), m, PIECE_ALL, 0.0) for m in [(i, k)] + members]
+                geo.append((i, k, L, e, n, True, start[(i, k)], 2, True))
                 continue
             ends = {}
             for m in members:
@@ -402,28 +408,26 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             for end in tags:
                 span, deg = picks[0 if end == 2 else end]
                 if span == "alone":
-                    geo.append((i, k, ix, iy, t, s, L, e, n, deg == 3, start[(i, k)], end))
-                    continue
-                if span == "line":
-                    jx = np.concatenate([ix] + [own[m][0] for m in members])
-                    jy = np.concatenate([iy] + [own[m][1] for m in members])
+                    pieces.append((len(geo), (i, k), PIECE_OWN, 0.0))
+                elif span == "line":
+                    pieces += [(len(geo), m, PIECE_ALL, 0.0) for m in [(i, k)] + members]
                 else:
                     # the neighbour's pixels out to NEIGHBOUR_REACH of its length past the
-                    # gap (u: px along this edge's chord from its corner k; this edge is 0..L)
+                    # gap (along this edge's chord from its corner k; this edge is 0..L)
                     m = ends[end]
-                    nb = np.stack((own[m][0], own[m][1]), -1) - q[i, k]
-                    u = nb @ e
                     reach_px = gap_bits * L / 8.0 + NEIGHBOUR_REACH * own[m][4]
-                    near = (u <= L + reach_px) if end == 1 else (u >= -reach_px)
-                    jx = np.concatenate((ix, own[m][0][near]))
-                    jy = np.concatenate((iy, own[m][1][near]))
-                r = np.stack((jx, jy), -1) - q[i, k]
-                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, deg == 3, start[(i, k)], end))
+                    pieces += [(len(geo), (i, k), PIECE_ALL, 0.0),
+                               (len(geo), m, PIECE_BEYOND_END if end == 1
+                                else PIECE_BEFORE_START, reach_px)]
+                geo.append((i, k, L, e, n, deg == 3, start[(i, k)], end, False))
         if not geo:
             # every edge seen from its light side only, none placed by its neighbours: each
             # has its reason
             break
-        E = _Edges(img, geo, reach, line)
+        geo, pixels = _fit_pixels(geo, pieces, q, (pix, piy, pt, ps, off), why_edge)
+        if not geo:
+            break
+        E = _Edges(img, geo, pixels, reach, line)
         if len(blurs) > 1:
             (sigma, kind), table, fits, info = _choose_kind(E, blurs)
             blurs = [(sigma, kind)]
@@ -432,7 +436,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             fits = _fit_contrast_first(E, table)
         curves = {}
         for (i, k, *_rest), p, ok, mis in zip(geo, *fits, strict=True):
-            end = _rest[-1]
+            end = _rest[-2]
             mis_edge[i, k] = np.fmax(mis_edge[i, k], mis) if last else mis
             if not ok:
                 why_edge[i, k] = f"edge fit not converged in {MAX_ITERATIONS} iterations"
@@ -441,7 +445,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             elif not mis <= max_misfit:
                 why_edge[i, k] = f"misfit: {mis:.3g} of the contrast"
             curves[(i, k, end)] = p[2:]
-        frames = {(g[0], g[1]): (g[6], g[7], g[8]) for g in geo}
+        frames = {(g[0], g[1]): (g[2], g[3], g[4]) for g in geo}
         good = np.isfinite(fits[2]) & fits[1]
         # the next pass's measure of the image's noise: the edges' median misfit (RMS over
         # the contrast; each edge alone, noise-free a quadratic's model error), and how it
@@ -1007,36 +1011,68 @@ converged (m,), misfit RMS / contrast (m,))'''
                      MAX_ITERATIONS, float(converged_px))
 
 
-class _Edges:
-    r'''The pixels of the edges geo in the arrays of targets._tag_edge_kernels.fit_edges
-(off, v, tau, s, cubic, j0, fy; d each edge's current curve, cubic term 0), with n (m,)
-each edge's pixel count, tag (m,) its tag and deep (m,): the edges whose band reaches the
-dark plateau (MIN_PLATEAU_PIXELS at least reach px inside the curve)'''
+def _fit_pixels(geo, pieces, q, pixels, why_edge):
+    r'''(geo, (off, ix, iy, t, s)): the pixels of the fits geo (refine_tag_edges' (i, k, L,
+e, n, cubic, start, end, weak)) gathered from their pieces (fit index, edge (i, k), how
+taken, reach px; targets._tag_edge_kernels.fit_pixels) out of tag_edge_pixels' pixels
+(ix, iy, t, s, off), fit j's [off[j], off[j+1]); a weak edge's fit is dropped (its
+reason in why_edge) where its pixels do not see the dark side beyond both its ends
+(_sees_dark)'''
+    ix, iy, t, s, off = pixels
+    fit, edge, mode, reach = zip(*pieces, strict=True)
+    fit = np.array(fit, dtype=np.int64)
+    edge = np.array(edge, dtype=np.int64).reshape(-1, 2)
+    fit_off = np.zeros(len(geo) + 1, np.int64)
+    np.cumsum(np.bincount(fit, minlength=len(geo)), out=fit_off[1:])
+    gi = np.array([g[0] for g in geo])
+    gk = np.array([g[1] for g in geo])
+    out = fit_pixels(ix, iy, t, s, off, fit_off, 4 * edge[:, 0] + edge[:, 1],
+                     np.array(mode, dtype=np.int64), np.array(reach, dtype=np.float64),
+                     np.ascontiguousarray(q[gi, gk]), np.array([g[3] for g in geo]),
+                     np.array([g[4] for g in geo]), np.array([g[2] for g in geo]))
+    fo, fx, fy, ft, fs = out
+    keep = np.ones(len(geo), bool)
+    for j, (i, k, L, _, _, _, d, _, weak) in enumerate(geo):
+        if weak and not _sees_dark(ft[fo[j]:fo[j + 1]], fs[fo[j]:fo[j + 1]], L, d):
+            why_edge[i, k] = _EDGE_STATUS[2]
+            keep[j] = False
+    if keep.all():
+        return geo, out
+    counts = np.diff(fo)[keep]
+    px = np.repeat(keep, np.diff(fo))
+    fo = np.zeros(len(counts) + 1, np.int64)
+    np.cumsum(counts, out=fo[1:])
+    return [g for g, k in zip(geo, keep, strict=True) if k], (fo, fx[px], fy[px], ft[px],
+                                                              fs[px])
 
-    def __init__(self, img, geo, reach, line=None):
+
+class _Edges:
+    r'''The pixels of the fits geo (refine_tag_edges': (i, k, L, e, n, cubic, start, end,
+weak)), gathered by _fit_pixels (off, ix, iy, t, s), in the arrays of
+targets._tag_edge_kernels.fit_edges (off, v, tau, s, cubic, j0, fy; d each edge's current
+curve, cubic term 0), with n (m,) each edge's pixel count, tag (m,) its tag and deep (m,):
+the edges whose band reaches the dark plateau (MIN_PLATEAU_PIXELS at least reach px inside
+the curve)'''
+
+    def __init__(self, img, geo, pixels, reach, line=None):
         m = self.m = len(geo)
-        # the entries' fields as columns (one pass over geo, then whole-array arithmetic)
-        tag, _, gx, gy, gt, gs, gL, _, gn, gc, gd, _ = zip(*geo, strict=True)
-        counts = np.fromiter(map(len, gx), dtype=np.int64, count=m)
+        self.off, ix, iy, t, s = pixels
+        counts = np.diff(self.off)
         self.n = counts.astype(np.float64)
-        self.off = np.zeros(m + 1, np.int64)
-        np.cumsum(counts, out=self.off[1:])
-        ix = np.concatenate(gx)
-        iy = np.concatenate(gy)
         self.v = img[iy, ix].astype(np.float64)
         self.w = _weights(line, self.v)
-        self.tau = 2.0 * np.concatenate(gt) / np.repeat(np.array(gL, dtype=np.float64),
-                                                         counts) - 1.0
-        self.s = np.concatenate(gs).astype(np.float64)
-        n = np.abs(np.stack(gn).astype(np.float64).reshape(m, 2))
+        self.tau = 2.0 * t / np.repeat(np.array([g[2] for g in geo], dtype=np.float64),
+                                       counts) - 1.0
+        self.s = s
+        n = np.abs(np.array([g[4] for g in geo], dtype=np.float64).reshape(m, 2))
         phi = np.arctan2(n.min(-1), n.max(-1))
-        self.cubic = np.array(gc, dtype=np.float64)
+        self.cubic = np.array([g[5] for g in geo], dtype=np.float64)
         fa = np.clip(phi / (np.pi / 4) * (TABLE_ANGLES - 1), 0.0, TABLE_ANGLES - 1.000001)
         self.j0 = fa.astype(np.int64)
         self.fy = fa - self.j0
-        d = np.stack(gd).astype(np.float64).reshape(m, 4)
+        d = np.array([g[6] for g in geo], dtype=np.float64).reshape(m, 4)
         self.d = d * [1, 1, 1, 0]
-        self.tag = np.array(tag, dtype=np.int64)
+        self.tag = np.array([g[0] for g in geo], dtype=np.int64)
         # about the start curves (cubic term kept, as the band was placed)
         self.deep = plateau_counts(self.off, self.tau, self.s, d, float(reach)) \
             >= MIN_PLATEAU_PIXELS
