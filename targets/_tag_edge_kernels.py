@@ -734,13 +734,15 @@ PIECE_OWN, PIECE_ALL, PIECE_BEYOND_END, PIECE_BEFORE_START = 0, 1, 2, 3
 
 
 @njit(cache=True, error_model="numpy")
-def fit_pixels(ix, iy, t, s, off, fit_off, piece_edge, piece_mode, piece_reach, P0, e, n, L):
-    r'''The pixels of every fit of targets.tag_edges' last pass, one fit after another: fit
-f is the pieces [fit_off[f], fit_off[f+1]) of piece_edge (edges of tag_edge_pixels: edge c's
-pixels are [off[c], off[c+1]) of ix, iy, t, s), each taken as piece_mode says (PIECE_OWN..,
-piece_reach its px), in the frame of the fit's chord (from P0[f] (F,2), direction e[f],
-normal n[f], length L[f]). Returns (out_off (F+1,), ix, iy, t, s): fit f's pixels are
-[out_off[f], out_off[f+1]).
+def fit_pixels(img, ix, iy, t, s, off, fit_off, piece_edge, piece_mode, piece_reach, P0, e, n,
+               L):
+    r'''The pixels of every fit of targets.tag_edges' last pass, one fit after another, as
+fit_edges takes them: fit f is the pieces [fit_off[f], fit_off[f+1]) of piece_edge (edges of
+tag_edge_pixels: edge c's pixels are [off[c], off[c+1]) of ix, iy, t, s), each taken as
+piece_mode says (PIECE_OWN.., piece_reach its px), in the frame of the fit's chord (from
+P0[f] (F,2), direction e[f], normal n[f], length L[f]). Returns (out_off (F+1,), v, t, tau,
+s): fit f's pixels are [out_off[f], out_off[f+1]), v their values in img (H,W) as float64,
+tau = 2 t / L[f] - 1.
 
 A pixel's t and s in the fit's frame are r.e and r.n, r its centre less P0, each rounded as
 fma(r_x, e_x, r_y e_y): as numpy's r @ e rounds them on this machine (OpenBLAS's dgemv
@@ -750,19 +752,19 @@ bits).'''
     cap = 0
     for c in range(len(piece_edge)):
         cap += off[piece_edge[c] + 1] - off[piece_edge[c]]
-    oix = np.empty(cap, np.int64)
-    oiy = np.empty(cap, np.int64)
+    ov = np.empty(cap)
     ot = np.empty(cap)
+    otau = np.empty(cap)
     os_ = np.empty(cap)
     out_off = np.zeros(F + 1, np.int64)
     q = 0
     for f in range(F):
         out_off[f] = q
         px, py = P0[f, 0], P0[f, 1]
-        ex, ey, nx, ny = e[f, 0], e[f, 1], n[f, 0], n[f, 1]
+        ex, ey, nx, ny, Lf = e[f, 0], e[f, 1], n[f, 0], n[f, 1], L[f]
         for c in range(fit_off[f], fit_off[f + 1]):
             mode = piece_mode[c]
-            hi = L[f] + piece_reach[c]
+            hi = Lf + piece_reach[c]
             lo = -piece_reach[c]
             for p in range(off[piece_edge[c]], off[piece_edge[c] + 1]):
                 if mode == PIECE_OWN:
@@ -775,13 +777,13 @@ bits).'''
                             (mode == PIECE_BEFORE_START and not tp >= lo):
                         continue
                     sp = _fma(rx, nx, ry * ny)
-                oix[q] = ix[p]
-                oiy[q] = iy[p]
+                ov[q] = np.float64(img[iy[p], ix[p]])
                 ot[q] = tp
+                otau[q] = 2.0 * tp / Lf - 1.0
                 os_[q] = sp
                 q += 1
     out_off[F] = q
-    return out_off, oix[:q], oiy[:q], ot[:q], os_[:q]
+    return out_off, ov[:q], ot[:q], otau[:q], os_[:q]
 
 
 def compiled_entry_points():

@@ -424,10 +424,10 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             # every edge seen from its light side only, none placed by its neighbours: each
             # has its reason
             break
-        geo, pixels = _fit_pixels(geo, pieces, q, (pix, piy, pt, ps, off), why_edge)
+        geo, pixels = _fit_pixels(img, geo, pieces, q, (pix, piy, pt, ps, off), why_edge)
         if not geo:
             break
-        E = _Edges(img, geo, pixels, reach, line)
+        E = _Edges(geo, pixels, reach, line)
         if len(blurs) > 1:
             (sigma, kind), table, fits, info = _choose_kind(E, blurs)
             blurs = [(sigma, kind)]
@@ -497,17 +497,12 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # a corner not found keeps its place for the next pass's chords (its edges are
         # fitted again, and judged there)
         q = np.where(np.isfinite(found), found, q)
-    reasons = np.full((N, 4), "", dtype=object)
-    for i in range(N):
-        for k in range(4):
-            a, b = (k - 1) % 4, k
-            r = why_edge[i, a] or why_edge[i, b]
-            if r:
-                reasons[i, k] = r
-            elif far[i, k]:
-                reasons[i, k] = "edges meet far from the corner"
-            elif not np.all(np.isfinite(found[i, k])):
-                reasons[i, k] = "edges do not meet near the corner"
+    # corner k's reason: its edge k-1's, else its edge k's, else where they met
+    before = np.roll(why_edge, 1, axis=1)
+    edges = np.where(before != "", before, why_edge)
+    met = np.where(far, "edges meet far from the corner",
+                   np.where(np.isfinite(found).all(-1), "", "edges do not meet near the corner"))
+    reasons = np.where(edges != "", edges, met.astype(object))
     q = np.where((reasons == "")[..., None], found, np.nan)
     good = np.isfinite(mis_edge)
     return CornerFit(q=q.reshape(-1, 2), reasons=reasons.ravel(),
@@ -1011,12 +1006,12 @@ converged (m,), misfit RMS / contrast (m,))'''
                      MAX_ITERATIONS, float(converged_px))
 
 
-def _fit_pixels(geo, pieces, q, pixels, why_edge):
-    r'''(geo, (off, ix, iy, t, s)): the pixels of the fits geo (refine_tag_edges' (i, k, L,
-e, n, cubic, start, end, weak)) gathered from their pieces (fit index, edge (i, k), how
-taken, reach px; targets._tag_edge_kernels.fit_pixels) out of tag_edge_pixels' pixels
-(ix, iy, t, s, off), fit j's [off[j], off[j+1]); a weak edge's fit is dropped (its
-reason in why_edge) where its pixels do not see the dark side beyond both its ends
+def _fit_pixels(img, geo, pieces, q, pixels, why_edge):
+    r'''(geo, (off, v, tau, s)): the pixels of the fits geo (refine_tag_edges' (i, k, L, e,
+n, cubic, start, end, weak)) gathered from their pieces (fit index, edge (i, k), how taken,
+reach px; targets._tag_edge_kernels.fit_pixels) out of tag_edge_pixels' pixels (ix, iy, t,
+s, off), fit j's [off[j], off[j+1]), v their values in img; a weak edge's fit is dropped
+(its reason in why_edge) where its pixels do not see the dark side beyond both its ends
 (_sees_dark)'''
     ix, iy, t, s, off = pixels
     fit, edge, mode, reach = zip(*pieces, strict=True)
@@ -1026,44 +1021,38 @@ reason in why_edge) where its pixels do not see the dark side beyond both its en
     np.cumsum(np.bincount(fit, minlength=len(geo)), out=fit_off[1:])
     gi = np.array([g[0] for g in geo])
     gk = np.array([g[1] for g in geo])
-    out = fit_pixels(ix, iy, t, s, off, fit_off, 4 * edge[:, 0] + edge[:, 1],
+    out = fit_pixels(img, ix, iy, t, s, off, fit_off, 4 * edge[:, 0] + edge[:, 1],
                      np.array(mode, dtype=np.int64), np.array(reach, dtype=np.float64),
                      np.ascontiguousarray(q[gi, gk]), np.array([g[3] for g in geo]),
                      np.array([g[4] for g in geo]), np.array([g[2] for g in geo]))
-    fo, fx, fy, ft, fs = out
+    fo, fv, ft, ftau, fs = out
     keep = np.ones(len(geo), bool)
     for j, (i, k, L, _, _, _, d, _, weak) in enumerate(geo):
         if weak and not _sees_dark(ft[fo[j]:fo[j + 1]], fs[fo[j]:fo[j + 1]], L, d):
             why_edge[i, k] = _EDGE_STATUS[2]
             keep[j] = False
     if keep.all():
-        return geo, out
+        return geo, (fo, fv, ftau, fs)
     counts = np.diff(fo)[keep]
     px = np.repeat(keep, np.diff(fo))
     fo = np.zeros(len(counts) + 1, np.int64)
     np.cumsum(counts, out=fo[1:])
-    return [g for g, k in zip(geo, keep, strict=True) if k], (fo, fx[px], fy[px], ft[px],
-                                                              fs[px])
+    return [g for g, k in zip(geo, keep, strict=True) if k], (fo, fv[px], ftau[px], fs[px])
 
 
 class _Edges:
     r'''The pixels of the fits geo (refine_tag_edges': (i, k, L, e, n, cubic, start, end,
-weak)), gathered by _fit_pixels (off, ix, iy, t, s), in the arrays of
+weak)), gathered by _fit_pixels (off, v, tau, s), in the arrays of
 targets._tag_edge_kernels.fit_edges (off, v, tau, s, cubic, j0, fy; d each edge's current
 curve, cubic term 0), with n (m,) each edge's pixel count, tag (m,) its tag and deep (m,):
 the edges whose band reaches the dark plateau (MIN_PLATEAU_PIXELS at least reach px inside
 the curve)'''
 
-    def __init__(self, img, geo, pixels, reach, line=None):
+    def __init__(self, geo, pixels, reach, line=None):
         m = self.m = len(geo)
-        self.off, ix, iy, t, s = pixels
-        counts = np.diff(self.off)
-        self.n = counts.astype(np.float64)
-        self.v = img[iy, ix].astype(np.float64)
+        self.off, self.v, self.tau, self.s = pixels
+        self.n = np.diff(self.off).astype(np.float64)
         self.w = _weights(line, self.v)
-        self.tau = 2.0 * t / np.repeat(np.array([g[2] for g in geo], dtype=np.float64),
-                                       counts) - 1.0
-        self.s = s
         n = np.abs(np.array([g[4] for g in geo], dtype=np.float64).reshape(m, 2))
         phi = np.arctan2(n.min(-1), n.max(-1))
         self.cubic = np.array([g[5] for g in geo], dtype=np.float64)
