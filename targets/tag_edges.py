@@ -434,45 +434,43 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             reach = BLUR_REACH_SIGMAS * sigma + np.sqrt(0.5)
         else:
             fits = _fit_contrast_first(E, table)
-        curves = {}
-        for (i, k, *_rest), p, ok, mis in zip(geo, *fits, strict=True):
-            end = _rest[-2]
-            mis_edge[i, k] = np.fmax(mis_edge[i, k], mis) if last else mis
-            if not ok:
-                why_edge[i, k] = f"edge fit not converged in {MAX_ITERATIONS} iterations"
-            elif not abs(p[1]) > min_contrast * rng:
-                why_edge[i, k] = "no contrast"
-            elif not mis <= max_misfit:
-                why_edge[i, k] = f"misfit: {mis:.3g} of the contrast"
-            curves[(i, k, end)] = p[2:]
-        frames = {(g[0], g[1]): (g[2], g[3], g[4]) for g in geo}
-        good = np.isfinite(fits[2]) & fits[1]
+        pf, ok, mis = fits
+        gi, gk, gend = (np.array([g[f] for g in geo], dtype=np.int64) for f in (0, 1, 7))
+        if last:
+            np.fmax.at(mis_edge, (gi, gk), mis)
+        else:
+            mis_edge[gi, gk] = mis
+        # each failed fit's reason, in the fits' order (an edge's later one stands)
+        failed = ~ok | ~(np.abs(pf[:, 1]) > min_contrast * rng) | ~(mis <= max_misfit)
+        for j in np.flatnonzero(failed):
+            why_edge[gi[j], gk[j]] = (
+                f"edge fit not converged in {MAX_ITERATIONS} iterations" if not ok[j]
+                else "no contrast" if not abs(pf[j, 1]) > min_contrast * rng
+                else f"misfit: {mis[j]:.3g} of the contrast")
+        keys = zip(gi.tolist(), gk.tolist(), gend.tolist(), strict=True)
+        curves = dict(zip(keys, pf[:, 2:], strict=True))
+        # each edge's curve at its ends 0 and 1 (a fit of both ends, end 2, gives both)
+        at_end = np.zeros((N, 4, 2, 4))
+        both = gend == 2
+        at_end[gi[both], gk[both], 0] = at_end[gi[both], gk[both], 1] = pf[both, 2:]
+        at_end[gi[~both], gk[~both], gend[~both]] = pf[~both, 2:]
+        good = np.isfinite(mis) & ok
         # the next pass's measure of the image's noise: the edges' median misfit (RMS over
         # the contrast; each edge alone, noise-free a quadratic's model error), and how it
         # varies with the pixel's value
-        noise = float(np.median(fits[2][good])) if good.any() else 0.0
+        noise = float(np.median(mis[good])) if good.any() else 0.0
         if line is None and not last:
-            line = _noise_line(E, table, fits[0], good)
-
-        def curve(i, k, end, curves=curves):
-            return curves[(i, k, end)] if (i, k, end) in curves else curves[(i, k, 2)]
+            line = _noise_line(E, table, pf, good)
 
         qn = np.full((N, 4, 2), np.nan)
-        # edge a ends at corner k, edge b starts there
-        meets = [(i, k) for i in range(N) for k in range(4)
-                 if not (why_edge[i, (k - 1) % 4] or why_edge[i, k])]
-        if meets:
-            mi, mk = np.array(meets).T
+        # edge a ends at corner k, edge b starts there: both without a reason
+        clean = why_edge == ""
+        mi, mk = np.nonzero(np.roll(clean, 1, axis=1) & clean)
+        if len(mi):
             ma = (mk - 1) % 4
-            fa = [frames[(i, a)] for i, a in zip(mi, ma, strict=True)]
-            fb = [frames[(i, k)] for i, k in meets]
-            qn[mi, mk] = meet_curves(
-                q[mi, ma], np.array([f[0] for f in fa]), np.array([f[1] for f in fa]),
-                np.array([f[2] for f in fa]),
-                np.array([curve(i, a, 1) for i, a in zip(mi, ma, strict=True)]),
-                q[mi, mk], np.array([f[0] for f in fb]), np.array([f[1] for f in fb]),
-                np.array([f[2] for f in fb]), np.array([curve(i, k, 0) for i, k in meets]),
-                MEET_ITERATIONS)
+            qn[mi, mk] = meet_curves(q[mi, ma], Ls[mi, ma], es[mi, ma], ns[mi, ma],
+                                     at_end[mi, ma, 1], q[mi, mk], Ls[mi, mk], es[mi, mk],
+                                     ns[mi, mk], at_end[mi, mk, 0], MEET_ITERATIONS)
         # the next pass places its pixels about these curves, its chords through these corners
         # (none after the last pass); an edge fitted per corner keeps its end 1's curve
         pick = {} if last else {
@@ -485,7 +483,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             tau9 = np.linspace(-1.0, 1.0, 9)
             keys = list(pick)
             ki, kk = np.array(keys).T
-            L, e, n = (np.array([frames[key][f] for key in keys]) for f in range(3))
+            L, e, n = Ls[ki, kk], es[ki, kk], ns[ki, kk]
             c = np.array(list(pick.values()))
             pts = q[ki, kk][:, None, :] + (0.5 * L[:, None] * (tau9 + 1.0))[..., None] \
                 * e[:, None, :] + _curve_s(c.T[..., None], tau9)[..., None] * n[:, None, :]
