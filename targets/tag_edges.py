@@ -362,13 +362,15 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # edges seen from their light side only (status 2): their pixels are clean of the
         # data row, but too few on the dark side to place the edge alone
         weak = set()
-        for i, k in zip(*np.nonzero(status < 4), strict=True):
+        for code, why in _EDGE_STATUS.items():
+            if code != 2:
+                why_edge[status == code] = why
+        a_b = off.tolist()
+        for f in np.flatnonzero((status == 0) | (status == 2)).tolist():
+            i, k = divmod(f, 4)
             if status[i, k] == 2:
                 weak.add((i, k))
-            elif status[i, k]:
-                why_edge[i, k] = _EDGE_STATUS[status[i, k]]
-                continue
-            a, b = off[4 * i + k], off[4 * i + k + 1]
+            a, b = a_b[f], a_b[f + 1]
             own[(i, k)] = (pix[a:b], piy[a:b], pt[a:b], ps[a:b], Ls[i, k], es[i, k], ns[i, k])
             start[(i, k)] = curves[i, k]
         if not own:
@@ -386,9 +388,20 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # index, the edge whose pixels, how taken: targets._tag_edge_kernels.PIECE_OWN..,
         # reach px); fit_pixels gathers them all in one pass
         geo, pieces = [], []
+        # the first pass only places the second's pixels: each edge alone
+        members_of = {key: [m for m in nbrs.get(key, []) if m in own] for key in own} \
+            if last else {}
+        # each edge's board line neighbours by the end of its chord they lie beyond
+        ends_of = {key: {} for key in members_of}
+        pairs = [(key, m) for key, ms in members_of.items() for m in ms]
+        if pairs:
+            (pi, pk), (mi_, mk_) = (np.array(x).T for x in zip(*pairs, strict=True))
+            mid = 0.5 * (q[mi_, mk_] + q[mi_, (mk_ + 1) % 4])
+            beyond = ((mid - q[pi, pk]) * es[pi, pk]).sum(-1) >= 0
+            for (key, m), end in zip(pairs, beyond.tolist(), strict=True):
+                ends_of[key][int(end)] = m
         for (i, k), (_, _, _, _, L, e, n) in own.items():
-            # the first pass only places the second's pixels: each edge alone
-            members = [m for m in (nbrs.get((i, k), []) if last else []) if m in own]
+            members = members_of.get((i, k), [])
             if (i, k) in weak and last:
                 # a weak edge is placed by its board line's neighbours' dark sides only, on
                 # the one cubic through the three (_sees_dark, once its pixels are gathered)
@@ -398,10 +411,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 pieces += [(len(geo), m, PIECE_ALL, 0.0) for m in [(i, k)] + members]
                 geo.append((i, k, L, e, n, True, start[(i, k)], 2, True))
                 continue
-            ends = {}
-            for m in members:
-                mid = 0.5 * (q[m[0], m[1]] + q[m[0], (m[1] + 1) % 4])
-                ends[0 if (mid - q[i, k]) @ e < 0 else 1] = m
+            ends = ends_of.get((i, k), {})
             picks = choice.get((i, k), (("alone", 2), ("alone", 2)))
             # one fit where both corners chose the same (a "corner" span differs per end)
             tags = [2] if picks[0] == picks[1] and picks[0][0] != "corner" else [0, 1]
