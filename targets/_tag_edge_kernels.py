@@ -395,6 +395,20 @@ fs v, fs^2 and fs g t^k.'''
     return Htot, Gtot
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _columns(slope, base, lo, hi, px, xa, xb):
+    # the columns xx in [xa, xb] where lo <= (xx - px) slope + base <= hi may hold, a px of
+    # margin each side (all of them where slope is ~0)
+    if abs(slope) > 1e-6:
+        ua = (lo - base) / slope + px
+        ub = (hi - base) / slope + px
+        if ua > ub:
+            ua, ub = ub, ua
+        xa = max(xa, int(np.floor(ua)) - 1)
+        xb = min(xb, int(np.ceil(ub)) + 1)
+    return xa, xb
+
+
 @njit(cache=True, error_model="numpy")
 def _band(P0, e, n, L, curve, t_lo, t_hi, out_px, in_px, deep_px, H, bits, offs,
           x0, y0, x1, y1, k, bit_px, Pa, na, Pb, nb, oix, oiy, ot, os_, c):
@@ -410,10 +424,15 @@ up to a px on a fisheye's tag). A pixel keeps the clearance t_lo from the lines 
 adjacent edges too (through Pa, Pb with normals na, nb into the tag): a tag seen obliquely
 meets them at an angle off 90 deg.'''
     no = len(offs)
+    # each row's pixels are scanned only over the columns where t and s = x + curve(tau)
+    # (|curve| <= smax) can pass the tests below, a px of margin each side: the tests decide
+    smax = abs(curve[0]) + abs(curve[1]) + abs(curve[2]) + abs(curve[3])
     for yy in range(y0, y1 + 1):
-        for xx in range(x0, x1 + 1):
+        ry = yy - P0[1]
+        xa, xb = _columns(e[0], ry * e[1], t_lo, t_hi, P0[0], x0, x1)
+        xa, xb = _columns(n[0], ry * n[1], -out_px - smax, in_px + smax, P0[0], xa, xb)
+        for xx in range(xa, xb + 1):
             rx = xx - P0[0]
-            ry = yy - P0[1]
             t = rx * e[0] + ry * e[1]
             if t < t_lo or t > t_hi:
                 continue
