@@ -2,12 +2,17 @@ r'''Compiled edge-profile fit of targets.tag_edges (numba): the hot loops
 
 SYNOPSIS
 
-    from targets._tag_edge_kernels import fit_edges, meet_curves, tag_edge_pixels
+    from targets._tag_edge_kernels import fit_edges, fit_pixels, meet_curves, tag_edge_pixels
 
     status, L, e, n, off, ix, iy, t, s = tag_edge_pixels(Q, live, bits, True, H, curves,
                                                          reach, gap_bits, safety, plateau,
                                                          min_pixels, W, H_img)
     # every edge's band of pixels (targets.tag_edges._EDGE_STATUS says why an edge has none)
+
+    off, v, t, tau, s = fit_pixels(img, ix, iy, t, s, off, fit_off, piece_edge, piece_mode,
+                                   piece_reach, P0, e, n, L)
+    # each fit's pixels (pieces of those edges: its own, its board line's neighbours') in
+    # the frame of its chord, as fit_edges takes them
 
     p, done, mis = fit_edges(off, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip,
                              max_iterations, converged_px)
