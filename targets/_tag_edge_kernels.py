@@ -2,12 +2,17 @@ r'''Compiled edge-profile fit of targets.tag_edges (numba): the hot loops
 
 SYNOPSIS
 
-    from targets._tag_edge_kernels import fit_edges, meet_curves, tag_edge_pixels
+    from targets._tag_edge_kernels import fit_edges, fit_pixels, meet_curves, tag_edge_pixels
 
     status, L, e, n, off, ix, iy, t, s = tag_edge_pixels(Q, live, bits, True, H, curves,
                                                          reach, gap_bits, safety, plateau,
                                                          min_pixels, W, H_img)
     # every edge's band of pixels (targets.tag_edges._EDGE_STATUS says why an edge has none)
+
+    off, v, t, tau, s = fit_pixels(img, ix, iy, t, s, off, fit_off, piece_edge, piece_mode,
+                                   piece_reach, P0, e, n, L)
+    # each fit's pixels (pieces of those edges: its own, its board line's neighbours') in
+    # the frame of its chord, as fit_edges takes them
 
     p, done, mis = fit_edges(off, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip,
                              max_iterations, converged_px)
@@ -30,7 +35,9 @@ fitted by Levenberg-Marquardt, each edge on its own (targets.tag_edges._fit_edge
 '''
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 # the moments _profile sums over an edge's pixels for its normal equations (_normal): with
 # g = F'(x) and t the position tau, sum g t^k, sum g F t^k, sum g v t^k (k = 0..3) and
@@ -393,6 +400,20 @@ fs v, fs^2 and fs g t^k.'''
     return Htot, Gtot
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _columns(slope, base, lo, hi, px, xa, xb):
+    # the columns xx in [xa, xb] where lo <= (xx - px) slope + base <= hi may hold, a px of
+    # margin each side (all of them where slope is ~0)
+    if abs(slope) > 1e-6:
+        ua = (lo - base) / slope + px
+        ub = (hi - base) / slope + px
+        if ua > ub:
+            ua, ub = ub, ua
+        xa = max(xa, int(np.floor(ua)) - 1)
+        xb = min(xb, int(np.ceil(ub)) + 1)
+    return xa, xb
+
+
 @njit(cache=True, error_model="numpy")
 def _band(P0, e, n, L, curve, t_lo, t_hi, out_px, in_px, deep_px, H, bits, offs,
           x0, y0, x1, y1, k, bit_px, Pa, na, Pb, nb, oix, oiy, ot, os_, c):
@@ -408,10 +429,15 @@ up to a px on a fisheye's tag). A pixel keeps the clearance t_lo from the lines 
 adjacent edges too (through Pa, Pb with normals na, nb into the tag): a tag seen obliquely
 meets them at an angle off 90 deg.'''
     no = len(offs)
+    # each row's pixels are scanned only over the columns where t and s = x + curve(tau)
+    # (|curve| <= smax) can pass the tests below, a px of margin each side: the tests decide
+    smax = abs(curve[0]) + abs(curve[1]) + abs(curve[2]) + abs(curve[3])
     for yy in range(y0, y1 + 1):
-        for xx in range(x0, x1 + 1):
+        ry = yy - P0[1]
+        xa, xb = _columns(e[0], ry * e[1], t_lo, t_hi, P0[0], x0, x1)
+        xa, xb = _columns(n[0], ry * n[1], -out_px - smax, in_px + smax, P0[0], xa, xb)
+        for xx in range(xa, xb + 1):
             rx = xx - P0[0]
-            ry = yy - P0[1]
             t = rx * e[0] + ry * e[1]
             if t < t_lo or t > t_hi:
                 continue
@@ -711,9 +737,82 @@ the edge, in units of the contrast and the noise, its light level and contrast f
     return out
 
 
+@intrinsic
+def _fma(typingctx, a, b, c):
+    # a b + c rounded once (LLVM's llvm.fma: the hardware's instruction, else libm's fma)
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [d], ir.FunctionType(d, [d, d, d]))
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
+# how fit_pixels takes a piece of an edge's pixels: all of them in their own chord's frame
+# (tag_edge_pixels' t, s); all of them in the fit's frame; those of them at most reach px
+# beyond the fit's chord's end (u <= L + reach, u along it from its start); those at least
+# reach px before its start (u >= -reach)
+PIECE_OWN, PIECE_ALL, PIECE_BEYOND_END, PIECE_BEFORE_START = 0, 1, 2, 3
+
+
+@njit(cache=True, error_model="numpy")
+def fit_pixels(img, ix, iy, t, s, off, fit_off, piece_edge, piece_mode, piece_reach, P0, e, n,
+               L):
+    r'''The pixels of every fit of targets.tag_edges' last pass, one fit after another, as
+fit_edges takes them: fit f is the pieces [fit_off[f], fit_off[f+1]) of piece_edge (edges of
+tag_edge_pixels: edge c's pixels are [off[c], off[c+1]) of ix, iy, t, s), each taken as
+piece_mode says (PIECE_OWN.., piece_reach its px), in the frame of the fit's chord (from
+P0[f] (F,2), direction e[f], normal n[f], length L[f]). Returns (out_off (F+1,), v, t, tau,
+s): fit f's pixels are [out_off[f], out_off[f+1]), v their values in img (H,W) as float64,
+tau = 2 t / L[f] - 1.
+
+A pixel's t and s in the fit's frame are r.e and r.n, r its centre less P0, each rounded as
+fma(r_x, e_x, r_y e_y): as numpy's r @ e rounds them on this machine (OpenBLAS's dgemv
+kernel; 2 or more rows), which this replaced (targets.tag_edges: the corners the same
+bits).'''
+    F = len(L)
+    cap = 0
+    for c in range(len(piece_edge)):
+        cap += off[piece_edge[c] + 1] - off[piece_edge[c]]
+    ov = np.empty(cap)
+    ot = np.empty(cap)
+    otau = np.empty(cap)
+    os_ = np.empty(cap)
+    out_off = np.zeros(F + 1, np.int64)
+    q = 0
+    for f in range(F):
+        out_off[f] = q
+        px, py = P0[f, 0], P0[f, 1]
+        ex, ey, nx, ny, Lf = e[f, 0], e[f, 1], n[f, 0], n[f, 1], L[f]
+        for c in range(fit_off[f], fit_off[f + 1]):
+            mode = piece_mode[c]
+            hi = Lf + piece_reach[c]
+            lo = -piece_reach[c]
+            for p in range(off[piece_edge[c]], off[piece_edge[c] + 1]):
+                if mode == PIECE_OWN:
+                    tp, sp = t[p], s[p]
+                else:
+                    rx = ix[p] - px
+                    ry = iy[p] - py
+                    tp = _fma(rx, ex, ry * ey)
+                    if (mode == PIECE_BEYOND_END and not tp <= hi) or \
+                            (mode == PIECE_BEFORE_START and not tp >= lo):
+                        continue
+                    sp = _fma(rx, nx, ry * ny)
+                ov[q] = np.float64(img[iy[p], ix[p]])
+                ot[q] = tp
+                otau[q] = 2.0 * tp / Lf - 1.0
+                os_[q] = sp
+                q += 1
+    out_off[F] = q
+    return out_off, ov[:q], ot[:q], otau[:q], os_[:q]
+
+
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
-    return (tag_edge_pixels, fit_edges, meet_curves, blur_step, plateau_counts,
+    return (tag_edge_pixels, fit_pixels, fit_edges, meet_curves, blur_step, plateau_counts,
             edge_moments, noise_moments, pixel_weights, sampled_table)

@@ -115,6 +115,10 @@ import math
 import numpy as np
 
 from ._tag_edge_kernels import (
+    PIECE_ALL,
+    PIECE_BEFORE_START,
+    PIECE_BEYOND_END,
+    PIECE_OWN,
     SPAN_FG,
     SPAN_G,
     SPAN_GG,
@@ -123,6 +127,7 @@ from ._tag_edge_kernels import (
     blur_step,
     edge_moments,
     fit_edges,
+    fit_pixels,
     meet_curves,
     noise_moments,
     pixel_weights,
@@ -357,13 +362,15 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # edges seen from their light side only (status 2): their pixels are clean of the
         # data row, but too few on the dark side to place the edge alone
         weak = set()
-        for i, k in zip(*np.nonzero(status < 4), strict=True):
+        for code, why in _EDGE_STATUS.items():
+            if code != 2:
+                why_edge[status == code] = why
+        a_b = off.tolist()
+        for f in np.flatnonzero((status == 0) | (status == 2)).tolist():
+            i, k = divmod(f, 4)
             if status[i, k] == 2:
                 weak.add((i, k))
-            elif status[i, k]:
-                why_edge[i, k] = _EDGE_STATUS[status[i, k]]
-                continue
-            a, b = off[4 * i + k], off[4 * i + k + 1]
+            a, b = a_b[f], a_b[f + 1]
             own[(i, k)] = (pix[a:b], piy[a:b], pt[a:b], ps[a:b], Ls[i, k], es[i, k], ns[i, k])
             start[(i, k)] = curves[i, k]
         if not own:
@@ -377,98 +384,103 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             choice = _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits,
                                   (pix, piy, pt, ps, off), grid,
                                   _weights(line, img[piy, pix]))
-        geo = []
-        for (i, k), (ix, iy, t, s, L, e, n) in own.items():
-            # the first pass only places the second's pixels: each edge alone
-            members = [m for m in (nbrs.get((i, k), []) if last else []) if m in own]
+        # each fit: (i, k, L, e, n, cubic, start curve, end, weak) and its pieces, (its
+        # index, the edge whose pixels, how taken: targets._tag_edge_kernels.PIECE_OWN..,
+        # reach px); fit_pixels gathers them all in one pass
+        geo, pieces = [], []
+        # the first pass only places the second's pixels: each edge alone
+        members_of = {key: [m for m in nbrs.get(key, []) if m in own] for key in own} \
+            if last else {}
+        # each edge's board line neighbours by the end of its chord they lie beyond
+        ends_of = {key: {} for key in members_of}
+        pairs = [(key, m) for key, ms in members_of.items() for m in ms]
+        if pairs:
+            (pi, pk), (mi_, mk_) = (np.array(x).T for x in zip(*pairs, strict=True))
+            mid = 0.5 * (q[mi_, mk_] + q[mi_, (mk_ + 1) % 4])
+            beyond = ((mid - q[pi, pk]) * es[pi, pk]).sum(-1) >= 0
+            for (key, m), end in zip(pairs, beyond.tolist(), strict=True):
+                ends_of[key][int(end)] = m
+        for (i, k), (_, _, _, _, L, e, n) in own.items():
+            members = members_of.get((i, k), [])
             if (i, k) in weak and last:
                 # a weak edge is placed by its board line's neighbours' dark sides only, on
-                # the one cubic through the three
-                jx = np.concatenate([ix] + [own[m][0] for m in members])
-                jy = np.concatenate([iy] + [own[m][1] for m in members])
-                r = np.stack((jx, jy), -1) - q[i, k]
-                if not members or not _sees_dark(r @ e, r @ n, L, start[(i, k)]):
+                # the one cubic through the three (_sees_dark, once its pixels are gathered)
+                if not members:
                     why_edge[i, k] = _EDGE_STATUS[2]
                     continue
-                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, True, start[(i, k)], 2))
+                pieces += [(len(geo), m, PIECE_ALL, 0.0) for m in [(i, k)] + members]
+                geo.append((i, k, L, e, n, True, start[(i, k)], 2, True))
                 continue
-            ends = {}
-            for m in members:
-                mid = 0.5 * (q[m[0], m[1]] + q[m[0], (m[1] + 1) % 4])
-                ends[0 if (mid - q[i, k]) @ e < 0 else 1] = m
+            ends = ends_of.get((i, k), {})
             picks = choice.get((i, k), (("alone", 2), ("alone", 2)))
             # one fit where both corners chose the same (a "corner" span differs per end)
             tags = [2] if picks[0] == picks[1] and picks[0][0] != "corner" else [0, 1]
             for end in tags:
                 span, deg = picks[0 if end == 2 else end]
                 if span == "alone":
-                    geo.append((i, k, ix, iy, t, s, L, e, n, deg == 3, start[(i, k)], end))
-                    continue
-                if span == "line":
-                    jx = np.concatenate([ix] + [own[m][0] for m in members])
-                    jy = np.concatenate([iy] + [own[m][1] for m in members])
+                    pieces.append((len(geo), (i, k), PIECE_OWN, 0.0))
+                elif span == "line":
+                    pieces += [(len(geo), m, PIECE_ALL, 0.0) for m in [(i, k)] + members]
                 else:
                     # the neighbour's pixels out to NEIGHBOUR_REACH of its length past the
-                    # gap (u: px along this edge's chord from its corner k; this edge is 0..L)
+                    # gap (along this edge's chord from its corner k; this edge is 0..L)
                     m = ends[end]
-                    nb = np.stack((own[m][0], own[m][1]), -1) - q[i, k]
-                    u = nb @ e
                     reach_px = gap_bits * L / 8.0 + NEIGHBOUR_REACH * own[m][4]
-                    near = (u <= L + reach_px) if end == 1 else (u >= -reach_px)
-                    jx = np.concatenate((ix, own[m][0][near]))
-                    jy = np.concatenate((iy, own[m][1][near]))
-                r = np.stack((jx, jy), -1) - q[i, k]
-                geo.append((i, k, jx, jy, r @ e, r @ n, L, e, n, deg == 3, start[(i, k)], end))
+                    pieces += [(len(geo), (i, k), PIECE_ALL, 0.0),
+                               (len(geo), m, PIECE_BEYOND_END if end == 1
+                                else PIECE_BEFORE_START, reach_px)]
+                geo.append((i, k, L, e, n, deg == 3, start[(i, k)], end, False))
         if not geo:
             # every edge seen from its light side only, none placed by its neighbours: each
             # has its reason
             break
-        E = _Edges(img, geo, reach, line)
+        geo, pixels = _fit_pixels(img, geo, pieces, q, (pix, piy, pt, ps, off), why_edge)
+        if not geo:
+            break
+        E = _Edges(geo, pixels, reach, line)
         if len(blurs) > 1:
             (sigma, kind), table, fits, info = _choose_kind(E, blurs)
             blurs = [(sigma, kind)]
             reach = BLUR_REACH_SIGMAS * sigma + np.sqrt(0.5)
         else:
             fits = _fit_contrast_first(E, table)
-        curves = {}
-        for (i, k, *_rest), p, ok, mis in zip(geo, *fits, strict=True):
-            end = _rest[-1]
-            mis_edge[i, k] = np.fmax(mis_edge[i, k], mis) if last else mis
-            if not ok:
-                why_edge[i, k] = f"edge fit not converged in {MAX_ITERATIONS} iterations"
-            elif not abs(p[1]) > min_contrast * rng:
-                why_edge[i, k] = "no contrast"
-            elif not mis <= max_misfit:
-                why_edge[i, k] = f"misfit: {mis:.3g} of the contrast"
-            curves[(i, k, end)] = p[2:]
-        frames = {(g[0], g[1]): (g[6], g[7], g[8]) for g in geo}
-        good = np.isfinite(fits[2]) & fits[1]
+        pf, ok, mis = fits
+        gi, gk, gend = (np.array([g[f] for g in geo], dtype=np.int64) for f in (0, 1, 7))
+        if last:
+            np.fmax.at(mis_edge, (gi, gk), mis)
+        else:
+            mis_edge[gi, gk] = mis
+        # each failed fit's reason, in the fits' order (an edge's later one stands)
+        failed = ~ok | ~(np.abs(pf[:, 1]) > min_contrast * rng) | ~(mis <= max_misfit)
+        for j in np.flatnonzero(failed):
+            why_edge[gi[j], gk[j]] = (
+                f"edge fit not converged in {MAX_ITERATIONS} iterations" if not ok[j]
+                else "no contrast" if not abs(pf[j, 1]) > min_contrast * rng
+                else f"misfit: {mis[j]:.3g} of the contrast")
+        keys = zip(gi.tolist(), gk.tolist(), gend.tolist(), strict=True)
+        curves = dict(zip(keys, pf[:, 2:], strict=True))
+        # each edge's curve at its ends 0 and 1 (a fit of both ends, end 2, gives both)
+        at_end = np.zeros((N, 4, 2, 4))
+        both = gend == 2
+        at_end[gi[both], gk[both], 0] = at_end[gi[both], gk[both], 1] = pf[both, 2:]
+        at_end[gi[~both], gk[~both], gend[~both]] = pf[~both, 2:]
+        good = np.isfinite(mis) & ok
         # the next pass's measure of the image's noise: the edges' median misfit (RMS over
         # the contrast; each edge alone, noise-free a quadratic's model error), and how it
         # varies with the pixel's value
-        noise = float(np.median(fits[2][good])) if good.any() else 0.0
+        noise = float(np.median(mis[good])) if good.any() else 0.0
         if line is None and not last:
-            line = _noise_line(E, table, fits[0], good)
-
-        def curve(i, k, end, curves=curves):
-            return curves[(i, k, end)] if (i, k, end) in curves else curves[(i, k, 2)]
+            line = _noise_line(E, table, pf, good)
 
         qn = np.full((N, 4, 2), np.nan)
-        # edge a ends at corner k, edge b starts there
-        meets = [(i, k) for i in range(N) for k in range(4)
-                 if not (why_edge[i, (k - 1) % 4] or why_edge[i, k])]
-        if meets:
-            mi, mk = np.array(meets).T
+        # edge a ends at corner k, edge b starts there: both without a reason
+        clean = why_edge == ""
+        mi, mk = np.nonzero(np.roll(clean, 1, axis=1) & clean)
+        if len(mi):
             ma = (mk - 1) % 4
-            fa = [frames[(i, a)] for i, a in zip(mi, ma, strict=True)]
-            fb = [frames[(i, k)] for i, k in meets]
-            qn[mi, mk] = meet_curves(
-                q[mi, ma], np.array([f[0] for f in fa]), np.array([f[1] for f in fa]),
-                np.array([f[2] for f in fa]),
-                np.array([curve(i, a, 1) for i, a in zip(mi, ma, strict=True)]),
-                q[mi, mk], np.array([f[0] for f in fb]), np.array([f[1] for f in fb]),
-                np.array([f[2] for f in fb]), np.array([curve(i, k, 0) for i, k in meets]),
-                MEET_ITERATIONS)
+            qn[mi, mk] = meet_curves(q[mi, ma], Ls[mi, ma], es[mi, ma], ns[mi, ma],
+                                     at_end[mi, ma, 1], q[mi, mk], Ls[mi, mk], es[mi, mk],
+                                     ns[mi, mk], at_end[mi, mk, 0], MEET_ITERATIONS)
         # the next pass places its pixels about these curves, its chords through these corners
         # (none after the last pass); an edge fitted per corner keeps its end 1's curve
         pick = {} if last else {
@@ -481,7 +493,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             tau9 = np.linspace(-1.0, 1.0, 9)
             keys = list(pick)
             ki, kk = np.array(keys).T
-            L, e, n = (np.array([frames[key][f] for key in keys]) for f in range(3))
+            L, e, n = Ls[ki, kk], es[ki, kk], ns[ki, kk]
             c = np.array(list(pick.values()))
             pts = q[ki, kk][:, None, :] + (0.5 * L[:, None] * (tau9 + 1.0))[..., None] \
                 * e[:, None, :] + _curve_s(c.T[..., None], tau9)[..., None] * n[:, None, :]
@@ -493,17 +505,12 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # a corner not found keeps its place for the next pass's chords (its edges are
         # fitted again, and judged there)
         q = np.where(np.isfinite(found), found, q)
-    reasons = np.full((N, 4), "", dtype=object)
-    for i in range(N):
-        for k in range(4):
-            a, b = (k - 1) % 4, k
-            r = why_edge[i, a] or why_edge[i, b]
-            if r:
-                reasons[i, k] = r
-            elif far[i, k]:
-                reasons[i, k] = "edges meet far from the corner"
-            elif not np.all(np.isfinite(found[i, k])):
-                reasons[i, k] = "edges do not meet near the corner"
+    # corner k's reason: its edge k-1's, else its edge k's, else where they met
+    before = np.roll(why_edge, 1, axis=1)
+    edges = np.where(before != "", before, why_edge)
+    met = np.where(far, "edges meet far from the corner",
+                   np.where(np.isfinite(found).all(-1), "", "edges do not meet near the corner"))
+    reasons = np.where(edges != "", edges, met.astype(object))
     q = np.where((reasons == "")[..., None], found, np.nan)
     good = np.isfinite(mis_edge)
     return CornerFit(q=q.reshape(-1, 2), reasons=reasons.ravel(),
@@ -1007,36 +1014,62 @@ converged (m,), misfit RMS / contrast (m,))'''
                      MAX_ITERATIONS, float(converged_px))
 
 
-class _Edges:
-    r'''The pixels of the edges geo in the arrays of targets._tag_edge_kernels.fit_edges
-(off, v, tau, s, cubic, j0, fy; d each edge's current curve, cubic term 0), with n (m,)
-each edge's pixel count, tag (m,) its tag and deep (m,): the edges whose band reaches the
-dark plateau (MIN_PLATEAU_PIXELS at least reach px inside the curve)'''
+def _fit_pixels(img, geo, pieces, q, pixels, why_edge):
+    r'''(geo, (off, v, tau, s)): the pixels of the fits geo (refine_tag_edges' (i, k, L, e,
+n, cubic, start, end, weak)) gathered from their pieces (fit index, edge (i, k), how taken,
+reach px; targets._tag_edge_kernels.fit_pixels) out of tag_edge_pixels' pixels (ix, iy, t,
+s, off), fit j's [off[j], off[j+1]), v their values in img; a weak edge's fit is dropped
+(its reason in why_edge) where its pixels do not see the dark side beyond both its ends
+(_sees_dark)'''
+    ix, iy, t, s, off = pixels
+    fit, edge, mode, reach = zip(*pieces, strict=True)
+    fit = np.array(fit, dtype=np.int64)
+    edge = np.array(edge, dtype=np.int64).reshape(-1, 2)
+    fit_off = np.zeros(len(geo) + 1, np.int64)
+    np.cumsum(np.bincount(fit, minlength=len(geo)), out=fit_off[1:])
+    gi = np.array([g[0] for g in geo])
+    gk = np.array([g[1] for g in geo])
+    out = fit_pixels(img, ix, iy, t, s, off, fit_off, 4 * edge[:, 0] + edge[:, 1],
+                     np.array(mode, dtype=np.int64), np.array(reach, dtype=np.float64),
+                     np.ascontiguousarray(q[gi, gk]), np.array([g[3] for g in geo]),
+                     np.array([g[4] for g in geo]), np.array([g[2] for g in geo]))
+    fo, fv, ft, ftau, fs = out
+    keep = np.ones(len(geo), bool)
+    for j, (i, k, L, _, _, _, d, _, weak) in enumerate(geo):
+        if weak and not _sees_dark(ft[fo[j]:fo[j + 1]], fs[fo[j]:fo[j + 1]], L, d):
+            why_edge[i, k] = _EDGE_STATUS[2]
+            keep[j] = False
+    if keep.all():
+        return geo, (fo, fv, ftau, fs)
+    counts = np.diff(fo)[keep]
+    px = np.repeat(keep, np.diff(fo))
+    fo = np.zeros(len(counts) + 1, np.int64)
+    np.cumsum(counts, out=fo[1:])
+    return [g for g, k in zip(geo, keep, strict=True) if k], (fo, fv[px], ftau[px], fs[px])
 
-    def __init__(self, img, geo, reach, line=None):
+
+class _Edges:
+    r'''The pixels of the fits geo (refine_tag_edges': (i, k, L, e, n, cubic, start, end,
+weak)), gathered by _fit_pixels (off, v, tau, s), in the arrays of
+targets._tag_edge_kernels.fit_edges (off, v, tau, s, cubic, j0, fy; d each edge's current
+curve, cubic term 0), with n (m,) each edge's pixel count, tag (m,) its tag and deep (m,):
+the edges whose band reaches the dark plateau (MIN_PLATEAU_PIXELS at least reach px inside
+the curve)'''
+
+    def __init__(self, geo, pixels, reach, line=None):
         m = self.m = len(geo)
-        # the entries' fields as columns (one pass over geo, then whole-array arithmetic)
-        tag, _, gx, gy, gt, gs, gL, _, gn, gc, gd, _ = zip(*geo, strict=True)
-        counts = np.fromiter(map(len, gx), dtype=np.int64, count=m)
-        self.n = counts.astype(np.float64)
-        self.off = np.zeros(m + 1, np.int64)
-        np.cumsum(counts, out=self.off[1:])
-        ix = np.concatenate(gx)
-        iy = np.concatenate(gy)
-        self.v = img[iy, ix].astype(np.float64)
+        self.off, self.v, self.tau, self.s = pixels
+        self.n = np.diff(self.off).astype(np.float64)
         self.w = _weights(line, self.v)
-        self.tau = 2.0 * np.concatenate(gt) / np.repeat(np.array(gL, dtype=np.float64),
-                                                         counts) - 1.0
-        self.s = np.concatenate(gs).astype(np.float64)
-        n = np.abs(np.stack(gn).astype(np.float64).reshape(m, 2))
+        n = np.abs(np.array([g[4] for g in geo], dtype=np.float64).reshape(m, 2))
         phi = np.arctan2(n.min(-1), n.max(-1))
-        self.cubic = np.array(gc, dtype=np.float64)
+        self.cubic = np.array([g[5] for g in geo], dtype=np.float64)
         fa = np.clip(phi / (np.pi / 4) * (TABLE_ANGLES - 1), 0.0, TABLE_ANGLES - 1.000001)
         self.j0 = fa.astype(np.int64)
         self.fy = fa - self.j0
-        d = np.stack(gd).astype(np.float64).reshape(m, 4)
+        d = np.array([g[6] for g in geo], dtype=np.float64).reshape(m, 4)
         self.d = d * [1, 1, 1, 0]
-        self.tag = np.array(tag, dtype=np.int64)
+        self.tag = np.array([g[0] for g in geo], dtype=np.int64)
         # about the start curves (cubic term kept, as the band was placed)
         self.deep = plateau_counts(self.off, self.tau, self.s, d, float(reach)) \
             >= MIN_PLATEAU_PIXELS
