@@ -231,6 +231,9 @@ extra poses; the seconds stay those of the job), and so do the planned board pos
         det["per_pose"] = per_pose[:n]
         det["n_found"] = int(sum(per_pose[:n]))
         det["failed_poses"] = [i for i in det.get("failed_poses", []) if i < n]
+        if "failed_reasons" in det:
+            det["failed_reasons"] = {k: v for k, v in det["failed_reasons"].items()
+                                     if int(k) < n}
         if "corners_dropped" in det:
             det["corners_dropped"] = det["corners_dropped"][:n]
     out["detections"] = det

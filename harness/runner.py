@@ -112,7 +112,10 @@ A job with twins (group_twins) gives the records of each of its cameras.
         detections = {"n_expected": int(sum(d.n_expected for d in dets)),
                       "n_found": int(sum(d.n_found for d in dets)),
                       "per_pose": [int(d.n_found) for d in dets],
-                      "failed_poses": [i for i, d in enumerate(dets) if d.status != "ok"]}
+                      "failed_poses": [i for i, d in enumerate(dets) if d.status != "ok"],
+                      # why, in the detector's words, by pose index
+                      "failed_reasons": {str(i): d.reason for i, d in enumerate(dets)
+                                         if d.status != "ok"}}
         # corner targets: the corners the refiner dropped, {reason: count} per pose
         dropped = [dict(d.info.get("corners_dropped") or {}) for d in dets]
         if any(dropped):

@@ -110,7 +110,8 @@ def test_pose_subset_slices_observations_and_summaries():
                        Rt_ref_board=np.zeros((5, 4, 3)), corner_model=models,
                        corner_blur_px=blur)
     ctx = {"obs": obs, "detections": {"n_expected": 20, "n_found": 17,
-                                      "per_pose": [4, 4, 1, 4, 4], "failed_poses": [2, 4]},
+                                      "per_pose": [4, 4, 1, 4, 4], "failed_poses": [2, 4],
+                                      "failed_reasons": {"2": "too few", "4": "none"}},
            "render_info": {"images": 5}, "render_metadata": [{"samples": 10}] * 5}
     sub = pose_subset(ctx, 3)
     assert sub["obs"].q.shape == (3, 4, 2) and sub["obs"].Rt_ref_board.shape == (3, 4, 3)
@@ -119,7 +120,7 @@ def test_pose_subset_slices_observations_and_summaries():
     assert sub["obs"].corner_model.shape == (3, 4)
     assert np.array_equal(sub["obs"].corner_blur_px, blur[:3])
     assert sub["detections"] == {"n_expected": 12, "n_found": 9, "per_pose": [4, 4, 1],
-                                 "failed_poses": [2]}
+                                 "failed_poses": [2], "failed_reasons": {"2": "too few"}}
     assert sub["render_info"] == {"images": 3, "samples": 30}
     assert sub["poses_used"] == {"n": 3, "rendered": 5} and "render_metadata" not in sub
     full = pose_subset(ctx, None)

@@ -55,6 +55,7 @@ def test_records_have_real_numbers(first_run):
     assert r["camera"] == "17" and r["camera_label"] == "Rocky8 rear hazcam left"
     assert r["image_size"] == [640, 480]
     assert r["detections"]["n_expected"] == 600 and r["detections"]["n_found"] == 600
+    assert r["detections"]["failed_poses"] == [] and r["detections"]["failed_reasons"] == {}
     # K=4 exact ray casting: residuals of hundredths of a pixel at most
     assert 1e-4 < r["residuals"]["rms"] < 0.05 and r["residuals"]["n"] == 600
     assert abs(r["params"]["Hc"]) < 0.2 and abs(r["params"]["theta_deg"]) < 0.05
