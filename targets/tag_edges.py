@@ -620,6 +620,24 @@ A span is judged only where the reference covers it: its neighbours' curves fitt
 first pass (one seen from its light side only would be extrapolated over: a quadratic
 over the line was chosen on the fisheye's corner pose and missed it by 0.029 px).
 
+Tried and left out (both aimed at the bend bias a calibration cannot average: the realistic
+AprilTag / dots projection ratio of ~2 on blur-wide-1024, ~0.0008 px RMS of corner bias
+left in the mean over 6 noise seeds, bench_corners' images):
+- taking the chosen span's estimated bias (the pooled `bias` below) off its corner.
+  Noise-free the estimate reads half of a bias: with every corner on the three edges'
+  cubic (0.0009 px RMS against 0.00025 for the choice), taking it off leaves 0.0005
+  unpooled, 0.0007 pooled. Under the noise the pooled estimate (0.0009 px RMS) is as big
+  as the bias: the corners' scatter rose 9%, the bias left over the seeds did not fall;
+- the variance over the pool's count nok (a bias shared by nok edges weighed like nok
+  corners' noise averaged). bench_corner_campaign.py --response realistic --seeds 0-3
+  (load 12-22), residual / projection ratio, before -> after: blur-wide 0.79 / 1.87 ->
+  0.97 / 1.08, but 15 0.73 / 0.29 -> 0.89 / 0.37, 17 CAHVOR 0.78 / 0.89 -> 1.06 / 1.17,
+  17 CAHVORE 0.82 / 1.43 -> 1.05 / 1.74, 8 CAHVOR 0.86 / 0.97 -> 1.04 / 1.15, 8 CAHVORE
+  1.15 / 1.41 -> 1.38 / 1.35 (pooled over 5 x 5 tags: projection 1.41 on blur-wide,
+  1.28 on 8 CAHVORE, the rest worse; residual 0.92-1.51). The
+  shorter spans' noise costs every camera 20-30% of residual; only on blur-wide is the
+  projection excess this bias (17 and 8 as CAHVORE carry a model error noise-free).
+
 own: {(i, k): (ix, iy, t, s, L, e, n)}; start: each edge's first-pass curve (d0..d2) in its
 frame; weak: the edges seen from their light side only (no choice: the three edges'
 cubic places them); curved: the edges whose start is a fit (not the chord); nbrs:
