@@ -636,7 +636,18 @@ left in the mean over 6 noise seeds, bench_corners' images):
   1.15 / 1.41 -> 1.38 / 1.35 (pooled over 5 x 5 tags: projection 1.41 on blur-wide,
   1.28 on 8 CAHVORE, the rest worse; residual 0.92-1.51). The
   shorter spans' noise costs every camera 20-30% of residual; only on blur-wide is the
-  projection excess this bias (17 and 8 as CAHVORE carry a model error noise-free).
+  projection excess this bias (17 and 8 as CAHVORE carry a model error noise-free);
+- a fifth candidate, the edge with the nearer halves of both neighbours (a cubic, the
+  corner inside the span): chosen for 96 of 576 corner ends under noise, but the three
+  edges' cubic kept 360, and the bias left over the seeds stayed (0.00077 px).
+The three edges' cubic stays chosen under noise while its bias reads ~half (its square a
+quarter) of what it is. That bias is the line's quartic and quintic terms, and the
+reference takes them from the first pass's quadratics. Why it under-reads is not settled:
+taking off each quadratic's own miss of the line's higher terms at its samples (its
+linearised least squares on the edge's moments, iterated) moved the reference's quartic by
+~3% and the corners not at all; the first pass's other errors (pixels placed about the
+chord, unweighted) are the next suspect. A reference that reads the bias (or a quartic over
+the line) is the way on; weighting a misread bias more is not.
 
 own: {(i, k): (ix, iy, t, s, L, e, n)}; start: each edge's first-pass curve (d0..d2) in its
 frame; weak: the edges seen from their light side only (no choice: the three edges'
