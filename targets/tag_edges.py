@@ -627,6 +627,42 @@ A span is judged only where the reference covers it: its neighbours' curves fitt
 first pass (one seen from its light side only would be extrapolated over: a quadratic
 over the line was chosen on the fisheye's corner pose and missed it by 0.029 px).
 
+Tried and left out (h-tagbias), each aimed at the bend bias a calibration cannot average
+(the realistic AprilTag / dots projection ratio of ~2 on blur-wide-1024: ~0.0008 px RMS of
+corner bias left in the corners' mean over 6 noise seeds of bench_corners' images, scatter
+0.0028 px). The estimate itself reads a bias noise-free: unpooled, against the edge's own
+cubic's corners, the three edges' cubic's bias regresses on it with slope 0.86 (correlation
+0.90), their quadratic's with 1.00 (1.00). Under the noise it is the estimate's noise:
+- the chosen span's pooled bias taken off its corner: the pooled estimate is 0.0009 px RMS
+  under noise (0.0001 noise-free), as big as the bias; scatter +9%, the bias not reduced;
+- the variance over the pool's count nok (a bias shared by nok edges weighed like nok
+  corners' noise averaged). bench_corner_campaign.py --response realistic --seeds 0-3
+  (load 12-22), residual / projection ratio, before -> after: blur-wide 0.79 / 1.87 ->
+  0.97 / 1.08, but 15 0.73 / 0.29 -> 0.89 / 0.37, 17 CAHVOR 0.78 / 0.89 -> 1.06 / 1.17,
+  17 CAHVORE 0.82 / 1.43 -> 1.05 / 1.74, 8 CAHVOR 0.86 / 0.97 -> 1.04 / 1.15, 8 CAHVORE
+  1.15 / 1.41 -> 1.38 / 1.35 (pooled over 5 x 5 tags: projection 1.41 on blur-wide, 1.28
+  on 8 CAHVORE, the rest worse; residual 0.92-1.51): the shorter spans' noise costs
+  every camera 20-30% of residual, and only on blur-wide is the projection excess this
+  bias (17 and 8 as CAHVORE carry a model error noise-free);
+- the three edges' quadratic left out of CANDIDATES (chosen for 90 of 576 corner ends
+  under noise, 1 noise-free): bias over the seeds 0.0008 -> 0.00048 px, scatter +8%; the
+  campaign as above: blur-wide 0.84 / 1.69, 8 CAHVORE 1.17 / 1.31, 17 CAHVORE 0.90 /
+  1.39, but 17 CAHVOR 0.93 / 1.37 (one seed 0.93 -> 2.27), 15 0.83 / 0.42, 8 CAHVOR
+  0.93 / 0.97: within the seeds' scatter, no clear gain;
+- a fifth candidate, the edge with the nearer halves of both neighbours (a cubic, the
+  corner inside the span): chosen for 96 of 576 ends, the bias over the seeds unchanged
+  (0.00077 px);
+- b2 plus its standard error (4 b^2 bvar + 2 bvar^2, pooled) as the risk: the bias over
+  the seeds unchanged (0.00081 px).
+Taking each corner's bias off with an estimate whose noise the board averages needs a
+reference far less noisy than the first pass's single-edge quadratics. What one would give
+(the noise-free image's reference replayed on its 6 noisy images, an oracle): every corner
+on the three edges' cubic (or the edge alone, or half its neighbour, by variance), its
+unpooled bias taken off: bias over the seeds 0.00035 px, scatter +7% (0.0030 px); with
+today's choice and no correction it is 0.00136 (the choice takes the long spans more).
+A board line's bend predicted for the whole image (one plane, one lens) would be such a
+reference.
+
 own: {(i, k): (ix, iy, t, s, L, e, n)}; start: each edge's first-pass curve (d0..d2) in its
 frame; weak: the edges seen from their light side only (no choice: the three edges'
 cubic places them); curved: the edges whose start is a fit (not the chord); nbrs:
