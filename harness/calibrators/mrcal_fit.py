@@ -205,9 +205,10 @@ VALLEY_LM = 100
 # is the noise variance of one residual or more (a misfit adds to it), so such a step moves
 # the fit by less than ~LM_STEP_SIGMA of its scatter under that noise. With LM_REL_TOL
 # everywhere most LM calls ran to VALLEY_LM steps (~0.5 ms each), in misfits' valleys for
-# almost nothing (20 CAHVORE: cost 6.929 -> 6.926 over 90 steps). Measured (session 15, on
-# the paper campaign's renders, load 12-15): bench_fits.py mrcal calibrate 13.99 -> 12.05
-# CPU s (exact fits 1.76 -> 1.66); bench_mrcal.py --stages image fits 13.3 -> 11.0. Every
+# almost nothing (20 CAHVORE: cost 6.929 -> 6.926 over 90 steps). Measured (session 15,
+# bench_fits.py on the paper campaign's renders, twice back to back, load 6-14): mrcal
+# calibrate 14.53 / 14.01 -> 11.88 / 11.51 CPU s, exact fits 1.78 / 1.74 -> 1.60 / 1.57; the
+# LM's Jacobians 7708 -> 4422 over the 25 CAHVOR / CAHVORE image fits. Every
 # judged record's renderer figures move <= 0.002 sigma but 16 CAHVOR's (projection 6.7e-5
 # -> 5.3e-6 px, 0.08 sigma; its R0 gauge and the floor of its unconverged exact fit move
 # along the valley as they do under any change); no flag changes; the worst ok renderer
