@@ -329,7 +329,7 @@ def test_a_valley_restart_that_leaves_the_image_is_made_by_mrcal_optimize(monkey
     lm = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False)
     calls = []
 
-    def runaway(kw, problem, nint, max_iter):
+    def runaway(kw, problem, nint, max_iter, **_):
         calls.append(max_iter)
         problem["intrinsics"][0, 2] = -3e4
     monkeypatch.setattr(mrcal_fit, "_valley_lm", runaway)
@@ -342,6 +342,43 @@ def test_a_valley_restart_that_leaves_the_image_is_made_by_mrcal_optimize(monkey
     for fit in (plain, lm):
         assert fit.residual_stats()["rms"] < np.sqrt(2) * 1e-3
     assert lm.info["intrinsics"][0] == pytest.approx(plain.info["intrinsics"][0], rel=1e-3)
+
+
+@pytest.mark.slow
+def test_the_lm_stops_at_its_noise_before_the_last_polish(monkeypatch):
+    # the valley LM of the polishes before the record's last one stops once a step gains less
+    # than LM_STEP_SIGMA^2 of the noise variance per residual (a misfit's residuals count as
+    # noise there); the last polish's strict rule takes the fit to where the strict rule
+    # everywhere (LM_STEP_SIGMA None) takes it, with fewer Jacobians. Camera 20 as a CAHVOR
+    # misfits (residual RMS ~0.13 px at 1e-3 px of noise per coordinate): its LM crawls in
+    # the valley. The two fits' projections agree far inside the fit's scatter under the
+    # noise (~sigma sqrt(parameters / residuals) ~ 0.3 sigma for 6 poses of 10 x 10 points)
+    import mrcal
+
+    from harness.stages import camera_truth
+    _, truth = camera_truth(20, "CAHVOR")
+    sigma = 1e-3
+    obs = _noisy(truth, sigma)
+    callback, jacobians = mrcal.optimizer_callback, []
+
+    def spy(*args, **kw):
+        if not kw.get("no_jacobian"):
+            jacobians.append(1)
+        return callback(*args, **kw)
+    monkeypatch.setattr(mrcal, "optimizer_callback", spy)
+    fits = []
+    for step_sigma in (None, mrcal_fit.LM_STEP_SIGMA):
+        monkeypatch.setattr(mrcal_fit, "LM_STEP_SIGMA", step_sigma)
+        jacobians.clear()
+        r = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False)
+        assert r.ok, r.reason
+        fits.append((r, len(jacobians)))
+    (strict, n_strict), (loose, n_loose) = fits
+    assert n_loose < 0.8 * n_strict
+    assert projection_difference(strict.model, loose.model, mode="rotation",
+                                 step=64)["rms"] < 0.1 * sigma
+    assert loose.residual_stats()["rms"] == pytest.approx(strict.residual_stats()["rms"],
+                                                          rel=1e-3)
 
 
 def test_a_misfit_that_spends_its_restarts_restarts_once_afterwards(monkeypatch):

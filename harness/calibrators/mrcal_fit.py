@@ -198,6 +198,26 @@ VALLEY_JUMP_MAX = 8
 # slot and extra, seeds 0-2) passes with 0 false alarms and judges more: mrcal CAHVOR 22 ->
 # 29 records (twins once), CAHVORE 10.
 VALLEY_LM = 100
+# _valley_lm stops once a step gains less than LM_REL_TOL of the cost in a polish whose fit is
+# the record's (final: the one after the bias settled, or the last one), and less than
+# LM_STEP_SIGMA^2 x cost / (residuals - parameters) in the others (the race's and the bias
+# passes' polishes, whose state only starts the next one). cost / (residuals - parameters)
+# is the noise variance of one residual or more (a misfit adds to it), so such a step moves
+# the fit by less than ~LM_STEP_SIGMA of its scatter under that noise. With LM_REL_TOL
+# everywhere most LM calls ran to VALLEY_LM steps (~0.5 ms each), in misfits' valleys for
+# almost nothing (20 CAHVORE: cost 6.929 -> 6.926 over 90 steps). Measured (session 15,
+# bench_fits.py on the paper campaign's renders, twice back to back, load 6-14): mrcal
+# calibrate 14.53 / 14.01 -> 11.88 / 11.51 CPU s, exact fits 1.78 / 1.74 -> 1.60 / 1.57; the
+# LM's Jacobians 7708 -> 4422 over the 25 CAHVOR / CAHVORE image fits. Every
+# judged record's renderer figures move <= 0.002 sigma but 16 CAHVOR's (projection 6.7e-5
+# -> 5.3e-6 px, 0.08 sigma; its R0 gauge and the floor of its unconverged exact fit move
+# along the valley as they do under any change); no flag changes; the worst ok renderer
+# projection stays 1 CAHVOR's 9.2e-3 px. Not taken: LM_STEP_SIGMA 0.1 (image fits 11.6 s):
+# 20 CAHVOR (floor far) then ends its misfit's crawl elsewhere, renderer 3.6e-3 -> 1.8e-2
+# px; the rule in every polish (9.1 s): judged 16 CAHVOR stopped short in its valley
+# (residual RMS 6.166e-4 -> 6.281e-4 px, Delta chi^2 ~45).
+LM_REL_TOL = 1e-10
+LM_STEP_SIGMA = 0.03
 # Where the CPU goes now and what did not pay (session 13, benchmarks/bench_mrcal.py --stages
 # on its 25 CAHVOR / CAHVORE paper jobs, load 9-12): image fits 16.7 CPU s, 84% inside
 # mrcal.optimize (cProfile); by phase: the refits' coarse restarts 7.0 s (178 calls, 39 ms:
@@ -583,6 +603,7 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
     # the bias settled end far above it (settled_misfit_verdict): every later polish
     # restarts once only (on the coarse grid only, for a model with distortions: misfit_coarse)
     crawl = None
+    lm_final = False  # the polish running is the record's last (LM_STEP_SIGMA)
     lm_off = False    # a restart of _valley_lm left the image: mrcal.optimize from then on
     if warm is not None and ((start.info or {}).get("crawl") or {}).get("settled"):
         # the start misfits: the exact observations' fit is the same coarse fit of it
@@ -600,7 +621,7 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
         # grid. A pinhole's full-grid solve converges in a few steps: it keeps its full grid.
         return crawl is not None and crawl.get("settled", False) and nint > 4 and coarse > 1
 
-    def polish(limit=None, full=True, settle=False):
+    def polish(limit=None, full=True, settle=False, final=False):
         # mrcal's solver stops early in flat valleys (narrow lenses: focal length vs range;
         # R0 vs focal length); restarting it keeps making progress. Stop when a restart gains
         # less than 1% in RMS (0.1% near an exact fit) or after max_restarts. A CAHVOR truth
@@ -609,8 +630,10 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
         # The restarts run on the coarse grid first, then on the full one (full=False: the
         # coarse grid only).
         # settle=True: the polish of settled(), the bias settled: a misfit of the coarse
-        # grid's restarts (settled_misfit_verdict) limits the full grid's to one
-        nonlocal crawl
+        # grid's restarts (settled_misfit_verdict) limits the full grid's to one.
+        # final=True: the record's fit ends with this polish (LM_STEP_SIGMA)
+        nonlocal crawl, lm_final
+        lm_final = final
         limit = min(limit or max_restarts, max_restarts)
         restarts(coarse, 1 if crawl is not None else limit)
         if settle and full and coarse > 1 and warm is None and limit == max_restarts > 1 \
@@ -690,7 +713,8 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
                 before = _snapshot(problem)
                 _valley_lm(problem_kw(step, do_optimize_intrinsics_core=True,
                                       do_optimize_intrinsics_distortions=True),
-                           problem, nint, VALLEY_LM)
+                           problem, nint, VALLEY_LM,
+                           step_sigma=None if lm_final else LM_STEP_SIGMA)
                 cx, cy = problem["intrinsics"][0, 2:4]
                 if 0.0 <= cx <= W - 1 and 0.0 <= cy <= H - 1:
                     u_before = None
@@ -788,7 +812,7 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
         return cm, model, Rt_cam_board
 
     if unpolished and not bias_runs:
-        polish()
+        polish(final=True)
         unpolished = False
     cm, model, Rt_cam_board = current()
     q_first = obs.q if b_start is None else obs.q - b_start
@@ -812,7 +836,7 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
             return None
         # the bias has settled on coarse polishes: polish on the full grid, then
         # check that the bias in use still holds for that model
-        polish(settle=True)
+        polish(settle=True, final=True)
         unpolished = False
         cm, model, Rt_cam_board = current()
         return {"bias_change_max": change, "full_grid": not misfit_coarse(),
@@ -826,7 +850,7 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
         settled=settled, b_start=b_start)
 
     if unpolished:   # no bias pass ran (no dots), or they ran out before the bias settled
-        polish()
+        polish(final=True)
         cm, model, Rt_cam_board = current()
     if warm is not None:
         # mrcal may take no step at all from a start in a flat valley (21 CAHVORE: a fit of
@@ -1028,14 +1052,15 @@ def _valley_T(u, nint):
     return T
 
 
-def _valley_lm(kw, problem, nint, max_iter, rel_tol=1e-10):
+def _valley_lm(kw, problem, nint, max_iter, step_sigma=None):
     r'''Levenberg-Marquardt on mrcal.optimizer_callback (kw: its arguments, problem's arrays
 among them) in the valley's natural coordinates u (_valley_u: log fx, log fy, the image of
 O, alpha, beta, log e, R1 / e, R2 / e, CAHVORE's E; e = 1 + R0), the board poses as they
 are; written back into problem. The normal equations of the column-scaled Jacobian are
 solved by eigen-decomposition (their condition ~1e14 in the valley), Nielsen's damping
-update (its decrease capped at LAM_DOWN), until a step gains less than rel_tol of the
-cost or after max_iter steps. Returns the final cost x.x, or None where it does not
+update (its decrease capped at LAM_DOWN), until a step gains less than LM_REL_TOL of the
+cost (step_sigma None) or less than step_sigma^2 x cost / (residuals - state parameters),
+or after max_iter steps. Returns the final cost x.x, or None where it does not
 apply (the state is not intrinsics + board poses, or e <= 0)'''
     import mrcal
     b, x, J = mrcal.optimizer_callback(**kw, no_factorization=True)[:3]
@@ -1050,6 +1075,7 @@ apply (the state is not intrinsics + board poses, or e <= 0)'''
         return None
     u = np.concatenate((_valley_u(p[:nint], nint), p[nint:]))
     cost = float(x @ x)
+    rel_tol = LM_REL_TOL if step_sigma is None else step_sigma ** 2 / max(len(x) - n, 1)
     lam, nu = None, 2.0
 
     def put(v):
