@@ -394,17 +394,21 @@ A bent line (curvature (N,), 1/px: the larger of the corner's two lines') leaves
 tangent by kappa s^2 / 2 at s px, and the straight line fitted over +-L moves by about its
 mean, kappa L^2 / 6 (0.016 px on camera 1's CAHVORE lines, kappa 2e-4 / px, at 22 px).
 curvature_bias predicts that shift to first order in kappa, from the model's curvature and
-the same strips: the strips' length does not depend on the curvature below the cap, so the
-detector (curvature from its first pass's grid) and the bias step (from the model) fit the
-same window. What the bias step cannot predict is the next order, ~kappa^2 L^3 px (the
-edge's departure from its tangent against the blurred profile's width; noise-free blurred
-renders: 1e-4 px RMS, 5e-4 max at kappa 2e-4 and L 22 px, 0.004 / 0.03 px at kappa 1e-3,
-where it is 0.011). So the strips end where that reaches LINES_BIAS_PX (a fifth of the
-bar's 0.005): L = (LINES_BIAS_PX / kappa^2)^(1/3), 10 px at kappa 1e-3 (a MER hazcam's
-fisheye), all 22 px below kappa 3e-4. Where that leaves no more than the box, no strips
+the same strips: where the curvature is too small to shorten them (below the cap's), their
+length does not depend on it, so the detector (curvature from its first pass's grid) and
+the bias step (from the model) fit the same window. What the bias step cannot predict is
+the next order, ~kappa^2 L^3 px (the edge's departure from its tangent against the blurred
+profile's width; noise-free blurred renders: 1e-4 px RMS, 5e-4 max at kappa 2e-4 and L 22
+px, 0.004 / 0.03 px at kappa 1e-3, where it is 0.011; with the cap at 1e-3 px, 0.0009 /
+0.013 px on camera 17 against the box's 0.0004 / 0.003). So the strips end where that
+reaches LINES_BIAS_PX (a fifth of the realistic dots' projection difference, ~1e-3 px: the
+term is smooth over the board, so a fit does not average it away): L = (LINES_BIAS_PX /
+kappa^2)^(1/3), all 22 px below kappa 1.3e-4, 16-22 px on camera 1, 5.8 px at kappa 1e-3
+(a MER hazcam's fisheye: the box alone). Where that leaves no more than the box, no strips
 (NaN; NaN curvature: none either). Under the cap the length depends on the curvature, as
-kappa^(-2/3): 10% between the grid's and the model's curvature moves the first-order bias
-kappa L^2 / 6 by ~3%.
+kappa^(-2/3): 1% between the grid's and the model's curvature moves the first-order bias
+kappa L^2 / 6 by ~0.2% (_grid_curvature: 0.05% inside the grid, 0.2% at its ends on camera
+1).
 '''
     steps = np.asarray(steps, dtype=np.float64).reshape(-1, 2, 2)
     sigma = float(sigma)
