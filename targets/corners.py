@@ -406,9 +406,9 @@ term is smooth over the board, so a fit does not average it away): L = (LINES_BI
 kappa^2)^(1/3), all 22 px below kappa 1.3e-4, 16-22 px on camera 1, 5.8 px at kappa 1e-3
 (a MER hazcam's fisheye: the box alone). Where that leaves no more than the box, no strips
 (NaN; NaN curvature: none either). Under the cap the length depends on the curvature, as
-kappa^(-2/3): 1% between the grid's and the model's curvature moves the first-order bias
-kappa L^2 / 6 by ~0.2% (_grid_curvature: 0.05% inside the grid, 0.2% at its ends on camera
-1).
+kappa^(-2/3): 1% between the grid's curvature (the detector's length) and the model's (the
+bias step's) moves the first-order bias kappa L^2 / 6 by 4/3% (_grid_curvature: 0.05%
+inside the grid, 0.2% at its ends on camera 1).
 '''
     steps = np.asarray(steps, dtype=np.float64).reshape(-1, 2, 2)
     sigma = float(sigma)
