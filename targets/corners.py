@@ -391,13 +391,24 @@ window's (MAX_WINDOW_PX of a sharp edge, sigma_e = sqrt(1/12)): 22 px at the
 (MAX_WINDOW_PX) left the corner noise 1.7x the sharp window's per unit of image noise.
 
 A bent line (curvature (N,), 1/px: the larger of the corner's two lines') leaves its
-tangent by kappa s^2 / 2 at s px, and a straight line fitted over +-L moves by about its
-mean, kappa L^2 / 6: curvature_bias removes that, but the window's length depends on the
-curvature, which the detector estimates from its grid (its second differences) and the
-calibrators' bias step takes from the model: 10% between them moves that bias by ~10%.
-So the strips end where it reaches LINES_BIAS_PX (10% of it is 1e-4 px, a fiftieth of
-the bar's 0.005). Where that leaves no more than the box, no strips (NaN; NaN curvature:
-none either): a fisheye's bent lines (MER hazcams, kappa ~1e-3 / px) keep the box alone.
+tangent by kappa s^2 / 2 at s px, and the straight line fitted over +-L moves by about its
+mean, kappa L^2 / 6 (0.016 px on camera 1's CAHVORE lines, kappa 2e-4 / px, at 22 px).
+curvature_bias predicts that shift to first order in kappa, from the model's curvature and
+the same strips: where the curvature is too small to shorten them (below the cap's), their
+length does not depend on it, so the detector (curvature from its first pass's grid) and
+the bias step (from the model) fit the same window. What the bias step cannot predict is
+the next order, ~kappa^2 L^3 px (the edge's departure from its tangent against the blurred
+profile's width; noise-free blurred renders: 1e-4 px RMS, 5e-4 max at kappa 2e-4 and L 22
+px, 0.004 / 0.03 px at kappa 1e-3, where it is 0.011; with the cap at 1e-3 px, 0.0009 /
+0.013 px on camera 17 against the box's 0.0004 / 0.003). So the strips end where that
+reaches LINES_BIAS_PX (a fifth of the realistic dots' projection difference, ~1e-3 px: the
+term is smooth over the board, so a fit does not average it away): L = (LINES_BIAS_PX /
+kappa^2)^(1/3), all 22 px below kappa 1.3e-4, 16-22 px on camera 1, 5.8 px at kappa 1e-3
+(a MER hazcam's fisheye: the box alone). Where that leaves no more than the box, no strips
+(NaN; NaN curvature: none either). Under the cap the length depends on the curvature, as
+kappa^(-2/3): 1% between the grid's curvature (the detector's length) and the model's (the
+bias step's) moves the first-order bias kappa L^2 / 6 by 4/3% (_grid_curvature: 0.05%
+inside the grid, 0.2% at its ends on camera 1).
 '''
     steps = np.asarray(steps, dtype=np.float64).reshape(-1, 2, 2)
     sigma = float(sigma)
@@ -405,7 +416,7 @@ none either): a fisheye's bent lines (MER hazcams, kappa ~1e-3 / px) keep the bo
     box = blurred_half_box(steps, np.inf, clearance, sigma) - LINES_SLACK
     k = np.abs(np.broadcast_to(np.asarray(curvature, dtype=np.float64), (len(steps),)))
     with np.errstate(divide="ignore", invalid="ignore"):
-        bent = np.sqrt(6.0 * LINES_BIAS_PX / k)
+        bent = np.cbrt(LINES_BIAS_PX / (k * k))
     reach = np.minimum(MAX_WINDOW_PX * se * math.sqrt(12.0), bent)
     none = ~(reach > MAX_WINDOW_PX)
     box = np.where(none, np.nan, box)
@@ -978,8 +989,9 @@ CHESSBOARD_LINES = ((0, 2), (1, 3))
 LINES_SLACK = 0.2
 # the line strips' half-width in the edge profile's sigma (line_strips)
 STRIP_SIGMAS = 2.0
-# the largest bias (px) of a straight line fitted over a bent line's strips (line_strips)
-LINES_BIAS_PX = 1e-3
+# the largest bias (px) of a straight line fitted over a bent line's strips that the first-order
+# curvature_bias leaves (line_strips)
+LINES_BIAS_PX = 2e-4
 
 
 def refine_tag_corners(image, Q, half_box=TAG_HALF_BOX_BITS, clearance=TAG_CLEARANCE_BITS,
@@ -1110,15 +1122,23 @@ along an axis, NaN where that neighbour is beyond the grid'''
 def _grid_curvature(G, axis):
     r'''(ny,nx) curvature (1/px) of the grid line along an axis at each corner: the turn
 from the step before it to the step after it over their mean length; a corner at the
-line's end takes the next corner's (the same line a square on); NaN where neither has
-both neighbours'''
+line's end takes the line's curvature extrapolated from the next two corners (the next
+one alone where the line has no third; NaN where neither has both neighbours)
+
+The strips' length follows this curvature (line_strips), and the bias step's follows the
+model's at the corner: the two must agree. Through camera 1's CAHVORE (exact grid
+corners) they do to 0.05% RMS inside the grid; at its ends the next corner's copy is
+1% RMS, 3% max off, the extrapolation 0.2% RMS, 0.7% max.'''
     fwd, bwd = _grid_differences(G, axis)
     turn = np.arctan2(_cross(bwd, fwd), (bwd * fwd).sum(-1))
     k = np.abs(turn) / (0.5 * (np.linalg.norm(fwd, axis=-1) + np.linalg.norm(bwd, axis=-1)))
     k = np.moveaxis(k, axis, 0).copy()
     if len(k) > 2:
-        k[0] = np.where(np.isnan(k[0]), k[1], k[0])
-        k[-1] = np.where(np.isnan(k[-1]), k[-2], k[-1])
+        for end, k1, k2 in ((0, k[1], k[2] if len(k) > 3 else np.nan),
+                            (-1, k[-2], k[-3] if len(k) > 3 else np.nan)):
+            # a curvature stays >= 0: a steep change is not extrapolated below 0
+            ext = np.where(np.isfinite(k2), np.maximum(2.0 * k1 - k2, 0.0), k1)
+            k[end] = np.where(np.isnan(k[end]), ext, k[end])
     return np.moveaxis(k, 0, axis)
 
 

@@ -236,12 +236,65 @@ offset over them, kappa L^2 / 6, reaches LINES_BIAS_PX, none where that is in th
     assert strip == pytest.approx(STRIP_SIGMAS * se, rel=1e-12)
     smin = np.linalg.svd(steps[0], compute_uv=False)[-1]
     assert box[0] == pytest.approx(1.0 - 3.0 * 0.7 / smin - LINES_SLACK, rel=1e-12)
-    # a line bent by kappa leaves its tangent by kappa s^2 / 2 at s px
-    steps3 = np.repeat(steps, 3, axis=0)
-    box, _, reach = line_strips(steps3, 1.0, 0.7, [2e-5, 1e-3, np.nan])
-    assert 2e-5 * reach[0] ** 2 / 6.0 == pytest.approx(LINES_BIAS_PX)    # 17.3 px
-    assert reach[1] == 0.0 and np.isnan(box[1])     # 2.4 px: within the box
-    assert reach[2] == 0.0 and np.isnan(box[2])
+    # a bent line's strips end where the next order of their bias, kappa^2 L^3, reaches
+    # LINES_BIAS_PX: not by the curvature below that
+    steps4 = np.repeat(steps, 4, axis=0)
+    box, _, reach = line_strips(steps4, 1.0, 0.7, [2e-5, 2e-4, 1e-3, np.nan])
+    assert reach[0] == pytest.approx(MAX_WINDOW_PX * se * np.sqrt(12.0), rel=1e-12)
+    assert (2e-4) ** 2 * reach[1] ** 3 == pytest.approx(LINES_BIAS_PX)    # 17.1 px
+    assert reach[2] == 0.0 and np.isnan(box[2])     # 5.8 px: within the box
+    assert reach[3] == 0.0 and np.isnan(box[3])
+
+
+def test_bent_lines_strips_are_predicted_by_the_lines_bias():
+    r'''A blurred X junction on lines bent by 2e-4 / px (a 5120x3840 CAHVORE's, camera 1)
+on squares of 60 px: its window holds strips of ~17 px (line_strips' cap) past the box,
+where a straight line fitted over them moves by ~kappa L^2 / 6 ~ 0.01 px, and
+curvature_bias with the same strips predicts the corner's shift to LINES_BIAS_PX (its
+next order, kappa^2 L^3) plus the render's own error (S = 32 subsamples: ~1e-4 px on
+the box, tests above)'''
+    from targets.corners import (
+        CHESSBOARD_HALF_BOX,
+        CHESSBOARD_LINES,
+        LINES_BIAS_PX,
+        curvature_bias,
+        refine_corners,
+    )
+    k = 2e-4
+    c = np.array([55.37, 56.81])
+    img, u1, u2 = _bent_x(c, np.radians(11.0), k, -k, size=112)
+    blurred = ResponseChain.from_config({"psf": {"kind": "gaussian", "sigma_px": 0.7}}) \
+        .apply(img).image.astype(np.float64)
+    tangents = np.stack((u1, u2, -u1, -u2))[None]
+    curv = np.array([[k, -k, -k, k]])
+    steps = (60.0 * np.stack((u1, u2), -1))[None]
+    sigma = x_junction_blur(0.7, "gaussian")
+    fit = refine_corners(blurred, c[None] + 0.2, tangents, [(0, 1), (2, 3)], steps,
+                         CHESSBOARD_HALF_BOX, clearance=1.0, lines=CHESSBOARD_LINES,
+                         psf_sigma_px=sigma, psf_kind="sampled",
+                         line_curvature=lambda q: np.full(len(q), k))
+    assert fit.npixels[0] > 289 + 4 * 8 * 2, fit.npixels[0]       # the box and the strips
+    b = curvature_bias(c[None], tangents, curv, [(0, 1), (2, 3)], steps, CHESSBOARD_HALF_BOX,
+                       lines=CHESSBOARD_LINES, sigma=sigma, clearance=1.0)[0]
+    shift = fit.q[0] - c
+    assert 0.005 < np.linalg.norm(b) < 0.03, b
+    assert np.linalg.norm(shift - b) < LINES_BIAS_PX + 2e-4, (shift, b)
+
+
+def test_grid_curvature_at_the_lines_ends_is_extrapolated():
+    r'''The curvature of a grid line at its end corners (no neighbour beyond them) is the
+next two corners' extrapolated: on a line whose curvature changes along it (a parabola
+y = a x^2 sampled every 50 px, its curvature falling 6x along it), within 3% of the curve's
+own (measured 1.3% and 2.6%) where the next corner's copy is 7% and 16% off'''
+    from targets.corners import _grid_curvature
+    a = 1e-3
+    x = 50.0 * np.arange(10) + 100.0
+    G = np.stack((x, a * x * x), -1)[None]                      # (1, 10, 2): one line
+    k = _grid_curvature(G, axis=1)[0]
+    exact = 2 * a / (1 + (2 * a * x) ** 2) ** 1.5
+    assert np.all(np.abs(k[1:-1] / exact[1:-1] - 1) < 0.02)
+    assert np.all(np.abs(k[[0, -1]] / exact[[0, -1]] - 1) < 0.03), k / exact - 1
+    assert np.all(np.abs(k[[1, -2]] / exact[[0, -1]] - 1) > 0.05)
 
 
 def test_blurred_corner_window_holds_its_line_strips():
