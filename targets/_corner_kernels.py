@@ -738,8 +738,9 @@ rint(scale * max(img, 0)) saturated at 255, in the image's own float type (scale
 type): what OpenCV's convertScaleAbs(max(img, 0), alpha=scale) gives (round half to even;
 float32 products stay float32) where it does not overflow. The smallest and largest are
 taken on the floats' bits as ordered integers (a float min/max does not vectorise), in
-the pixels' width: about 0.5 ns a pixel of a 5120x3840 float32 image, near a plain read's
-memory traffic (0.87 ns with int64 and float64 steps, 2.2 with a float min/max)'''
+the pixels' width: 12.0 ms of CPU on a 5120x3840 float32 image against 15.4 with int64
+and float64 steps and 38 with a float min/max (load 8-11, 2 cores); numpy's sum of that
+image takes 9.7 (its memory traffic)'''
     H, W = img.shape
     out = np.empty((H, W), np.uint8)
     bits, low, exponent = _sortable_bits(img)
