@@ -240,23 +240,28 @@ clipped to the crop (_dilation_steps' intervals), and their union is taken"""
             continue
         for k in range(row0[y], row0[y + 1]):
             s, e = max(rs[k] + lo[i], 0), min(re[k] + hi[i], w)
-            if s < e:
-                # insertion by start (a few intervals: one or two a row of a dot)
-                t = m
-                while t > 0 and a[t - 1] > s:
-                    a[t], b[t] = a[t - 1], b[t - 1]
-                    t -= 1
-                a[t], b[t] = s, e
+            if not s < e:
+                continue
+            # the union so far: sorted, disjoint, not touching (one interval a row of a
+            # dot, mostly): the new one merges with those from the first that reaches it
+            # (b >= s) to the last that it reaches (a <= e)
+            t = 0
+            while t < m and b[t] < s:
+                t += 1
+            u = t
+            while u < m and a[u] <= e:
+                s, e = min(s, a[u]), max(e, b[u])
+                u += 1
+            if u == t:      # touches none: inserted before a[t]
+                for q in range(m, t, -1):
+                    a[q], b[q] = a[q - 1], b[q - 1]
                 m += 1
-    # merge the overlapping and touching ones
-    out = 0
-    for k in range(m):
-        if out and a[k] <= b[out - 1]:
-            b[out - 1] = max(b[out - 1], b[k])
-        else:
-            a[out], b[out] = a[k], b[k]
-            out += 1
-    return out
+            elif u > t + 1:     # it joins t..u-1: the rest moves down
+                for q in range(u, m):
+                    a[q - u + t + 1], b[q - u + t + 1] = a[q], b[q]
+                m -= u - t - 1
+            a[t], b[t] = s, e
+    return m
 
 
 @njit(cache=True, error_model="numpy")
@@ -270,9 +275,13 @@ blob; the elements' rows from element_rows(); see the module docstring
 
 The window and the outer dilation are taken row by row as intervals from the mask's
 runs (_dilated_row: the pixels dilations() gives), so that only the ring's and the
-window's pixels are read, in raster order: the ring's collected (the plane's points),
-then the weights summed over the window. A float32 pixel is taken as its float64 value,
-as numpy's astype gives it."""
+window's pixels are read, in raster order, in one pass over the crop's rows: the ring's
+collected (the plane's points) and the window's copied; then the weights of each window
+interval are computed elementwise (vectorised; a weight that is not finite or not
+positive is 0, which adds nothing to the sums: they are non-negative, so s + 0 = s) and
+summed in raster order. A float32 pixel is taken as its float64 value, as numpy's
+astype gives it. 17.3 -> 15.4 ms of CPU per 100 dots of 5120x3840 renders (the union of
+a row's intervals, the plane's sums in scalars and the weights), the same bits (load 19)."""
     h, w = crop.shape
     rs, re, row0 = _row_runs(mask, mx, my, h, w)
     runs = 1
@@ -287,6 +296,8 @@ as numpy's astype gives it."""
     ob = np.empty(cap, np.int64)
     nwin = 0
     v = np.empty(h * w)
+    wv = np.empty(h * w)
+    nv = 0
     rx = np.empty(h * w, np.int64)
     ry = np.empty(h * w, np.int64)
     n = 0
@@ -315,6 +326,10 @@ as numpy's astype gives it."""
                         sy += y + ya
                         n += 1
                 x = end
+        for k in range(nwin, nwin + nw):   # the window's pixels, for the weights
+            for x in range(wa[k], wb[k]):
+                wv[nv] = crop[y, x]
+                nv += 1
         nwin += nw
     wrow[h] = nwin
     plane = n >= min_ring
@@ -332,13 +347,25 @@ as numpy's astype gives it."""
         N = np.empty((3, 3))
         for fit in range(2):
             # least squares v = a + b dx + c dy over the used pixels: normal equations
-            N[:, :] = 0.0
-            coef[:] = 0.0
+            # (_add_plane_point's sums, in scalars: the same order of additions)
+            n00 = n01 = n02 = n11 = n12 = n22 = b0 = b1 = b2 = 0.0
             for k in range(n):
                 if not use[k]:
                     continue
-                _add_plane_point(N, coef, dx[k], dy[k], v[k])
-            N[1, 0], N[2, 0], N[2, 1] = N[0, 1], N[0, 2], N[1, 2]
+                x, y, vk = dx[k], dy[k], v[k]
+                n00 += 1.0
+                n01 += x
+                n02 += y
+                n11 += x * x
+                n12 += x * y
+                n22 += y * y
+                b0 += vk
+                b1 += x * vk
+                b2 += y * vk
+            N[0, 0], N[0, 1], N[0, 2] = n00, n01, n02
+            N[1, 0], N[1, 1], N[1, 2] = n01, n11, n12
+            N[2, 0], N[2, 1], N[2, 2] = n02, n12, n22
+            coef[0], coef[1], coef[2] = b0, b1, b2
             if not _solve3(N, coef):
                 return -1, 0.0, 0.0
             if fit == 0:
@@ -362,18 +389,22 @@ as numpy's astype gives it."""
     c0, c1 = coef[0], coef[1]
     if not plane:       # the level as a plane of slope 0: the same b at every pixel
         c0, c1, xm = level, 0.0, 0.0
+    wt = np.empty(w)
+    j = 0
     for y in range(h):
         # the plane's y term of the row: the same value and sum order as per pixel
         yterm = coef[2] * (float(y + ya) - ym) if plane else 0.0
-        row = crop[y]
         for k in range(wrow[y], wrow[y + 1]):
-            for x in range(wa[k], wb[k]):
-                b = c0 + c1 * (float(x + xa) - xm) + yterm
-                wgt = 1.0 - row[x] / b
-                if math.isfinite(wgt) and wgt > 0.0:
-                    s += wgt
-                    sxw += wgt * x  # crop coordinates: sums of smaller terms, less rounding
-                    syw += wgt * y
+            a0, L = wa[k], wb[k] - wa[k]
+            for t in range(L):
+                b = c0 + c1 * (float(a0 + t + xa) - xm) + yterm
+                wgt = 1.0 - wv[j + t] / b
+                wt[t] = wgt if math.isfinite(wgt) and wgt > 0.0 else 0.0
+            for t in range(L):
+                s += wt[t]
+                sxw += wt[t] * (a0 + t)   # crop coordinates: smaller terms, less rounding
+                syw += wt[t] * y
+            j += L
     if not s > 0:
         return 0, 0.0, 0.0
     return 1, xa + sxw / s, ya + syw / s
