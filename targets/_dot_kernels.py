@@ -44,7 +44,48 @@ generates; a process loads the cached kernels in ~0.4 s CPU.
 import math
 
 import numpy as np
+from llvmlite import binding as _llvm
+from llvmlite import ir as _ir
 from numba import njit
+from numba.core import cgutils as _cgutils
+from numba.core import types as _types
+from numba.extending import intrinsic
+
+# rows of a crop of a large image lie a page or more apart, where the hardware prefetcher
+# does not follow: the kernels that walk a crop row by row request the cache lines of the
+# row this many rows ahead (label_boxes 7.2 -> 4.5 ms, dot_centroid 15.6 -> 12.3 ms of CPU
+# per 5120x3840 paper render, load 14; 4 and 8 rows ahead gain the same)
+PREFETCH_ROWS = 4
+_LINE_BYTES = 64
+
+
+
+@intrinsic
+def _prefetch(typingctx, a, y, x):
+    r'''A hint to load a[y, x]'s cache line (llvm.prefetch: a read, kept in every cache
+level): no effect on any result; an address off the array does not fault'''
+    name = "llvm.prefetch.p0" if _llvm.llvm_version_info >= (15,) else "llvm.prefetch.p0i8"
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = _cgutils.get_item_pointer(context, builder, signature.args[0], ary,
+                                        [args[1], args[2]], wraparound=False)
+        i8p, i32 = _ir.IntType(8).as_pointer(), _ir.IntType(32)
+        fn = _cgutils.get_or_insert_function(
+            builder.module, _ir.FunctionType(_ir.VoidType(), [i8p, i32, i32, i32]), name)
+        builder.call(fn, [builder.bitcast(ptr, i8p), _ir.Constant(i32, 0),
+                          _ir.Constant(i32, 3), _ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+    return _types.void(a, y, x), codegen
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _prefetch_row(a, y, x0, x1):
+    r"""A hint to load the cache lines of a[y, x0:x1] (PREFETCH_ROWS)"""
+    if x1 > x0:
+        for x in range(x0, x1, max(1, _LINE_BYTES // a.itemsize)):
+            _prefetch(a, y, x)
+        _prefetch(a, y, x1 - 1)
 
 
 def element_rows(kernel):
@@ -304,6 +345,8 @@ a row's intervals, the plane's sums in scalars and the weights), the same bits (
     sx, sy = 0, 0
     for y in range(h):
         wrow[y] = nwin
+        if y + PREFETCH_ROWS < h:
+            _prefetch_row(crop, y + PREFETCH_ROWS, 0, w)
         nw = _dilated_row(y, h, w, rs, re, row0, lo_w, hi_w, wa[nwin:], wb[nwin:])
         no = _dilated_row(y, h, w, rs, re, row0, lo_r, hi_r, oa, ob)
         # the ring: the outer intervals' pixels outside the window's, left to right
@@ -744,6 +787,8 @@ block (y // 2, x // 2 in the box) orders them."""
         n = 0
         for y in range(h):
             row0[y] = n
+            if y + PREFETCH_ROWS < h:
+                _prefetch_row(img, ya + y + PREFETCH_ROWS, xa, xb)
             x = 0
             while x < w:
                 if not img[ya + y, xa + x] < thr:
