@@ -44,7 +44,48 @@ generates; a process loads the cached kernels in ~0.4 s CPU.
 import math
 
 import numpy as np
+from llvmlite import binding as _llvm
+from llvmlite import ir as _ir
 from numba import njit
+from numba.core import cgutils as _cgutils
+from numba.core import types as _types
+from numba.extending import intrinsic
+
+# rows of a crop of a large image lie a page or more apart, where the hardware prefetcher
+# does not follow: the kernels that walk a crop row by row request the cache lines of the
+# row this many rows ahead (label_boxes 7.2 -> 4.5 ms, dot_centroid 15.6 -> 12.3 ms of CPU
+# per 5120x3840 paper render, load 14; 4 and 8 rows ahead gain the same)
+PREFETCH_ROWS = 4
+_LINE_BYTES = 64
+
+
+
+@intrinsic
+def _prefetch(typingctx, a, y, x):
+    r'''A hint to load a[y, x]'s cache line (llvm.prefetch: a read, kept in every cache
+level): no effect on any result; an address off the array does not fault'''
+    name = "llvm.prefetch.p0" if _llvm.llvm_version_info >= (15,) else "llvm.prefetch.p0i8"
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = _cgutils.get_item_pointer(context, builder, signature.args[0], ary,
+                                        [args[1], args[2]], wraparound=False)
+        i8p, i32 = _ir.IntType(8).as_pointer(), _ir.IntType(32)
+        fn = _cgutils.get_or_insert_function(
+            builder.module, _ir.FunctionType(_ir.VoidType(), [i8p, i32, i32, i32]), name)
+        builder.call(fn, [builder.bitcast(ptr, i8p), _ir.Constant(i32, 0),
+                          _ir.Constant(i32, 3), _ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+    return _types.void(a, y, x), codegen
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _prefetch_row(a, y, x0, x1):
+    r"""A hint to load the cache lines of a[y, x0:x1] (PREFETCH_ROWS)"""
+    if x1 > x0:
+        for x in range(x0, x1, max(1, _LINE_BYTES // a.itemsize)):
+            _prefetch(a, y, x)
+        _prefetch(a, y, x1 - 1)
 
 
 def element_rows(kernel):
@@ -240,23 +281,28 @@ clipped to the crop (_dilation_steps' intervals), and their union is taken"""
             continue
         for k in range(row0[y], row0[y + 1]):
             s, e = max(rs[k] + lo[i], 0), min(re[k] + hi[i], w)
-            if s < e:
-                # insertion by start (a few intervals: one or two a row of a dot)
-                t = m
-                while t > 0 and a[t - 1] > s:
-                    a[t], b[t] = a[t - 1], b[t - 1]
-                    t -= 1
-                a[t], b[t] = s, e
+            if not s < e:
+                continue
+            # the union so far: sorted, disjoint, not touching (one interval a row of a
+            # dot, mostly): the new one merges with those from the first that reaches it
+            # (b >= s) to the last that it reaches (a <= e)
+            t = 0
+            while t < m and b[t] < s:
+                t += 1
+            u = t
+            while u < m and a[u] <= e:
+                s, e = min(s, a[u]), max(e, b[u])
+                u += 1
+            if u == t:      # touches none: inserted before a[t]
+                for q in range(m, t, -1):
+                    a[q], b[q] = a[q - 1], b[q - 1]
                 m += 1
-    # merge the overlapping and touching ones
-    out = 0
-    for k in range(m):
-        if out and a[k] <= b[out - 1]:
-            b[out - 1] = max(b[out - 1], b[k])
-        else:
-            a[out], b[out] = a[k], b[k]
-            out += 1
-    return out
+            elif u > t + 1:     # it joins t..u-1: the rest moves down
+                for q in range(u, m):
+                    a[q - u + t + 1], b[q - u + t + 1] = a[q], b[q]
+                m -= u - t - 1
+            a[t], b[t] = s, e
+    return m
 
 
 @njit(cache=True, error_model="numpy")
@@ -270,9 +316,13 @@ blob; the elements' rows from element_rows(); see the module docstring
 
 The window and the outer dilation are taken row by row as intervals from the mask's
 runs (_dilated_row: the pixels dilations() gives), so that only the ring's and the
-window's pixels are read, in raster order: the ring's collected (the plane's points),
-then the weights summed over the window. A float32 pixel is taken as its float64 value,
-as numpy's astype gives it."""
+window's pixels are read, in raster order, in one pass over the crop's rows: the ring's
+collected (the plane's points) and the window's copied; then the weights of each window
+interval are computed elementwise (vectorised; a weight that is not finite or not
+positive is 0, which adds nothing to the sums: they are non-negative, so s + 0 = s) and
+summed in raster order. A float32 pixel is taken as its float64 value, as numpy's
+astype gives it. 17.3 -> 15.4 ms of CPU per 100 dots of 5120x3840 renders (the union of
+a row's intervals, the plane's sums in scalars and the weights), the same bits (load 19)."""
     h, w = crop.shape
     rs, re, row0 = _row_runs(mask, mx, my, h, w)
     runs = 1
@@ -287,12 +337,16 @@ as numpy's astype gives it."""
     ob = np.empty(cap, np.int64)
     nwin = 0
     v = np.empty(h * w)
+    wv = np.empty(h * w)
+    nv = 0
     rx = np.empty(h * w, np.int64)
     ry = np.empty(h * w, np.int64)
     n = 0
     sx, sy = 0, 0
     for y in range(h):
         wrow[y] = nwin
+        if y + PREFETCH_ROWS < h:
+            _prefetch_row(crop, y + PREFETCH_ROWS, 0, w)
         nw = _dilated_row(y, h, w, rs, re, row0, lo_w, hi_w, wa[nwin:], wb[nwin:])
         no = _dilated_row(y, h, w, rs, re, row0, lo_r, hi_r, oa, ob)
         # the ring: the outer intervals' pixels outside the window's, left to right
@@ -315,6 +369,10 @@ as numpy's astype gives it."""
                         sy += y + ya
                         n += 1
                 x = end
+        for k in range(nwin, nwin + nw):   # the window's pixels, for the weights
+            for x in range(wa[k], wb[k]):
+                wv[nv] = crop[y, x]
+                nv += 1
         nwin += nw
     wrow[h] = nwin
     plane = n >= min_ring
@@ -332,13 +390,25 @@ as numpy's astype gives it."""
         N = np.empty((3, 3))
         for fit in range(2):
             # least squares v = a + b dx + c dy over the used pixels: normal equations
-            N[:, :] = 0.0
-            coef[:] = 0.0
+            # (_add_plane_point's sums, in scalars: the same order of additions)
+            n00 = n01 = n02 = n11 = n12 = n22 = b0 = b1 = b2 = 0.0
             for k in range(n):
                 if not use[k]:
                     continue
-                _add_plane_point(N, coef, dx[k], dy[k], v[k])
-            N[1, 0], N[2, 0], N[2, 1] = N[0, 1], N[0, 2], N[1, 2]
+                x, y, vk = dx[k], dy[k], v[k]
+                n00 += 1.0
+                n01 += x
+                n02 += y
+                n11 += x * x
+                n12 += x * y
+                n22 += y * y
+                b0 += vk
+                b1 += x * vk
+                b2 += y * vk
+            N[0, 0], N[0, 1], N[0, 2] = n00, n01, n02
+            N[1, 0], N[1, 1], N[1, 2] = n01, n11, n12
+            N[2, 0], N[2, 1], N[2, 2] = n02, n12, n22
+            coef[0], coef[1], coef[2] = b0, b1, b2
             if not _solve3(N, coef):
                 return -1, 0.0, 0.0
             if fit == 0:
@@ -362,18 +432,22 @@ as numpy's astype gives it."""
     c0, c1 = coef[0], coef[1]
     if not plane:       # the level as a plane of slope 0: the same b at every pixel
         c0, c1, xm = level, 0.0, 0.0
+    wt = np.empty(w)
+    j = 0
     for y in range(h):
         # the plane's y term of the row: the same value and sum order as per pixel
         yterm = coef[2] * (float(y + ya) - ym) if plane else 0.0
-        row = crop[y]
         for k in range(wrow[y], wrow[y + 1]):
-            for x in range(wa[k], wb[k]):
-                b = c0 + c1 * (float(x + xa) - xm) + yterm
-                wgt = 1.0 - row[x] / b
-                if math.isfinite(wgt) and wgt > 0.0:
-                    s += wgt
-                    sxw += wgt * x  # crop coordinates: sums of smaller terms, less rounding
-                    syw += wgt * y
+            a0, L = wa[k], wb[k] - wa[k]
+            for t in range(L):
+                b = c0 + c1 * (float(a0 + t + xa) - xm) + yterm
+                wgt = 1.0 - wv[j + t] / b
+                wt[t] = wgt if math.isfinite(wgt) and wgt > 0.0 else 0.0
+            for t in range(L):
+                s += wt[t]
+                sxw += wt[t] * (a0 + t)   # crop coordinates: smaller terms, less rounding
+                syw += wt[t] * y
+            j += L
     if not s > 0:
         return 0, 0.0, 0.0
     return 1, xa + sxw / s, ya + syw / s
@@ -713,6 +787,8 @@ block (y // 2, x // 2 in the box) orders them."""
         n = 0
         for y in range(h):
             row0[y] = n
+            if y + PREFETCH_ROWS < h:
+                _prefetch_row(img, ya + y + PREFETCH_ROWS, xa, xb)
             x = 0
             while x < w:
                 if not img[ya + y, xa + x] < thr:
