@@ -106,6 +106,9 @@ def test_a_bias_correction_that_did_not_settle_is_a_failed_fit():
                                    "passes"), short.reason
     full = calibrate("jpl", obs, TARGET, "CAHVORE", truth=truth)
     assert full.ok, full.reason
+    # no pass at all from a warm start (its bias held): nothing ran out, the fit stands
+    held = calibrate("jpl", obs, TARGET, "CAHVORE", truth=truth, bias_passes=0, start=full)
+    assert held.ok, held.reason
     refits = [p for p in full.info["passes"] if "bias_change_max" in p]
     assert 2 <= len(refits) <= 4
 

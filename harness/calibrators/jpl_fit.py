@@ -370,7 +370,8 @@ procedure's answer (a constructed 116 deg CAHVORE stopped so with a 0.66 px last
 and its verdict read a renderer fault). When the passes stopped on a settled bias, the
 last bias was checked already; a run-out one is checked here once (bias_step)'''
     refits = [p for p in passes if "bias_change_max" in p]
-    if len(refits) < bias_passes or refits[-1]["bias_change_max"] < bias_tolerance:
+    if not refits or len(refits) < bias_passes or \
+            refits[-1]["bias_change_max"] < bias_tolerance:
         return
     b, change = bias_step(model, target, Rt_cam_board_of(model, obs.Rt_ref_board),
                           obs.p_board, obs.q - q_used, None, obs.corner_model,
