@@ -124,7 +124,8 @@ calibrator's own level (jpl: exact to ~1e-6 px), and total = floor + renderer'''
     assert noise["rms"] == pytest.approx(0.01, rel=1e-6)
     res = stages.calibrate_stage(cal, img, target, "CAHVOR", truth, {})
     params, proj, _ = stages.compare_stage(truth, res)
-    v = verdict.assess(truth, res, exact, noise, params, proj)
+    v = verdict.assess(truth, res, exact, noise, params, proj,
+                       modes=("rotation", "intrinsics", "world"))
     assert v["floor"]["projection"]["rms"] < 1e-4
     assert not v["floor_far"] and v["floor_reason"] == ""
     r = v["renderer"]["projection"]
@@ -133,6 +134,13 @@ calibrator's own level (jpl: exact to ~1e-6 px), and total = floor + renderer'''
         assert v["renderer"]["params"]["Hc"] == pytest.approx(0.01, rel=0.02)
         assert r["world"]["rms"] == pytest.approx(0.01, rel=0.05)
     assert v["total"]["projection"]["rms"] == proj["rms"]
+    # by default (harness.campaign.VERDICT_MODES) the floor and renderer have the headline
+    # mode only, the same numbers; the total keeps the record's every mode
+    d = verdict.assess(truth, res, exact, noise, params, proj)
+    for part in ("floor", "renderer"):
+        assert set(d[part]["projection"]) == {"rms", "max", "rotation"}
+        assert d[part]["projection"]["rotation"] == v[part]["projection"]["rotation"]
+    assert d["renderer"]["params"] == v["renderer"]["params"]
     Record(fullname="x", camera="15", camera_label="", model="CAHVOR", target="dots",
            renderer="raycast", settings={}, calibrator=cal, calibrator_model="CAHVOR",
            status="ok", verdict=v).as_dict()
