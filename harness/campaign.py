@@ -120,8 +120,10 @@ POSES_COVERS = ("paper", "corners")
 # the verdict's floor and renderer comparisons compute (harness.verdict.assess); the
 # record's own projection (the total) always has every mode. By default only "rotation",
 # the headline the gate, the report and the sigma read: nothing in camval reads the floor's
-# and renderer's "intrinsics" and "world", which cost ~15% of the verdict (issue 14: the
-# verdict's extra work within 10% of a campaign). A run written before the key existed
+# and renderer's "intrinsics" and "world", which cost ~7% of the verdict's CPU
+# (benchmarks/bench_verdict.py on 52 captured paper records: 1.26-1.29 s with them,
+# 1.18-1.19 s without, load 12-15; issue 14: the verdict's extra work within 10% of a
+# campaign). A run written before the key existed
 # computed all three (Campaign.from_dict).
 VERDICT_MODES = ("rotation",)
 
