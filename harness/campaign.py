@@ -23,6 +23,8 @@ A campaign is a TOML file (tomllib):
     share_identical_cameras = true   # render once the cameras that are one camera
                                      # (harness.jobs.group_twins)
     catalogue = "overlay.toml"   # optional catalogue overlay (user models in slots)
+    verdict_modes = ["rotation"]   # the projection-difference modes of each record's
+                                   # verdict.floor and verdict.renderer (VERDICT_MODES)
 
     seed = 0                 # the campaign's noise seed (camera-response stages)
 
@@ -101,6 +103,8 @@ from pathlib import Path
 from reference_models.cahvore import FAMILIES
 from reference_models.errors import CamvalError
 
+from .compare import PROJECTION_MODES
+
 JOB_FAMILY = "family"
 # [target_models]: the camera's own catalogue family
 OWN_FAMILY = "own"
@@ -112,8 +116,19 @@ OWN_FAMILY = "own"
 POSES_COVER = "corners"
 POSES_COVERS = ("paper", "corners")
 
+# verdict_modes: the projection-difference modes (harness.compare.PROJECTION_MODES) that
+# the verdict's floor and renderer comparisons compute (harness.verdict.assess); the
+# record's own projection (the total) always has every mode. By default only "rotation",
+# the headline the gate, the report and the sigma read: nothing in camval reads the floor's
+# and renderer's "intrinsics" and "world", which cost ~7% of the verdict's CPU
+# (benchmarks/bench_verdict.py on 52 captured paper records: 1.26-1.29 s with them,
+# 1.18-1.19 s without, load 12-15; issue 14: the verdict's extra work within 10% of a
+# campaign). A run written before the key existed
+# computed all three (Campaign.from_dict).
+VERDICT_MODES = ("rotation",)
+
 TOP_KEYS = ("name", "description", "cameras", "models", "targets", "target_models",
-            "keep_images", "keep_maps",
+            "keep_images", "keep_maps", "verdict_modes",
             "share_identical_cameras", "catalogue", "seed", "poses", "renderer", "calibrator",
             "response")
 POSE_KEYS = ("n", "seed", "cover")
@@ -323,6 +338,7 @@ class Campaign:
     responses: tuple = ()
     share_identical_cameras: bool = True
     target_models: tuple = ()     # ((target, (family or OWN_FAMILY, ...)), ...)
+    verdict_modes: tuple = VERDICT_MODES
 
     def renders(self, target, family, own_family):
         r'''Whether the target is rendered under this model family ([target_models])'''
@@ -352,6 +368,7 @@ class Campaign:
                 "catalogue": self.catalogue, "seed": self.seed,
                 "response": [r.as_dict() for r in self.responses],
                 "share_identical_cameras": self.share_identical_cameras,
+                "verdict_modes": list(self.verdict_modes),
                 **({"target_models": {t: list(f) for t, f in self.target_models}}
                    if self.target_models else {})}
 
@@ -380,7 +397,9 @@ class Campaign:
                                    for r in d.get("response", ())),
                    share_identical_cameras=d.get("share_identical_cameras", True),
                    target_models=tuple((t, tuple(f)) for t, f
-                                       in (d.get("target_models") or {}).items()))
+                                       in (d.get("target_models") or {}).items()),
+                   # a run written before verdict_modes computed every mode
+                   verdict_modes=tuple(d.get("verdict_modes", PROJECTION_MODES)))
 
     def replace(self, **kw):
         import dataclasses
@@ -740,7 +759,23 @@ Relative model-file paths among the cameras are taken from base_dir.
                     catalogue=cat, seed=noise_seed, responses=responses,
                     share_identical_cameras=_bool(source, "share_identical_cameras",
                                                   doc.get("share_identical_cameras", True)),
-                    target_models=target_models)
+                    target_models=target_models,
+                    verdict_modes=_verdict_modes(source, doc.get("verdict_modes",
+                                                                 list(VERDICT_MODES))))
+
+
+def _verdict_modes(source, value):
+    r'''verdict_modes -> its modes in PROJECTION_MODES order, checked: known names, and
+"rotation" among them (the headline every judgement reads)'''
+    modes = _list_of(source, "verdict_modes", value, (str,), "projection-difference modes")
+    for m in modes:
+        if m not in PROJECTION_MODES:
+            raise CampaignError(f"{_where(source, 'verdict_modes')}: unknown mode {m!r}; "
+                                f"known: {', '.join(PROJECTION_MODES)}")
+    if "rotation" not in modes:
+        raise CampaignError(f"{_where(source, 'verdict_modes')}: must include 'rotation' (the "
+                            f"headline the gate, the report and the sigma read)")
+    return tuple(m for m in PROJECTION_MODES if m in modes)
 
 
 def _target_models(source, table, targets):

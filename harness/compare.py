@@ -50,6 +50,10 @@ import numpy as np
 from reference_models.cahvore import FAMILIES, with_R0
 from reference_models.poseutils import R_from_r, transform_point_Rt
 
+# the projection-difference modes (projection_difference): "world" only for fits in the
+# world frame
+PROJECTION_MODES = ("rotation", "intrinsics", "world")
+
 DEFAULT_RANGE_M = 2.0
 DEFAULT_GRID_STEP = 16
 
@@ -444,7 +448,7 @@ SYNOPSIS
 mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
 (camera frames identified) or "world" (the world frames identified).
 '''
-    if mode not in ("rotation", "intrinsics", "world"):
+    if mode not in PROJECTION_MODES:
         from reference_models.errors import CamvalError
         raise CamvalError(f"projection-difference mode {mode!r}; expected rotation, "
                           "intrinsics or world")

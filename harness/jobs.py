@@ -34,6 +34,7 @@ from pathlib import Path
 
 from reference_models.errors import CamvalError
 
+from .campaign import VERDICT_MODES
 from .records import make_fullname, renderer_key
 from .stages import StageFailed, camera_stage
 
@@ -65,6 +66,8 @@ poses_n:      the poses rendered: the most any calibrator fits (a calibrator's o
 poses_cover:  targets.poses.plan_poses(cover=...) for the poses beyond the first six
 twins:        ((camera spec, camera key), ...) of other cameras that are this one
               (group_twins): run_job() gives their records too
+verdict_modes: the projection-difference modes of the verdict's floor and renderer
+              (the campaign's verdict_modes; harness.verdict.assess)
 '''
 
     key: str
@@ -87,6 +90,7 @@ twins:        ((camera spec, camera key), ...) of other cameras that are this on
     response_name: str = ""
     seed: int = 0
     twins: tuple = ()
+    verdict_modes: tuple = VERDICT_MODES
 
     def fullname(self, calibrator, model):
         return make_fullname(self.camera_key, self.family, self.target, self.renderer,
@@ -139,7 +143,9 @@ entries: {camera spec: CatalogueEntry} from campaign.validate() (validated here 
                             cost=float(w * h) * (1.0 + 0.02 * s["spp"]),
                             response=dict(prof.config) if prof is not None else {},
                             response_name=prof.name if prof is not None else "",
-                            seed=int(getattr(campaign, "seed", 0))))
+                            seed=int(getattr(campaign, "seed", 0)),
+                            verdict_modes=tuple(getattr(campaign, "verdict_modes",
+                                                        VERDICT_MODES))))
     keys = [j.key for j in jobs]
     if len(set(keys)) != len(keys):
         dup = sorted({k for k in keys if keys.count(k) > 1})
@@ -316,4 +322,4 @@ def _twin_signature(job):
     return (job.family, job.target, job.renderer, renderer_key(job.renderer, job.settings),
             repr(job.settings.get("setup")),
             repr(job.calibrators), job.poses_n, job.poses_seed, job.poses_cover, job.keep_images,
-            job.keep_maps, job.catalogue, job.run_dir, job.seed)
+            job.keep_maps, job.catalogue, job.run_dir, job.seed, job.verdict_modes)

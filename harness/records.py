@@ -170,6 +170,9 @@ verdict:          how much of the error the images caused (harness.verdict.asses
                   {"floor", "renderer", "total"} each {"params", "projection"} (fit of
                   the exact observations vs truth, image fit vs that fit, image fit vs
                   truth), "exact_fit", "detection_noise", "floor_far", "floor_reason";
+                  floor and renderer projection in the modes of the campaign's
+                  verdict_modes (run.json campaign.verdict_modes; "rotation" by default),
+                  total in every mode;
                   None in records that are not ok and in records written before it
 '''
 

@@ -66,6 +66,7 @@ from dataclasses import dataclass
 from reference_models.cahvore import FAMILIES
 from reference_models.errors import CamvalError
 
+from .compare import PROJECTION_MODES
 from .records import jsonable
 
 FAMILY_ORDER = FAMILIES
@@ -498,13 +499,16 @@ step x step block (step = ceil(longest side / size)), NaN where a whole block is
     return np.fmax.reduce(np.fmax.reduce(blocks, axis=3), axis=1)
 
 
-def compare_stage(truth, result):
+def compare_stage(truth, result, modes=PROJECTION_MODES):
     r'''-> (params {name: error or None}, projection {"rms", "max", mode: {...}}, map)
 
 The same figures as harness.compare.compare(result, truth) (a test holds them
 equal), computed here from its parts so that the rotation-mode difference map
 (ny,nx) px is kept without computing it twice. projection["rms"] and ["max"]
-are the rotation-mode values: the headline projection difference.
+are the rotation-mode values: the headline projection difference. modes: those
+computed (of harness.compare.PROJECTION_MODES, "rotation" among them; "world" only
+for a fit in the world frame): the verdict's floor asks for its campaign's
+verdict_modes, a record's own comparison for every mode.
 '''
     from harness import compare as cmp
     world = result.world_frame
@@ -513,7 +517,9 @@ are the rotation-mode values: the headline projection difference.
                                   world_frame=world)
     proj = {}
     themap = None
-    for mode in ("rotation", "intrinsics") + (("world",) if world else ()):
+    for mode in modes:
+        if mode == "world" and not world:
+            continue
         d = cmp.projection_difference(truth, result.model, mode=mode)
         if mode == "rotation":
             themap = d["map"]

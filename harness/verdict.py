@@ -35,7 +35,11 @@ fit_projection_difference(): the same quantities as harness.compare (Hc, Vc
 px; Hs, Vs fractional; the rest for JPL-family fits), the projection
 difference over the truth's image grid with a fitted rotation between the two
 fits' camera frames (mode "rotation", the headline), none ("intrinsics") or
-the world frames identified ("world", both fits in the world frame).
+the world frames identified ("world", both fits in the world frame). The floor
+and renderer comparisons compute the modes asked (assess(modes=...): a campaign's
+verdict_modes, harness.campaign.VERDICT_MODES by default: "rotation" only, the
+one the gate, the report and the sigma read); the total is the record's own,
+with every mode.
 
 Expected scatter (scatter()): the covariance of the image fit from its
 Jacobian at the solution, under the detection noise of each image, gives a
@@ -81,6 +85,7 @@ from reference_models.cahvore import FAMILIES as JPL_FAMILIES
 from reference_models.cahvore import with_R0
 from reference_models.poseutils import transform_point_Rt
 
+from .campaign import VERDICT_MODES
 from .compare import (
     DEFAULT_GRID_STEP,
     DEFAULT_RANGE_M,
@@ -380,12 +385,17 @@ def _world(res):
     return res.world_frame
 
 
-def fit_comparison(ref, fit, truth, theta_estimated, world_frame):
-    r'''{"params": fit_parameter_differences, "projection": {"rms", "max", mode: {...}}}'''
+def fit_comparison(ref, fit, truth, theta_estimated, world_frame, modes=VERDICT_MODES):
+    r'''{"params": fit_parameter_differences, "projection": {"rms", "max", mode: {...}}}
+
+modes: the projection-difference modes computed ("rotation" among them; "world" only
+when world_frame)'''
     params = fit_parameter_differences(ref, fit, theta_estimated=theta_estimated,
                                        world_frame=world_frame)
     proj = {}
-    for mode in ("rotation", "intrinsics") + (("world",) if world_frame else ()):
+    for mode in modes:
+        if mode == "world" and not world_frame:
+            continue
         d = fit_projection_difference(ref, fit, truth, mode=mode)
         proj[mode] = {k: v for k, v in d.items() if k != "map"}
     proj["rms"] = proj["rotation"]["rms"]
@@ -393,11 +403,17 @@ def fit_comparison(ref, fit, truth, theta_estimated, world_frame):
     return {"params": params, "projection": proj}
 
 
-def floor_comparison(truth, exact_res):
-    r'''The exact-observation fit vs the truth: harness.stages.compare_stage's figures'''
+def floor_comparison(truth, exact_res, modes=VERDICT_MODES):
+    r'''The exact-observation fit vs the truth: harness.stages.compare_stage's figures, in
+the projection-difference modes asked'''
     from .stages import compare_stage
-    params, projection, _ = compare_stage(truth, exact_res)
+    params, projection, _ = compare_stage(truth, exact_res, modes=modes)
     return {"params": params, "projection": projection}
+
+
+def _in_modes(projection, modes):
+    r'''A record's projection ({"rms", "max", mode: {...}}) with only the modes asked'''
+    return {k: v for k, v in projection.items() if k in ("rms", "max") or k in modes}
 
 
 def _theta_deg(model):
@@ -470,7 +486,7 @@ difference is the calibrator's, not the images'.
 
 
 def assess(truth, res, exact_res, noise, total_params, total_projection, seconds=None,
-           obs=None):
+           obs=None, modes=VERDICT_MODES):
     r'''The record's "verdict": floor, renderer, total, the exact fit and the noise
 
 res: the image fit (ok); exact_res: the fit of exact_observations() (any status);
@@ -478,7 +494,9 @@ noise: detection_noise(); total_params, total_projection: the record's params
 and projection (compare_stage); obs: the observations of the image fit (with
 the surveyed poses): given, the renderer comparison gets "sigma" (scatter())
 and "z" (z_scores()), and the verdict "scatter" (the noise per image, the
-numbers fitted) or its "error". Returns a JSON-able dict:
+numbers fitted) or its "error"; modes: the floor's and renderer's projection-difference
+modes (the campaign's verdict_modes; the total keeps the record's). Returns a JSON-able
+dict:
 
     {"floor": {"params", "projection"} | None, "renderer": {...} | None,
      "total": {"params", "projection": {"rms", "max"}},
@@ -491,10 +509,11 @@ A failed exact fit leaves floor and renderer None with exact_fit saying why.
     from . import blas
     with blas.one_thread():
         return _assess(truth, res, exact_res, noise, total_params, total_projection,
-                       seconds, obs)
+                       seconds, obs, modes)
 
 
-def _assess(truth, res, exact_res, noise, total_params, total_projection, seconds, obs):
+def _assess(truth, res, exact_res, noise, total_params, total_projection, seconds, obs,
+            modes):
     from .records import jsonable
     theta = res.theta_estimated
     world = _world(res)
@@ -515,11 +534,12 @@ def _assess(truth, res, exact_res, noise, total_params, total_projection, second
     if exact_res is res and total_params is not None and total_projection is not None:
         # the exact observations were the image ones (exact_fit returned the image fit):
         # the floor is the record's own comparison, the same function of the same fit
-        out["floor"] = {"params": total_params, "projection": total_projection}
+        out["floor"] = {"params": total_params,
+                        "projection": _in_modes(total_projection, modes)}
     else:
-        out["floor"] = floor_comparison(truth, exact_res)
+        out["floor"] = floor_comparison(truth, exact_res, modes)
     out["renderer"] = fit_comparison(exact_res.model, res.model, truth, theta,
-                                     world and _world(exact_res))
+                                     world and _world(exact_res), modes)
     far, why = floor_judgement(truth, res.calibrator, res.model_name,
                                out["floor"]["projection"], exact_res.residual_stats(), noise)
     out["floor_far"], out["floor_reason"] = far, why

@@ -307,3 +307,25 @@ def test_a_calibrator_can_keep_to_some_targets():
     c.validate()
     cals = {j.target: sorted({name for name, _, _ in j.calibrators}) for j in expand_jobs(c)}
     assert cals == {"dots": ["jpl", "mrcal"], "apriltag": ["jpl"]}
+
+
+def test_verdict_modes_default_order_and_errors(tmp_path):
+    r'''verdict_modes: the verdict's floor and renderer projection modes; "rotation" by
+default, stated in the run's campaign document; a document from before the key (which
+computed every mode) reads as every mode'''
+    from harness.compare import PROJECTION_MODES
+    c = parse_campaign({"cameras": [15]})
+    assert c.verdict_modes == ("rotation",) and c.as_dict()["verdict_modes"] == ["rotation"]
+    assert {j.verdict_modes for j in expand_jobs(c)} == {("rotation",)}
+    c = parse_campaign({"cameras": [15], "verdict_modes": ["world", "rotation", "intrinsics"]})
+    assert c.verdict_modes == PROJECTION_MODES
+    assert Campaign.from_dict(c.as_dict()) == c
+    assert {j.verdict_modes for j in expand_jobs(c)} == {PROJECTION_MODES}
+    old = c.as_dict()
+    del old["verdict_modes"]
+    assert Campaign.from_dict(old).verdict_modes == PROJECTION_MODES
+    for bad, message in ((["intrinsics"], "must include 'rotation'"),
+                         (["rotation", "pixels"], "unknown mode 'pixels'"),
+                         ([], "expected a non-empty list")):
+        with pytest.raises(CampaignError, match=message):
+            parse_campaign({"cameras": [15], "verdict_modes": bad}, source="c.toml")

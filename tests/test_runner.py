@@ -88,6 +88,33 @@ def test_records_have_real_numbers(first_run):
     assert doc["execution"]["jobs"] == 2 and doc["execution"]["jobs_run"] == 2
     on_disk = json.loads((d / "run.json").read_text())
     assert on_disk["records"] == doc["records"]
+    # the verdict's floor and renderer in the campaign's verdict_modes (rotation by
+    # default), which run.json states; the total keeps every mode
+    assert on_disk["campaign"]["verdict_modes"] == ["rotation"]
+    for part in ("floor", "renderer"):
+        assert set(r["verdict"][part]["projection"]) == {"rms", "max", "rotation"}
+
+
+def test_verdict_modes_add_the_other_projection_modes(first_run):
+    r'''verdict_modes = every mode: the floor and renderer get "intrinsics" and (jpl: the
+world frame) "world"; every other figure of the record is the same, bit for bit'''
+    import dataclasses
+
+    from harness.compare import PROJECTION_MODES
+    _, doc = first_run
+    job = [j for j in expand_jobs(_campaign()) if j.camera == "17"][0]
+    assert job.verdict_modes == ("rotation",)
+    (r,) = run_job(dataclasses.replace(job, verdict_modes=PROJECTION_MODES,
+                                       keep_images=False, keep_maps=False))["records"]
+    base = copy.deepcopy(doc["records"][OK])
+    for part in ("floor", "renderer"):
+        proj = r["verdict"][part]["projection"]
+        assert set(proj) == {"rms", "max", "rotation", "intrinsics", "world"}
+        assert proj["intrinsics"]["rms"] is not None and proj["world"]["rms"] is not None
+        del proj["intrinsics"], proj["world"]
+    for rec in (r, base):
+        rec.pop("artifacts")
+    assert without_timings(r) == without_timings(base)
 
 
 def test_resume_redoes_only_missing_jobs(first_run, tmp_path):
