@@ -541,9 +541,9 @@ def test_a_warm_fit_starts_from_the_bias_of_its_start(monkeypatch):
     # the warm fit corrects its first fit's detections with the latter (_start_bias). The two
     # fits' models and board poses differ by what the noise moves them, which moves the bias
     # by ~1e-2 of the noise (measured: 1.1e-5 px for 1e-3 px of noise on this navcam; the
-    # bias is ~0.1 px): at 1e-4 px of noise, ~1e-6 px, below the 1e-5 px tolerance, so the
-    # first bias pass finds the bias settled: one polish (a coarse and a full-grid solve,
-    # WARM_RESTARTS) and one bias pass
+    # bias is ~0.1 px): at 1e-4 px of noise, ~1e-6 px, below the 1e-5 px tolerance. The
+    # warm fit holds that bias (WARM_RESTARTS): one polish (a coarse and a full-grid solve)
+    # and no bias pass
     truth = dict(MODELS)["15"]
     exact = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET), centroids=True)
     rng = np.random.default_rng(3)
@@ -562,7 +562,7 @@ def test_a_warm_fit_starts_from_the_bias_of_its_start(monkeypatch):
     warm = calibrate("mrcal", exact, TARGET, "CAHVOR", truth=truth, start=image)
     assert warm.ok and warm.info["warm_start"] and warm.info["bias_corrected"]
     assert shapes == [(6, 5, 5, 3), (6, 10, 10, 3)], shapes
-    assert len(biases) == 1 and len(warm.info["passes"]) == 1, warm.info["passes"]
+    assert len(biases) == 0 and len(warm.info["passes"]) == 1, warm.info["passes"]
     # the bias it fitted with is the start's (obs.q - (obs.q - b): rounding at ~1000 px;
     # NaN where a point was not seen)
     seen = np.isfinite(exact.q)
@@ -571,8 +571,8 @@ def test_a_warm_fit_starts_from_the_bias_of_its_start(monkeypatch):
     # to that tolerance (the bias passes' own limit; mrcal's convergence is ~1e-6 px)
     d = projection_difference(truth, warm.model, mode="rotation", step=64)
     assert d["n_invalid"] == 0 and d["max"] < 1e-4, d
-    # a start without a recorded bias: the bias at the start first, a solve to the
-    # detections it corrects, and the passes that find it settled (the same camera)
+    # a start without a recorded bias: no bias to hold, so the bias passes run from the
+    # start's model until they find the bias settled (the same camera)
     biases.clear()
     bare = calibrate("mrcal", exact, TARGET, "CAHVOR", truth=truth,
                      start=image.replace(info={**image.info, "bias": None}))

@@ -149,9 +149,13 @@ BIAS_RELATIVE = 0.05
 # cold exact fit into another minimum than the image fit's (mrcal CAHVOR, cameras 5, 17).
 # (Up to 3 restarts while each gained, on the full grid: 13 CAHVOR's exact fit went from
 # 1.6e-5 to 3e-9 px RMS, but the misfits crawl through all 3 on every polish: 19 CAHVOR's
-# exact fit 0.29 -> 0.95 CPU s.) Its first fit is made to the detections corrected by the
-# bias the start computed at its final model (_start_bias): one polish and one bias pass
-# where that bias still holds for the exact observations' model.
+# exact fit 0.29 -> 0.95 CPU s.) Its fit is made to the detections corrected by the bias
+# the start computed at its final model (_start_bias), and that bias is held (no bias pass),
+# as jpl's and OpenCV's warm fits hold theirs (jpl_fit.fit says why: the verdict's scatter
+# holds the bias too, and the bias's convergence error cancels in the renderer
+# difference): one polish. The bias pass it replaces (its bias step projects every dot's
+# outline) cost 1.48 -> 0.84 CPU s of the paper campaign's mrcal exact fits (bench_fits on
+# the paper renders, idle); judged renderer projections moved <= 0.004 sigma.
 WARM_RESTARTS = 1
 # LENSMODEL_CAHVOR's R0 / focal-length valley: a restart of mrcal.optimize crawls along it
 # at libdogleg's iteration limit (300 steps of a trust region held at ~0.02 by the valley's
@@ -440,8 +444,8 @@ solve, the staged model and the race of two starts are skipped, and each polish 
 mrcal.optimize at most WARM_RESTARTS times: the fit stays in the start's minimum. A
 start of another lens model or without every board pose is ignored (info["warm_start"]
 says which); info["moved_from_start"] says whether the warm fit moved from it at all. The
-start's bias (_start_bias) corrects the detections of the first fit, so that a start
-whose bias still holds ends after that fit and one bias pass.
+start's bias (_start_bias) corrects the detections, and is held: no bias pass follows
+(WARM_RESTARTS says why).
 info["bias"] is the bias the last fit was made with (skeleton.applied_bias);
 info["bias_settled"] the bias computed at the final model when the last bias pass found
 the bias settled (None otherwise): within the tolerance of info["bias"], which for mrcal
@@ -844,7 +848,8 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
 
     q_used, bias_applied = iterate_bias(
         obs, target, lambda: (model, Rt_cam_board), refit, passes,
-        bias_passes=bias_passes if bias_runs else 0, bias_tolerance=bias_tolerance,
+        bias_passes=bias_passes if bias_runs and b_start is None else 0,
+        bias_tolerance=bias_tolerance,
         no_dots="no dots: no centroid bias",
         tolerance=lambda passes: max(bias_tolerance, BIAS_RELATIVE * passes[-1]["rms"]),
         settled=settled, b_start=b_start)
