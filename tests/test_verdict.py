@@ -64,6 +64,36 @@ def test_detection_noise_per_pose(navcam):
     assert n["mean"] == pytest.approx([0.003, -0.004], rel=1e-6)
 
 
+def test_detection_noise_takes_off_what_each_sides_corner_model_biases(navcam):
+    # a blurred chessboard's corners carry their lines' bias, the sharp reference corners
+    # the window's: the calibrators' bias step removes each, so it is no noise. Detections
+    # that are the reference plus exactly that difference read 0 noise with the biases
+    # given; without them, the bias difference itself
+    from targets.detection import CORNER_LINES, CORNER_WINDOW
+    truth, _, poses, obs = navcam
+    chess = stages.cached_target("chessboard")
+    n = chess.points().shape[0]
+    # the biases depend on the model, poses and corner models, not on the detections
+    q = np.full((len(poses), n, 2), 500.0)
+    from harness.calibrators.base import Observations
+    ref = Observations(q=q, p_board=chess.points(), imagersize=obs.imagersize,
+                       corner_model=np.full((len(poses), n), CORNER_WINDOW),
+                       corner_blur_px=np.zeros(len(poses)))
+    det = ref.replace(corner_model=np.full((len(poses), n), CORNER_LINES),
+                      corner_blur_px=np.full(len(poses), 0.8))
+    Rts = np.asarray(poses)
+    b = verdict.corner_biases(det, ref, truth, chess, Rts)
+    assert b is not None and b[0].shape == b[1].shape == q.shape
+    assert np.max(np.abs(b[0] - b[1])) > 1e-4        # the two models' biases differ
+    moved = det.replace(q=q + (b[0] - b[1]))
+    assert verdict.detection_noise(moved, ref, b)["rms"] < 1e-12
+    assert verdict.detection_noise(moved, ref)["rms"] > 1e-5
+    # alike on both sides, dots, or no poses: nothing to take off
+    assert verdict.corner_biases(ref, ref, truth, chess, Rts) is None
+    assert verdict.corner_biases(det, ref, truth, stages.cached_target("dots"), Rts) is None
+    assert verdict.corner_biases(det, ref, truth, chess, None) is None
+
+
 def test_two_fits_of_any_model_compare(navcam):
     truth = navcam[0]
     moved = truth.replace(H=truth.H + 0.01 * truth.A)      # Hc + 0.01 px
