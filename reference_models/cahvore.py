@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ModelError
+from .poseutils import cross3
 
 # |A| and |O| in a model file are rounded; beyond this they are not unit vectors.
 UNIT_TOLERANCE = 1e-3
@@ -200,7 +201,7 @@ V' becomes A x H', or -(A x H') for a mirrored model: the nearest theta = 90
 model, not an upside-down one.
 '''
         ph = self.photogrammetric()
-        Vp = np.cross(self.A, ph.Hp)
+        Vp = cross3(self.A, ph.Hp)
         if self.mirrored:
             Vp = -Vp
         return self.with_photogrammetric(dataclasses.replace(ph, Vp=Vp))
@@ -222,7 +223,7 @@ Rt_cam_board are given in this frame; with theta != 90 the model's own V'
 differs from the frame's y axis, which changes nothing about projection.
 '''
         ph = self.photogrammetric()
-        R = np.stack((ph.Hp, np.cross(self.A, ph.Hp), self.A), axis=1)
+        R = np.stack((ph.Hp, cross3(self.A, ph.Hp), self.A), axis=1)
         return np.vstack((R, self.C))
 
     @property
@@ -230,7 +231,7 @@ differs from the frame's y axis, which changes nothing about projection.
         r'''True when H' x V' points against A: a left-handed (mirror-imaged) camera,
 such as a telescope behind a fold mirror'''
         ph = self.photogrammetric()
-        return bool(np.dot(np.cross(ph.Hp, ph.Vp), self.A) < 0)
+        return bool(np.dot(cross3(ph.Hp, ph.Vp), self.A) < 0)
 
     @property
     def imagersize(self):

@@ -53,6 +53,7 @@ import numpy as np
 
 from .cahvore import CAHV, CAHVOR, CAHVORE, UNIT_TOLERANCE
 from .errors import CamvalError, ModelError, ModelFileError
+from .poseutils import cross3
 
 VECTOR_NAMES = ("C", "A", "H", "V", "O", "R", "E")
 DERIVED_NAMES = ("Hs", "Hc", "Vs", "Vc", "Theta")
@@ -83,7 +84,7 @@ This is the "Theta" of a JPL model file; Photogrammetric.theta is its absolute
 value.
 '''
     ph = model.photogrammetric()
-    return math.atan2(float(np.cross(ph.Vp, ph.Hp) @ model.A), float(ph.Hp @ ph.Vp))
+    return math.atan2(float(cross3(ph.Vp, ph.Hp) @ model.A), float(ph.Hp @ ph.Vp))
 
 
 # --- reading ------------------------------------------------------------------
