@@ -53,9 +53,9 @@ SYNOPSIS
 A fit of the exact observations from the image fit (harness.verdict) starts its
 bias from the image fit's (its info["bias"]: applied_bias, the bias its last model
 was fitted with; the same observations then give the same fit): the two
-models differ by the detection error (~1e-3 px), which moves a dot's bias by far
-less than the bias tolerance, so the first bias pass finds it settled and the fit
-ends after one solve instead of a solve without bias and the passes that bring it
+models differ by the detection error (~1e-3 px), which moves a dot's bias by ~1e-5 px.
+The calibrators hold that bias in a warm fit (no bias pass: jpl_fit.fit says why), so
+the fit is one solve instead of a solve without bias and the passes that bring it
 back. None when start is not an ok fit of observations of this shape.
 '''
     if getattr(start, "status", None) != "ok":
