@@ -1198,7 +1198,7 @@ the area between the curve and its tangent inside the pixel, k (s1^3 - s0^3) / 6
 over the tangent's stretch [s0, s1] in it (to first order in k). The fit's
 response to that change is its linearised least-squares step, (J^T J)^-1 J^T dv,
 in the window the refiner would use about the true corner. First order in k:
-the neglected terms are k^2 w^3 (1e-6 px for k = 1e-3/px, w = 8 px). lines: pairs of
+the neglected terms are of order k^2 w^3 (5e-4 px for k = 1e-3/px, w = 8 px). lines: pairs of
 rays fitted as one straight line (refine_corners' lines on a blurred image: one angle,
 the pair's two columns of the Jacobian summed).
 
