@@ -390,16 +390,6 @@ def _cahvore_type(truth, options):
     return t, options.get("linearity", {1: 1.0, 2: 0.0}.get(t))
 
 
-# A warm start's bias is held: the fit is made once, to the detections
-# corrected by the bias its start was fitted with (start_bias), and no bias pass follows.
-# The start is the image fit and this fit the verdict's exact fit (harness.verdict): the
-# renderer difference between them is then the response of one fit to the change of the
-# observations under one bias, which is what the verdict's expected scatter predicts (its
-# linearisation holds the bias fixed), and the bias's own convergence error, which the
-# image fit carries (up to bias_tolerance), cancels. A further pass would recompute the
-# bias at this fit's model, ~1e-5 px from the start's (1.5e-5 to 2.2e-5 px on paper
-# records, 7 of 30 above the 1e-5 px tolerance: a second solve), for 40-65% of the exact
-# fit's time.
 def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4,
         bias_tolerance=1e-5,
         max_rms=1.0, model_type=None, linearity=None, R0=0.0, start=None):
@@ -408,8 +398,8 @@ def fit(obs, target, model_name, truth=None, bias_correction=True, bias_passes=4
 start: None, or an ok CalibrationResult of this calibrator and model (harness.verdict: the
 image fit, to fit the exact observations): the first pass starts from its model (m0 of
 fit_model: the last stage only, no DLT), made to the detections corrected by its bias,
-which is held (no bias pass: see the note above fit); a start of another family is
-ignored.
+which is held (no bias pass: skeleton.iterate_bias's b_start says why); a start of
+another family is ignored.
 '''
     t0 = time.perf_counter()
     if not obs.has_world_points:
@@ -455,8 +445,7 @@ ignored.
 
     q_used, bias_applied = iterate_bias(
         obs, target, current, refit, passes,
-        bias_passes=bias_passes if bias_correction and b_start is None else 0,
-        bias_tolerance=bias_tolerance,
+        bias_passes=bias_passes if bias_correction else 0, bias_tolerance=bias_tolerance,
         no_dots="the target has no dots: no centroid bias to correct",
         b_start=b_start)
     if bias_applied and bias_correction:

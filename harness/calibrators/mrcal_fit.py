@@ -151,9 +151,9 @@ BIAS_RELATIVE = 0.05
 # 1.6e-5 to 3e-9 px RMS, but the misfits crawl through all 3 on every polish: 19 CAHVOR's
 # exact fit 0.29 -> 0.95 CPU s.) Its fit is made to the detections corrected by the bias
 # the start computed at its final model (_start_bias), and that bias is held (no bias pass),
-# as jpl's and OpenCV's warm fits hold theirs (jpl_fit.fit says why: the verdict's scatter
-# holds the bias too, and the bias's convergence error cancels in the renderer
-# difference): one polish. The bias pass it replaces (its bias step projects every dot's
+# as jpl's and OpenCV's warm fits hold theirs (skeleton.iterate_bias's b_start says why:
+# the verdict's scatter holds the bias too, and the bias's convergence error cancels in the
+# renderer difference): one polish. The bias pass it replaces (its bias step projects every dot's
 # outline) cost 1.48 -> 0.84 CPU s of the paper campaign's mrcal exact fits (bench_fits on
 # the paper renders, idle); judged renderer projections moved <= 0.004 sigma.
 WARM_RESTARTS = 1
@@ -848,8 +848,7 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
 
     q_used, bias_applied = iterate_bias(
         obs, target, lambda: (model, Rt_cam_board), refit, passes,
-        bias_passes=bias_passes if bias_runs and b_start is None else 0,
-        bias_tolerance=bias_tolerance,
+        bias_passes=bias_passes if bias_runs else 0, bias_tolerance=bias_tolerance,
         no_dots="no dots: no centroid bias",
         tolerance=lambda passes: max(bias_tolerance, BIAS_RELATIVE * passes[-1]["rms"]),
         settled=settled, b_start=b_start)

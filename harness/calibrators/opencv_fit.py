@@ -214,8 +214,6 @@ def _calibrate_threaded(model_name, objs, imgs, size, K0=None, dist0=None):
     return rms, K, D.ravel(), rvecs, tvecs
 
 
-# A warm start's bias is held: one solve, to the detections corrected by the bias its start
-# was fitted with, and no bias pass (as jpl_fit.fit holds it: the note there says why)
 @diagnostics_of(LIBRARY)
 def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=True,
         bias_passes=4, bias_tolerance=1e-5, max_rms=1.0, start=None):
@@ -224,8 +222,8 @@ def fit(obs, target, model_name, truth=None, known_poses=False, bias_correction=
 start: None, or an ok CalibrationResult of this calibrator and model (harness.verdict: the
 image fit, to fit the exact observations): the first pass starts from its K and
 distortion (CALIB_USE_INTRINSIC_GUESS, as the bias passes do), made to the detections
-corrected by its bias, which is held (no bias pass: see the note above fit); another
-model is ignored.
+corrected by its bias, which is held (no bias pass: skeleton.iterate_bias's b_start
+says why); another model is ignored.
 '''
     t0 = time.perf_counter()
     if known_poses:
@@ -278,8 +276,7 @@ model is ignored.
 
     q_used, bias_applied = iterate_bias(
         obs, target, lambda: (model, Rts), refit, passes,
-        bias_passes=bias_passes if bias_correction and target is not None
-        and b_start is None else 0,
+        bias_passes=bias_passes if bias_correction and target is not None else 0,
         bias_tolerance=bias_tolerance, views=views, b_start=b_start)
     return fitted_result(
         NAME, LIBRARY, library_version(), model_name, t0, model=model,
