@@ -653,29 +653,6 @@ neighbours give (they differ only where two blobs are equally near a prediction)
 
 
 @njit(cache=True, error_model="numpy")
-def polygon_terms(q, cross, wx, wy, bad):
-    r"""The shoelace terms of each closed polygon q[i] (n, N, 2), vertices taken relative
-to its first: cross[i, k] = x_k y_k+1 - x_k+1 y_k, wx[i, k] = (x_k + x_k+1) cross[i, k],
-wy likewise (n, N each); bad[i]: a vertex is not finite. The arithmetic of
-targets.centroids.polygon_centroid, element by element (its sums stay numpy's)."""
-    n, N = q.shape[0], q.shape[1]
-    for i in range(n):
-        x0, y0 = q[i, 0, 0], q[i, 0, 1]
-        b = False
-        for k in range(N):
-            k1 = k + 1 if k + 1 < N else 0
-            x, y = q[i, k, 0] - x0, q[i, k, 1] - y0
-            xn, yn = q[i, k1, 0] - x0, q[i, k1, 1] - y0
-            if not (math.isfinite(q[i, k, 0]) and math.isfinite(q[i, k, 1])):
-                b = True
-            c = x * yn - xn * y
-            cross[i, k] = c
-            wx[i, k] = (x + xn) * c
-            wy[i, k] = (y + yn) * c
-        bad[i] = b
-
-
-@njit(cache=True, error_model="numpy")
 def histogram_counts(v, edges, lo, scale):
     r'''The counts of detect_dots._histogram (np.histogram's) in one pass over v: each
 value's bin estimated as min((v - lo) scale, bins - 1) in v's precision (lo and scale
@@ -888,5 +865,4 @@ reduce4_and_subsample(): only images above detect_dots.LARGE_IMAGE_PIXELS call i
 campaign of smaller cameras never caches it; a change of this file makes the listed
 kernels' caches stale too (numba stamps a cache with its source file), and the warm-up
 detects the largest image of each target (harness.warmup._render_kinds), which compiles it.'''
-    return (dot_centroid, mark_flags, histogram_counts, label_boxes, grow_lattice,
-            polygon_terms)
+    return (dot_centroid, mark_flags, histogram_counts, label_boxes, grow_lattice)

@@ -12,17 +12,21 @@ The image of a circular dot is not centred on the projection of the dot's
 centre: perspective and lens distortion stretch one side of the dot more than
 the other. A detector that takes the centroid of a dot's image measures the
 CENTROID OF THE PROJECTED DOT, which expected_centroids() computes exactly:
-the dot's circle outline is projected point by point and the area centroid
-of the resulting polygon is taken with the shoelace formula
-(polygon_centroid()). The inscribed polygon's centroid errs by O(1/Noutline^2)
-(5e-6 px for a 50 px dot at 1440 points); a Richardson step with the polygon of
-every other vertex removes that term, leaving an error c/Noutline^4
-(tests/test_centroids.py checks against the exact conic centre for a pinhole).
-By default the number of outline points follows from an error bound
-(CENTROID_TOLERANCE_PX): the same projected points give the Richardson value
-of half as many points, whose error is 16 times as large, so their difference
-/ 15 estimates the error; the points double until it is below the bound
-(128 points on the catalogue's cameras, within 4e-7 px of 5760).
+the dot's circle outline is projected at Noutline points equally spaced in
+angle, and the area centroid of the closed curve they sample is taken by Green's
+theorem (outline_centroid()): A = 1/2 \oint (x y' - y x'), A c_x = 1/2 \oint x^2 y',
+A c_y = -1/2 \oint y^2 x', with the derivatives from the samples' Fourier series and
+the integrals by the trapezoid rule. For a smooth periodic curve both converge
+exponentially in Noutline (the error falls with the curve's Fourier coefficients
+beyond about Noutline/3: the integrands are cubic in the samples), where the
+inscribed polygon's centroid errs by O(1/Noutline^2): 16 points are within 1e-11 px
+of a 2048-point Richardson-extrapolated polygon on every catalogue camera, at the
+corner poses of every one. By default the number of points follows from an error
+bound (CENTROID_TOLERANCE_PX): the centroid of every other sample, whose error
+dominates that of all of them when the convergence is exponential, is compared with
+it, and the points double until the two agree within the bound (16 points on the
+catalogue's cameras; tests/test_centroids.py checks against the exact conic centre
+for a pinhole and against a fine polygon for a fisheye).
 
 What this centroid means: it is the centroid of the dot's image when the dot
 is uniformly dark on a uniform board and each pixel records the area average
@@ -51,12 +55,11 @@ from .boards import TargetError
 # whose exact observations these are, and far below a renderer's sampling error on a dot
 # centroid (~1e-3 px: module docstring)
 CENTROID_TOLERANCE_PX = 1e-6
-# the first number of outline points tried (a multiple of 4: the error estimate takes the
-# Richardson value of half as many, from a polygon of a quarter), and the most: the error
-# goes as 1/Noutline^4, 3.6e-6 px at 64 points on the widest catalogue camera (Rocky8
-# hazcam CAHVOR), so 8192 points reach 1e-6 px for dots some 70 times as distorted
-NOUTLINE_START = 128
-NOUTLINE_MAX = 8192
+# the first number of outline points tried (its every other sample, 8 points, gives the error
+# estimate), and the most: a dot whose outline needs more than 4096 samples to reach the
+# bound is some 10^3 times as distorted across its width as any catalogue camera makes one
+NOUTLINE_START = 16
+NOUTLINE_MAX = 4096
 
 
 def _check_Rt(Rt_cam_board):
@@ -109,26 +112,22 @@ SYNOPSIS
 The polygon closes from the last vertex to the first. Vertices are taken
 relative to the first one to keep the sums well conditioned far from the
 origin. A degenerate polygon (zero area) or a non-finite vertex gives NaN.
-The terms of the sums are computed by a compiled kernel
-(targets._dot_kernels.polygon_terms, element by element as numpy would), the
-sums by numpy: the calibrators' bias takes these centroids, and mrcal's fits
-are chaotic in their last bits (harness/calibrators/mrcal_fit.py).
+For a polygon; a smooth curve's samples take outline_centroid, exponentially
+more accurate (the inscribed polygon errs by O(1/Nvertices^2)).
 '''
-    from . import _dot_kernels
     q = np.asarray(q, dtype=np.float64)
-    shape = q.shape[:-2]
-    n = q.shape[-2]
-    qq = np.ascontiguousarray(q.reshape(-1, n, 2))
-    cross, wx, wy = (np.empty(qq.shape[:2]) for _ in range(3))
-    bad = np.empty(len(qq), bool)
-    _dot_kernels.polygon_terms(qq, cross, wx, wy, bad)
+    q0 = q[..., :1, :]
+    d = q - q0
+    x, y = d[..., 0], d[..., 1]
+    xn, yn = np.roll(x, -1, axis=-1), np.roll(y, -1, axis=-1)
+    cross = x * yn - xn * y
     with np.errstate(divide="ignore", invalid="ignore"):   # (a non-finite vertex: NaN)
         area2 = cross.sum(axis=-1)
-        cx = wx.sum(axis=-1) / (3.0 * area2)
-        cy = wy.sum(axis=-1) / (3.0 * area2)
-    c = np.stack((cx, cy), axis=-1) + qq[:, 0, :]
-    c[bad | ~(np.abs(area2) > 0)] = np.nan
-    return c.reshape(shape + (2,))
+        cx = ((x + xn) * cross).sum(axis=-1) / (3.0 * area2)
+        cy = ((y + yn) * cross).sum(axis=-1) / (3.0 * area2)
+    c = np.stack((cx, cy), axis=-1) + q0[..., 0, :]
+    c[~(np.abs(area2) > 0) | ~np.all(np.isfinite(q), axis=(-1, -2))] = np.nan
+    return c
 
 
 def expected_centroids(model, target, Rt_cam_board, Noutline=None,
@@ -139,12 +138,12 @@ SYNOPSIS
 
     q = expected_centroids(model, target, Rt_cam_board)   # (N,2), kind "dots" only
 
-The area centroid of each dot's projected circle outline; see the module
-docstring for when this equals the centroid a detector measures. Noutline
-(even): that many outline points. None: NOUTLINE_START points, doubled until
-the estimated error of every dot's centroid is below tolerance px (module
-docstring; at most NOUTLINE_MAX points). NaN for a dot any of whose outline
-points is not imaged.
+The area centroid of each dot's projected circle outline (outline_centroid); see
+the module docstring for when this equals the centroid a detector measures.
+Noutline (even): that many outline points. None: NOUTLINE_START points, doubled
+until every dot's centroid from every other point agrees with it within tolerance
+px (module docstring; at most NOUTLINE_MAX points). NaN for a dot any of whose
+outline points is not imaged.
 '''
     if target.kind != "dots":
         raise TargetError(f"expected_centroids() is defined for dot targets; target "
@@ -152,16 +151,15 @@ points is not imaged.
     if Noutline is not None:
         if int(Noutline) < 8 or int(Noutline) % 2:
             raise TargetError(f"Noutline must be an even number >= 8; got {Noutline}")
-        return _richardson_centroid(_projected_outlines(model, target, Rt_cam_board,
-                                                        Noutline))
+        return outline_centroid(_projected_outlines(model, target, Rt_cam_board,
+                                                    int(Noutline)))
     N = NOUTLINE_START
     while True:
         q = _projected_outlines(model, target, Rt_cam_board, N)
-        c_half = polygon_centroid(q[..., ::2, :])
-        c = _richardson_centroid(q, c_half)
-        # the Richardson value of N/2 points errs 16 times as much as that of N (error
-        # c/N^4): their difference is 15 times the error of c
-        err = np.abs(c - _richardson_centroid(q[..., ::2, :], c=c_half)) / 15.0
+        c = outline_centroid(q)
+        # exponential convergence: the error of N points is far below that of N/2, which
+        # their difference measures
+        err = np.abs(c - outline_centroid(q[..., ::2, :]))
         if not np.any(err > tolerance) or N >= NOUTLINE_MAX:
             return c
         N *= 2
@@ -186,14 +184,41 @@ bias takes them for every pose of every pass'''
     return p
 
 
-def _richardson_centroid(q, c_half=None, c=None):
-    r'''(...,2) the polygons' centroids Richardson-extrapolated from every other vertex
-(c_half, c: the centroids of every other vertex and of all, when the caller has them)'''
-    # the inscribed polygon's centroid errs by c/Noutline^2: the polygon of every other
-    # vertex errs 4 times as much
-    c = polygon_centroid(q) if c is None else c
-    c_half = polygon_centroid(q[..., ::2, :]) if c_half is None else c_half
-    return c + (c - c_half) / 3.0
+def outline_centroid(q):
+    r'''Area centroid of smooth closed curves from samples equally spaced in their parameter
+
+SYNOPSIS
+
+    c = outline_centroid(q)    # q (...,N,2) -> c (...,2)
+
+q[..., k, :] is the curve at parameter 2 pi k / N (N >= 3), going round once, either
+way. Green's theorem with the derivatives from the samples' discrete Fourier series
+and the integrals by the trapezoid rule, which is exponentially accurate for a smooth
+periodic curve (module docstring); for a polygon's corners it is not:
+polygon_centroid is. The samples are taken relative to their mean, near the
+centroid, to keep the cubic sums well conditioned far from the origin. A curve with
+a non-finite sample or no area gives NaN.
+'''
+    q = np.asarray(q, dtype=np.float64)
+    n = q.shape[-2]
+    if n < 3:
+        raise TargetError(f"a closed curve needs at least 3 samples; got {n}")
+    with np.errstate(invalid="ignore"):
+        mean = q.mean(axis=-2, keepdims=True)
+        d = q - mean
+        F = np.fft.rfft(d, axis=-2)
+        k = np.arange(F.shape[-2], dtype=np.float64)
+        if n % 2 == 0:
+            k[-1] = 0.0           # the Nyquist term's derivative is not defined by the samples
+        dd = np.fft.irfft(F * (1j * k)[:, None], n=n, axis=-2)
+        x, y, dx, dy = d[..., 0], d[..., 1], dd[..., 0], dd[..., 1]
+        area = 0.5 * (x * dy - y * dx).sum(axis=-1)
+        with np.errstate(divide="ignore"):
+            cx = 0.5 * (x * x * dy).sum(axis=-1) / area
+            cy = -0.5 * (y * y * dx).sum(axis=-1) / area
+    c = np.stack((cx, cy), axis=-1) + mean[..., 0, :]
+    c[~(np.abs(area) > 0) | ~np.all(np.isfinite(q), axis=(-1, -2))] = np.nan
+    return c
 
 
 def centroid_bias(model, target, Rt_cam_board, Noutline=None):

@@ -16,8 +16,8 @@ of model and pose, from each detection and solves again.
 The expected centroid is the area centroid of each dot's projected outline (a
 circle of the target's dot radius about the point, in the board plane). When
 the points are the target's own, targets.centroids.expected_centroids gives it
-(BIAS_NOUTLINE outline points, Richardson-extrapolated); otherwise the outline
-is projected at NOUTLINE points and the polygon's centroid taken. Any model
+(its default error bound); otherwise the outline is projected at NOUTLINE points and
+their curve's centroid taken (targets.centroids.outline_centroid). Any model
 with project(p) and Rt_ref_cam() works (JPL, OpenCV, COLMAP and mrcal fits).
 
 Corner targets (AprilTag, chessboard) have a bias too: targets.corners fits
@@ -35,12 +35,10 @@ import numpy as np
 from reference_models.poseutils import transform_point_Rt
 from targets.detection import CORNER_LINES, CORNER_WINDOW
 
-NOUTLINE = 1440
-# outline points per dot for the bias of a JPL model (targets.centroids.expected_centroids):
-# its Richardson-extrapolated polygon centroid converges as 1/N^4, and 192 points are within
-# 5e-8 px of 1440 (that function's default) on every camera measured (MER hazcam CAHVORE,
-# MER pancam, Mars 2020 navcam 5120x3840, Rocky8 hazcam), 10x faster
-BIAS_NOUTLINE = 192
+# outline points per dot when the points are not the target's own: the centroid of the sampled
+# outline (targets.centroids.outline_centroid) converges exponentially, 16 points within 1e-11
+# px of the limit on every catalogue camera; 64 leave room for dots far more distorted
+NOUTLINE = 64
 
 
 def dot_radii(target, p_board):
@@ -81,17 +79,11 @@ SYNOPSIS
     # p_board (Npoints,3) dot centres in the board plane, radii (Npoints,);
     # q (Npoints,2); NaN for a dot not wholly projectable
 '''
+    from targets.centroids import outline_centroid
     phi = np.linspace(0.0, 2.0 * np.pi, noutline, endpoint=False)
     ring = np.stack((np.cos(phi), np.sin(phi), np.zeros_like(phi)), axis=-1)
     outline = p_board[:, None, :] + radii[:, None, None] * ring[None]
-    q = project_from_cam(model, transform_point_Rt(Rt_cam_board, outline))
-    x, y = q[..., 0], q[..., 1]
-    x1, y1 = np.roll(x, -1, axis=-1), np.roll(y, -1, axis=-1)
-    cross = x * y1 - x1 * y
-    area = cross.sum(axis=-1) / 2.0
-    cx = ((x + x1) * cross).sum(axis=-1) / (6.0 * area)
-    cy = ((y + y1) * cross).sum(axis=-1) / (6.0 * area)
-    return np.stack((cx, cy), axis=-1)
+    return outline_centroid(project_from_cam(model, transform_point_Rt(Rt_cam_board, outline)))
 
 
 def centroid_bias(model, target, Rt_cam_board, p_board=None):
@@ -118,8 +110,7 @@ SYNOPSIS
         except ImportError:
             expected_centroids = None
         if expected_centroids is not None:
-            expected = np.asarray(expected_centroids(model, target, Rt_cam_board,
-                                                     Noutline=BIAS_NOUTLINE),
+            expected = np.asarray(expected_centroids(model, target, Rt_cam_board),
                                   dtype=np.float64)
     if expected is None:
         expected = outline_centroids(model, p_board, radii, Rt_cam_board)
