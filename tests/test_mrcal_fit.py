@@ -578,3 +578,29 @@ def test_a_warm_fit_starts_from_the_bias_of_its_start(monkeypatch):
                      start=image.replace(info={**image.info, "bias": None}))
     assert bare.ok and len(biases) >= 2, bare.info["passes"]
     assert projection_difference(truth, bare.model, mode="rotation", step=64)["max"] < 1e-4
+
+
+@pytest.mark.parametrize("nint", [9, 12])
+def test_the_damped_step_by_the_poses_schur_complement_is_the_full_solve(nint):
+    # _valley_lm's normal equations: a residual depends on the intrinsics and on its own
+    # board pose only. The Schur step must be (A + lam I)^-1 (-g) as the full matrix's
+    # eigen-decomposition gives it. Two intrinsics columns made nearly collinear (1e-7, the
+    # valley's R0 / focal length) put the condition at ~1e14: at lam = 1e-6 of the largest
+    # eigenvalue both solves agree to ~eps x cond(A + lam I) ~ 1e-10 relative; at lam 1e-2
+    # to rounding (~1e-14)
+    rng = np.random.default_rng(1)
+    npose, per_pose = 6, 70
+    J = np.zeros((npose * per_pose, nint + 6 * npose))
+    J[:, :nint] = rng.normal(size=(len(J), nint))
+    for k in range(npose):
+        J[k * per_pose:(k + 1) * per_pose, nint + 6 * k:nint + 6 * k + 6] = \
+            rng.normal(size=(per_pose, 6))
+    J[:, 1] = J[:, 0] * (1 + 1e-7) + 1e-9 * rng.normal(size=len(J))
+    Js = J / np.sqrt((J * J).sum(axis=0))
+    A, g = Js.T @ Js, Js.T @ rng.normal(size=len(J))
+    w, V = np.linalg.eigh(A)
+    step = mrcal_fit._DampedStep(A, g, nint)
+    for lam, tol in ((1e-6, 1e-8), (1e-2, 1e-12), (1.0, 1e-13)):
+        lam *= w[-1]
+        full = -V @ ((V.T @ g) / (np.maximum(w, 0.0) + lam))
+        assert np.abs(step(lam) - full).max() <= tol * np.abs(full).max()
