@@ -334,7 +334,9 @@ def test_a_valley_restart_that_leaves_the_image_is_made_by_mrcal_optimize(monkey
         problem["intrinsics"][0, 2] = -3e4
     monkeypatch.setattr(mrcal_fit, "_valley_lm", runaway)
     r = calibrate("mrcal", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False)
-    assert calls == [100]
+    # the race's regularised start (made by mrcal.optimize when its LM leaves the image),
+    # then the first restart, after which the LM is off
+    assert calls == [100, 100]
     assert r.ok and plain.ok and lm.ok
     np.testing.assert_array_equal(r.info["intrinsics"], plain.info["intrinsics"])
     # the LM itself reaches the same minimum as the crawl with its jumps: the residual RMS
@@ -349,14 +351,16 @@ def test_the_lm_stops_at_its_noise_before_the_last_polish(monkeypatch):
     # the valley LM of the polishes before the record's last one stops once a step gains less
     # than LM_STEP_SIGMA^2 of the noise variance per residual (a misfit's residuals count as
     # noise there); the last polish's strict rule takes the fit to where the strict rule
-    # everywhere (LM_STEP_SIGMA None) takes it, with fewer Jacobians. Camera 20 as a CAHVOR
-    # misfits (residual RMS ~0.13 px at 1e-3 px of noise per coordinate): its LM crawls in
-    # the valley. The two fits' projections agree far inside the fit's scatter under the
+    # everywhere (LM_STEP_SIGMA None) takes it, with fewer Jacobians. Camera 22 as a CAHVOR
+    # misfits (residual RMS ~0.028 px at 1e-3 px of noise per coordinate): its LM crawls in
+    # the valley (camera 20, this test's misfit until the race's regularised start was
+    # converged by the LM, now ends at 0.019 px instead of 0.13 px, with few LM steps left
+    # to save). The two fits' projections agree far inside the fit's scatter under the
     # noise (~sigma sqrt(parameters / residuals) ~ 0.3 sigma for 6 poses of 10 x 10 points)
     import mrcal
 
     from harness.stages import camera_truth
-    _, truth = camera_truth(20, "CAHVOR")
+    _, truth = camera_truth(22, "CAHVOR")
     sigma = 1e-3
     obs = _noisy(truth, sigma)
     callback, jacobians = mrcal.optimizer_callback, []
