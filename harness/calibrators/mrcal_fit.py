@@ -156,6 +156,13 @@ BIAS_RELATIVE = 0.05
 # renderer difference): one polish. The bias pass it replaces (its bias step projects every dot's
 # outline) cost 1.48 -> 0.84 CPU s of the paper campaign's mrcal exact fits (bench_fits on
 # the paper renders, idle); judged renderer projections moved <= 0.004 sigma.
+# A warm fit has no valley LM (valley needs warm None) and no valley jump: its restarts are
+# mrcal.optimize's. 16 CAHVOR's exact fit of the paper campaign ends at 3.8e-4 px RMS on
+# exact observations (the clean gate's joint chi2/dof ~1e8 comes from it), R0 13.4 off the
+# truth's (e ~ 14, fx e held). Tried (session 16, in-process, not kept): the valley LM with
+# the strict rule in the warm polish: 3.84e-4 -> 3.75e-4 px after its 100 steps, renderer
+# projection 4.7e-6 -> 9.4e-4 px: the LM crawls there too, so that minimum lies far along
+# the R0 gauge and more iterations of either solver do not reach it.
 WARM_RESTARTS = 1
 # LENSMODEL_CAHVOR's R0 / focal-length valley: a restart of mrcal.optimize crawls along it
 # at libdogleg's iteration limit (300 steps of a trust region held at ~0.02 by the valley's
