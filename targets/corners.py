@@ -169,6 +169,18 @@ BLUR_MAX_PX = MAX_WINDOW_PX / BLUR_REACH_SIGMAS
 # a blur below this (px) is fitted with the sharp model (9x cheaper): on top of the pixel's
 # own area (variance 1/12 px^2) it moves a corner by O(sigma^2): < 1e-4 px (measured below)
 BLUR_NEGLIGIBLE_PX = 0.02
+# an L-shaped corner's shift into its dark wedge per px of blur sigma when the sharp model is
+# fitted to it (refine_corners: ~0.35 sigma; tests/test_corners_blur.py measures it)
+L_CORNER_BLUR_SHIFT = 0.35
+# the quick look (BLUR_QUICK_SAMPLE corners) stops a corner's sigma fit once sigma is below
+# this (px): a blur that small moves an L corner by less than FIRST_PASS_CONVERGED_PX, the
+# tolerance to which the look's own first pass placed it, and is 7x below the
+# BLUR_NEGLIGIBLE_PX the look decides on. On a sharp image the model is even and flat in
+# sigma there, and Levenberg-Marquardt crawled on to ~1e-5 px in 25-35 iterations (a few
+# corners at a time, each iteration a round of Python calls); from BLUR_START_PX the fit
+# approaches a blur from above (Gauss-Newton on an even model: sigma_next ~ (sigma + s*^2 /
+# sigma) / 2 >= s*), so a blurred image's sigmas never pass below it and its look is the same
+LOOK_SHARP_SIGMA_PX = FIRST_PASS_CONVERGED_PX / L_CORNER_BLUR_SHIFT
 
 
 @dataclass(frozen=True, eq=False)
@@ -575,7 +587,8 @@ the estimate's spread.
     def quick_look(f, good, d, s2, idx):
         # a sharp image (every clean render) is told by a few corners and one kind
         return estimate_blur(image, f.q[good], d, wedges, s2, half_box, clearance[idx][good],
-                             kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE, **notches, **options)
+                             kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE,
+                             sharp_sigma_px=LOOK_SHARP_SIGMA_PX, **notches, **options)
     look = None
     if psf_sigma_px is None and stop_if_blurred:
         # the quick look first, on its own corners' first pass: a blurred image's corners
@@ -670,7 +683,8 @@ while it blurs nothing'''
 
 
 def estimate_blur(image, q, directions, wedges, steps, half_box, clearance, kinds=PSF_KINDS,
-                  sample=None, notch=None, notch_clearance=None, **options):
+                  sample=None, notch=None, notch_clearance=None, sharp_sigma_px=0.0,
+                  **options):
     r'''The image's Gaussian blur (px) from the edge profiles at its corners
 
 SYNOPSIS
@@ -686,7 +700,8 @@ fitted; the one with the lower median misfit is kept ("psf_kind"; "psf_misfit" h
 kind's). The pixel's own area is in the model, so a sharp area-sampled render gives
 sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1.4826),
 "psf_estimates" (how many) and "psf_source" ("estimated"; "estimated (no corner fitted):
-0" when none converged).
+0" when none converged). sharp_sigma_px > 0 ends a corner's fit once its sigma is below it
+(the quick look's LOOK_SHARP_SIGMA_PX: its estimates of a sharp image then lie in [0, it)).
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     n = len(q)
@@ -708,7 +723,8 @@ sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1
         for kind in kinds:
             fit = _fit(image, q[pick], np.asarray(directions)[pick], wedges, steps, box,
                        notch=nbox,
-                       sigma=BLUR_START_PX, fit_sigma=True, psf_kind=kind, **options)
+                       sigma=BLUR_START_PX, fit_sigma=True, psf_kind=kind,
+                       sharp_sigma=sharp_sigma_px, **options)
             good = fit.reasons == ""
             est = np.abs(fit.info.get("sigma", np.full(len(good), np.nan))[good])
             if not len(est):
@@ -745,11 +761,12 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, notch=None,
          max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
          converged_px=CONVERGED_PX, kernel="numba", value_range=None, sigma=0.0,
-         fit_sigma=False, lines=(), psf_kind="gaussian", strips=None):
+         fit_sigma=False, lines=(), psf_kind="gaussian", strips=None, sharp_sigma=0.0):
     r'''One pass of refine_corners (the window about q0, half_box a number or (N,); widen:
 see wedge_area; kernel: "numba" the compiled pixel-area model of targets._corner_kernels,
 "numpy" wedge_area's; sigma: the Gaussian blur, px, fitted per corner from there with
-fit_sigma, the fits in info["sigma"]; lines: pairs of rays (i, j) fitted as one straight
+fit_sigma, the fits in info["sigma"], a corner's fit ending once its sigma is below
+sharp_sigma (see LOOK_SHARP_SIGMA_PX); lines: pairs of rays (i, j) fitted as one straight
 line through the corner when sigma > 0)'''
     if kernel not in ("numba", "numpy"):
         raise ValueError(f"kernel must be 'numba' or 'numpy', not {kernel!r}")
@@ -919,6 +936,8 @@ line through the corner when sigma > 0)'''
                       np.ascontiguousarray(g1, dtype=np.float64), D1, dD_dc1, dD_dt1, a1, b1,
                       r1, w, c, theta, sig, a, b, S, lam, prev, converged, JtJ_all, Jtr_all,
                       float(converged_px), float(max_window_px))
+            if sharp_sigma > 0.0:
+                converged[s] |= sig[s] < sharp_sigma
             continue
         better = S1 <= S[s]
         sb = s[better]
@@ -935,6 +954,8 @@ line through the corner when sigma > 0)'''
         small = (dc < converged_px) & (np.abs(step[:, 4:]).max(-1) * max_window_px < converged_px)
         # a damping this large moves nothing: the fit is at its minimum to rounding
         converged[s] = (better & small) | ((lam[s] > 1e6) & (dc < converged_px))
+        if sharp_sigma > 0.0:
+            converged[s] |= sig[s] < sharp_sigma
     if value_range is not None:
         rng = float(value_range)
     else:
