@@ -73,3 +73,22 @@ the stop'''
     assert full.info["psf_sigma_px"] == fit.info["psf_sigma_px"]
     np.testing.assert_array_equal(fit.q, full.q)
 
+
+
+def test_a_given_sharp_image_skips_the_look():
+    r'''detect_apriltags(psf_sigma_px=0): the image is taken as sharp (given, no look) and
+the corners are the ones the look's sharp verdict gives (both fit the sharp model from the
+same first pass on a clean render)'''
+    from targets.detect_apriltag import detect_apriltags
+    t = load_target("apriltag")
+    m = pinhole(640, 640, 600.0)
+    r, a = np.radians(-23.0), np.radians(20.0)
+    Rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    img = render(m, t.pattern(), np.vstack((Rz @ Rx, [-0.5, -0.45, 1.6])), K=16)
+    looked = detect_apriltags(img, t)
+    given = detect_apriltags(img, t, psf_sigma_px=0.0)
+    assert looked.info["psf_source"] == "estimated" and looked.info["psf_sigma_px"] == 0.0
+    assert given.info["psf_source"] == "given" and given.info["psf_sigma_px"] == 0.0
+    assert np.isfinite(given.q).any()
+    np.testing.assert_array_equal(given.q, looked.q)
