@@ -169,6 +169,16 @@ BLUR_MAX_PX = MAX_WINDOW_PX / BLUR_REACH_SIGMAS
 # a blur below this (px) is fitted with the sharp model (9x cheaper): on top of the pixel's
 # own area (variance 1/12 px^2) it moves a corner by O(sigma^2): < 1e-4 px (measured below)
 BLUR_NEGLIGIBLE_PX = 0.02
+# the quick look (BLUR_QUICK_SAMPLE corners) ends a corner's sigma fit once sigma is below
+# this (px), a tenth of the BLUR_NEGLIGIBLE_PX its median is compared with. On a sharp image
+# the model is flat in sigma there and Levenberg-Marquardt crawled on towards ~1e-5 px for
+# 25-35 iterations (a few corners at a time, each iteration a round of Python calls). The
+# fit comes down to a blur from BLUR_START_PX (the model is even in sigma: Gauss-Newton's
+# next sigma is ~(sigma + s*^2 / sigma) / 2 >= s*), so a corner ended here would have ended
+# in [0, this) too: the look's median within this of the full fits'. refine_corners looks
+# again without the stop when a corner was ended and that could reach BLUR_NEGLIGIBLE_PX:
+# the look's decisions are the full fits', its estimates of a sharp image in [0, this)
+LOOK_SHARP_SIGMA_PX = BLUR_NEGLIGIBLE_PX / 10.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -574,8 +584,16 @@ the estimate's spread.
 
     def quick_look(f, good, d, s2, idx):
         # a sharp image (every clean render) is told by a few corners and one kind
-        return estimate_blur(image, f.q[good], d, wedges, s2, half_box, clearance[idx][good],
-                             kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE, **notches, **options)
+        args = (image, f.q[good], d, wedges, s2, half_box, clearance[idx][good])
+        look = estimate_blur(*args, kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE,
+                             sharp_sigma_px=LOOK_SHARP_SIGMA_PX, **notches, **options)
+        if look.get("psf_sharp_stops") and added_blur_px(
+                look["psf_sigma_px"] + LOOK_SHARP_SIGMA_PX, look["psf_kind"]) >= BLUR_NEGLIGIBLE_PX:
+            # the corners ended below LOOK_SHARP_SIGMA_PX could take the median to the blur
+            # it is compared with: their fits to the end
+            look = estimate_blur(*args, kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE, **notches,
+                                 **options)
+        return look
     look = None
     if psf_sigma_px is None and stop_if_blurred:
         # the quick look first, on its own corners' first pass: a blurred image's corners
@@ -670,7 +688,8 @@ while it blurs nothing'''
 
 
 def estimate_blur(image, q, directions, wedges, steps, half_box, clearance, kinds=PSF_KINDS,
-                  sample=None, notch=None, notch_clearance=None, **options):
+                  sample=None, notch=None, notch_clearance=None, sharp_sigma_px=0.0,
+                  **options):
     r'''The image's Gaussian blur (px) from the edge profiles at its corners
 
 SYNOPSIS
@@ -686,7 +705,9 @@ fitted; the one with the lower median misfit is kept ("psf_kind"; "psf_misfit" h
 kind's). The pixel's own area is in the model, so a sharp area-sampled render gives
 sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1.4826),
 "psf_estimates" (how many) and "psf_source" ("estimated"; "estimated (no corner fitted):
-0" when none converged).
+0" when none converged). sharp_sigma_px > 0 ends a corner's fit once its sigma is below it
+(the quick look's LOOK_SHARP_SIGMA_PX: its estimates of a sharp image then lie in [0, it),
+the median within it of the full fits'); "psf_sharp_stops" counts the corners it ended.
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
     n = len(q)
@@ -700,7 +721,7 @@ sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1
     nb = None if notch is None else blurred_half_box(steps, notch, notch_clearance,
                                                       BLUR_PROBE_PX)
     options.pop("psf_kind", None)
-    best, misfits = None, {}
+    best, misfits, stops = None, {}, 0
     # small features (AprilTag bits of 3-4 px) leave no window of MIN_WINDOW_PIXELS once
     # shrunk for BLUR_PROBE_PX: then the sharp image's windows (a blurred neighbour may
     # reach into them; a blur estimate slightly high beats none: 0.3 px errors, camera 17)
@@ -708,9 +729,12 @@ sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1
         for kind in kinds:
             fit = _fit(image, q[pick], np.asarray(directions)[pick], wedges, steps, box,
                        notch=nbox,
-                       sigma=BLUR_START_PX, fit_sigma=True, psf_kind=kind, **options)
+                       sigma=BLUR_START_PX, fit_sigma=True, psf_kind=kind,
+                       sharp_sigma=sharp_sigma_px, **options)
             good = fit.reasons == ""
-            est = np.abs(fit.info.get("sigma", np.full(len(good), np.nan))[good])
+            sig = fit.info.get("sigma", np.full(len(good), np.nan))
+            stops += int(np.count_nonzero(sig < sharp_sigma_px))
+            est = np.abs(sig[good])
             if not len(est):
                 continue
             mis = float(np.median(fit.misfit[good]))
@@ -719,14 +743,16 @@ sigma ~ 0 (1e-5 px). info also has "psf_sigma_spread_px" (the estimates' MAD x 1
                 best = (mis, kind, est)
         if best is not None:
             break
+    stopped = {"psf_sharp_stops": stops} if sharp_sigma_px > 0.0 else {}
     if best is None:
         return {"psf_sigma_px": 0.0, "psf_source": "estimated (no corner fitted): 0",
-                "psf_kind": kinds[0], "psf_estimates": 0, "psf_sigma_spread_px": float("nan")}
+                "psf_kind": kinds[0], "psf_estimates": 0, "psf_sigma_spread_px": float("nan"),
+                **stopped}
     _, kind, est = best
     med = float(np.median(est))
     return {"psf_sigma_px": med, "psf_source": "estimated", "psf_kind": kind,
             "psf_misfit": misfits, "psf_estimates": int(len(est)),
-            "psf_sigma_spread_px": float(1.4826 * np.median(np.abs(est - med)))}
+            "psf_sigma_spread_px": float(1.4826 * np.median(np.abs(est - med))), **stopped}
 
 
 def _ray_angles(tied, R):
@@ -745,11 +771,12 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, notch=None,
          max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
          converged_px=CONVERGED_PX, kernel="numba", value_range=None, sigma=0.0,
-         fit_sigma=False, lines=(), psf_kind="gaussian", strips=None):
+         fit_sigma=False, lines=(), psf_kind="gaussian", strips=None, sharp_sigma=0.0):
     r'''One pass of refine_corners (the window about q0, half_box a number or (N,); widen:
 see wedge_area; kernel: "numba" the compiled pixel-area model of targets._corner_kernels,
 "numpy" wedge_area's; sigma: the Gaussian blur, px, fitted per corner from there with
-fit_sigma, the fits in info["sigma"]; lines: pairs of rays (i, j) fitted as one straight
+fit_sigma, the fits in info["sigma"], a corner's fit ending once its sigma is below
+sharp_sigma (LOOK_SHARP_SIGMA_PX); lines: pairs of rays (i, j) fitted as one straight
 line through the corner when sigma > 0)'''
     if kernel not in ("numba", "numpy"):
         raise ValueError(f"kernel must be 'numba' or 'numpy', not {kernel!r}")
@@ -919,6 +946,8 @@ line through the corner when sigma > 0)'''
                       np.ascontiguousarray(g1, dtype=np.float64), D1, dD_dc1, dD_dt1, a1, b1,
                       r1, w, c, theta, sig, a, b, S, lam, prev, converged, JtJ_all, Jtr_all,
                       float(converged_px), float(max_window_px))
+            if sharp_sigma > 0.0:
+                converged[s] |= sig[s] < sharp_sigma
             continue
         better = S1 <= S[s]
         sb = s[better]
@@ -935,6 +964,8 @@ line through the corner when sigma > 0)'''
         small = (dc < converged_px) & (np.abs(step[:, 4:]).max(-1) * max_window_px < converged_px)
         # a damping this large moves nothing: the fit is at its minimum to rounding
         converged[s] = (better & small) | ((lam[s] > 1e6) & (dc < converged_px))
+        if sharp_sigma > 0.0:
+            converged[s] |= sig[s] < sharp_sigma
     if value_range is not None:
         rng = float(value_range)
     else:
