@@ -458,14 +458,12 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 else "no contrast" if not abs(pf[j, 1]) > min_contrast * rng
                 else f"misfit: {mis[j]:.3g} of the contrast")
         keys = zip(gi.tolist(), gk.tolist(), gend.tolist(), strict=True)
-        # the board's edges: the fitted curves less the blur's shift of a bent edge
-        dc = _unbent(pf[:, 2:], np.array([g[2] for g in geo]), *blurs[0])
-        curves = dict(zip(keys, dc, strict=True))
+        curves = dict(zip(keys, pf[:, 2:], strict=True))
         # each edge's curve at its ends 0 and 1 (a fit of both ends, end 2, gives both)
         at_end = np.zeros((N, 4, 2, 4))
         both = gend == 2
-        at_end[gi[both], gk[both], 0] = at_end[gi[both], gk[both], 1] = dc[both]
-        at_end[gi[~both], gk[~both], gend[~both]] = dc[~both]
+        at_end[gi[both], gk[both], 0] = at_end[gi[both], gk[both], 1] = pf[both, 2:]
+        at_end[gi[~both], gk[~both], gend[~both]] = pf[~both, 2:]
         good = np.isfinite(mis) & ok
         # the next pass's measure of the image's noise: the edges' median misfit (RMS over
         # the contrast; each edge alone, noise-free a quadratic's model error), and how it
@@ -1007,35 +1005,6 @@ level alike to first order (by -c1), the light level a takes it up.'''
     c0, c1, scale, lo, hi = (1.0, 0.0, 1.0, -np.inf, np.inf) if line is None else line
     return pixel_weights(np.asarray(v, dtype=np.float64), float(c0), float(c1), float(scale),
                          float(lo), float(hi))
-
-
-def _unbent(d, L, sigma, kind):
-    r'''(m,4) the board edges' curves (d0..d3 in each edge's chord frame of length L (m,)
-px) under the fitted curves d (m,4) of an image blurred by (sigma, kind)
-
-Why. F is a straight edge's blurred profile. A pixel next to an edge bent by s''(t) (t px
-along the chord) integrates the dark side over the kernel's spread along the edge too (the
-pixel's square and the blur: variance V = sigma^2 + _KIND_VARIANCE[kind] along any
-direction), where the edge has left its tangent by s'' Z_t^2 / 2: to first order in s''
-the pixel reads F(x - V s'' / 2), and the fitted curve is the edge moved towards its centre
-of curvature by V s'' / 2 (a blurred disc's half-level contour shrinks by V / 2R). With
-s = d(tau), tau = 2 t / L - 1, s'' = 4 / L^2 (2 d2 + 6 d3 tau): d0 and d1 take
--2 V / L^2 (2 d2) and -2 V / L^2 (6 d3) (the shift's own bend is of second order in s'').
-
-Measured (h-tag16c; tests/test_tag_edges.py's barrel: the middle of each edge fitted alone
-0.32 kappa px^2 off the truth kept, -0.006 taken off). MER hazcam 17 as CAHVORE, the
-realistic profile's blur without noise, 6 poses: the corners' offsets across their edges
-regress on the edge's curvature with slope 0.27-0.32 px^2 (V / 2 = 0.33), after ~0;
-jpl's projection difference (bench_corner_campaign --response blur, 4 seeds) 0.00244 ->
-0.00207 px. Left: on fisheyes (MER hazcam 8, tests/test_tag_edges_fisheye.py's) and on
-that barrel, the cubics' ends (the corners, extrapolated ~3 px past their last pixels) lie
-a further ~0.4-1 kappa px^2 off, the other way; noise-free that is most of hazcam 8's
-AprilTag model error (its projection difference 0.00183 -> 0.00196 px with this).'''
-    c = 2.0 * (sigma * sigma + _KIND_VARIANCE[kind]) / np.asarray(L, dtype=np.float64) ** 2
-    out = np.array(d, dtype=np.float64, copy=True)
-    out[:, 0] -= c * 2.0 * out[:, 2]
-    out[:, 1] -= c * 6.0 * out[:, 3]
-    return out
 
 
 def _curve_s(d, tau):

@@ -17,29 +17,10 @@ REALISTIC = {"full_well_e": 20000, "psf": {"kind": "gaussian", "sigma_px": 0.7},
 BLUR = {"psf": {"kind": "gaussian", "sigma_px": 0.7}}
 
 
-# the centre of _tag_grid's radial distortion (px): its 3 x 3 grid's of 4-px bits
-BARREL_CENTRE = np.array([92.0, 85.0])
-
-
-def _barrel(p, k1):
-    r'''q = c + (p - c) (1 + k1 |p - c|^2): a radial distortion about c = BARREL_CENTRE'''
-    d = p - BARREL_CENTRE
-    return BARREL_CENTRE + d * (1.0 + k1 * (d ** 2).sum(-1, keepdims=True))
-
-
-def _unbarrel(q, k1):
-    d = q - BARREL_CENTRE
-    p = d.copy()
-    for _ in range(30):
-        p = d / (1.0 + k1 * (p ** 2).sum(-1, keepdims=True))
-    return BARREL_CENTRE + p
-
-
-def _tag_grid(bit_px, n=3, K=16, pitch_bits=10.4, cells=None, k1=0.0):
+def _tag_grid(bit_px, n=3, K=16, pitch_bits=10.4, cells=None):
     r'''An n x n grid of tags (ids 0..n^2-1) through one homography, bits of bit_px, K x K
 subsamples per pixel: (image, corners (n*n,4,2), (col, row) of each tag); cells (n*n,8,8):
-the tags' cells (True = light) instead of tag36h11's; k1: the homography's image then
-distorted by _barrel (board lines bent by ~2 k1 r at r px from its centre)'''
+the tags' cells (True = light) instead of tag36h11's'''
     ang = np.radians(7.0)
     Hb = np.array([[np.cos(ang), -np.sin(ang), 30.3], [np.sin(ang), np.cos(ang), 20.7],
                    [2e-4, -1e-4, 1.0]])
@@ -52,26 +33,19 @@ distorted by _barrel (board lines bent by ~2 k1 r at r px from its centre)'''
             Q.append(ph[:, :2] / ph[:, 2:])
             grid.append((i, j))
     Q = np.array(Q)
-    Qd = _barrel(Q, k1)
-    H, W = int(Qd[..., 1].max()) + 30, int(Qd[..., 0].max()) + 30
+    H, W = int(Q[..., 1].max()) + 30, int(Q[..., 0].max()) + 30
     img = np.full((H, W), 0.9)
     sub = (np.arange(K) + 0.5) / K - 0.5
     for tid, Qt in enumerate(Q):
         bits = tag36h11_bits(tid) if cells is None else cells[tid]
         Hc = _homographies(Qt[None])[0]
-        # the tag's outline, bent by the barrel
-        u = np.linspace(0.0, 1.0, 9)[:, None, None]
-        rim = _barrel(Qt + u * (np.roll(Qt, -1, axis=0) - Qt), k1).reshape(-1, 2)
-        x0, y0 = np.floor(rim.min(0)).astype(int) - 2
-        x1, y1 = np.ceil(rim.max(0)).astype(int) + 2
+        x0, y0 = np.floor(Qt.min(0)).astype(int) - 2
+        x1, y1 = np.ceil(Qt.max(0)).astype(int) + 2
         yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
         acc = np.zeros(xx.shape)
         for sy in sub:
             for sx in sub:
-                u = np.stack((xx + sx, yy + sy), -1)
-                if k1:
-                    u = _unbarrel(u, k1)
-                p = np.concatenate((u, np.ones(xx.shape + (1,))), -1) @ Hc.T
+                p = np.stack((xx + sx, yy + sy, np.ones(xx.shape)), -1) @ Hc.T
                 col = np.floor(p[..., 0] / p[..., 2]).astype(int)
                 row = np.floor(p[..., 1] / p[..., 2]).astype(int)
                 inside = (col >= 0) & (col < 8) & (row >= 0) & (row < 8)
@@ -79,7 +53,7 @@ distorted by _barrel (board lines bent by ~2 k1 r at r px from its centre)'''
                 val[inside] = np.where(bits[row[inside], col[inside]], 0.9, 0.1)
                 acc += val
         img[y0:y1 + 1, x0:x1 + 1] = acc / K ** 2
-    return img, Qd, np.array(grid)
+    return img, Q, np.array(grid)
 
 
 def _rms(q, truth):
@@ -321,48 +295,3 @@ fraction of the noise floor. Measured over 3 seeds: sigma 0.7000-0.7015, standar
     _assert_sigma_and_corners_of_the_right_blur(fit, im, Q, bits, grid)
     rms, n = _rms(fit.q, Q)
     assert n == Q.size // 2 and rms < 0.01, rms
-
-
-
-def test_a_bent_edges_blur_shift_is_taken_off(monkeypatch):
-    r'''A board line bent by kappa, blurred: the pixels next to it integrate the dark side
-over the kernel's spread along the edge too (variance V = sigma^2 + 1/6 for the sampled
-kernel on an area-sampled image), so the fitted curve lies V kappa / 2 = 0.33 px^2 kappa
-towards its centre of curvature (tag_edges._unbent). Tags of 6 px bits bent by a barrel
-(1e-3 - 3e-3 / px at the edges' middles: hazcam 17's is 0.5e-3 - 1.8e-3), noise-free,
-each edge fitted alone: the fitted curve minus the true one over the middle of each edge
-(tau in [-0.6, 0.6], away from the ends the cubic extrapolates to), in units of kappa, is
-V / 2 with the shift kept and ~0 with it taken off. Measured (median over the 25 edges
-bent by more than 5e-4 / px, then over tau): 0.32 and -0.006; bound 0.1 on each: the
-render's K = 16 sampling errs by up to 1/32 px per pixel of edge, ~0.1 kappa px^2 over an
-edge's ~200 pixels at kappa 2e-3'''
-    import targets.tag_edges as tag_edges
-    k1 = -0.7e-5
-    img, Q, _ = _tag_grid(6.0, k1=k1)
-    im = ResponseChain.from_config(BLUR).apply(img).image.astype(np.float64)
-    bits = np.array([tag36h11_bits(t) for t in range(len(Q))])
-    P = _unbarrel(Q, k1)
-    tau = np.linspace(-0.6, 0.6, 7)
-    meet = tag_edges.meet_curves
-    got = {}
-    calls = []
-    monkeypatch.setattr(tag_edges, "meet_curves", lambda *a: calls.append(a) or meet(*a))
-    for taken_off in (True, False):
-        if not taken_off:
-            monkeypatch.setattr(tag_edges, "_unbent", lambda d, L, sigma, kind: np.array(d))
-        refine_tag_edges(im, Q + 0.3, 0.7, "sampled", bits=bits, value_range=1.0)
-        # the last pass's edges starting at each corner: (corner, L, chord e, n, curve)
-        q0, L, e, n, d = calls[-1][5:10]
-        offsets = []
-        for j in range(len(q0)):
-            i, k = np.unravel_index(np.argmin(np.linalg.norm(Q - q0[j], axis=-1)), Q.shape[:2])
-            kappa = 8.0 * d[j, 2] / L[j] ** 2
-            if abs(kappa) < 5e-4:
-                continue
-            u = np.linspace(-0.1, 1.1, 481)[:, None]
-            r = _barrel(P[i, k] + u * (P[i, (k + 1) % 4] - P[i, k]), k1) - q0[j]
-            true = np.interp(tau, 2.0 * (r @ e[j]) / L[j] - 1.0, r @ n[j])
-            fitted = d[j, 0] + tau * (d[j, 1] + tau * (d[j, 2] + tau * d[j, 3]))
-            offsets.append((fitted - true) / kappa)
-        got[taken_off] = float(np.median(np.median(offsets, axis=0)))
-    assert abs(got[True]) < 0.1 and abs(got[False] - 0.33) < 0.1, got
