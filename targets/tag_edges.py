@@ -49,17 +49,13 @@ px^2, that cancelled part of it: the curves match the truth (+V kappa / 2) in th
 of an edge fitted alone but fall off towards its ends, where the cubic is extrapolated
 ~3 px past its last pixels (not the blur: the same at sigma 0.5, 0.7 and 1.0; it moves
 with SAFETY_PX); taken off alone, the fisheye's near pose went 0.00165 -> 0.00188 px RMS
-and hazcam 8's blur-only projection difference 0.00183 -> 0.00196 px. A likely cause of
-that second offset (not built): F is looked up at the chord's angle for every pixel, but a
-bent edge's local angle differs from it by its slope, ~kappa L / 2 rad at the ends (0.05
-on the barrel's 48 px edges); the pixel square's share of F changes shape with the angle
-(odd in x), which the band's lopsided ends (light-side pixels only at one end, dark-side
-at the other, where the adjacent edge cuts it) turn into an offset. On the barrel
-(noise-free, each edge's fitted curves kept), F at each pixel's local angle (the chord's
-turned by atan(s'(t))) lowers the residual RMS near the ends from 5.3e-4 / 4.9e-4 (dark /
-light side) to 2.8e-4 / 2.6e-4 of the contrast, in the middle from 4.2e-4 / 3.3e-4 to
-3.5e-4 / 2.7e-4. Doing it needs the angle per pixel in _tag_edge_kernels' fit_edges,
-noise_moments, blur_step and edge_moments (today one table row per edge, _at_angle).
+and hazcam 8's blur-only projection difference 0.00183 -> 0.00196 px (the barrel: 1ac8593's
+tests/test_tag_edges.py, _tag_grid's k1). Not its cause (checked on the barrel, each edge
+refitted by least squares outside the kernels): F at each pixel's local
+angle (the chord's turned by the edge's slope, ~kappa L / 2 rad at the ends) instead of the
+chord's halves the residuals near the ends (5.3e-4 / 4.9e-4 -> 2.8e-4 / 2.6e-4 of the
+contrast, dark / light side) but moves the ends' offsets only from -0.66 / -1.8 to -0.57 /
+-1.46 kappa px^2 (median over 25 edges); the middle's stays +0.2 - +0.5 (V / 2 = 0.33).
 
 Board lines. An AprilGrid's tags stand in rows and columns: edge k of a tag lies on the
 same board line as edge k of its row's (k = 0, 2) or column's (k = 1, 3) neighbours
