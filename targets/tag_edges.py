@@ -30,9 +30,32 @@ side) is
 U uniform on the pixel's square (the area it integrates), z the blur's offset (a Gaussian
 PSF of sigma on the scene, or the "sampled" kernel on the pixel image: blur_kernel's two
 kinds) and n the edge's normal: F is the blurred pixel's dark fraction next to a straight
-edge, exact but for the curve's bend within a pixel (kappa/2 px, kappa ~1e-3/px). F is
+edge, exact but for the curve's bend within the kernel: to first order in the bend s''
+(1/px) a pixel reads F(x - V s'' / 2), V = sigma^2 + _KIND_VARIANCE[kind] the kernel's
+variance along the edge, so each fitted curve lies V kappa / 2 (0.33 kappa px^2 at the
+realistic blur; 3e-4 - 6e-4 px on the MER hazcams) towards its centre of curvature. F is
 tabulated per blur on a grid of x and of the edge's angle (the pixel's projected width
 depends on it) and interpolated linearly (errors ~1e-5 of the contrast).
+
+That shift taken off the fitted curves (d0 -= 4 V d2 / L^2, d1 -= 12 V d3 / L^2; h-tag16c,
+commit 1ac8593, reverted in the next): noise-free blurred corners of MER hazcam 17 as
+CAHVORE had offsets across their edges regressing on the edge's curvature with slope 0.27-
+0.32 px^2, after it ~0; jpl's projection difference there (bench_corner_campaign.py
+--response blur, 4 seeds) 0.00244 -> 0.00207 px; realistic AprilTag / dots projection
+ratio 17 CAHVORE 1.43 -> 1.33, blur-wide 1.87 -> 1.80, 8 CAHVORE 1.41 -> 1.43, the rest
+within 0.02. Reverted because on fisheyes (hazcam 8; tests/test_tag_edges_fisheye.py's
+camera) and on a constructed barrel the corners carry a second offset, -0.4 to -1 kappa
+px^2, that cancelled part of it: the curves match the truth (+V kappa / 2) in the middle
+of an edge fitted alone but fall off towards its ends, where the cubic is extrapolated
+~3 px past its last pixels (not the blur: the same at sigma 0.5, 0.7 and 1.0; it moves
+with SAFETY_PX); taken off alone, the fisheye's near pose went 0.00165 -> 0.00188 px RMS
+and hazcam 8's blur-only projection difference 0.00183 -> 0.00196 px (the barrel: 1ac8593's
+tests/test_tag_edges.py, _tag_grid's k1). Not its cause (checked on the barrel, each edge
+refitted by least squares outside the kernels): F at each pixel's local
+angle (the chord's turned by the edge's slope, ~kappa L / 2 rad at the ends) instead of the
+chord's halves the residuals near the ends (5.3e-4 / 4.9e-4 -> 2.8e-4 / 2.6e-4 of the
+contrast, dark / light side) but moves the ends' offsets only from -0.66 / -1.8 to -0.57 /
+-1.46 kappa px^2 (median over 25 edges); the middle's stays +0.2 - +0.5 (V / 2 = 0.33).
 
 Board lines. An AprilGrid's tags stand in rows and columns: edge k of a tag lies on the
 same board line as edge k of its row's (k = 0, 2) or column's (k = 1, 3) neighbours
