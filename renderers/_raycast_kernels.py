@@ -1458,8 +1458,7 @@ material), else of its own centre ray."""
     central = cam[_KIND] == KIND_CAHV
     q, margin, bstart, chords = outline
     b = r0 // T
-    # mask holds no edge pixel here: the band before cleared its tiles (_clear_tiles), and
-    # _band_scratch's is zeros
+    mask[:r1 - r0] = 0
     tiles[0] = 0
     for i in range(bstart[b], bstart[b + 1]):
         j = chords[i, 0]
@@ -1502,7 +1501,17 @@ material), else of its own centre ray."""
         ntiles += 1
         filled[x0 // T] = math.nan
         # the centre rays the edge pixels read: theirs and their neighbours'
-        _mark_needed(mask, r1 - r0, x0, x1, need)
+        for k in range(nk):
+            for c in range(x1 - x0 + 2):
+                need[k, c] = 0
+        for iy in range(r0, r1):
+            for ix in range(x0, x1):
+                if mask[iy - r0, ix]:
+                    k = iy - r0
+                    c = ix - x0
+                    for dk in range(3):
+                        for dc in range(3):
+                            need[k + dk, c + dc] = 1
         nrays += _trace_needed(cam, xf, noncentral, r0, x0, x1, nk, need, hx, hy, hok, hu,
                                hchi)
         if area:
@@ -1561,63 +1570,7 @@ material), else of its own centre ray."""
                 out[iy, ix:run] = values[cd // 2]
                 nboard += (run - ix) * (cd % 2)
                 ix = run
-    _clear_tiles(mask, tiles, T, r1 - r0)
     _band_stats(stats, nrays, nsuper, nboard, ntiles, nedge, nonfinite, narea, nfallback)
-
-
-@njit(cache=True, error_model="numpy")
-def _mark_needed(mask, nrows, x0, x1, need):
-    r"""need[k, c] = 1 where pixel (band row k - 1, image column x0 + c - 1) or one of its 8
-neighbours is an edge pixel of the tile (mask rows 0..nrows - 1, columns x0..x1 - 1),
-else 0: the centre rays the tile's edge pixels read (need: nrows + 2 rows, x1 - x0 + 2
-columns)
-
-Each row's edge pixels dilated by a pixel across (a contiguous pass the compiler
-vectorises) are or'ed into the three rows of need they reach: no branch per pixel,
-where marking the 3 x 3 neighbours of each edge pixel mispredicted on most of them."""
-    n = x1 - x0
-    for k in range(nrows + 2):
-        for c in range(n + 2):
-            need[k, c] = 0
-    for j in range(nrows):
-        seen = 0
-        for i in range(x0, x1):
-            seen |= mask[j, i]
-        if seen == 0:
-            continue
-        # column c of need: tile columns c - 2 .. c (those inside the tile)
-        for c in range(min(2, n + 2)):
-            v = 0
-            for i in range(max(c - 2, 0), min(c, n - 1) + 1):
-                v |= mask[j, x0 + i]
-            need[j, c] |= v
-            need[j + 1, c] |= v
-            need[j + 2, c] |= v
-        for c in range(2, n):
-            v = mask[j, x0 + c - 2] | mask[j, x0 + c - 1] | mask[j, x0 + c]
-            need[j, c] |= v
-            need[j + 1, c] |= v
-            need[j + 2, c] |= v
-        for c in range(max(n, 2), n + 2):
-            v = 0
-            for i in range(max(c - 2, 0), min(c, n - 1) + 1):
-                v |= mask[j, x0 + i]
-            need[j, c] |= v
-            need[j + 1, c] |= v
-            need[j + 2, c] |= v
-
-
-@njit(cache=True, error_model="numpy")
-def _clear_tiles(mask, tiles, T, nrows):
-    r"""Zero the band's edge pixels (mask rows 0..nrows - 1) in the tiles that hold one
-(tiles[0]): the next band starts from a clear mask without writing all of it (a
-5120-pixel band's is 160 kB, a few of its tiles hold its edges)"""
-    W = mask.shape[1]
-    for t in range(tiles.shape[1]):
-        if tiles[0, t]:
-            for j in range(nrows):
-                for i in range(t * T, min(W, t * T + T)):
-                    mask[j, i] = 0
 
 
 @njit(cache=True, error_model="numpy")
