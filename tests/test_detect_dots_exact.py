@@ -344,6 +344,25 @@ def test_scan_is_reduce_and_subsample(dtype, shape, s, step):
     assert np.isnan(small).any()
 
 
+def test_scan_reuses_its_arrays_only_when_nothing_holds_them():
+    r'''_scan's arrays come back to the next call once dropped (no fresh pages per
+detection), but a result still held (or a view of it) is never written again'''
+    a = np.tile(_speckled(4), (2, 2))[:300, :420].astype(np.float32)
+    b = a[::-1].copy()
+    small_a, sub_a = dd._scan(a, 4, 4)
+    kept = small_a.copy(), sub_a.copy()
+    small_b, sub_b = dd._scan(b, 4, 4)
+    assert np.array_equal(small_a, kept[0]) and np.array_equal(sub_a, kept[1])
+    assert np.array_equal(small_b, dd._reduce(b, 4)) and small_b is not small_a
+    del small_a, sub_a, kept
+    memory = small_b.ctypes.data, sub_b.ctypes.data
+    del small_b, sub_b
+    small_c, sub_c = dd._scan(a, 4, 4)
+    assert (small_c.ctypes.data, sub_c.ctypes.data) == memory
+    assert np.array_equal(small_c, dd._reduce(a, 4))
+    assert np.array_equal(sub_c, a[::4, ::4].ravel())
+
+
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_reduce4_kernel_is_cv2_area_average(dtype):
     r'''The compiled 4x4 average is cv2's, bit for bit, where the order of the 16 additions
