@@ -255,7 +255,7 @@ def test_a_wide_cahvore_of_linearity_below_1_starts_from_the_central_pinhole(see
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_an_off_centre_wide_cahvore_starts_from_the_pinhole_about_its_optical_centre(seed):
-    # A constructed portrait 640x851 CAHVORE of ~145 deg horizontal field at linearity 0.37
+    # A constructed portrait 640x851 CAHVORE of ~142 deg horizontal field at linearity 0.37
     # whose optical centre (186, 416) lies 134 px left of the image centre. The points about
     # the image centre look up to ~70 deg off its axis: their pinhole was 20 px RMS off and
     # the CAHVORE solver stalled from it at 8.7 px on pose seed 1 ("diverged": a jpl record
