@@ -273,8 +273,43 @@ image grid of a 5120x3840 camera, 77k rows: 3-6 ms, a grid projection's worth).'
     return ok
 
 
+# _rotation_points' last (p_cam, q, nmax, P, Q): the arrays themselves, kept alive here so
+# that identity stays a key (read-only arrays that own their data: truth_points' grid and
+# points, fit_pixels' pixels)
+_ROTATION_POINTS = []
+ROTATION_POINTS_MEMO = 4
+
+
+def _rotation_points(p_cam, q, nmax):
+    r'''(P, Q): the rows of p_cam (...,3) and q (...,2) _fit_rotation fits on (both finite;
+at most nmax, evenly spaced), Q C-contiguous; kept for the last few pairs of read-only
+arrays that own their data (keyed on the objects): a record's comparison with the truth
+and its verdict's floor fit a rotation onto the same grid from the same points (the
+finiteness of a 77k-point grid costs ~1 ms a pair)'''
+    frozen = all(a.base is None and not a.flags.writeable for a in (p_cam, q))
+    if frozen:
+        with _TRUTH_POINTS_LOCK:
+            for a, b, n, P, Q in _ROTATION_POINTS:
+                if a is p_cam and b is q and n == nmax:
+                    return P, Q
+    p2, q2 = p_cam.reshape(-1, 3), q.reshape(-1, 2)
+    ok = finite_rows(q2) & finite_rows(p2)
+    idx = np.flatnonzero(ok)
+    if len(idx) > nmax:
+        idx = idx[np.linspace(0, len(idx) - 1, nmax).astype(int)]
+    P, Q = p2[idx], np.ascontiguousarray(q2[idx])
+    if frozen:
+        # not flagged read-only: the residuals' kernel takes Q, and numba compiles a
+        # read-only array as another signature; _fit_rotation does not write them
+        with _TRUTH_POINTS_LOCK:
+            _ROTATION_POINTS.append((p_cam, q, nmax, P, Q))
+            del _ROTATION_POINTS[:-ROTATION_POINTS_MEMO]
+    return P, Q
+
+
 def _fit_rotation(fit, p_cam, q, nmax=2000):
-    r'''The rotation R minimising |fit(R p_cam) - q| (p_cam in the truth's camera frame)
+    r'''The rotation R minimising |fit(R p_cam) - q| (p_cam (...,3) in the truth's camera
+frame, q (...,2))
 
 Gauss-Newton from no rotation, with scipy's forward-difference Jacobian: the two
 frames differ by a small rotation on which the pixels depend almost linearly, so it
@@ -289,11 +324,7 @@ projections. Both stop at the same minimum: on 32 paper records (cameras 5,
 px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
 '''
     import scipy.optimize
-    ok = finite_rows(q) & finite_rows(p_cam)
-    idx = np.flatnonzero(ok)
-    if len(idx) > nmax:
-        idx = idx[np.linspace(0, len(idx) - 1, nmax).astype(int)]
-    P, Q = p_cam[idx], np.ascontiguousarray(q[idx])
+    P, Q = _rotation_points(p_cam, q, nmax)
     Rt_ref_cam = fit.Rt_ref_cam()
     residuals = _residuals_of(fit)
 
@@ -457,7 +488,7 @@ mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
     q, p_ref, p_cam = truth_points(truth, range_m, step, R0=R0)
     R = None
     if mode == "rotation":
-        R = _fit_rotation(fit, p_cam.reshape(-1, 3), q.reshape(-1, 2))
+        R = _fit_rotation(fit, p_cam, q)
         qf = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam, R))
     else:
         qf = fit_pixels(fit, p_cam if mode == "intrinsics" else p_ref, mode == "intrinsics")

@@ -395,11 +395,11 @@ mrcal CAHVOR records, whose fits differ by a larger rotation, by up to 0.11 sigm
         elif mode == "rotation" and not moved:
             # ref rotated onto fit's own pixels (see the docstring)
             qb = fit_pixels(fit, p_cam, True)
-            R = _fit_rotation(ref, p_cam.reshape(-1, 3), qb.reshape(-1, 2))
+            R = _fit_rotation(ref, p_cam, qb)
             qa = _projector(ref)(_rotated_into(ref.Rt_ref_cam(), p_cam, R))
         elif mode == "rotation":
             qa = fit_pixels(ref, p_cam, True)
-            R = _fit_rotation(fit, p_cam.reshape(-1, 3), qa.reshape(-1, 2))
+            R = _fit_rotation(fit, p_cam, qa)
             qb = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam, R))
         else:
             qa, qb = fit_pixels(ref, p_cam, True), fit_pixels(fit, p_cam, True)
