@@ -197,7 +197,7 @@ reference_models.kernels (the equations of reference_models.cahvore
 point by point, within 1e-10 px of fit.project; the maps of 42 jpl/mrcal
 records of paper jobs within 1.1e-10 px, their rms and max within 1e-11 px);
 any other fit (OpenCV, COLMAP) with its own project(). projection_difference
-projects with it, and so does _fit_rotation (_residuals_of): the rotation's
+projects with it, and so does _fit_rotation (_rotated_pixels): the rotation's
 least-squares path is sensitive to the last bits of the residuals: the
 compiled projection moved the paper campaign's 172 ok records by at most
 5.5e-7 of their sigma (benchmarks/bench_fits.py diff), compare() 12-15% faster.
@@ -269,18 +269,48 @@ ROTATION_CHORD_PX (moved)'''
 UNPROJECTABLE_PX = 1e3
 
 
-def _residuals_of(fit):
-    r'''residuals(p, q) -> (fit.project(p) - q).ravel(), UNPROJECTABLE_PX where not finite;
-compiled for a JPL-family fit (reference_models.kernels.residuals_packed)'''
-    from reference_models.kernels import KINDS, residuals_packed
-    if getattr(fit, "family", None) in KINDS:
-        cam = _packed(fit)
-        return lambda p, q: residuals_packed(cam, np.ascontiguousarray(p), q, UNPROJECTABLE_PX)
+def _residual(pixels, q):
+    r'''(pixels - q).ravel(), UNPROJECTABLE_PX where not finite: the numbers of
+reference_models.kernels.residuals_packed (the same subtraction, element by element)'''
+    d = pixels - q
+    return np.where(np.isfinite(d), d, UNPROJECTABLE_PX).ravel()
 
-    def residuals(p, q):
-        d = fit.project(p) - q
-        return np.where(np.isfinite(d), d, UNPROJECTABLE_PX).ravel()
-    return residuals
+
+# _rotated_pixels' last (fit, P, {r bytes: pixels}): fit's pixels of the sample points P at
+# no rotation and at the first Jacobian's steps from it, which do not depend on the pixels
+# fitted: a record's verdict fits the exact fit's rotation twice on the same points, onto
+# the truth's grid (its floor) and onto the image fit's pixels (its renderer comparison)
+_ROTATED_PIXELS = [()]
+ROTATED_PIXELS_MEMO = 2
+
+
+def _rotated_pixels(fit, P):
+    r'''pixels(r) -> fit's pixels (N,2) of the points P (N,3) of the truth's camera frame
+turned by R_from_r(r) into fit's camera frame (projected as _projector projects: compiled
+for JPL-family fits); those at r with at most one non-zero component (no rotation and the
+forward differences' steps from it) are kept for the last ROTATED_PIXELS_MEMO (fit, P)
+(keyed on the objects themselves: models are frozen, _rotation_points' P are not written)'''
+    Rt_ref_cam = fit.Rt_ref_cam()
+    project = _projector(fit)
+    kept = None
+    for f, pts, d in _ROTATED_PIXELS[0]:
+        if f is fit and pts is P:
+            kept = d
+            break
+    if kept is None:
+        kept = {}
+        _ROTATED_PIXELS[0] = ((fit, P, kept),) + _ROTATED_PIXELS[0][:ROTATED_PIXELS_MEMO - 1]
+
+    def pixels(r):
+        one = np.count_nonzero(r) <= 1
+        key = r.tobytes()
+        q = kept.get(key) if one else None
+        if q is None:
+            q = project(transform_point_Rt(Rt_ref_cam, P @ R_from_r(r).T))
+            if one:
+                kept[key] = q
+        return q
+    return pixels
 
 
 def finite_rows(a):
@@ -294,7 +324,7 @@ image grid of a 5120x3840 camera, 77k rows: 3-6 ms, a grid projection's worth).'
     return ok
 
 
-# _rotation_points' last (p_cam, q, nmax, P, Q): the arrays themselves, kept alive here so
+# _rotation_points' last (p_cam, q, nmax, idx, P, Q): the arrays themselves, kept alive here so
 # that identity stays a key (read-only arrays that own their data: truth_points' grid and
 # points, fit_pixels' pixels)
 _ROTATION_POINTS = []
@@ -310,7 +340,7 @@ finiteness of a 77k-point grid costs ~1 ms a pair)'''
     frozen = all(a.base is None and not a.flags.writeable for a in (p_cam, q))
     if frozen:
         with _TRUTH_POINTS_LOCK:
-            for a, b, n, P, Q in _ROTATION_POINTS:
+            for a, b, n, _, P, Q in _ROTATION_POINTS:
                 if a is p_cam and b is q and n == nmax:
                     return P, Q
     p2, q2 = p_cam.reshape(-1, 3), q.reshape(-1, 2)
@@ -318,12 +348,22 @@ finiteness of a 77k-point grid costs ~1 ms a pair)'''
     idx = np.flatnonzero(ok)
     if len(idx) > nmax:
         idx = idx[np.linspace(0, len(idx) - 1, nmax).astype(int)]
-    P, Q = p2[idx], np.ascontiguousarray(q2[idx])
+    P = None
     if frozen:
-        # not flagged read-only: the residuals' kernel takes Q, and numba compiles a
-        # read-only array as another signature; _fit_rotation does not write them
+        # the same points of p_cam as another pair's (the same rows of q finite): the same
+        # P object, whose rotated pixels _rotated_pixels keeps
         with _TRUTH_POINTS_LOCK:
-            _ROTATION_POINTS.append((p_cam, q, nmax, P, Q))
+            for a, _, n, i, P1, _ in _ROTATION_POINTS:
+                if a is p_cam and n == nmax and np.array_equal(i, idx):
+                    P = P1
+                    break
+    if P is None:
+        P = p2[idx]
+    Q = np.ascontiguousarray(q2[idx])
+    if frozen:
+        # not flagged read-only (_fit_rotation does not write them)
+        with _TRUTH_POINTS_LOCK:
+            _ROTATION_POINTS.append((p_cam, q, nmax, idx, P, Q))
             del _ROTATION_POINTS[:-ROTATION_POINTS_MEMO]
     return P, Q
 
@@ -352,11 +392,10 @@ px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
 '''
     import scipy.optimize
     P, Q = _rotation_points(p_cam, q, nmax)
-    Rt_ref_cam = fit.Rt_ref_cam()
-    residuals = _residuals_of(fit)
+    pixels = _rotated_pixels(fit, P)
 
     def res(r):
-        return residuals(transform_point_Rt(Rt_ref_cam, P @ R_from_r(r).T), Q)
+        return _residual(pixels(r), Q)
 
     from harness.least_squares import forward_difference, remembering
     r = np.zeros(3)
