@@ -286,12 +286,19 @@ ROTATED_PIXELS_MEMO = 2
 
 def _rotated_pixels(fit, P):
     r'''pixels(r) -> fit's pixels (N,2) of the points P (N,3) of the truth's camera frame
-turned by R_from_r(r) into fit's camera frame (projected as _projector projects: compiled
-for JPL-family fits); those at r with at most one non-zero component (no rotation and the
-forward differences' steps from it) are kept for the last ROTATED_PIXELS_MEMO (fit, P)
-(keyed on the objects themselves: models are frozen, _rotation_points' P are not written)'''
+turned by R_from_r(r) into fit's camera frame (compiled for JPL-family fits, as
+_projector's projection is, whatever projection the grid is given); those at r with at
+most one non-zero component (no rotation and the forward differences' steps from it) are
+kept for the last ROTATED_PIXELS_MEMO (fit, P) (keyed on the objects themselves: models
+are frozen, _rotation_points' P are not written)'''
+    from reference_models.kernels import KINDS, project_packed
     Rt_ref_cam = fit.Rt_ref_cam()
-    project = _projector(fit)
+    project = fit.project
+    if getattr(fit, "family", None) in KINDS:
+        cam = _packed(fit)
+
+        def project(p):
+            return project_packed(cam, p)
     kept = None
     for f, pts, d in _ROTATED_PIXELS[0]:
         if f is fit and pts is P:
