@@ -1049,6 +1049,25 @@ m's R0, as fit_parameter_differences(signed=True) compares it).'''
     return out
 
 
+# _tangent_basis_of's last few (u bytes, basis): the scatter's stepped models all take their
+# A and O components about the exact fit's A and O
+_TANGENT_BASES = [()]
+
+
+def _tangent_basis_of(u):
+    r'''harness.calibrators.jpl_fit._tangent_basis(u), kept for the last two u (by value)'''
+    from harness.calibrators.jpl_fit import _tangent_basis
+    key = u.tobytes()
+    for k, b in _TANGENT_BASES[0]:
+        if k == key:
+            return b
+    b = _tangent_basis(u)
+    for e in b:
+        e.setflags(write=False)     # shared by every caller
+    _TANGENT_BASES[0] = ((key, b),) + _TANGENT_BASES[0][:1]    # one tuple: atomic
+    return b
+
+
 def _unit_components(u_ref, u, dv_deg=None):
     r'''The move u - u_ref of a unit vector, deg, as its two components in the plane
 perpendicular to u_ref (harness.calibrators.jpl_fit._tangent_basis, the fit's own chart)
@@ -1059,8 +1078,7 @@ gives no variance. In world components it is spread over the three when u_ref is
 an axis: camera 17's A = (0, 0, 1) gave A_deg[2] a sigma of 1e-10 deg (rounding of the
 Jacobian's differences), a mean of -12 standard errors and a clean jpl chi2/dof of 1.7-1.9
 under the noise model's own Gaussian noise (CAHVOR and CAHVORE; 0.97-1.07 without it).'''
-    from harness.calibrators.jpl_fit import _tangent_basis
-    e1, e2 = _tangent_basis(np.asarray(u_ref, dtype=np.float64))
+    e1, e2 = _tangent_basis_of(np.asarray(u_ref, dtype=np.float64))
     if dv_deg is None:      # or the move given as its world components, deg
         dv_deg = np.degrees(np.asarray(u, dtype=np.float64) - u_ref)
     return [float(e1 @ dv_deg), float(e2 @ dv_deg)]
