@@ -365,8 +365,8 @@ its verdict), which saves a projection of the whole grid; fit, onto ref's, where
 was moved to another R0 gauge (the points are then the truth's own frame's, not
 those of the record's comparison). The two minima are the same comparison to second
 order in the rotation between the fits: rotating the exact fit instead of the image
-fit moved the paper campaign's renderer projection RMS and max by < 4e-5 of their
-sigma (benchmarks/bench_verdict.py, 100 records). In the moved case it moved the
+fit moved the paper campaign's renderer projection RMS and max by < 4e-4 of their
+sigma (benchmarks/bench_verdict.py, 154 records). In the moved case it moved the
 mrcal CAHVOR records, whose fits differ by a larger rotation, by up to 0.11 sigma
 (unjudged: their floors are far), and would save nothing: fit keeps being rotated.
 '''
