@@ -197,7 +197,7 @@ reference_models.kernels (the equations of reference_models.cahvore
 point by point, within 1e-10 px of fit.project; the maps of 42 jpl/mrcal
 records of paper jobs within 1.1e-10 px, their rms and max within 1e-11 px);
 any other fit (OpenCV, COLMAP) with its own project(). projection_difference
-projects with it, and so does _fit_rotation (_residuals_of): the rotation's
+projects with it, and so does _fit_rotation (_rotated_pixels): the rotation's
 least-squares path is sensitive to the last bits of the residuals: the
 compiled projection moved the paper campaign's 172 ok records by at most
 5.5e-7 of their sigma (benchmarks/bench_fits.py diff), compare() 12-15% faster.
@@ -244,22 +244,80 @@ ROTATION_GN_STEPS = 8
 # gradient is zero), where MINPACK took ~43 more projections to wander as far
 ROTATION_ROUNDING_PX = 1e-6
 
+# _fit_rotation asks the last step's Jacobian whether the next step would settle
+# (_settled_by) when that step moved no pixel by more than this (px): the Jacobian's own
+# change over the step is then ~1e-7 of it (a pixel per 1e-3 rad of a 1000 px lens: a
+# rotation of 1e-7 rad), below its forward differences' rounding
+ROTATION_CHORD_PX = 1e-4
+
+
+def _settled_by(J, f, moved):
+    r'''True when the Gauss-Newton step at residuals f by the previous step's Jacobian J
+(the chord: no new Jacobian, 3 projections fewer) moves no pixel by more than a tenth of
+ROTATION_SETTLED_PX, after a previous step that moved none by more than
+ROTATION_CHORD_PX (moved)'''
+    if not moved <= ROTATION_CHORD_PX:
+        return False
+    try:
+        step = np.linalg.solve(J.T @ J, -(J.T @ f))
+    except np.linalg.LinAlgError:
+        return False
+    return bool(np.max(np.abs(J @ step)) <= 0.1 * ROTATION_SETTLED_PX)
+
+
 # the residual of a point the fit cannot project, px (the rotation fit's)
 UNPROJECTABLE_PX = 1e3
 
 
-def _residuals_of(fit):
-    r'''residuals(p, q) -> (fit.project(p) - q).ravel(), UNPROJECTABLE_PX where not finite;
-compiled for a JPL-family fit (reference_models.kernels.residuals_packed)'''
-    from reference_models.kernels import KINDS, residuals_packed
+def _residual(pixels, q):
+    r'''(pixels - q).ravel(), UNPROJECTABLE_PX where not finite: the numbers of
+reference_models.kernels.residuals_packed (the same subtraction, element by element)'''
+    d = pixels - q
+    return np.where(np.isfinite(d), d, UNPROJECTABLE_PX).ravel()
+
+
+# _rotated_pixels' last (fit, P, {r bytes: pixels}): fit's pixels of the sample points P at
+# no rotation and at the first Jacobian's steps from it, which do not depend on the pixels
+# fitted: a record's verdict fits the exact fit's rotation twice on the same points, onto
+# the truth's grid (its floor) and onto the image fit's pixels (its renderer comparison)
+_ROTATED_PIXELS = [()]
+ROTATED_PIXELS_MEMO = 2
+
+
+def _rotated_pixels(fit, P):
+    r'''pixels(r) -> fit's pixels (N,2) of the points P (N,3) of the truth's camera frame
+turned by R_from_r(r) into fit's camera frame (compiled for JPL-family fits, as
+_projector's projection is, whatever projection the grid is given); those at r with at
+most one non-zero component (no rotation and the forward differences' steps from it) are
+kept for the last ROTATED_PIXELS_MEMO (fit, P) (keyed on the objects themselves: models
+are frozen, _rotation_points' P are not written)'''
+    from reference_models.kernels import KINDS, project_packed
+    Rt_ref_cam = fit.Rt_ref_cam()
+    project = fit.project
     if getattr(fit, "family", None) in KINDS:
         cam = _packed(fit)
-        return lambda p, q: residuals_packed(cam, np.ascontiguousarray(p), q, UNPROJECTABLE_PX)
 
-    def residuals(p, q):
-        d = fit.project(p) - q
-        return np.where(np.isfinite(d), d, UNPROJECTABLE_PX).ravel()
-    return residuals
+        def project(p):
+            return project_packed(cam, p)
+    kept = None
+    for f, pts, d in _ROTATED_PIXELS[0]:
+        if f is fit and pts is P:
+            kept = d
+            break
+    if kept is None:
+        kept = {}
+        _ROTATED_PIXELS[0] = ((fit, P, kept),) + _ROTATED_PIXELS[0][:ROTATED_PIXELS_MEMO - 1]
+
+    def pixels(r):
+        one = np.count_nonzero(r) <= 1
+        key = r.tobytes()
+        q = kept.get(key) if one else None
+        if q is None:
+            q = project(transform_point_Rt(Rt_ref_cam, P @ R_from_r(r).T))
+            if one:
+                kept[key] = q
+        return q
+    return pixels
 
 
 def finite_rows(a):
@@ -273,12 +331,63 @@ image grid of a 5120x3840 camera, 77k rows: 3-6 ms, a grid projection's worth).'
     return ok
 
 
+# _rotation_points' last (p_cam, q, nmax, idx, P, Q): the arrays themselves, kept alive here so
+# that identity stays a key (read-only arrays that own their data: truth_points' grid and
+# points, fit_pixels' pixels)
+_ROTATION_POINTS = []
+ROTATION_POINTS_MEMO = 4
+
+
+def _rotation_points(p_cam, q, nmax):
+    r'''(P, Q): the rows of p_cam (...,3) and q (...,2) _fit_rotation fits on (both finite;
+at most nmax, evenly spaced), Q C-contiguous; kept for the last few pairs of read-only
+arrays that own their data (keyed on the objects): a record's comparison with the truth
+and its verdict's floor fit a rotation onto the same grid from the same points (the
+finiteness of a 77k-point grid costs ~1 ms a pair)'''
+    frozen = all(a.base is None and not a.flags.writeable for a in (p_cam, q))
+    if frozen:
+        with _TRUTH_POINTS_LOCK:
+            for a, b, n, _, P, Q in _ROTATION_POINTS:
+                if a is p_cam and b is q and n == nmax:
+                    return P, Q
+    p2, q2 = p_cam.reshape(-1, 3), q.reshape(-1, 2)
+    ok = finite_rows(q2) & finite_rows(p2)
+    idx = np.flatnonzero(ok)
+    if len(idx) > nmax:
+        idx = idx[np.linspace(0, len(idx) - 1, nmax).astype(int)]
+    P = None
+    if frozen:
+        # the same points of p_cam as another pair's (the same rows of q finite): the same
+        # P object, whose rotated pixels _rotated_pixels keeps
+        with _TRUTH_POINTS_LOCK:
+            for a, _, n, i, P1, _ in _ROTATION_POINTS:
+                if a is p_cam and n == nmax and np.array_equal(i, idx):
+                    P = P1
+                    break
+    if P is None:
+        P = p2[idx]
+    Q = np.ascontiguousarray(q2[idx])
+    if frozen:
+        # not flagged read-only (_fit_rotation does not write them)
+        with _TRUTH_POINTS_LOCK:
+            _ROTATION_POINTS.append((p_cam, q, nmax, idx, P, Q))
+            del _ROTATION_POINTS[:-ROTATION_POINTS_MEMO]
+    return P, Q
+
+
 def _fit_rotation(fit, p_cam, q, nmax=2000):
-    r'''The rotation R minimising |fit(R p_cam) - q| (p_cam in the truth's camera frame)
+    r'''The rotation R minimising |fit(R p_cam) - q| (p_cam (...,3) in the truth's camera
+frame, q (...,2))
 
 Gauss-Newton from no rotation, with scipy's forward-difference Jacobian: the two
 frames differ by a small rotation on which the pixels depend almost linearly, so it
-reaches the minimum in 2-3 steps (4 projections each). A step that does not lower
+reaches the minimum in 2-3 steps (4 projections each). After a small step the last
+Jacobian tells whether the next would settle (_settled_by): where it would, the
+Jacobian there is not differenced at all, 3 of the typical 8 projections (on the
+paper campaign's 256 comparisons of 100 captured records 445 of 1937 projections
+fewer; where a new Jacobian still settled at the same point, the same rotation bit
+for bit, and 4 far floors (px) moved by <= 1.7e-8 px, the size of the step it
+skipped: benchmarks/bench_verdict.py). A step that does not lower
 the sum of squares ends it where it is when that step is rounding
 (ROTATION_ROUNDING_PX: far floors, whose px residuals round the last steps);
 MINPACK's Levenberg-Marquardt (scipy least_squares "lm", tolerances 1e-15) takes
@@ -289,23 +398,21 @@ projections. Both stop at the same minimum: on 32 paper records (cameras 5,
 px and its maxima by < 4.2e-8 px, MINPACK's own wander (ROTATION_SETTLED_PX).
 '''
     import scipy.optimize
-    ok = finite_rows(q) & finite_rows(p_cam)
-    idx = np.flatnonzero(ok)
-    if len(idx) > nmax:
-        idx = idx[np.linspace(0, len(idx) - 1, nmax).astype(int)]
-    P, Q = p_cam[idx], np.ascontiguousarray(q[idx])
-    Rt_ref_cam = fit.Rt_ref_cam()
-    residuals = _residuals_of(fit)
+    P, Q = _rotation_points(p_cam, q, nmax)
+    pixels = _rotated_pixels(fit, P)
 
     def res(r):
-        return residuals(transform_point_Rt(Rt_ref_cam, P @ R_from_r(r).T), Q)
+        return _residual(pixels(r), Q)
 
     from harness.least_squares import forward_difference, remembering
     r = np.zeros(3)
+    J, moved = None, math.inf
     with np.errstate(all="ignore"):
         f = res(r)
         cost = f @ f
         for _ in range(ROTATION_GN_STEPS):
+            if J is not None and _settled_by(J, f, moved):
+                return R_from_r(r)
             J = forward_difference(res, r, f)
             step = np.linalg.lstsq(J, -f, rcond=None)[0]
             moved = np.max(np.abs(J @ step))
@@ -457,7 +564,7 @@ mode: "rotation" (fitted rotation between the camera frames), "intrinsics"
     q, p_ref, p_cam = truth_points(truth, range_m, step, R0=R0)
     R = None
     if mode == "rotation":
-        R = _fit_rotation(fit, p_cam.reshape(-1, 3), q.reshape(-1, 2))
+        R = _fit_rotation(fit, p_cam, q)
         qf = _projector(fit)(_rotated_into(fit.Rt_ref_cam(), p_cam, R))
     else:
         qf = fit_pixels(fit, p_cam if mode == "intrinsics" else p_ref, mode == "intrinsics")
