@@ -193,8 +193,8 @@ SYNOPSIS
 
 q[..., k, :] is the curve at parameter 2 pi k / N (N >= 3), going round once, either
 way. Green's theorem with the derivatives from the samples' discrete Fourier series
-and the integrals by the trapezoid rule, which is exponentially accurate for a smooth
-periodic curve (module docstring); for a polygon's corners it is not:
+(_fourier_derivative) and the integrals by the trapezoid rule, which is exponentially
+accurate for a smooth periodic curve (module docstring); for a polygon's corners it is not:
 polygon_centroid is. The samples are taken relative to their mean, near the
 centroid, to keep the cubic sums well conditioned far from the origin. A curve with
 a non-finite sample or no area gives NaN.
@@ -203,22 +203,39 @@ a non-finite sample or no area gives NaN.
     n = q.shape[-2]
     if n < 3:
         raise TargetError(f"a closed curve needs at least 3 samples; got {n}")
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):
         mean = q.mean(axis=-2, keepdims=True)
         d = q - mean
-        F = np.fft.rfft(d, axis=-2)
-        k = np.arange(F.shape[-2], dtype=np.float64)
-        if n % 2 == 0:
-            k[-1] = 0.0           # the Nyquist term's derivative is not defined by the samples
-        dd = np.fft.irfft(F * (1j * k)[:, None], n=n, axis=-2)
-        x, y, dx, dy = d[..., 0], d[..., 1], dd[..., 0], dd[..., 1]
+        x, y = d[..., 0], d[..., 1]
+        D = _fourier_derivative(n)
+        dx, dy = x @ D, y @ D
         area = 0.5 * (x * dy - y * dx).sum(axis=-1)
-        with np.errstate(divide="ignore"):
-            cx = 0.5 * (x * x * dy).sum(axis=-1) / area
-            cy = -0.5 * (y * y * dx).sum(axis=-1) / area
+        cx = 0.5 * (x * x * dy).sum(axis=-1) / area
+        cy = -0.5 * (y * y * dx).sum(axis=-1) / area
     c = np.stack((cx, cy), axis=-1) + mean[..., 0, :]
     c[~(np.abs(area) > 0) | ~np.all(np.isfinite(q), axis=(-1, -2))] = np.nan
     return c
+
+
+@functools.lru_cache(maxsize=16)
+def _fourier_derivative(n):
+    r'''(n,n) the derivative, per unit of parameter (period 2 pi), of the trigonometric
+interpolant of n equally spaced samples, at the samples: v @ D for samples v (...,n)
+
+The Fourier differentiation matrix (Trefethen, Spectral Methods in MATLAB, ch. 3),
+the same numbers as differentiating the samples' discrete Fourier series (the
+Nyquist term's derivative taken as 0 for even n), as one small product instead of
+two FFTs: D[j, k] = 1/2 (-1)^(k-j) cot((k-j) pi/n) for even n, 1/2 (-1)^(k-j) /
+sin((k-j) pi/n) for odd n, 0 on the diagonal. Read-only.'''
+    k = np.arange(n)
+    m = k[None, :] - k[:, None]          # D[j, k]: the weight of sample j in the derivative at k
+    h = m * (np.pi / n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sign = np.where(m % 2 == 0, 1.0, -1.0)
+        D = 0.5 * sign * (np.cos(h) / np.sin(h) if n % 2 == 0 else 1.0 / np.sin(h))
+    D[m == 0] = 0.0
+    D.setflags(write=False)
+    return D
 
 
 def centroid_bias(model, target, Rt_cam_board, Noutline=None):

@@ -213,3 +213,17 @@ series has converged, either way round; a non-finite sample or no area gives NaN
     assert np.all(np.isnan(outline_centroid(bad)))
     with pytest.raises(TargetError):
         outline_centroid(qe[:2])
+
+
+@pytest.mark.parametrize("n", [8, 9, 16, 33])
+def test_fourier_derivative_is_exact_on_trigonometric_polynomials(n):
+    # v @ D differentiates the samples' trigonometric interpolant: exact (to rounding of
+    # sums of n terms of size ~n, 1e-12) on every harmonic below n/2, either parity of n
+    from targets.centroids import _fourier_derivative
+    t = np.arange(n) * (2 * np.pi / n)
+    kmax = (n - 1) // 2
+    v = np.stack([np.cos(k * t + 0.3 * k) for k in range(kmax + 1)]
+                 + [np.sin(k * t) for k in range(1, kmax + 1)])
+    dv = np.stack([-k * np.sin(k * t + 0.3 * k) for k in range(kmax + 1)]
+                  + [k * np.cos(k * t) for k in range(1, kmax + 1)])
+    assert np.abs(v @ _fourier_derivative(n) - dv).max() < 1e-12 * n
