@@ -481,7 +481,8 @@ far: the floor's projection difference (rotation-mode RMS) exceeds both the
 measured detection noise RMS and FLOOR_TOLERANCE_PX. The reason names the
 cause where it can: theta (a model frame holding theta at 90 deg), a misfit
 of the exact observations (residual RMS above MISFIT_FACTOR x the noise: the
-model cannot represent the camera), or an unconstrained model (exact
+model cannot represent the camera, or, for a model of the truth's own family
+with no theta named, the solver stopped short), or an unconstrained model (exact
 observations fitted, the model still far from the truth).
 '''
     rms = (floor_projection or {}).get("rms")
@@ -500,8 +501,14 @@ observations fitted, the model still far from the truth).
     res_rms = (exact_residuals or {}).get("rms")
     if res_rms is not None and res_rms > max(MISFIT_FACTOR * noise_rms,
                                              FLOOR_TOLERANCE_PX / 10):
+        # a misfit of a model of the truth's own family, with no theta named, is the
+        # solver's: that family holds the truth exactly
+        family = getattr(truth, "family", None)
+        why = (f"its solver stopped short: the truth is a {family}, which it can represent"
+               if family is not None and model_name == family and not causes else
+               "its model cannot represent the camera, or its solver stopped short")
         causes.append(f"{what} cannot fit the exact observations (residual RMS "
-                      f"{res_rms:.3g} px)")
+                      f"{res_rms:.3g} px; {why})")
     elif not causes:
         causes.append(f"the exact observations leave {what} unconstrained (residual RMS "
                       f"{res_rms if res_rms is None else format(res_rms, '.3g')} px, yet far "

@@ -233,6 +233,11 @@ def test_far_floor_says_why_in_words(navcam):
     far, why = verdict.floor_judgement(truth, "opencv", "OPENCV5", {"rms": 0.2},
                                        {"rms": 0.02}, {"rms": 0.001})
     assert far and "cannot fit the exact observations" in why
+    assert "cannot represent the camera, or its solver stopped short" in why
+    # a misfit in the truth's own family (jpl holds theta): the solver's, said so
+    far, why = verdict.floor_judgement(truth, "jpl", "CAHVOR", {"rms": 0.2},
+                                       {"rms": 0.02}, {"rms": 0.001})
+    assert far and "solver stopped short: the truth is a CAHVOR" in why
     # below the stated tolerance, or below what the images show: not far
     assert verdict.floor_judgement(truth, "jpl", "CAHVOR", {"rms": 0.005}, {"rms": 0.0},
                                    {"rms": 0.001}) == (False, "")
