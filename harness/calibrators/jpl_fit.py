@@ -468,23 +468,23 @@ another family is ignored.
     b_start = start_bias(start, obs) if m_start is not None and bias_correction else None
     q_first = q_obs if b_start is None else q_obs - b_start
     first = found & np.all(np.isfinite(q_first), axis=-1)
-    model, info = fit_model(p_ref[first], q_first[first], model_name, W, H, mtype, lin,
-                            m0=m_start, R0=R0)
-    r_first = np.linalg.norm(project(model, p_ref[first]) - q_first[first], axis=-1)
-    passes = [{"pass": 1, "rms": float(np.sqrt(np.mean(r_first ** 2))),
-               "max": float(r_first.max()), **info}]
+
+    def first_pass(**start):
+        m, info = fit_model(p_ref[first], q_first[first], model_name, W, H, mtype, lin,
+                            R0=R0, **start)
+        r = np.linalg.norm(project(m, p_ref[first]) - q_first[first], axis=-1)
+        return m, {"pass": 1, "rms": float(np.sqrt(np.mean(r ** 2))), "max": float(r.max()),
+                   **info}
+    model, first_figures = first_pass(m0=m_start)
+    passes = [first_figures]
     if m_start is None and model_name == "CAHVORE" and lin is not None and lin < 1 and \
-            passes[0]["rms"] > max_rms:
+            first_figures["rms"] > max_rms:
         # the start stalled (CENTRAL_RETRY_RADIUS): the start of lower RMS is kept
-        m2, info2 = fit_model(p_ref[first], q_first[first], model_name, W, H, mtype, lin,
-                              R0=R0, central_radius=CENTRAL_RETRY_RADIUS)
-        r2 = np.linalg.norm(project(m2, p_ref[first]) - q_first[first], axis=-1)
-        rms2 = float(np.sqrt(np.mean(r2 ** 2)))
-        if rms2 < passes[0]["rms"]:
+        m2, retry = first_pass(central_radius=CENTRAL_RETRY_RADIUS)
+        if retry["rms"] < first_figures["rms"]:
             model = m2
-            passes = [{"pass": 1, "rms": rms2, "max": float(r2.max()), **info2,
-                       "central_radius": CENTRAL_RETRY_RADIUS,
-                       "stalled_rms": passes[0]["rms"]}]
+            passes = [{**retry, "central_radius": CENTRAL_RETRY_RADIUS,
+                       "stalled_rms": first_figures["rms"]}]
 
     def current():
         return CompiledProjection(model), Rt_cam_board_of(model, obs.Rt_ref_board)
