@@ -76,6 +76,7 @@ model cannot represent the camera; small residuals = the observations leave
 the model unconstrained).
 '''
 
+import functools
 import math
 import threading
 
@@ -1056,22 +1057,18 @@ m's R0, as fit_parameter_differences(signed=True) compares it).'''
     return out
 
 
-# _tangent_basis_of's last few (u bytes, basis): the scatter's stepped models all take their
-# A and O components about the exact fit's A and O
-_TANGENT_BASES = [()]
-
-
 def _tangent_basis_of(u):
-    r'''harness.calibrators.jpl_fit._tangent_basis(u), kept for the last two u (by value)'''
+    r'''harness.calibrators.jpl_fit._tangent_basis(u), kept for the last two u (by value): the
+scatter's stepped models all take their A and O components about the exact fit's A and O'''
+    return _tangent_basis_by_value(np.asarray(u, dtype=np.float64).tobytes())
+
+
+@functools.lru_cache(maxsize=2)
+def _tangent_basis_by_value(key):
     from harness.calibrators.jpl_fit import _tangent_basis
-    key = u.tobytes()
-    for k, b in _TANGENT_BASES[0]:
-        if k == key:
-            return b
-    b = _tangent_basis(u)
+    b = _tangent_basis(np.frombuffer(key, dtype=np.float64))
     for e in b:
         e.setflags(write=False)     # shared by every caller
-    _TANGENT_BASES[0] = ((key, b),) + _TANGENT_BASES[0][:1]    # one tuple: atomic
     return b
 
 
