@@ -22,6 +22,7 @@ import time
 import traceback
 from pathlib import Path
 
+from .campaign import VERDICT_MODES
 from .jobs import TWIN_STAGES, slug
 from .stages import (
     BOARD_FEATURES,
@@ -337,7 +338,7 @@ camera-frame model, the planned poses and the detections'''
 
 
 def _verdict(cal, model, options, obs, target, truth, frame, res, params, projection, cache,
-             sec, Rt_cam_board=None, modes=None):
+             sec, Rt_cam_board=None, modes=VERDICT_MODES):
     r'''(record's verdict, reason) of an ok record (harness.verdict): the fit of the exact
 observations, floor / renderer / total against frame (the truth, or for a fit that
 does not read the world frame the truth in its camera frame: _calibrator_record); sec
@@ -347,7 +348,7 @@ per camera and pose count, ~0 for the job's other calibrators and for twins) and
 "verdict" (its comparisons and scatter). The reason is the floor's, in words, when the
 floor is far from the truth; a verdict that cannot be computed says why in
 verdict["error"] and leaves the record ok. modes: the floor's and renderer's
-projection-difference modes (the campaign's verdict_modes; None: assess's default).'''
+projection-difference modes (the campaign's verdict_modes).'''
     from . import verdict as vd
     t0 = time.perf_counter()
     try:
@@ -356,8 +357,7 @@ projection-difference modes (the campaign's verdict_modes; None: assess's defaul
         t1 = time.perf_counter()
         sec["exact_fit"] = 0.0 if reused else float(exact.seconds)
         sec["exact_observations"] = max(0.0, t1 - t0 - sec["exact_fit"])
-        v = vd.assess(frame, res, exact, noise, params, projection, obs=obs,
-                      **({} if modes is None else {"modes": modes}))
+        v = vd.assess(frame, res, exact, noise, params, projection, obs=obs, modes=modes)
         sec["verdict"] = time.perf_counter() - t1
     except Exception as e:  # the record's own figures stand; its verdict says why not
         tb = traceback.extract_tb(e.__traceback__)[-1]
