@@ -60,6 +60,16 @@ MAX_TILT_DEG = 45.0
 MAX_VIEW_ANGLE_DEG = 78.0      # largest angle between the board normal and a ray to the board
 DEFAULT_MAX_RANGE = 100.0      # metres
 NOUTLINE_PER_EDGE = 32
+# A dot board's dots must stay detectable: targets.detect_dots drops dark blobs under its
+# min_area_px (6 px); a dot's blob (its pixels darker than the dark/light threshold, about
+# those more than half covered) can lose up to half its projected area on a small dot, so
+# a pose keeps its smallest projected dot at DOT_AREA_FACTOR x min_area_px where the range
+# allows (_Planner.dot_area_range). It binds on small sensors only (a 160x120 camera's far,
+# tilted poses put dots of 3-6 px^2 on the image: 0-97 of 100 found, whole poses lost);
+# where every pose's smallest dot is above it (the catalogue, the other constructed
+# cameras) the plans are unchanged bit for bit.
+DOT_AREA_FACTOR = 2.0
+NDOT_OUTLINE = 32
 
 # (anchor, tilt deg, tilt axis azimuth deg in the board plane, roll deg, range factor)
 # anchor: None = image centre, else (sx, sy) signs of the image corner to push towards.
@@ -189,6 +199,14 @@ class _Planner:
         self.size = math.hypot(*target.size())
         self.cos_view_max = math.cos(math.radians(MAX_VIEW_ANGLE_DEG))
         self._rays = {}
+        self.dot_outlines = None
+        if getattr(target, "kind", None) == "dots":
+            import inspect
+
+            from targets.detect_dots import _detect_dots
+            min_area = inspect.signature(_detect_dots).parameters["min_area_px"].default
+            self.min_dot_area = DOT_AREA_FACTOR * float(min_area)
+            self.dot_outlines = target.dot_outlines(NDOT_OUTLINE)
         self._cam = _packed(model)
         if self._cam is not None:
             self._R_ref_cam = np.ascontiguousarray(self.R_ref_cam)
@@ -236,6 +254,32 @@ range search computes this once and moves the board with place().
         R = (R_from_axis_angle(v, math.radians(roll))
              @ R_from_axis_angle(axis, math.radians(tilt)) @ R)
         return o, v, R, R @ self.centre_board
+
+    def smallest_dot_area(self, Rt):
+        r'''Projected area (px^2, of an NDOT_OUTLINE-gon) of the smallest dot at pose Rt'''
+        o = self.dot_outlines
+        p = (o.reshape(-1, 3) @ Rt[:3].T + Rt[3]) @ self.R_ref_cam.T + self.t_ref_cam
+        if self._cam is not None:
+            q = np.empty((len(p), 2))
+            kernels.project_points(self._cam, np.ascontiguousarray(p), q)
+        else:
+            q = self.model.project(p)
+        q = q.reshape(o.shape[0], o.shape[1], 2)
+        x, y = q[..., 0], q[..., 1]
+        a = 0.5 * np.abs((x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1))
+        return float(np.min(a)) if np.all(np.isfinite(a)) else 0.0
+
+    def dot_area_range(self, Rt, d, d_fit):
+        r'''The range (d_fit <= range <= d) at which the smallest dot of the board at Rt
+(range d) keeps min_dot_area px^2: d itself when it does or the target has no dots. A
+dot's area falls as 1/range^2: d is scaled by sqrt(area / min_dot_area), never below
+d_fit (where the board just fits the middle of the image: its dots can be no larger).'''
+        if self.dot_outlines is None or d <= d_fit:
+            return d
+        a = self.smallest_dot_area(Rt)
+        if a >= self.min_dot_area:
+            return d
+        return max(d_fit, d * math.sqrt(a / self.min_dot_area))
 
     def place(self, orientation, d):
         r'''Rt_cam_board of an orientation() with the board centre at range d along its ray'''
@@ -421,6 +465,13 @@ target in a usable calibration pose, CamvalError for a bad n or cover.
         q_anchor = q_centre if anchor is None else planner.push(
             q_centre, corners[anchor], d, tilt, azimuth, roll)
         Rt = planner.pose(q_anchor, d, tilt, azimuth, roll)
+        # a small sensor: nearer, so that the smallest dot stays detectable (DOT_AREA_FACTOR)
+        d_dots = d if Rt is None else planner.dot_area_range(Rt, d, d_fit)
+        if d_dots < d:
+            d = d_dots
+            q_anchor = q_centre if anchor is None else planner.push(
+                q_centre, corners[anchor], d, tilt, azimuth, roll)
+            Rt = planner.pose(q_anchor, d, tilt, azimuth, roll)
         if not planner.fits(Rt):
             raise NotVisibleError(f"pose {i}: no placement of the board fits the {W}x{H} image "
                                   f"at {d:.3g} m with tilt {tilt:.0f} deg")
