@@ -48,9 +48,15 @@ def test_scatter_limits_read_sigma_from_the_record():
     assert check({"records": {NAME: _rec(0.006, sigma_hc=0.002)}}, spec) == []
     # floor: a tiny sigma does not make a tiny difference fail
     assert check({"records": {NAME: _rec(5e-5, sigma_hc=1e-6)}}, spec) == []
-    # cap: a huge sigma does not let a large projection difference pass
-    (f,) = check({"records": {NAME: _rec(0.0, rms=0.006, sigma_rms=0.01)}}, spec)
-    assert "cap" in f.limit and "z 0.6" in f.value
+    # cap: a sigma whose z bound lies above it does not let a larger projection difference
+    # pass (6 x 0.00125 = 0.0075 > cap 0.005 >= 4 x 0.00125)
+    (f,) = check({"records": {NAME: _rec(0.0, rms=0.006, sigma_rms=0.00125)}}, spec)
+    assert "(cap;" in f.limit and "z 4.8" in f.value
+    # ... but it is never held below CAP_MIN_Z sigma, which a perfect renderer would fail by
+    # chance (a 160x120 camera's mrcal sigma 0.01 px against a 0.02 px cap)
+    assert check({"records": {NAME: _rec(0.0, rms=0.006, sigma_rms=0.01)}}, spec) == []
+    (f,) = check({"records": {NAME: _rec(0.0, rms=0.041, sigma_rms=0.01)}}, spec)
+    assert "cap raised to 4 sigma" in f.limit and "z 4.1" in f.value
 
 
 def test_far_floor_records_are_not_judged_unless_asked():
