@@ -234,13 +234,129 @@ ROOT = Path(__file__).resolve().parents[1]
 FAULT_PROGRAM = ROOT / "examples" / "fault_renderer.py"
 CALIBRATORS = ("jpl", "mrcal", "opencv")
 
+# Faults beyond examples/fault_renderer.py's (issue 14's list), each a renderer bug a
+# simulator can have; NAME or NAME:SIZE (the size in the unit said; default below). They run
+# through the same command protocol: this file serves them (--serve-fault, below) with
+# fault_renderer's machinery, so they too reach camval only through the images.
+#   vs_scale    Vs x (1 + SIZE): the pixel pitch wrong in y only (pixel aspect), default 3e-6
+#   vc_shift    Vc + SIZE px (V += SIZE A): the image moves in y only, default 0.001 px
+#   roll        the sensor rolled SIZE deg about A (H' and V' rotated, Hc, Vc, A, O kept),
+#               default 0.001 deg
+#   c_along_a   the camera centre moved SIZE mm along A (a wrong entrance-pupil / nodal
+#               position), default 0.1 mm
+#   linearity   a CAHVORE3's linearity L x (1 + SIZE), default 1e-4 (the projection's
+#               angle mapping between perspective and fisheye slightly wrong)
+#   flip_y      the image written bottom-up (rows reversed: V := (height - 1) A - V); no size
+NEW_FAULT_DEFAULTS = {"vs_scale": 3e-6, "vc_shift": 1e-3, "roll": 1e-3, "c_along_a": 0.1,
+                      "linearity": 1e-4, "flip_y": None}
+# the faults that move the camera in the world, not its projection: a calibrator that fits
+# the board poses (mrcal, OpenCV) absorbs them; jpl fits surveyed points and sees them
+EXTRINSIC_FAULTS = ("roll", "c_along_a")
+
+
+def _split_fault(fault):
+    name, _, size = fault.partition(":")
+    return name, (float(size) if size else NEW_FAULT_DEFAULTS.get(name))
+
+
+def new_faulty_model(model, fault, not_applicable=ValueError):
+    r'''The camera as a faulty renderer of NEW_FAULT_DEFAULTS renders it'''
+    import dataclasses
+
+    import numpy as np
+    name, size = _split_fault(fault)
+    if name == "vs_scale":
+        ph = model.photogrammetric()
+        return model.with_photogrammetric(dataclasses.replace(ph, Vs=ph.Vs * (1.0 + size)))
+    if name == "vc_shift":
+        return model.replace(V=np.asarray(model.V) + size * np.asarray(model.A))
+    if name == "roll":
+        from reference_models.poseutils import R_from_axis_angle
+        ph = model.photogrammetric()
+        R = R_from_axis_angle(np.asarray(model.A), np.radians(size))
+        return model.with_photogrammetric(dataclasses.replace(ph, Hp=R @ ph.Hp, Vp=R @ ph.Vp))
+    if name == "c_along_a":
+        return model.replace(C=np.asarray(model.C) + 1e-3 * size * np.asarray(model.A))
+    if name == "linearity":
+        if model.family != "CAHVORE" or model.model_type != 3:
+            raise not_applicable("fault 'linearity' needs a CAHVORE3 (type 1 and 2 fix it)")
+        return model.replace(linearity=model.linearity * (1.0 + size))
+    if name == "flip_y":
+        return model.replace(V=(model.height - 1) * np.asarray(model.A) - np.asarray(model.V))
+    raise KeyError(f"unknown fault {fault!r}")
+
+
 def fault_program():
-    r'''examples/fault_renderer.py as a module (its fault definitions, to size each fault)'''
+    r'''examples/fault_renderer.py as a module (its fault definitions, to size each fault),
+with faulty_model() extended to NEW_FAULT_DEFAULTS'''
     import importlib.util
     spec = importlib.util.spec_from_file_location("fault_renderer", FAULT_PROGRAM)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
+    known = mod.faulty_model
+
+    def faulty_model(model, fault):
+        if _split_fault(fault)[0] in NEW_FAULT_DEFAULTS:
+            return new_faulty_model(model, fault, mod.FaultNotApplicable)
+        return known(model, fault)
+    mod.faulty_model = faulty_model
     return mod
+
+
+def world_pose(true, bad, Rt_cam_board):
+    r'''The board pose in the camera frame of the faulty model `bad` that keeps the board where
+Rt_cam_board (in the true model's camera frame) puts it in the world
+
+camval hands a renderer the board in the camera frame of the model (origin C, axes H',
+A x H', A: Model.Rt_ref_cam). A renderer that rolls the sensor about A or moves C, and
+places the board in its own (faulty) camera frame, renders the very images of the true
+camera: such a fault is invisible by construction. The bug a simulator has is a faulty
+camera looking at the board where it is in the world: p_ref = R p_cam + t for the true
+frame, p_cam' = R'^T (p_ref - t') for the faulty one. For a fault that leaves C, A and H'
+alone (vs_scale, vc_shift, linearity, flip_y) this is the pose itself.'''
+    import numpy as np
+    T, B = true.Rt_ref_cam(), bad.Rt_ref_cam()
+    R, t, R2, t2 = T[:3], T[3], B[:3], B[3]
+    Rt = np.asarray(Rt_cam_board, dtype=np.float64)
+    return np.vstack((R2.T @ R @ Rt[:3], R2.T @ (R @ Rt[3] + t - t2)))
+
+
+def serve_fault(fault):
+    r'''--serve-fault NAME[:SIZE]: this file as the external renderer of a NEW_FAULT_DEFAULTS
+fault: the faulty camera (new_faulty_model) at the board's true world pose (world_pose),
+rendered by camval's exact ray caster, through the command protocol
+(renderers.protocol.serve, as examples/fault_renderer.py)'''
+    from renderers.protocol import NotApplicable, serve
+    fr = fault_program()
+
+    def render(req):
+        from renderers.raycast import RaycastRenderer
+        if req.mode != "image":
+            raise NotApplicable(f"renderer_gate --serve-fault renders image requests only; "
+                                f"got {req.mode!r}")
+        try:
+            bad = fr.faulty_model(req.model, fault)
+        except fr.FaultNotApplicable as e:
+            raise NotApplicable(str(e)) from None
+        return RaycastRenderer().render(bad, req.pattern,
+                                        world_pose(req.model, bad, req.Rt_cam_board),
+                                        req.settings).image
+    return serve(render, argv=["renderer_gate"])
+
+
+def world_fault_size(model, bad, range_m=2.0, step=16):
+    r'''RMS px over a pixel grid (every step px) of the image change a NEW_FAULT_DEFAULTS fault
+makes at the board's true world position: the true camera's rays at range_m projected by
+the faulty camera (world_pose's sense; roll and c_along_a change nothing in the camera
+frame)'''
+    import numpy as np
+    x, y = np.meshgrid(np.arange(0, model.width, step, dtype=np.float64),
+                       np.arange(0, model.height, step, dtype=np.float64))
+    q = np.stack((x.ravel(), y.ravel()), axis=-1)
+    o, v = model.unproject(q)
+    d = bad.project(o + range_m * v) - q
+    d = d[np.all(np.isfinite(d), axis=-1)]
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=-1)))) if len(d) else float("nan")
 
 
 def fault_size(fr, model, fault):
@@ -251,6 +367,12 @@ rotation) of the faulty camera against the true one; None: the fault does not ap
         bad = fr.faulty_model(model, fault)
     except fr.FaultNotApplicable:
         return None
+    if _split_fault(fault)[0] in NEW_FAULT_DEFAULTS:
+        # the faulty camera sees the board at its true world pose (world_pose): the first
+        # figure is the image change there (a roll or a move of C changes nothing in the
+        # camera frame); the second the camera-frame change after a fitted rotation
+        return (world_fault_size(model, bad),
+                projection_difference(model, bad, "rotation")["rms"])
     return (projection_difference(model, bad, "intrinsics")["rms"],
             projection_difference(model, bad, "rotation")["rms"])
 
@@ -266,15 +388,15 @@ def _lookup(r, path):
 def judged_quantities(name, rec, spec):
     r'''[(value / limit, "field value (sigma, z) vs limit")] of every [[scatter]] limit of
 the spec on this record, largest ratio first'''
-    from harness.gate import _matches
+    from harness.gate import _matches, judged_sigma, sigma_is_detection_noise
     out = []
     for lim in spec.scatter:
         if not _matches(name, lim.match):
             continue
-        v, s = _lookup(rec, lim.field), _lookup(rec, lim.sigma)
+        v, s = _lookup(rec, lim.field), judged_sigma(rec, lim)[0]
         if not isinstance(v, (int, float)) or isinstance(v, bool):
             continue
-        allowed, _ = lim.allowed(abs(s) if s else None)
+        allowed, _ = lim.allowed(abs(s) if s else None, sigma_is_detection_noise(rec))
         z = f", z {abs(v) / abs(s):.3g}" if s else ""
         sig = f"{abs(s):.2g}" if s else "none"
         out.append((abs(v) / allowed if allowed else float("inf"),
@@ -294,11 +416,12 @@ the spec on this record, largest ratio first'''
 
 
 def projection_limit(name, rec, spec):
-    from harness.gate import _matches
+    from harness.gate import _matches, sigma_is_detection_noise
     for lim in spec.scatter:
         if lim.field == "verdict.renderer.projection.rms" and _matches(name, lim.match):
             s = _lookup(rec, lim.sigma)
-            return lim.allowed(abs(s) if s else None)[0], (abs(s) if s else 0.0)
+            return (lim.allowed(abs(s) if s else None, sigma_is_detection_noise(rec))[0],
+                    (abs(s) if s else 0.0))
     return None, None
 
 
@@ -319,6 +442,13 @@ that move one judged parameter by a known amount, else None'''
         return "R1_frac", 0.01
     if fault == "theta90":
         return "theta_deg", abs(model.photogrammetric().theta_deg - 90.0)
+    name, size = _split_fault(fault)
+    if name == "vs_scale":
+        return "Vs", size
+    if name == "vc_shift":
+        return "Vc", size
+    if name == "c_along_a":
+        return "C_mm", size
     return None
 
 
@@ -326,11 +456,11 @@ def parameter_limit(name, rec, spec, p):
     r'''(the smallest move of parameter p alone the spec flags on this record, its sigma):
 the [[scatter]] limit on p, or the [[joint]] one (sqrt of the chi2 limit x the sigma the
 joint test sees that move by: harness.gate.minimum_detectable_faults)'''
-    from harness.gate import _matches
+    from harness.gate import _matches, judged_sigma
     best = (None, None)
     for lim in spec.scatter:
         if lim.field == f"verdict.renderer.params.{p}" and _matches(name, lim.match):
-            s = _lookup(rec, lim.sigma)
+            s = judged_sigma(rec, lim)[0]
             best = (lim.allowed(abs(s) if s else None)[0], s)
     for lim in spec.joint:
         j = _lookup(rec, lim.field)
@@ -365,6 +495,9 @@ not-judged (the record's floor is far or its fits disagree); a record's status.'
         return "not-judged", v.get("floor_reason") or v.get("disagree_reason") or ""
     if fault == "none":
         return "passed", top
+    if cal != "jpl" and _split_fault(fault)[0] in EXTRINSIC_FAULTS:
+        return "not-visible", (f"{cal} fits the board poses: a camera rolled or moved in the "
+                               "world is the same camera with the boards moved; " + top)
     if cal != "jpl" and fault == "theta90":
         return "not-visible", (f"{cal}'s model frame holds theta at 90 deg: it fits the true "
                                "and the faulty camera alike; " + top)
@@ -414,12 +547,23 @@ on each camera, judged by the default gate spec -> the fault x camera x calibrat
     faults = [f for f in (args.faults or ",".join(fr.FAULTS)).split(",") if f]
     rows = {}
     ok = True
+    files = {}     # a model file (a constructed camera): its name in the table -> its path
+    for i, cam in enumerate(cams):
+        if "/" in cam or ".cahv" in cam:
+            files[Path(cam).name.split(".")[0]] = str(Path(cam).resolve())
+            cams[i] = Path(cam).name.split(".")[0]
     for cam in cams:
-        native = cat.get(cam).model
+        if cam in files:
+            from reference_models.jpl_files import read_model
+            native, cam_spec = read_model(files[cam]), files[cam]
+        else:
+            native = cat.get(cam).model
+            cam_spec = int(cam) if cam.isdigit() else cam
         for fault in faults:
             # E exists on CAHVORE only: drop_e runs on the camera's CAHVORE, the others on
             # args.family (CAHVOR has every other parameter the faults change)
-            family = "CAHVORE" if fault == "drop_e" else args.family
+            family = ("CAHVORE" if fault == "drop_e" or fault.startswith("linearity")
+                      else args.family)
             key = f"{fault}/{cam}"
             try:
                 model = truncate(native, family)
@@ -445,14 +589,18 @@ on each camera, judged by the default gate spec -> the fault x camera x calibrat
                             fault_px_rms_intrinsics=size[0])
                 print(f"{fault:13s} {cam:4s} {family:8s} no-op: {why}", flush=True)
                 continue
-            renderer = {"name": "command", "label": f"fault-{fault}", "spp": args.spp,
-                        "setup": {"command": [sys.executable, str(FAULT_PROGRAM), "--fault",
-                                              fault], "persistent": True}}
-            run_dir = out / (f"ext-{fault}-{cam}-{family}"
+            program = ([str(Path(__file__).resolve()), "serve", "--serve-fault"]
+                       if _split_fault(fault)[0] in NEW_FAULT_DEFAULTS
+                       else [str(FAULT_PROGRAM), "--fault"])
+            renderer = {"name": "command", "label": f"fault-{fault.replace(':', '-')}",
+                        "spp": args.spp,
+                        "setup": {"command": [sys.executable, *program, fault],
+                                  "persistent": True}}
+            run_dir = out / (f"ext-{fault.replace(':', '-')}-{cam}-{family}"
                              + ("" if args.poses == 6 else f"-{args.poses}poses"))
             t0 = time.perf_counter()
-            doc = campaign([int(cam) if cam.isdigit() else cam], family, renderer, 0,
-                           f"ext-{fault}", poses=args.poses)
+            doc = campaign([cam_spec], family, renderer, 0,
+                           f"ext-{fault.replace(':', '-')}", poses=args.poses)
             r = run_campaign(parse_campaign(doc), run_dir, progress=False, workers=1,
                              resume=run_dir.exists())
             # a stored run (resumed, nothing rerun) has no time of its own here
@@ -548,7 +696,7 @@ probability (two-sided Gaussian tail at the limit's z): what chance alone would 
 also counts z > 4 and z > 5 against that many times the tail at 4 and 5.'''
     from scipy import stats
 
-    from harness.gate import _matches, _unjudged
+    from harness.gate import _matches, _unjudged, judged_sigma, sigma_is_detection_noise
     groups = {}
     seen = set()
     for seed, r in runs:
@@ -580,7 +728,7 @@ also counts z > 4 and z > 5 against that many times the tail at 4 and 5.'''
             for lim in spec.scatter:
                 if not _matches(name, lim.match):
                     continue
-                v, sg = _lookup(rec, lim.field), _lookup(rec, lim.sigma)
+                v, sg = _lookup(rec, lim.field), judged_sigma(rec, lim)[0]
                 if not isinstance(v, (int, float)) or not isinstance(sg, (int, float)) \
                         or not sg > 0:
                     continue
@@ -589,7 +737,7 @@ also counts z > 4 and z > 5 against that many times the tail at 4 and 5.'''
                 g["z"].append(z)
                 if z > g["zmax"][0]:
                     g["zmax"] = (z, f"{q} {abs(v):.3g} sigma {sg:.3g}, {where}")
-                ratio = abs(v) / lim.allowed(sg)[0]
+                ratio = abs(v) / lim.allowed(sg, sigma_is_detection_noise(rec))[0]
                 if ratio > g["ratio"][0]:
                     g["ratio"] = (ratio, f"{q}, {where}")
             j = _lookup(rec, "verdict.renderer.joint")
@@ -666,7 +814,12 @@ def main(argv=None):
                     help="board poses per job of the --external runs (the scatter of every "
                          "fitted parameter falls as 1/sqrt(poses): the minimum detectable "
                          "fault with it)")
+    ap.add_argument("--serve-fault", default=None, metavar="NAME[:SIZE]",
+                    help="serve one of NEW_FAULT_DEFAULTS as an external renderer (the "
+                         "command protocol on stdin; --external starts this itself)")
     args = ap.parse_args(argv)
+    if args.serve_fault:
+        return serve_fault(args.serve_fault)
     if args.external:
         return external(args)
 

@@ -102,11 +102,34 @@ class Limit:
 # cap of campaigns/gate-renderer.toml failed the exact ray caster at z 0.97-2.2 on pose seeds
 # 3 and 5 (and 0-2 before targets/poses.py kept its dots detectable). At 4 sigma a clean
 # record's projection RMS (a positive quantity of mean ~sigma: RMS z 0.44-1.04, largest
-# 2.3 over 10 seeds of the catalogue and these cameras) passes; a fault that inflates the
-# measured noise still meets the cap wherever it moves the fit by more than 4 of its own
-# (inflated) sigma. Where 4 sigma is below the cap (every catalogue record: OPENCV5 on
-# hazcam 17, sigma 0.0033 px, is the largest) nothing changes.
+# 2.3 over 10 seeds of the catalogue and these cameras) passes. Where 4 sigma is below the
+# cap nothing changes (OPENCV5 on hazcam 17, sigma 0.0033 px, the largest quoted in
+# campaigns/gate-renderer.toml).
 CAP_MIN_Z = 4.0
+# The cap is raised only for a record whose sigma comes from detection noise: the sigma is
+# propagated from the noise of the image fit's residuals (harness.verdict.noise_per_pose),
+# and a fault the fit absorbs inflates it without showing there. Detected minus exact
+# (verdict.detection_noise.rms) then exceeds that noise: a flipped image (rows reversed) on
+# the 2.5 deg telephoto, which OpenCV fits as a board seen from behind (residual noise
+# 0.1 px, sigma 0.09 px), measures 1.7e3 px, and with the cap raised to 4 sigma its
+# renderer difference of 0.115 px passed. Clean records: detection noise / residual noise
+# 0.59-1.01 (292 ok records of the 8 constructed-3 cameras, 3-6 pose seeds); faults 1.5
+# (Vs x (1 + 2e-7) on the telephoto) to 3.6e5.
+CAP_NOISE_RATIO = 1.25
+
+
+def sigma_is_detection_noise(r):
+    r'''Whether the record's detection noise (detected - exact, RMS) is at most
+CAP_NOISE_RATIO x the residual noise its sigmas were propagated from (noise_per_pose, RMS
+over the images): then a cap below CAP_MIN_Z sigma is raised (ScatterLimit.allowed)'''
+    dn = _magnitude(_lookup(r, "verdict.detection_noise.rms"))
+    per = _lookup(r, "verdict.scatter.noise_per_pose")
+    if not dn or not isinstance(per, list):
+        return False
+    per = [x for x in per if isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0]
+    if not per:
+        return False
+    return dn <= CAP_NOISE_RATIO * math.sqrt(sum(x * x for x in per) / len(per))
 
 
 @dataclass(frozen=True)
@@ -123,11 +146,13 @@ a record written before verdicts) is judged by cap alone.'''
     cap: float = float("inf")
     match: tuple = ("*",)
 
-    def allowed(self, sigma):
-        r'''(limit, its description) for this sigma (None: none in the record)'''
+    def allowed(self, sigma, raise_cap=False):
+        r'''(limit, its description) for this sigma (None: none in the record); raise_cap:
+the cap is held at CAP_MIN_Z sigma at least (a record whose sigma is its detection noise's:
+sigma_is_detection_noise)'''
         if sigma is None:
             return self.cap, f"<= cap {self.cap:g} (no sigma in the record)"
-        cap = max(self.cap, CAP_MIN_Z * sigma)
+        cap = max(self.cap, CAP_MIN_Z * sigma) if raise_cap else self.cap
         lim = min(cap, max(self.floor, self.z * sigma))
         how = ("cap" if lim == self.cap else
                f"cap raised to {CAP_MIN_Z:g} sigma" if lim == cap else
@@ -507,7 +532,7 @@ def _scatter_failures(name, r, limits):
         if v is None:     # not estimated by this calibrator
             continue
         s, stop = judged_sigma(r, lim)
-        allowed, text = lim.allowed(s)
+        allowed, text = lim.allowed(s, sigma_is_detection_noise(r))
         m = _magnitude(v)
         if m is None or not m <= allowed:
             z = f", z {m / s:.3g}" if s and m is not None else ""
@@ -613,7 +638,7 @@ DEFAULT_SPEC = Path(__file__).resolve().parents[1] / "campaigns" / "gate-rendere
 # fit's parameter by d (to first order) and nothing else
 MDF_FAULTS = (("Hc shift", "Hc", "px"), ("Vc shift", "Vc", "px"),
               ("focal scale", "Hs", "fractional"), ("theta change", "theta_deg", "deg"),
-              ("R1 scale", "R1_frac", "fractional"))
+              ("R1 scale", "R1_frac", "fractional"), ("roll about A", "roll_deg", "deg"))
 
 
 def minimum_detectable_faults(run, spec):

@@ -110,8 +110,8 @@ FLOOR_TOLERANCE_PX = 0.01
 # 1000 px from the centre 1e-4 deg moves a pixel by 1.7e-3 px * f/1000 px
 THETA_NAMED_DEG = 1e-4
 # parameter_errors' names a non-JPL fit does not estimate (None: "not estimated")
-JPL_ONLY_PARAMS = ("Hs*(1+R0)", "Vs*(1+R0)", "theta_deg", "C_mm", "A_deg", "O_deg", "R0",
-                   "R0_frac", "R1", "R1_frac", "R2", "R2_frac", "E0", "E1", "E2")
+JPL_ONLY_PARAMS = ("Hs*(1+R0)", "Vs*(1+R0)", "theta_deg", "C_mm", "A_deg", "O_deg", "roll_deg",
+                   "R0", "R0_frac", "R1", "R1_frac", "R2", "R2_frac", "E0", "E1", "E2")
 # the fit of exact observations "cannot represent" the camera when its residual RMS is
 # this many times the detection noise (and above FLOOR_TOLERANCE_PX / 10)
 MISFIT_FACTOR = 3.0
@@ -308,6 +308,21 @@ def _distortion(m):
     return np.zeros(0)
 
 
+def _roll_deg(ref, fit):
+    r'''The roll of fit's image axes about ref's A, deg: the angle from ref's H' to fit's H'
+(projected on the plane perpendicular to ref's A), signed about A. Of world-frame fits only
+(jpl on surveyed points): a sensor rolled about A keeps Hc, Vc, Hs, Vs, theta, C, A and O,
+and moved the image 0.0064 px RMS at 0.001 deg on a 1000x800 camera (campaigns/cameras/
+aspect-1000x800.cahvor) with no reported quantity seeing it (h-unseen, benchmarks/
+renderer_gate.py's roll fault: 0 of 6 cameras flagged); a pose-fitting calibrator (mrcal,
+OpenCV) takes the roll into its board poses.'''
+    a = np.asarray(ref.A, dtype=np.float64)
+    h0 = ref.photogrammetric().Hp
+    h1 = fit.photogrammetric().Hp
+    h1 = h1 - (h1 @ a) * a
+    return math.degrees(math.atan2(float(np.cross(h0, h1) @ a), float(h0 @ h1)))
+
+
 def fit_parameter_differences(ref, fit, theta_estimated=None, world_frame=None, signed=False):
     r'''fit - ref for two fits of one calibrator model (any model)
 
@@ -322,8 +337,10 @@ moved to fit's R0 first; signed: its vectors by component). Others: Hc, Vc
 coefficients.
 '''
     if _is_jpl(ref) and _is_jpl(fit):
-        return parameter_errors(ref, fit, theta_estimated=theta_estimated,
-                                world_frame=world_frame, signed=signed)
+        out = parameter_errors(ref, fit, theta_estimated=theta_estimated,
+                               world_frame=world_frame, signed=signed)
+        out["roll_deg"] = _roll_deg(ref, fit) if out.get("A_deg") is not None else None
+        return out
     Hc, Vc, Hs, Vs = _intrinsics(fit)
     rHc, rVc, rHs, rVs = _intrinsics(ref)
     out = {"Hc": float(Hc - rHc), "Vc": float(Vc - rVc), "Hs": _frac(Hs, rHs),
@@ -1440,6 +1457,7 @@ def _joint_fault_directions(names, ref):
     idx = {k: i for i, k in enumerate(names)}
     R1 = abs(float(ref.R[1])) if _is_jpl(ref) and ref.family != "CAHV" else 0.0
     faults = {"Hc": {"Hc": 1.0}, "Vc": {"Vc": 1.0}, "theta_deg": {"theta_deg": 1.0},
+              "roll_deg": {"roll_deg": 1.0},
               "Hs": {"Hs": 1.0, "Vs": 1.0, "Hs*(1+R0)": 1.0, "Vs*(1+R0)": 1.0},
               "R1_frac": {"R1_frac": 1.0, "R1": R1}}
     out = {}

@@ -132,18 +132,19 @@ def _verdict(navcam, shift, seed):
 
 def test_joint_test_of_a_jpl_fit_under_seeded_noise_and_a_shift(navcam):
     r'''navcam 15, jpl CAHVOR, 6 poses, 0.001 px of isotropic Gaussian detection noise (the
-noise model exactly): chi2 is of order its dof (14: C 3, A 2, O 2, Hc, Vc, Hs, Vs,
-theta, R1, R2). A shift of every detection by 0.003 px (a renderer drawing the image
-0.003 px to the right: Hc moves, A does not) is at marginal z ~3 on Hc (sigma ~0.001
-px), under the per-quantity limit; the noise moves Hc only together with A (the
-rotation valley of a 45 deg lens), so the joint test sees the shift alone by a sigma more
-than 10x smaller (41x on its rendered images: 1.4e-5 px against 5.6e-4) and flags it.'''
+noise model exactly): chi2 is of order its dof (15: C 3, A 2, O 2, Hc, Vc, Hs, Vs,
+theta, the roll of H' about A, R1, R2). A shift of every detection by 0.003 px (a
+renderer drawing the image 0.003 px to the right: Hc moves, A does not) is at marginal
+z ~3 on Hc (sigma ~0.001 px), under the per-quantity limit; the noise moves Hc only
+together with A (the rotation valley of a 45 deg lens), so the joint test sees the shift
+alone by a sigma more than 10x smaller (41x on its rendered images: 1.4e-5 px against
+5.6e-4) and flags it.'''
     from scipy import stats
     clean = [_verdict(navcam, 0.0, seed) for seed in (3, 4)]
     for r in clean:
-        assert r["joint"]["dof"] == 14
-        # two-sided 1e-4 band of chi-square(14): 2.6 .. 38.1
-        assert stats.chi2.isf(1 - 1e-4, 14) < r["joint"]["chi2"] < stats.chi2.isf(1e-4, 14)
+        assert r["joint"]["dof"] == 15
+        # two-sided 1e-4 band of chi-square(15)
+        assert stats.chi2.isf(1 - 1e-4, 15) < r["joint"]["chi2"] < stats.chi2.isf(1e-4, 15)
         assert r["joint"]["fault_sigma"]["Hc"] < r["sigma"]["Hc"] / 10
     r = _verdict(navcam, 0.003, 3)
     assert r["z"]["Hc"] < 6
