@@ -56,7 +56,7 @@ Measured (2026-11-25, 2 shared cores, load 18-27; 14-27 s a run on 13, 15, 17,
     drop_e       n/a   n/a   n/a   n/a   n/a   n/a   n/v   n/v   n/v   FLAG  n/j   n/j
     o_tilt       <lim  <lim  n/j   <lim  <lim  n/j   <lim  <lim  <lim  FLAG  n/j   n/j
     round_centre FLAG  <lim  n/j   FLAG  FLAG  n/j   FLAG  FLAG  FLAG  FLAG  FLAG  n/j
-    none         pass  pass  n/j   pass  pass  n/j   pass  pass  pass  pass  n/j   n/j
+    none         passpj    ppj    ppp    pjj
 
   (families: CAHVOR; drop_e CAHVORE, which 13 and 15 do not have.) Flagged on >= 3
   of 4 cameras: hc_shift, focal_scale, theta90 (17's theta is 90), half_pixel,
@@ -117,7 +117,7 @@ marginal limit too, and by the joint z 3e3-1e5 whatever the term):
     drop_e       n/a   n/a   n/a   n/a   n/a   n/a   n/v   n/v   n/v   FLAG  n/j   n/j
     o_tilt       FLAG  <lim  n/j   FLAG  <lim  n/j   <lim  <lim  <lim  FLAG  n/j   n/j
     round_centre FLAG  <lim  n/j   FLAG  FLAG  n/j   FLAG  FLAG  FLAG  FLAG  FLAG  n/j
-    none         pass  pass  n/j   pass  pass  n/j   pass  pass  pass  pass  n/j   n/j
+    none         passpj    ppj    ppp    pjj
 
   Every fault flagged on >= 3 of the 4 cameras where it changes the camera (drop_e: 21
   only, as before). The joint z of the jpl records (marginal max z in brackets where the
@@ -198,6 +198,62 @@ PASS on all 10 seeds, and `camval gate OUT/clean-SEED` (the default spec) passed
   on 17 (chi2/dof up to 110): judging mrcal's joint statistic would need its gauge removed first.
   Cost per ok record (the resumed summary of all 10 seeds): exact fit 0.42 s + verdict 0.27 s
   against the image fit's 1.26 s.
+
+New faults (NEW_FAULT_DEFAULTS, served by this file: --serve-fault) and model files as
+cameras, measured 2026-11-29 (h-unseen, 2 shared cores, load 9-14; 3-16 s a run):
+  uv run --frozen python benchmarks/renderer_gate.py OUT --external --cameras \
+      campaigns/cameras/aspect-1000x800.cahvor,...tiltO-768x1024.cahvor,...theta91-1024x768.cahvor,\
+      ...stereo-1280x1024.cahvore,...mini-160x120.cahvor,...tele-4096x3000.cahvor --faults \
+      none,vc_shift,vc_shift:0.0001,vs_scale,vs_scale:2e-7,roll,roll:0.0001,roll:1e-5,\
+      c_along_a,c_along_a:0.01,linearity,linearity:1e-6,flip_y
+  (family CAHVOR, linearity on the CAHVORE; columns jpl / mrcal / opencv)
+    (F flagged, < below the record's limit, v not visible, j not judged, x failed, p pass)
+                  aspect tiltO  th91   stereo 160x120 tele
+    none          ppp    ppj    pjj    ppj    ppp    pjj
+    vc_shift      F<<    F<j    Fjj    F<j    <<<    <jj
+    vc_shift:1e-4 <<<    <<j    <jj    <<j    <<<    <jj
+    vs_scale      F<<    F<j    Fjj    F<j    <<<    Fjj
+    vs_scale:2e-7 <<<    <<j    <jj    <<j    <<<    <jj
+    roll          Fvv    Fvj    Fjj    Fvj    <vv    Fjj
+    roll:1e-4     Fvv    Fvj    Fjj    Fvj    <vv    Fjj
+    roll:1e-5     <vv    <vj    <jj    <vj    <vv    Fjj
+    c_along_a     Fvv    Fvj    Fjj    Fvv    Fvv    Fjj
+    c_along_a:.01 Fvv    Fvj    Fjj    Fvj    <vv    Fjj
+    linearity     ---    ---    ---    FFx    ---    ---
+    linearity:1e-6 ---   ---    ---    <<x    ---    ---
+    flip_y        FjF    FFF    FFF    FjF    FjF    FFF
+  Sizes (default; the image change at the board's true pose, px RMS): vc_shift 0.001 px;
+  vs_scale 3e-6 (6.9e-4 to 2.6e-3 px); roll 0.001 deg (0.0064 px; 0.026 px on the
+  telephoto); c_along_a 0.1 mm (0.02-0.04 px at 2 m); linearity x (1 + 1e-4) (0.012 px);
+  flip_y (rows reversed, 460-1700 px). No "missed": every unflagged cell is below its record's
+  minimum detectable fault (`--explain`: Vc 2e-4 px, focal 6e-7-7e-7, roll 3e-5-4.6e-5 deg on
+  the 1000x800 class; the 160x120: Vc 2.2e-3 px, roll 3.1e-3 deg; the telephoto: Vc 0.23 px,
+  focal 1.2e-7) or not visible to the calibrator (mrcal and OpenCV fit the board poses: a
+  roll or a move of C is absorbed; their CAHVOR/OPENCV5 fits of theta != 90 deg are not
+  judged). The sizes below the minimum (vc_shift 1e-4, vs_scale 2e-7, roll 1e-5, c_along_a
+  0.01 mm on the 160x120, linearity 1e-6) pass everywhere except roll 1e-5 on the telephoto
+  (93859 px focal: 1e-5 deg moves its corners 4e-4 px, over its minimum). OPENCV5 fails
+  (diverges) on the CAHVORE with or without a fault. Two gate defects found on the way and
+  fixed: (1) roll and c_along_a rendered in the faulty model's own camera frame make the true
+  camera's images (world_pose now keeps the board in the world); (2) a sensor roll about A
+  was then flagged on 0 of 6 cameras: no reported quantity held the direction of H'.
+  harness/verdict.py now reports roll_deg (jpl world-frame fits), in the sigmas and the
+  joint test. The catalogue's own external faults, rerun after these changes (--cameras
+  13,15,17,21 --faults none,hc_shift,half_pixel,r1_scale,r2_scale,round_centre,o_tilt),
+  flag the same cells as the 2026-11-28 table below (13, 15, 17 by jpl and mrcal alike; on
+  21 all but mrcal's r2_scale, now not judged: its floor 0.24 px against a detection noise
+  of 0.044 px, harness.verdict's floor judgement, untouched here).
+Clean, the 8 constructed-3 cameras (campaigns/constructed-3.toml) under CAHV/CAHVOR/CAHVORE,
+jpl/mrcal/OPENCV5, pose seeds 0-9 (--faults '' --clean <the 8 files> --seeds 0-9 -j 2,
+34-41 s a seed): PASS on every seed, 0 false alarms in 720 records (458 ok). Largest z: jpl
+CAHVOR R1_frac 5.35 on the telephoto (value / limit 0.89, seed 6; R2_frac 5.6, joint chi2
+1.2 of dof 13): its R1 (0.6, corners at tan^2 7e-4) is barely determined and the image fit
+moves it 2-7 noise sigmas on seeds 0, 5, 6 while the joint test sees nothing - the fit
+stops along its R1/R2/focal valley (harness.gate.solver_stop covers it where the exact fit
+stops too, not on seed 6, where the exact fit converged). Before the fixes of this session
+the 160x120 camera failed 5 of 6 seeds (the 0.02 px cap at z 0.7-2.2) and the telephoto
+seed 5 (R1_frac z 7.5). The whole catalogue, seed 0 (--clean all --seeds 0 -j 2, 112 s):
+PASS, 297 records (232 ok), jpl joint z max 1.08 with the roll in it.
 
 In-process faults and clean runs, measured (2026-11-25, 2 shared cores, K=16, 6 poses):
 - clean, before the joint test, --clean all --seeds 0-9 -j 2 (33 cameras x
@@ -449,6 +505,8 @@ that move one judged parameter by a known amount, else None'''
         return "Vc", size
     if name == "c_along_a":
         return "C_mm", size
+    if name == "roll":
+        return "roll_deg", size
     return None
 
 
