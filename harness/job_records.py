@@ -59,6 +59,19 @@ def failure_records(job, stage, reason, status="failed", entry=None, **kw):
             for cal, model, _ in job.calibrators]
 
 
+def _failure_reason(res, truth, cal):
+    r'''A failed fit's reason, with what its model cannot represent of the truth where that
+can be why it ended above max_rms (mrcal CAHV on a theta = 88 deg camera read "diverged: RMS
+residual 1.02 px": its best misfit, not a divergence)'''
+    from . import verdict as vd
+    reason = res.reason or "(no reason given)"
+    if res.status != "failed" or not reason.startswith("diverged: RMS residual"):
+        return reason
+    causes = vd.unrepresentable(truth, cal)
+    return (f"{reason}; {'; '.join(causes)}: it may have converged to the best misfit its "
+            f"model allows" if causes else reason)
+
+
 def _named_version(name, version):
     r'''"mrcal 2.5.2" from ("mrcal", "2.5.2") or ("mrcal", "mrcal 2.5.2")'''
     version = str(version or "").strip()
@@ -285,7 +298,7 @@ naming them).'''
                   info=info, features=features)
     if res.status != "ok":
         return _record(job, cal, model, entry, status=res.status, stage="calibrate",
-                       reason=res.reason or "(no reason given)", artifacts=artifacts,
+                       reason=_failure_reason(res, truth, cal), artifacts=artifacts,
                        **common)
     frame = truth if res.world_frame or camera is None else camera
     key = None

@@ -492,6 +492,20 @@ def _theta_deg(model):
     return None
 
 
+def unrepresentable(truth, calibrator):
+    r'''[reason, ...]: what of the truth calibrator's model frame cannot hold, in words
+
+Only what the truth alone shows: theta (every non-JPL calibrator's frame holds
+theta at 90 deg; named beyond THETA_NAMED_DEG). Used by floor_judgement and by
+a failed fit's reason (harness.job_records): a fit that ends above max_rms
+because its model cannot represent the camera has not "diverged".
+'''
+    th = _theta_deg(truth)
+    if calibrator != "jpl" and th is not None and abs(th - 90.0) > THETA_NAMED_DEG:
+        return [f"{calibrator}'s model frame cannot represent theta = {th:.6g} deg"]
+    return []
+
+
 def floor_judgement(truth, calibrator, model_name, floor_projection, exact_residuals, noise):
     r'''(far, reason): is the floor beyond what the images can show, and why in words
 
@@ -512,10 +526,7 @@ observations fitted, the model still far from the truth).
         return False, ""
     what = f"{calibrator} {model_name}"
     fl = f"floor {rms:.3g} px"
-    causes = []
-    th = _theta_deg(truth)
-    if calibrator != "jpl" and th is not None and abs(th - 90.0) > THETA_NAMED_DEG:
-        causes.append(f"{calibrator}'s model frame cannot represent theta = {th:.6g} deg")
+    causes = unrepresentable(truth, calibrator)
     res_rms = (exact_residuals or {}).get("rms")
     if res_rms is not None and res_rms > max(MISFIT_FACTOR * noise_rms,
                                              FLOOR_TOLERANCE_PX / 10):

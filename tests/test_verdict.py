@@ -648,3 +648,32 @@ def test_variances_are_sums_of_squares_in_an_ill_conditioned_direction():
     assert v[0] > 0
     assert abs(v[0] - exact) <= 1e-5 * exact
     assert abs(v[1] - float(D @ (f * f))) <= 1e-12 * v[1]
+
+
+def test_a_failed_fit_names_what_its_model_cannot_represent():
+    r'''mrcal CAHV on a theta = 88 deg camera ends above max_rms at its best misfit: its
+reason says theta, not only "diverged"; jpl (which holds theta) and a square camera
+keep the plain reason'''
+    from pathlib import Path
+
+    from harness.calibrators.base import CalibrationResult
+    from harness.job_records import _failure_reason
+    from reference_models.jpl_files import read_model
+    cams = Path(__file__).resolve().parents[1] / "campaigns" / "cameras"
+    skewed = read_model(cams / "theta88-800x600.cahv")
+    assert abs(skewed.photogrammetric().theta_deg - 90.0) > 1.0
+    failed = CalibrationResult(calibrator="mrcal", model_name="CAHV", status="failed",
+                               reason="diverged: RMS residual 1.02 px > 1 px")
+    why = _failure_reason(failed, skewed, "mrcal")
+    assert why.startswith("diverged: RMS residual 1.02 px > 1 px; ")
+    assert "mrcal's model frame cannot represent theta = 88" in why
+    assert "best misfit" in why
+    assert _failure_reason(failed, skewed, "jpl") == failed.reason
+    other = CalibrationResult(calibrator="mrcal", model_name="CAHV", status="failed",
+                              reason="exception inside mrcal: boom")
+    assert _failure_reason(other, skewed, "mrcal") == other.reason
+    square = read_model(cams / "tiny-320x240.cahvor")       # theta 90 deg
+    assert abs(square.photogrammetric().theta_deg - 90.0) < 1e-9
+    assert _failure_reason(failed, square, "mrcal") == failed.reason
+    assert verdict.unrepresentable(skewed, "opencv") and not verdict.unrepresentable(skewed,
+                                                                                    "jpl")
