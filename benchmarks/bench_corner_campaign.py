@@ -4,7 +4,8 @@ SYNOPSIS
 
     uv run --frozen python benchmarks/bench_corner_campaign.py [--cameras 1-22]
         [--models CAHV,CAHVOR,CAHVORE] [--targets apriltag,chessboard] [-j 2]
-        [--keep DIR | --run DIR] [--bar 0.005] [--out-dir benchmarks/results]
+        [--pose-seed 0] [--poses 6] [--keep DIR | --run DIR] [--bar 0.005]
+        [--out-dir benchmarks/results]
 
 Runs campaigns/corners.toml (the exact ray caster, K = 16 adaptive, area coverage;
 jpl with its iterated corner-bias correction) on every catalogue slot (default: all
@@ -15,7 +16,10 @@ rotation fitted: harness.compare). A cell above --bar (issue 16: 0.005 px for bo
 is marked "<-"; a slot where the board cannot be planned is listed with its reason
 (status not-applicable or failed). --run DIR tabulates an existing run directory
 (a `camval verify` of any corner campaign) instead of running one; --keep DIR keeps
-the run (default: a temporary directory). Identical cameras (the MER hazcam twins)
+the run (default: a temporary directory). --pose-seed and --poses set the campaign's
+[poses] seed and n (default its own: seed 0, 6 poses; poses past six reach the image's
+corners and edges, targets.poses cover "corners"): other board placements than the
+catalogue's on the same cameras. Identical cameras (the MER hazcam twins)
 share their images and fit (the campaign's share_identical_cameras): their rows are
 the same numbers.
 
@@ -70,6 +74,10 @@ def run(args):
     doc.update(name="corners-catalogue", keep_maps=False, targets=args.targets,
                models=args.models,
                cameras=[int(c) if c.isdigit() else c for c in args.cameras])
+    if args.pose_seed is not None:
+        doc["poses"]["seed"] = args.pose_seed
+    if args.poses is not None:
+        doc["poses"]["n"] = args.poses
     campaign = parse_campaign(doc, source="corners.toml (bench_corner_campaign)",
                               base_dir=common.CAMPAIGNS)
     run_dir = args.keep or Path(tempfile.mkdtemp(prefix="camval-corners-")) / "run"
@@ -187,6 +195,10 @@ def main():
     ap.add_argument("--cameras", type=slots, default="1-22")
     ap.add_argument("--models", type=common.families, default="CAHV,CAHVOR,CAHVORE")
     ap.add_argument("--targets", type=common.ids, default="apriltag,chessboard")
+    ap.add_argument("--pose-seed", type=int, default=None,
+                    help="the campaign's [poses] seed (default corners.toml's, 0)")
+    ap.add_argument("--poses", type=int, default=None,
+                    help="poses per camera (default corners.toml's, 6)")
     ap.add_argument("-j", "--jobs", type=int, default=2, help="local worker processes")
     ap.add_argument("--keep", type=Path, default=None, help="run directory to keep (new)")
     ap.add_argument("--run", type=Path, default=None,
