@@ -10,7 +10,8 @@ SYNOPSIS
 Runs campaigns/corners.toml (the exact ray caster, K = 16 adaptive, area coverage;
 jpl with its iterated corner-bias correction) on every catalogue slot (default: all
 22) in every model family a slot can give, for the AprilTag grid and the chessboard,
-and tabulates each record: corners found of expected, the corners dropped and why,
+and tabulates each record: corners found of expected, the corners dropped and why, the
+views (poses) the board was not detected in and why,
 jpl's residual RMS (px) and the projection difference RMS against the truth (px,
 rotation fitted: harness.compare). A cell above --bar (issue 16: 0.005 px for both)
 is marked "<-"; a slot where the board cannot be planned is listed with its reason
@@ -183,6 +184,9 @@ def cell(r, bar):
            "status": r["status"], "reason": r.get("reason") or "",
            "found": det.get("n_found"), "expected": det.get("n_expected"),
            "corners_dropped": dropped,
+           # the views the board was not detected in (or kept too few corners), and why
+           "views_failed": {str(k): v for k, v in (det.get("failed_reasons") or {}).items()},
+           "views": len(det.get("per_pose") or []),
            "residual_rms_px": res, "projection_rms_px": proj,
            "projection_max_px": (r.get("projection") or {}).get("max")}
     if r["status"] == "ok":
@@ -236,7 +240,10 @@ def main():
         print(f"{c['camera']:>5s} {c['family']:8s} {c['target']:10s} "
               f"{c['found']:4d}/{c['expected']:<4d} {c['residual_rms_px']:9.5f} "
               f"{c['projection_rms_px']:9.5f}  ok" + ("  <-" if c["above_bar"] else "")
-              + (f"  dropped {c['corners_dropped']}" if c["corners_dropped"] else ""))
+              + (f"  dropped {c['corners_dropped']}" if c["corners_dropped"] else "")
+              + (f"  views failed {len(c['views_failed'])} of {c['views']}: "
+                 + "; ".join(f"{k}: {v[:200]}" for k, v in c["views_failed"].items())
+                 if c["views_failed"] else ""))
     ok = [c for c in cells if c["status"] == "ok"]
     above = [c for c in ok if c["above_bar"]]
     summary = {"bar_px": args.bar, "cells": len(cells), "ok": len(ok),
