@@ -4,18 +4,23 @@ SYNOPSIS
 
     uv run --frozen python benchmarks/bench_corner_campaign.py [--cameras 1-22]
         [--models CAHV,CAHVOR,CAHVORE] [--targets apriltag,chessboard] [-j 2]
-        [--keep DIR | --run DIR] [--bar 0.005] [--out-dir benchmarks/results]
+        [--pose-seed 0] [--poses 6] [--keep DIR | --run DIR] [--bar 0.005]
+        [--out-dir benchmarks/results]
 
 Runs campaigns/corners.toml (the exact ray caster, K = 16 adaptive, area coverage;
 jpl with its iterated corner-bias correction) on every catalogue slot (default: all
 22) in every model family a slot can give, for the AprilTag grid and the chessboard,
-and tabulates each record: corners found of expected, the corners dropped and why,
+and tabulates each record: corners found of expected, the corners dropped and why, the
+views (poses) the board was not detected in and why,
 jpl's residual RMS (px) and the projection difference RMS against the truth (px,
 rotation fitted: harness.compare). A cell above --bar (issue 16: 0.005 px for both)
 is marked "<-"; a slot where the board cannot be planned is listed with its reason
 (status not-applicable or failed). --run DIR tabulates an existing run directory
 (a `camval verify` of any corner campaign) instead of running one; --keep DIR keeps
-the run (default: a temporary directory). Identical cameras (the MER hazcam twins)
+the run (default: a temporary directory). --pose-seed and --poses set the campaign's
+[poses] seed and n (default its own: seed 0, 6 poses; poses past six reach the image's
+corners and edges, targets.poses cover "corners"): other board placements than the
+catalogue's on the same cameras. Identical cameras (the MER hazcam twins)
 share their images and fit (the campaign's share_identical_cameras): their rows are
 the same numbers.
 
@@ -70,6 +75,10 @@ def run(args):
     doc.update(name="corners-catalogue", keep_maps=False, targets=args.targets,
                models=args.models,
                cameras=[int(c) if c.isdigit() else c for c in args.cameras])
+    if args.pose_seed is not None:
+        doc["poses"]["seed"] = args.pose_seed
+    if args.poses is not None:
+        doc["poses"]["n"] = args.poses
     campaign = parse_campaign(doc, source="corners.toml (bench_corner_campaign)",
                               base_dir=common.CAMPAIGNS)
     run_dir = args.keep or Path(tempfile.mkdtemp(prefix="camval-corners-")) / "run"
@@ -175,6 +184,9 @@ def cell(r, bar):
            "status": r["status"], "reason": r.get("reason") or "",
            "found": det.get("n_found"), "expected": det.get("n_expected"),
            "corners_dropped": dropped,
+           # the views the board was not detected in (or kept too few corners), and why
+           "views_failed": {str(k): v for k, v in (det.get("failed_reasons") or {}).items()},
+           "views": len(det.get("per_pose") or []),
            "residual_rms_px": res, "projection_rms_px": proj,
            "projection_max_px": (r.get("projection") or {}).get("max")}
     if r["status"] == "ok":
@@ -187,6 +199,10 @@ def main():
     ap.add_argument("--cameras", type=slots, default="1-22")
     ap.add_argument("--models", type=common.families, default="CAHV,CAHVOR,CAHVORE")
     ap.add_argument("--targets", type=common.ids, default="apriltag,chessboard")
+    ap.add_argument("--pose-seed", type=int, default=None,
+                    help="the campaign's [poses] seed (default corners.toml's, 0)")
+    ap.add_argument("--poses", type=int, default=None,
+                    help="poses per camera (default corners.toml's, 6)")
     ap.add_argument("-j", "--jobs", type=int, default=2, help="local worker processes")
     ap.add_argument("--keep", type=Path, default=None, help="run directory to keep (new)")
     ap.add_argument("--run", type=Path, default=None,
@@ -224,7 +240,10 @@ def main():
         print(f"{c['camera']:>5s} {c['family']:8s} {c['target']:10s} "
               f"{c['found']:4d}/{c['expected']:<4d} {c['residual_rms_px']:9.5f} "
               f"{c['projection_rms_px']:9.5f}  ok" + ("  <-" if c["above_bar"] else "")
-              + (f"  dropped {c['corners_dropped']}" if c["corners_dropped"] else ""))
+              + (f"  dropped {c['corners_dropped']}" if c["corners_dropped"] else "")
+              + (f"  views failed {len(c['views_failed'])} of {c['views']}: "
+                 + "; ".join(f"{k}: {v[:200]}" for k, v in c["views_failed"].items())
+                 if c["views_failed"] else ""))
     ok = [c for c in cells if c["status"] == "ok"]
     above = [c for c in ok if c["above_bar"]]
     summary = {"bar_px": args.bar, "cells": len(cells), "ok": len(ok),

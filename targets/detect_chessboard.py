@@ -38,6 +38,8 @@ of every corner (docs/corners.md, "Blurred chessboard detection time").
 OpenCV's pixel convention is camval's (pixel centres at integers).
 '''
 
+import dataclasses
+
 import numpy as np
 
 from .detection import (
@@ -343,5 +345,17 @@ ARGUMENTS
     corner_model, blur = None, 0.0
     if refine is True and float(info.get("psf_sigma_px") or 0.0) > 0.0:
         corner_model, blur = CORNER_LINES, float(info["psf_sigma_px"])
-    return result(target, G.reshape(-1, 2), DETECTOR, min_found=min_found, info=info,
-                  corner_model=corner_model, corner_blur_px=blur)
+    det = result(target, G.reshape(-1, 2), DETECTOR, min_found=min_found, info=info,
+                 corner_model=corner_model, corner_blur_px=blur)
+    if det.status != "ok" and dropped:
+        # the board was found: say so, and why its corners went (a campaign record keeps
+        # one image's reason; "found 0 of 100 points" alone reads as a board not found)
+        det = dataclasses.replace(det, reason=(
+            f"{det.reason}: the {nx}x{ny} chessboard was found ({info['method']}), but "
+            f"{sum(dropped.values())} of its corners were dropped ({_counts(dropped)})"))
+    return det
+
+
+def _counts(dropped):
+    r'''{reason: count} -> "count reason, ..." (largest first)'''
+    return ", ".join(f"{n} {why}" for why, n in sorted(dropped.items(), key=lambda kv: -kv[1]))

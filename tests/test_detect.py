@@ -213,6 +213,20 @@ stay, as exact as on the clean image, and the detection is ok'''
     np.testing.assert_allclose(det.q[keep], clean.q[keep], atol=0.02)
 
 
+def test_chessboard_found_but_every_corner_dropped_says_so():
+    r'''A board OpenCV finds whose corners the refiner cannot refine (squares of ~8 px on a
+160x120 image: every window holds fewer than MIN_WINDOW_PIXELS whole pixels) fails with
+a reason that says the board was found and why its corners went, not only "found 0 of
+100 points" (a campaign record keeps one image's reason, which read as a board not found)'''
+    t = load_target("chessboard")
+    m = pinhole(160, 120, 135.0)
+    det = detect(render(m, t.pattern(), plan_poses(m, t, seed=0)[0], K=4), t)
+    assert det.status == "failed" and det.n_found == 0
+    assert "chessboard was found" in det.reason
+    assert "100 window too small" in det.reason
+    assert det.info["corners_dropped"] == {"window too small": 100}
+
+
 def test_chessboard_corners_on_one_line_give_no_view():
     r'''What a view's pose needs (targets.detection.MIN_POINTS_FOR_POSE): 4 corners, not on
 one line of the board'''
