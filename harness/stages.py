@@ -442,9 +442,18 @@ def _none_found(dets):
     r'''StageFailed("detect") when the target was found in none of the images, else None'''
     if any(d.n_found for d in dets):
         return None
-    reasons = sorted({d.reason for d in dets if d.reason})
-    return StageFailed("detect", "the target was found in none of the "
-                                 f"{len(dets)} images" + (f": {reasons[0]}" if reasons else ""))
+    from collections import Counter
+    # the most common reason (the first seen of a tie), with how many images gave it
+    counts = Counter(d.reason for d in dets if d.reason).most_common()
+    why = ""
+    if counts:
+        top, n = counts[0]
+        why = f": {top}"
+        if n < len(dets):
+            others = len(counts) - 1
+            why += f" (in {n} of them" + (f"; {others} other reason{'s' * (others > 1)})"
+                                           if others else ")")
+    return StageFailed("detect", f"the target was found in none of the {len(dets)} images{why}")
 
 
 def observations_from(truth, target, poses, detections):

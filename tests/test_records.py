@@ -136,3 +136,21 @@ def test_job_filename_is_safe_and_unique():
     b = job_filename("file-x.cahvor/CAHV/dots/raycast[spp=16,full]")
     assert a != b and "/" not in a and a.endswith(".json")
     assert len(job_filename("x" * 500)) < 100
+
+
+def test_a_target_found_nowhere_says_its_most_common_reason():
+    r'''The detect stage's failure names the reason most images gave, not the alphabetically
+first (h-cornertrust: one view's "OpenCV found no 10x10 chessboard" hid five views'
+"the board was found, but its corners were dropped")'''
+    from types import SimpleNamespace
+
+    from harness.stages import _none_found
+    d = [SimpleNamespace(n_found=0, reason=r) for r in
+         ["b: corners dropped"] * 5 + ["a: no board"]]
+    e = _none_found(d)
+    assert e is not None
+    assert str(e).endswith("found in none of the 6 images: b: corners dropped (in 5 of them; "
+                           "1 other reason)")
+    e = _none_found([SimpleNamespace(n_found=0, reason="x")] * 3)
+    assert str(e).endswith("found in none of the 3 images: x")
+    assert _none_found(d + [SimpleNamespace(n_found=4, reason="")]) is None
