@@ -728,6 +728,9 @@ def summarise(rows, faults, cams):
                         "missed": sum(c == "missed" for c in cells),
                         "below_limit": sum(c == "below-limit" for c in cells),
                         "marginal": sum(c == "marginal" for c in cells),
+                        # a fit that failed under the fault: the gate fails the run on it,
+                        # but it judged nothing (a benchmark PASS is "no gate bug", not this)
+                        "failed": sum(c == "failed" for c in cells),
                         "exists": sum(c not in ("not-applicable", "-") for c in cells)}
         run_flagged = sum(any(rows.get(f"{fault}/{cam}", {}).get(cal, ("",))[0] == "flagged"
                               for cal in CALIBRATORS) for cam in cams)
@@ -736,7 +739,8 @@ def summarise(rows, faults, cams):
             f"{fault:13s} flagged on {run_flagged} of {len(cams)} cameras; "
             + ", ".join(f"{cal} {per[cal]['flagged']} flagged / {per[cal]['below_limit']} "
                         f"below limit / {per[cal]['marginal']} marginal / "
-                        f"{per[cal]['missed']} missed" for cal in CALIBRATORS))
+                        f"{per[cal]['missed']} missed / {per[cal]['failed']} failed"
+                        for cal in CALIBRATORS))
     return out
 
 
