@@ -402,11 +402,11 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # (_span_choice: bias^2 + variance from the first pass's curves and noise): the edge
         # alone, with its board line's neighbour beyond that corner (NEIGHBOUR_REACH of it),
         # or with all its board line's neighbours (CANDIDATES)
-        choice = {}
+        choice, end_bias = {}, {}
         if last and npass > 0:
-            choice = _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits,
-                                  (pix, piy, pt, ps, off), grid,
-                                  _weights(line, img[piy, pix]))
+            choice, end_bias = _span_choice(own, start, weak, nbrs, q, curved, table, noise,
+                                            gap_bits, (pix, piy, pt, ps, off), grid,
+                                            _weights(line, img[piy, pix]))
         # each fit: (i, k, L, e, n, cubic, start curve, end, weak) and its pieces, (its
         # index, the edge whose pixels, how taken: targets._tag_edge_kernels.PIECE_OWN..,
         # reach px); fit_pixels gathers them all in one pass
@@ -481,12 +481,20 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 else "no contrast" if not abs(pf[j, 1]) > min_contrast * rng
                 else f"misfit: {mis[j]:.3g} of the contrast")
         keys = zip(gi.tolist(), gk.tolist(), gend.tolist(), strict=True)
-        curves = dict(zip(keys, pf[:, 2:], strict=True))
+        # the board's edges: the fitted curves less the blur's shift of a bent edge
+        dc = _unbent(pf[:, 2:], np.array([g[2] for g in geo]), *blurs[0]) if UNBEND \
+            else pf[:, 2:]
+        curves = dict(zip(keys, dc, strict=True))
         # each edge's curve at its ends 0 and 1 (a fit of both ends, end 2, gives both)
         at_end = np.zeros((N, 4, 2, 4))
         both = gend == 2
-        at_end[gi[both], gk[both], 0] = at_end[gi[both], gk[both], 1] = pf[both, 2:]
-        at_end[gi[~both], gk[~both], gend[~both]] = pf[~both, 2:]
+        at_end[gi[both], gk[both], 0] = at_end[gi[both], gk[both], 1] = dc[both]
+        at_end[gi[~both], gk[~both], gend[~both]] = dc[~both]
+        # each end's curve less its fit's model error there (_span_choice's board map: the
+        # bend of the board line that the fit's polynomial cannot follow)
+        for (i, k), bb in end_bias.items():
+            at_end[i, k, 0, 0] -= bb[0]
+            at_end[i, k, 1, 0] -= bb[1]
         good = np.isfinite(mis) & ok
         # the next pass's measure of the image's noise: the edges' median misfit (RMS over
         # the contrast; each edge alone, noise-free a quadratic's model error), and how it
@@ -775,6 +783,10 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
         V = _powers(tau_s[sel].reshape(len(sel), -1), D + 1) * w[..., None]
         R[sel, :D + 1] = np.linalg.solve(V.transpose(0, 2, 1) @ V, V.transpose(0, 2, 1))
     ref = np.einsum("nks,ns->nk", R, v_s.reshape(Ne, -1))
+    mapped = None
+    if grid is not None and BOARD_MAP:
+        mapped = _board_map_reference(q, np.asarray(grid).reshape(-1, 2), gap_bits, ik, qs, es,
+                                      ns, Ls)
     # the samples' sensitivity to each curve's (d0, d1, d2), across this edge's frame
     dS = (proj * use)[..., None, None] * Vs[None, None]
     # the bias pooled over the same edge of the tags round it (a 3 x 3 block of the grid):
@@ -793,6 +805,7 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
              "line": lambda end: (m_all, use[:, 0] & has.any(1) & covered)}
     combos = [(end, span, deg) for end in (0, 1) for span, deg in CANDIDATES]
     risk = np.full((len(combos), Ne), np.inf)
+    mbias = np.full((len(combos), Ne), np.nan)
     for deg in sorted({c[2] for c in combos}):
         sel = [i for i, c in enumerate(combos) if c[2] == deg]
         M, ok = (np.stack(x) for x in zip(*[spans[combos[i][1]](combos[i][0]) for i in sel],
@@ -814,14 +827,129 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
         b2 = np.where(ok & np.isfinite(bias * bvar), bias * bias - bvar, 0.0)
         nok = ok @ pool.T
         b2 = np.where(nok > 0, (b2 @ pool.T) / np.where(nok > 0, nok, 1.0), 0.0)
+        if mapped is not None:
+            # the board map's bias where it has one: taken off the corner (no risk left
+            # but its error, a fraction of it), else as before
+            have = np.isfinite(mapped).all(-1)
+            mb = (h * np.where(have[:, None], mapped, 0.0)).sum(-1)
+            mbias[sel] = np.where(have, mb, np.nan)
+            b2 = np.where(have, (MAP_BIAS_LEFT * mb) ** 2, b2)
         risk[sel] = np.where(ok & (var > 0), np.maximum(b2, 0.0) + var, np.inf)
     out = {}
     n = len(CANDIDATES)
     pick = [np.argmin(risk[n * end:n * (end + 1)], axis=0) for end in (0, 1)]
     fine = np.isfinite(risk[:n].min(0)) & np.isfinite(risk[n:].min(0))
+    biases = {}
     for j in np.flatnonzero(fine):
         out[keys[j]] = (CANDIDATES[pick[0][j]], CANDIDATES[pick[1][j]])
-    return {key: v for key, v in out.items() if key not in weak}
+        bb = (mbias[pick[0][j], j], mbias[n + pick[1][j], j])
+        if mapped is not None and np.isfinite(bb).all() and keys[j] not in weak:
+            biases[keys[j]] = bb
+    if mapped is not None:
+        # a weak edge is placed by the cubic over its board line (refine_tag_edges)
+        c = CANDIDATES.index(("line", 3))
+        for j in [row[key] for key in weak if key in row]:
+            bb = (mbias[c, j], mbias[n + c, j])
+            if np.isfinite(bb).all():
+                biases[keys[j]] = bb
+    return {key: v for key, v in out.items() if key not in weak}, biases
+
+
+# the board map (_board_map_reference): tags within this many rows and columns of an edge's
+# tag place its local map; its polynomial degree in the board coordinates; a corner off it by
+# more than MAP_OUTLIER times the median misfit is left out and the map refitted
+BOARD_MAP = True
+MAP_TAGS = 2
+MAP_DEGREE = 5
+MAP_OUTLIER = 6.0
+# the fraction of the map's bias taken as the risk left once it is taken off (_span_choice)
+MAP_BIAS_LEFT = 0.25
+# the board line's samples: board positions along the edge from its corner k (0) to k+1 (1),
+# past both neighbours
+_MAP_LAMBDA = np.linspace(-1.45, 2.45, 40)
+
+
+def _board_map_reference(q, grid, gap_bits, ik, qs, es, ns, Ls):
+    r'''(m, 6): each edge's board line as a quintic in its chord's tau (its frame: corner qs,
+direction es, normal ns, length Ls), from a local map of the board into the image, NaN where
+none is fitted: each tag's corners' board positions (grid (col, row), gap_bits; in tag
+bits) against their image positions q (N,4,2: the first pass's corners), a polynomial of
+MAP_DEGREE in the board coordinates over the tags within MAP_TAGS rows and columns
+
+Why. A fit's corner is off the board line by the part of the line's shape its polynomial
+over its span cannot follow (a cubic over an edge misses the quartic term of a fisheye's or
+a barrel's line: ~0.6 kappa px^2 at the ends of a 40 px edge bent by kappa ~1e-3/px under
+a radial k1 = -3.5e-6, 1.2 at k1 = -7e-6, in the truth itself, not the fit). The first
+pass's curves tell that shape edge by edge, as noisily as the corner they judge; the
+corners of the 5 x 5 tags round it tell it on ~100 points over ~6 edge lengths, where the
+quartic term of one edge is (1/6)^4 of the map's: its noise is ~1e-3 of the corners'.'''
+    m = len(ik)
+    out = np.full((m, 6), np.nan)
+    board = grid[:, None, :] * (8.0 + gap_bits) + _TAG_CORNERS[None]
+    live = np.isfinite(q).all(-1)
+    where = {(int(c), int(r)): i for i, (c, r) in enumerate(grid)}
+    cache = {}
+    for j in range(m):
+        i, k = int(ik[j, 0]), int(ik[j, 1])
+        if i not in cache:
+            c0, r0 = grid[i]
+            tags = [where[(c, r)] for c in range(c0 - MAP_TAGS, c0 + MAP_TAGS + 1)
+                    for r in range(r0 - MAP_TAGS, r0 + MAP_TAGS + 1) if (c, r) in where]
+            B = board[tags].reshape(-1, 2)
+            P = q[tags].reshape(-1, 2)
+            use = live[tags].reshape(-1)
+            centre = board[i].mean(0)
+            scale = 8.0 + gap_bits
+            coef = None
+            # the highest degree (MAP_DEGREE at most, 4 at least: the quartic term) that
+            # has twice as many corners as terms
+            D = max([d for d in range(4, MAP_DEGREE + 1)
+                     if use.sum() >= (d + 1) * (d + 2)], default=0)
+            pw = [(a, b) for a in range(D + 1) for b in range(D + 1 - a)]
+            u_all = (B - centre) / scale
+            Va = np.stack([u_all[:, 0] ** a * u_all[:, 1] ** b for a, b in pw], -1)
+            for _ in range(2 if D else 0):
+                if use.sum() < 2 * len(pw):
+                    coef = None
+                    break
+                # a homography (the board's lines straight) and a polynomial of what it
+                # leaves (the lens's bend)
+                Hb = _dlt(u_all[use], P[use])
+                coef = np.linalg.lstsq(Va[use], P[use] - _apply_h(Hb, u_all[use]),
+                                       rcond=None)[0]
+                r = np.linalg.norm(Va @ coef + _apply_h(Hb, u_all) - P, axis=-1)
+                med = np.median(r[use])
+                use = use & (r <= MAP_OUTLIER * max(med, 1e-4))
+            cache[i] = None if coef is None else (coef, Hb, centre, scale, pw)
+        if cache[i] is None:
+            continue
+        coef, Hb, centre, scale, pw = cache[i]
+        b0, b1 = board[i, k], board[i, (k + 1) % 4]
+        u = (b0 + _MAP_LAMBDA[:, None] * (b1 - b0) - centre) / scale
+        V = np.stack([u[:, 0] ** a * u[:, 1] ** b for a, b in pw], -1)
+        p = V @ coef + _apply_h(Hb, u) - qs[j]
+        tau = 2.0 * (p @ es[j]) / Ls[j] - 1.0
+        out[j] = np.polynomial.polynomial.polyfit(tau, p @ ns[j], 5)
+    return out
+
+
+def _dlt(u, p):
+    r'''(3,3) the homography of least algebraic error taking the points u (n,2) to p (n,2)'''
+    c, sc = p.mean(0), max(float(np.abs(p - p.mean(0)).mean()), 1e-9)
+    x = (p - c) / sc
+    n = len(u)
+    A = np.zeros((2 * n, 9))
+    A[0::2, 0:2], A[0::2, 2] = u, 1.0
+    A[0::2, 6:8], A[0::2, 8] = -x[:, :1] * u, -x[:, 0]
+    A[1::2, 3:5], A[1::2, 5] = u, 1.0
+    A[1::2, 6:8], A[1::2, 8] = -x[:, 1:] * u, -x[:, 1]
+    Hn = np.linalg.svd(A)[2][-1].reshape(3, 3)
+    return np.array([[sc, 0.0, c[0]], [0.0, sc, c[1]], [0.0, 0.0, 1.0]]) @ Hn
+
+
+def _apply_h(Hm, u):
+    ph = u @ Hm[:, :2].T + Hm[:, 2]
+    return ph[:, :2] / ph[:, 2:]
 
 
 def _sees_dark(t, s, L, d):
@@ -1028,6 +1156,28 @@ level alike to first order (by -c1), the light level a takes it up.'''
     c0, c1, scale, lo, hi = (1.0, 0.0, 1.0, -np.inf, np.inf) if line is None else line
     return pixel_weights(np.asarray(v, dtype=np.float64), float(c0), float(c1), float(scale),
                          float(lo), float(hi))
+
+
+UNBEND = True
+
+
+def _unbent(d, L, sigma, kind):
+    r'''(m,4) the board edges' curves (d0..d3 in each edge's chord frame of length L (m,)
+px) under the fitted curves d (m,4) of an image blurred by (sigma, kind)
+
+Why. F is a straight edge's blurred profile. A pixel next to an edge bent by s''(t) (t px
+along the chord) integrates the dark side over the kernel's spread along the edge too (the
+pixel's square and the blur: variance V = sigma^2 + _KIND_VARIANCE[kind] along any
+direction), where the edge has left its tangent by s'' Z_t^2 / 2: to first order in s''
+the pixel reads F(x - V s'' / 2), and the fitted curve is the edge moved towards its centre
+of curvature by V s'' / 2 (a blurred disc's half-level contour shrinks by V / 2R). With
+s = d(tau), tau = 2 t / L - 1, s'' = 4 / L^2 (2 d2 + 6 d3 tau): d0 and d1 take
+-2 V / L^2 (2 d2) and -2 V / L^2 (6 d3) (the shift's own bend is of second order in s'').'''
+    c = 2.0 * (sigma * sigma + _KIND_VARIANCE[kind]) / np.asarray(L, dtype=np.float64) ** 2
+    out = np.array(d, dtype=np.float64, copy=True)
+    out[:, 0] -= c * 2.0 * out[:, 2]
+    out[:, 1] -= c * 6.0 * out[:, 3]
+    return out
 
 
 def _curve_s(d, tau):
