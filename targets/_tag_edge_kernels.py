@@ -414,18 +414,9 @@ def _columns(slope, base, lo, hi, px, xa, xb):
     return xa, xb
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _inside(rx, ry, g, m, L, c):
-    # a point's (rx, ry from its chord's start) distance into the tag from an edge's curve
-    # c (d0..d3 in the frame of its chord: direction g, normal m into the tag, length L)
-    tau = 2.0 * (rx * g[0] + ry * g[1]) / L - 1.0
-    return rx * m[0] + ry * m[1] - (c[0] + tau * (c[1] + tau * (c[2] + tau * c[3])))
-
-
 @njit(cache=True, error_model="numpy")
 def _band(P0, e, n, L, curve, t_lo, t_hi, out_px, in_px, deep_px, H, bits, offs,
-          x0, y0, x1, y1, k, bit_px, Pa, ga, na, La, ca, Pb, gb, nb, Lb, cb, oix, oiy, ot,
-          os_, c):
+          x0, y0, x1, y1, k, bit_px, Pa, na, Pb, nb, oix, oiy, ot, os_, c):
     r'''The pixels of one tag edge's band, written from index c of oix, oiy, ot, os_
 (ix, iy, t, s); returns the index after the last
 
@@ -434,12 +425,9 @@ Pixels with centre at t in [t_lo, t_hi] along the chord and x = s - curve(tau) i
 light) at the offsets offs (cells) about their position in the tag's cells: along edge k
 by the homography H (image -> cells) of the tag's corners, across it by the depth x /
 bit_px from the curve (lens distortion bends the edge away from the homography's line by
-up to a px on a fisheye's tag). A pixel keeps the clearance t_lo from the two adjacent edges too:
-from their curves ca, cb (d0..d3 in the frames of their chords from Pa, Pb: directions ga,
-gb, normals na, nb into the tag, lengths La, Lb), not their chords: a tag seen obliquely
-meets them at an angle off 90 deg, and a bent edge leaves its chord at the corner by its
-slope there (kappa L / 2: 0.1 rad on a fisheye's 50 px edge bent by 4e-3 / px, 0.4 px at
-4 px from the corner, more than SAFETY_PX), its blurred light reaching the band's end.'''
+up to a px on a fisheye's tag). A pixel keeps the clearance t_lo from the lines of the two
+adjacent edges too (through Pa, Pb with normals na, nb into the tag): a tag seen obliquely
+meets them at an angle off 90 deg.'''
     no = len(offs)
     # each row's pixels are scanned only over the columns where t and s = x + curve(tau)
     # (|curve| <= smax) can pass the tests below, a px of margin each side: the tests decide
@@ -458,9 +446,9 @@ slope there (kappa L / 2: 0.1 rad on a fisheye's 50 px edge bent by 4e-3 / px, 0
             x = s - (curve[0] + tau * (curve[1] + tau * (curve[2] + tau * curve[3])))
             if x < -out_px or x > in_px:
                 continue
-            if _inside(xx - Pa[0], yy - Pa[1], ga, na, La, ca) < t_lo:
+            if (xx - Pa[0]) * na[0] + (yy - Pa[1]) * na[1] < t_lo:
                 continue
-            if _inside(xx - Pb[0], yy - Pb[1], gb, nb, Lb, cb) < t_lo:
+            if (xx - Pb[0]) * nb[0] + (yy - Pb[1]) * nb[1] < t_lo:
                 continue
             if x > deep_px:
                 w = H[2, 0] * xx + H[2, 1] * yy + H[2, 2]
@@ -622,10 +610,7 @@ edge (i, k)'s are [off[4i+k], off[4i+k+1]).'''
                 m1 = -m1
             c1 = _band(Qt[k], e, n, L, curves[i, k], t_lo, t_hi, out_px, in_px,
                        deep_bit - clear, Hk, cells, offs, box[i, k, 0], box[i, k, 1],
-                       box[i, k, 2], box[i, k, 3], k, deep_bit,
-                       A0, g0, m0, np.hypot(B0[0] - A0[0], B0[1] - A0[1]),
-                       curves[i, (k - 1) % 4], A1, g1, m1,
-                       np.hypot(B1[0] - A1[0], B1[1] - A1[1]), curves[i, (k + 1) % 4],
+                       box[i, k, 2], box[i, k, 3], k, deep_bit, A0, m0, A1, m1,
                        oix, oiy, ot, os_, c)
             if c1 - c < min_pixels:
                 status[i, k] = 1

@@ -313,7 +313,8 @@ def _neighbours(grid, N):
 
 def refine_tag_edges(image, Q, sigma, kind="gaussian", *, bits=None, grid=None, gap_bits=2.4,
                      value_range=None, passes=2, max_misfit=MAX_MISFIT,
-                     min_contrast=MIN_CONTRAST, choose_kind=False, start_error_px=None):
+                     min_contrast=MIN_CONTRAST, choose_kind=False, start_error_px=None,
+                     line_reference=None):
     r'''Corners of AprilTags from their four whole border edges; see the module docstring
 
 ARGUMENTS
@@ -329,6 +330,13 @@ ARGUMENTS
 - start_error_px: the most the first pass's corners may move from Q (default
   MAX_CORNER_SHIFT_PX; the passes after it keep to MAX_CORNER_SHIFT_PX of the previous
   pass's corners): a detector's coarse corners may err by more
+- line_reference: None, or a callable (ik (m,2) each edge's tag and edge index, qs (m,2)
+  its chord's start, es, ns (m,2) its direction and normal into the tag, Ls (m,) its length;
+  grid=, gap_bits= as given here) -> (m,6) the board line through each edge as a quintic
+  s(tau) in that frame, NaN rows where unknown: a shape known without the image's noise (the
+  camera model and the board's pose, camera_line_reference). _span_choice then judges each
+  candidate span by its bias under it and takes that bias off the corner, and the blur's
+  shift of a bent edge is taken off each curve (_unbent); see the module docstring
 - choose_kind: True: (sigma, kind) is an estimate, a start: sigma is fitted on the edges
   and the kind chosen among targets.corners.PSF_KINDS (the others started at the sigma of
   the same variance, _same_variance) by the first pass's squared misfit summed over the
@@ -406,7 +414,10 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         if last and npass > 0:
             choice, end_bias = _span_choice(own, start, weak, nbrs, q, curved, table, noise,
                                             gap_bits, (pix, piy, pt, ps, off), grid,
-                                            _weights(line, img[piy, pix]))
+                                            _weights(line, img[piy, pix]),
+                                            None if line_reference is None else
+                                            functools.partial(line_reference, grid=grid,
+                                                              gap_bits=gap_bits))
         # each fit: (i, k, L, e, n, cubic, start curve, end, weak) and its pieces, (its
         # index, the edge whose pixels, how taken: targets._tag_edge_kernels.PIECE_OWN..,
         # reach px); fit_pixels gathers them all in one pass
@@ -482,8 +493,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 else f"misfit: {mis[j]:.3g} of the contrast")
         keys = zip(gi.tolist(), gk.tolist(), gend.tolist(), strict=True)
         # the board's edges: the fitted curves less the blur's shift of a bent edge
-        dc = _unbent(pf[:, 2:], np.array([g[2] for g in geo]), *blurs[0]) if UNBEND \
-            else pf[:, 2:]
+        dc = pf[:, 2:] if line_reference is None else \
+            _unbent(pf[:, 2:], np.array([g[2] for g in geo]), *blurs[0])
         curves = dict(zip(keys, dc, strict=True))
         # each edge's curve at its ends 0 and 1 (a fit of both ends, end 2, gives both)
         at_end = np.zeros((N, 4, 2, 4))
@@ -624,7 +635,7 @@ def _powers(tau, n):
 
 
 def _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits, pixels, grid=None,
-                 weights=None):
+                 weights=None, line_reference=None):
     r'''{(i, k): (choice at corner k, choice at corner k+1)}, each a (span, degree) of
 CANDIDATES: the fit of each edge (not weak) with the least expected squared error of its
 corner across the edge, bias^2 + variance
@@ -784,9 +795,8 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
         R[sel, :D + 1] = np.linalg.solve(V.transpose(0, 2, 1) @ V, V.transpose(0, 2, 1))
     ref = np.einsum("nks,ns->nk", R, v_s.reshape(Ne, -1))
     mapped = None
-    if grid is not None and BOARD_MAP:
-        mapped = _board_map_reference(q, np.asarray(grid).reshape(-1, 2), gap_bits, ik, qs, es,
-                                      ns, Ls)
+    if line_reference is not None:
+        mapped = np.asarray(line_reference(ik, qs, es, ns, Ls), dtype=np.float64)
     # the samples' sensitivity to each curve's (d0, d1, d2), across this edge's frame
     dS = (proj * use)[..., None, None] * Vs[None, None]
     # the bias pooled over the same edge of the tags round it (a 3 x 3 block of the grid):
@@ -828,12 +838,12 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
         nok = ok @ pool.T
         b2 = np.where(nok > 0, (b2 @ pool.T) / np.where(nok > 0, nok, 1.0), 0.0)
         if mapped is not None:
-            # the board map's bias where it has one: taken off the corner (no risk left
-            # but its error, a fraction of it), else as before
+            # the given reference's bias where it has one: taken off the corner (the risk
+            # left is its error, a fraction of it), else the first pass's estimate as before
             have = np.isfinite(mapped).all(-1)
             mb = (h * np.where(have[:, None], mapped, 0.0)).sum(-1)
             mbias[sel] = np.where(have, mb, np.nan)
-            b2 = np.where(have, (MAP_BIAS_LEFT * mb) ** 2, b2)
+            b2 = np.where(have, (REFERENCE_BIAS_LEFT * mb) ** 2, b2)
         risk[sel] = np.where(ok & (var > 0), np.maximum(b2, 0.0) + var, np.inf)
     out = {}
     n = len(CANDIDATES)
@@ -855,101 +865,40 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
     return {key: v for key, v in out.items() if key not in weak}, biases
 
 
-# the board map (_board_map_reference): tags within this many rows and columns of an edge's
-# tag place its local map; its polynomial degree in the board coordinates; a corner off it by
-# more than MAP_OUTLIER times the median misfit is left out and the map refitted
-BOARD_MAP = True
-MAP_TAGS = 2
-MAP_DEGREE = 5
-MAP_OUTLIER = 6.0
-# the fraction of the map's bias taken as the risk left once it is taken off (_span_choice)
-MAP_BIAS_LEFT = 0.25
-# the board line's samples: board positions along the edge from its corner k (0) to k+1 (1),
-# past both neighbours
-_MAP_LAMBDA = np.linspace(-1.45, 2.45, 40)
+# the fraction of a reference's bias taken as the risk left once it is taken off
+# (_span_choice with a line_reference: the reference's own error)
+REFERENCE_BIAS_LEFT = 0.25
 
 
-def _board_map_reference(q, grid, gap_bits, ik, qs, es, ns, Ls):
-    r'''(m, 6): each edge's board line as a quintic in its chord's tau (its frame: corner qs,
-direction es, normal ns, length Ls), from a local map of the board into the image, NaN where
-none is fitted: each tag's corners' board positions (grid (col, row), gap_bits; in tag
-bits) against their image positions q (N,4,2: the first pass's corners), a polynomial of
-MAP_DEGREE in the board coordinates over the tags within MAP_TAGS rows and columns
+def camera_line_reference(model, Rt_cam_board, bit_m):
+    r'''A line_reference for refine_tag_edges from a camera model and the board's pose: each
+edge's board line (the grid's tag pitch 8 + gap_bits bits of bit_m metres, the tags'
+corners as targets.boards' AprilGrid) projected at _REFERENCE_LAMBDA (past both board line
+neighbours) and fitted by a quintic in the edge's chord frame'''
+    from .centroids import board_to_ref
 
-Why. A fit's corner is off the board line by the part of the line's shape its polynomial
-over its span cannot follow (a cubic over an edge misses the quartic term of a fisheye's or
-a barrel's line: ~0.6 kappa px^2 at the ends of a 40 px edge bent by kappa ~1e-3/px under
-a radial k1 = -3.5e-6, 1.2 at k1 = -7e-6, in the truth itself, not the fit). The first
-pass's curves tell that shape edge by edge, as noisily as the corner they judge; the
-corners of the 5 x 5 tags round it tell it on ~100 points over ~6 edge lengths, where the
-quartic term of one edge is (1/6)^4 of the map's: its noise is ~1e-3 of the corners'.'''
-    m = len(ik)
-    out = np.full((m, 6), np.nan)
-    board = grid[:, None, :] * (8.0 + gap_bits) + _TAG_CORNERS[None]
-    live = np.isfinite(q).all(-1)
-    where = {(int(c), int(r)): i for i, (c, r) in enumerate(grid)}
-    cache = {}
-    for j in range(m):
-        i, k = int(ik[j, 0]), int(ik[j, 1])
-        if i not in cache:
-            c0, r0 = grid[i]
-            tags = [where[(c, r)] for c in range(c0 - MAP_TAGS, c0 + MAP_TAGS + 1)
-                    for r in range(r0 - MAP_TAGS, r0 + MAP_TAGS + 1) if (c, r) in where]
-            B = board[tags].reshape(-1, 2)
-            P = q[tags].reshape(-1, 2)
-            use = live[tags].reshape(-1)
-            centre = board[i].mean(0)
-            scale = 8.0 + gap_bits
-            coef = None
-            # the highest degree (MAP_DEGREE at most, 4 at least: the quartic term) that
-            # has twice as many corners as terms
-            D = max([d for d in range(4, MAP_DEGREE + 1)
-                     if use.sum() >= (d + 1) * (d + 2)], default=0)
-            pw = [(a, b) for a in range(D + 1) for b in range(D + 1 - a)]
-            u_all = (B - centre) / scale
-            Va = np.stack([u_all[:, 0] ** a * u_all[:, 1] ** b for a, b in pw], -1)
-            for _ in range(2 if D else 0):
-                if use.sum() < 2 * len(pw):
-                    coef = None
-                    break
-                # a homography (the board's lines straight) and a polynomial of what it
-                # leaves (the lens's bend)
-                Hb = _dlt(u_all[use], P[use])
-                coef = np.linalg.lstsq(Va[use], P[use] - _apply_h(Hb, u_all[use]),
-                                       rcond=None)[0]
-                r = np.linalg.norm(Va @ coef + _apply_h(Hb, u_all) - P, axis=-1)
-                med = np.median(r[use])
-                use = use & (r <= MAP_OUTLIER * max(med, 1e-4))
-            cache[i] = None if coef is None else (coef, Hb, centre, scale, pw)
-        if cache[i] is None:
-            continue
-        coef, Hb, centre, scale, pw = cache[i]
-        b0, b1 = board[i, k], board[i, (k + 1) % 4]
-        u = (b0 + _MAP_LAMBDA[:, None] * (b1 - b0) - centre) / scale
-        V = np.stack([u[:, 0] ** a * u[:, 1] ** b for a, b in pw], -1)
-        p = V @ coef + _apply_h(Hb, u) - qs[j]
-        tau = 2.0 * (p @ es[j]) / Ls[j] - 1.0
-        out[j] = np.polynomial.polynomial.polyfit(tau, p @ ns[j], 5)
-    return out
+    def reference(ik, qs, es, ns, Ls, grid, gap_bits):
+        ik = np.asarray(ik).reshape(-1, 2)
+        g = np.asarray(grid).reshape(-1, 2)[ik[:, 0]]
+        B = g[:, None, :] * (8.0 + gap_bits) + _TAG_CORNERS[None]
+        b0 = B[np.arange(len(ik)), ik[:, 1]]
+        b1 = B[np.arange(len(ik)), (ik[:, 1] + 1) % 4]
+        b = b0[:, None] + _REFERENCE_LAMBDA[None, :, None] * (b1 - b0)[:, None]
+        P = np.concatenate((b * bit_m, np.zeros(b.shape[:-1] + (1,))), -1).reshape(-1, 3)
+        p = np.asarray(model.project(board_to_ref(model, Rt_cam_board, P))).reshape(b.shape)
+        p = p - np.asarray(qs)[:, None]
+        out = np.full((len(ik), 6), np.nan)
+        for j in range(len(ik)):
+            if np.isfinite(p[j]).all():
+                out[j] = np.polynomial.polynomial.polyfit(
+                    2.0 * (p[j] @ es[j]) / Ls[j] - 1.0, p[j] @ ns[j], 5)
+        return out
+    return reference
 
 
-def _dlt(u, p):
-    r'''(3,3) the homography of least algebraic error taking the points u (n,2) to p (n,2)'''
-    c, sc = p.mean(0), max(float(np.abs(p - p.mean(0)).mean()), 1e-9)
-    x = (p - c) / sc
-    n = len(u)
-    A = np.zeros((2 * n, 9))
-    A[0::2, 0:2], A[0::2, 2] = u, 1.0
-    A[0::2, 6:8], A[0::2, 8] = -x[:, :1] * u, -x[:, 0]
-    A[1::2, 3:5], A[1::2, 5] = u, 1.0
-    A[1::2, 6:8], A[1::2, 8] = -x[:, 1:] * u, -x[:, 1]
-    Hn = np.linalg.svd(A)[2][-1].reshape(3, 3)
-    return np.array([[sc, 0.0, c[0]], [0.0, sc, c[1]], [0.0, 0.0, 1.0]]) @ Hn
-
-
-def _apply_h(Hm, u):
-    ph = u @ Hm[:, :2].T + Hm[:, 2]
-    return ph[:, :2] / ph[:, 2:]
+# the board line's samples of camera_line_reference: board positions along the edge from its
+# corner k (0) to k+1 (1), past both neighbours (gap 2.4 bits: a neighbour spans 1.3 - 2.3)
+_REFERENCE_LAMBDA = np.linspace(-1.45, 2.45, 40)
 
 
 def _sees_dark(t, s, L, d):
@@ -1156,9 +1105,6 @@ level alike to first order (by -c1), the light level a takes it up.'''
     c0, c1, scale, lo, hi = (1.0, 0.0, 1.0, -np.inf, np.inf) if line is None else line
     return pixel_weights(np.asarray(v, dtype=np.float64), float(c0), float(c1), float(scale),
                          float(lo), float(hi))
-
-
-UNBEND = True
 
 
 def _unbent(d, L, sigma, kind):
