@@ -100,7 +100,14 @@ only": ~40% of camera 17's edges). Such a weak edge's pixels (its light side, cl
 data row) still join its board line's fits, and it is placed, its corners kept, only on
 the one cubic through it and both neighbours where that fit sees the dark side beyond both
 its ends (_sees_dark: interpolated between dark sides, not extrapolated); elsewhere it is
-dropped with that reason. Modelling the data row's light instead (F(x) - gl F(x - wl),
+dropped with that reason. Not by default (place_weak_edges): their corners carry a model
+error none of the corrections here remove, 0.0018-0.0019 px RMS noise-free on hazcam 17 as
+CAHVORE against 0.0005-0.0007 for the others' (84 of 646 corners, blurred, 6 poses), and
+they made most of its AprilTag projection difference: jpl on those blurred renders 0.00358 ->
+0.00211 px without them (dots 0.00106), with a first fit's line_reference 0.00254 -> 0.00100;
+realistic (one noise seed) AprilTag / dots projection ratio 0.90 -> 0.63, with the line
+reference 0.69 -> 0.40. The other quick cameras and blur-wide-1024 have none. Modelling
+the data row's light instead (F(x) - gl F(x - wl),
 the cells placed by the tag's homography; commits 73e4c2b, fdce4a3, reverted) kept 854 of
 864 corners, but their model error under the hazcam's distortion (0.0016 px RMS on blur
 without noise, against 0.0009 for the corners kept without it) raised the realistic
@@ -325,7 +332,7 @@ def _neighbours(grid, N):
 def refine_tag_edges(image, Q, sigma, kind="gaussian", *, bits=None, grid=None, gap_bits=2.4,
                      value_range=None, passes=2, max_misfit=MAX_MISFIT,
                      min_contrast=MIN_CONTRAST, choose_kind=False, start_error_px=None,
-                     line_reference=None):
+                     line_reference=None, place_weak_edges=False):
     r'''Corners of AprilTags from their four whole border edges; see the module docstring
 
 ARGUMENTS
@@ -348,6 +355,10 @@ ARGUMENTS
   camera model and the board's pose, camera_line_reference). _span_choice then judges each
   candidate span by its bias under it and takes that bias off the corner, and the blur's
   shift of a bent edge is taken off each curve (_unbent); see the module docstring
+- place_weak_edges: True: an edge seen from its light side only is placed on the cubic
+  through it and its board line's neighbours where they see their dark side beyond both its
+  ends (_sees_dark); False (default): its corners are dropped with that reason (see the
+  module docstring: their model error is what is left of the blurred corners' on hazcam 17)
 - choose_kind: True: (sigma, kind) is an estimate, a start: sigma is fitted on the edges
   and the kind chosen among targets.corners.PSF_KINDS (the others started at the sigma of
   the same variance, _same_variance) by the first pass's squared misfit summed over the
@@ -449,8 +460,9 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             members = members_of.get((i, k), [])
             if (i, k) in weak and last:
                 # a weak edge is placed by its board line's neighbours' dark sides only, on
-                # the one cubic through the three (_sees_dark, once its pixels are gathered)
-                if not members:
+                # the one cubic through the three (_sees_dark, once its pixels are gathered),
+                # where asked (place_weak_edges)
+                if not members or not place_weak_edges:
                     why_edge[i, k] = _EDGE_STATUS[2]
                     continue
                 pieces += [(len(geo), m, PIECE_ALL, 0.0) for m in [(i, k)] + members]
