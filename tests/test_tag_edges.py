@@ -143,15 +143,15 @@ seeing the data bits: every corner is dropped, with why'''
 
 
 def test_an_edge_seen_from_its_light_side_is_placed_by_its_board_lines_neighbours():
-    r'''(place_weak_edges=True) Bits of 2.8 px (MER hazcam 17's) at sigma 0.7: the border
-is narrower than the blur's reach, so an edge whose data row is light has no dark-side pixel clean of it ("seen
-from its light side only"). The middle tag of a 3 x 3 grid has a light interior, the
-others a dark one: each of its edges lies on a board line between two edges that see
-their dark side, and the line's one cubic through the three places it. Noise-free, its
-corners are the truth to the render's sampling (K = 16, as
-test_blurred_tag_corners_from_the_whole_edges; measured: the middle tag's 0.0006 px RMS,
-the others' 0.0009); the middle tag's own edges alone are not enough (a grid without
-board lines drops them)'''
+    r'''(place_weak_edges=True) Bits of 2.8 px (MER hazcam 17's) at sigma 0.7: the border is
+narrower than the blur's reach, so an edge whose data row is light has no dark-side pixel
+clean of it ("seen from its light side only"). The middle tag of a 3 x 3 grid has a light
+interior, the others a dark one: each of its edges lies on a board line between two edges
+that see their dark side, and the line's one cubic through the three places it. Noise-free,
+its corners are the truth to the render's sampling (K = 16, as
+test_blurred_tag_corners_from_the_whole_edges; measured: the middle tag's 0.0006 px RMS, the
+others' 0.0009); the middle tag's own edges alone are not enough (a grid without board lines
+drops them)'''
     cells = np.zeros((9, 8, 8), bool)
     cells[4, 1:7, 1:7] = True
     img, Q, grid = _tag_grid(2.8, cells=cells)
