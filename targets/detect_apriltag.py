@@ -229,7 +229,8 @@ its window, keeps pupil_apriltags' position'''
     return out
 
 
-def _refine_blurred(img, used, refined, blur, target, value_range, quad_decimate=1):
+def _refine_blurred(img, used, refined, blur, target, value_range, quad_decimate=1,
+                    line_reference=None):
     r'''The corners of a blurred image from the tags' whole border edges
 (targets.tag_edges), started from the window fit's corners where it kept them (the blur's
 quick look's few) and from pupil_apriltags' elsewhere; the CornerFit, its info the blur's
@@ -253,7 +254,8 @@ and the edge model's'''
     fit = refine_tag_edges(img, start, blur["psf_sigma_px"], blur.get("psf_kind", "gaussian"),
                            bits=bits, grid=grid, gap_bits=gap_bits, value_range=value_range,
                            choose_kind=blur.get("psf_source") == "estimated",
-                           start_error_px=MAX_CORNER_SHIFT_PX * max(1.0, float(quad_decimate)))
+                           start_error_px=MAX_CORNER_SHIFT_PX * max(1.0, float(quad_decimate)),
+                           line_reference=line_reference)
     fit.info.update({k: v for k, v in blur.items() if k.startswith("psf_") and k not in fit.info})
     return fit
 
@@ -306,7 +308,7 @@ counts of the tags left out by reason'''
 
 def detect_apriltags(image, target, *, max_hamming=1, min_found=4, quad_decimate=None,
                      quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25, refine=True,
-                     psf_sigma_px=None):
+                     psf_sigma_px=None, line_reference=None):
     r'''Detect an AprilTag grid; see the module docstring
 
 SYNOPSIS
@@ -330,6 +332,11 @@ ARGUMENTS
   campaign's response profile); 0: a sharp image (no blur look: ~6 ms of CPU less per
   image, the same corners as the look's on a sharp image); None (default): estimated from
   the image (targets.corners.estimate_blur); info["psf_sigma_px"] has the value used
+- line_reference: the board lines' shape for a blurred image's tag edges
+  (targets.tag_edges.refine_tag_edges; targets.tag_edges.camera_line_reference(model,
+  Rt_cam_board, tag bit in metres) from a camera model and the board's pose, e.g. a
+  calibration's): each corner's span judged by, and its model error taken off with, that
+  shape instead of the image's own first pass; None (default): the image's alone
 '''
     if target.kind != "apriltag":
         return failed(target, f"detect_apriltags() needs an apriltag target; got "
@@ -360,7 +367,7 @@ ARGUMENTS
             if psf_sigma_px:
                 fit = _refine_blurred(img, used, None, {"psf_sigma_px": float(psf_sigma_px),
                                                         "psf_source": "given"}, target,
-                                      hi - lo)
+                                      hi - lo, line_reference=line_reference)
             else:
                 fit = refine_tag_corners(img, np.array([c for _, c in used]),
                                          value_range=hi - lo, psf_sigma_px=psf_sigma_px,
@@ -369,7 +376,7 @@ ARGUMENTS
                     if not last:
                         continue
                     fit = _refine_blurred(img, used, fit.q.reshape(-1, 4, 2), fit.info,
-                                          target, hi - lo, quad_decimate)
+                                          target, hi - lo, quad_decimate, line_reference)
             refined = fit.q.reshape(-1, 4, 2)
             used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
         break

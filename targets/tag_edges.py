@@ -37,25 +37,40 @@ realistic blur; 3e-4 - 6e-4 px on the MER hazcams) towards its centre of curvatu
 tabulated per blur on a grid of x and of the edge's angle (the pixel's projected width
 depends on it) and interpolated linearly (errors ~1e-5 of the contrast).
 
-That shift taken off the fitted curves (d0 -= 4 V d2 / L^2, d1 -= 12 V d3 / L^2; h-tag16c,
-commit 1ac8593, reverted in the next): noise-free blurred corners of MER hazcam 17 as
-CAHVORE had offsets across their edges regressing on the edge's curvature with slope 0.27-
-0.32 px^2, after it ~0; jpl's projection difference there (bench_corner_campaign.py
---response blur, 4 seeds) 0.00244 -> 0.00207 px; realistic AprilTag / dots projection
-ratio 17 CAHVORE 1.43 -> 1.33, blur-wide 1.87 -> 1.80, 8 CAHVORE 1.41 -> 1.43, the rest
-within 0.02. Reverted because on fisheyes (hazcam 8; tests/test_tag_edges_fisheye.py's
-camera) and on a constructed barrel the corners carry a second offset, -0.4 to -1 kappa
-px^2, that cancelled part of it: the curves match the truth (+V kappa / 2) in the middle
-of an edge fitted alone but fall off towards its ends, where the cubic is extrapolated
-~3 px past its last pixels (not the blur: the same at sigma 0.5, 0.7 and 1.0; it moves
-with SAFETY_PX); taken off alone, the fisheye's near pose went 0.00165 -> 0.00188 px RMS
-and hazcam 8's blur-only projection difference 0.00183 -> 0.00196 px (the barrel: 1ac8593's
-tests/test_tag_edges.py, _tag_grid's k1). Not its cause (checked on the barrel, each edge
-refitted by least squares outside the kernels): F at each pixel's local
-angle (the chord's turned by the edge's slope, ~kappa L / 2 rad at the ends) instead of the
-chord's halves the residuals near the ends (5.3e-4 / 4.9e-4 -> 2.8e-4 / 2.6e-4 of the
-contrast, dark / light side) but moves the ends' offsets only from -0.66 / -1.8 to -0.57 /
--1.46 kappa px^2 (median over 25 edges); the middle's stays +0.2 - +0.5 (V / 2 = 0.33).
+That shift and the span's own model error (below) are taken off together where the board
+lines' shape is known without the image's noise (line_reference: camera_line_reference from
+a camera model and the board's pose, e.g. a first calibration's; _unbent, _span_choice).
+Either alone leaves the other (noise-free blurred corners, bench_corners' area renders, 6
+poses, RMS px: MER hazcam 8 0.00079, the shift alone 0.00090, the span's error alone 0.00075,
+both 0.00072; hazcam 17 as CAHVORE 0.00099, 0.00091, 0.00091, 0.00079; the last three with
+the adjacent edges' curve clearance tried below, which changed nothing): h-tag16c's
+"end-offset" (the corners -0.4 to -1 kappa px^2 off where the shift alone is taken off) is
+the span's model error. A polynomial over a span cannot follow all of a bent board line; a
+cubic fitted to the true line of a constructed barrel's edges over the pixels' span
+(tests/test_tag_edges.py _barrel_tag_grid) and extrapolated to the corners (~3 px) misses
+them by -0.62 kappa px^2 (k1 = -3.5e-6) and -1.18 (k1 = -7e-6): the truth's quartic term,
+second order in the distortion, not the blur nor the pixels. On the quick cameras a cubic
+over one edge misses by little (5e-5 px RMS on hazcam 17), the long spans (the edge with its
+board line's neighbours) by more, and the first pass's estimate of that error (from its own
+curves, _span_choice) is as noisy as the corners. With the shape known, the long spans are
+chosen and their error taken off: realistic corners of hazcam 17 as CAHVORE 0.00475 ->
+0.00366 px RMS (the true model and pose; 6 poses). In a calibration the shape comes from a
+first fit: jpl on the realistic renders (bench_corners' 6 poses of each camera in its own
+family, 4 noise seeds, pooled as bench_corner_campaign.py does), AprilTag / dots residual /
+projection difference RMS ratio, detected as before -> re-detected with the first fit's
+model and surveyed poses (weak edges then dropped, place_weak_edges) and refitted (a third
+pass changes nothing): navcam 15 CAHVOR 0.70 / 0.54 -> 0.58 / 0.42, hazcam 17 CAHVORE 0.86 /
+1.78 -> 0.57 / 0.88, hazcam 8 CAHVORE 1.12 / 1.31 -> 0.78 / 0.91, blur-wide-1024 CAHVOR
+0.77 / 2.14 -> 0.62 / 1.37 (per seed 0.58, 1.45, 0.58, 1.89: still above 1). h-tag16d, a
+script outside the harness (harness.stages' detect, observations_from, calibrate_stage and
+compare_stage twice): the campaign's calibrators do not re-detect yet. Tried and
+left out: the shape from a local map of the image's own corners (a homography and a degree-5
+polynomial over the 5 x 5 tags round an edge): it cannot follow the hazcams' lines (its
+cubic misfit at the ends 4.7e-4 px RMS off the truth's 5e-5 on hazcam 17, from exact
+corners) and made every corner worse (hazcam 8 0.00078 -> 0.0078 px RMS); the adjacent
+edges' clearance measured from their fitted curves instead of their chords (a bent edge
+leaves its chord at the corner by kappa L / 2): no change (0.00078 -> 0.00079, 0.00099 ->
+0.00099).
 
 Board lines. An AprilGrid's tags stand in rows and columns: edge k of a tag lies on the
 same board line as edge k of its row's (k = 0, 2) or column's (k = 1, 3) neighbours
@@ -89,7 +104,18 @@ only": ~40% of camera 17's edges). Such a weak edge's pixels (its light side, cl
 data row) still join its board line's fits, and it is placed, its corners kept, only on
 the one cubic through it and both neighbours where that fit sees the dark side beyond both
 its ends (_sees_dark: interpolated between dark sides, not extrapolated); elsewhere it is
-dropped with that reason. Modelling the data row's light instead (F(x) - gl F(x - wl),
+dropped with that reason. Not where a line_reference is given (place_weak_edges): their
+corners carry a model error none of the corrections here remove, 0.0018-0.0019 px RMS
+noise-free on hazcam 17 as CAHVORE against 0.0005-0.0007 for the others' (84 of 646
+corners, blurred, 6 poses); jpl on those blurred renders, AprilTag projection difference
+0.00358 -> 0.00211 px without them (dots 0.00106), with a first fit's line_reference 0.00254
+-> 0.00100; realistic (bench_corners' 6 poses, 4 noise seeds), AprilTag / dots ratio with
+the line reference 0.66 / 1.15 -> 0.57 / 0.88. Without a reference they are kept: the
+campaign (bench_corner_campaign.py --response realistic --seeds 0-3 --cameras 17) without
+them went 0.78 / 0.89 -> 0.71 / 0.78 as CAHVOR but 0.82 / 1.43 -> 0.80 / 1.94 as CAHVORE
+(every seed's projection ratio up: the fit loses the corners where the bits are smallest).
+The other quick cameras and blur-wide-1024 have none. Modelling the data row's light
+instead (F(x) - gl F(x - wl),
 the cells placed by the tag's homography; commits 73e4c2b, fdce4a3, reverted) kept 854 of
 864 corners, but their model error under the hazcam's distortion (0.0016 px RMS on blur
 without noise, against 0.0009 for the corners kept without it) raised the realistic
@@ -313,7 +339,8 @@ def _neighbours(grid, N):
 
 def refine_tag_edges(image, Q, sigma, kind="gaussian", *, bits=None, grid=None, gap_bits=2.4,
                      value_range=None, passes=2, max_misfit=MAX_MISFIT,
-                     min_contrast=MIN_CONTRAST, choose_kind=False, start_error_px=None):
+                     min_contrast=MIN_CONTRAST, choose_kind=False, start_error_px=None,
+                     line_reference=None, place_weak_edges=None):
     r'''Corners of AprilTags from their four whole border edges; see the module docstring
 
 ARGUMENTS
@@ -329,6 +356,18 @@ ARGUMENTS
 - start_error_px: the most the first pass's corners may move from Q (default
   MAX_CORNER_SHIFT_PX; the passes after it keep to MAX_CORNER_SHIFT_PX of the previous
   pass's corners): a detector's coarse corners may err by more
+- line_reference: None, or a callable (ik (m,2) each edge's tag and edge index, qs (m,2)
+  its chord's start, es, ns (m,2) its direction and normal into the tag, Ls (m,) its length;
+  grid=, gap_bits= as given here) -> (m,6) the board line through each edge as a quintic
+  s(tau) in that frame, NaN rows where unknown: a shape known without the image's noise (the
+  camera model and the board's pose, camera_line_reference). _span_choice then judges each
+  candidate span by its bias under it and takes that bias off the corner, and the blur's
+  shift of a bent edge is taken off each curve (_unbent); see the module docstring
+- place_weak_edges: True: an edge seen from its light side only is placed on the cubic
+  through it and its board line's neighbours where they see their dark side beyond both its
+  ends (_sees_dark); False: its corners are dropped with that reason; None (default): placed
+  unless a line_reference is given (see the module docstring: with one, their model error is
+  most of what is left of hazcam 17's)
 - choose_kind: True: (sigma, kind) is an estimate, a start: sigma is fitted on the edges
   and the kind chosen among targets.corners.PSF_KINDS (the others started at the sigma of
   the same variance, _same_variance) by the first pass's squared misfit summed over the
@@ -341,6 +380,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
 '''
     img = np.asarray(image)
     H, W = img.shape
+    if place_weak_edges is None:
+        place_weak_edges = line_reference is None
     Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
     N = len(Q)
     if bits is not None:
@@ -402,11 +443,14 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # (_span_choice: bias^2 + variance from the first pass's curves and noise): the edge
         # alone, with its board line's neighbour beyond that corner (NEIGHBOUR_REACH of it),
         # or with all its board line's neighbours (CANDIDATES)
-        choice = {}
+        choice, end_bias = {}, {}
         if last and npass > 0:
-            choice = _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits,
-                                  (pix, piy, pt, ps, off), grid,
-                                  _weights(line, img[piy, pix]))
+            choice, end_bias = _span_choice(own, start, weak, nbrs, q, curved, table, noise,
+                                            gap_bits, (pix, piy, pt, ps, off), grid,
+                                            _weights(line, img[piy, pix]),
+                                            None if line_reference is None else
+                                            functools.partial(line_reference, grid=grid,
+                                                              gap_bits=gap_bits))
         # each fit: (i, k, L, e, n, cubic, start curve, end, weak) and its pieces, (its
         # index, the edge whose pixels, how taken: targets._tag_edge_kernels.PIECE_OWN..,
         # reach px); fit_pixels gathers them all in one pass
@@ -427,8 +471,9 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             members = members_of.get((i, k), [])
             if (i, k) in weak and last:
                 # a weak edge is placed by its board line's neighbours' dark sides only, on
-                # the one cubic through the three (_sees_dark, once its pixels are gathered)
-                if not members:
+                # the one cubic through the three (_sees_dark, once its pixels are gathered),
+                # where asked (place_weak_edges)
+                if not members or not place_weak_edges:
                     why_edge[i, k] = _EDGE_STATUS[2]
                     continue
                 pieces += [(len(geo), m, PIECE_ALL, 0.0) for m in [(i, k)] + members]
@@ -481,12 +526,20 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                 else "no contrast" if not abs(pf[j, 1]) > min_contrast * rng
                 else f"misfit: {mis[j]:.3g} of the contrast")
         keys = zip(gi.tolist(), gk.tolist(), gend.tolist(), strict=True)
-        curves = dict(zip(keys, pf[:, 2:], strict=True))
+        # the board's edges: the fitted curves less the blur's shift of a bent edge
+        dc = pf[:, 2:] if line_reference is None else \
+            _unbent(pf[:, 2:], np.array([g[2] for g in geo]), *blurs[0])
+        curves = dict(zip(keys, dc, strict=True))
         # each edge's curve at its ends 0 and 1 (a fit of both ends, end 2, gives both)
         at_end = np.zeros((N, 4, 2, 4))
         both = gend == 2
-        at_end[gi[both], gk[both], 0] = at_end[gi[both], gk[both], 1] = pf[both, 2:]
-        at_end[gi[~both], gk[~both], gend[~both]] = pf[~both, 2:]
+        at_end[gi[both], gk[both], 0] = at_end[gi[both], gk[both], 1] = dc[both]
+        at_end[gi[~both], gk[~both], gend[~both]] = dc[~both]
+        # each end's curve less its fit's model error there (_span_choice's board map: the
+        # bend of the board line that the fit's polynomial cannot follow)
+        for (i, k), bb in end_bias.items():
+            at_end[i, k, 0, 0] -= bb[0]
+            at_end[i, k, 1, 0] -= bb[1]
         good = np.isfinite(mis) & ok
         # the next pass's measure of the image's noise: the edges' median misfit (RMS over
         # the contrast; each edge alone, noise-free a quadratic's model error), and how it
@@ -616,7 +669,7 @@ def _powers(tau, n):
 
 
 def _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits, pixels, grid=None,
-                 weights=None):
+                 weights=None, line_reference=None):
     r'''{(i, k): (choice at corner k, choice at corner k+1)}, each a (span, degree) of
 CANDIDATES: the fit of each edge (not weak) with the least expected squared error of its
 corner across the edge, bias^2 + variance
@@ -775,6 +828,9 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
         V = _powers(tau_s[sel].reshape(len(sel), -1), D + 1) * w[..., None]
         R[sel, :D + 1] = np.linalg.solve(V.transpose(0, 2, 1) @ V, V.transpose(0, 2, 1))
     ref = np.einsum("nks,ns->nk", R, v_s.reshape(Ne, -1))
+    mapped = None
+    if line_reference is not None:
+        mapped = np.asarray(line_reference(ik, qs, es, ns, Ls), dtype=np.float64)
     # the samples' sensitivity to each curve's (d0, d1, d2), across this edge's frame
     dS = (proj * use)[..., None, None] * Vs[None, None]
     # the bias pooled over the same edge of the tags round it (a 3 x 3 block of the grid):
@@ -793,6 +849,7 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
              "line": lambda end: (m_all, use[:, 0] & has.any(1) & covered)}
     combos = [(end, span, deg) for end in (0, 1) for span, deg in CANDIDATES]
     risk = np.full((len(combos), Ne), np.inf)
+    mbias = np.full((len(combos), Ne), np.nan)
     for deg in sorted({c[2] for c in combos}):
         sel = [i for i, c in enumerate(combos) if c[2] == deg]
         M, ok = (np.stack(x) for x in zip(*[spans[combos[i][1]](combos[i][0]) for i in sel],
@@ -814,14 +871,74 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
         b2 = np.where(ok & np.isfinite(bias * bvar), bias * bias - bvar, 0.0)
         nok = ok @ pool.T
         b2 = np.where(nok > 0, (b2 @ pool.T) / np.where(nok > 0, nok, 1.0), 0.0)
+        if mapped is not None:
+            # the given reference's bias where it has one: taken off the corner (the risk
+            # left is its error, a fraction of it), else the first pass's estimate as before
+            have = np.isfinite(mapped).all(-1)
+            mb = (h * np.where(have[:, None], mapped, 0.0)).sum(-1)
+            mbias[sel] = np.where(have, mb, np.nan)
+            b2 = np.where(have, (REFERENCE_BIAS_LEFT * mb) ** 2, b2)
         risk[sel] = np.where(ok & (var > 0), np.maximum(b2, 0.0) + var, np.inf)
     out = {}
     n = len(CANDIDATES)
     pick = [np.argmin(risk[n * end:n * (end + 1)], axis=0) for end in (0, 1)]
     fine = np.isfinite(risk[:n].min(0)) & np.isfinite(risk[n:].min(0))
+    biases = {}
     for j in np.flatnonzero(fine):
         out[keys[j]] = (CANDIDATES[pick[0][j]], CANDIDATES[pick[1][j]])
-    return {key: v for key, v in out.items() if key not in weak}
+        bb = (mbias[pick[0][j], j], mbias[n + pick[1][j], j])
+        if mapped is not None and np.isfinite(bb).all() and keys[j] not in weak:
+            biases[keys[j]] = bb
+    if mapped is not None:
+        # a weak edge is placed by the cubic over its board line (refine_tag_edges)
+        c = CANDIDATES.index(("line", 3))
+        for j in [row[key] for key in weak if key in row]:
+            bb = (mbias[c, j], mbias[n + c, j])
+            if np.isfinite(bb).all():
+                biases[keys[j]] = bb
+    return {key: v for key, v in out.items() if key not in weak}, biases
+
+
+# the fraction of a reference's bias taken as the risk left once it is taken off
+# (_span_choice with a line_reference: the reference's own error)
+REFERENCE_BIAS_LEFT = 0.25
+
+
+def camera_line_reference(model, Rt_cam_board, bit_m, Rt_ref_board=None):
+    r'''A line_reference for refine_tag_edges from a camera model and the board's pose: each
+edge's board line (the grid's tag pitch 8 + gap_bits bits of bit_m metres, the tags'
+corners as targets.boards' AprilGrid) projected at _REFERENCE_LAMBDA (past both board line
+neighbours) and fitted by a quintic in the edge's chord frame. Rt_ref_board: the board's
+pose in the model's world frame (a calibration's survey) instead of Rt_cam_board composed
+with the model's Rt_ref_cam'''
+    from reference_models.poseutils import transform_point_Rt
+
+    from .centroids import board_to_ref
+
+    def reference(ik, qs, es, ns, Ls, grid, gap_bits):
+        ik = np.asarray(ik).reshape(-1, 2)
+        g = np.asarray(grid).reshape(-1, 2)[ik[:, 0]]
+        B = g[:, None, :] * (8.0 + gap_bits) + _TAG_CORNERS[None]
+        b0 = B[np.arange(len(ik)), ik[:, 1]]
+        b1 = B[np.arange(len(ik)), (ik[:, 1] + 1) % 4]
+        b = b0[:, None] + _REFERENCE_LAMBDA[None, :, None] * (b1 - b0)[:, None]
+        P = np.concatenate((b * bit_m, np.zeros(b.shape[:-1] + (1,))), -1).reshape(-1, 3)
+        ref = board_to_ref(model, Rt_cam_board, P) if Rt_ref_board is None else \
+            transform_point_Rt(np.asarray(Rt_ref_board, dtype=np.float64), P)
+        p = np.asarray(model.project(ref)).reshape(b.shape)
+        p = p - np.asarray(qs)[:, None]
+        out = np.full((len(ik), 6), np.nan)
+        for j in range(len(ik)):
+            if np.isfinite(p[j]).all():
+                out[j] = np.polynomial.polynomial.polyfit(
+                    2.0 * (p[j] @ es[j]) / Ls[j] - 1.0, p[j] @ ns[j], 5)
+        return out
+    return reference
+
+
+# the board line's samples of camera_line_reference: board positions along the edge from its
+# corner k (0) to k+1 (1), past both neighbours (gap 2.4 bits: a neighbour spans 1.3 - 2.3)
+_REFERENCE_LAMBDA = np.linspace(-1.45, 2.45, 40)
 
 
 def _sees_dark(t, s, L, d):
@@ -1028,6 +1145,27 @@ level alike to first order (by -c1), the light level a takes it up.'''
     c0, c1, scale, lo, hi = (1.0, 0.0, 1.0, -np.inf, np.inf) if line is None else line
     return pixel_weights(np.asarray(v, dtype=np.float64), float(c0), float(c1), float(scale),
                          float(lo), float(hi))
+
+
+def _unbent(d, L, sigma, kind):
+    r'''(m,4) the board edges' curves (d0..d3 in each edge's chord frame of length L (m,)
+px) under the fitted curves d (m,4) of an image blurred by (sigma, kind)
+
+Why. F is a straight edge's blurred profile. A pixel next to an edge bent by s''(t) (t px
+along the chord) integrates the dark side over the kernel's spread along the edge too (the
+pixel's square and the blur: variance V = sigma^2 + _KIND_VARIANCE[kind] along any
+direction), where the edge has left its tangent by s'' Z_t^2 / 2: to first order in s''
+the pixel reads F(x - V s'' / 2), and the fitted curve is the edge moved towards its centre
+of curvature by V s'' / 2 (a blurred disc's half-level contour shrinks by V / 2R). With
+s = d(tau), tau = 2 t / L - 1, s'' = 4 / L^2 (2 d2 + 6 d3 tau): d0 and d1 take
+-2 V / L^2 (2 d2) and -2 V / L^2 (6 d3) (the shift's own bend is of second order in s'').
+Applied with a line_reference only (the module docstring: alone it is partly cancelled by the
+span's model error, which only a known line shape takes off).'''
+    c = 2.0 * (sigma * sigma + _KIND_VARIANCE[kind]) / np.asarray(L, dtype=np.float64) ** 2
+    out = np.array(d, dtype=np.float64, copy=True)
+    out[:, 0] -= c * 2.0 * out[:, 2]
+    out[:, 1] -= c * 6.0 * out[:, 3]
+    return out
 
 
 def _curve_s(d, tau):
