@@ -832,10 +832,14 @@ project:   x -> (2N,) the projections of the fit's observed points (pose-major)
 model:     x -> the fitted model (a JPL model, OpenCVModel, MrcalModel)
 pose:      (N,) the image of each observed point
 n_model:   the model depends on x[:n_model] only (the rest: board poses)
+chart:     the jpl fit's chart (jpl_fit._Chart, x = its coordinates: the model's
+           derivatives in closed form, jpl_grid_jacobian), or None
 '''
 
-    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None):
+    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None,
+                 chart=None):
         self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
+        self.chart = chart
         self.n_model = len(x0) if n_model is None else n_model
         self._jacobian = jacobian
 
@@ -913,7 +917,240 @@ def jpl_linearisation(res, obs):
                 np.concatenate((x0[:i], y, x0[i + 1:]))), p), x0[i:i + 1], h[i:i + 1])[:, 0]
         return J
     return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h,
-                         jacobian=jacobian)
+                         jacobian=jacobian, chart=chart)
+
+
+# --- the jpl chart's derivatives, analytic -----------------------------------------------
+#
+# The scatter of a jpl fit needs two Jacobians of its model in its chart (jpl_fit._Chart: C,
+# A (2), H, V [, O (2), R1, R2 [, E]]; R0 held): G, of the reported quantities, and Jg, of
+# the projection of the image grid's points (PROJECTION_SAMPLES of them, in the model's own
+# camera frame: _grid_projector). Central differences build 2 x 11-18 stepped models and
+# project the grid through each (the CAHVORE ones through a Newton solve per point): 5-10 ms
+# of a record's ~15. Here both are derived in closed form instead, forward mode through the
+# chart, the camera frame and the projection of reference_models.kernels.project_point
+# (CAHVORE's Newton solve for the angle differentiated implicitly), vectorised over the
+# points: the same derivatives to ~1e-8 relative (the differences' own truncation and
+# rounding; tests/test_verdict.py), in ~1 ms.
+
+def _chart_directions(chart, m):
+    r'''{name: (3, n) d vector / d chart} for A, H, V, O and (n,) rows for C0..2, R1, R2,
+E0..2 of a jpl_fit._Chart at its x0 (model m = chart.model(chart.x0()))'''
+    fam = chart.family
+    n = {"CAHV": 11, "CAHVOR": 15, "CAHVORE": 18}[fam]
+    d = {k: np.zeros((3, n)) for k in ("C", "A", "H", "V", "O")}
+    for k in range(3):
+        d["C"][k, k] = d["H"][k, 5 + k] = d["V"][k, 8 + k] = 1.0
+
+    def unit(base, e, col, u):
+        # u = (base + a e0 + b e1) / |.|: d u / d a = (I - u u^T) e0 / |base|
+        nb = math.sqrt(float(base @ base))
+        for j in range(2):
+            d[u][:, col + j] = (e[j] - u_vec[u] * float(u_vec[u] @ e[j])) / nb
+    u_vec = {"A": np.asarray(m.A, dtype=np.float64)}
+    unit(np.asarray(chart.m0.A, dtype=np.float64), chart.eA, 3, "A")
+    if fam != "CAHV":
+        u_vec["O"] = np.asarray(m.O, dtype=np.float64)
+        unit(np.asarray(chart.m0.O, dtype=np.float64), chart.eO, 11, "O")
+    rows = {}
+    if fam != "CAHV":
+        for i, name in ((13, "R1"), (14, "R2")):
+            rows[name] = np.zeros(n)
+            rows[name][i] = 1.0
+    if fam == "CAHVORE":
+        for i in range(3):
+            rows[f"E{i}"] = np.zeros(n)
+            rows[f"E{i}"][15 + i] = 1.0
+    return d, rows, n
+
+
+def _cross_cols(a, B):
+    r'''a x B[:, j] for every column j: a (3,), B (3, n) -> (3, n)'''
+    return np.stack((a[1] * B[2] - a[2] * B[1], a[2] * B[0] - a[0] * B[2],
+                     a[0] * B[1] - a[1] * B[0]))
+
+
+def _frame_directions(m, d):
+    r'''The camera frame's axes H', A x H' and their (3, n) derivatives, and those of Hc,
+Vc, Hs, Vs, V' ((n,) or (3, n)), from d = _chart_directions()'''
+    A, H, V = (np.asarray(v, dtype=np.float64) for v in (m.A, m.H, m.V))
+    dA, dH, dV = d["A"], d["H"], d["V"]
+    out = {}
+    for name, W, dW in (("H", H, dH), ("V", V, dV)):
+        c = float(W @ A)
+        dc = A @ dW + W @ dA
+        w = W - c * A
+        dw = dW - A[:, None] * dc - c * dA
+        s = math.sqrt(float(w @ w))
+        u = w / s
+        ds = u @ dw
+        out[name] = (c, dc, s, ds, u, (dw - u[:, None] * ds) / s)
+    Hp, dHp = out["H"][4], out["H"][5]
+    Y = np.cross(A, Hp)
+    dY = _cross_cols(A, dHp) - _cross_cols(Hp, dA)
+    return out, Hp, dHp, Y, dY
+
+
+def jpl_grid_jacobian(chart, m, P):
+    r'''(2M, n) d grid / d chart of a jpl fit: _grid_projector(P)(chart.model(x)) at the
+chart's x0 (model m), rows x, y of each point, in closed form; NaN rows where m does not
+project a point (as the differences give NaN)'''
+    d, rows, n = _chart_directions(chart, m)
+    ph, Hp, dHp, Y, dY = _frame_directions(m, d)
+    A, H, V = (np.asarray(v, dtype=np.float64) for v in (m.A, m.H, m.V))
+    dA, dH, dV = d["A"], d["H"], d["V"]
+    P = np.asarray(P, dtype=np.float64)
+    # the point in the model's world frame, less C (C moves the frame and the point alike:
+    # its columns are zero): p = P0 H' + P1 (A x H') + P2 A
+    p = P[:, 0:1] * Hp + P[:, 1:2] * Y + P[:, 2:3] * A                     # (M, 3)
+    dp = (P[:, 0, None, None] * dHp + P[:, 1, None, None] * dY
+          + P[:, 2, None, None] * dA)                                       # (M, 3, n)
+    bad = np.zeros(len(P), dtype=bool)
+    if m.family != "CAHV":
+        O, dO = np.asarray(m.O, dtype=np.float64), d["O"]
+        R = np.asarray(m.R, dtype=np.float64)
+        z = p @ O
+        dz = np.einsum("mkn,k->mn", dp, O) + p @ dO
+        lv = p - z[:, None] * O
+        dl = dp - z[:, None, None] * dO - dz[:, None, :] * O[:, None]
+        dR1, dR2 = rows["R1"], rows["R2"]
+        if m.family == "CAHVOR":
+            tau = np.einsum("mk,mk->m", lv, lv) / (z * z)
+            dtau = 2 * np.einsum("mk,mkn->mn", lv, dl) / (z * z)[:, None] \
+                - 2 * (tau / z)[:, None] * dz
+            mu = R[0] + tau * (R[1] + tau * R[2])
+            dmu = dtau * (R[1] + 2 * tau * R[2])[:, None] + tau[:, None] * dR1 \
+                + (tau * tau)[:, None] * dR2
+            bad |= ~(z > 0)
+            q = p + mu[:, None] * lv
+            dq = dp + dmu[:, None, :] * lv[:, :, None] + mu[:, None, None] * dl
+        else:
+            E, L = np.asarray(m.E, dtype=np.float64), float(m.linearity)
+            ln = np.sqrt(np.einsum("mk,mk->m", lv, lv))
+            with np.errstate(all="ignore"):
+                dln = np.where(ln[:, None] > 0,
+                               np.einsum("mk,mkn->mn", lv, dl) / ln[:, None], 0.0)
+            th = _solve_theta_vec(z, ln, E)
+            s, c = np.sin(th), np.cos(th)
+            t2 = th * th
+            e = E[0] + t2 * (E[1] + t2 * E[2])
+            de = th * (2.0 * E[1] + 4.0 * E[2] * t2)
+            dF = z * c + ln * s - (1.0 - c) * e - (th - s) * de         # dF / dtheta
+            # F = z sin - l cos - (theta - sin) e(theta) = 0: dtheta = -dF/dx / dF/dtheta
+            num = s[:, None] * dz - c[:, None] * dln
+            w = -(th - s)
+            for i in range(3):
+                num = num + (w * t2 ** i)[:, None] * rows[f"E{i}"]
+            dth = -num / dF[:, None]
+            if L > 1e-15:
+                chi = np.tan(L * th) / L
+                dchi = 1.0 / np.cos(L * th) ** 2
+            elif L < -1e-15:
+                chi = np.sin(L * th) / L
+                dchi = np.cos(L * th)
+            else:
+                chi, dchi = th, np.ones_like(th)
+            dchi = dchi[:, None] * dth
+            bad |= ~(th * abs(L) <= math.pi / 2)
+            small = th <= 1e-8
+            with np.errstate(all="ignore"):
+                zp = np.where(small, z, ln / chi)
+                dzp = np.where(small[:, None], dz,
+                               dln / chi[:, None] - (ln / (chi * chi))[:, None] * dchi)
+                c2 = chi * chi
+                mu = np.where(small, 0.0, R[0] + c2 * (R[1] + c2 * R[2]))
+                dmu = np.where(small[:, None], 0.0,
+                               (2 * chi * (R[1] + 2 * c2 * R[2]))[:, None] * dchi
+                               + c2[:, None] * dR1 + (c2 * c2)[:, None] * dR2)
+            q = zp[:, None] * O + (1.0 + mu)[:, None] * lv
+            dq = (dzp[:, None, :] * O[:, None] + zp[:, None, None] * dO
+                  + dmu[:, None, :] * lv[:, :, None] + (1.0 + mu)[:, None, None] * dl)
+    else:
+        q, dq = p, dp
+    qa = q @ A
+    bad |= ~(qa > 0)
+    dqa = np.einsum("mkn,k->mn", dq, A) + q @ dA
+    J = np.empty((len(P), 2, n))
+    for j, (W, dW) in enumerate(((H, dH), (V, dV))):
+        x = (q @ W) / qa
+        J[:, j] = (np.einsum("mkn,k->mn", dq, W) + q @ dW - x[:, None] * dqa) / qa[:, None]
+    J[bad] = np.nan
+    return J.reshape(2 * len(P), n)
+
+
+def _solve_theta_vec(zeta, l, E):
+    r'''reference_models.kernels._solve_theta for arrays: Newton from atan2(l, zeta), each
+point stopped at its own first step below NEWTON_TOLERANCE (the kernel's iterates)'''
+    from reference_models.cahvore import NEWTON_MAX_ITERATIONS, NEWTON_TOLERANCE
+    th = np.arctan2(l, zeta)
+    act = np.ones(th.shape, dtype=bool)
+    e0, e1, e2 = (float(v) for v in E)
+    with np.errstate(all="ignore"):
+        for _ in range(NEWTON_MAX_ITERATIONS):
+            t, z, ll = th[act], zeta[act], l[act]
+            s, c = np.sin(t), np.cos(t)
+            t2 = t * t
+            e = e0 + t2 * (e1 + t2 * e2)
+            de = t * (2.0 * e1 + 4.0 * e2 * t2)
+            f = z * s - ll * c - (t - s) * e
+            df = z * c + ll * s - (1.0 - c) * e - (t - s) * de
+            step = f / df
+            th[act] = t - step
+            idx = np.flatnonzero(act)
+            act[idx[~(np.abs(step) > NEWTON_TOLERANCE)]] = False
+            if not act.any():
+                break
+    return th
+
+
+def jpl_quantity_jacobian(chart, m, ref, names, theta_estimated):
+    r'''(len(names), n) d _signed_quantities(ref, chart.model(x)) / d chart at the chart's x0
+(model m), in closed form; None when a name is not one this knows (the caller then
+differences stepped models)'''
+    from .compare import _truth_side
+    d, rows, n = _chart_directions(chart, m)
+    ph, Hp, dHp, Y, dY = _frame_directions(m, d)
+    fam = m.family
+    has_O = fam != "CAHV" and ref.family != "CAHV"
+    fit_R0 = float(m.R[0]) if fam != "CAHV" else 0.0
+    t, t_ph, traw, _ = _truth_side(ref, fit_R0 if has_O else None, fam == "CAHV")
+    truth_R0 = float(ref.R[0]) if ref.family != "CAHV" else 0.0
+    A = np.asarray(m.A, dtype=np.float64)
+    Hc, dHc, Hs, dHs, _, _ = ph["H"]
+    Vc, dVc, Vs, dVs, Vp, dVp = ph["V"]
+    known = {"Hc": dHc, "Vc": dVc}
+    for k, ds, ts, traw_s in (("Hs", dHs, t_ph.Hs, traw.Hs), ("Vs", dVs, t_ph.Vs, traw.Vs)):
+        if ts != 0:
+            known[k] = ds / abs(ts)
+        tr = traw_s * (1 + truth_R0)
+        if tr != 0:
+            known[f"{k}*(1+R0)"] = ds * (1 + fit_R0) / abs(tr)
+    if theta_estimated:
+        c = float(np.dot(Hp, Vp))
+        if abs(c) < 1.0:
+            known["theta_deg"] = -math.degrees(1.0) * (Hp @ dVp + Vp @ dHp) / math.sqrt(1 - c * c)
+    for i in range(3):
+        known[f"C_mm[{i}]"] = 1e3 * d["C"][i]
+    e = _tangent_basis_of(np.asarray(ref.A, dtype=np.float64))
+    for i in range(2):
+        known[f"A_deg[{i}]"] = math.degrees(1.0) * (e[i] @ d["A"])
+    if has_O:
+        O, dO = np.asarray(m.O, dtype=np.float64), d["O"]
+        dfit_O = np.stack((O @ dHp + Hp @ dO, O @ dY + Y @ dO, O @ d["A"] + A @ dO))
+        e = _tangent_basis_of(_truth_side(ref, fit_R0, False)[3])
+        for i in range(2):
+            known[f"O_deg[{i}]"] = math.degrees(1.0) * (e[i] @ dfit_O)
+        known["R0"] = known["R0_frac"] = np.zeros(n)
+        for i in (1, 2):
+            known[f"R{i}"] = rows[f"R{i}"]
+            if float(t.R[i]) != 0:
+                known[f"R{i}_frac"] = rows[f"R{i}"] / abs(float(t.R[i]))
+    for i in range(3):
+        if f"E{i}" in rows:
+            known[f"E{i}"] = rows[f"E{i}"]
+    if any(k not in known for k in names):
+        return None
+    return np.stack([known[k] for k in names])
 
 
 def _rodrigues(r):
@@ -1165,10 +1402,17 @@ projection difference (the rotation's own freedom projected out).
         q = _signed_quantities(ref, m, theta, world)
         return np.array([q.get(k, 0.0) for k in names])
     P = projection_points(truth)
-    # the model's Jacobians in one pass over its stepped models: the reported quantities
-    # (G) and the projection of the image grid (Jg); then the fit's own Jacobian J
+    # the model's Jacobians: the reported quantities (G) and the projection of the image
+    # grid (Jg), in closed form for a jpl fit (jpl_quantity_jacobian, jpl_grid_jacobian),
+    # otherwise in one pass over its stepped models; then the fit's own Jacobian J
+    G = None
     with np.errstate(all="ignore"):
-        G, Jg = lin.model_jacobians([qvec, _grid_projector(P)])  # (m, n_model), (2M, n_model)
+        if lin.chart is not None:
+            G = jpl_quantity_jacobian(lin.chart, m0, ref, names, theta)
+            if G is not None:
+                Jg = jpl_grid_jacobian(lin.chart, m0, P)
+        if G is None:                                            # (m, n_model), (2M, n_model)
+            G, Jg = lin.model_jacobians([qvec, _grid_projector(P)])
         J = lin.jacobian()                                       # (2N, n)
     # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
     # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
@@ -1306,7 +1550,8 @@ def z_scores(renderer, sigma):
 # its dof. Two kinds sit there: exact redundancies of the reported quantities (R1 and
 # R1_frac, Hs and Hs*(1+R0): 0 up to rounding; the unit vectors A and O are reported by
 # their two tangent components, _unit_components) and what the covariance cannot
-# resolve. G's columns are central differences with steps 1e-6 of each parameter, so
+# resolve. G's columns are central differences with steps 1e-6 of each parameter (a jpl
+# fit's are in closed form, jpl_quantity_jacobian: rounding only), so
 # they carry a relative rounding error of about
 # 2.2e-16 / 1e-6 = 2e-10; the correlation matrix inherits ~1e-10 per entry and its
 # eigenvalues ~m x 1e-10 (m ~ 25 quantities): ~3e-9. The cut sits a factor 3 above that:

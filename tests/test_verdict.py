@@ -5,6 +5,8 @@ disturbance (a constant shift of every detection, or seeded noise), so what
 the renderer comparison must find is known.
 '''
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -648,3 +650,98 @@ def test_variances_are_sums_of_squares_in_an_ill_conditioned_direction():
     assert v[0] > 0
     assert abs(v[0] - exact) <= 1e-5 * exact
     assert abs(v[1] - float(D @ (f * f))) <= 1e-12 * v[1]
+
+
+def _perturbed(m, rng, scale=1e-4):
+    r'''m with its vectors moved by ~scale (relative): a fit near the model, neither the
+truth nor exactly on a symmetry'''
+    from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
+
+    def mv(v):
+        v = np.asarray(v, dtype=np.float64)
+        return v + scale * np.linalg.norm(v) * rng.standard_normal(3)
+    kw = dict(C=mv(m.C) + 1e-3, A=mv(m.A), H=mv(m.H), V=mv(m.V), width=m.width,
+              height=m.height)
+    if m.family == "CAHV":
+        return CAHV(**kw)
+    kw.update(O=mv(m.O), R=np.asarray(m.R) * (1 + scale * rng.standard_normal(3)))
+    if m.family == "CAHVOR":
+        return CAHVOR(**kw)
+    return CAHVORE(E=np.asarray(m.E) + scale * rng.standard_normal(3),
+                   model_type=m.model_type, linearity=m.linearity, **kw)
+
+
+def _camera(case):
+    r'''(truth, fit) of one of CHART_CASES'''
+    return _cameras()[CHART_CASES.index(case)]
+
+
+CHART_CASES = ("15 CAHV", "13 CAHVOR", "17 CAHVOR", "17 CAHVORE", "22 CAHVORE",
+               "17 CAHVORE L=0.0", "17 CAHVORE L=0.5", "17 CAHVORE L=-0.5",
+               "17 CAHVORE L=1.0", "13 CAHVOR theta")
+
+
+@functools.cache
+def _cameras():
+    r'''[(truth, fit)] of CHART_CASES: over the three families: a narrow and a wide camera, CAHVORE
+perspective, fisheye and in between (linearity 1, 0, 0.5 and -0.5), theta off 90 deg'''
+    import dataclasses
+    rng = np.random.default_rng(5)
+    out = []
+    for case in CHART_CASES[:5]:
+        _, truth = stages.camera_truth(*case.split())
+        out.append((truth, _perturbed(truth, rng)))
+    _, t17 = stages.camera_truth("17", "CAHVORE")
+    for L in (0.0, 0.5, -0.5, 1.0):
+        t = dataclasses.replace(t17, linearity=L)
+        out.append((t, _perturbed(t, rng)))
+    # theta 90.05 deg: V' turned in the image plane
+    _, t = stages.camera_truth("13", "CAHVOR")
+    ph = t.photogrammetric()
+    c, s = np.cos(np.radians(0.05)), np.sin(np.radians(0.05))
+    t = t.with_photogrammetric(dataclasses.replace(ph, Vp=c * ph.Vp - s * ph.Hp))
+    out.append((t, _perturbed(t, rng)))
+    return out
+
+
+@pytest.mark.parametrize("case", CHART_CASES)
+def test_closed_form_chart_derivatives_are_the_differences(case):
+    r'''jpl_quantity_jacobian and jpl_grid_jacobian (the scatter of a jpl fit) against central
+differences over stepped models (Linearisation.model_jacobians, steps 1e-6 of each chart
+parameter): the differences' own error is their truncation (~h^2 times the third
+derivative) and rounding (eps |f| / h ~ 1e-10 relative), measured <= 1.2e-6 of a column's
+scale on the paper campaign's jpl records. C moves the frame and the points alike: its
+grid columns are zero in closed form, the differences' rounding (~1e-7 px per m against
+columns of ~1e3 px) elsewhere.'''
+    from harness.calibrators.jpl_fit import _Chart
+    truth, fit = _camera(case)
+    R0 = float(fit.R[0]) if fit.family != "CAHV" else 0.0
+    chart = _Chart(fit.family, fit, getattr(fit, "model_type", None),
+                   getattr(fit, "linearity", None), R0)
+    x0 = chart.x0()
+    lin = verdict.Linearisation(x0, None, chart.model, None, 1e-6 * np.maximum(np.abs(x0), 1.0),
+                                chart=chart)
+    m0 = chart.model(x0)
+    ref = truth     # the exact fit the differences are taken against
+    q0 = verdict._signed_quantities(ref, m0, True, True)
+    names = list(q0)
+
+    def qvec(m):
+        q = verdict._signed_quantities(ref, m, True, True)
+        return np.array([q.get(k, 0.0) for k in names])
+    P = verdict.projection_points(truth)
+    with np.errstate(all="ignore"):
+        G, Jg = lin.model_jacobians([qvec, verdict._grid_projector(P)])
+    Ga = verdict.jpl_quantity_jacobian(chart, m0, ref, names, True)
+    Ja = verdict.jpl_grid_jacobian(chart, m0, P)
+    assert Ga is not None and Ga.shape == G.shape and Ja.shape == Jg.shape
+    assert {"theta_deg", "C_mm[0]", "A_deg[1]"} <= set(names)
+    gs = np.max(np.abs(G), axis=1, keepdims=True)
+    assert np.all(np.abs(Ga - G) <= 1e-6 * gs + 1e-300)
+    ok = np.all(np.isfinite(Jg), axis=1)
+    assert ok.mean() > 0.5
+    assert np.array_equal(ok, np.all(np.isfinite(Ja), axis=1))
+    Jg, Ja = Jg[ok], Ja[ok]
+    assert np.all(Ja[:, :3] == 0) and np.all(np.abs(Jg[:, :3]) <= 1e-9 * np.abs(Jg).max())
+    scale = np.max(np.abs(Jg), axis=0)
+    assert np.all(np.abs(Ja - Jg)[:, 3:] <= 1e-5 * scale[3:])
