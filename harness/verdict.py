@@ -832,14 +832,18 @@ project:   x -> (2N,) the projections of the fit's observed points (pose-major)
 model:     x -> the fitted model (a JPL model, OpenCVModel, MrcalModel)
 pose:      (N,) the image of each observed point
 n_model:   the model depends on x[:n_model] only (the rest: board poses)
-chart:     the jpl fit's chart (jpl_fit._Chart, x = its coordinates: the model's
-           derivatives in closed form, jpl_grid_jacobian), or None
+quantity_jacobian: (m0, ref, names, theta_estimated, qvec) -> (len(names), n_model)
+           d qvec(model(x)) / d x[:n_model] at x0 (m0 = model(x0); qvec: the quantities
+           _signed_quantities names, against ref), where it is known in closed form
+           (jpl_quantity_jacobian), or None (or returning None: stepped models)
+grid_jacobian: P -> (2M, n_model) d _grid_projector(P)(model(x)) / d x[:n_model] at x0,
+           in closed form (jpl_grid_jacobian) or the calibrator's own (mrcal), or None
 '''
 
     def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None,
-                 chart=None):
+                 quantity_jacobian=None, grid_jacobian=None):
         self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
-        self.chart = chart
+        self.quantity_jacobian, self.grid_jacobian = quantity_jacobian, grid_jacobian
         self.n_model = len(x0) if n_model is None else n_model
         self._jacobian = jacobian
 
@@ -850,8 +854,9 @@ where it gives them faster: jpl_linearisation, posed_linearisation)'''
             return self._jacobian()
         return _central_jacobian(self.project, self.x0, self.steps)
 
-    def model_jacobians(self, fs):
-        r'''[d f(model(x)) / d x[:n_model] for f in fs]: each (len(f), n_model)
+    def model_jacobians(self, fs, cols=None):
+        r'''[d f(model(x)) / d x[:n_model] for f in fs]: each (len(f), n_model), or its
+columns cols only (len(f), len(cols))
 
 Central differences, as _central_jacobian takes them (the same numbers), with each
 stepped model built once for every f (and without its geometry's checks:
@@ -860,18 +865,18 @@ as a function of it.'''
         from reference_models.cahvore import checked_once
         n, rest = self.n_model, self.x0[self.n_model:]
         x0, h = self.x0[:n], self.steps[:n]
-        cols = [[] for _ in fs]
-        for i in range(n):
+        out = [[] for _ in fs]
+        for i in (range(n) if cols is None else cols):
             xp, xm = x0.copy(), x0.copy()
             xp[i] += h[i]
             xm[i] -= h[i]
             with checked_once():    # steps of the fitted model, checked by the fit
                 mp = self.model(np.concatenate((xp, rest)))
                 mm = self.model(np.concatenate((xm, rest)))
-            for c, f in zip(cols, fs, strict=True):
+            for c, f in zip(out, fs, strict=True):
                 c.append((np.asarray(f(mp), dtype=np.float64).ravel()
                           - np.asarray(f(mm), dtype=np.float64).ravel()) / (xp[i] - xm[i]))
-        return [np.stack(c, axis=-1) for c in cols]
+        return [np.stack(c, axis=-1) for c in out]
 
 
 def _central_jacobian(f, x0, h):
@@ -917,7 +922,10 @@ def jpl_linearisation(res, obs):
                 np.concatenate((x0[:i], y, x0[i + 1:]))), p), x0[i:i + 1], h[i:i + 1])[:, 0]
         return J
     return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h,
-                         jacobian=jacobian, chart=chart)
+                         jacobian=jacobian,
+                         quantity_jacobian=lambda m0, ref, names, theta, qvec:
+                         jpl_quantity_jacobian(chart, m0, ref, names, theta),
+                         grid_jacobian=lambda P: jpl_grid_jacobian(chart, chart.model(x0), P))
 
 
 # --- the jpl chart's derivatives, analytic -----------------------------------------------
@@ -989,6 +997,27 @@ Vc, Hs, Vs, V' ((n,) or (3, n)), from d = _chart_directions()'''
     Y = np.cross(A, Hp)
     dY = _cross_cols(A, dHp) - _cross_cols(Hp, dA)
     return out, Hp, dHp, Y, dY
+
+
+def _mrcal_directions(lensmodel, intr):
+    r'''_chart_directions' layout for from_mrcal of a mrcal model at the identity pose
+(posed_linearisation), in its intrinsics fx, fy, cx, cy [, alpha, beta, R0, R1, R2 [, E]]:
+H = (fx, 0, cx), V = (0, fy, cy), A = z, C = 0, O = (sin a cos b, sin b, cos a cos b)
+(reference_models.mrcal_convert.from_mrcal). R0's column is left zero: R0 is not held
+(the truth side moves with it), the caller differences it.'''
+    n = len(intr)
+    d = {k: np.zeros((3, n)) for k in ("C", "A", "H", "V", "O")}
+    d["H"][0, 0] = d["H"][2, 2] = d["V"][1, 1] = d["V"][2, 3] = 1.0
+    rows = {}
+    if lensmodel != "LENSMODEL_PINHOLE":
+        a, b = float(intr[4]), float(intr[5])
+        d["O"][:, 4] = (math.cos(a) * math.cos(b), 0.0, -math.sin(a) * math.cos(b))
+        d["O"][:, 5] = (-math.sin(a) * math.sin(b), math.cos(b), -math.cos(a) * math.sin(b))
+        for name, i in (("R1", 7), ("R2", 8), ("E0", 9), ("E1", 10), ("E2", 11)):
+            if i < n:
+                rows[name] = np.zeros(n)
+                rows[name][i] = 1.0
+    return d, rows, n
 
 
 def jpl_grid_jacobian(chart, m, P):
@@ -1107,8 +1136,13 @@ def jpl_quantity_jacobian(chart, m, ref, names, theta_estimated):
     r'''(len(names), n) d _signed_quantities(ref, chart.model(x)) / d chart at the chart's x0
 (model m), in closed form; None when a name is not one this knows (the caller then
 differences stepped models)'''
+    return _quantity_jacobian(*_chart_directions(chart, m), m, ref, names, theta_estimated)
+
+
+def _quantity_jacobian(d, rows, n, m, ref, names, theta_estimated):
+    r'''jpl_quantity_jacobian for the model's derivatives d, rows (_chart_directions' layout)
+in any n parameters that hold R0 (the truth side, ref moved to m's R0, is fixed)'''
     from .compare import _truth_side
-    d, rows, n = _chart_directions(chart, m)
     ph, Hp, dHp, Y, dY = _frame_directions(m, d)
     fam = m.family
     has_O = fam != "CAHV" and ref.family != "CAHV"
@@ -1255,8 +1289,35 @@ regularised, an unknown model type).'''
             J[np.arange(len(rows)), cols[rows]] = (fp - fm) / (xp - xm)[cols[rows]]
         return J
 
-    return Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h, n_model=nth,
-                         jacobian=jacobian)
+    grid_jacobian = quantity_jacobian = None
+    # (the fit's own Jacobian J stays differenced: mrcal.project's derivatives agree with the
+    # differences to 1e-10 of a column, as the differences with steps x2 agree with
+    # themselves, but the near-null direction of mrcal's CAHVOR R0 / focal-length valley
+    # (cameras 1 and 22 of the paper campaign, floor_far) moves their sigmas 10-25% on
+    # such a change, steps x2 itself 1-7%)
+    if cm is not None and jpl:
+        # from_mrcal of a model at the identity pose: its camera frame is the identity
+        # (A = z, H' = x) for every intrinsics, and it projects as mrcal.project (the
+        # paper campaign's mrcal grids: within 2.3e-13 px): the grid's derivatives are
+        # mrcal's own
+        def grid_jacobian(P):
+            dq = mrcal.project(np.ascontiguousarray(P, dtype=np.float64), lensmodel,
+                               intr0, get_gradients=True)[2]
+            return dq.reshape(2 * len(P), nth)
+
+        # the quantities in closed form in every intrinsic but R0, which the truth side
+        # of the differences moves with (ref moved to the fit's R0): that column differenced
+        def quantity_jacobian(m0, ref, names, theta, qvec):
+            G = _quantity_jacobian(*_mrcal_directions(lensmodel, intr0), m0, ref, names,
+                                   theta)
+            if G is not None and lensmodel != "LENSMODEL_PINHOLE":
+                G[:, 6] = lin.model_jacobians([qvec], cols=[6])[0][:, 0]
+            return G
+
+    lin = Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h, n_model=nth,
+                        jacobian=jacobian, quantity_jacobian=quantity_jacobian,
+                        grid_jacobian=grid_jacobian)
+    return lin
 
 
 def linearisation(res, obs):
@@ -1403,16 +1464,20 @@ projection difference (the rotation's own freedom projected out).
         return np.array([q.get(k, 0.0) for k in names])
     P = projection_points(truth)
     # the model's Jacobians: the reported quantities (G) and the projection of the image
-    # grid (Jg), in closed form for a jpl fit (jpl_quantity_jacobian, jpl_grid_jacobian),
-    # otherwise in one pass over its stepped models; then the fit's own Jacobian J
-    G = None
+    # grid (Jg), in closed form where the Linearisation knows them (jpl:
+    # jpl_quantity_jacobian, jpl_grid_jacobian; mrcal: its own grid derivatives and the
+    # quantities but R0's), otherwise in one pass over its stepped models; then the
+    # fit's own Jacobian J
     with np.errstate(all="ignore"):
-        if lin.chart is not None:
-            G = jpl_quantity_jacobian(lin.chart, m0, ref, names, theta)
-            if G is not None:
-                Jg = jpl_grid_jacobian(lin.chart, m0, P)
-        if G is None:                                            # (m, n_model), (2M, n_model)
+        G = None if lin.quantity_jacobian is None else \
+            lin.quantity_jacobian(m0, ref, names, theta, qvec)   # (m, n_model)
+        Jg = None if lin.grid_jacobian is None else lin.grid_jacobian(P)  # (2M, n_model)
+        if G is None and Jg is None:
             G, Jg = lin.model_jacobians([qvec, _grid_projector(P)])
+        elif G is None:
+            G, = lin.model_jacobians([qvec])
+        elif Jg is None:
+            Jg, = lin.model_jacobians([_grid_projector(P)])
         J = lin.jacobian()                                       # (2N, n)
     # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
     # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does

@@ -719,8 +719,7 @@ columns of ~1e3 px) elsewhere.'''
     chart = _Chart(fit.family, fit, getattr(fit, "model_type", None),
                    getattr(fit, "linearity", None), R0)
     x0 = chart.x0()
-    lin = verdict.Linearisation(x0, None, chart.model, None, 1e-6 * np.maximum(np.abs(x0), 1.0),
-                                chart=chart)
+    lin = verdict.Linearisation(x0, None, chart.model, None, 1e-6 * np.maximum(np.abs(x0), 1.0))
     m0 = chart.model(x0)
     ref = truth     # the exact fit the differences are taken against
     q0 = verdict._signed_quantities(ref, m0, True, True)
@@ -745,3 +744,35 @@ columns of ~1e3 px) elsewhere.'''
     assert np.all(Ja[:, :3] == 0) and np.all(np.abs(Jg[:, :3]) <= 1e-9 * np.abs(Jg).max())
     scale = np.max(np.abs(Jg), axis=0)
     assert np.all(np.abs(Ja - Jg)[:, 3:] <= 1e-5 * scale[3:])
+
+
+@pytest.mark.parametrize("model", ["CAHV", "CAHVOR"])
+def test_mrcal_model_jacobians_are_the_differences(navcam, model):
+    r'''A mrcal fit's scatter takes the image grid's derivatives from mrcal.project and the
+quantities' in closed form (but R0's column, differenced: the truth side moves with it):
+against central differences over stepped models (model_jacobians) to the differences'
+own error'''
+    truth, target, poses, obs = navcam
+    res = stages.calibrate_stage("mrcal", obs, target, model, truth, {})
+    lin = verdict.linearisation(res, obs)
+    assert lin.grid_jacobian is not None and lin.quantity_jacobian is not None
+    m0 = lin.model(lin.x0)
+    ref = truth
+    q0 = verdict._signed_quantities(ref, m0, res.theta_estimated, False)
+    names = list(q0)
+
+    def qvec(m):
+        q = verdict._signed_quantities(ref, m, res.theta_estimated, False)
+        return np.array([q.get(k, 0.0) for k in names])
+    P = verdict.projection_points(truth)
+    with np.errstate(all="ignore"):
+        G, Jg = lin.model_jacobians([qvec, verdict._grid_projector(P)])
+    Ga = lin.quantity_jacobian(m0, ref, names, res.theta_estimated, qvec)
+    Ja = lin.grid_jacobian(P)
+    assert Ga is not None and Ga.shape == G.shape and Ja.shape == Jg.shape
+    if model == "CAHVOR":
+        assert {"O_deg[0]", "R1_frac", "R0"} <= set(names)
+    assert np.all(np.abs(Ga - G) <= 1e-6 * np.max(np.abs(G), axis=1, keepdims=True))
+    ok = np.all(np.isfinite(Jg), axis=1)
+    assert ok.all()
+    assert np.all(np.abs(Ja - Jg) <= 1e-6 * np.max(np.abs(Jg), axis=0))
