@@ -836,8 +836,10 @@ quantity_jacobian: (m0, ref, names, theta_estimated, qvec) -> (len(names), n_mod
            d qvec(model(x)) / d x[:n_model] at x0 (m0 = model(x0); qvec: the quantities
            _signed_quantities names, against ref), where it is known in closed form
            (jpl_quantity_jacobian), or None (or returning None: stepped models)
-grid_jacobian: P -> (2M, n_model) d _grid_projector(P)(model(x)) / d x[:n_model] at x0,
-           in closed form (jpl_grid_jacobian) or the calibrator's own (mrcal), or None
+grid_jacobian: P -> (Jg, Jw): Jg (2M, n_model) d _grid_projector(P)(model(x)) /
+           d x[:n_model] at x0, in closed form (jpl_grid_jacobian) or the calibrator's own
+           (mrcal), and Jw (2M, 3) its derivatives in a turn of the points
+           (_projection_sigma), or None
 '''
 
     def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None,
@@ -925,7 +927,8 @@ def jpl_linearisation(res, obs):
                          jacobian=jacobian,
                          quantity_jacobian=lambda m0, ref, names, theta, qvec:
                          jpl_quantity_jacobian(chart, m0, ref, names, theta),
-                         grid_jacobian=lambda P: jpl_grid_jacobian(chart, chart.model(x0), P))
+                         grid_jacobian=lambda P: _split_turns(
+                             jpl_grid_jacobian(chart, chart.model(x0), P, turns=True)))
 
 
 # --- the jpl chart's derivatives, analytic -----------------------------------------------
@@ -1020,11 +1023,16 @@ H = (fx, 0, cx), V = (0, fy, cy), A = z, C = 0, O = (sin a cos b, sin b, cos a c
     return d, rows, n
 
 
-def jpl_grid_jacobian(chart, m, P):
+def jpl_grid_jacobian(chart, m, P, turns=False):
     r'''(2M, n) d grid / d chart of a jpl fit: _grid_projector(P)(chart.model(x)) at the
 chart's x0 (model m), rows x, y of each point, in closed form; NaN rows where m does not
-project a point (as the differences give NaN)'''
+project a point (as the differences give NaN). turns: 3 more columns, the derivatives in
+a turn w of the points in the camera frame (P -> R(w) P: _projection_sigma's)'''
     d, rows, n = _chart_directions(chart, m)
+    if turns:
+        d = {k: np.pad(v, ((0, 0), (0, 3))) for k, v in d.items()}
+        rows = {k: np.pad(v, (0, 3)) for k, v in rows.items()}
+        n += 3
     ph, Hp, dHp, Y, dY = _frame_directions(m, d)
     A, H, V = (np.asarray(v, dtype=np.float64) for v in (m.A, m.H, m.V))
     dA, dH, dV = d["A"], d["H"], d["V"]
@@ -1034,6 +1042,10 @@ project a point (as the differences give NaN)'''
     p = P[:, 0:1] * Hp + P[:, 1:2] * Y + P[:, 2:3] * A                     # (M, 3)
     dp = (P[:, 0, None, None] * dHp + P[:, 1, None, None] * dY
           + P[:, 2, None, None] * dA)                                       # (M, 3, n)
+    if turns:       # d R(w) P / d w_k = e_k x P, in the world frame
+        for k in range(3):
+            c = np.cross(np.eye(3)[k], P)
+            dp[:, :, n - 3 + k] = c[:, 0:1] * Hp + c[:, 1:2] * Y + c[:, 2:3] * A
     bad = np.zeros(len(P), dtype=bool)
     if m.family != "CAHV":
         O, dO = np.asarray(m.O, dtype=np.float64), d["O"]
@@ -1187,6 +1199,11 @@ in any n parameters that hold R0 (the truth side, ref moved to m's R0, is fixed)
     return np.stack([known[k] for k in names])
 
 
+def _split_turns(J):
+    r'''(Jg, Jw) of a grid Jacobian whose last 3 columns are the turns'''
+    return J[:, :-3], J[:, -3:]
+
+
 def _rodrigues(r):
     from reference_models.poseutils import R_from_r as _R_from_r
     return _R_from_r(r)
@@ -1301,9 +1318,12 @@ regularised, an unknown model type).'''
         # paper campaign's mrcal grids: within 2.3e-13 px): the grid's derivatives are
         # mrcal's own
         def grid_jacobian(P):
-            dq = mrcal.project(np.ascontiguousarray(P, dtype=np.float64), lensmodel,
-                               intr0, get_gradients=True)[2]
-            return dq.reshape(2 * len(P), nth)
+            P = np.ascontiguousarray(P, dtype=np.float64)
+            _, dq_dp, dq_di = mrcal.project(P, lensmodel, intr0, get_gradients=True)
+            # the turns of the points (_projection_sigma): d R(w) P / d w_k = e_k x P
+            Jw = np.stack([np.einsum("mij,mj->mi", dq_dp, np.cross(np.eye(3)[k], P)).ravel()
+                           for k in range(3)], axis=-1)
+            return dq_di.reshape(2 * len(P), nth), Jw
 
         # the quantities in closed form in every intrinsic but R0, which the truth side
         # of the differences moves with (ref moved to the fit's R0): that column differenced
@@ -1471,7 +1491,7 @@ projection difference (the rotation's own freedom projected out).
     with np.errstate(all="ignore"):
         G = None if lin.quantity_jacobian is None else \
             lin.quantity_jacobian(m0, ref, names, theta, qvec)   # (m, n_model)
-        Jg = None if lin.grid_jacobian is None else lin.grid_jacobian(P)  # (2M, n_model)
+        Jg, Jw = (None, None) if lin.grid_jacobian is None else lin.grid_jacobian(P)
         if G is None and Jg is None:
             G, Jg = lin.model_jacobians([qvec, _grid_projector(P)])
         elif G is None:
@@ -1512,7 +1532,7 @@ projection difference (the rotation's own freedom projected out).
     for k in VECTOR_PARAMS:
         if k in sigma:
             sigma[k] = math.sqrt(sigma[k])
-    sigma["projection_rms"] = _projection_sigma(m0, P, Jg, R)
+    sigma["projection_rms"] = _projection_sigma(m0, P, Jg, R, Jw)
     # the joint test's covariance adds the renderer resolution (joint_resolution_cov)
     res_cov = joint_resolution_cov(Ninv, s_col, len(lin.pose))[:lin.n_model, :lin.n_model]
     return {"sigma": sigma, "joint": joint_of_fit(names, q0, G, cov + res_cov, ref),
@@ -1561,16 +1581,18 @@ def _variances(R, A):
     return np.einsum("ij,ij->i", B, B)
 
 
-def _projection_sigma(m0, P, Jg, R):
+def _projection_sigma(m0, P, Jg, R, Jw=None):
     r'''Expected RMS px over the points P of the rotation-mode projection difference, from
 Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covariance
-R^T R (scatter)'''
-    project, Rt_ref_cam = _projector(m0), m0.Rt_ref_cam()
+R^T R (scatter); Jw (2M, 3): d grid / d w of a turn R(w) of the points (the
+Linearisation's grid_jacobian), or None: central differences'''
+    if Jw is None:
+        project, Rt_ref_cam = _projector(m0), m0.Rt_ref_cam()
 
-    def rotated(w):
-        return project(transform_point_Rt(Rt_ref_cam, P @ _rodrigues(w).T))
-    with np.errstate(all="ignore"):
-        Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
+        def rotated(w):
+            return project(transform_point_Rt(Rt_ref_cam, P @ _rodrigues(w).T))
+        with np.errstate(all="ignore"):
+            Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
     ok = np.all(np.isfinite(Jg), axis=1) & np.all(np.isfinite(Jw), axis=1)
     Jg, Jw = Jg[ok], Jw[ok]
     M = ok.sum() / 2

@@ -744,6 +744,22 @@ columns of ~1e3 px) elsewhere.'''
     assert np.all(Ja[:, :3] == 0) and np.all(np.abs(Jg[:, :3]) <= 1e-9 * np.abs(Jg).max())
     scale = np.max(np.abs(Jg), axis=0)
     assert np.all(np.abs(Ja - Jg)[:, 3:] <= 1e-5 * scale[3:])
+    # the turns of the points (_projection_sigma's Jw), against its differences (steps 1e-7)
+    Jt = verdict.jpl_grid_jacobian(chart, m0, P, turns=True)
+    assert np.array_equal(Jt[:, :-3], verdict.jpl_grid_jacobian(chart, m0, P), equal_nan=True)
+    assert np.all(np.abs(_turn_differences(m0, P) - Jt[:, -3:])[ok]
+                  <= 1e-5 * np.max(np.abs(Jt[:, -3:][ok]), axis=0))
+
+
+def _turn_differences(m, P):
+    r'''_projection_sigma's central differences of the grid in a turn of the points'''
+    from harness.compare import _projector
+    from reference_models.poseutils import transform_point_Rt
+    project, Rt = _projector(m), m.Rt_ref_cam()
+    with np.errstate(all="ignore"):
+        return verdict._central_jacobian(
+            lambda w: project(transform_point_Rt(Rt, P @ verdict._rodrigues(w).T)),
+            np.zeros(3), np.full(3, 1e-7))
 
 
 @pytest.mark.parametrize("model", ["CAHV", "CAHVOR"])
@@ -768,7 +784,8 @@ own error'''
     with np.errstate(all="ignore"):
         G, Jg = lin.model_jacobians([qvec, verdict._grid_projector(P)])
     Ga = lin.quantity_jacobian(m0, ref, names, res.theta_estimated, qvec)
-    Ja = lin.grid_jacobian(P)
+    Ja, Jw = lin.grid_jacobian(P)
+    assert np.all(np.abs(_turn_differences(m0, P) - Jw) <= 1e-5 * np.max(np.abs(Jw), axis=0))
     assert Ga is not None and Ga.shape == G.shape and Ja.shape == Jg.shape
     if model == "CAHVOR":
         assert {"O_deg[0]", "R1_frac", "R0"} <= set(names)
