@@ -529,11 +529,10 @@ with differencing its projection'''
                                     lin.x0[:lin.n_model], lin.steps[:lin.n_model])
     assert Jg.shape == (2 * len(P), lin.n_model) and np.array_equal(Jg, sep)
     if cal == "jpl":
-        # the fit's own Jacobian in compiled passes (jpl_linearisation) against central
-        # differences of its projection on built models: the compiled chart's A and O may
-        # differ from the built model's by an ulp (~1e-16 rad: ~1e-12 px at f ~ 1e4 px), over
-        # steps of 2e-6 of each parameter: ~1e-6 px per unit, against columns of >= 1 px per
-        # unit of the chart's parameters
+        # the fit's own Jacobian in closed form (jpl_linearisation: jpl_grid_jacobian on its
+        # world points) against central differences of its projection on built models:
+        # their truncation and rounding (measured <= 1.2e-6 of a column's scale against the
+        # compiled differences on the paper campaign's jpl records; here within 1e-6)
         J = lin.jacobian()
         ref = verdict._central_jacobian(lin.project, lin.x0, lin.steps)
         scale = np.max(np.abs(ref), axis=0)
@@ -744,6 +743,15 @@ columns of ~1e3 px) elsewhere.'''
     assert np.all(Ja[:, :3] == 0) and np.all(np.abs(Jg[:, :3]) <= 1e-9 * np.abs(Jg).max())
     scale = np.max(np.abs(Jg), axis=0)
     assert np.all(np.abs(Ja - Jg)[:, 3:] <= 1e-5 * scale[3:])
+    # fixed world points (the fit's own Jacobian, jpl_linearisation): C's columns too
+    from harness.compare import _rotated_into
+    from reference_models.kernels import project
+    W = _rotated_into(m0.Rt_ref_cam(), P)
+    Jf = verdict._central_jacobian(lambda x: project(chart.model(x), W), x0, lin.steps)
+    Jwld = verdict.jpl_grid_jacobian(chart, m0, W, world=True)
+    okw = np.all(np.isfinite(Jf), axis=1)
+    assert np.array_equal(okw, np.all(np.isfinite(Jwld), axis=1))
+    assert np.all(np.abs(Jwld - Jf)[okw] <= 1e-5 * np.max(np.abs(Jf[okw]), axis=0))
     # the turns of the points (_projection_sigma's Jw), against its differences (steps 1e-7)
     Jt = verdict.jpl_grid_jacobian(chart, m0, P, turns=True)
     assert np.array_equal(Jt[:, :-3], verdict.jpl_grid_jacobian(chart, m0, P), equal_nan=True)
