@@ -1194,6 +1194,64 @@ in any n parameters that hold R0 (the truth side, ref moved to m's R0, is fixed)
     return np.stack([known[k] for k in names])
 
 
+def _opencv_quantity_jacobian(ref, names, n):
+    r'''(len(names), n) d fit_parameter_differences(ref, OpenCVModel(intrinsics)) / d
+intrinsics (fx, fy, cx, cy, distortion...): Hc = cx - ref's, Hs = (fx - ref's) / |ref's|,
+D_i = dist_i - ref's; None for a name this does not know or a ref of another model'''
+    from harness.calibrators.opencv_fit import OpenCVModel
+    if not isinstance(ref, OpenCVModel):
+        return None
+    e = np.eye(n)
+    known = {"Hc": e[2], "Vc": e[3]}
+    if ref.fx != 0:
+        known["Hs"] = e[0] / abs(ref.fx)
+    if ref.fy != 0:
+        known["Vs"] = e[1] / abs(ref.fy)
+    for i in range(n - 4):
+        known[f"D{i}"] = e[4 + i]
+    if any(k not in known for k in names):
+        return None
+    return np.stack([known[k] for k in names])
+
+
+def _opencv_grid_jacobian(intr, P):
+    r'''(2M, n) d q / d intrinsics of OpenCV's 5- or 8-coefficient model
+(opencv_fit._project_rational: fx, fy, cx, cy, k1, k2, p1, p2, k3 [, k4, k5, k6]) at
+camera-frame points P, in closed form; NaN rows where z is not > 0'''
+    P = np.asarray(P, dtype=np.float64)
+    n = len(intr)
+    fx, fy = intr[0], intr[1]
+    k = np.zeros(8)
+    k[:n - 4] = intr[4:12]
+    k1, k2, p1, p2, k3, k4, k5, k6 = k
+    with np.errstate(all="ignore"):
+        z = P[:, 2]
+        a, b = P[:, 0] / z, P[:, 1] / z
+        r2 = a * a + b * b
+        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        radial = num / den
+        x = a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a)
+        y = b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b
+        # d (x, y) / d k1..k6, p1, p2 (in the layout of intr[4:])
+        r4, r6 = r2 * r2, r2 * r2 * r2
+        dr = {0: r2 / den, 1: r4 / den, 4: r6 / den, 5: -radial * r2 / den,
+              6: -radial * r4 / den, 7: -radial * r6 / den}
+    J = np.zeros((len(P), 2, n))
+    J[:, 0, 0], J[:, 1, 1] = x, y
+    J[:, 0, 2] = J[:, 1, 3] = 1.0
+    for i in range(n - 4):
+        if i in dr:
+            dx, dy = a * dr[i], b * dr[i]
+        elif i == 2:    # p1
+            dx, dy = 2 * a * b, r2 + 2 * b * b
+        else:           # p2
+            dx, dy = r2 + 2 * a * a, 2 * a * b
+        J[:, 0, 4 + i], J[:, 1, 4 + i] = fx * dx, fy * dy
+    J[~(z > 0)] = np.nan
+    return J.reshape(2 * len(P), n)
+
+
 def _split_turns(J):
     r'''(Jg, Jw) of a grid Jacobian whose last 3 columns are the turns'''
     return J[:, :-3], J[:, -3:]
@@ -1328,6 +1386,14 @@ regularised, an unknown model type).'''
             if G is not None and lensmodel != "LENSMODEL_PINHOLE":
                 G[:, 6] = lin.model_jacobians([qvec], cols=[6])[0][:, 0]
             return G
+
+    if cm is None:
+        # OpenCV: the quantities are cx, cy, fx, fy, the distortion: linear in the intrinsics
+        def quantity_jacobian(m0, ref, names, theta, qvec):
+            return _opencv_quantity_jacobian(ref, names, nth)
+        if m.family != "FISHEYE":
+            def grid_jacobian(P):
+                return _opencv_grid_jacobian(intr0, P), None
 
     lin = Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h, n_model=nth,
                         jacobian=jacobian, quantity_jacobian=quantity_jacobian,

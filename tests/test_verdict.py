@@ -801,3 +801,41 @@ own error'''
     ok = np.all(np.isfinite(Jg), axis=1)
     assert ok.all()
     assert np.all(np.abs(Ja - Jg) <= 1e-6 * np.max(np.abs(Jg), axis=0))
+
+
+def test_opencv_model_jacobians_are_the_differences(navcam):
+    r'''An OpenCV fit's scatter takes the quantities' derivatives (linear in its intrinsics)
+and the image grid's (the 5-coefficient model's, _opencv_grid_jacobian) in closed form:
+against central differences over stepped models (model_jacobians) to their own error'''
+    truth, target, poses, obs = navcam
+    res = stages.calibrate_stage("opencv", obs, target, "OPENCV5", truth, {})
+    lin = verdict.linearisation(res, obs)
+    m0 = lin.model(lin.x0)
+    ex = stages.calibrate_stage("opencv", obs.replace(q=obs.q + 0.01), target, "OPENCV5",
+                                truth, {})
+    ref = ex.model          # another OpenCV fit: the differences' reference
+    q0 = verdict._signed_quantities(ref, m0, res.theta_estimated, False)
+    names = list(q0)
+
+    def qvec(m):
+        q = verdict._signed_quantities(ref, m, res.theta_estimated, False)
+        return np.array([q.get(k, 0.0) for k in names])
+    P = verdict.projection_points(truth)
+    with np.errstate(all="ignore"):
+        G, Jg = lin.model_jacobians([qvec, verdict._grid_projector(P)])
+    Ga = lin.quantity_jacobian(m0, ref, names, res.theta_estimated, qvec)
+    Ja, Jw = lin.grid_jacobian(P)
+    assert Jw is None and {"Hc", "Vs", "D0", "D4"} <= set(names)
+    assert np.all(np.abs(Ga - G) <= 1e-6 * np.max(np.abs(G), axis=1, keepdims=True))
+    ok = np.all(np.isfinite(Jg), axis=1)
+    assert ok.all() and np.all(np.abs(Ja - Jg) <= 1e-6 * np.max(np.abs(Jg), axis=0))
+    # the 8-coefficient model's k4..k6 columns too
+    d = np.concatenate((lin.x0[:9], [0.01, -0.002, 0.0005]))
+    J8 = verdict._opencv_grid_jacobian(d, P)
+    from harness.calibrators.opencv_fit import OpenCVModel
+
+    def grid8(t):
+        K = np.array([[t[0], 0, t[2]], [0, t[1], t[3]], [0, 0, 1.0]])
+        return OpenCVModel("RATIONAL", K, t[4:], m0.width, m0.height).project(P)
+    F8 = verdict._central_jacobian(grid8, d, 1e-6 * np.maximum(np.abs(d), 1.0))
+    assert np.all(np.abs(J8 - F8) <= 1e-6 * np.max(np.abs(F8), axis=0))
