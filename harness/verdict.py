@@ -1698,8 +1698,9 @@ def z_scores(renderer, sigma):
 # its dof. Two kinds sit there: exact redundancies of the reported quantities (R1 and
 # R1_frac, Hs and Hs*(1+R0): 0 up to rounding; the unit vectors A and O are reported by
 # their two tangent components, _unit_components) and what the covariance cannot
-# resolve. G's columns are central differences with steps 1e-6 of each parameter (a jpl
-# fit's are in closed form, jpl_quantity_jacobian: rounding only), so
+# resolve. G's columns are central differences with steps 1e-6 of each parameter (jpl,
+# mrcal (but R0's) and OpenCV fits' are in closed form, jpl_quantity_jacobian and the
+# Linearisation's quantity_jacobian: rounding only), so
 # they carry a relative rounding error of about
 # 2.2e-16 / 1e-6 = 2e-10; the correlation matrix inherits ~1e-10 per entry and its
 # eigenvalues ~m x 1e-10 (m ~ 25 quantities): ~3e-9. The cut sits a factor 3 above that:
