@@ -1021,51 +1021,63 @@ are world points instead, fixed as the model moves (the fit's own Jacobian: its 
 points, jpl_linearisation)'''
     d, rows, n = _chart_directions(chart, m)
     if turns:
-        d = {k: np.pad(v, ((0, 0), (0, 3))) for k, v in d.items()}
-        rows = {k: np.pad(v, (0, 3)) for k, v in rows.items()}
+        d = {k: np.concatenate((v, np.zeros((3, 3))), axis=1) for k, v in d.items()}
+        rows = {k: np.concatenate((v, np.zeros(3))) for k, v in rows.items()}
         n += 3
     ph, Hp, dHp, Y, dY = _frame_directions(m, d)
     A, H, V = (np.asarray(v, dtype=np.float64) for v in (m.A, m.H, m.V))
     dA, dH, dV = d["A"], d["H"], d["V"]
     P = np.asarray(P, dtype=np.float64)
     # the point in the model's world frame, less C (C moves the frame and the point alike:
-    # its columns are zero): p = P0 H' + P1 (A x H') + P2 A
+    # its columns are zero): p = P0 H' + P1 (A x H') + P2 A. Its derivative dp (M, 3, n) is
+    # only ever dotted with a vector: dp_dot(w) = sum_k w_k dp[:, k, :] (M, n), for w (3,) or
+    # one per point (M, 3), without forming dp
     if world:
         p = P - np.asarray(m.C, dtype=np.float64)
-        dp = np.broadcast_to(-d["C"], (len(P), 3, n))
+        dC = d["C"]
+
+        def dp_dot(w):
+            return np.broadcast_to(-(w @ dC), (len(P), n))
     else:
         p = P[:, 0:1] * Hp + P[:, 1:2] * Y + P[:, 2:3] * A                 # (M, 3)
-        dp = (P[:, 0, None, None] * dHp + P[:, 1, None, None] * dY
-              + P[:, 2, None, None] * dA)                                   # (M, 3, n)
-    if turns:       # d R(w) P / d w_k = e_k x P, in the world frame
-        for k in range(3):
-            c = np.cross(np.eye(3)[k], P)
-            dp[:, :, n - 3 + k] = c[:, 0:1] * Hp + c[:, 1:2] * Y + c[:, 2:3] * A
+        # d R(w) P / d w_k = e_k x P, in the world frame (the turns' columns)
+        turned = [c[:, 0:1] * Hp + c[:, 1:2] * Y + c[:, 2:3] * A
+                  for c in (np.cross(np.eye(3)[k], P) for k in range(3))] if turns else []
+
+        def dp_dot(w):
+            out = (P[:, 0:1] * (w @ dHp) + P[:, 1:2] * (w @ dY)
+                   + P[:, 2:3] * (w @ dA))
+            for k, t in enumerate(turned):
+                out[:, n - 3 + k] = t @ w if w.ndim == 1 else np.einsum("mk,mk->m", t, w)
+            return out
     bad = np.zeros(len(P), dtype=bool)
     if m.family != "CAHV":
         O, dO = np.asarray(m.O, dtype=np.float64), d["O"]
         R = np.asarray(m.R, dtype=np.float64)
         z = p @ O
-        dz = np.einsum("mkn,k->mn", dp, O) + p @ dO
+        dz = dp_dot(O) + p @ dO
         lv = p - z[:, None] * O
-        dl = dp - z[:, None, None] * dO - dz[:, None, :] * O[:, None]
+        # l = p - z O: dl . w = dp . w - z (w . dO) - dz (O . w)
+        lv_dl = dp_dot(lv) - z[:, None] * (lv @ dO) - dz * (lv @ O)[:, None]
         dR1, dR2 = rows["R1"], rows["R2"]
         if m.family == "CAHVOR":
             tau = np.einsum("mk,mk->m", lv, lv) / (z * z)
-            dtau = 2 * np.einsum("mk,mkn->mn", lv, dl) / (z * z)[:, None] \
-                - 2 * (tau / z)[:, None] * dz
+            dtau = 2 * lv_dl / (z * z)[:, None] - 2 * (tau / z)[:, None] * dz
             mu = R[0] + tau * (R[1] + tau * R[2])
             dmu = dtau * (R[1] + 2 * tau * R[2])[:, None] + tau[:, None] * dR1 \
                 + (tau * tau)[:, None] * dR2
             bad |= ~(z > 0)
             q = p + mu[:, None] * lv
-            dq = dp + dmu[:, None, :] * lv[:, :, None] + mu[:, None, None] * dl
+
+            def dq_dot(w):      # q = p + mu l
+                dp_w = dp_dot(w)
+                dl_w = dp_w - z[:, None] * (w @ dO) - dz * (O @ w)
+                return dp_w + dmu * (lv @ w)[:, None] + mu[:, None] * dl_w
         else:
             E, L = np.asarray(m.E, dtype=np.float64), float(m.linearity)
             ln = np.sqrt(np.einsum("mk,mk->m", lv, lv))
             with np.errstate(all="ignore"):
-                dln = np.where(ln[:, None] > 0,
-                               np.einsum("mk,mkn->mn", lv, dl) / ln[:, None], 0.0)
+                dln = np.where(ln[:, None] > 0, lv_dl / ln[:, None], 0.0)
             th = _solve_theta_vec(z, ln, E)
             s, c = np.sin(th), np.cos(th)
             t2 = th * th
@@ -1099,17 +1111,20 @@ points, jpl_linearisation)'''
                                (2 * chi * (R[1] + 2 * c2 * R[2]))[:, None] * dchi
                                + c2[:, None] * dR1 + (c2 * c2)[:, None] * dR2)
             q = zp[:, None] * O + (1.0 + mu)[:, None] * lv
-            dq = (dzp[:, None, :] * O[:, None] + zp[:, None, None] * dO
-                  + dmu[:, None, :] * lv[:, :, None] + (1.0 + mu)[:, None, None] * dl)
+
+            def dq_dot(w):      # q = zp O + (1 + mu) l
+                dl_w = dp_dot(w) - z[:, None] * (w @ dO) - dz * (O @ w)
+                return (dzp * (O @ w) + zp[:, None] * (w @ dO) + dmu * (lv @ w)[:, None]
+                        + (1.0 + mu)[:, None] * dl_w)
     else:
-        q, dq = p, dp
+        q, dq_dot = p, dp_dot
     qa = q @ A
     bad |= ~(qa > 0)
-    dqa = np.einsum("mkn,k->mn", dq, A) + q @ dA
+    dqa = dq_dot(A) + q @ dA
     J = np.empty((len(P), 2, n))
     for j, (W, dW) in enumerate(((H, dH), (V, dV))):
         x = (q @ W) / qa
-        J[:, j] = (np.einsum("mkn,k->mn", dq, W) + q @ dW - x[:, None] * dqa) / qa[:, None]
+        J[:, j] = (dq_dot(W) + q @ dW - x[:, None] * dqa) / qa[:, None]
     J[bad] = np.nan
     return J.reshape(2 * len(P), n)
 
