@@ -17,7 +17,10 @@ seconds, best of --repeats) and collecting every sigma and z-score of its
 renderer comparison and the expected projection sigma, and every leaf of the
 verdict (numbers, flags, reasons; not its seconds). --save writes those
 figures; --steps F scales the linearisation's finite-difference steps (compared
-with a run at 1, the sigmas' own numerical noise); --compare prints, for every
+with a run at 1, the sigmas' own numerical noise; only the derivatives still
+differenced read them: model_jacobians' stepped models (mrcal's R0 column, FISHEYE's
+grid), not the closed forms of harness.verdict (jpl's G, Jg and J, mrcal's and OpenCV's G
+and Jg) nor the posed fits' own J, whose steps are their own); --compare prints, for every
 quantity, the largest relative change against a saved file, |after - before| /
 |before| over all records, with the absolute change beside it (and the
 records where a sigma appeared or vanished), and how many of the verdicts' leaves

@@ -860,10 +860,20 @@ project:   x -> (2N,) the projections of the fit's observed points (pose-major)
 model:     x -> the fitted model (a JPL model, OpenCVModel, MrcalModel)
 pose:      (N,) the image of each observed point
 n_model:   the model depends on x[:n_model] only (the rest: board poses)
+quantity_jacobian: (m0, ref, names, theta_estimated, qvec) -> (len(names), n_model)
+           d qvec(model(x)) / d x[:n_model] at x0 (m0 = model(x0); qvec: the quantities
+           _signed_quantities names, against ref), where it is known in closed form
+           (jpl_quantity_jacobian), or None (or returning None: stepped models)
+grid_jacobian: P -> (Jg, Jw): Jg (2M, n_model) d _grid_projector(P)(model(x)) /
+           d x[:n_model] at x0, in closed form (jpl_grid_jacobian) or the calibrator's own
+           (mrcal), and Jw (2M, 3) its derivatives in a turn of the points
+           (_projection_sigma), or None
 '''
 
-    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None):
+    def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None,
+                 quantity_jacobian=None, grid_jacobian=None):
         self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
+        self.quantity_jacobian, self.grid_jacobian = quantity_jacobian, grid_jacobian
         self.n_model = len(x0) if n_model is None else n_model
         self._jacobian = jacobian
 
@@ -874,8 +884,9 @@ where it gives them faster: jpl_linearisation, posed_linearisation)'''
             return self._jacobian()
         return _central_jacobian(self.project, self.x0, self.steps)
 
-    def model_jacobians(self, fs):
-        r'''[d f(model(x)) / d x[:n_model] for f in fs]: each (len(f), n_model)
+    def model_jacobians(self, fs, cols=None):
+        r'''[d f(model(x)) / d x[:n_model] for f in fs]: each (len(f), n_model), or its
+columns cols only (len(f), len(cols))
 
 Central differences, as _central_jacobian takes them (the same numbers), with each
 stepped model built once for every f (and without its geometry's checks:
@@ -884,18 +895,18 @@ as a function of it.'''
         from reference_models.cahvore import checked_once
         n, rest = self.n_model, self.x0[self.n_model:]
         x0, h = self.x0[:n], self.steps[:n]
-        cols = [[] for _ in fs]
-        for i in range(n):
+        out = [[] for _ in fs]
+        for i in (range(n) if cols is None else cols):
             xp, xm = x0.copy(), x0.copy()
             xp[i] += h[i]
             xm[i] -= h[i]
             with checked_once():    # steps of the fitted model, checked by the fit
                 mp = self.model(np.concatenate((xp, rest)))
                 mm = self.model(np.concatenate((xm, rest)))
-            for c, f in zip(cols, fs, strict=True):
+            for c, f in zip(out, fs, strict=True):
                 c.append((np.asarray(f(mp), dtype=np.float64).ravel()
                           - np.asarray(f(mm), dtype=np.float64).ravel()) / (xp[i] - xm[i]))
-        return [np.stack(c, axis=-1) for c in cols]
+        return [np.stack(c, axis=-1) for c in out]
 
 
 def _central_jacobian(f, x0, h):
@@ -924,24 +935,377 @@ def jpl_linearisation(res, obs):
     h = 1e-6 * np.maximum(np.abs(x0), 1.0)
 
     def jacobian():
-        # central differences in one compiled pass per side: the fit's own forward-difference
-        # kernel (_jpl_kernels.jacobian_chart, the charted models packed without building
-        # them) with steps +h and -h, combined; a column whose stepped model needs the
-        # model's own checks (ok False: near its limits) is differenced on built models
-        from harness.calibrators._jpl_kernels import jacobian_chart
-        zero = np.zeros((len(p), 2))
-        f0 = project(chart.model(x0), p).ravel()
-        args = chart._chart_args()
-        Jp, okp = jacobian_chart(x0, h, *args, p, zero, np.nan, f0)
-        Jm, okm = jacobian_chart(x0, -h, *args, p, zero, np.nan, f0)
-        dp, dm = (x0 + h) - x0, (x0 - h) - x0
-        J = ((Jp * dp[:, None] - Jm * dm[:, None]) / (dp - dm)[:, None]).T
-        for i in np.flatnonzero(~(okp & okm)):
-            J[:, i] = _central_jacobian(lambda y, i=i: project(chart.model(
-                np.concatenate((x0[:i], y, x0[i + 1:]))), p), x0[i:i + 1], h[i:i + 1])[:, 0]
-        return J
+        # in closed form, as the grid's (jpl_grid_jacobian) on the observed world points:
+        # within 1.2e-6 of a column's scale of the central differences of the fit's own
+        # compiled kernel (_jpl_kernels.jacobian_chart, steps +-h) on the paper campaign's
+        # jpl records, their truncation
+        return jpl_grid_jacobian(chart, chart.model(x0), p, world=True)
     return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h,
-                         jacobian=jacobian)
+                         jacobian=jacobian,
+                         quantity_jacobian=lambda m0, ref, names, theta, qvec:
+                         jpl_quantity_jacobian(chart, m0, ref, names, theta),
+                         grid_jacobian=lambda P: _split_turns(
+                             jpl_grid_jacobian(chart, chart.model(x0), P, turns=True)))
+
+
+# --- the jpl chart's derivatives, analytic -----------------------------------------------
+#
+# The scatter of a jpl fit needs two Jacobians of its model in its chart (jpl_fit._Chart: C,
+# A (2), H, V [, O (2), R1, R2 [, E]]; R0 held): G, of the reported quantities, and Jg, of
+# the projection of the image grid's points (PROJECTION_SAMPLES of them, in the model's own
+# camera frame: _grid_projector). Central differences build 2 x 11-18 stepped models and
+# project the grid through each (the CAHVORE ones through a Newton solve per point): 5-10 ms
+# of a record's ~15. Here both are derived in closed form instead, forward mode through the
+# chart, the camera frame and the projection of reference_models.kernels.project_point
+# (CAHVORE's Newton solve for the angle differentiated implicitly), vectorised over the
+# points: the same derivatives to ~1e-8 relative (the differences' own truncation and
+# rounding; tests/test_verdict.py), in ~1 ms.
+
+def _chart_directions(chart, m):
+    r'''{name: (3, n) d vector / d chart} for A, H, V, O and (n,) rows for C0..2, R1, R2,
+E0..2 of a jpl_fit._Chart at its x0 (model m = chart.model(chart.x0()))'''
+    fam = chart.family
+    n = {"CAHV": 11, "CAHVOR": 15, "CAHVORE": 18}[fam]
+    d = {k: np.zeros((3, n)) for k in ("C", "A", "H", "V", "O")}
+    for k in range(3):
+        d["C"][k, k] = d["H"][k, 5 + k] = d["V"][k, 8 + k] = 1.0
+
+    def unit(base, e, col, u):
+        # u = (base + a e0 + b e1) / |.|: d u / d a = (I - u u^T) e0 / |base|
+        nb = math.sqrt(float(base @ base))
+        for j in range(2):
+            d[u][:, col + j] = (e[j] - u_vec[u] * float(u_vec[u] @ e[j])) / nb
+    u_vec = {"A": np.asarray(m.A, dtype=np.float64)}
+    unit(np.asarray(chart.m0.A, dtype=np.float64), chart.eA, 3, "A")
+    if fam != "CAHV":
+        u_vec["O"] = np.asarray(m.O, dtype=np.float64)
+        unit(np.asarray(chart.m0.O, dtype=np.float64), chart.eO, 11, "O")
+    rows = {}
+    if fam != "CAHV":
+        for i, name in ((13, "R1"), (14, "R2")):
+            rows[name] = np.zeros(n)
+            rows[name][i] = 1.0
+    if fam == "CAHVORE":
+        for i in range(3):
+            rows[f"E{i}"] = np.zeros(n)
+            rows[f"E{i}"][15 + i] = 1.0
+    return d, rows, n
+
+
+def _cross_cols(a, B):
+    r'''a x B[:, j] for every column j: a (3,), B (3, n) -> (3, n)'''
+    return np.stack((a[1] * B[2] - a[2] * B[1], a[2] * B[0] - a[0] * B[2],
+                     a[0] * B[1] - a[1] * B[0]))
+
+
+def _frame_directions(m, d):
+    r'''The camera frame's axes H', A x H' and their (3, n) derivatives, and those of Hc,
+Vc, Hs, Vs, V' ((n,) or (3, n)), from d = _chart_directions()'''
+    A, H, V = (np.asarray(v, dtype=np.float64) for v in (m.A, m.H, m.V))
+    dA, dH, dV = d["A"], d["H"], d["V"]
+    out = {}
+    for name, W, dW in (("H", H, dH), ("V", V, dV)):
+        c = float(W @ A)
+        dc = A @ dW + W @ dA
+        w = W - c * A
+        dw = dW - A[:, None] * dc - c * dA
+        s = math.sqrt(float(w @ w))
+        u = w / s
+        ds = u @ dw
+        out[name] = (c, dc, s, ds, u, (dw - u[:, None] * ds) / s)
+    Hp, dHp = out["H"][4], out["H"][5]
+    Y = np.cross(A, Hp)
+    dY = _cross_cols(A, dHp) - _cross_cols(Hp, dA)
+    return out, Hp, dHp, Y, dY
+
+
+def _mrcal_directions(lensmodel, intr):
+    r'''_chart_directions' layout for from_mrcal of a mrcal model at the identity pose
+(posed_linearisation), in its intrinsics fx, fy, cx, cy [, alpha, beta, R0, R1, R2 [, E]]:
+H = (fx, 0, cx), V = (0, fy, cy), A = z, C = 0, O = (sin a cos b, sin b, cos a cos b)
+(reference_models.mrcal_convert.from_mrcal). R0's column is left zero: R0 is not held
+(the truth side moves with it), the caller differences it.'''
+    n = len(intr)
+    d = {k: np.zeros((3, n)) for k in ("C", "A", "H", "V", "O")}
+    d["H"][0, 0] = d["H"][2, 2] = d["V"][1, 1] = d["V"][2, 3] = 1.0
+    rows = {}
+    if lensmodel != "LENSMODEL_PINHOLE":
+        a, b = float(intr[4]), float(intr[5])
+        d["O"][:, 4] = (math.cos(a) * math.cos(b), 0.0, -math.sin(a) * math.cos(b))
+        d["O"][:, 5] = (-math.sin(a) * math.sin(b), math.cos(b), -math.cos(a) * math.sin(b))
+        for name, i in (("R1", 7), ("R2", 8), ("E0", 9), ("E1", 10), ("E2", 11)):
+            if i < n:
+                rows[name] = np.zeros(n)
+                rows[name][i] = 1.0
+    return d, rows, n
+
+
+def jpl_grid_jacobian(chart, m, P, turns=False, world=False):
+    r'''(2M, n) d grid / d chart of a jpl fit: _grid_projector(P)(chart.model(x)) at the
+chart's x0 (model m), rows x, y of each point, in closed form; NaN rows where m does not
+project a point (as the differences give NaN). turns: 3 more columns, the derivatives in
+a turn w of the points in the camera frame (P -> R(w) P: _projection_sigma's). world: P
+are world points instead, fixed as the model moves (the fit's own Jacobian: its observed
+points, jpl_linearisation)'''
+    d, rows, n = _chart_directions(chart, m)
+    if turns:
+        d = {k: np.concatenate((v, np.zeros((3, 3))), axis=1) for k, v in d.items()}
+        rows = {k: np.concatenate((v, np.zeros(3))) for k, v in rows.items()}
+        n += 3
+    ph, Hp, dHp, Y, dY = _frame_directions(m, d)
+    A, H, V = (np.asarray(v, dtype=np.float64) for v in (m.A, m.H, m.V))
+    dA, dH, dV = d["A"], d["H"], d["V"]
+    P = np.asarray(P, dtype=np.float64)
+    # the point in the model's world frame, less C (C moves the frame and the point alike:
+    # its columns are zero): p = P0 H' + P1 (A x H') + P2 A. Its derivative dp (M, 3, n) is
+    # only ever dotted with a vector: dp_dot(w) = sum_k w_k dp[:, k, :] (M, n), for w (3,) or
+    # one per point (M, 3), without forming dp
+    if world:
+        p = P - np.asarray(m.C, dtype=np.float64)
+        dC = d["C"]
+
+        def dp_dot(w):
+            return np.broadcast_to(-(w @ dC), (len(P), n))
+    else:
+        p = P[:, 0:1] * Hp + P[:, 1:2] * Y + P[:, 2:3] * A                 # (M, 3)
+        # d R(w) P / d w_k = e_k x P, in the world frame (the turns' columns)
+        turned = [c[:, 0:1] * Hp + c[:, 1:2] * Y + c[:, 2:3] * A
+                  for c in (np.cross(np.eye(3)[k], P) for k in range(3))] if turns else []
+
+        def dp_dot(w):
+            out = (P[:, 0:1] * (w @ dHp) + P[:, 1:2] * (w @ dY)
+                   + P[:, 2:3] * (w @ dA))
+            for k, t in enumerate(turned):
+                out[:, n - 3 + k] = t @ w if w.ndim == 1 else np.einsum("mk,mk->m", t, w)
+            return out
+    bad = np.zeros(len(P), dtype=bool)
+    if m.family != "CAHV":
+        O, dO = np.asarray(m.O, dtype=np.float64), d["O"]
+        R = np.asarray(m.R, dtype=np.float64)
+        z = p @ O
+        dz = dp_dot(O) + p @ dO
+        lv = p - z[:, None] * O
+        # l = p - z O: dl . w = dp . w - z (w . dO) - dz (O . w)
+        lv_dl = dp_dot(lv) - z[:, None] * (lv @ dO) - dz * (lv @ O)[:, None]
+        dR1, dR2 = rows["R1"], rows["R2"]
+        if m.family == "CAHVOR":
+            tau = np.einsum("mk,mk->m", lv, lv) / (z * z)
+            dtau = 2 * lv_dl / (z * z)[:, None] - 2 * (tau / z)[:, None] * dz
+            mu = R[0] + tau * (R[1] + tau * R[2])
+            dmu = dtau * (R[1] + 2 * tau * R[2])[:, None] + tau[:, None] * dR1 \
+                + (tau * tau)[:, None] * dR2
+            bad |= ~(z > 0)
+            q = p + mu[:, None] * lv
+
+            def dq_dot(w):      # q = p + mu l
+                dp_w = dp_dot(w)
+                dl_w = dp_w - z[:, None] * (w @ dO) - dz * (O @ w)
+                return dp_w + dmu * (lv @ w)[:, None] + mu[:, None] * dl_w
+        else:
+            E, L = np.asarray(m.E, dtype=np.float64), float(m.linearity)
+            ln = np.sqrt(np.einsum("mk,mk->m", lv, lv))
+            with np.errstate(all="ignore"):
+                dln = np.where(ln[:, None] > 0, lv_dl / ln[:, None], 0.0)
+            th = _solve_theta_vec(z, ln, E)
+            s, c = np.sin(th), np.cos(th)
+            t2 = th * th
+            e = E[0] + t2 * (E[1] + t2 * E[2])
+            de = th * (2.0 * E[1] + 4.0 * E[2] * t2)
+            dF = z * c + ln * s - (1.0 - c) * e - (th - s) * de         # dF / dtheta
+            # F = z sin - l cos - (theta - sin) e(theta) = 0: dtheta = -dF/dx / dF/dtheta
+            num = s[:, None] * dz - c[:, None] * dln
+            w = -(th - s)
+            for i in range(3):
+                num = num + (w * t2 ** i)[:, None] * rows[f"E{i}"]
+            dth = -num / dF[:, None]
+            if L > 1e-15:
+                chi = np.tan(L * th) / L
+                dchi = 1.0 / np.cos(L * th) ** 2
+            elif L < -1e-15:
+                chi = np.sin(L * th) / L
+                dchi = np.cos(L * th)
+            else:
+                chi, dchi = th, np.ones_like(th)
+            dchi = dchi[:, None] * dth
+            bad |= ~(th * abs(L) <= math.pi / 2)
+            small = th <= 1e-8
+            with np.errstate(all="ignore"):
+                zp = np.where(small, z, ln / chi)
+                dzp = np.where(small[:, None], dz,
+                               dln / chi[:, None] - (ln / (chi * chi))[:, None] * dchi)
+                c2 = chi * chi
+                mu = np.where(small, 0.0, R[0] + c2 * (R[1] + c2 * R[2]))
+                dmu = np.where(small[:, None], 0.0,
+                               (2 * chi * (R[1] + 2 * c2 * R[2]))[:, None] * dchi
+                               + c2[:, None] * dR1 + (c2 * c2)[:, None] * dR2)
+            q = zp[:, None] * O + (1.0 + mu)[:, None] * lv
+
+            def dq_dot(w):      # q = zp O + (1 + mu) l
+                dl_w = dp_dot(w) - z[:, None] * (w @ dO) - dz * (O @ w)
+                return (dzp * (O @ w) + zp[:, None] * (w @ dO) + dmu * (lv @ w)[:, None]
+                        + (1.0 + mu)[:, None] * dl_w)
+    else:
+        q, dq_dot = p, dp_dot
+    qa = q @ A
+    bad |= ~(qa > 0)
+    dqa = dq_dot(A) + q @ dA
+    J = np.empty((len(P), 2, n))
+    for j, (W, dW) in enumerate(((H, dH), (V, dV))):
+        x = (q @ W) / qa
+        J[:, j] = (dq_dot(W) + q @ dW - x[:, None] * dqa) / qa[:, None]
+    J[bad] = np.nan
+    return J.reshape(2 * len(P), n)
+
+
+def _solve_theta_vec(zeta, l, E):
+    r'''reference_models.kernels._solve_theta for arrays: Newton from atan2(l, zeta), each
+point stopped at its own first step below NEWTON_TOLERANCE (the kernel's iterates)'''
+    from reference_models.cahvore import NEWTON_MAX_ITERATIONS, NEWTON_TOLERANCE
+    th = np.arctan2(l, zeta)
+    act = np.ones(th.shape, dtype=bool)
+    e0, e1, e2 = (float(v) for v in E)
+    with np.errstate(all="ignore"):
+        for _ in range(NEWTON_MAX_ITERATIONS):
+            t, z, ll = th[act], zeta[act], l[act]
+            s, c = np.sin(t), np.cos(t)
+            t2 = t * t
+            e = e0 + t2 * (e1 + t2 * e2)
+            de = t * (2.0 * e1 + 4.0 * e2 * t2)
+            f = z * s - ll * c - (t - s) * e
+            df = z * c + ll * s - (1.0 - c) * e - (t - s) * de
+            step = f / df
+            th[act] = t - step
+            idx = np.flatnonzero(act)
+            act[idx[~(np.abs(step) > NEWTON_TOLERANCE)]] = False
+            if not act.any():
+                break
+    return th
+
+
+def jpl_quantity_jacobian(chart, m, ref, names, theta_estimated):
+    r'''(len(names), n) d _signed_quantities(ref, chart.model(x)) / d chart at the chart's x0
+(model m), in closed form; None when a name is not one this knows (the caller then
+differences stepped models)'''
+    return _quantity_jacobian(*_chart_directions(chart, m), m, ref, names, theta_estimated)
+
+
+def _quantity_jacobian(d, rows, n, m, ref, names, theta_estimated):
+    r'''jpl_quantity_jacobian for the model's derivatives d, rows (_chart_directions' layout)
+in any n parameters that hold R0 (the truth side, ref moved to m's R0, is fixed)'''
+    from .compare import _truth_side
+    ph, Hp, dHp, Y, dY = _frame_directions(m, d)
+    fam = m.family
+    has_O = fam != "CAHV" and ref.family != "CAHV"
+    fit_R0 = float(m.R[0]) if fam != "CAHV" else 0.0
+    t, t_ph, traw, _ = _truth_side(ref, fit_R0 if has_O else None, fam == "CAHV")
+    truth_R0 = float(ref.R[0]) if ref.family != "CAHV" else 0.0
+    A = np.asarray(m.A, dtype=np.float64)
+    Hc, dHc, Hs, dHs, _, _ = ph["H"]
+    Vc, dVc, Vs, dVs, Vp, dVp = ph["V"]
+    known = {"Hc": dHc, "Vc": dVc}
+    for k, ds, ts, traw_s in (("Hs", dHs, t_ph.Hs, traw.Hs), ("Vs", dVs, t_ph.Vs, traw.Vs)):
+        if ts != 0:
+            known[k] = ds / abs(ts)
+        tr = traw_s * (1 + truth_R0)
+        if tr != 0:
+            known[f"{k}*(1+R0)"] = ds * (1 + fit_R0) / abs(tr)
+    if theta_estimated:
+        c = float(np.dot(Hp, Vp))
+        if abs(c) < 1.0:
+            known["theta_deg"] = -math.degrees(1.0) * (Hp @ dVp + Vp @ dHp) / math.sqrt(1 - c * c)
+    for i in range(3):
+        known[f"C_mm[{i}]"] = 1e3 * d["C"][i]
+    a_ref = np.asarray(ref.A, dtype=np.float64)
+    e = _tangent_basis_of(a_ref)
+    for i in range(2):
+        known[f"A_deg[{i}]"] = math.degrees(1.0) * (e[i] @ d["A"])
+    # _roll_deg: atan2(s, c), s = (a x h0) . h1, c = h0 . h1, h1 = H' less its a component
+    h0 = ref.photogrammetric().Hp
+    h1 = Hp - (Hp @ a_ref) * a_ref
+    ah0 = np.cross(a_ref, h0)
+    s_, c_ = float(ah0 @ h1), float(h0 @ h1)
+    ds, dc = ah0 @ dHp, h0 @ dHp - (h0 @ a_ref) * (a_ref @ dHp)
+    known["roll_deg"] = math.degrees(1.0) * (c_ * ds - s_ * dc) / (c_ * c_ + s_ * s_)
+    if has_O:
+        O, dO = np.asarray(m.O, dtype=np.float64), d["O"]
+        dfit_O = np.stack((O @ dHp + Hp @ dO, O @ dY + Y @ dO, O @ d["A"] + A @ dO))
+        e = _tangent_basis_of(_truth_side(ref, fit_R0, False)[3])
+        for i in range(2):
+            known[f"O_deg[{i}]"] = math.degrees(1.0) * (e[i] @ dfit_O)
+        known["R0"] = known["R0_frac"] = np.zeros(n)
+        for i in (1, 2):
+            known[f"R{i}"] = rows[f"R{i}"]
+            if float(t.R[i]) != 0:
+                known[f"R{i}_frac"] = rows[f"R{i}"] / abs(float(t.R[i]))
+    for i in range(3):
+        if f"E{i}" in rows:
+            known[f"E{i}"] = rows[f"E{i}"]
+    if any(k not in known for k in names):
+        return None
+    return np.stack([known[k] for k in names])
+
+
+def _opencv_quantity_jacobian(ref, names, n):
+    r'''(len(names), n) d fit_parameter_differences(ref, OpenCVModel(intrinsics)) / d
+intrinsics (fx, fy, cx, cy, distortion...): Hc = cx - ref's, Hs = (fx - ref's) / |ref's|,
+D_i = dist_i - ref's; None for a name this does not know or a ref of another model'''
+    from harness.calibrators.opencv_fit import OpenCVModel
+    if not isinstance(ref, OpenCVModel):
+        return None
+    e = np.eye(n)
+    known = {"Hc": e[2], "Vc": e[3]}
+    if ref.fx != 0:
+        known["Hs"] = e[0] / abs(ref.fx)
+    if ref.fy != 0:
+        known["Vs"] = e[1] / abs(ref.fy)
+    for i in range(n - 4):
+        known[f"D{i}"] = e[4 + i]
+    if any(k not in known for k in names):
+        return None
+    return np.stack([known[k] for k in names])
+
+
+def _opencv_grid_jacobian(intr, P):
+    r'''(2M, n) d q / d intrinsics of OpenCV's 5- or 8-coefficient model
+(opencv_fit._project_rational: fx, fy, cx, cy, k1, k2, p1, p2, k3 [, k4, k5, k6]) at
+camera-frame points P, in closed form; NaN rows where z is not > 0'''
+    P = np.asarray(P, dtype=np.float64)
+    n = len(intr)
+    fx, fy = intr[0], intr[1]
+    k = np.zeros(8)
+    k[:n - 4] = intr[4:12]
+    k1, k2, p1, p2, k3, k4, k5, k6 = k
+    with np.errstate(all="ignore"):
+        z = P[:, 2]
+        a, b = P[:, 0] / z, P[:, 1] / z
+        r2 = a * a + b * b
+        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        radial = num / den
+        x = a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a)
+        y = b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b
+        # d (x, y) / d k1..k6, p1, p2 (in the layout of intr[4:])
+        r4, r6 = r2 * r2, r2 * r2 * r2
+        dr = {0: r2 / den, 1: r4 / den, 4: r6 / den, 5: -radial * r2 / den,
+              6: -radial * r4 / den, 7: -radial * r6 / den}
+    J = np.zeros((len(P), 2, n))
+    J[:, 0, 0], J[:, 1, 1] = x, y
+    J[:, 0, 2] = J[:, 1, 3] = 1.0
+    for i in range(n - 4):
+        if i in dr:
+            dx, dy = a * dr[i], b * dr[i]
+        elif i == 2:    # p1
+            dx, dy = 2 * a * b, r2 + 2 * b * b
+        else:           # p2
+            dx, dy = r2 + 2 * a * a, 2 * a * b
+        J[:, 0, 4 + i], J[:, 1, 4 + i] = fx * dx, fy * dy
+    J[~(z > 0)] = np.nan
+    return J.reshape(2 * len(P), n)
+
+
+def _split_turns(J):
+    r'''(Jg, Jw) of a grid Jacobian whose last 3 columns are the turns'''
+    return J[:, :-3], J[:, -3:]
 
 
 def _rodrigues(r):
@@ -1046,8 +1410,46 @@ regularised, an unknown model type).'''
             J[np.arange(len(rows)), cols[rows]] = (fp - fm) / (xp - xm)[cols[rows]]
         return J
 
-    return Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h, n_model=nth,
-                         jacobian=jacobian)
+    grid_jacobian = quantity_jacobian = None
+    # (the fit's own Jacobian J stays differenced: mrcal.project's derivatives agree with the
+    # differences to 1e-10 of a column, as the differences with steps x2 agree with
+    # themselves, but the near-null direction of mrcal's CAHVOR R0 / focal-length valley
+    # (cameras 1 and 22 of the paper campaign, floor_far) moves their sigmas 10-25% on
+    # such a change, steps x2 itself 1-7%)
+    if cm is not None and jpl:
+        # from_mrcal of a model at the identity pose: its camera frame is the identity
+        # (A = z, H' = x) for every intrinsics, and it projects as mrcal.project (the
+        # paper campaign's mrcal grids: within 2.3e-13 px): the grid's derivatives are
+        # mrcal's own
+        def grid_jacobian(P):
+            P = np.ascontiguousarray(P, dtype=np.float64)
+            _, dq_dp, dq_di = mrcal.project(P, lensmodel, intr0, get_gradients=True)
+            # the turns of the points (_projection_sigma): d R(w) P / d w_k = e_k x P
+            Jw = np.stack([np.einsum("mij,mj->mi", dq_dp, np.cross(np.eye(3)[k], P)).ravel()
+                           for k in range(3)], axis=-1)
+            return dq_di.reshape(2 * len(P), nth), Jw
+
+        # the quantities in closed form in every intrinsic but R0, which the truth side
+        # of the differences moves with (ref moved to the fit's R0): that column differenced
+        def quantity_jacobian(m0, ref, names, theta, qvec):
+            G = _quantity_jacobian(*_mrcal_directions(lensmodel, intr0), m0, ref, names,
+                                   theta)
+            if G is not None and lensmodel != "LENSMODEL_PINHOLE":
+                G[:, 6] = lin.model_jacobians([qvec], cols=[6])[0][:, 0]
+            return G
+
+    if cm is None:
+        # OpenCV: the quantities are cx, cy, fx, fy, the distortion: linear in the intrinsics
+        def quantity_jacobian(m0, ref, names, theta, qvec):
+            return _opencv_quantity_jacobian(ref, names, nth)
+        if m.family != "FISHEYE":
+            def grid_jacobian(P):
+                return _opencv_grid_jacobian(intr0, P), None
+
+    lin = Linearisation(x0, project, lambda x: model_of(x[:nth]), pose, h, n_model=nth,
+                        jacobian=jacobian, quantity_jacobian=quantity_jacobian,
+                        grid_jacobian=grid_jacobian)
+    return lin
 
 
 def linearisation(res, obs):
@@ -1193,10 +1595,21 @@ projection difference (the rotation's own freedom projected out).
         q = _signed_quantities(ref, m, theta, world)
         return np.array([q.get(k, 0.0) for k in names])
     P = projection_points(truth)
-    # the model's Jacobians in one pass over its stepped models: the reported quantities
-    # (G) and the projection of the image grid (Jg); then the fit's own Jacobian J
+    # the model's Jacobians: the reported quantities (G) and the projection of the image
+    # grid (Jg), in closed form where the Linearisation knows them (jpl:
+    # jpl_quantity_jacobian, jpl_grid_jacobian; mrcal: its own grid derivatives and the
+    # quantities but R0's), otherwise in one pass over its stepped models; then the
+    # fit's own Jacobian J
     with np.errstate(all="ignore"):
-        G, Jg = lin.model_jacobians([qvec, _grid_projector(P)])  # (m, n_model), (2M, n_model)
+        G = None if lin.quantity_jacobian is None else \
+            lin.quantity_jacobian(m0, ref, names, theta, qvec)   # (m, n_model)
+        Jg, Jw = (None, None) if lin.grid_jacobian is None else lin.grid_jacobian(P)
+        if G is None and Jg is None:
+            G, Jg = lin.model_jacobians([qvec, _grid_projector(P)])
+        elif G is None:
+            G, = lin.model_jacobians([qvec])
+        elif Jg is None:
+            Jg, = lin.model_jacobians([_grid_projector(P)])
         J = lin.jacobian()                                       # (2N, n)
     # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
     # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
@@ -1231,7 +1644,7 @@ projection difference (the rotation's own freedom projected out).
     for k in VECTOR_PARAMS:
         if k in sigma:
             sigma[k] = math.sqrt(sigma[k])
-    sigma["projection_rms"] = _projection_sigma(m0, P, Jg, R)
+    sigma["projection_rms"] = _projection_sigma(m0, P, Jg, R, Jw)
     # the joint test's covariance adds the renderer resolution (joint_resolution_cov)
     res_cov = joint_resolution_cov(Ninv, s_col, len(lin.pose))[:lin.n_model, :lin.n_model]
     return {"sigma": sigma, "joint": joint_of_fit(names, q0, G, cov + res_cov, ref),
@@ -1280,16 +1693,18 @@ def _variances(R, A):
     return np.einsum("ij,ij->i", B, B)
 
 
-def _projection_sigma(m0, P, Jg, R):
+def _projection_sigma(m0, P, Jg, R, Jw=None):
     r'''Expected RMS px over the points P of the rotation-mode projection difference, from
 Jg (2M, n_model) = d grid / d model parameters (_grid_projector) and their covariance
-R^T R (scatter)'''
-    project, Rt_ref_cam = _projector(m0), m0.Rt_ref_cam()
+R^T R (scatter); Jw (2M, 3): d grid / d w of a turn R(w) of the points (the
+Linearisation's grid_jacobian), or None: central differences'''
+    if Jw is None:
+        project, Rt_ref_cam = _projector(m0), m0.Rt_ref_cam()
 
-    def rotated(w):
-        return project(transform_point_Rt(Rt_ref_cam, P @ _rodrigues(w).T))
-    with np.errstate(all="ignore"):
-        Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
+        def rotated(w):
+            return project(transform_point_Rt(Rt_ref_cam, P @ _rodrigues(w).T))
+        with np.errstate(all="ignore"):
+            Jw = _central_jacobian(rotated, np.zeros(3), np.full(3, 1e-7))
     ok = np.all(np.isfinite(Jg), axis=1) & np.all(np.isfinite(Jw), axis=1)
     Jg, Jw = Jg[ok], Jw[ok]
     M = ok.sum() / 2
@@ -1334,7 +1749,9 @@ def z_scores(renderer, sigma):
 # its dof. Two kinds sit there: exact redundancies of the reported quantities (R1 and
 # R1_frac, Hs and Hs*(1+R0): 0 up to rounding; the unit vectors A and O are reported by
 # their two tangent components, _unit_components) and what the covariance cannot
-# resolve. G's columns are central differences with steps 1e-6 of each parameter, so
+# resolve. G's columns are central differences with steps 1e-6 of each parameter (jpl,
+# mrcal (but R0's) and OpenCV fits' are in closed form, jpl_quantity_jacobian and the
+# Linearisation's quantity_jacobian: rounding only), so
 # they carry a relative rounding error of about
 # 2.2e-16 / 1e-6 = 2e-10; the correlation matrix inherits ~1e-10 per entry and its
 # eigenvalues ~m x 1e-10 (m ~ 25 quantities): ~3e-9. The cut sits a factor 3 above that:

@@ -5,6 +5,8 @@ disturbance (a constant shift of every detection, or seeded noise), so what
 the renderer comparison must find is known.
 '''
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -527,11 +529,10 @@ with differencing its projection'''
                                     lin.x0[:lin.n_model], lin.steps[:lin.n_model])
     assert Jg.shape == (2 * len(P), lin.n_model) and np.array_equal(Jg, sep)
     if cal == "jpl":
-        # the fit's own Jacobian in compiled passes (jpl_linearisation) against central
-        # differences of its projection on built models: the compiled chart's A and O may
-        # differ from the built model's by an ulp (~1e-16 rad: ~1e-12 px at f ~ 1e4 px), over
-        # steps of 2e-6 of each parameter: ~1e-6 px per unit, against columns of >= 1 px per
-        # unit of the chart's parameters
+        # the fit's own Jacobian in closed form (jpl_linearisation: jpl_grid_jacobian on its
+        # world points) against central differences of its projection on built models:
+        # their truncation and rounding (measured <= 1.2e-6 of a column's scale against the
+        # compiled differences on the paper campaign's jpl records; here within 1e-6)
         J = lin.jacobian()
         ref = verdict._central_jacobian(lin.project, lin.x0, lin.steps)
         scale = np.max(np.abs(ref), axis=0)
@@ -677,3 +678,195 @@ keep the plain reason'''
     assert _failure_reason(failed, square, "mrcal") == failed.reason
     assert verdict.unrepresentable(skewed, "opencv") and not verdict.unrepresentable(skewed,
                                                                                     "jpl")
+
+
+def _perturbed(m, rng, scale=1e-4):
+    r'''m with its vectors moved by ~scale (relative): a fit near the model, neither the
+truth nor exactly on a symmetry'''
+    from reference_models.cahvore import CAHV, CAHVOR, CAHVORE
+
+    def mv(v):
+        v = np.asarray(v, dtype=np.float64)
+        return v + scale * np.linalg.norm(v) * rng.standard_normal(3)
+    kw = dict(C=mv(m.C) + 1e-3, A=mv(m.A), H=mv(m.H), V=mv(m.V), width=m.width,
+              height=m.height)
+    if m.family == "CAHV":
+        return CAHV(**kw)
+    kw.update(O=mv(m.O), R=np.asarray(m.R) * (1 + scale * rng.standard_normal(3)))
+    if m.family == "CAHVOR":
+        return CAHVOR(**kw)
+    return CAHVORE(E=np.asarray(m.E) + scale * rng.standard_normal(3),
+                   model_type=m.model_type, linearity=m.linearity, **kw)
+
+
+def _camera(case):
+    r'''(truth, fit) of one of CHART_CASES'''
+    return _cameras()[CHART_CASES.index(case)]
+
+
+CHART_CASES = ("15 CAHV", "13 CAHVOR", "17 CAHVOR", "17 CAHVORE", "22 CAHVORE",
+               "17 CAHVORE L=0.0", "17 CAHVORE L=0.5", "17 CAHVORE L=-0.5",
+               "17 CAHVORE L=1.0", "13 CAHVOR theta")
+
+
+@functools.cache
+def _cameras():
+    r'''[(truth, fit)] of CHART_CASES: over the three families: a narrow and a wide camera, CAHVORE
+perspective, fisheye and in between (linearity 1, 0, 0.5 and -0.5), theta off 90 deg'''
+    import dataclasses
+    rng = np.random.default_rng(5)
+    out = []
+    for case in CHART_CASES[:5]:
+        _, truth = stages.camera_truth(*case.split())
+        out.append((truth, _perturbed(truth, rng)))
+    _, t17 = stages.camera_truth("17", "CAHVORE")
+    for L in (0.0, 0.5, -0.5, 1.0):
+        t = dataclasses.replace(t17, linearity=L)
+        out.append((t, _perturbed(t, rng)))
+    # theta 90.05 deg: V' turned in the image plane
+    _, t = stages.camera_truth("13", "CAHVOR")
+    ph = t.photogrammetric()
+    c, s = np.cos(np.radians(0.05)), np.sin(np.radians(0.05))
+    t = t.with_photogrammetric(dataclasses.replace(ph, Vp=c * ph.Vp - s * ph.Hp))
+    out.append((t, _perturbed(t, rng)))
+    return out
+
+
+@pytest.mark.parametrize("case", CHART_CASES)
+def test_closed_form_chart_derivatives_are_the_differences(case):
+    r'''jpl_quantity_jacobian and jpl_grid_jacobian (the scatter of a jpl fit) against central
+differences over stepped models (Linearisation.model_jacobians, steps 1e-6 of each chart
+parameter): the differences' own error is their truncation (~h^2 times the third
+derivative) and rounding (eps |f| / h ~ 1e-10 relative), measured <= 1.2e-6 of a column's
+scale on the paper campaign's jpl records. C moves the frame and the points alike: its
+grid columns are zero in closed form, the differences' rounding (~1e-7 px per m against
+columns of ~1e3 px) elsewhere.'''
+    from harness.calibrators.jpl_fit import _Chart
+    truth, fit = _camera(case)
+    R0 = float(fit.R[0]) if fit.family != "CAHV" else 0.0
+    chart = _Chart(fit.family, fit, getattr(fit, "model_type", None),
+                   getattr(fit, "linearity", None), R0)
+    x0 = chart.x0()
+    lin = verdict.Linearisation(x0, None, chart.model, None, 1e-6 * np.maximum(np.abs(x0), 1.0))
+    m0 = chart.model(x0)
+    ref = truth     # the exact fit the differences are taken against
+    q0 = verdict._signed_quantities(ref, m0, True, True)
+    names = list(q0)
+
+    def qvec(m):
+        q = verdict._signed_quantities(ref, m, True, True)
+        return np.array([q.get(k, 0.0) for k in names])
+    P = verdict.projection_points(truth)
+    with np.errstate(all="ignore"):
+        G, Jg = lin.model_jacobians([qvec, verdict._grid_projector(P)])
+    Ga = verdict.jpl_quantity_jacobian(chart, m0, ref, names, True)
+    Ja = verdict.jpl_grid_jacobian(chart, m0, P)
+    assert Ga is not None and Ga.shape == G.shape and Ja.shape == Jg.shape
+    assert {"theta_deg", "C_mm[0]", "A_deg[1]", "roll_deg"} <= set(names)
+    gs = np.max(np.abs(G), axis=1, keepdims=True)
+    assert np.all(np.abs(Ga - G) <= 1e-6 * gs + 1e-300)
+    ok = np.all(np.isfinite(Jg), axis=1)
+    assert ok.mean() > 0.5
+    assert np.array_equal(ok, np.all(np.isfinite(Ja), axis=1))
+    Jg, Ja = Jg[ok], Ja[ok]
+    assert np.all(Ja[:, :3] == 0) and np.all(np.abs(Jg[:, :3]) <= 1e-9 * np.abs(Jg).max())
+    scale = np.max(np.abs(Jg), axis=0)
+    assert np.all(np.abs(Ja - Jg)[:, 3:] <= 1e-5 * scale[3:])
+    # fixed world points (the fit's own Jacobian, jpl_linearisation): C's columns too
+    from harness.compare import _rotated_into
+    from reference_models.kernels import project
+    W = _rotated_into(m0.Rt_ref_cam(), P)
+    Jf = verdict._central_jacobian(lambda x: project(chart.model(x), W), x0, lin.steps)
+    Jwld = verdict.jpl_grid_jacobian(chart, m0, W, world=True)
+    okw = np.all(np.isfinite(Jf), axis=1)
+    assert np.array_equal(okw, np.all(np.isfinite(Jwld), axis=1))
+    assert np.all(np.abs(Jwld - Jf)[okw] <= 1e-5 * np.max(np.abs(Jf[okw]), axis=0))
+    # the turns of the points (_projection_sigma's Jw), against its differences (steps 1e-7)
+    Jt = verdict.jpl_grid_jacobian(chart, m0, P, turns=True)
+    J0 = verdict.jpl_grid_jacobian(chart, m0, P)
+    assert np.array_equal(np.isfinite(Jt[:, :-3]), np.isfinite(J0))
+    assert np.all(np.abs(Jt[:, :-3] - J0)[ok] <= 1e-12 * np.max(np.abs(J0[ok]), axis=0) + 1e-300)
+    assert np.all(np.abs(_turn_differences(m0, P) - Jt[:, -3:])[ok]
+                  <= 1e-5 * np.max(np.abs(Jt[:, -3:][ok]), axis=0))
+
+
+def _turn_differences(m, P):
+    r'''_projection_sigma's central differences of the grid in a turn of the points'''
+    from harness.compare import _projector
+    from reference_models.poseutils import transform_point_Rt
+    project, Rt = _projector(m), m.Rt_ref_cam()
+    with np.errstate(all="ignore"):
+        return verdict._central_jacobian(
+            lambda w: project(transform_point_Rt(Rt, P @ verdict._rodrigues(w).T)),
+            np.zeros(3), np.full(3, 1e-7))
+
+
+@pytest.mark.parametrize("model", ["CAHV", "CAHVOR"])
+def test_mrcal_model_jacobians_are_the_differences(navcam, model):
+    r'''A mrcal fit's scatter takes the image grid's derivatives from mrcal.project and the
+quantities' in closed form (but R0's column, differenced: the truth side moves with it):
+against central differences over stepped models (model_jacobians) to the differences'
+own error'''
+    truth, target, poses, obs = navcam
+    res = stages.calibrate_stage("mrcal", obs, target, model, truth, {})
+    lin = verdict.linearisation(res, obs)
+    assert lin.grid_jacobian is not None and lin.quantity_jacobian is not None
+    m0 = lin.model(lin.x0)
+    ref = truth
+    q0 = verdict._signed_quantities(ref, m0, res.theta_estimated, False)
+    names = list(q0)
+
+    def qvec(m):
+        q = verdict._signed_quantities(ref, m, res.theta_estimated, False)
+        return np.array([q.get(k, 0.0) for k in names])
+    P = verdict.projection_points(truth)
+    with np.errstate(all="ignore"):
+        G, Jg = lin.model_jacobians([qvec, verdict._grid_projector(P)])
+    Ga = lin.quantity_jacobian(m0, ref, names, res.theta_estimated, qvec)
+    Ja, Jw = lin.grid_jacobian(P)
+    assert np.all(np.abs(_turn_differences(m0, P) - Jw) <= 1e-5 * np.max(np.abs(Jw), axis=0))
+    assert Ga is not None and Ga.shape == G.shape and Ja.shape == Jg.shape
+    if model == "CAHVOR":
+        assert {"O_deg[0]", "R1_frac", "R0"} <= set(names)
+    assert np.all(np.abs(Ga - G) <= 1e-6 * np.max(np.abs(G), axis=1, keepdims=True))
+    ok = np.all(np.isfinite(Jg), axis=1)
+    assert ok.all()
+    assert np.all(np.abs(Ja - Jg) <= 1e-6 * np.max(np.abs(Jg), axis=0))
+
+
+def test_opencv_model_jacobians_are_the_differences(navcam):
+    r'''An OpenCV fit's scatter takes the quantities' derivatives (linear in its intrinsics)
+and the image grid's (the 5-coefficient model's, _opencv_grid_jacobian) in closed form:
+against central differences over stepped models (model_jacobians) to their own error'''
+    truth, target, poses, obs = navcam
+    res = stages.calibrate_stage("opencv", obs, target, "OPENCV5", truth, {})
+    lin = verdict.linearisation(res, obs)
+    m0 = lin.model(lin.x0)
+    ex = stages.calibrate_stage("opencv", obs.replace(q=obs.q + 0.01), target, "OPENCV5",
+                                truth, {})
+    ref = ex.model          # another OpenCV fit: the differences' reference
+    q0 = verdict._signed_quantities(ref, m0, res.theta_estimated, False)
+    names = list(q0)
+
+    def qvec(m):
+        q = verdict._signed_quantities(ref, m, res.theta_estimated, False)
+        return np.array([q.get(k, 0.0) for k in names])
+    P = verdict.projection_points(truth)
+    with np.errstate(all="ignore"):
+        G, Jg = lin.model_jacobians([qvec, verdict._grid_projector(P)])
+    Ga = lin.quantity_jacobian(m0, ref, names, res.theta_estimated, qvec)
+    Ja, Jw = lin.grid_jacobian(P)
+    assert Jw is None and {"Hc", "Vs", "D0", "D4"} <= set(names)
+    assert np.all(np.abs(Ga - G) <= 1e-6 * np.max(np.abs(G), axis=1, keepdims=True))
+    ok = np.all(np.isfinite(Jg), axis=1)
+    assert ok.all() and np.all(np.abs(Ja - Jg) <= 1e-6 * np.max(np.abs(Jg), axis=0))
+    # the 8-coefficient model's k4..k6 columns too
+    d = np.concatenate((lin.x0[:9], [0.01, -0.002, 0.0005]))
+    J8 = verdict._opencv_grid_jacobian(d, P)
+    from harness.calibrators.opencv_fit import OpenCVModel
+
+    def grid8(t):
+        K = np.array([[t[0], 0, t[2]], [0, t[1], t[3]], [0, 0, 1.0]])
+        return OpenCVModel("RATIONAL", K, t[4:], m0.width, m0.height).project(P)
+    F8 = verdict._central_jacobian(grid8, d, 1e-6 * np.maximum(np.abs(d), 1.0))
+    assert np.all(np.abs(J8 - F8) <= 1e-6 * np.max(np.abs(F8), axis=0))
