@@ -671,9 +671,10 @@ beyond BLUR_NEGLIGIBLE_PX by 3 standard errors of its median (1.2533 x the estim
 spread / sqrt(n)): a sharp render's few corners can read a blur of that size by chance
 (0.023 px, spread 0.033 on 8 corners of a 5120x3840 fisheye), and such a look is checked
 by the full estimate instead of stopping the window fit'''
-    n = max(int(look.get("psf_estimates", 0)), 1)
-    if n < 2:
+    n = int(look.get("psf_estimates", 0))
+    if n == 1:
         return False    # one corner's sigma has no spread (its MAD is 0): the full estimate
+    n = max(n, 1)       # no count given: the median decides (its spread is unknown)
     spread = float(look.get("psf_sigma_spread_px", float("nan")))
     se = 1.2533 * spread / math.sqrt(n) if math.isfinite(spread) else 0.0
     low = max(float(look["psf_sigma_px"]) - 3.0 * se, 0.0)

@@ -257,6 +257,8 @@ def test_window_shrinks_by_the_psf_reach():
     (0.70, 0.02, 8, True),      # the realistic profile's sigma 0.7 px
     (1e-5, 1e-5, 8, False),     # a sharp render's usual look
     (0.05, float("nan"), 0, True),   # no spread to judge by: the median decides
+    (0.2347, 0.0, 1, False),    # one corner's estimate, spread 0 by construction (a sharp
+                                # render of constructed offaxis-640x480): the full estimate
 ])
 def test_quick_look_stops_only_on_a_blur_beyond_its_own_scatter(sigma, spread, n, blurred):
     r'''refine_corners(stop_if_blurred) leaves the window fit for the tag edges only when
