@@ -604,6 +604,73 @@ docstring says. The weights are computed in place in the crop; their non-finite 
     return sx / s, np.multiply(wgt, yy, out=wx).sum() / s
 
 
+# The shading pass (_shading_pass): the board's own level at each pixel is the grey
+# closing of the image (a dilation, then an erosion: it fills the dark features narrower
+# than its window and follows any wider shading, never rising above a light neighbour's
+# level on both sides), on the image reduced SHADING_REDUCTION times at most (area
+# averages: a hot pixel counts a sixteenth); its square window is SHADING_WINDOW times the
+# largest dot of the first pass's lattice (the mark dots are 1.4 times a small one's
+# diameter) plus SHADING_MARGIN_PX for a blurred edge.
+SHADING_REDUCTION = 4
+SHADING_WINDOW = 1.5
+SHADING_MARGIN_PX = 8
+# where the board level is below this fraction of its brightest, the image is divided by
+# that fraction instead: the background beyond the board (albedo 0) stays dark, and a
+# board lit below 2 % of its brightest (a cos^4 falloff past 68 deg off the axis) is not
+# sought (its dots' contrast is a few levels of an 8-bit converter)
+SHADING_FLOOR = 0.02
+# the image relative to the board level is clipped here: what is brighter than twice the
+# board around it (a hot pixel) is light whatever its value, and the threshold's
+# histogram keeps its resolution between the dots (~0.1) and the board (1)
+SHADING_CLIP = 2.0
+
+
+def local_board_level(img, dot_area_px=None):
+    '''The board's light level at each pixel of img (H,W), float32: the grey closing of
+img reduced (area average), with a window wider than the dots (the largest dot's area
+dot_area_px; None: a twentieth of the image's larger side as its diameter), resized back
+bilinearly. See SHADING_* above.'''
+    import cv2
+    H, W = img.shape
+    d = 2.0 * math.sqrt(dot_area_px / math.pi) if dot_area_px else max(H, W) / 20.0
+    s = max(1, min(SHADING_REDUCTION, int(d // 4)))
+    f = np.asarray(img, dtype=np.float32)
+    small = _reduce(f, s) if s > 1 else f
+    k = int(math.ceil((SHADING_WINDOW * d + SHADING_MARGIN_PX) / s)) | 1
+    level = cv2.morphologyEx(small, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8))
+    if s > 1:
+        level = cv2.resize(level, (W, H), interpolation=cv2.INTER_LINEAR)
+    return level
+
+
+def _shading_pass(image, target, src, img, det, dot_area, step, **options):
+    '''The first pass's Detection det (a global threshold, which left dots out) or a second
+one whose threshold is relative to the local board level, whichever found more dots
+
+Under shading (vignetting: a multiplicative falloff across the image) one threshold
+cannot split dots from board everywhere: where the board is lit at a third of its
+brightest it is darker than the dots at the centre. Divided by the board's own level
+(local_board_level), every dot is ~dot/board albedo (0.11 for the JPL target) and the
+board ~1, whatever the light: Otsu's threshold on that ratio splits them everywhere. Only
+the blobs (masks, lattice, numbering) come from the ratio; the centroids are measured in
+img as in the first pass (their weights take the board level from a plane fitted around
+each dot). An image the global threshold already serves is never looked at again, so its
+dots are those of the first pass, bit for bit.'''
+    level = local_board_level(img, dot_area)
+    floor = SHADING_FLOOR * float(level.max())
+    if not floor > 0:
+        return det
+    lab = np.clip(img / np.maximum(level, floor), 0.0, SHADING_CLIP).astype(np.float32)
+    H, W = img.shape
+    small = _reduce(lab, REDUCTION) if H * W > LARGE_IMAGE_PIXELS else None
+    thr = _otsu(lab[::step, ::step])
+    det2, _ = _measure(image, target, src, img, lab, thr, small, False, **options)
+    if det2.n_found <= det.n_found and not det2.status == "ok":
+        return det
+    det2.info["threshold_relative_to"] = "the local board level (shading)"
+    return det2
+
+
 def detect_dots(image, target, **options):
     r'''Detect a dot grid; see the module docstring and _detect_dots() for the options
 
@@ -626,7 +693,7 @@ calls (benchmarks/bench_stages.py detect --check).'''
 
 
 def _detect_dots(image, target, *, window_dilation_px=2, ring_px=3, min_area_px=6,
-                 min_found=None, threshold=None):
+                 min_found=None, threshold=None, shading=True):
     r'''Detect a dot grid; see the module docstring
 
 SYNOPSIS
@@ -642,8 +709,10 @@ ARGUMENTS
 - min_area_px: smaller dark blobs are ignored
 - min_found: fewest dots for status "ok" (default: all of them)
 - threshold: dark/light threshold (default: Otsu)
+- shading: when the global threshold does not give every dot, look again with the
+  threshold relative to the local board level (_shading_pass); False: the global
+  threshold only
 '''
-    from scipy.spatial import cKDTree
 
     large = _is_large(image)
     src = np.asarray(image)
@@ -652,7 +721,6 @@ ARGUMENTS
     # the centroids), the values a float64 copy would hold
     exact64 = not large and src.ndim == 2 and src.dtype == np.float32
     img = as_float_image(image, dtype=np.float32 if large or exact64 else np.float64)
-    nx, ny = target.grid_shape
     if target.kind != "dots":
         return failed(target, f"detect_dots() needs a dots target; got {target.kind!r}",
                       DETECTOR)
@@ -667,12 +735,30 @@ ARGUMENTS
     if problem is not None:
         return failed(target, problem, DETECTOR)
     thr = _otsu(sub) if threshold is None else float(threshold)
+    options = dict(window_dilation_px=window_dilation_px, ring_px=ring_px,
+                   min_area_px=min_area_px, min_found=min_found)
+    det, dot_area = _measure(image, target, src, img, img, thr, small, exact64, **options)
+    if det.status == "ok" or threshold is not None or not shading:
+        return det
+    return _shading_pass(image, target, src, img, det, dot_area, step, **options)
+
+
+def _measure(image, target, src, img, lab, thr, small, exact64, *, window_dilation_px,
+             ring_px, min_area_px, min_found):
+    '''(Detection, the largest lattice blob's area px or None): the blobs of lab < thr
+(the labelled image: img itself, or _shading_pass's image relative to the board level;
+small: its reduction for a large image), their lattice and numbering, and the centroids
+of the blobs measured in img (module docstring, steps 1-4)'''
+    from scipy.spatial import cKDTree
+
+    nx, ny = target.grid_shape
+    H, W = img.shape
     found = None
     if H * W > LARGE_IMAGE_PIXELS:
-        found = _blobs_from_reduced(img, thr, REDUCTION, small)
+        found = _blobs_from_reduced(lab, thr, REDUCTION, small)
     whole = found is None   # every dark pixel lies in a labelled component
     if whole:   # (a float64 threshold: the float32 pixels compared as float64)
-        found = _label_whole(img, np.float64(thr) if exact64 else thr)
+        found = _label_whole(lab, np.float64(thr) if exact64 else thr)
     masks, stats, centroids = found
     n = len(stats)
     x0, y0, w, h, area = (stats[:, k] for k in range(5))
@@ -681,7 +767,7 @@ ARGUMENTS
     blobs = np.flatnonzero(keep)
     info = {"threshold": thr, "Nblobs": int(len(blobs))}
     if len(blobs) == 0:
-        return failed(target, "no dark blobs in the image", DETECTOR, info)
+        return failed(target, "no dark blobs in the image", DETECTOR, info), None
     c = centroids[blobs]
     a = area[blobs].astype(np.float64)
     tree = cKDTree(c)
@@ -701,8 +787,10 @@ ARGUMENTS
         if best is not None and len(best) == nx * ny:
             break
     if best is None or len(best) < 2 and nx * ny > 1:
-        return failed(target, f"no grid of dots among {len(blobs)} dark blobs", DETECTOR, info)
+        return failed(target, f"no grid of dots among {len(blobs)} dark blobs", DETECTOR,
+                      info), float(np.median(a))
     info["Nlattice"] = len(best)
+    dot_area = float(a[np.array(list(best.values()), np.int64)].max())
 
     # the orientation mark: blobs larger than their lattice neighbours
     mark_spec = target.spec.get("orientation_mark")
@@ -715,7 +803,7 @@ ARGUMENTS
     else:
         numbered = _unmarked_choice(best, c, target)
     if isinstance(numbered, str):
-        return failed(target, numbered, DETECTOR, info)
+        return failed(target, numbered, DETECTOR, info), dot_area
     ix, iy, tinfo = numbered
     info.update(tinfo)
 
@@ -734,7 +822,7 @@ ARGUMENTS
              np.minimum(W, x0[dots] + w[dots] + pad), np.minimum(H, y0[dots] + h[dots] + pad))
     crowded = _crowded(stats, dots, *crops)
     # the threshold as _label_stack compared the pixels with it
-    thr_labelled = np.result_type(img, thr).type(np.float64(thr) if exact64 else thr)
+    thr_labelled = np.result_type(lab, thr).type(np.float64(thr) if exact64 else thr)
     for label, bx, by, xa, ya, xb, yb, near, gx, gy in zip(
             dots.tolist(), x0[dots].tolist(), y0[dots].tolist(), *(c.tolist() for c in crops),
             crowded.tolist(), ix, iy, strict=True):
@@ -744,7 +832,7 @@ ARGUMENTS
             as_float_image(np.asarray(image)[ya:yb, xa:xb])
         free = _dot_free(masks, stats, xa, ya, xb, yb, near and not whole)
         if near and whole:   # the pixels of no blob: the light ones, as labelled
-            free = ~(img[ya:yb, xa:xb] < thr_labelled)
+            free = ~(lab[ya:yb, xa:xb] < thr_labelled)
         status = -1
         if rows is not None:    # (the blob's mask over its box, where it lies in the crop)
             status, cx, cy = _kernels.dot_centroid(
@@ -757,4 +845,4 @@ ARGUMENTS
             status, (cx, cy) = (0, (0, 0)) if c is None else (1, c)
         if status:
             q[gy * nx + gx] = cx, cy
-    return result(target, q, DETECTOR, min_found=min_found, info=info)
+    return result(target, q, DETECTOR, min_found=min_found, info=info), dot_area

@@ -1,0 +1,244 @@
+r'''A geometrically exact renderer with a different photometry, judged by the default gate
+
+    uv run --frozen python benchmarks/bench_photometric.py OUT_DIR [--cameras 15,17,8,...]
+        [--stages vignetting,psf,...|all] [--calibrators jpl[,mrcal,opencv]] [--seed 0]
+        [-j 2] [--out-dir DIR]
+
+camval will be checked with renderers it has not seen. One whose geometry is exact but
+whose images differ photometrically from camval's own render (another antialiasing or
+supersampling, vignetting, a gain, a dark offset, noise, a blur, 8-bit quantisation, a
+few hot or dead pixels, a saturated white) must pass the default renderer gate
+(campaigns/gate-renderer.toml, `camval gate RUN`), or, where the photometric effect
+truly moves the geometry a detector sees (as it would on any real camera), its record
+must say so with the reason instead of reading as a renderer geometry fault.
+
+Each VARIANT below is the exact ray caster (K=16, adaptive, area coverage) followed by
+ONE camera-response stage of renderers/response.py at a realistic strength (and the
+realistic profile of campaigns/response.toml, and the clean render as the control), or
+the ray caster itself with another antialiasing (point sampling, K=4 or 2 a side, not
+adaptive). The cameras default to navcam 15 (CAHVOR), hazcam 17 (CAHVORE), MER front
+hazcam 8 (CAHVORE) and the constructed 114 deg barrel CAHVOR of campaigns/cameras/, each
+under its own family; 6 poses of the dot target (--pose-seed). Every variant is one
+campaign of all the cameras (OUT_DIR/VARIANT, resumed when it exists), judged by the
+default spec; the table gives per variant, camera and calibrator the gate's verdict
+(pass / FAIL / n-j: not judged, the record's floor is far / a status) and the worst
+judged z-score with its quantity (|renderer difference| / sigma over the [[scatter]]
+quantities the spec judges on that record, and the joint z where [[joint]] judges it),
+with the record's measured detection noise (detected - exact, RMS px). Exit 1 when a
+variant fails the gate.
+
+Measured figures: see the module's end (RESULTS) and the commit that wrote them.
+'''
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+CAMERAS = "15,17,8,cameras/barrel-1024x768.cahvor"
+FULL_WELL_E = 20000
+# one stage each at the strength of a real camera (20000 e- well as in campaigns/response.toml)
+RESPONSES = {
+    "clean": {},
+    # the natural falloff of an ideal lens: cos^4 of the field angle (0.09 at the corners of
+    # the 114 deg barrel camera, 0.5 at 33 deg)
+    "vignetting": {"vignetting": {"model": "cos4"}},
+    # a slightly defocused lens (realistic's PSF), and a circular aperture's defocus
+    "psf": {"psf": {"kind": "gaussian", "sigma_px": 0.7}},
+    "psf_disc": {"psf": {"kind": "disc", "radius_px": 1.5}},
+    # the camera moving 1 px x 0.5 px during the exposure
+    "motion_blur": {"motion_blur": {"velocity_px": [1.0, 0.5]}},
+    # underexposed by 30%
+    "gain": {"global_gain": {"gain": 0.7}},
+    # a dark offset: 400 e- (2% of the well) with its Poisson noise
+    "dark": {"dark_current": {"rate_e_per_s": 400.0, "exposure_s": 1.0}},
+    "shot_noise": {"shot_noise": {}},
+    "read_noise": {"read_noise": {"sigma_e": 12.0}},
+    # 1e-4 of the pixels: about 100 on a megapixel sensor
+    "hot_pixels": {"hot_pixels": {"fraction": 1e-4, "charge_e": 10000.0}},
+    "dead_pixels": {"dead_pixels": {"fraction": 1e-4}},
+    # overexposed by 30%: the white board (albedo 0.9) clips at the full well
+    "saturation": {"global_gain": {"gain": 1.3}, "saturation": {}},
+    "quantise8": {"quantise": {"bits": 8}},
+    "realistic": {"psf": {"kind": "gaussian", "sigma_px": 0.7}, "shot_noise": {},
+                  "read_noise": {"sigma_e": 12.0}, "quantise": {"bits": 12}},
+}
+# another antialiasing: K x K point samples a pixel, not adaptive (no edge refinement)
+RENDERINGS = {
+    "spp4": {"spp": 4, "adaptive": False, "options": {"coverage": "point"}},
+    "spp2": {"spp": 2, "adaptive": False, "options": {"coverage": "point"}},
+}
+VARIANTS = tuple(RESPONSES) + tuple(RENDERINGS)
+REFERENCE = {"name": "raycast", "spp": 16, "adaptive": True}
+
+
+def campaign(variant, cameras, calibrators, pose_seed, seed):
+    r'''The campaign document of one variant: every camera under its own family (the dots)'''
+    renderer = dict(REFERENCE)
+    doc = {"name": f"photometric-{variant}", "cameras": cameras,
+           "models": ["CAHV", "CAHVOR", "CAHVORE"], "targets": ["dots"],
+           "target_models": {"dots": ["own"]}, "keep_images": False,
+           "poses": {"n": 6, "seed": pose_seed}, "seed": seed,
+           "calibrator": [{"name": "jpl"} if c == "jpl" else
+                          {"name": "opencv", "models": ["OPENCV5"]} if c == "opencv" else
+                          {"name": c} for c in calibrators]}
+    if variant in RENDERINGS:
+        renderer = {"name": "raycast", **RENDERINGS[variant]}
+    elif RESPONSES[variant]:
+        # (a profile may not be named like a stage: "photo-" + the variant)
+        renderer["response"] = [f"photo-{variant}"]
+        doc["response"] = {f"photo-{variant}": {"full_well_e": FULL_WELL_E,
+                                                **RESPONSES[variant]}}
+    doc["renderer"] = [renderer]
+    return doc
+
+
+def _lookup(r, path):
+    for part in path.split("."):
+        if not isinstance(r, dict) or part not in r:
+            return None
+        r = r[part]
+    return r
+
+
+def worst_z(name, rec, spec):
+    r'''(z, quantity) the largest judged z of an ok record: |value| / sigma over the spec's
+[[scatter]] limits matching it (with a sigma), and the joint z where a [[joint]] matches'''
+    from harness.gate import _matches
+    best = (0.0, "-")
+    for lim in spec.scatter:
+        if not _matches(name, lim.match):
+            continue
+        v, s = _lookup(rec, lim.field), _lookup(rec, lim.sigma)
+        if isinstance(v, (int, float)) and isinstance(s, (int, float)) and s > 0:
+            z = abs(v) / s
+            if z > best[0]:
+                best = (z, lim.field.rsplit(".", 1)[-1])
+    for lim in spec.joint:
+        j = _lookup(rec, lim.field)
+        if _matches(name, lim.match) and isinstance(j, dict) and j.get("z") is not None:
+            if j["z"] > best[0]:
+                best = (float(j["z"]), "joint")
+    return best
+
+
+def cell(name, rec, failures, spec):
+    r'''(verdict, z, quantity, noise px, reason) of one record'''
+    from harness.gate import _unjudged
+    noise = _lookup(rec, "verdict.detection_noise.rms")
+    if rec.get("status") != "ok":
+        return rec.get("status"), None, "-", noise, rec.get("reason") or ""
+    z, q = worst_z(name, rec, spec)
+    if failures:
+        return "FAIL", z, q, noise, "; ".join(f"{f.field.rsplit('.', 1)[-1]} {f.value} vs "
+                                              f"{f.limit}" for f in failures[:3])
+    if _unjudged(rec):
+        v = rec.get("verdict") or {}
+        return "n-j", z, q, noise, v.get("floor_reason") or v.get("disagree_reason") or ""
+    return "pass", z, q, noise, ""
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("out", help="directory of the runs (OUT/VARIANT, resumed when they exist)")
+    ap.add_argument("--cameras", default=CAMERAS,
+                    help="slot ids, extras or model files (relative: from campaigns/)")
+    ap.add_argument("--stages", default="all",
+                    help=f"variants, comma-separated, or 'all': {', '.join(VARIANTS)}")
+    ap.add_argument("--calibrators", default="jpl", help="jpl, mrcal, opencv (OPENCV5)")
+    ap.add_argument("--pose-seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="the response's noise seed")
+    ap.add_argument("-j", "--jobs", type=int, default=2)
+    ap.add_argument("--out-dir", type=Path, default=None,
+                    help="directory of the JSON document (default benchmarks/results)")
+    args = ap.parse_args(argv)
+
+    import common
+
+    from harness.campaign import parse_campaign
+    from harness.gate import DEFAULT_SPEC, check, load_gate_spec
+    from harness.runner import run_campaign
+
+    variants = list(VARIANTS) if args.stages == "all" else \
+        [v for v in args.stages.split(",") if v]
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:
+        ap.error(f"unknown variant {unknown[0]!r}; known: {', '.join(VARIANTS)}")
+    cameras = [int(c) if c.isdigit() else c for c in args.cameras.split(",") if c]
+    calibrators = [c for c in args.calibrators.split(",") if c]
+    spec = load_gate_spec(DEFAULT_SPEC)
+    out = Path(args.out)
+    results = common.Results("bench_photometric", args, out_dir=args.out_dir)
+    rows = {}
+    ok = True
+    for variant in variants:
+        doc = campaign(variant, cameras, calibrators, args.pose_seed, args.seed)
+        run_dir = out / variant
+        t0 = time.perf_counter()
+        run = run_campaign(parse_campaign(doc, base_dir=ROOT / "campaigns"), run_dir,
+                           progress=False, workers=args.jobs,
+                           resume=(run_dir / "campaign.json").is_file())
+        secs = time.perf_counter() - t0
+        failures = check(run, spec)
+        ok &= not failures
+        by_name = {}
+        for f in failures:
+            by_name.setdefault(f.fullname, []).append(f)
+        print(f"{variant:12s} {'FAIL' if failures else 'pass'} ({secs:.0f} s, "
+              f"{len(run['records'])} records)", flush=True)
+        for name, rec in sorted(run["records"].items()):
+            cal = rec["calibrator"]
+            cam = str(rec["camera"])
+            v, z, q, noise, why = cell(name, rec, by_name.get(name, []), spec)
+            rows[(variant, cam, cal)] = (v, z, q, noise)
+            results.add(f"{variant}/{cam}/{cal}[{rec['calibrator_model']}]",
+                        status="ok" if rec.get("status") == "ok" else "failed",
+                        verdict=v, worst_z=z, quantity=q, detection_noise_rms=noise,
+                        reason=why, run_record=name)
+            zs = "-" if z is None else f"{z:.2f}"
+            ns = "-" if noise is None else f"{noise:.2g}"
+            print(f"    {cam:32s} {cal:6s} {v:5s} z {zs:>6s} {q:18s} noise {ns:>8s} px"
+                  f"{'  ' + why if why and v != 'pass' else ''}", flush=True)
+        for f in by_name.get("(gate spec)", []):
+            print(f"    (gate spec) {f.field} {f.value}", flush=True)
+    print_table(rows, variants, cameras, calibrators)
+    results.write()
+    print("photometric gate:", "PASS" if ok else "FAIL")
+    return 0 if ok else 1
+
+
+def _short(cam):
+    c = str(cam)
+    return Path(c).stem.split("-")[0] if "/" in c or "." in c else c
+
+
+def print_table(rows, variants, cameras, calibrators):
+    cams = {str(r[1]) for r in rows}
+    cams = [c for c in (str(x) for x in cameras) if c in cams] + \
+        sorted(cams - {str(x) for x in cameras})
+    # records name a model file by its path: match the columns by their stem
+    cols = [(c, cal) for c in cams for cal in calibrators]
+    print("\nverdict / worst judged z (quantity); noise = detected - exact RMS px")
+    print(f"{'variant':12s}" + "".join(f"{_short(c)[:7] + ' ' + cal[:5]:>34s}"
+                                       for c, cal in cols))
+    for variant in variants:
+        cells = []
+        for c, cal in cols:
+            v = rows.get((variant, c, cal))
+            if v is None:
+                cells.append(f"{'-':>34s}")
+                continue
+            verdict, z, q, noise = v
+            zs = "" if z is None else f" {z:.1f} {q[:12]}"
+            ns = "" if noise is None else f" {noise:.1g}"
+            cells.append(f"{verdict + zs + ns:>34s}")
+        print(f"{variant:12s}" + "".join(cells))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
