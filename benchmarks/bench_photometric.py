@@ -1,7 +1,7 @@
 r'''A geometrically exact renderer with a different photometry, judged by the default gate
 
     uv run --frozen python benchmarks/bench_photometric.py OUT_DIR [--cameras 15,17,8,...]
-        [--stages vignetting,psf,...|all] [--calibrators jpl[,mrcal,opencv]] [--seed 0]
+        [--stages vignetting,psf,...|all] [--calibrators jpl[,mrcal,opencv]] [--seeds 0|0-4]
         [-j 2] [--out-dir DIR]
 
 camval will be checked with renderers it has not seen. One whose geometry is exact but
@@ -64,8 +64,21 @@ RESPONSES = {
     # overexposed by 30%: the white board (albedo 0.9) clips at the full well
     "saturation": {"global_gain": {"gain": 1.3}, "saturation": {}},
     "quantise8": {"quantise": {"bits": 8}},
+    # an 8-bit sRGB image file (the values no longer proportional to the light)
+    "srgb8": {"encoding": {"kind": "srgb"}, "quantise": {"bits": 8}},
     "realistic": {"psf": {"kind": "gaussian", "sigma_px": 0.7}, "shot_noise": {},
                   "read_noise": {"sigma_e": 12.0}, "quantise": {"bits": 12}},
+    # beyond one stage: a lens's relative illumination (0.4 at 700 px off the centre), a
+    # softer lens (sigma 1.5 px), an overexposed CCD that blooms, and a consumer camera
+    # (vignetted, soft, noisy, 8 bits)
+    "vignetting_lens": {"vignetting": {"model": "profile", "radius_px": [0, 350, 700, 2000],
+                                       "factor": [1.0, 0.8, 0.4, 0.4]}},
+    "psf_wide": {"psf": {"kind": "gaussian", "sigma_px": 1.5}},
+    "blooming": {"global_gain": {"gain": 1.5}, "saturation": {"blooming": True}},
+    "consumer": {"vignetting": {"model": "profile", "radius_px": [0, 350, 700, 2000],
+                                "factor": [1.0, 0.8, 0.4, 0.4]},
+                 "psf": {"kind": "gaussian", "sigma_px": 1.0}, "shot_noise": {},
+                 "read_noise": {"sigma_e": 12.0}, "quantise": {"bits": 8}},
 }
 # another antialiasing: K x K point samples a pixel, not adaptive (no edge refinement)
 RENDERINGS = {
@@ -105,54 +118,63 @@ def _lookup(r, path):
     return r
 
 
-def worst_z(name, rec, spec):
-    r'''(z, quantity) the largest judged z of an ok record: |value| / sigma over the spec's
-[[scatter]] limits matching it (with a sigma), and the joint z where a [[joint]] matches'''
+def judged_z(name, rec, spec):
+    r'''[(z, quantity)] of an ok record: |value| / sigma of every [[scatter]] limit of the spec
+matching it (with a sigma), and the joint z where a [[joint]] limit matches'''
     from harness.gate import _matches
-    best = (0.0, "-")
+    out = []
     for lim in spec.scatter:
         if not _matches(name, lim.match):
             continue
         v, s = _lookup(rec, lim.field), _lookup(rec, lim.sigma)
         if isinstance(v, (int, float)) and isinstance(s, (int, float)) and s > 0:
-            z = abs(v) / s
-            if z > best[0]:
-                best = (z, lim.field.rsplit(".", 1)[-1])
+            out.append((abs(v) / s, lim.field.rsplit(".", 1)[-1]))
     for lim in spec.joint:
         j = _lookup(rec, lim.field)
         if _matches(name, lim.match) and isinstance(j, dict) and j.get("z") is not None:
-            if j["z"] > best[0]:
-                best = (float(j["z"]), "joint")
-    return best
+            out.append((float(j["z"]), "joint"))
+    return out
 
 
 def cell(name, rec, failures, spec):
-    r'''(verdict, z, quantity, noise px, reason) of one record'''
+    r'''(verdict, worst z, its quantity, noise px, reason, [marginal z]) of one record'''
     from harness.gate import _unjudged
     noise = _lookup(rec, "verdict.detection_noise.rms")
     if rec.get("status") != "ok":
-        return rec.get("status"), None, "-", noise, rec.get("reason") or ""
-    z, q = worst_z(name, rec, spec)
+        return rec.get("status"), None, "-", noise, rec.get("reason") or "", []
+    zs = judged_z(name, rec, spec)
+    z, q = max(zs, default=(0.0, "-"))
+    marginal = [x for x, k in zs if k != "joint"]
     if failures:
         return "FAIL", z, q, noise, "; ".join(f"{f.field.rsplit('.', 1)[-1]} {f.value} vs "
-                                              f"{f.limit}" for f in failures[:3])
+                                              f"{f.limit}" for f in failures[:3]), marginal
     if _unjudged(rec):
         v = rec.get("verdict") or {}
-        return "n-j", z, q, noise, v.get("floor_reason") or v.get("disagree_reason") or ""
-    return "pass", z, q, noise, ""
+        return "n-j", z, q, noise, v.get("floor_reason") or v.get("disagree_reason") or "", []
+    return "pass", z, q, noise, "", marginal
+
+
+def seeds_of(text):
+    out = []
+    for part in (p for p in text.split(",") if p):
+        a, _, b = part.partition("-")
+        out += range(int(a), int(b) + 1) if b else [int(a)]
+    return out
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("out", help="directory of the runs (OUT/VARIANT, resumed when they exist)")
+    ap.add_argument("out", help="directory of the runs (OUT/VARIANT[-sSEED], resumed when "
+                                "they exist)")
     ap.add_argument("--cameras", default=CAMERAS,
                     help="slot ids, extras or model files (relative: from campaigns/)")
     ap.add_argument("--stages", default="all",
                     help=f"variants, comma-separated, or 'all': {', '.join(VARIANTS)}")
     ap.add_argument("--calibrators", default="jpl", help="jpl, mrcal, opencv (OPENCV5)")
-    ap.add_argument("--pose-seed", type=int, default=0)
-    ap.add_argument("--seed", type=int, default=0, help="the response's noise seed")
+    ap.add_argument("--seeds", default="0",
+                    help="0,1,... or a range 0-4: each seed is the pose seed and the "
+                         "response's noise seed of one campaign per variant")
     ap.add_argument("-j", "--jobs", type=int, default=2)
     ap.add_argument("--out-dir", type=Path, default=None,
                     help="directory of the JSON document (default benchmarks/results)")
@@ -171,45 +193,57 @@ def main(argv=None):
         ap.error(f"unknown variant {unknown[0]!r}; known: {', '.join(VARIANTS)}")
     cameras = [int(c) if c.isdigit() else c for c in args.cameras.split(",") if c]
     calibrators = [c for c in args.calibrators.split(",") if c]
+    seeds = seeds_of(args.seeds)
     spec = load_gate_spec(DEFAULT_SPEC)
     out = Path(args.out)
     results = common.Results("bench_photometric", args, out_dir=args.out_dir)
     rows = {}
+    zstats = {}
     ok = True
     for variant in variants:
-        doc = campaign(variant, cameras, calibrators, args.pose_seed, args.seed)
-        run_dir = out / variant
-        t0 = time.perf_counter()
-        run = run_campaign(parse_campaign(doc, base_dir=ROOT / "campaigns"), run_dir,
-                           progress=False, workers=args.jobs,
-                           resume=(run_dir / "campaign.json").is_file())
-        secs = time.perf_counter() - t0
-        failures = check(run, spec)
-        ok &= not failures
-        by_name = {}
-        for f in failures:
-            by_name.setdefault(f.fullname, []).append(f)
-        print(f"{variant:12s} {'FAIL' if failures else 'pass'} ({secs:.0f} s, "
-              f"{len(run['records'])} records)", flush=True)
-        for name, rec in sorted(run["records"].items()):
-            cal = rec["calibrator"]
-            cam = str(rec["camera"])
-            v, z, q, noise, why = cell(name, rec, by_name.get(name, []), spec)
-            rows[(variant, cam, cal)] = (v, z, q, noise)
-            results.add(f"{variant}/{cam}/{cal}[{rec['calibrator_model']}]",
-                        status="ok" if rec.get("status") == "ok" else "failed",
-                        verdict=v, worst_z=z, quantity=q, detection_noise_rms=noise,
-                        reason=why, run_record=name)
-            zs = "-" if z is None else f"{z:.2f}"
-            ns = "-" if noise is None else f"{noise:.2g}"
-            print(f"    {cam:32s} {cal:6s} {v:5s} z {zs:>6s} {q:18s} noise {ns:>8s} px"
-                  f"{'  ' + why if why and v != 'pass' else ''}", flush=True)
-        for f in by_name.get("(gate spec)", []):
-            print(f"    (gate spec) {f.field} {f.value}", flush=True)
+        for seed in seeds:
+            doc = campaign(variant, cameras, calibrators, seed, seed)
+            run_dir = out / (variant if seed == 0 else f"{variant}-s{seed}")
+            t0 = time.perf_counter()
+            run = run_campaign(parse_campaign(doc, base_dir=ROOT / "campaigns"), run_dir,
+                               progress=False, workers=args.jobs,
+                               resume=(run_dir / "campaign.json").is_file())
+            secs = time.perf_counter() - t0
+            failures = check(run, spec)
+            ok &= not failures
+            by_name = {}
+            for f in failures:
+                by_name.setdefault(f.fullname, []).append(f)
+            print(f"{variant:12s} seed {seed} {'FAIL' if failures else 'pass'} ({secs:.0f} s, "
+                  f"{len(run['records'])} records)", flush=True)
+            for name, rec in sorted(run["records"].items()):
+                cal = rec["calibrator"]
+                cam = str(rec["camera"])
+                v, z, q, noise, why, zs = cell(name, rec, by_name.get(name, []), spec)
+                rows.setdefault((variant, cam, cal), []).append((v, z, q, noise))
+                zstats.setdefault((variant, cal), []).extend(zs)
+                results.add(f"{variant}/{seed}/{cam}/{cal}[{rec['calibrator_model']}]",
+                            status="ok" if rec.get("status") == "ok" else "failed",
+                            verdict=v, worst_z=z, quantity=q, detection_noise_rms=noise,
+                            reason=why, run_record=name, seed=seed)
+                zt = "-" if z is None else f"{z:.2f}"
+                ns = "-" if noise is None else f"{noise:.2g}"
+                print(f"    {cam:32s} {cal:6s} {v:5s} z {zt:>6s} {q:18s} noise {ns:>8s} px"
+                      f"{'  ' + why if why and v != 'pass' else ''}", flush=True)
+            for f in by_name.get("(gate spec)", []):
+                print(f"    (gate spec) {f.field} {f.value}", flush=True)
     print_table(rows, variants, cameras, calibrators)
+    print_z(zstats, variants, calibrators)
+    results.doc["z_statistics"] = {
+        f"{v}/{c}": {"n": len(z), "rms_z": _rms(z), "max_z": max(z, default=None),
+                     "over_4": sum(x > 4 for x in z)} for (v, c), z in zstats.items()}
     results.write()
     print("photometric gate:", "PASS" if ok else "FAIL")
     return 0 if ok else 1
+
+
+def _rms(z):
+    return (sum(x * x for x in z) / len(z)) ** 0.5 if z else None
 
 
 def _short(cam):
@@ -221,23 +255,40 @@ def print_table(rows, variants, cameras, calibrators):
     cams = {str(r[1]) for r in rows}
     cams = [c for c in (str(x) for x in cameras) if c in cams] + \
         sorted(cams - {str(x) for x in cameras})
-    # records name a model file by its path: match the columns by their stem
     cols = [(c, cal) for c in cams for cal in calibrators]
-    print("\nverdict / worst judged z (quantity); noise = detected - exact RMS px")
-    print(f"{'variant':12s}" + "".join(f"{_short(c)[:7] + ' ' + cal[:5]:>34s}"
+    print("\nverdict (passed runs / runs: FAIL, n-j not judged, a status) / worst judged z "
+          "(quantity) / largest detection noise (detected - exact RMS px)")
+    print(f"{'variant':12s}" + "".join(f"{_short(c)[:7] + ' ' + cal[:5]:>30s}"
                                        for c, cal in cols))
     for variant in variants:
         cells = []
         for c, cal in cols:
             v = rows.get((variant, c, cal))
-            if v is None:
-                cells.append(f"{'-':>34s}")
+            if not v:
+                cells.append(f"{'-':>30s}")
                 continue
-            verdict, z, q, noise = v
-            zs = "" if z is None else f" {z:.1f} {q[:12]}"
+            verdicts = [x[0] for x in v]
+            bad = [x for x in verdicts if x != "pass"]
+            head = bad[0] if len(v) == 1 and bad else \
+                f"{verdicts.count('pass')}/{len(v)}" if len(v) > 1 else "pass"
+            z, q = max(((x[1], x[2]) for x in v if x[1] is not None), default=(None, "-"))
+            noise = max((x[3] for x in v if x[3] is not None), default=None)
+            zs = "" if z is None else f" {z:.1f} {q[:10]}"
             ns = "" if noise is None else f" {noise:.1g}"
-            cells.append(f"{verdict + zs + ns:>34s}")
+            cells.append(f"{head + zs + ns:>30s}")
         print(f"{variant:12s}" + "".join(cells))
+
+
+def print_z(zstats, variants, calibrators):
+    print("\nmarginal z-scores of the judged records (every [[scatter]] quantity with a sigma): "
+          "n, RMS z, max z, z > 4")
+    for variant in variants:
+        parts = []
+        for cal in calibrators:
+            z = zstats.get((variant, cal), [])
+            parts.append(f"{cal} {len(z)}, {_rms(z):.2f}, {max(z):.2f}, "
+                         f"{sum(x > 4 for x in z)}" if z else f"{cal} -")
+        print(f"  {variant:12s} " + "; ".join(parts))
 
 
 if __name__ == "__main__":

@@ -82,3 +82,15 @@ filled: 1e-7 here, float32; the threshold needs it within tens of percent)'''
     for x, y in centres:
         board = 0.9 * light[y, x]
         assert abs(level[y, x] / board - 1) < 1e-4, (x, y, level[y, x], board)
+
+
+@pytest.mark.parametrize("gain,offset", [(0.7, 0.0), (1.0, 0.02), (0.5, 0.05)])
+def test_gain_and_dark_offset_leave_the_centroids(barrel_pose1, gain, offset):
+    r'''The weights (board - intensity) / board of each dot, with the board a plane fitted
+around it, scale uniformly under I -> g I + d: the centroids are the same up to rounding
+(an exposure or dark-level change is no geometry)'''
+    _, target, _, img, _ = barrel_pose1
+    ref = dd.detect_dots(img, target)
+    det = dd.detect_dots(gain * np.asarray(img, np.float64) + offset, target)
+    assert det.status == "ok"
+    assert np.max(np.abs(det.q - ref.q)) < 1e-9
