@@ -24,7 +24,8 @@ Steps:
    mirrored camera. A target without a mark is numbered with board x along
    image +x (ambiguous by design; the info says so).
 4. Subpixel centre: the darkness-weighted centroid over the blob mask
-   dilated by window_dilation_px (default 2) - not a bounding box, which
+   dilated by window_dilation_px (default 2; wider on a blurred image, by the blur its
+   dots' edges show: blur_window) - not a bounding box, which
    picks up grey board-edge pixels - with weights 1 - intensity/(board
    level), clipped at 0. The board level is a plane fitted to a ring around
    the window (ring_px wide), so it follows shading across the board: with a
@@ -644,6 +645,99 @@ SYNOPSIS
     return out
 
 
+# The centroid window under blur (edge_blur_sigma, blur_window). A lens's PSF spreads each dot's
+# darkness past the sharp window (the blob mask dilated by 2 px) into the ring that sets the
+# board level: the darkness cut off there biased the centroids, navcam 15 (2 poses, detected
+# - exact RMS, px) clean 0.00037, PSF sigma 0.7 / 1.0 / 1.5 px 0.00078 / 0.0041 / 0.0126;
+# with the window dilated by 3 / 4 / 5 px they are 0.00037 / 0.00036 / 0.00032, the clean
+# render's. The blur is read from the dots' edges: the band of pixels between 5 % and 95 %
+# of the way from board to dot, per boundary pixel of the blob, is 0.74-0.79 on sharp renders
+# (15, 17) and 2.15-2.28 / 2.86-3.10 / 4.10-4.51 / 5.40-5.70 under a Gaussian PSF of sigma
+# 0.7 / 1 / 1.5 / 2 px (and 2.15-2.29 through the realistic profile with 8-bit noise): sigma
+# = (ratio - BLUR_BAND_SHARP) / BLUR_BAND_PER_SIGMA. The window then reaches
+# BLUR_WINDOW_SIGMAS sigma past the blob's edge (half a pixel more), never less than the
+# sharp window: on a sharp render (sigma <= 0.43 px) it is that window, bit for bit. Where
+# dots crowd (a mark dot's neighbours, a fisheye's small distant dots) each window stops
+# short of the ring's reaching the neighbour's blurred edge (dot_windows): 6 poses, PSF sigma
+# 1.0 / 1.5 px, detected - exact RMS px, sharp window -> these: navcam 15 0.0049 / 0.0147 ->
+# 0.00051 / 0.00052 (clean 0.0005); MER hazcam 8 0.0056 / 0.0161 -> 0.00075 / 0.0033;
+# barrel CAHVOR 0.0062 / 0.0183 -> 0.0012 / 0.0055; hazcam 17 (640x480, dots 8-19 px
+# apart) 0.0094 / 0.0271 -> 0.0066 / 0.0210.
+BLUR_BAND_SHARP = 0.4
+BLUR_BAND_PER_SIGMA = 2.55
+BLUR_WINDOW_SIGMAS = 3.5
+BLUR_SAMPLE_DOTS = 12
+BLUR_SIGMA_NOTED_PX = 0.43
+BLUR_NEIGHBOUR_SIGMAS = 2.0
+
+
+def edge_blur_sigma(img, masks, stats, labels):
+    '''The edge blur sigma (px) of the dots labels (up to BLUR_SAMPLE_DOTS of them, spread
+over the list; see BLUR_* above): the median over them, None when none could be measured'''
+    import cv2
+    H, W = img.shape
+    pad = 10
+    ratios = []
+    pick = labels[np.linspace(0, len(labels) - 1, min(BLUR_SAMPLE_DOTS, len(labels))).astype(int)]
+    for k in pick.tolist():
+        x, y, w, h = stats[k, :4].tolist()
+        if masks[k] is None:
+            continue
+        xa, ya, xb, yb = max(0, x - pad), max(0, y - pad), min(W, x + w + pad), min(H, y + h + pad)
+        crop = np.asarray(img[ya:yb, xa:xb], dtype=np.float64)
+        mask = np.zeros(crop.shape, np.uint8)
+        mask[y - ya:y - ya + h, x - xa:x - xa + w] = masks[k]
+        far = cv2.dilate(mask, np.ones((15, 15), np.uint8)) == 0
+        dot = np.percentile(crop[mask > 0], 5)
+        light = crop[far]
+        light = light[light > 0.5 * (dot + crop.max())]
+        if len(light) < MIN_RING_FOR_PLANE:
+            continue
+        board = float(np.median(light))
+        if not board - dot > 0:
+            continue
+        darkness = (board - crop) / (board - dot)
+        near = cv2.dilate(mask, np.ones((13, 13), np.uint8)) > 0
+        band = np.count_nonzero(near & (darkness > 0.05) & (darkness < 0.95))
+        edge = np.count_nonzero(mask & (cv2.erode(mask, np.ones((3, 3), np.uint8)) == 0))
+        if edge:
+            ratios.append(band / edge)
+    if not ratios:
+        return None
+    return max(0.0, (float(np.median(ratios)) - BLUR_BAND_SHARP) / BLUR_BAND_PER_SIGMA)
+
+
+def dot_windows(sigma, sharp_px, ring_px, centres, areas, lattice, tree):
+    r'''(len(lattice),) int: the window dilation of each lattice dot (lattice: indices into
+the blobs' centres and areas; tree: their cKDTree) under the edge blur sigma: blur_window's,
+but no wider than leaves the ring (ring_px) and another blob's blurred edge
+(BLUR_NEIGHBOUR_SIGMAS sigma: 2.3 % of its darkness lies beyond) apart: gap - ring_px -
+that reach, gap the distance between the two blobs' edges (their
+centres' distance less their radii as discs of their areas); never below sharp_px'''
+    wide = blur_window(sigma, sharp_px)
+    out = np.full(len(lattice), sharp_px, np.int64)
+    if wide <= sharp_px:
+        return out
+    reach = BLUR_NEIGHBOUR_SIGMAS * sigma
+    k = min(9, len(centres))
+    dist, near = tree.query(centres[lattice], k=k)
+    dist, near = np.atleast_2d(dist)[:, 1:], np.atleast_2d(near)[:, 1:]
+    radius = np.sqrt(np.asarray(areas, np.float64) / math.pi)
+    gap = (dist - radius[lattice][:, None] - radius[np.minimum(near, len(radius) - 1)])
+    gap = np.where(near < len(radius), gap, np.inf).min(axis=1) if gap.size else \
+        np.full(len(lattice), np.inf)
+    room = np.floor(gap - ring_px - reach)
+    return np.maximum(sharp_px, np.minimum(wide, room)).astype(np.int64)
+
+
+def blur_window(sigma, sharp_px):
+    '''The window's dilation (px) that holds a dot's darkness under an edge blur sigma: at least
+sharp_px (the sharp window), BLUR_WINDOW_SIGMAS sigma + 0.5 px when that is wider'''
+    if sigma is None:
+        return sharp_px
+    return max(sharp_px, int(math.ceil(BLUR_WINDOW_SIGMAS * sigma + 0.5)))
+
+
 # The shading pass (_shading_pass): the board's own level at each pixel is the grey
 # closing of the image (a dilation, then an erosion: it fills the dark features narrower
 # than its window and follows any wider shading, never rising above a light neighbour's
@@ -744,7 +838,8 @@ ARGUMENTS
 
 - image: (H,W) float in [0,1], or uint8/uint16
 - target: a "dots" targets.boards.Target
-- window_dilation_px: centroid window = blob mask dilated by this many px
+- window_dilation_px: centroid window = blob mask dilated by this many px (at least: a
+  blurred image's window is widened to hold the blur, blur_window)
 - ring_px: width of the ring outside the window where the board level is measured
 - min_area_px: smaller dark blobs are ignored
 - min_found: fewest dots for status "ok" (default: all of them)
@@ -849,23 +944,33 @@ of the blobs measured in img (module docstring, steps 1-4)'''
 
     # subpixel centroids
     q = np.full((nx * ny, 2), np.nan)
-    win_kernel = _disk(window_dilation_px)
-    ring_kernel = _disk(window_dilation_px + ring_px)
-    rows = _kernels.element_rows(win_kernel), _kernels.element_rows(ring_kernel)
-    rows = None if None in rows else rows[0] + rows[1]
-    pad = window_dilation_px + ring_px + 1
+    lattice = np.array(list(best.values()), np.int64)
+    dots = blobs[lattice]
+    # a blurred image's dots reach past the sharp window: widen it to hold the blur, each
+    # dot's as far as its neighbours leave room (dot_windows)
+    sigma = edge_blur_sigma(img, masks, stats, dots)
+    windows = dot_windows(sigma, window_dilation_px, ring_px, c, a, lattice, tree)
+    if sigma is not None and sigma > BLUR_SIGMA_NOTED_PX:
+        info["edge_blur_sigma_px"] = round(sigma, 3)
+        info["window_dilation_px"] = [int(windows.min()), int(windows.max())]
+    kernels = {}
+    for wd in sorted(set(windows.tolist())):
+        win_kernel, ring_kernel = _disk(wd), _disk(wd + ring_px)
+        rows = _kernels.element_rows(win_kernel), _kernels.element_rows(ring_kernel)
+        kernels[wd] = (win_kernel, ring_kernel, None if None in rows else rows[0] + rows[1])
+    pad = int(windows.max()) + ring_px + 1
     # img has the source's pixel values when it is float64 (converted from the source as
     # float64) or when it is the source itself (a 2-D float32 image, not copied)
     img_is_source = img.dtype == np.float64 or (src.ndim == 2 and src.dtype == img.dtype)
-    dots = blobs[np.array(list(best.values()), np.int64)]
     crops = (np.maximum(0, x0[dots] - pad), np.maximum(0, y0[dots] - pad),
              np.minimum(W, x0[dots] + w[dots] + pad), np.minimum(H, y0[dots] + h[dots] + pad))
     crowded = _crowded(stats, dots, *crops)
     # the threshold as _label_stack compared the pixels with it
     thr_labelled = np.result_type(lab, thr).type(np.float64(thr) if exact64 else thr)
-    for label, bx, by, xa, ya, xb, yb, near, gx, gy in zip(
+    for label, bx, by, xa, ya, xb, yb, near, gx, gy, wd in zip(
             dots.tolist(), x0[dots].tolist(), y0[dots].tolist(), *(c.tolist() for c in crops),
-            crowded.tolist(), ix, iy, strict=True):
+            crowded.tolist(), ix, iy, windows.tolist(), strict=True):
+        win_kernel, ring_kernel, rows = kernels[wd]
         # the source pixels (their float64 values), whatever precision the labelling used:
         # a view of img when img holds them (the kernel reads float32 as float64)
         crop = img[ya:yb, xa:xb] if img_is_source else \
