@@ -27,7 +27,7 @@ order of STAGE_ORDER, whatever the order of the keys:
     optics:   vignetting -> psf -> motion_blur
     exposure: global_gain (exposure / analogue gain on the signal)
     charge:   shot_noise -> dark_current -> hot_pixels / dead_pixels -> saturation
-    readout:  read_noise -> quantise
+    readout:  read_noise -> encoding -> quantise
 
 and the result is clipped to [0,1] (the analogue-to-digital range). The
 conversion gain is implied: with quantise.bits = b, one DN is
@@ -456,6 +456,36 @@ variance 1/12 of a level squared.
         return np.round(np.clip(s, 0.0, 1.0) * self.levels) / self.levels
 
 
+class Encoding(_Stage):
+    '''A non-linear encoding of the signal before conversion (a camera's tone curve, the
+gamma of an 8-bit image file)
+
+kind = "gamma": s -> s^(1/gamma) (gamma 2.2: the classic display encoding).
+kind = "srgb": the sRGB transfer function (IEC 61966-2-1): 12.92 s up to s = 0.0031308,
+1.055 s^(1/2.4) - 0.055 above.
+The signal is clipped to [0,1] first (the converter's range). The image's values are then
+no longer proportional to the light: a detector that weights pixels by their darkness
+measures a blob's area centroid only up to this curve's bend.'''
+    name = "encoding"
+    params = {"kind": "srgb", "gamma": 2.2}
+
+    def setup(self):
+        k = self.cfg["kind"]
+        if k not in ("gamma", "srgb"):
+            raise ResponseConfigError(f"encoding.kind = {k!r} is unknown; known: gamma, srgb")
+        self.gamma = _number(self.name, "gamma", self.cfg["gamma"], lo=0.1, hi=10.0)
+
+    def describe(self):
+        return {"kind": "gamma", "gamma": self.gamma} if self.cfg["kind"] == "gamma" else \
+            {"kind": "srgb"}
+
+    def __call__(self, s, ctx):
+        s = np.clip(s, 0.0, 1.0)
+        if self.cfg["kind"] == "gamma":
+            return s ** (1.0 / self.gamma)
+        return np.where(s <= 0.0031308, 12.92 * s, 1.055 * s ** (1.0 / 2.4) - 0.055)
+
+
 # name -> (class, domain) in the physical order they run
 STAGE_ORDER = (
     (Vignetting, "signal"),
@@ -468,6 +498,7 @@ STAGE_ORDER = (
     (DeadPixels, "electrons"),
     (Saturation, "electrons"),
     (ReadNoise, "electrons"),
+    (Encoding, "signal"),
     (Quantise, "signal"),
 )
 STAGES = {cls.name: cls for cls, _ in STAGE_ORDER}

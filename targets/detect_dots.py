@@ -24,7 +24,8 @@ Steps:
    mirrored camera. A target without a mark is numbered with board x along
    image +x (ambiguous by design; the info says so).
 4. Subpixel centre: the darkness-weighted centroid over the blob mask
-   dilated by window_dilation_px (default 2) - not a bounding box, which
+   dilated by window_dilation_px (default 2; wider on a blurred image, by the blur its
+   dots' edges show: blur_window) - not a bounding box, which
    picks up grey board-edge pixels - with weights 1 - intensity/(board
    level), clipped at 0. The board level is a plane fitted to a ring around
    the window (ring_px wide), so it follows shading across the board: with a
@@ -604,6 +605,261 @@ docstring says. The weights are computed in place in the crop; their non-finite 
     return sx / s, np.multiply(wgt, yy, out=wx).sum() / s
 
 
+# A stray pixel (a sensor's hot or dead pixel, a cosmic-ray hit) is brighter than the
+# brightest of its 8 neighbours, or darker than the darkest, by more than STRAY_RATIO of that
+# neighbour's value and STRAY_FLOOR of the crop's brightest pixel. Optics spread light over
+# more than a pixel and an area-sampled edge lies between the pixels either side of it, so
+# no image of the target itself does that: a hot pixel inside a dot or a dead one on the
+# board beside it weighs in the centroid as a whole pixel of dot area (0.01-0.05 px on a
+# 10 px dot). Shot noise reaches STRAY_FLOOR of a 20000 e- well's board (0.05 x 18000 e-)
+# at 20 sigma of a dot's own level (2000 e-: 45 e-).
+STRAY_RATIO = 0.08
+STRAY_FLOOR = 0.05
+_NEIGHBOURS8 = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], np.uint8)
+
+
+def without_stray_pixels(crop):
+    '''crop itself when it has no stray pixel (see STRAY_RATIO), else a float64 copy with each
+stray pixel replaced by the median of its 8 neighbours (those inside the crop)
+
+SYNOPSIS
+
+    clean = without_stray_pixels(crop)    # crop (h,w) float32 or float64'''
+    import cv2
+    if crop.shape[0] < 3 or crop.shape[1] < 3:
+        return crop
+    c = np.ascontiguousarray(crop)
+    hi = cv2.dilate(c, _NEIGHBOURS8)
+    lo = cv2.erode(c, _NEIGHBOURS8)
+    tol = np.maximum(STRAY_RATIO * np.abs(hi), STRAY_FLOOR * float(c.max()))
+    stray = np.flatnonzero((c > hi + tol) | (c < lo - tol))
+    if len(stray) == 0:
+        return crop
+    out = np.array(crop, dtype=np.float64)
+    h, w = out.shape
+    for y, x in zip(*np.divmod(stray, w), strict=True):
+        y0, y1, x0, x1 = max(0, y - 1), min(h, y + 2), max(0, x - 1), min(w, x + 2)
+        around = np.asarray(crop[y0:y1, x0:x1], dtype=np.float64).ravel()
+        around = np.delete(around, (y - y0) * (x1 - x0) + (x - x0))
+        out[y, x] = float(np.median(around))
+    return out
+
+
+# The centroid window under blur (edge_blur_sigma, blur_window). A lens's PSF spreads each dot's
+# darkness past the sharp window (the blob mask dilated by 2 px) into the ring that sets the
+# board level: the darkness cut off there biased the centroids, navcam 15 (2 poses, detected
+# - exact RMS, px) clean 0.00037, PSF sigma 0.7 / 1.0 / 1.5 px 0.00078 / 0.0041 / 0.0126;
+# with the window dilated by 3 / 4 / 5 px they are 0.00037 / 0.00036 / 0.00032, the clean
+# render's. The blur is read from the dots' edges: the band of pixels between 5 % and 95 %
+# of the way from board to dot, per boundary pixel of the blob, is 0.74-0.79 on sharp renders
+# (15, 17) and 2.15-2.28 / 2.86-3.10 / 4.10-4.51 / 5.40-5.70 under a Gaussian PSF of sigma
+# 0.7 / 1 / 1.5 / 2 px (and 2.15-2.29 through the realistic profile with 8-bit noise): sigma
+# = (ratio - BLUR_BAND_SHARP) / BLUR_BAND_PER_SIGMA. The window then reaches
+# BLUR_WINDOW_SIGMAS sigma past the blob's edge (half a pixel more), never less than the
+# sharp window: on a sharp render (sigma <= 0.43 px) it is that window, bit for bit. Where
+# dots crowd (a mark dot's neighbours, a fisheye's small distant dots) each window stops
+# short of the ring's reaching the neighbour's blurred edge (dot_windows): 6 poses, PSF sigma
+# 1.0 / 1.5 px, detected - exact RMS px, sharp window -> these: navcam 15 0.0049 / 0.0147 ->
+# 0.00051 / 0.00052 (clean 0.0005); MER hazcam 8 0.0056 / 0.0161 -> 0.00075 / 0.0033;
+# barrel CAHVOR 0.0062 / 0.0183 -> 0.0012 / 0.0055; hazcam 17 (640x480, dots 8-19 px
+# apart) 0.0094 / 0.0271 -> 0.0066 / 0.0210.
+BLUR_BAND_SHARP = 0.4
+BLUR_BAND_PER_SIGMA = 2.55
+BLUR_WINDOW_SIGMAS = 3.5
+BLUR_SAMPLE_DOTS = 12
+BLUR_SIGMA_NOTED_PX = 0.43
+BLUR_NEIGHBOUR_SIGMAS = 2.0
+
+
+def edge_blur_sigma(img, masks, stats, labels):
+    '''The edge blur sigma (px) of the dots labels (up to BLUR_SAMPLE_DOTS of them, spread
+over the list; see BLUR_* above): the median over them, None when none could be measured'''
+    import cv2
+    H, W = img.shape
+    pad = 10
+    ratios = []
+    pick = labels[np.linspace(0, len(labels) - 1, min(BLUR_SAMPLE_DOTS, len(labels))).astype(int)]
+    for k in pick.tolist():
+        x, y, w, h = stats[k, :4].tolist()
+        if masks[k] is None:
+            continue
+        xa, ya, xb, yb = max(0, x - pad), max(0, y - pad), min(W, x + w + pad), min(H, y + h + pad)
+        crop = np.asarray(img[ya:yb, xa:xb], dtype=np.float64)
+        mask = np.zeros(crop.shape, np.uint8)
+        mask[y - ya:y - ya + h, x - xa:x - xa + w] = masks[k]
+        far = cv2.dilate(mask, np.ones((15, 15), np.uint8)) == 0
+        dot = np.percentile(crop[mask > 0], 5)
+        light = far & (crop > 0.5 * (dot + crop.max()))
+        if np.count_nonzero(light) < MIN_RING_FOR_PLANE:
+            continue
+        # the board as a plane through its light pixels: a shading gradient across the crop
+        # (vignetting) is no blur
+        yy, xx = np.nonzero(light)
+        A = np.column_stack((np.ones(len(xx)), xx, yy)).astype(np.float64)
+        coef = np.linalg.lstsq(A, crop[light], rcond=None)[0]
+        gy, gx = np.mgrid[0:crop.shape[0], 0:crop.shape[1]]
+        board = coef[0] + coef[1] * gx + coef[2] * gy
+        if not np.all(board - dot > 0):
+            continue
+        darkness = (board - crop) / (board - dot)
+        near = cv2.dilate(mask, np.ones((13, 13), np.uint8)) > 0
+        band = np.count_nonzero(near & (darkness > 0.05) & (darkness < 0.95))
+        edge = np.count_nonzero(mask & (cv2.erode(mask, np.ones((3, 3), np.uint8)) == 0))
+        if edge:
+            ratios.append(band / edge)
+    if not ratios:
+        return None
+    return max(0.0, (float(np.median(ratios)) - BLUR_BAND_SHARP) / BLUR_BAND_PER_SIGMA)
+
+
+def dot_windows(sigma, sharp_px, ring_px, centres, areas, lattice, tree):
+    r'''(len(lattice),) int: the window dilation of each lattice dot (lattice: indices into
+the blobs' centres and areas; tree: their cKDTree) under the edge blur sigma: blur_window's,
+but no wider than leaves the ring (ring_px) and another blob's blurred edge
+(BLUR_NEIGHBOUR_SIGMAS sigma: 2.3 % of its darkness lies beyond) apart: gap - ring_px -
+that reach, gap the distance between the two blobs' edges (their
+centres' distance less their radii as discs of their areas); never below sharp_px'''
+    wide = blur_window(sigma, sharp_px)
+    out = np.full(len(lattice), sharp_px, np.int64)
+    if wide <= sharp_px:
+        return out
+    reach = BLUR_NEIGHBOUR_SIGMAS * sigma
+    k = min(9, len(centres))
+    dist, near = tree.query(centres[lattice], k=k)
+    dist, near = np.atleast_2d(dist)[:, 1:], np.atleast_2d(near)[:, 1:]
+    radius = np.sqrt(np.asarray(areas, np.float64) / math.pi)
+    gap = (dist - radius[lattice][:, None] - radius[np.minimum(near, len(radius) - 1)])
+    gap = np.where(near < len(radius), gap, np.inf).min(axis=1) if gap.size else \
+        np.full(len(lattice), np.inf)
+    room = np.floor(gap - ring_px - reach)
+    return np.maximum(sharp_px, np.minimum(wide, room)).astype(np.int64)
+
+
+# Shading under blur. Where the board's light falls off (vignetting), a blur moves each dot's
+# darkness-weighted centroid: the weights divide the blurred image by the board's own level
+# at each pixel, which undoes the shading only where the blur did not mix light from
+# brighter and dimmer sides. For a shading f = exp(g . x) and a Gaussian blur (variance s2)
+# the divided image is the dot's coverage convolved with the blur kernel tilted by
+# exp(-g . u), a Gaussian centred at -s2 g: the centroid moves by -s2 grad ln f, towards
+# the dimmer side. Measured (PSF sigma 1.0 / 1.5 px after a lens vignetting 1 -> 0.4 over
+# 700 px, 3 poses, with the blurred windows): detected - exact regressed on -(sigma^2 +
+# 1/12) grad ln f has a slope of 1.08-1.17 on navcam 15, MER hazcam 8 and the barrel CAHVOR
+# (1/12: the PSF's kernel integrated over a pixel). shading_blur_shift puts it back, with
+# grad ln f of the board level (local_board_level) fitted as a plane over SHADING_FIT_DOTS
+# dot diameters about each dot, sigma the dots' own edge blur.
+SHADING_FIT_DOTS = 1.0
+# the plane takes the pixels whose level is at least this fraction of the dot's own: the
+# board, not its blurred outer edge or the background beyond it
+SHADING_FIT_LEVEL = 0.8
+
+
+def shading_blur_shift(img, q, sigma, dot_area_px):
+    r'''(N,2) px to add to the centroids q (N,2; NaN: not found) of a blurred image (edge
+blur sigma px): (sigma^2 + 1/12) grad ln(board level) at each (see above); None when the
+board level cannot be read'''
+    level = local_board_level(img, dot_area_px)
+    top = float(level.max())
+    if not top > 0 or not dot_area_px:
+        return None
+    H, W = level.shape
+    d = 2.0 * math.sqrt(dot_area_px / math.pi)
+    R = max(8, int(math.ceil(SHADING_FIT_DOTS * d)))
+    step = max(1, R // 8)
+    out = np.zeros_like(q)
+    for i, (x, y) in enumerate(q):
+        if not (np.isfinite(x) and np.isfinite(y)):
+            continue
+        xi, yi = int(round(x)), int(round(y))
+        if not (0 <= xi < W and 0 <= yi < H):
+            continue
+        ys, xs = np.mgrid[max(0, yi - R):min(H, yi + R + 1):step,
+                          max(0, xi - R):min(W, xi + R + 1):step]
+        v = level[ys, xs].astype(np.float64)
+        ok = v > SHADING_FIT_LEVEL * level[yi, xi]
+        if ok.sum() < 6:
+            continue
+        L = np.log(v[ok])
+        A = np.column_stack((np.ones(ok.sum()), xs[ok] - x, ys[ok] - y))
+        coef = np.linalg.lstsq(A, L, rcond=None)[0]
+        out[i] = (sigma * sigma + 1.0 / 12.0) * coef[1:]
+    return out
+
+
+def blur_window(sigma, sharp_px):
+    '''The window's dilation (px) that holds a dot's darkness under an edge blur sigma: at least
+sharp_px (the sharp window), BLUR_WINDOW_SIGMAS sigma + 0.5 px when that is wider'''
+    if sigma is None:
+        return sharp_px
+    return max(sharp_px, int(math.ceil(BLUR_WINDOW_SIGMAS * sigma + 0.5)))
+
+
+# The shading pass (_shading_pass): the board's own level at each pixel is the grey
+# closing of the image (a dilation, then an erosion: it fills the dark features narrower
+# than its window and follows any wider shading, never rising above a light neighbour's
+# level on both sides), on the image reduced SHADING_REDUCTION times at most (area
+# averages: a hot pixel counts a sixteenth); its square window is SHADING_WINDOW times the
+# largest dot of the first pass's lattice (the mark dots are 1.4 times a small one's
+# diameter) plus SHADING_MARGIN_PX for a blurred edge.
+SHADING_REDUCTION = 4
+SHADING_WINDOW = 1.5
+SHADING_MARGIN_PX = 8
+# where the board level is below this fraction of its brightest, the image is divided by
+# that fraction instead: the background beyond the board (albedo 0) stays dark, and a
+# board lit below 2 % of its brightest (a cos^4 falloff past 68 deg off the axis) is not
+# sought (its dots' contrast is a few levels of an 8-bit converter)
+SHADING_FLOOR = 0.02
+# the image relative to the board level is clipped here: what is brighter than twice the
+# board around it (a hot pixel) is light whatever its value, and the threshold's
+# histogram keeps its resolution between the dots (~0.1) and the board (1)
+SHADING_CLIP = 2.0
+
+
+def local_board_level(img, dot_area_px=None):
+    '''The board's light level at each pixel of img (H,W), float32: the grey closing of
+img reduced (area average), with a window wider than the dots (the largest dot's area
+dot_area_px; None: a twentieth of the image's larger side as its diameter), resized back
+bilinearly. See SHADING_* above.'''
+    import cv2
+    H, W = img.shape
+    d = 2.0 * math.sqrt(dot_area_px / math.pi) if dot_area_px else max(H, W) / 20.0
+    s = max(1, min(SHADING_REDUCTION, int(d // 4)))
+    f = np.asarray(img, dtype=np.float32)
+    small = _reduce(f, s) if s > 1 else f
+    k = int(math.ceil((SHADING_WINDOW * d + SHADING_MARGIN_PX) / s)) | 1
+    level = cv2.morphologyEx(small, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8))
+    if s > 1:
+        level = cv2.resize(level, (W, H), interpolation=cv2.INTER_LINEAR)
+    return level
+
+
+def _shading_pass(image, target, src, img, det, dot_area, step, **options):
+    '''The first pass's Detection det (a global threshold, which left dots out) or a second
+one whose threshold is relative to the local board level, whichever found more dots
+
+Under shading (vignetting: a multiplicative falloff across the image) one threshold
+cannot split dots from board everywhere: where the board is lit at a third of its
+brightest it is darker than the dots at the centre. Divided by the board's own level
+(local_board_level), every dot is ~dot/board albedo (0.11 for the JPL target) and the
+board ~1, whatever the light: Otsu's threshold on that ratio splits them everywhere. Only
+the blobs (masks, lattice, numbering) come from the ratio; the centroids are measured in
+img as in the first pass (their weights take the board level from a plane fitted around
+each dot). An image the global threshold already serves is never looked at again, so its
+dots are those of the first pass, bit for bit.'''
+    level = local_board_level(img, dot_area)
+    floor = SHADING_FLOOR * float(level.max())
+    if not floor > 0:
+        return det
+    lab = np.clip(img / np.maximum(level, floor), 0.0, SHADING_CLIP).astype(np.float32)
+    H, W = img.shape
+    small = _reduce(lab, REDUCTION) if H * W > LARGE_IMAGE_PIXELS else None
+    thr = _otsu(lab[::step, ::step])
+    det2, _ = _measure(image, target, src, img, lab, thr, small, False, **options)
+    if det2.n_found <= det.n_found and not det2.status == "ok":
+        return det
+    det2.info["threshold_relative_to"] = "the local board level (shading)"
+    return det2
+
+
 def detect_dots(image, target, **options):
     r'''Detect a dot grid; see the module docstring and _detect_dots() for the options
 
@@ -626,7 +882,7 @@ calls (benchmarks/bench_stages.py detect --check).'''
 
 
 def _detect_dots(image, target, *, window_dilation_px=2, ring_px=3, min_area_px=6,
-                 min_found=None, threshold=None):
+                 min_found=None, threshold=None, shading=True):
     r'''Detect a dot grid; see the module docstring
 
 SYNOPSIS
@@ -637,13 +893,16 @@ ARGUMENTS
 
 - image: (H,W) float in [0,1], or uint8/uint16
 - target: a "dots" targets.boards.Target
-- window_dilation_px: centroid window = blob mask dilated by this many px
+- window_dilation_px: centroid window = blob mask dilated by this many px (at least: a
+  blurred image's window is widened to hold the blur, blur_window)
 - ring_px: width of the ring outside the window where the board level is measured
 - min_area_px: smaller dark blobs are ignored
 - min_found: fewest dots for status "ok" (default: all of them)
 - threshold: dark/light threshold (default: Otsu)
+- shading: when the global threshold does not give every dot, look again with the
+  threshold relative to the local board level (_shading_pass); False: the global
+  threshold only
 '''
-    from scipy.spatial import cKDTree
 
     large = _is_large(image)
     src = np.asarray(image)
@@ -652,7 +911,6 @@ ARGUMENTS
     # the centroids), the values a float64 copy would hold
     exact64 = not large and src.ndim == 2 and src.dtype == np.float32
     img = as_float_image(image, dtype=np.float32 if large or exact64 else np.float64)
-    nx, ny = target.grid_shape
     if target.kind != "dots":
         return failed(target, f"detect_dots() needs a dots target; got {target.kind!r}",
                       DETECTOR)
@@ -667,12 +925,30 @@ ARGUMENTS
     if problem is not None:
         return failed(target, problem, DETECTOR)
     thr = _otsu(sub) if threshold is None else float(threshold)
+    options = dict(window_dilation_px=window_dilation_px, ring_px=ring_px,
+                   min_area_px=min_area_px, min_found=min_found)
+    det, dot_area = _measure(image, target, src, img, img, thr, small, exact64, **options)
+    if det.status == "ok" or threshold is not None or not shading:
+        return det
+    return _shading_pass(image, target, src, img, det, dot_area, step, **options)
+
+
+def _measure(image, target, src, img, lab, thr, small, exact64, *, window_dilation_px,
+             ring_px, min_area_px, min_found):
+    '''(Detection, the largest lattice blob's area px or None): the blobs of lab < thr
+(the labelled image: img itself, or _shading_pass's image relative to the board level;
+small: its reduction for a large image), their lattice and numbering, and the centroids
+of the blobs measured in img (module docstring, steps 1-4)'''
+    from scipy.spatial import cKDTree
+
+    nx, ny = target.grid_shape
+    H, W = img.shape
     found = None
     if H * W > LARGE_IMAGE_PIXELS:
-        found = _blobs_from_reduced(img, thr, REDUCTION, small)
+        found = _blobs_from_reduced(lab, thr, REDUCTION, small)
     whole = found is None   # every dark pixel lies in a labelled component
     if whole:   # (a float64 threshold: the float32 pixels compared as float64)
-        found = _label_whole(img, np.float64(thr) if exact64 else thr)
+        found = _label_whole(lab, np.float64(thr) if exact64 else thr)
     masks, stats, centroids = found
     n = len(stats)
     x0, y0, w, h, area = (stats[:, k] for k in range(5))
@@ -681,7 +957,7 @@ ARGUMENTS
     blobs = np.flatnonzero(keep)
     info = {"threshold": thr, "Nblobs": int(len(blobs))}
     if len(blobs) == 0:
-        return failed(target, "no dark blobs in the image", DETECTOR, info)
+        return failed(target, "no dark blobs in the image", DETECTOR, info), None
     c = centroids[blobs]
     a = area[blobs].astype(np.float64)
     tree = cKDTree(c)
@@ -701,8 +977,10 @@ ARGUMENTS
         if best is not None and len(best) == nx * ny:
             break
     if best is None or len(best) < 2 and nx * ny > 1:
-        return failed(target, f"no grid of dots among {len(blobs)} dark blobs", DETECTOR, info)
+        return failed(target, f"no grid of dots among {len(blobs)} dark blobs", DETECTOR,
+                      info), float(np.median(a))
     info["Nlattice"] = len(best)
+    dot_area = float(a[np.array(list(best.values()), np.int64)].max())
 
     # the orientation mark: blobs larger than their lattice neighbours
     mark_spec = target.spec.get("orientation_mark")
@@ -715,36 +993,47 @@ ARGUMENTS
     else:
         numbered = _unmarked_choice(best, c, target)
     if isinstance(numbered, str):
-        return failed(target, numbered, DETECTOR, info)
+        return failed(target, numbered, DETECTOR, info), dot_area
     ix, iy, tinfo = numbered
     info.update(tinfo)
 
     # subpixel centroids
     q = np.full((nx * ny, 2), np.nan)
-    win_kernel = _disk(window_dilation_px)
-    ring_kernel = _disk(window_dilation_px + ring_px)
-    rows = _kernels.element_rows(win_kernel), _kernels.element_rows(ring_kernel)
-    rows = None if None in rows else rows[0] + rows[1]
-    pad = window_dilation_px + ring_px + 1
+    lattice = np.array(list(best.values()), np.int64)
+    dots = blobs[lattice]
+    # a blurred image's dots reach past the sharp window: widen it to hold the blur, each
+    # dot's as far as its neighbours leave room (dot_windows)
+    sigma = edge_blur_sigma(img, masks, stats, dots)
+    windows = dot_windows(sigma, window_dilation_px, ring_px, c, a, lattice, tree)
+    if sigma is not None and sigma > BLUR_SIGMA_NOTED_PX:
+        info["edge_blur_sigma_px"] = round(sigma, 3)
+        info["window_dilation_px"] = [int(windows.min()), int(windows.max())]
+    kernels = {}
+    for wd in sorted(set(windows.tolist())):
+        win_kernel, ring_kernel = _disk(wd), _disk(wd + ring_px)
+        rows = _kernels.element_rows(win_kernel), _kernels.element_rows(ring_kernel)
+        kernels[wd] = (win_kernel, ring_kernel, None if None in rows else rows[0] + rows[1])
+    pad = int(windows.max()) + ring_px + 1
     # img has the source's pixel values when it is float64 (converted from the source as
     # float64) or when it is the source itself (a 2-D float32 image, not copied)
     img_is_source = img.dtype == np.float64 or (src.ndim == 2 and src.dtype == img.dtype)
-    dots = blobs[np.array(list(best.values()), np.int64)]
     crops = (np.maximum(0, x0[dots] - pad), np.maximum(0, y0[dots] - pad),
              np.minimum(W, x0[dots] + w[dots] + pad), np.minimum(H, y0[dots] + h[dots] + pad))
     crowded = _crowded(stats, dots, *crops)
     # the threshold as _label_stack compared the pixels with it
-    thr_labelled = np.result_type(img, thr).type(np.float64(thr) if exact64 else thr)
-    for label, bx, by, xa, ya, xb, yb, near, gx, gy in zip(
+    thr_labelled = np.result_type(lab, thr).type(np.float64(thr) if exact64 else thr)
+    for label, bx, by, xa, ya, xb, yb, near, gx, gy, wd in zip(
             dots.tolist(), x0[dots].tolist(), y0[dots].tolist(), *(c.tolist() for c in crops),
-            crowded.tolist(), ix, iy, strict=True):
+            crowded.tolist(), ix, iy, windows.tolist(), strict=True):
+        win_kernel, ring_kernel, rows = kernels[wd]
         # the source pixels (their float64 values), whatever precision the labelling used:
         # a view of img when img holds them (the kernel reads float32 as float64)
         crop = img[ya:yb, xa:xb] if img_is_source else \
             as_float_image(np.asarray(image)[ya:yb, xa:xb])
+        crop = without_stray_pixels(crop)
         free = _dot_free(masks, stats, xa, ya, xb, yb, near and not whole)
         if near and whole:   # the pixels of no blob: the light ones, as labelled
-            free = ~(img[ya:yb, xa:xb] < thr_labelled)
+            free = ~(lab[ya:yb, xa:xb] < thr_labelled)
         status = -1
         if rows is not None:    # (the blob's mask over its box, where it lies in the crop)
             status, cx, cy = _kernels.dot_centroid(
@@ -757,4 +1046,9 @@ ARGUMENTS
             status, (cx, cy) = (0, (0, 0)) if c is None else (1, c)
         if status:
             q[gy * nx + gx] = cx, cy
-    return result(target, q, DETECTOR, min_found=min_found, info=info)
+    if sigma is not None and sigma > BLUR_SIGMA_NOTED_PX:
+        shift = shading_blur_shift(img, q, sigma, dot_area)
+        if shift is not None:
+            q += shift
+            info["shading_blur_shift_px"] = round(float(np.nanmax(np.hypot(*shift.T))), 6)
+    return result(target, q, DETECTOR, min_found=min_found, info=info), dot_area

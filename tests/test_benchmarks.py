@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[1]
 BENCH = REPO / "benchmarks"
 SCRIPTS = ("accuracy", "bench_render", "bench_stages", "bench_campaign", "legacy_signature",
            "bench_raycast_area", "bench_corners", "bench_models", "bench_command_protocol",
-           "renderer_gate", "speed")
+           "renderer_gate", "speed", "bench_photometric")
 ENV = dict(os.environ, NUMBA_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
 
 TINY_CAMPAIGN = '''
@@ -179,6 +179,19 @@ def test_bench_campaign_tiny(tmp_path):
             "cpu:render_detect", "cpu:calibrate_compare"} == set(rec["stage_seconds"])
     assert rec["peak_rss_bytes"] > 0
     assert len(doc["records"]["campaign/tiny/repeated"]["wall_s"]["values"]) == 1
+
+
+def test_bench_photometric_tiny(tmp_path):
+    # hazcam 17 through an exposure 30% short: judged by the default gate, it passes
+    out = tmp_path / "results"
+    run("bench_photometric", tmp_path / "runs", "--cameras", "17", "--stages", "gain",
+        "-j", "1", "--out-dir", out)
+    [path] = documents(out)
+    doc = check_document(path, "bench_photometric")
+    [rec] = doc["records"].values()
+    assert rec["fullname"] == "gain/0/17/jpl[CAHVORE]"
+    assert rec["verdict"] == "pass" and rec["worst_z"] < 6, rec
+    assert doc["z_statistics"]["gain/jpl"]["n"] > 0
 
 
 def test_speed_tiny_and_its_gate(tmp_path):

@@ -228,3 +228,19 @@ def test_recorded_parameters_rebuild_the_same_chain():
     assert not np.array_equal(a.image, chain.apply(img, seed=seed[:-1] + [2]).image)
     assert a.cost() == pytest.approx(sum(s["seconds"] for s in a.stages))
     assert all(s["seconds"] > 0 for s in a.stages)
+
+
+def test_encoding_curves():
+    x = np.array([[0.0, 0.002, 0.0031308, 0.18, 0.5, 1.0, 1.2]])
+    s = run({"encoding": {"kind": "srgb"}}, x).image.astype(np.float64)[0]
+    # IEC 61966-2-1: linear toe, then 1.055 x^(1/2.4) - 0.055; mid grey 0.18 -> 0.4614
+    assert np.allclose(s[:3], 12.92 * x[0, :3], atol=1e-7)
+    assert abs(s[3] - 0.46135) < 1e-4 and abs(s[4] - 0.73536) < 1e-4
+    assert s[5] == 1.0 and s[6] == 1.0
+    g = run({"encoding": {"kind": "gamma", "gamma": 2.2}}, x).image.astype(np.float64)[0]
+    assert np.allclose(g[:6], x[0, :6] ** (1 / 2.2), atol=1e-6)
+    # before quantisation: 8-bit sRGB levels
+    chain = ResponseChain.from_config({"quantise": {"bits": 8}, "encoding": {}})
+    assert chain.names() == ["encoding", "quantise"]
+    q = chain.apply(x).image.astype(np.float64)[0] * 255
+    assert np.allclose(q, np.round(q), atol=1e-3) and round(q[4]) == 188
