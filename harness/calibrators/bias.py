@@ -28,6 +28,14 @@ so the same loop corrects both. It belongs to that window model only: a corner
 found otherwise (targets.tag_edges on a blurred image fits each whole border edge
 as a curve; an exact projection) has none, and bias_step leaves it uncorrected
 where the observations' corner_model says so (WINDOW_BIASED).
+
+A blurred AprilTag's corner (TAG_EDGES) has a bias of its own: each edge is followed
+by a polynomial over a span of its board line (targets.tag_edges' _span_choice), which
+cannot follow the line's bend all the way to the corner, and the blur moves a bent edge
+towards its centre of curvature. Both come from the board line's shape, i.e. from the
+camera model and the pose: tag_edges_bias computes them (targets.tag_edges.edge_span_bias)
+from what the detector recorded of each corner's spans (Observations.corner_spans), so the
+same loop corrects them; a TAG_EDGES corner without a record gets none.
 '''
 
 import numpy as np
