@@ -973,10 +973,16 @@ to_image: (n,3) board points -> (n,2) px; NaN rows where a sample does not proje
     p = np.asarray(to_image(b.reshape(-1, 3))).reshape(b.shape[:-1] + (2,))
     p = p - np.asarray(qs)[:, None]
     out = np.full((len(b0), 6), np.nan)
-    for j in range(len(b0)):
-        if np.isfinite(p[j]).all():
-            out[j] = np.polynomial.polynomial.polyfit(
-                2.0 * (p[j] @ es[j]) / Ls[j] - 1.0, p[j] @ ns[j], 5)
+    ok = np.isfinite(p).all((1, 2))
+    if ok.any():
+        tau = 2.0 * np.einsum("msk,mk->ms", p[ok], np.asarray(es)[ok]) \
+            / np.asarray(Ls)[ok, None] - 1.0
+        v = np.einsum("msk,mk->ms", p[ok], np.asarray(ns)[ok])
+        # least squares, each edge's powers scaled to its samples' reach (as polyfit does)
+        scale = np.abs(tau).max(1, keepdims=True)
+        V = (tau / scale)[..., None] ** np.arange(6)
+        c = np.linalg.solve(V.transpose(0, 2, 1) @ V, (V.transpose(0, 2, 1) @ v[..., None]))
+        out[ok] = c[..., 0] / scale ** np.arange(6)
     return out
 
 
