@@ -388,7 +388,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
     img = np.asarray(image)
     H, W = img.shape
     if place_weak_edges is None:
-        place_weak_edges = line_reference is None and not defer_span_bias
+        place_weak_edges = line_reference is None
     Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
     N = len(Q)
     if bits is not None:
