@@ -87,7 +87,8 @@ CAHVOR 0.78 / 0.89 -> 0.67 / 0.81, 17 CAHVORE 0.82 / 1.43 -> 0.65 / 0.79, 8 CAHV
 no noise) 17 CAHVORE 0.44 / 3.38 -> 0.39 / 2.38: the weak edges' model error (dropped, as
 with a line_reference: 0.26 / 0.90, but realistic 1.40, its seed 1 3.21: kept); 8 CAHVORE
 0.68 / 0.96 -> 0.63 / 1.28, though its corners less tag_edges_bias under the true model
-improve (6 poses, blur: 0.00078 px RMS before, 0.00070 after). Tried and left out: the shape from a local map of the image's own corners (a homography and a degree-5
+improve (6 poses, blur: 0.00078 px RMS before, 0.00070 after). Tried and left out: the
+shape from a local map of the image's own corners (a homography and a degree-5
 polynomial over the 5 x 5 tags round an edge): it cannot follow the hazcams' lines (its
 cubic misfit at the ends 4.7e-4 px RMS off the truth's 5e-5 on hazcam 17, from exact
 corners) and made every corner worse (hazcam 8 0.00078 -> 0.0078 px RMS); the adjacent
