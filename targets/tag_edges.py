@@ -87,7 +87,10 @@ CAHVOR 0.78 / 0.89 -> 0.67 / 0.81, 17 CAHVORE 0.82 / 1.43 -> 0.65 / 0.79, 8 CAHV
 no noise) 17 CAHVORE 0.44 / 3.38 -> 0.39 / 2.38: the weak edges' model error (dropped, as
 with a line_reference: 0.26 / 0.90, but realistic 1.40, its seed 1 3.21: kept); 8 CAHVORE
 0.68 / 0.96 -> 0.63 / 1.28, though its corners less tag_edges_bias under the true model
-improve (6 poses, blur: 0.00078 px RMS before, 0.00070 after). Tried and left out: the
+improve (6 poses, blur: 0.00078 px RMS before, 0.00070 after); the others' fall: 15 CAHVOR
+0.17 / 0.49 -> 0.07 / 0.20, 17 CAHVOR 0.15 / 0.45 -> 0.08 / 0.06, blur-wide 0.23 / 1.18 ->
+0.19 / 0.23, 8 CAHVOR 0.31 / 1.20 -> 0.81 / 1.09 (its residual up, below the dots'; the
+bias under a CAHVOR fit of a CAHVORE lens). Tried and left out: the
 shape from a local map of the image's own corners (a homography and a degree-5
 polynomial over the 5 x 5 tags round an edge): it cannot follow the hazcams' lines (its
 cubic misfit at the ends 4.7e-4 px RMS off the truth's 5e-5 on hazcam 17, from exact
