@@ -470,11 +470,17 @@ themselves (exact observations: the warm-up, the model benchmark's floors)'''
     # calibrators' bias step
     models = [getattr(d, "corner_model", None) for d in detections]
     blurs = np.array([float(getattr(d, "corner_blur_px", 0.0)) for d in detections])
+    # the tag edges' spans of each corner (targets.detect_apriltag: a blurred image's), NaN
+    # for a pose without them
+    spans = [getattr(d, "corner_spans", None) for d in detections]
+    shape = next((s.shape for s in spans if s is not None), None)
     return Observations.from_camera_poses(
         q, np.asarray(target.points(), dtype=np.float64), (truth.width, truth.height),
         poses, truth.Rt_ref_cam(), point_ids=ids,
         corner_model=None if any(m is None for m in models) else np.stack(models),
-        corner_blur_px=blurs if blurs.any() else None)
+        corner_blur_px=blurs if blurs.any() else None,
+        corner_spans=None if shape is None else
+        np.stack([np.full(shape, np.nan) if s is None else s for s in spans]))
 
 
 def calibrate_stage(name, obs, target, model, truth, options):

@@ -230,7 +230,7 @@ its window, keeps pupil_apriltags' position'''
 
 
 def _refine_blurred(img, used, refined, blur, target, value_range, quad_decimate=1,
-                    line_reference=None):
+                    line_reference=None, defer_span_bias=True):
     r'''The corners of a blurred image from the tags' whole border edges
 (targets.tag_edges), started from the window fit's corners where it kept them (the blur's
 quick look's few) and from pupil_apriltags' elsewhere; the CornerFit, its info the blur's
@@ -255,7 +255,7 @@ and the edge model's'''
                            bits=bits, grid=grid, gap_bits=gap_bits, value_range=value_range,
                            choose_kind=blur.get("psf_source") == "estimated",
                            start_error_px=MAX_CORNER_SHIFT_PX * max(1.0, float(quad_decimate)),
-                           line_reference=line_reference)
+                           line_reference=line_reference, defer_span_bias=defer_span_bias)
     fit.info.update({k: v for k, v in blur.items() if k.startswith("psf_") and k not in fit.info})
     return fit
 
@@ -308,7 +308,7 @@ counts of the tags left out by reason'''
 
 def detect_apriltags(image, target, *, max_hamming=1, min_found=4, quad_decimate=None,
                      quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25, refine=True,
-                     psf_sigma_px=None, line_reference=None):
+                     psf_sigma_px=None, line_reference=None, defer_span_bias=True):
     r'''Detect an AprilTag grid; see the module docstring
 
 SYNOPSIS
@@ -337,6 +337,12 @@ ARGUMENTS
   Rt_cam_board, tag bit in metres) from a camera model and the board's pose, e.g. a
   calibration's): each corner's span judged by, and its model error taken off with, that
   shape instead of the image's own first pass; None (default): the image's alone
+- defer_span_bias: without a line_reference, True (default): each corner's span is chosen
+  as if its model error were taken off (refine_tag_edges' defer_span_bias), as the
+  calibrators' bias step does (harness.calibrators.bias.tag_edges_bias, from the record
+  det.corner_spans, under the current model and pose): the corners themselves then carry
+  that error (the long spans' bend bias and the blur's shift of a bent edge), as the
+  corner window's carry theirs; False: the span of least expected error as corners alone
 '''
     if target.kind != "apriltag":
         return failed(target, f"detect_apriltags() needs an apriltag target; got "
@@ -367,7 +373,8 @@ ARGUMENTS
             if psf_sigma_px:
                 fit = _refine_blurred(img, used, None, {"psf_sigma_px": float(psf_sigma_px),
                                                         "psf_source": "given"}, target,
-                                      hi - lo, line_reference=line_reference)
+                                      hi - lo, line_reference=line_reference,
+                                      defer_span_bias=defer_span_bias)
             else:
                 fit = refine_tag_corners(img, np.array([c for _, c in used]),
                                          value_range=hi - lo, psf_sigma_px=psf_sigma_px,
@@ -376,7 +383,8 @@ ARGUMENTS
                     if not last:
                         continue
                     fit = _refine_blurred(img, used, fit.q.reshape(-1, 4, 2), fit.info,
-                                          target, hi - lo, quad_decimate, line_reference)
+                                          target, hi - lo, quad_decimate, line_reference,
+                                          defer_span_bias)
             refined = fit.q.reshape(-1, 4, 2)
             used = [(tag_id, refined[i]) for i, (tag_id, _) in enumerate(used)]
         break
@@ -399,5 +407,21 @@ ARGUMENTS
                           DETECTOR, info)
         return failed(target, f"no tag of the board decoded ({len(tags)} tags decoded in all)",
                       DETECTOR, info)
-    return result(target, q, DETECTOR, min_found=min_found, info=info,
-                  corner_model=corner_model)
+    det = result(target, q, DETECTOR, min_found=min_found, info=info,
+                 corner_model=corner_model)
+    spans = fit.info.get("edge_spans") if refine is True and used else None
+    if spans is not None:
+        # for the calibrators' bias step (harness.calibrators.bias.corner_bias: where the
+        # tag edges' spans place each corner under the current model): each point's two
+        # edges' records, the row of each edge's other corner appended (NaN: none)
+        rec = np.full((len(ids), 2, spans.shape[-1] + 1), np.nan)
+        for i, (tag_id, _) in enumerate(used):
+            for k in range(4):
+                row = index[4 * tag_id + k]
+                rec[row, :, :-1] = spans[4 * i + k]
+                rec[row, 0, -1] = index[4 * tag_id + (k - 1) % 4]
+                rec[row, 1, -1] = index[4 * tag_id + (k + 1) % 4]
+        # (Detection is frozen and its info JSON-able: an attribute beside its fields, read
+        # by harness.stages.observations_from)
+        object.__setattr__(det, "corner_spans", rec)
+    return det

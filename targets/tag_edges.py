@@ -63,8 +63,35 @@ pass changes nothing): navcam 15 CAHVOR 0.70 / 0.54 -> 0.58 / 0.42, hazcam 17 CA
 1.78 -> 0.57 / 0.88, hazcam 8 CAHVORE 1.12 / 1.31 -> 0.78 / 0.91, blur-wide-1024 CAHVOR
 0.77 / 2.14 -> 0.62 / 1.37 (per seed 0.58, 1.45, 0.58, 1.89: still above 1). h-tag16d, a
 script outside the harness (harness.stages' detect, observations_from, calibrate_stage and
-compare_stage twice): the campaign's calibrators do not re-detect yet. Tried and
-left out: the shape from a local map of the image's own corners (a homography and a degree-5
+compare_stage twice).
+
+The campaign's calibrators do not re-detect: they take the same two parts off in their bias
+loop instead (h-tag16e), as they take the dots' centroid bias off. Without a line_reference
+each fit records, per corner, what its error needs (info["edge_spans"], SPAN_RECORD per
+edge: the chosen span's functional h on a board line's quintic, _span_choice's, and the
+blur's variance V); targets.detect_apriltag carries it (Detection.corner_spans) through
+harness.stages.observations_from to Observations.corner_spans, and
+harness.calibrators.bias.tag_edges_bias computes it from the current model and pose
+(edge_span_bias: the board line projected, moved by V s'' / 2, followed by the span's
+polynomial; the two edges' misses along their normals move the corner). The spans are
+chosen as if that error were taken off (defer_span_bias, detect_apriltags' default: the
+long spans, as with a line_reference), so the corners alone carry it (a constructed barrel,
+test_the_bias_step_takes_off_a_deferred_spans_model_error: blurred, median 0.00126 px as
+chosen before; deferred less span_miss 0.00056, the true line reference's 0.00057; realistic
+noise RMS 0.0072 -> 0.0045). bench_corner_campaign.py --response realistic --seeds 0-3
+(cached renders, back to back with main, load ~4 on 2 cores), AprilTag / dots residual /
+projection difference ratio, main -> this: 15 CAHVOR 0.73 / 0.29 -> 0.62 / 0.30, 17
+CAHVOR 0.78 / 0.89 -> 0.67 / 0.81, 17 CAHVORE 0.82 / 1.43 -> 0.65 / 0.79, 8 CAHVOR 0.86 /
+0.97 -> 0.79 / 0.65, 8 CAHVORE 1.15 / 1.41 -> 0.83 / 0.89, blur-wide-1024 0.79 / 1.87 ->
+0.66 / 1.02 (single seeds up to 2.71: 8 CAHVORE seed 1, 4.01 on main). Blur alone (seed 0,
+no noise) 17 CAHVORE 0.44 / 3.38 -> 0.39 / 2.38: the weak edges' model error (dropped, as
+with a line_reference: 0.26 / 0.90, but realistic 1.40, its seed 1 3.21: kept); 8 CAHVORE
+0.68 / 0.96 -> 0.63 / 1.28, though its corners less tag_edges_bias under the true model
+improve (6 poses, blur: 0.00078 px RMS before, 0.00070 after); the others' fall: 15 CAHVOR
+0.17 / 0.49 -> 0.07 / 0.20, 17 CAHVOR 0.15 / 0.45 -> 0.08 / 0.06, blur-wide 0.23 / 1.18 ->
+0.19 / 0.23, 8 CAHVOR 0.31 / 1.20 -> 0.81 / 1.09 (its residual up, below the dots'; the
+bias under a CAHVOR fit of a CAHVORE lens). Tried and left out: the
+shape from a local map of the image's own corners (a homography and a degree-5
 polynomial over the 5 x 5 tags round an edge): it cannot follow the hazcams' lines (its
 cubic misfit at the ends 4.7e-4 px RMS off the truth's 5e-5 on hazcam 17, from exact
 corners) and made every corner worse (hazcam 8 0.00078 -> 0.0078 px RMS); the adjacent
@@ -340,7 +367,7 @@ def _neighbours(grid, N):
 def refine_tag_edges(image, Q, sigma, kind="gaussian", *, bits=None, grid=None, gap_bits=2.4,
                      value_range=None, passes=2, max_misfit=MAX_MISFIT,
                      min_contrast=MIN_CONTRAST, choose_kind=False, start_error_px=None,
-                     line_reference=None, place_weak_edges=None):
+                     line_reference=None, place_weak_edges=None, defer_span_bias=False):
     r'''Corners of AprilTags from their four whole border edges; see the module docstring
 
 ARGUMENTS
@@ -368,12 +395,19 @@ ARGUMENTS
   ends (_sees_dark); False: its corners are dropped with that reason; None (default): placed
   unless a line_reference is given (see the module docstring: with one, their model error is
   most of what is left of hazcam 17's)
+- defer_span_bias: without a line_reference, True: each corner's span is chosen as if its
+  model error were taken off later (its risk REFERENCE_BIAS_LEFT of the first pass's bias
+  estimate, as with a line_reference): the calibrators' bias step takes it off with the
+  current camera model and pose (edge_span_bias, from info["edge_spans"]); False: the span
+  of least expected error of the corner as it is
 - choose_kind: True: (sigma, kind) is an estimate, a start: sigma is fitted on the edges
   and the kind chosen among targets.corners.PSF_KINDS (the others started at the sigma of
   the same variance, _same_variance) by the first pass's squared misfit summed over the
   edges every kind fitted (_choose_kind)
 
 RETURNED VALUE: a targets.corners.CornerFit of the Ntags*4 corners (info: "corner_model",
+"edge_spans" (Ntags*4,2,SPAN_RECORD) without a line_reference: each corner's edges' spans,
+edge_span_bias's record, NaN where dropped or not known;
 the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" used (sigma
 fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
 "psf_kind_misfit": each kind's sum of squared misfits after its sigma step)
@@ -407,6 +441,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
     # the pixels' noise variance as a line in their value (None: every pixel alike): the
     # first pass's fits tell it, the later passes weight their pixels by its inverse
     line = None
+    funcs = {}
     for npass in range(passes):
         # the passes before the last only place its pixels: each edge alone
         last = npass == passes - 1
@@ -443,14 +478,15 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # (_span_choice: bias^2 + variance from the first pass's curves and noise): the edge
         # alone, with its board line's neighbour beyond that corner (NEIGHBOUR_REACH of it),
         # or with all its board line's neighbours (CANDIDATES)
-        choice, end_bias = {}, {}
+        choice, end_bias, funcs = {}, {}, {}
         if last and npass > 0:
-            choice, end_bias = _span_choice(own, start, weak, nbrs, q, curved, table, noise,
+            choice, end_bias, funcs = _span_choice(own, start, weak, nbrs, q, curved, table, noise,
                                             gap_bits, (pix, piy, pt, ps, off), grid,
                                             _weights(line, img[piy, pix]),
                                             None if line_reference is None else
                                             functools.partial(line_reference, grid=grid,
-                                                              gap_bits=gap_bits))
+                                                              gap_bits=gap_bits),
+                                            defer_span_bias and line_reference is None)
         # each fit: (i, k, L, e, n, cubic, start curve, end, weak) and its pieces, (its
         # index, the edge whose pixels, how taken: targets._tag_edge_kernels.PIECE_OWN..,
         # reach px); fit_pixels gathers them all in one pass
@@ -589,6 +625,16 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
     reasons = np.where(edges != "", edges, met.astype(object))
     q = np.where((reasons == "")[..., None], found, np.nan)
     good = np.isfinite(mis_edge)
+    if line_reference is None and funcs:
+        # what the calibrators' bias step needs of each corner (edge_span_bias): its edges'
+        # span functionals and the blur's variance
+        spans = np.full((N, 4, 2, SPAN_RECORD), np.nan)
+        for (i, k), (h0, h1) in funcs.items():
+            spans[i, (k + 1) % 4, 0, :6] = h1
+            spans[i, k, 1, :6] = h0
+        spans[..., 6] = blurs[0][0] ** 2 + _KIND_VARIANCE[blurs[0][1]]
+        spans[reasons != ""] = np.nan
+        info["edge_spans"] = spans.reshape(N * 4, 2, SPAN_RECORD)
     return CornerFit(q=q.reshape(-1, 2), reasons=reasons.ravel(),
                      misfit=np.repeat(np.nanmax(np.where(good, mis_edge, -1.0), axis=1), 4),
                      npixels=np.zeros(N * 4, np.int64),
@@ -669,7 +715,7 @@ def _powers(tau, n):
 
 
 def _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits, pixels, grid=None,
-                 weights=None, line_reference=None):
+                 weights=None, line_reference=None, deferred=False):
     r'''{(i, k): (choice at corner k, choice at corner k+1)}, each a (span, degree) of
 CANDIDATES: the fit of each edge (not weak) with the least expected squared error of its
 corner across the edge, bias^2 + variance
@@ -850,6 +896,8 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
     combos = [(end, span, deg) for end in (0, 1) for span, deg in CANDIDATES]
     risk = np.full((len(combos), Ne), np.inf)
     mbias = np.full((len(combos), Ne), np.nan)
+    # each span's functional on a board line's coefficients: its fit's miss at the corner
+    hs = np.full((len(combos), Ne, 6), np.nan)
     for deg in sorted({c[2] for c in combos}):
         sel = [i for i, c in enumerate(combos) if c[2] == deg]
         M, ok = (np.stack(x) for x in zip(*[spans[combos[i][1]](combos[i][0]) for i in sel],
@@ -864,6 +912,7 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
         # are 0), and its noise through the first pass's curves
         h = np.einsum("xnk,xnkl->xnl", z, B) - (tc[:, None] ** np.arange(6))[:, None]
         bias = (h * ref).sum(-1)
+        hs[sel] = np.where(ok[..., None], h, np.nan)
         um = np.einsum("xnms,nmsd->xnmd",
                        np.einsum("xnk,nks->xns", h, R).reshape(len(sel), Ne, 3, S), dS)
         bvar = (np.einsum("xnmd,nmde->xnme", um, Ginv) * um).sum((-2, -1))
@@ -871,6 +920,10 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
         b2 = np.where(ok & np.isfinite(bias * bvar), bias * bias - bvar, 0.0)
         nok = ok @ pool.T
         b2 = np.where(nok > 0, (b2 @ pool.T) / np.where(nok > 0, nok, 1.0), 0.0)
+        if deferred:
+            # the bias is taken off later (the calibrators' bias step, edge_span_bias): the
+            # risk left is its error, as with a line_reference
+            b2 = np.where(ok & np.isfinite(bias), (REFERENCE_BIAS_LEFT * bias) ** 2, 0.0)
         if mapped is not None:
             # the given reference's bias where it has one: taken off the corner (the risk
             # left is its error, a fraction of it), else the first pass's estimate as before
@@ -884,8 +937,15 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
     pick = [np.argmin(risk[n * end:n * (end + 1)], axis=0) for end in (0, 1)]
     fine = np.isfinite(risk[:n].min(0)) & np.isfinite(risk[n:].min(0))
     biases = {}
+    # the chosen spans' functionals (a weak edge's: the cubic over its board line)
+    funcs = {}
+    c = CANDIDATES.index(("line", 3))
+    for j in [row[key] for key in weak if key in row]:
+        funcs[keys[j]] = (hs[c, j], hs[n + c, j])
     for j in np.flatnonzero(fine):
         out[keys[j]] = (CANDIDATES[pick[0][j]], CANDIDATES[pick[1][j]])
+        if keys[j] not in weak:
+            funcs[keys[j]] = (hs[pick[0][j], j], hs[n + pick[1][j], j])
         bb = (mbias[pick[0][j], j], mbias[n + pick[1][j], j])
         if mapped is not None and np.isfinite(bb).all() and keys[j] not in weak:
             biases[keys[j]] = bb
@@ -896,7 +956,7 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
             bb = (mbias[c, j], mbias[n + c, j])
             if np.isfinite(bb).all():
                 biases[keys[j]] = bb
-    return {key: v for key, v in out.items() if key not in weak}, biases
+    return {key: v for key, v in out.items() if key not in weak}, biases, funcs
 
 
 # the fraction of a reference's bias taken as the risk left once it is taken off
@@ -915,25 +975,108 @@ with the model's Rt_ref_cam'''
 
     from .centroids import board_to_ref
 
+    def to_ref(P):
+        return board_to_ref(model, Rt_cam_board, P) if Rt_ref_board is None else \
+            transform_point_Rt(np.asarray(Rt_ref_board, dtype=np.float64), P)
+
     def reference(ik, qs, es, ns, Ls, grid, gap_bits):
         ik = np.asarray(ik).reshape(-1, 2)
         g = np.asarray(grid).reshape(-1, 2)[ik[:, 0]]
         B = g[:, None, :] * (8.0 + gap_bits) + _TAG_CORNERS[None]
         b0 = B[np.arange(len(ik)), ik[:, 1]]
         b1 = B[np.arange(len(ik)), (ik[:, 1] + 1) % 4]
-        b = b0[:, None] + _REFERENCE_LAMBDA[None, :, None] * (b1 - b0)[:, None]
-        P = np.concatenate((b * bit_m, np.zeros(b.shape[:-1] + (1,))), -1).reshape(-1, 3)
-        ref = board_to_ref(model, Rt_cam_board, P) if Rt_ref_board is None else \
-            transform_point_Rt(np.asarray(Rt_ref_board, dtype=np.float64), P)
-        p = np.asarray(model.project(ref)).reshape(b.shape)
-        p = p - np.asarray(qs)[:, None]
-        out = np.full((len(ik), 6), np.nan)
-        for j in range(len(ik)):
-            if np.isfinite(p[j]).all():
-                out[j] = np.polynomial.polynomial.polyfit(
-                    2.0 * (p[j] @ es[j]) / Ls[j] - 1.0, p[j] @ ns[j], 5)
-        return out
+        z = np.zeros((len(ik), 1))
+        return _line_quintics(lambda x: model.project(to_ref(x)), np.hstack((b0 * bit_m, z)),
+                              np.hstack((b1 * bit_m, z)), qs, es, ns, Ls)
     return reference
+
+
+def _line_quintics(to_image, b0, b1, qs, es, ns, Ls):
+    r'''(m,6) the board lines through b0 -> b1 (m,3) (board frame) projected at
+_REFERENCE_LAMBDA and fitted by a quintic s(tau) in each chord frame (qs, es, ns, Ls);
+to_image: (n,3) board points -> (n,2) px; NaN rows where a sample does not project'''
+    b0, b1 = np.asarray(b0, dtype=np.float64), np.asarray(b1, dtype=np.float64)
+    b = b0[:, None] + _REFERENCE_LAMBDA[None, :, None] * (b1 - b0)[:, None]
+    p = np.asarray(to_image(b.reshape(-1, 3))).reshape(b.shape[:-1] + (2,))
+    p = p - np.asarray(qs)[:, None]
+    out = np.full((len(b0), 6), np.nan)
+    ok = np.isfinite(p).all((1, 2))
+    if ok.any():
+        tau = 2.0 * np.einsum("msk,mk->ms", p[ok], np.asarray(es)[ok]) \
+            / np.asarray(Ls)[ok, None] - 1.0
+        v = np.einsum("msk,mk->ms", p[ok], np.asarray(ns)[ok])
+        # least squares, each edge's powers scaled to its samples' reach (as polyfit does)
+        scale = np.abs(tau).max(1, keepdims=True)
+        V = (tau / scale)[..., None] ** np.arange(6)
+        c = np.linalg.solve(V.transpose(0, 2, 1) @ V, (V.transpose(0, 2, 1) @ v[..., None]))
+        out[ok] = c[..., 0] / scale ** np.arange(6)
+    return out
+
+
+# per corner and each of its two edges (the one ending at it, the one starting there), the
+# record refine_tag_edges leaves in info["edge_spans"] for edge_span_bias: the functional
+# (6) of the span fitted, on a board line's quintic in the edge's chord frame, and the
+# blur's variance V (px^2)
+SPAN_RECORD = 7
+
+
+def edge_span_bias(model, Rt_cam_board, p_corner, p_before, p_after, spans):
+    r'''(m,2) px: where refine_tag_edges (no line_reference) places each corner less its
+projection, for the camera model and board pose given (Rt_cam_board: the board in the
+model's camera frame); span_miss with that projection'''
+    from .centroids import board_to_ref
+    return span_miss(lambda x: model.project(board_to_ref(model, Rt_cam_board, x)),
+                     p_corner, p_before, p_after, spans)
+
+
+def span_miss(to_image, p_corner, p_before, p_after, spans):
+    r'''(m,2) px: where refine_tag_edges (no line_reference) places each corner less its
+image, the board mapped to the image by to_image ((n,3) board points -> (n,2) px)
+
+p_corner, p_before, p_after (m,3): each corner and its tag's corners before and after it
+(board frame, m): its edge from p_before ends at it, its edge to p_after starts there;
+spans (m,2,SPAN_RECORD): refine_tag_edges' info["edge_spans"] of those two edges.
+
+Each edge's board line, projected (the quintic of camera_line_reference, in the chord frame
+of the projected corners), is what the image shows; the fit sees it moved by the blur
+towards its centre of curvature (V s''/2, _unbent's shift) and follows it with its span's
+polynomial, which misses the corner by the span's functional on that curve (_span_choice's
+h). The two edges' misses along their normals move the corner where they meet. NaN where a
+record is missing or a line does not project.'''
+    m = len(p_corner)
+    out = np.full((m, 2), np.nan)
+    spans = np.asarray(spans, dtype=np.float64).reshape(m, 2, SPAN_RECORD)
+    ok = np.isfinite(spans).all((1, 2))
+    if not ok.any():
+        return out
+    P = np.stack([np.asarray(x, dtype=np.float64)[ok] for x in (p_before, p_corner, p_after)],
+                 axis=1)
+    qp = np.asarray(to_image(P.reshape(-1, 3))).reshape(-1, 3, 2)
+    # edge 0: before -> corner (the corner at tau = 1), edge 1: corner -> after (tau = -1)
+    starts = np.stack((qp[:, 0], qp[:, 1]), 1)
+    ends = np.stack((qp[:, 1], qp[:, 2]), 1)
+    d = ends - starts
+    Ls = np.linalg.norm(d, axis=-1)
+    es = d / Ls[..., None]
+    ns = np.stack((-es[..., 1], es[..., 0]), -1)
+    # the normal into the tag: towards the tag's other corner
+    other = np.stack((qp[:, 2] - qp[:, 1], qp[:, 0] - qp[:, 1]), 1)
+    ns = ns * np.where((ns * other).sum(-1) < 0, -1.0, 1.0)[..., None]
+    b0 = np.stack((P[:, 0], P[:, 1]), 1).reshape(-1, 3)
+    b1 = np.stack((P[:, 1], P[:, 2]), 1).reshape(-1, 3)
+    c = _line_quintics(to_image, b0, b1,
+                       starts.reshape(-1, 2), es.reshape(-1, 2), ns.reshape(-1, 2),
+                       Ls.ravel()).reshape(-1, 2, 6)
+    # the blur's shift of the curve, c V / 2 s'' (s'' = 4 / L^2 d2s/dtau2), as coefficients
+    ddc = np.zeros_like(c)
+    ddc[..., :4] = c[..., 2:] * np.array([2.0, 6.0, 12.0, 20.0])
+    shift = (2.0 * spans[ok, :, 6] / Ls ** 2)[..., None] * ddc
+    tc = np.array([1.0, -1.0])
+    seen = c + shift
+    # the fitted curve's miss at the corner along each edge's normal
+    delta = (shift * tc[:, None] ** np.arange(6)).sum(-1) + (spans[ok, :, :6] * seen).sum(-1)
+    out[ok] = np.linalg.solve(ns, delta[..., None])[..., 0]
+    return out
 
 
 # the board line's samples of camera_line_reference: board positions along the edge from its

@@ -93,6 +93,46 @@ bias's sensitivity to it, far below that) and the solver's.'''
     assert res < 1e-5 and proj < 1e-5, (res, proj)
 
 
+def _spans(Nposes):
+    r'''A tag-edges span record for every corner of TARGET (Observations.corner_spans): a
+functional missing a line's quartic and quintic terms at the ends, as a cubic over a span
+extrapolated does, the realistic blur's variance (0.7^2 + 1/6 px^2), each edge's other
+corner's row'''
+    ids = TARGET.point_ids()
+    row = {int(pid): j for j, pid in enumerate(ids)}
+    rec = np.zeros((len(ids), 2, 8))
+    rec[:, :, 4:6] = [-0.6, -0.2]
+    rec[:, 1, 5] = 0.2
+    rec[:, :, 6] = 0.49 + 1.0 / 6.0
+    for j, pid in enumerate(ids):
+        t, k = divmod(int(pid), 4)
+        rec[j, 0, 7], rec[j, 1, 7] = row[4 * t + (k - 1) % 4], row[4 * t + (k + 1) % 4]
+    return np.broadcast_to(rec, (Nposes,) + rec.shape).copy()
+
+
+def test_tag_edges_corners_get_their_spans_bias(scene):
+    r'''Corners of the tag edges' model placed where their spans' polynomials and the blur
+put them (tag_edges_bias under the true camera: the bend of each board line the span
+cannot follow, the blurred edge's shift towards its centre of curvature) are corrected by
+the bias loop when their span records travel with them (Observations.corner_spans),
+and the camera is recovered; without the records they are fitted as they are.'''
+    from harness.calibrators.bias import tag_edges_bias
+    truth, obs, _ = scene
+    Rts = synthetic_poses(truth, TARGET)
+    spans = _spans(obs.Nposes)
+    b = np.array([tag_edges_bias(truth, Rt, TARGET.points(), s)
+                  for Rt, s in zip(Rts, spans, strict=True)])
+    bias_rms = _rms(np.where(obs.found[..., None], b, np.nan))
+    assert np.isfinite(b[obs.found]).all() and bias_rms > 1e-4, bias_rms
+    model = np.where(obs.found, TAG_EDGES, "")
+    q = obs.q + b
+    res, proj, r = _fit(truth, obs.replace(q=q, corner_model=model, corner_spans=spans))
+    assert r.info["bias_corrected"]
+    res0, proj0, _ = _fit(truth, obs.replace(q=q, corner_model=model))
+    assert res < 1e-5 and proj < 1e-5, (res, proj, res0, proj0, bias_rms)
+    assert proj0 > 10 * proj, (proj0, proj)
+
+
 def test_observations_check_the_corner_models_shape(scene):
     from harness.calibrators.base import CalibratorError
     _, obs, _ = scene
@@ -126,3 +166,7 @@ through observations_from to the calibrators.'''
     obs = observations_from(m, TARGET, [Rt, Rt], dets)
     assert obs.corner_model.shape == (2, TARGET.Npoints)
     assert (obs.corner_model[1][dets[1].found] == TAG_EDGES).all()
+    # the tag edges' span records travel too (the sharp view has none)
+    assert obs.corner_spans.shape[:3] == (2, TARGET.Npoints, 2)
+    assert np.isnan(obs.corner_spans[0]).all()
+    assert np.isfinite(obs.corner_spans[1][dets[1].found]).all()

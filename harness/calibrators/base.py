@@ -80,6 +80,10 @@ corner_model: (Nposes,Npoints) str, the corner model of each detection
               (targets.detection.Detection.corner_model), or None (not recorded)
 corner_blur_px: (Nposes,) float, the blur kernel's sigma each pose's CORNER_LINES corners
               were fitted with (Detection.corner_blur_px; 0 sharp), or None (0)
+corner_spans: (Nposes,Npoints,2,R) float, each TAG_EDGES corner's two edges' spans
+              (targets.detect_apriltag's Detection.corner_spans: refine_tag_edges'
+              info["edge_spans"] and the row of each edge's other corner; NaN: none), or
+              None (no tag edges' corners)
 '''
 
     q: np.ndarray
@@ -89,6 +93,7 @@ corner_blur_px: (Nposes,) float, the blur kernel's sigma each pose's CORNER_LINE
     point_ids: np.ndarray = None
     corner_model: np.ndarray = None
     corner_blur_px: np.ndarray = None
+    corner_spans: np.ndarray = None
 
     def __post_init__(self):
         q = np.array(self.q, dtype=np.float64)
@@ -128,6 +133,12 @@ corner_blur_px: (Nposes,) float, the blur kernel's sigma each pose's CORNER_LINE
                 raise CalibratorError(f"corner_blur_px must have shape (Nposes,) = "
                                       f"({q.shape[0]},); got {s.shape}")
             object.__setattr__(self, "corner_blur_px", s)
+        if self.corner_spans is not None:
+            s = np.array(self.corner_spans, dtype=np.float64)
+            if s.ndim != 4 or s.shape[:3] != q.shape[:2] + (2,):
+                raise CalibratorError(f"corner_spans must have shape (Nposes,Npoints,2,R) = "
+                                      f"{q.shape[:2] + (2,)}+(R,); got {s.shape}")
+            object.__setattr__(self, "corner_spans", s)
 
     @property
     def Nposes(self):
@@ -165,7 +176,8 @@ SYNOPSIS
 
     @classmethod
     def from_camera_poses(cls, q, p_board, imagersize, Rt_cam_board=None, Rt_ref_cam=None,
-                          point_ids=None, corner_model=None, corner_blur_px=None):
+                          point_ids=None, corner_model=None, corner_blur_px=None,
+                          corner_spans=None):
         r'''Observations from board poses in a camera frame (what a render sidecar gives)
 
 SYNOPSIS
@@ -175,8 +187,8 @@ SYNOPSIS
 
 The survey in the world frame is Rt_ref_board = Rt_ref_cam o Rt_cam_board;
 without Rt_cam_board the poses are unknown. Rt_ref_cam defaults to identity.
-corner_model, corner_blur_px: the detections' corner models and blurs (the fields
-above), or None.
+corner_model, corner_blur_px, corner_spans: the detections' corner models, blurs and
+tag edges' spans (the fields above), or None.
 '''
         Rt_ref_board = None
         if Rt_cam_board is not None:
@@ -187,7 +199,7 @@ above), or None.
                                      for x in Rt_cam_board])
         return cls(q=q, p_board=p_board, imagersize=imagersize, Rt_ref_board=Rt_ref_board,
                    point_ids=point_ids, corner_model=corner_model,
-                   corner_blur_px=corner_blur_px)
+                   corner_blur_px=corner_blur_px, corner_spans=corner_spans)
 
 
 @dataclass(frozen=True, eq=False)

@@ -28,12 +28,20 @@ so the same loop corrects both. It belongs to that window model only: a corner
 found otherwise (targets.tag_edges on a blurred image fits each whole border edge
 as a curve; an exact projection) has none, and bias_step leaves it uncorrected
 where the observations' corner_model says so (WINDOW_BIASED).
+
+A blurred AprilTag's corner (TAG_EDGES) has a bias of its own: each edge is followed
+by a polynomial over a span of its board line (targets.tag_edges' _span_choice), which
+cannot follow the line's bend all the way to the corner, and the blur moves a bent edge
+towards its centre of curvature. Both come from the board line's shape, i.e. from the
+camera model and the pose: tag_edges_bias computes them (targets.tag_edges.edge_span_bias)
+from what the detector recorded of each corner's spans (Observations.corner_spans), so the
+same loop corrects them; a TAG_EDGES corner without a record gets none.
 '''
 
 import numpy as np
 
 from reference_models.poseutils import transform_point_Rt
-from targets.detection import CORNER_LINES, CORNER_WINDOW
+from targets.detection import CORNER_LINES, CORNER_WINDOW, TAG_EDGES
 
 # outline points per dot when the points are not the target's own: the centroid of the sampled
 # outline (targets.centroids.outline_centroid) converges exponentially, 16 points within 1e-11
@@ -163,8 +171,27 @@ MER hazcams).
                           sigma=blur_px, **window)
 
 
+def tag_edges_bias(model, Rt_cam_board, p_board, spans):
+    r'''(Npoints,2) px: refined - projected corner of TAG_EDGES corners (targets.tag_edges:
+each edge followed by its span's polynomial, which misses the bent board line at the corner,
+and moved by the blur towards its centre of curvature); NaN where a point has no record
+
+spans (Npoints,2,R): Observations.corner_spans of one pose (targets.tag_edges.SPAN_RECORD
+values of each of the corner's two edges, the row of the edge's other corner last).'''
+    from targets.tag_edges import edge_span_bias
+    p = np.asarray(p_board, dtype=np.float64)
+    spans = np.asarray(spans, dtype=np.float64)
+    out = np.full((len(p), 2), np.nan)
+    ok = np.isfinite(spans).all((1, 2))
+    if ok.any():
+        rows = spans[ok, :, -1].astype(np.int64)
+        out[ok] = edge_span_bias(model, Rt_cam_board, p[ok], p[rows[:, 0]], p[rows[:, 1]],
+                                 spans[ok, :, :-1])
+    return out
+
+
 def bias_step(model, target, Rt_cam_board, p_board, b_prev=None, views=None,
-              corner_model=None, corner_blur_px=None):
+              corner_model=None, corner_blur_px=None, corner_spans=None):
     r'''One pass of the iterated bias correction the calibrators share
 
 SYNOPSIS
@@ -180,8 +207,10 @@ corner_model (Nposes,Npoints) str (Observations.corner_model) gives the corner
 model of each detection: only the WINDOW_BIASED ones get corner_bias (CORNER_LINES's with
 its lines tied, under the blur corner_blur_px (Nposes,) gives each pose: the sampled
 kernel's sigma they were fitted with, Observations.corner_blur_px; None: 0), the rest 0
-(None: every corner is the window model's). `change` is the largest change of the bias
-since b_prev (its largest value on the first pass).
+(None: every corner is the window model's). TAG_EDGES corners with a record in
+corner_spans (Nposes,Npoints,2,R) (Observations.corner_spans; None: none) get
+tag_edges_bias, the rest of them 0. `change` is the largest change of the bias since b_prev
+(its largest value on the first pass).
 '''
     if target is None:
         return None, None
@@ -209,5 +238,12 @@ since b_prev (its largest value on the first pass).
     b = np.array(b)
     if corners:
         b[~np.isin(corner_model, WINDOW_BIASED)] = 0.0
+        if corner_spans is not None:
+            for i, Rt in enumerate(Rt_cam_board):
+                edged = (corner_model[i] == TAG_EDGES) & \
+                    np.isfinite(corner_spans[i]).all((1, 2))
+                if edged.any() and (views is None or i in views):
+                    t = tag_edges_bias(model, Rt, p_board[i], corner_spans[i])
+                    b[i, edged] = np.where(np.isfinite(t[edged]), t[edged], 0.0)
     change = float(np.nanmax(np.abs(b if b_prev is None else b - b_prev)))
     return b, change

@@ -409,7 +409,8 @@ residuals and board poses are NaN. The rest as _fit_poses.
                       Rt_ref_board=None if obs.Rt_ref_board is None else obs.Rt_ref_board[views],
                       corner_model=None if obs.corner_model is None else obs.corner_model[views],
                       corner_blur_px=None if obs.corner_blur_px is None
-                      else obs.corner_blur_px[views])
+                      else obs.corner_blur_px[views],
+                      corner_spans=None if obs.corner_spans is None else obs.corner_spans[views])
     if start is not None and getattr(start, "Rt_cam_board", None) is not None \
             and len(start.Rt_cam_board) == obs.Nposes:
         info = dict(start.info or {})
