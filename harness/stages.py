@@ -472,7 +472,7 @@ themselves (exact observations: the warm-up, the model benchmark's floors)'''
     blurs = np.array([float(getattr(d, "corner_blur_px", 0.0)) for d in detections])
     # the tag edges' spans of each corner (targets.detect_apriltag: a blurred image's), NaN
     # for a pose without them
-    spans = [getattr(d, "corner_spans", None) for d in detections]
+    spans = [getattr(d, "corner_spans", None) for d in detections]   # exact: plain arrays
     shape = next((s.shape for s in spans if s is not None), None)
     return Observations.from_camera_poses(
         q, np.asarray(target.points(), dtype=np.float64), (truth.width, truth.height),

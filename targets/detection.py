@@ -54,6 +54,10 @@ corner_model: (N,) str, the model each found corner's position comes from (CORNE
 corner_blur_px: the sigma (px) of the "sampled" blur kernel (targets.corners.blur_kernel)
             that the CORNER_LINES corners were fitted with (their bias depends on it); 0
             for a sharp fit
+corner_spans: (N,2,R) float, the TAG_EDGES corners' two edges' span records (targets.
+            tag_edges SPAN_RECORD, each with its edge's other corner's row appended; NaN
+            where none), for the calibrators' bias step; None when the detector made none
+            (a sharp image, dots). Not in as_dict: it is the bias step's, not a figure
 '''
 
     q: np.ndarray
@@ -67,6 +71,7 @@ corner_blur_px: the sigma (px) of the "sampled" blur kernel (targets.corners.blu
     info: dict = dataclasses.field(default_factory=dict)
     corner_model: np.ndarray = None
     corner_blur_px: float = 0.0
+    corner_spans: np.ndarray = None
 
     def as_dict(self):
         return {"status": self.status, "reason": self.reason, "n_expected": self.n_expected,
