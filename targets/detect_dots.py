@@ -605,46 +605,6 @@ docstring says. The weights are computed in place in the crop; their non-finite 
     return sx / s, np.multiply(wgt, yy, out=wx).sum() / s
 
 
-# A stray pixel (a sensor's hot or dead pixel, a cosmic-ray hit) is brighter than the
-# brightest of its 8 neighbours, or darker than the darkest, by more than STRAY_RATIO of that
-# neighbour's value and STRAY_FLOOR of the crop's brightest pixel. Optics spread light over
-# more than a pixel and an area-sampled edge lies between the pixels either side of it, so
-# no image of the target itself does that: a hot pixel inside a dot or a dead one on the
-# board beside it weighs in the centroid as a whole pixel of dot area (0.01-0.05 px on a
-# 10 px dot). Shot noise reaches STRAY_FLOOR of a 20000 e- well's board (0.05 x 18000 e-)
-# at 20 sigma of a dot's own level (2000 e-: 45 e-).
-STRAY_RATIO = 0.08
-STRAY_FLOOR = 0.05
-_NEIGHBOURS8 = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], np.uint8)
-
-
-def without_stray_pixels(crop):
-    '''crop itself when it has no stray pixel (see STRAY_RATIO), else a float64 copy with each
-stray pixel replaced by the median of its 8 neighbours (those inside the crop)
-
-SYNOPSIS
-
-    clean = without_stray_pixels(crop)    # crop (h,w) float32 or float64'''
-    import cv2
-    if crop.shape[0] < 3 or crop.shape[1] < 3:
-        return crop
-    c = np.ascontiguousarray(crop)
-    hi = cv2.dilate(c, _NEIGHBOURS8)
-    lo = cv2.erode(c, _NEIGHBOURS8)
-    tol = np.maximum(STRAY_RATIO * np.abs(hi), STRAY_FLOOR * float(c.max()))
-    stray = np.flatnonzero((c > hi + tol) | (c < lo - tol))
-    if len(stray) == 0:
-        return crop
-    out = np.array(crop, dtype=np.float64)
-    h, w = out.shape
-    for y, x in zip(*np.divmod(stray, w), strict=True):
-        y0, y1, x0, x1 = max(0, y - 1), min(h, y + 2), max(0, x - 1), min(w, x + 2)
-        around = np.asarray(crop[y0:y1, x0:x1], dtype=np.float64).ravel()
-        around = np.delete(around, (y - y0) * (x1 - x0) + (x - x0))
-        out[y, x] = float(np.median(around))
-    return out
-
-
 # The centroid window under blur (edge_blur_sigma, blur_window). A lens's PSF spreads each dot's
 # darkness past the sharp window (the blob mask dilated by 2 px) into the ring that sets the
 # board level: the darkness cut off there biased the centroids, navcam 15 (2 poses, detected
@@ -1030,7 +990,6 @@ of the blobs measured in img (module docstring, steps 1-4)'''
         # a view of img when img holds them (the kernel reads float32 as float64)
         crop = img[ya:yb, xa:xb] if img_is_source else \
             as_float_image(np.asarray(image)[ya:yb, xa:xb])
-        crop = without_stray_pixels(crop)
         free = _dot_free(masks, stats, xa, ya, xb, yb, near and not whole)
         if near and whole:   # the pixels of no blob: the light ones, as labelled
             free = ~(lab[ya:yb, xa:xb] < thr_labelled)

@@ -248,7 +248,7 @@ R = 'cameras = [15]\n'
     (R + '[response.noisy]\nshotnoise = {}\n',
      r"c\.toml: response\.noisy\.shotnoise: unknown key; known keys: seed, full_well_e, "
      r"vignetting, psf, motion_blur, global_gain, shot_noise, dark_current, hot_pixels, "
-     r"dead_pixels, saturation, read_noise, quantise$"),
+     r"dead_pixels, saturation, read_noise, encoding, quantise$"),
     (R + '[response.noisy]\nread_noise = {sigma = 3}\n',
      r"response\.noisy\.read_noise\.sigma: unknown key; known keys: sigma_e$"),
     (R + '[response.noisy]\nquantise = {bits = 9}\n',

@@ -96,34 +96,6 @@ around it, scale uniformly under I -> g I + d: the centroids are the same up to 
     assert np.max(np.abs(det.q - ref.q)) < 1e-9
 
 
-def test_stray_pixels_by_a_dot_are_not_dot_area(barrel_pose1, monkeypatch):
-    r'''A dead pixel on the board 2 px off a dot's edge (inside its centroid window) and a hot
-pixel inside a dot (+0.5 of the well): each is replaced by the median of its 8 neighbours,
-the board's or the dot's own level, and every centroid is the clean render's; counted as
-dot area instead they move their dots by ~0.01 px'''
-    import cv2
-    _, target, _, img, _ = barrel_pose1
-    img = np.asarray(img, np.float64)
-    ref = dd.detect_dots(img, target)
-    board, dot = img.max(), img.min()
-    dark = (img < 0.5 * (board + dot)).astype(np.uint8)
-    near = cv2.dilate(dark, np.ones((5, 5), np.uint8)) > cv2.dilate(dark, np.ones((3, 3), np.uint8))
-    flat = cv2.erode((img == board).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    deep = cv2.erode((img == dot).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    rng = np.random.default_rng(3)
-    dead = rng.choice(np.flatnonzero(near & flat), 40, replace=False)
-    hot = rng.choice(np.flatnonzero(deep), 40, replace=False)
-    bad = img.copy()
-    bad.flat[dead] = 0.0
-    bad.flat[hot] = dot + 0.5
-    det = dd.detect_dots(bad, target)
-    assert det.status == "ok"
-    assert np.max(np.abs(det.q - ref.q)) < 1e-9
-    monkeypatch.setattr(dd, "without_stray_pixels", lambda crop: crop)
-    moved = np.hypot(*(dd.detect_dots(bad, target).q - ref.q).T)
-    assert moved.max() > 0.005
-
-
 @pytest.mark.parametrize("sigma", [0.7, 1.5])
 def test_blurred_dots_keep_the_sharp_centroids(barrel_pose1, monkeypatch, sigma):
     r'''A Gaussian PSF (renderers.response) spreads each dot's darkness 3 sigma past its edge:

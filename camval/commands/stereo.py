@@ -30,6 +30,7 @@ images; --stages runs "clean", then every stage alone, then "all":
   dead_pixels   0.1% of pixels at 0
   saturation    exposure x2 with blooming at the full well
   read_noise    15 e- rms
+  encoding      the sRGB transfer function (values not proportional to the light)
   quantise      8 bits
   noise         shot noise + 15 e- read noise, 8 bits
   all           vignetting + PSF + shot noise + dark current + read noise, 12 bits
@@ -58,6 +59,8 @@ VARIANTS = {
     "dead_pixels": {"dead_pixels": {"fraction": 0.001}},
     "saturation": {"global_gain": {"gain": 2.0}, "saturation": {"blooming": True}},
     "read_noise": {"read_noise": {"sigma_e": 15.0}},
+    # an sRGB-encoded image: its values are not proportional to the light
+    "encoding": {"encoding": {"kind": "srgb"}},
     "quantise": {"quantise": {"bits": 8}},
     "noise": {"full_well_e": 20000, "shot_noise": {}, "read_noise": {"sigma_e": 15.0},
               "quantise": {"bits": 8}},
