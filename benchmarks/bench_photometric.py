@@ -88,7 +88,12 @@ False alarms found here, and what became of them (targets/detect_dots.py):
 - consumer (lens vignetting + PSF 1.0 + noise + 8 bits): jpl joint z 6-12 on 15, 8,
   barrel: a blur after shading moves each centroid by -(sigma^2 + 1/12) grad ln f, the
   same way on every dot; now added back: 9/9 pass.
-- hot/dead pixels raised the detection noise 2-5x: replaced by their neighbours' median.
+- hot/dead pixels raised the detection noise 2-5x: replaced by their neighbours' median
+  (h-photo d4d9ba4). Taken out again (3fd3300): the rule fired on clean renders of the quick
+  campaign's cameras (caught by test_warmup), and a clean render's dots must stay exact.
+  Without it, 2026-11-29 05:14 (seeds 0-2, jpl and mrcal, the 4 cameras): hot_pixels and
+  dead_pixels pass 3/3 everywhere, detection noise 0.003-0.006 px, max z 2.5: the scatter
+  carries them, at a cost in sensitivity.
 Not fixed:
 - spp2 (2x2 point samples, not adaptive): 0.02-0.03 px of sampling noise per dot gives
   mrcal a projection sigma of 0.02-0.03 px; the gate's 0.02 px cap fails 5 of 24 records
