@@ -188,11 +188,8 @@ def campaign(variant, cameras, calibrators, pose_seed, seed):
 
 
 def _lookup(r, path):
-    for part in path.split("."):
-        if not isinstance(r, dict) or part not in r:
-            return None
-        r = r[part]
-    return r
+    from harness.gate import record_field
+    return record_field(r, path)
 
 
 def judged_z(name, rec, spec):

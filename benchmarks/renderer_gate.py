@@ -434,11 +434,8 @@ rotation) of the faulty camera against the true one; None: the fault does not ap
 
 
 def _lookup(r, path):
-    for part in path.split("."):
-        if not isinstance(r, dict) or part not in r:
-            return None
-        r = r[part]
-    return r
+    from harness.gate import record_field
+    return record_field(r, path)
 
 
 def judged_quantities(name, rec, spec):

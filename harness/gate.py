@@ -423,6 +423,13 @@ def _lookup(record, path):
     return v
 
 
+def record_field(record, path, default=None):
+    r'''The value at a dotted path of a record dict ("verdict.renderer.joint", as a limit's
+field names it), default where the record has none'''
+    v = _lookup(record, path)
+    return default if v is _ABSENT else v
+
+
 def _magnitude(v):
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         return None
