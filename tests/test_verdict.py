@@ -801,6 +801,23 @@ def _turn_differences(m, P):
             np.zeros(3), np.full(3, 1e-7))
 
 
+def _closed_and_differenced(lin, m0, ref, theta, P):
+    r'''(names, G, Jg, Ga, Ja, Jw) of a posed fit's linearisation lin at m0: the quantities'
+(fit - ref, signed) and the grid P's Jacobians by central differences over stepped models
+(model_jacobians: G, Jg) and as the scatter takes them (quantity_jacobian, grid_jacobian:
+Ga, Ja and the turns' Jw)'''
+    names = list(verdict._signed_quantities(ref, m0, theta, False))
+
+    def qvec(m):
+        q = verdict._signed_quantities(ref, m, theta, False)
+        return np.array([q.get(k, 0.0) for k in names])
+    with np.errstate(all="ignore"):
+        G, Jg = lin.model_jacobians([qvec, verdict._grid_projector(P)])
+    Ga = lin.quantity_jacobian(m0, ref, names, theta, qvec)
+    Ja, Jw = lin.grid_jacobian(P)
+    return names, G, Jg, Ga, Ja, Jw
+
+
 @pytest.mark.parametrize("model", ["CAHV", "CAHVOR"])
 def test_mrcal_model_jacobians_are_the_differences(navcam, model):
     r'''A mrcal fit's scatter takes the image grid's derivatives from mrcal.project and the
@@ -812,18 +829,8 @@ own error'''
     lin = verdict.linearisation(res, obs)
     assert lin.grid_jacobian is not None and lin.quantity_jacobian is not None
     m0 = lin.model(lin.x0)
-    ref = truth
-    q0 = verdict._signed_quantities(ref, m0, res.theta_estimated, False)
-    names = list(q0)
-
-    def qvec(m):
-        q = verdict._signed_quantities(ref, m, res.theta_estimated, False)
-        return np.array([q.get(k, 0.0) for k in names])
     P = verdict.projection_points(truth)
-    with np.errstate(all="ignore"):
-        G, Jg = lin.model_jacobians([qvec, verdict._grid_projector(P)])
-    Ga = lin.quantity_jacobian(m0, ref, names, res.theta_estimated, qvec)
-    Ja, Jw = lin.grid_jacobian(P)
+    names, G, Jg, Ga, Ja, Jw = _closed_and_differenced(lin, m0, truth, res.theta_estimated, P)
     assert np.all(np.abs(_turn_differences(m0, P) - Jw) <= 1e-5 * np.max(np.abs(Jw), axis=0))
     assert Ga is not None and Ga.shape == G.shape and Ja.shape == Jg.shape
     if model == "CAHVOR":
@@ -844,18 +851,10 @@ against central differences over stepped models (model_jacobians) to their own e
     m0 = lin.model(lin.x0)
     ex = stages.calibrate_stage("opencv", obs.replace(q=obs.q + 0.01), target, "OPENCV5",
                                 truth, {})
-    ref = ex.model          # another OpenCV fit: the differences' reference
-    q0 = verdict._signed_quantities(ref, m0, res.theta_estimated, False)
-    names = list(q0)
-
-    def qvec(m):
-        q = verdict._signed_quantities(ref, m, res.theta_estimated, False)
-        return np.array([q.get(k, 0.0) for k in names])
     P = verdict.projection_points(truth)
-    with np.errstate(all="ignore"):
-        G, Jg = lin.model_jacobians([qvec, verdict._grid_projector(P)])
-    Ga = lin.quantity_jacobian(m0, ref, names, res.theta_estimated, qvec)
-    Ja, Jw = lin.grid_jacobian(P)
+    # another OpenCV fit (ex.model) is the differences' reference
+    names, G, Jg, Ga, Ja, Jw = _closed_and_differenced(lin, m0, ex.model,
+                                                       res.theta_estimated, P)
     assert Jw is None and {"Hc", "Vs", "D0", "D4"} <= set(names)
     assert np.all(np.abs(Ga - G) <= 1e-6 * np.max(np.abs(G), axis=1, keepdims=True))
     ok = np.all(np.isfinite(Jg), axis=1)
