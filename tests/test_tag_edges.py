@@ -17,14 +17,41 @@ REALISTIC = {"full_well_e": 20000, "psf": {"kind": "gaussian", "sigma_px": 0.7},
 BLUR = {"psf": {"kind": "gaussian", "sigma_px": 0.7}}
 
 
-def _tag_grid(bit_px, n=3, K=16, pitch_bits=10.4, cells=None):
-    r'''An n x n grid of tags (ids 0..n^2-1) through one homography, bits of bit_px, K x K
-subsamples per pixel: (image, corners (n*n,4,2), (col, row) of each tag); cells (n*n,8,8):
-the tags' cells (True = light) instead of tag36h11's'''
+def _board_homography(bit_px):
+    r'''The test grids' board (tag bits) -> image homography: turned 7 deg, bits of bit_px'''
     ang = np.radians(7.0)
     Hb = np.array([[np.cos(ang), -np.sin(ang), 30.3], [np.sin(ang), np.cos(ang), 20.7],
                    [2e-4, -1e-4, 1.0]])
     Hb[:2, :2] *= bit_px
+    return Hb
+
+
+def _tag_pixels(bits, Hc, x0, y0, x1, y1, sub, unwarp=None):
+    r'''The pixels [y0..y1, x0..x1] of a tag of cells bits (8x8, True = light; 0.9 light,
+0.1 dark, 0.9 around it), area-sampled at the offsets sub in x and y: each sample taken
+to the undistorted image by unwarp (None: none), then to tag bits by Hc'''
+    yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+    acc = np.zeros(xx.shape)
+    for sy in sub:
+        for sx in sub:
+            q = np.stack((xx + sx, yy + sy), -1)
+            if unwarp is not None:
+                q = unwarp(q)
+            p = np.concatenate((q, np.ones(xx.shape + (1,))), -1) @ Hc.T
+            col = np.floor(p[..., 0] / p[..., 2]).astype(int)
+            row = np.floor(p[..., 1] / p[..., 2]).astype(int)
+            inside = (col >= 0) & (col < 8) & (row >= 0) & (row < 8)
+            val = np.full(xx.shape, 0.9)
+            val[inside] = np.where(bits[row[inside], col[inside]], 0.9, 0.1)
+            acc += val
+    return acc / len(sub) ** 2
+
+
+def _tag_grid(bit_px, n=3, K=16, pitch_bits=10.4, cells=None):
+    r'''An n x n grid of tags (ids 0..n^2-1) through one homography, bits of bit_px, K x K
+subsamples per pixel: (image, corners (n*n,4,2), (col, row) of each tag); cells (n*n,8,8):
+the tags' cells (True = light) instead of tag36h11's'''
+    Hb = _board_homography(bit_px)
     Q, grid = [], []
     for j in range(n):
         for i in range(n):
@@ -41,18 +68,7 @@ the tags' cells (True = light) instead of tag36h11's'''
         Hc = _homographies(Qt[None])[0]
         x0, y0 = np.floor(Qt.min(0)).astype(int) - 2
         x1, y1 = np.ceil(Qt.max(0)).astype(int) + 2
-        yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
-        acc = np.zeros(xx.shape)
-        for sy in sub:
-            for sx in sub:
-                p = np.stack((xx + sx, yy + sy, np.ones(xx.shape)), -1) @ Hc.T
-                col = np.floor(p[..., 0] / p[..., 2]).astype(int)
-                row = np.floor(p[..., 1] / p[..., 2]).astype(int)
-                inside = (col >= 0) & (col < 8) & (row >= 0) & (row < 8)
-                val = np.full(xx.shape, 0.9)
-                val[inside] = np.where(bits[row[inside], col[inside]], 0.9, 0.1)
-                acc += val
-        img[y0:y1 + 1, x0:x1 + 1] = acc / K ** 2
+        img[y0:y1 + 1, x0:x1 + 1] = _tag_pixels(bits, Hc, x0, y0, x1, y1, sub)
     return img, Q, np.array(grid)
 
 
@@ -330,10 +346,7 @@ def _unbarrel(q, k1):
 def _barrel_tag_grid(bit_px, k1, n=3, K=16, pitch_bits=10.4):
     r'''_tag_grid's tags (the same homography) then distorted by _barrel: (image, corners,
 grid, a function from board points in tag bits to the image)'''
-    ang = np.radians(7.0)
-    Hb = np.array([[np.cos(ang), -np.sin(ang), 30.3], [np.sin(ang), np.cos(ang), 20.7],
-                   [2e-4, -1e-4, 1.0]])
-    Hb[:2, :2] *= bit_px
+    Hb = _board_homography(bit_px)
 
     def to_image(b):
         ph = np.concatenate((b, np.ones(b.shape[:-1] + (1,))), -1) @ Hb.T
@@ -353,19 +366,8 @@ grid, a function from board points in tag bits to the image)'''
         rim = _barrel(Qt + u * (np.roll(Qt, -1, axis=0) - Qt), k1).reshape(-1, 2)
         x0, y0 = np.floor(rim.min(0)).astype(int) - 2
         x1, y1 = np.ceil(rim.max(0)).astype(int) + 2
-        yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
-        acc = np.zeros(xx.shape)
-        for sy in sub:
-            for sx in sub:
-                u = _unbarrel(np.stack((xx + sx, yy + sy), -1), k1)
-                p = np.concatenate((u, np.ones(xx.shape + (1,))), -1) @ Hc.T
-                col = np.floor(p[..., 0] / p[..., 2]).astype(int)
-                row = np.floor(p[..., 1] / p[..., 2]).astype(int)
-                inside = (col >= 0) & (col < 8) & (row >= 0) & (row < 8)
-                val = np.full(xx.shape, 0.9)
-                val[inside] = np.where(bits[row[inside], col[inside]], 0.9, 0.1)
-                acc += val
-        img[y0:y1 + 1, x0:x1 + 1] = acc / K ** 2
+        img[y0:y1 + 1, x0:x1 + 1] = _tag_pixels(bits, Hc, x0, y0, x1, y1, sub,
+                                                lambda q: _unbarrel(q, k1))
     return img, Q, grid, to_image
 
 
