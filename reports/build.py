@@ -288,7 +288,9 @@ TARGETS_NOTE = ("Each calibrator that fitted several targets, its targets side b
 DETECTABLE_NOTE = ("The smallest fault of each kind the renderer gate would flag on each "
                    "camera, from the expected scatter of its records (the smallest over "
                    "them): an Hc/Vc shift in px, a focal scale and an R1 scale as fractions, a "
-                   "theta change in deg.")
+                   "theta change in deg, and a roll of the image axes about A in deg (the "
+                   "turn of H' about A; judged on jpl's world-frame fits, whose board poses "
+                   "are surveyed: a calibrator that fits the poses takes a roll into them).")
 
 
 def build_report(run, out_dir=None, gate_spec=None, workers=None):
