@@ -34,9 +34,11 @@ Everything is read from the image:
   from the paired end of the next column, where the jumps on either side do not continue
   it (not a steep edge's staircase, not a curve's turn: a lone step or a finger). A
   boundary sampled on pixels ends within a pixel of its edge in every column, so a smooth
-  boundary gives lone jumps of at most 2 px (measured: none of 3 px or more on the clipped
-  renders of tests/test_saturation.py); the same count along the rows is the image's own
-  control, since blooming moves charge along columns only. A lone jump pairs only ends
+  boundary gives lone jumps of at most 2 px: none of 3 px or more in the clipped renders
+  of tests/test_saturation.py (the barrel CAHVOR, a 640x480 pinhole). Not none everywhere:
+  MER hazcam 8's 6 clipped fisheye renders (bench_photometric `saturation`) have 4 along
+  the columns and 24 along the rows, so the same count along the rows is the image's own
+  control: blooming moves charge along the columns only. A lone jump pairs only ends
   joined by clipped pixels (the longer run covers the step).
 
 summarise() sums a job's counts: blooming when the column jumps exceed the row jumps by
