@@ -152,10 +152,13 @@ image: (H,W) as the detectors take it (targets.detection.as_float_image).'''
     from .detection import as_float_image
     a = np.asarray(image)
     img = as_float_image(a, dtype=np.float64 if a.dtype == np.float64 else np.float32)
-    lo, hi = float(np.min(img)), float(np.max(img))
+    hi = float(np.max(img))     # one pass: most images end here (nothing at full scale)
     fs = 1.0 if hi <= 1.0 + FULL_SCALE_TOL else hi
     out = {"full_scale": fs, "fraction": 0.0, "clipped": 0, "light": 0}
-    if not (math.isfinite(lo) and math.isfinite(hi)) or hi < fs - FULL_SCALE_TOL or hi <= lo:
+    if not math.isfinite(hi) or hi < fs - FULL_SCALE_TOL:
+        return out
+    lo = float(np.min(img))
+    if not math.isfinite(lo) or hi <= lo:
         return out
     L = img > 0.5 * (lo + hi)
     # the light pixels' box and a pixel around it: all the ends lie in it
