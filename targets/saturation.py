@@ -64,8 +64,10 @@ def _dark_run_median(D, L):
     P = np.zeros((D.shape[1], H + 2), np.int8)     # column-major, padded: runs pair up
     P[:, 1:-1] = D.T
     d = np.diff(P, axis=1)
-    sx, sy = np.nonzero(d == 1)         # first dark row of each run
-    ex, ey = np.nonzero(d == -1)        # one past its last
+    x, y = np.nonzero(d)
+    first = d[x, y] == 1
+    sx, sy = x[first], y[first]         # first dark row of each run
+    ey = y[~first]                      # one past its last
     inside = (sy > 0) & (ey < H)
     sx, sy, ey = sx[inside], sy[inside], ey[inside]
     bounded = L[sy - 1, sx] & L[ey, sx]
@@ -80,9 +82,9 @@ order along each line'''
     P = np.zeros((n, m + 2), np.int8)
     P[:, 1:-1] = A
     d = np.diff(P, axis=1)
-    line, first = np.nonzero(d == 1)
-    _, past = np.nonzero(d == -1)
-    return line, first, past - 1
+    line, pos = np.nonzero(d)           # a run's first pixel (+1), one past its last (-1)
+    first = d[line, pos] == 1
+    return line[first], pos[first], pos[~first] - 1
 
 
 def _lone(line, y, other, length, window, bottom):
