@@ -65,6 +65,7 @@ baseline has and the run lacks fails; a baseline record that was ok and is
 not ok now fails.
 '''
 
+import dataclasses
 import math
 import re
 import tomllib
@@ -216,10 +217,26 @@ class Failure:
     value: str
     limit: str
     kind: str      # "status" | "limit" | "regression" | "missing"
+    # why the value is off where the record knows a cause other than the renderer's
+    # geometry, in words (images that bloom: record_cause); "" otherwise
+    cause: str = ""
 
     def as_dict(self):
-        return dict(fullname=self.fullname, field=self.field, value=self.value,
-                    limit=self.limit, kind=self.kind)
+        d = dict(fullname=self.fullname, field=self.field, value=self.value,
+                 limit=self.limit, kind=self.kind)
+        if self.cause:
+            d["cause"] = self.cause
+        return d
+
+
+def record_cause(r):
+    r'''The cause, in words, a record gives for differences that are not its renderer's
+geometry: its images are saturated and bloom along the columns (the record's
+detections.saturation, targets.saturation), which moves what any detector finds as on a
+real CCD. "" for every other record (a plain clip, a clean render).'''
+    from targets.saturation import sentence
+    sat = _lookup(r, "detections.saturation")
+    return sentence(sat) if isinstance(sat, dict) else ""
 
 
 def _fmt(v):
@@ -498,22 +515,26 @@ GateUsageError when the spec has regressions and baseline is None.
                                     " or ".join(spec.statuses), "status"))
         if r.get("status") != "ok":
             continue
+        mine = []
         for lim in spec.limits:
             if not _matches(name, lim.match):
                 continue
             v = _lookup(r, lim.field)
             if v is _ABSENT:
-                failures.append(Failure(name, lim.field, "missing", f"<= {lim.max:g}",
-                                        "missing"))
+                mine.append(Failure(name, lim.field, "missing", f"<= {lim.max:g}", "missing"))
                 continue
             if v is None:       # not estimated by this calibrator
                 continue
             m = _magnitude(v)
             if m is None or not m <= lim.max:
-                failures.append(Failure(name, lim.field, _fmt(v), f"<= {lim.max:g}", "limit"))
+                mine.append(Failure(name, lim.field, _fmt(v), f"<= {lim.max:g}", "limit"))
         if spec.judge_far_floor or not _unjudged(r):
-            failures += _scatter_failures(name, r, spec.scatter)
-            failures += _joint_failures(name, r, spec.joint)
+            mine += _scatter_failures(name, r, spec.scatter)
+            mine += _joint_failures(name, r, spec.joint)
+        # a value off the limits for a cause the record names (images that bloom) says so
+        cause = record_cause(r) if mine else ""
+        failures += [dataclasses.replace(f, cause=cause) if cause and f.kind != "missing"
+                     else f for f in mine]
     if baseline is not None and spec.regressions:
         failures += _regressions(records, baseline["records"], spec)
     return failures
@@ -627,6 +648,14 @@ def format_failures(failures):
         return "  ".join(c.ljust(w) for c, w in zip(cells, widths, strict=True)).rstrip()
     out = [line(head), line(tuple("-" * w for w in widths))]
     out += [line(r) for r in rows]
+    # each record's cause once, in full, under the table
+    causes = {}
+    for f in failures:
+        if f.cause:
+            causes.setdefault(f.fullname, f.cause)
+    if causes:
+        out.append("")
+        out += [f"{name}: {cause}" for name, cause in causes.items()]
     return "\n".join(out)
 
 

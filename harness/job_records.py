@@ -208,6 +208,38 @@ def _far_sentence(r, rms, ref_rms):
     return f"{head}{poses}, {why}"
 
 
+def detections_summary(dets):
+    r'''The record's detections: counts, the failed poses with the detector's reasons, the
+corners a refiner dropped, and the images' clipped pixels and column bleed
+
+{"n_expected", "n_found", "per_pose", "failed_poses", "failed_reasons" (by pose index),
+"corners_dropped" (corner targets: {reason: count} per pose, where any),
+"saturation" (targets.saturation.summarise of the images' info["saturation"], where an
+image has pixels at full scale)}'''
+    from targets.saturation import summarise
+    out = {"n_expected": int(sum(d.n_expected for d in dets)),
+           "n_found": int(sum(d.n_found for d in dets)),
+           "per_pose": [int(d.n_found) for d in dets],
+           "failed_poses": [i for i, d in enumerate(dets) if d.status != "ok"],
+           # why, in the detector's words, by pose index
+           "failed_reasons": {str(i): d.reason for i, d in enumerate(dets)
+                              if d.status != "ok"}}
+    # corner targets: the corners the refiner dropped, {reason: count} per pose
+    dropped = [dict(d.info.get("corners_dropped") or {}) for d in dets]
+    if any(dropped):
+        out["corners_dropped"] = dropped
+    saturation = summarise([d.info.get("saturation") for d in dets])
+    if saturation is not None:
+        out["saturation"] = saturation
+    return out
+
+
+def saturation_reason(detections):
+    r'''The sentence of a record whose images bloom (targets.saturation.sentence), else ""'''
+    from targets.saturation import sentence
+    return sentence((detections or {}).get("saturation"))
+
+
 def pose_subset(ctx, n):
     r'''run_job's stage outputs (ctx) for a calibrator that fits the first n poses
 
@@ -251,6 +283,13 @@ extra poses; the seconds stay those of the job), and so do the planned board pos
                                      if int(k) < n}
         if "corners_dropped" in det:
             det["corners_dropped"] = det["corners_dropped"][:n]
+        if "saturation" in det:
+            from targets.saturation import subset
+            sat = subset(det["saturation"], n)
+            if sat is None:
+                del det["saturation"]
+            else:
+                det["saturation"] = sat
     out["detections"] = det
     metas = ctx.get("render_metadata")
     if metas is not None and len(metas) == total:
@@ -297,10 +336,12 @@ naming them).'''
                   versions={"renderer": _named_version(job.renderer, rversion),
                             "calibrator": _named_version(res.library, res.library_version)},
                   info=info, features=features)
+    # images that bloom move the detections: every record of them says so (its reason)
+    bloom = saturation_reason(detections)
     if res.status != "ok":
         return _record(job, cal, model, entry, status=res.status, stage="calibrate",
-                       reason=_failure_reason(res, truth, cal), artifacts=artifacts,
-                       **common)
+                       reason=_joined(_failure_reason(res, truth, cal), bloom),
+                       artifacts=artifacts, **common)
     frame = truth if res.world_frame or camera is None else camera
     key = None
     if fits is not None and fit_key is not None and frame is camera:
@@ -334,7 +375,11 @@ naming them).'''
         np.save(path, downsample_map(themap).astype(np.float32))
         arts["map"] = str(rel)
     return _record(job, cal, model, entry, status="ok", params=params, projection=projection,
-                   artifacts=arts, verdict=verdict, reason=reason, **common)
+                   artifacts=arts, verdict=verdict, reason=_joined(reason, bloom), **common)
+
+
+def _joined(*parts):
+    return "; ".join(p for p in parts if p)
 
 
 def _bits_key(camera, Rt_cam_board, obs):

@@ -44,6 +44,7 @@ from pathlib import Path
 from .executors import run_jobs, start_local_workers
 from .job_records import (
     calibrator_records,
+    detections_summary,
     failure_records,
     member_failures,
     save_detections,
@@ -109,17 +110,7 @@ A job with twins (group_twins) gives the records of each of its cameras.
             raise out.failure
         dets = out.detections
         seconds["detect"] = out.detect_seconds
-        detections = {"n_expected": int(sum(d.n_expected for d in dets)),
-                      "n_found": int(sum(d.n_found for d in dets)),
-                      "per_pose": [int(d.n_found) for d in dets],
-                      "failed_poses": [i for i, d in enumerate(dets) if d.status != "ok"],
-                      # why, in the detector's words, by pose index
-                      "failed_reasons": {str(i): d.reason for i, d in enumerate(dets)
-                                         if d.status != "ok"}}
-        # corner targets: the corners the refiner dropped, {reason: count} per pose
-        dropped = [dict(d.info.get("corners_dropped") or {}) for d in dets]
-        if any(dropped):
-            detections["corners_dropped"] = dropped
+        detections = detections_summary(dets)
         if keep:
             artifacts["detections"] = save_detections(job, dets, poses)
         obs = observations_from(truth, target, poses, dets)

@@ -264,12 +264,35 @@ source tree has it). A spec needing a baseline, or none at all: "no verdict" and
     src = Path(spec.source).name if spec.source else "the gate spec"
     src += f" ({about})" if about else ""
     n = len(doc["records"])
-    rows = [(f.fullname, f.field, f.value, f.limit) for f in failures]
+    caused = any(f.cause for f in failures)
+    # a failure whose record names its cause (images that bloom: harness.gate.record_cause)
+    # carries it in a fifth column
+    rows = [(f.fullname, f.field, f.value, f.limit) + ((f.cause,) if caused else ())
+            for f in failures]
     if not failures:
         return f"PASS: no failure in the {n} records against {src}", rows
     names = len({f.fullname for f in failures})
+    why = len({f.fullname for f in failures if f.cause})
+    because = (f"; {why} of these records name the cause: their images are saturated and "
+               f"bloom along the columns, which moves the detections, not the renderer's "
+               f"geometry" if why else "")
     return (f"FAIL: {len(failures)} failure{'s' if len(failures) != 1 else ''} in {names} "
-            f"of {n} records against {src}"), rows
+            f"of {n} records against {src}{because}"), rows
+
+
+def failure_header(rows):
+    r'''The header of verdict()'s failure rows (a "cause" column where they have one)'''
+    base = ("fullname", "field", "value", "limit")
+    return base + ("cause",) if rows and len(rows[0]) == 5 else base
+
+
+def failure_causes(rows):
+    r'''[(fullname, cause)] of verdict()'s failure rows, once per record that names one'''
+    out = {}
+    for r in rows:
+        if len(r) == 5 and r[4]:
+            out.setdefault(r[0], r[4])
+    return list(out.items())
 
 
 VERDICT_NOTE = ("Each ok record fits the exact observations of its poses too (the positions a "
@@ -288,7 +311,9 @@ TARGETS_NOTE = ("Each calibrator that fitted several targets, its targets side b
 DETECTABLE_NOTE = ("The smallest fault of each kind the renderer gate would flag on each "
                    "camera, from the expected scatter of its records (the smallest over "
                    "them): an Hc/Vc shift in px, a focal scale and an R1 scale as fractions, a "
-                   "theta change in deg.")
+                   "theta change in deg, and a roll of the image axes about A in deg (the "
+                   "turn of H' about A; judged on jpl's world-frame fits, whose board poses "
+                   "are surveyed: a calibrator that fits the poses takes a roll into them).")
 
 
 def build_report(run, out_dir=None, gate_spec=None, workers=None):
@@ -329,8 +354,12 @@ drawing the figures (reports.figures.make_figures; default 1: figure_workers say
         shown = verdict_rows[:VERDICT_ROWS]
         more = (f" (first {VERDICT_ROWS} of {len(verdict_rows)})"
                 if len(verdict_rows) > VERDICT_ROWS else "")
+        causes = failure_causes(verdict_rows)
+        if causes:
+            h.append("<ul class=\"causes\">" + "".join(
+                f"<li>{_e(name)}: {_e(cause)}</li>" for name, cause in causes) + "</ul>")
         h.append(f"<details><summary>gate failures{more}</summary>" +
-                 _html_table(("fullname", "field", "value", "limit"), shown) + "</details>")
+                 _html_table(failure_header(verdict_rows), shown) + "</details>")
     h.append(_html_table(("", ""), facts))
     sections = ([("targets", "Targets side by side")] if by_target else []) + [
                 ("detectable", "Minimum detectable faults"),
@@ -392,8 +421,8 @@ drawing the figures (reports.figures.make_figures; default 1: figure_workers say
     # --- Markdown -----------------------------------------------------------------------
     m = [f"# {title}", "", f"**Verdict** {verdict_line}", ""]
     if verdict_rows:
-        m += [_md_table(("fullname", "field", "value", "limit"), verdict_rows[:VERDICT_ROWS]),
-              ""]
+        m += [f"- {name}: {cause}" for name, cause in failure_causes(verdict_rows)]
+        m += ["", _md_table(failure_header(verdict_rows), verdict_rows[:VERDICT_ROWS]), ""]
     m += [_md_table(("run", ""), facts), ""]
     if by_target:
         m += ["## Targets side by side", "", TARGETS_NOTE, ""]

@@ -494,15 +494,27 @@ def sweep_level_rows(sweep):
     return out
 
 
-DETECTABLE_HEADER = ("camera", "Hc shift px", "Vc shift px", "focal scale", "theta change deg",
-                     "R1 scale")
+def _detectable_faults():
+    r'''(fault, unit) of each minimum detectable fault, in harness.gate.MDF_FAULTS' order (its
+one home: a fault added there gets its column here)'''
+    from harness.gate import MDF_FAULTS
+    return tuple((fault, unit) for fault, _, unit in MDF_FAULTS)
+
+
+# a fault's column: its name and unit ("Hc shift px"; a fraction has none)
+_UNIT_LABEL = {"px": " px", "deg": " deg", "fractional": ""}
+# ("camera", "Hc shift px", "Vc shift px", "focal scale", "theta change deg", "R1 scale",
+# "roll about A deg")
+DETECTABLE_HEADER = ("camera",) + tuple(f"{fault}{_UNIT_LABEL.get(unit, ' ' + unit)}"
+                                        for fault, unit in _detectable_faults())
 
 
 def detectable_fault_rows(doc):
-    r'''[(camera, Hc, Vc, focal scale, theta, R1 scale)]: run.json's minimum detectable faults
-(harness.gate.minimum_detectable_faults under the renderer gate), "—" where not judged'''
+    r'''[(camera, Hc, Vc, focal scale, theta, R1 scale, roll about A)]: run.json's minimum
+detectable faults (harness.gate.minimum_detectable_faults under the renderer gate), one
+column per fault of DETECTABLE_HEADER, "—" where not judged'''
     cams = ((doc.get("minimum_detectable_faults") or {}).get("cameras") or {})
-    faults = ("Hc shift", "Vc shift", "focal scale", "theta change", "R1 scale")
+    faults = tuple(fault for fault, _ in _detectable_faults())
     def order(cam):     # catalogue slots by number, then extras and files by name
         return (0, int(cam), "") if str(cam).isdigit() else (1, 0, str(cam))
     return [(cam,) + tuple(_fmt((cams[cam].get(k) or {}).get("value")) for k in faults)

@@ -6,6 +6,7 @@ SYNOPSIS
 
     det = detect(image, target)     # image (H,W) float in [0,1] (or uint8/uint16)
     det = detect(image, target, window_dilation_px=3)   # options of the kind's detector
+    det.info["saturation"]          # the image's clipped pixels (targets.saturation.measure)
     det.status                      # "ok" | "failed"
     det.q[det.found]                # (Nfound,2) pixel positions, camval's pixel convention
     det.n_found, det.n_expected, det.reason
@@ -93,6 +94,17 @@ SYNOPSIS
 Calls the detector the target names (target.detector: a target file's key
 "detector", targets.boards), else the one registered for target.kind
 (get_detector).
+
+The Detection's info["saturation"] is the image's clipped pixels and column bleed
+(targets.saturation.measure: measured once here for every detector; a CCD's blooming
+moves the positions any detector finds), unless the detector gave its own.
 '''
     name = getattr(target, "detector", None) or getattr(target, "kind", None)
-    return get_detector(name)(image, target, **options)
+    det = get_detector(name)(image, target, **options)
+    if isinstance(det, Detection) and isinstance(det.info, dict) \
+            and "saturation" not in det.info:
+        import dataclasses
+
+        from .saturation import measure
+        det = dataclasses.replace(det, info={**det.info, "saturation": measure(image)})
+    return det

@@ -126,6 +126,33 @@ def test_run_document_and_report_carry_the_minimum_detectable_faults(tmp_path):
     assert row[:2] == ("15", "0.006") and row[4] == "—"
 
 
+def test_report_has_a_column_for_the_roll_about_A():
+    # jpl's world-frame fits report roll_deg (the turn of H' about A); the renderer gate sees
+    # a roll through the joint test only: its figure is sqrt(chi2 limit) x fault_sigma
+    from harness.verdict import joint_limit
+    from reports.build import _html_table
+    from reports.tables import DETECTABLE_HEADER, detectable_fault_rows
+    spec = load_gate_spec(ROOT / "campaigns" / "gate-renderer.toml")
+    (jl,) = [j for j in spec.joint if j.field == "verdict.renderer.joint"]
+    r = _rec(0.0)
+    r["verdict"]["renderer"]["sigma"]["roll_deg"] = 1e-3     # marginal: no [[scatter]] on it
+    r["verdict"]["renderer"]["joint"] = {"chi2": 3.0, "dof": 14, "z": 0.4,
+                                         "fault_sigma": {"roll_deg": 2e-4}}
+    mdf = minimum_detectable_faults({"records": {NAME: r}}, spec)
+    roll = mdf["15"]["roll about A"]
+    assert roll["unit"] == "deg" and roll["record"] == NAME
+    assert roll["value"] == pytest.approx(math.sqrt(joint_limit(jl.z, 14)) * 2e-4, rel=1e-9)
+    assert DETECTABLE_HEADER[-1] == "roll about A deg" and len(DETECTABLE_HEADER) == 7
+    doc = {"minimum_detectable_faults": {"cameras": mdf}}
+    (row,) = detectable_fault_rows(doc)
+    assert len(row) == len(DETECTABLE_HEADER)
+    assert row[0] == "15" and float(row[-1]) == pytest.approx(roll["value"], rel=1e-2)
+    assert row[4] == "—"    # theta: not judged on this record
+    # the report's table (reports.build) shows the column with the figure
+    html = _html_table(DETECTABLE_HEADER, [row])
+    assert "<th>roll about A deg</th>" in html and f"<td class=\"num\">{row[-1]}</td>" in html
+
+
 def test_records_whose_fits_disagree_are_not_judged():
     r = _rec(0.05)
     r["verdict"]["fits_disagree"] = True
