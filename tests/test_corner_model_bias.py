@@ -96,17 +96,18 @@ bias's sensitivity to it, far below that) and the solver's.'''
 def _spans(Nposes):
     r'''A tag-edges span record for every corner of TARGET (Observations.corner_spans): a
 functional missing a line's quartic and quintic terms at the ends, as a cubic over a span
-extrapolated does, the realistic blur's variance (0.7^2 + 1/6 px^2), each edge's other
-corner's row'''
+extrapolated does, the realistic blur's variance (0.7^2 + 1/6 px^2), the span's reach (the
+edge and half of each neighbour), each edge's other corner's row'''
     ids = TARGET.point_ids()
     row = {int(pid): j for j, pid in enumerate(ids)}
-    rec = np.zeros((len(ids), 2, 8))
+    rec = np.zeros((len(ids), 2, 10))
     rec[:, :, 4:6] = [-0.6, -0.2]
     rec[:, 1, 5] = 0.2
     rec[:, :, 6] = 0.49 + 1.0 / 6.0
+    rec[:, :, 7:9] = [-2.0, 2.0]
     for j, pid in enumerate(ids):
         t, k = divmod(int(pid), 4)
-        rec[j, 0, 7], rec[j, 1, 7] = row[4 * t + (k - 1) % 4], row[4 * t + (k + 1) % 4]
+        rec[j, 0, 9], rec[j, 1, 9] = row[4 * t + (k - 1) % 4], row[4 * t + (k + 1) % 4]
     return np.broadcast_to(rec, (Nposes,) + rec.shape).copy()
 
 

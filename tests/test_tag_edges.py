@@ -491,7 +491,7 @@ reference gives (0.00057, RMS 0.00179). With the realistic noise, 2 seeds: RMS 0
         assert np.isfinite(e).all()
         if mode != "reference":
             spans = fit.info["edge_spans"]
-            assert spans.shape == (len(e), 2, 7) and np.isfinite(spans).all()
+            assert spans.shape == (len(e), 2, 9) and np.isfinite(spans).all()
             b = span_miss(lambda x: to_image(x[..., :2]), P.reshape(-1, 3),
                           np.roll(P, 1, axis=1).reshape(-1, 3),
                           np.roll(P, -1, axis=1).reshape(-1, 3), spans)
