@@ -161,9 +161,12 @@ depth across the edge fixes it (blur: 8 CAHVORE 0.00206 -> 0.00040 px, ratio 3.0
 17 CAHVORE 1.09 -> 0.34; realistic 8 CAHVORE 0.69 -> 0.32) but drops the corners whose dark
 side then has too few clean pixels (17 realistic, kept per seed 612-680 -> 575-646 of 864;
 tests/test_tag_edges_fisheye.py pose 3 122 -> 111 of 144, its bar 115), and realistic 17
-loses: CAHVOR 0.61 -> 0.82, CAHVORE 0.51 -> 0.69 (projection ratios, seeds 0-3). Not
-landed: the trade on small sheared tags wants deciding (a weak edge's placement by its
-board line, _sees_dark, for the edges the clean band leaves without a dark side?).
+loses: CAHVOR 0.61 -> 0.82, CAHVORE 0.51 -> 0.69 (projection ratios, seeds 0-3), though the
+corners it keeps improve (bench_corners.py area renders, realistic: 0.00371 -> 0.00357 px
+RMS after the bias, max 0.0265 -> 0.0180; 657 -> 620 kept, more "seen from its light side
+only"): the fit misses the dropped ones. Not landed: the trade on small sheared tags wants
+deciding (a weak edge's placement by its board line, _sees_dark, for the edges the clean
+band leaves without a dark side?).
 
 The blur. Handed an estimate (choose_kind: the corner windows' quick look, one kind on
 BLUR_QUICK_SAMPLE corners), the first pass fits sigma on the edges: one Gauss-Newton step
