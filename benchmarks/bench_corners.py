@@ -28,11 +28,17 @@ refiner a known blur (px; default: it estimates the blur from the image); --meth
 the methods whose name contains one of the comma-separated words.
 
 The truth is targets.centroids.projected_points: the board's corner points projected
-through the camera; camval's rows also give the error after subtracting the refiner's
-curvature bias under the true model and pose (harness.calibrators.bias.corner_bias, what
-jpl's bias loop converges to), on the corners the window model refined (the detection's
-corner_model: tag-edge corners of blurred images carry none). Prints the table method x
-camera (corner error RMS / max px, corners found, median seconds per image), then the
+through the camera. "raw" is each method's corners against it; camval's rows also give
+"fitted": the corners the calibrators fit, i.e. less the bias their bias step subtracts
+once it has converged (harness.calibrators.bias.bias_step under the true model and pose,
+fed the detection's corner_model, corner_blur_px and corner_spans as
+harness.stages.observations_from feeds it: the window's curvature bias, a blurred
+chessboard's lines' bias, a blurred AprilTag's tag-edge span and blur bias, tag_edges_bias;
+calibrator_bias). A blurred AprilTag's raw corners carry the span bias the detector leaves
+to the bias step (detect_apriltags' defer_span_bias), so on blurred images "fitted" is the
+figure to compare. Prints the table method x camera (corner error RMS / max px, raw and
+fitted, corners found, median seconds per image; the JSON records' error_* and
+corrected_error_*), then the
 detection time per image of each method and image size (median and max over the images:
 the bars are 0.1 s on 1024x1024 and 0.5 s on 5120x3840, issue 16; loaded-machine figures,
 the load average is recorded), and writes one JSON document to --out/<UTC stamp>-corners.json (never
@@ -65,13 +71,8 @@ FAMILY_ORDER = ("CAHV", "CAHVOR", "CAHVORE")
 
 
 def render_images(directory, camera, tname, spp, nposes, coverage="point"):
-    r'''family, target, [(image, truth (N,2), bias (N,2) or (N,4), Rt_cam_board)], model:
-one camera and target, rendered once into directory; bias:
-harness.calibrators.bias.corner_bias under the true model and pose (what jpl's bias loop
-subtracts once it has converged), a chessboard's with its sharp lines'
-(corner_bias(lines=True)) in columns 2-3 (a blurred detection's under its own blur:
-corner_bias(model, target, Rt_cam_board, ..., blur_px=det.corner_blur_px))'''
-    from harness.calibrators.bias import corner_bias
+    r'''family, target, [(image, truth (N,2), Rt_cam_board)], model: one camera and target,
+rendered once into directory'''
     from harness.campaign import load_campaign
     from harness.jobs import expand_jobs
     from harness.stages import StageFailed, camera_stage, poses_stage, render_stage
@@ -110,14 +111,25 @@ corner_bias(model, target, Rt_cam_board, ..., blur_px=det.corner_blur_px))'''
             np.save(directory / f"{name}_{tname}_{tag}_{i}.npy", np.asarray(r.image))
     for i, Rt in enumerate(poses):
         img = np.load(directory / f"{name}_{tname}_{tag}_{i}.npy")
-        # the bias of the window's free rays, and of its lines (CORNER_LINES: a blurred
-        # chessboard's) as a second column pair
-        bias = corner_bias(truth, target, Rt, target.points())
-        if tname == "chessboard":
-            bias = np.concatenate((bias, corner_bias(truth, target, Rt, target.points(),
-                                                     lines=True)), axis=-1)
-        out.append((img, projected_points(truth, target, Rt), bias, Rt))
+        out.append((img, projected_points(truth, target, Rt), Rt))
     return job.family, target, out, truth
+
+
+def calibrator_bias(det, model, target, Rt_cam_board):
+    r'''(N,2) px: the bias the calibrators' bias step takes off a detection's corners once it
+has converged: harness.calibrators.bias.bias_step under model (the truth) and the pose,
+fed the detection's corner_model, corner_blur_px and corner_spans as
+harness.stages.observations_from hands them on (0 where the corner model has none, e.g. a
+tag-edge corner without a span record)'''
+    from harness.calibrators.bias import bias_step
+    p = np.asarray(target.points(), dtype=np.float64)
+    model_ = None if det.corner_model is None else np.asarray(det.corner_model)[None]
+    spans = getattr(det, "corner_spans", None)
+    b, _ = bias_step(model, target, np.asarray(Rt_cam_board, dtype=np.float64)[None], p[None],
+                     corner_model=model_,
+                     corner_blur_px=np.array([float(getattr(det, "corner_blur_px", 0.0))]),
+                     corner_spans=None if spans is None else np.asarray(spans)[None])
+    return np.zeros((len(p), 2)) if b is None else b[0]
 
 
 def timing_rows(rows):
@@ -178,10 +190,8 @@ def main():
         doc["response"].setdefault("blur", {"psf": doc["response"]["realistic"]["psf"]})
         chain = ResponseChain.from_config(doc["response"][args.response])
 
-    from harness.calibrators.bias import WINDOW_BIASED, corner_bias
     from harness.records import git_commit
     from targets.detect import detect
-    from targets.detection import CORNER_LINES
 
     rows = []
     for cam in args.cameras.split(","):
@@ -189,14 +199,14 @@ def main():
             family, target, images, camera_model = render_images(
                 args.images, cam, tname, args.spp, args.poses, args.coverage)
             if chain is not None:
-                images = [(chain.apply(img, seed=i).image, truth, b, Rt)
-                          for i, (img, truth, b, Rt) in enumerate(images)]
+                images = [(chain.apply(img, seed=i).image, truth, Rt)
+                          for i, (img, truth, Rt) in enumerate(images)]
             for method, refine in METHODS[tname]:
                 if args.methods and not any(w in method for w in args.methods.split(",")):
                     continue
                 errs, cerrs, secs, cpus, found, dropped, sig = [], [], [], [], 0, {}, []
                 changes = []
-                for n_img, (img, truth, bias, Rt) in enumerate(images):
+                for n_img, (img, truth, Rt) in enumerate(images):
                     opts = {}
                     if refine is True and args.psf_sigma is not None:
                         opts["psf_sigma_px"] = args.psf_sigma
@@ -210,19 +220,8 @@ def main():
                     saved[key] = det.q
                     if before is not None and key in before:
                         _compare_q(before[key], det.q, truth, changes)
-                    # the bias the calibrators' bias step subtracts: the window model's
-                    # corners only (tag-edge corners of blurred images have none)
-                    b = bias[:, :2]
-                    if det.corner_model is not None:
-                        biased = np.isin(det.corner_model, WINDOW_BIASED)
-                        b = np.where(biased[:, None], b, 0.0)
-                        if bias.shape[-1] == 4:
-                            lines = det.corner_model == CORNER_LINES
-                            bl = bias[:, 2:]
-                            if lines.any() and det.corner_blur_px > 0.0:
-                                bl = corner_bias(camera_model, target, Rt, target.points(),
-                                                 lines=True, blur_px=det.corner_blur_px)
-                            b = np.where(lines[:, None], bl, b)
+                    # the corners the calibrators fit: less their bias step's bias
+                    b = calibrator_bias(det, camera_model, target, Rt)
                     ec = np.linalg.norm(det.q - b - truth, axis=-1)
                     cerrs.append(ec[np.isfinite(ec)])
                     found += int(det.n_found)
@@ -250,8 +249,8 @@ def main():
                        "cpu_seconds": [float(x) for x in cpus]}
                 rows.append(row)
                 print(f"{cam:>3s} {family:8s} {tname:10s} {method:38s} "
-                      f"rms {row['error_rms_px']:.4f} max {row['error_max_px']:.4f} px  "
-                      + (f"bias-corrected rms {row['corrected_error_rms_px']:.4f} max "
+                      f"raw rms {row['error_rms_px']:.5f} max {row['error_max_px']:.4f} px  "
+                      + (f"fitted (bias off) rms {row['corrected_error_rms_px']:.5f} max "
                          f"{row['corrected_error_max_px']:.4f}  " if refine is True else "")
                       +
                       f"{found:4d}/{row['corners_expected']} found  "

@@ -181,7 +181,10 @@ reference render: is_reference_render), else they are rendered here. The exact
 observations' corner blurs (Observations.corner_blur_px, what the bias step corrects the
 board lines' corners under) are those of the reference corners' detections: obs's for
 the job's own, the reference render's (sharp: None) otherwise, never the blur of images
-the reference corners were not detected on.
+the reference corners were not detected on. So are their tag edges' span records
+(Observations.corner_spans, what the bias step computes a TAG_EDGES corner's bias from):
+the reference render's own detections' (None when none recorded any), obs's only when obs's
+detections are the reference; never the spans of corners other than the reference ones.
 '''
     from targets.centroids import expected_centroids, projected_points
 
@@ -192,15 +195,15 @@ the reference corners were not detected on.
     camera = camera_frame_model(truth)
     exact = expected_centroids if target.kind == "dots" else projected_points
     q = np.stack([exact(camera, target, Rt) for Rt in Rts])
-    model, blur = None, None
+    model, blur, spans = None, None, None
     if target.kind != "dots":
         if reference is None:
-            ref, model, blur = reference_corners(camera, target, Rts)
+            ref, model, blur, spans = reference_corners(camera, target, Rts)
             blur = blur if blur.any() else None
         else:
-            # the job's own detections: their corner models and blurs are obs's
+            # the job's own detections: their corner models, blurs and spans are obs's
             ref, model = np.asarray(reference, dtype=np.float64), obs.corner_model
-            blur = obs.corner_blur_px
+            blur, spans = obs.corner_blur_px, obs.corner_spans
         q = np.where(np.isfinite(ref), ref, q)
         # a corner the reference render did not give takes its exact projection, which
         # has no corner bias to correct
@@ -208,7 +211,7 @@ the reference corners were not detected on.
             model = np.where(np.isfinite(ref[..., 0]), model, EXACT_PROJECTION)
             model = np.where(obs.found, model, "")
     q = np.where(obs.found[..., None], q, np.nan)
-    return obs.replace(q=q, corner_model=model, corner_blur_px=blur)
+    return obs.replace(q=q, corner_model=model, corner_blur_px=blur, corner_spans=spans)
 
 
 # the corner model of an exact observation that is the corner's projection (Observations
@@ -219,9 +222,10 @@ EXACT_PROJECTION = "exact projection"
 def reference_corners(truth, target, Rts):
     r'''The detector's points on camval's exact renders of the poses (REFERENCE_RENDER):
 (Nposes,Npoints,2), NaN where it finds none, their corner models (Nposes,Npoints) str
-(Detection.corner_model; None when the detector does not record them) and the blurs
-their board lines' corners were fitted under (Nposes,) px (Detection.corner_blur_px);
-one image in memory at a time'''
+(Detection.corner_model; None when the detector does not record them), the blurs
+their board lines' corners were fitted under (Nposes,) px (Detection.corner_blur_px) and
+their tag edges' span records (Nposes,Npoints,2,R) (Detection.corner_spans, NaN for a pose
+without; None when no pose has any, as on sharp renders); one image in memory at a time'''
     from renderers.base import RenderSettings
     from targets.detect import detect
 
@@ -230,16 +234,19 @@ one image in memory at a time'''
     rs = RenderSettings(spp=REFERENCE_RENDER["spp"], adaptive=REFERENCE_RENDER["adaptive"],
                         options=dict(REFERENCE_RENDER["options"]))
     pattern = target.pattern()
-    out, models, blurs = [], [], []
+    out, models, blurs, spans = [], [], [], []
     for Rt in Rts:
         image = renderer.render(truth, pattern, Rt, rs).image
         det = detect(image, target)
         out.append(np.asarray(det.q, dtype=np.float64))
         models.append(det.corner_model)
         blurs.append(float(getattr(det, "corner_blur_px", 0.0)))
+        spans.append(getattr(det, "corner_spans", None))
         del image
+    shape = next((s.shape for s in spans if s is not None), None)
     return (np.stack(out), None if any(m is None for m in models) else np.stack(models),
-            np.array(blurs))
+            np.array(blurs), None if shape is None else
+            np.stack([np.full(shape, np.nan) if s is None else s for s in spans]))
 
 
 def detection_noise(obs, obs_exact, bias=None):
@@ -270,8 +277,10 @@ bias step removes from each is no noise (camera 1 CAHVORE realistic: 0.0123 px w
 def corner_biases(obs, obs_x, truth, target, Rt_cam_board):
     r'''(b, b_exact): the corner bias (harness.calibrators.bias.bias_step, under the truth in
 its camera frame and the camera-frame poses) of the detections and of the exact
-observations, each under its own corner models and blurs; None for dots, or when both
-were fitted alike (the same corner models and blurs: the biases are the same and cancel)'''
+observations, each under its own corner models, blurs and tag edges' span records
+(Observations.corner_spans: a TAG_EDGES corner's bias is tag_edges_bias of its own spans);
+None for dots, or when both were fitted alike (the same corner models, blurs and spans: the
+biases are the same and cancel)'''
     if getattr(target, "kind", "dots") == "dots" or obs.corner_model is None or \
             Rt_cam_board is None:
         return None
@@ -280,16 +289,21 @@ were fitted alike (the same corner models and blurs: the biases are the same and
     blur, blur_x = obs.corner_blur_px, obs_x.corner_blur_px
     same_blur = (blur is None and blur_x is None) or (
         blur is not None and blur_x is not None and np.array_equal(blur, blur_x))
-    if same_model and same_blur:
+    spans, spans_x = obs.corner_spans, obs_x.corner_spans
+    same_spans = (spans is None and spans_x is None) or (
+        spans is not None and spans_x is not None and
+        np.array_equal(spans, spans_x, equal_nan=True))
+    if same_model and same_blur and same_spans:
         return None
     from harness.calibrators.bias import bias_step
 
     from .jobs import camera_frame_model
     camera = camera_frame_model(truth)
     b, _ = bias_step(camera, target, Rt_cam_board, obs.p_board, corner_model=obs.corner_model,
-                     corner_blur_px=blur)
+                     corner_blur_px=blur, corner_spans=spans)
     bx, _ = bias_step(camera, target, Rt_cam_board, obs.p_board,
-                      corner_model=obs_x.corner_model, corner_blur_px=blur_x)
+                      corner_model=obs_x.corner_model, corner_blur_px=blur_x,
+                      corner_spans=spans_x)
     if b is None or bx is None:
         return None
     return np.nan_to_num(b), np.nan_to_num(bx)
@@ -689,9 +703,10 @@ campaign) at the cost of a second fit (jpl on an AprilGrid: ~0.4 CPU-s a record)
     from .jobs import camera_frame_model
     from .stages import calibrate_stage
     if "obs" not in cache:
-        q, corner_model, blur, cache["noise"] = _exact_observations(
+        q, corner_model, blur, spans, cache["noise"] = _exact_observations(
             obs, truth, target, cache.get("reference"), Rt_cam_board)
-        cache["obs"] = obs.replace(q=q, corner_model=corner_model, corner_blur_px=blur)
+        cache["obs"] = obs.replace(q=q, corner_model=corner_model, corner_blur_px=blur,
+                                   corner_spans=spans)
     obs_x, noise = cache["obs"], cache["noise"]
     if start is not None and np.array_equal(obs_x.q, obs.q, equal_nan=True):
         return start, noise, True
@@ -712,12 +727,12 @@ campaign) at the cost of a second fit (jpl on an AprilGrid: ~0.4 CPU-s a record)
 
 
 def _exact_observations(obs, truth, target, reference, Rt_cam_board):
-    r'''(q, corner model, corner blur, detection noise) of exact_observations(), made once
-per process for the same bits of what they are computed from: the truth in its camera frame
-(harness.jobs.camera_frame_model), the camera-frame poses, the detections (their
-mask and the noise), the board and the reference corners. Twins have the same bits
-of all of them (exact_fit); from the surveyed poses (Rt_cam_board None) the poses
-differ in their last bits, and each camera computes its own.'''
+    r'''(q, corner model, corner blur, corner spans, detection noise) of
+exact_observations(), made once per process for the same bits of what they are computed
+from: the truth in its camera frame (harness.jobs.camera_frame_model), the camera-frame
+poses, the detections (their mask and the noise), the board and the reference corners.
+Twins have the same bits of all of them (exact_fit); from the surveyed poses (Rt_cam_board
+None) the poses differ in their last bits, and each camera computes its own.'''
     import hashlib
 
     from .compare import _model_key
@@ -728,7 +743,8 @@ differ in their last bits, and each camera computes its own.'''
     h = hashlib.sha256()
     for a in (Rt_cam_board, obs.q, obs.p_board, reference,
               None if reference is None else obs.corner_model,
-              None if reference is None else obs.corner_blur_px):
+              None if reference is None else obs.corner_blur_px,
+              None if reference is None else obs.corner_spans):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
     h.update(repr((getattr(target, "name", None), getattr(target, "source", None),
                    target.kind, _model_key(camera_frame_model(truth)))).encode())
@@ -737,10 +753,10 @@ differ in their last bits, and each camera computes its own.'''
         hit = _EXACT_OBS.get(key)
     if hit is None:
         obs_x = exact_observations(obs, truth, target, reference, Rt_cam_board)
-        for a in (obs_x.q, obs_x.corner_model):
+        for a in (obs_x.q, obs_x.corner_model, obs_x.corner_spans):
             if a is not None:
                 a.setflags(write=False)    # shared by the twins' records
-        hit = (obs_x.q, obs_x.corner_model, obs_x.corner_blur_px,
+        hit = (obs_x.q, obs_x.corner_model, obs_x.corner_blur_px, obs_x.corner_spans,
                detection_noise(obs, obs_x, corner_biases(obs, obs_x, truth, target,
                                                          Rt_cam_board)))
         with _EXACT_LOCK:
@@ -775,7 +791,7 @@ def _exact_key(cal, model, options, obs_x, target, truth):
     from .compare import _model_key
     h = hashlib.sha256()
     for a in (obs_x.q, obs_x.p_board, obs_x.Rt_ref_board, obs_x.corner_model,
-              obs_x.corner_blur_px):
+              obs_x.corner_blur_px, obs_x.corner_spans):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
     start = options.get("start")
     h.update(repr(_start_key(start)).encode())

@@ -159,6 +159,26 @@ the cells placed by the tag's homography; commits 73e4c2b, fdce4a3, reverted) ke
 without noise, against 0.0009 for the corners kept without it) raised the realistic
 AprilTag / dots projection ratio of 17 as CAHVORE from 0.63 to 1.46 (docs/corners.md).
 
+Left open (h-cornerbias, session 18): those bits are the adjacent edges' LENGTH / 8
+(_tag_edge_kernels._edge_geometry), but a bit's depth across the edge is their extent along
+its normal / 8, sin(corner angle) of that; on a sheared tag (corner angles 45-135 deg at
+MER hazcam 8's rim) the data row is placed too deep and the dark-side pixels see it: on 8
+CAHVORE, blur only, seeds 0-3, the corners at angles under 60 or over 120 deg err
+0.0018-0.0024 px RMS (the rest 0.0003-0.0004, after tag_edges_bias under the truth), tags
+read larger (outward), and they make jpl's AprilTag projection difference 0.00206 px (dots
+0.00068; with their error zeroed 0.00035-0.00043). The bias loop loses nothing: jpl on the
+detections less the bias under the truth, held, fits the same projection to 5 digits. The
+depth across the edge fixes it (blur: 8 CAHVORE 0.00206 -> 0.00040 px, ratio 3.02 -> 0.59;
+17 CAHVORE 1.09 -> 0.34; realistic 8 CAHVORE 0.69 -> 0.32) but drops the corners whose dark
+side then has too few clean pixels (17 realistic, kept per seed 612-680 -> 575-646 of 864;
+tests/test_tag_edges_fisheye.py pose 3 122 -> 111 of 144, its bar 115), and realistic 17
+loses: CAHVOR 0.61 -> 0.82, CAHVORE 0.51 -> 0.69 (projection ratios, seeds 0-3), though the
+corners it keeps improve (bench_corners.py area renders, realistic: 0.00371 -> 0.00357 px
+RMS after the bias, max 0.0265 -> 0.0180; 657 -> 620 kept, more "seen from its light side
+only"): the fit misses the dropped ones. Not landed: the trade on small sheared tags wants
+deciding (a weak edge's placement by its board line, _sees_dark, for the edges the clean
+band leaves without a dark side?).
+
 The blur. Handed an estimate (choose_kind: the corner windows' quick look, one kind on
 BLUR_QUICK_SAMPLE corners), the first pass fits sigma on the edges: one Gauss-Newton step
 of the sigma all edges share, each edge's own parameters eliminated (_blur_step,

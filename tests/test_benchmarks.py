@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -110,6 +111,39 @@ def test_help_imports_nothing_heavy(common):
                        capture_output=True, text=True, cwd=REPO, env=ENV, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_bench_corners_fits_what_the_calibrators_fit(common):
+    # bench_corners' "fitted" column takes off what the calibrators' bias step takes off
+    # under the true model and pose: the window's curvature bias on window corners, a
+    # tag-edge corner's span bias from its own record (none without one), nothing on a
+    # corner of another detector
+    from types import SimpleNamespace
+
+    from synthetic import synthetic_poses
+    from test_corner_model_bias import TARGET, _fisheye, _spans
+
+    from harness.calibrators.bias import corner_bias, tag_edges_bias
+    from targets.detection import CORNER_WINDOW, TAG_EDGES
+    bench = importlib.import_module("bench_corners")
+    truth = _fisheye()
+    Rt = synthetic_poses(truth, TARGET)[1]
+    n = TARGET.Npoints
+    model = np.where(np.arange(n) < n // 2, CORNER_WINDOW, TAG_EDGES)
+    spans = _spans(1)[0]
+    spans[-8:] = np.nan                        # tag-edge corners without a record
+    det = SimpleNamespace(corner_model=model, corner_blur_px=0.7, corner_spans=spans)
+    b = bench.calibrator_bias(det, truth, TARGET, Rt)
+    window = corner_bias(truth, TARGET, Rt, TARGET.points())
+    edges = tag_edges_bias(truth, Rt, TARGET.points(), spans)
+    w, e = model == CORNER_WINDOW, (model == TAG_EDGES) & np.isfinite(spans).all((1, 2))
+    assert np.abs(b[w] - window[w]).max() < 1e-12
+    assert np.abs(b[e] - edges[e]).max() < 1e-12
+    assert np.abs(edges[e]).max() > 1e-4       # the record's bias is there to take off
+    assert (b[-8:] == 0.0).all()
+    other = SimpleNamespace(corner_model=np.full(n, "pupil_apriltags"), corner_blur_px=0.0,
+                            corner_spans=None)
+    assert (bench.calibrator_bias(other, truth, TARGET, Rt) == 0.0).all()
 
 
 def test_accuracy_twice_never_overwrites(tmp_path):

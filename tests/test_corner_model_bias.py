@@ -171,3 +171,64 @@ through observations_from to the calibrators.'''
     assert obs.corner_spans.shape[:3] == (2, TARGET.Npoints, 2)
     assert np.isnan(obs.corner_spans[0]).all()
     assert np.isfinite(obs.corner_spans[1][dets[1].found]).all()
+
+
+def test_detection_noise_takes_off_the_tag_edges_span_bias(scene):
+    r'''The verdict's detection noise (harness.verdict.corner_biases) takes off each side's
+bias as the calibrators' bias step does, a tag-edge corner's from its own span record: a
+blurred job's corners that are the sharp reference's plus exactly the difference of the
+two biases read no noise; without the span records the tag edges' bias is noise.'''
+    from harness import verdict
+    from harness.calibrators.bias import tag_edges_bias
+    truth, obs, b_window = scene
+    Rts = np.asarray(synthetic_poses(truth, TARGET))
+    spans = _spans(obs.Nposes)
+    t = np.array([tag_edges_bias(truth, Rt, TARGET.points(), s)
+                  for Rt, s in zip(Rts, spans, strict=True)])
+    found = obs.found
+    ref = obs.replace(q=obs.q + b_window, corner_model=np.where(found, CORNER_WINDOW, ""))
+    det = obs.replace(q=obs.q + t, corner_model=np.where(found, TAG_EDGES, ""),
+                      corner_blur_px=np.full(obs.Nposes, 0.7), corner_spans=spans)
+    b = verdict.corner_biases(det, ref, truth, TARGET, Rts)
+    assert b is not None
+    # each side's bias is its own corner model's: the spans' on the job's, the window's on
+    # the reference's (the camera-frame truth: the same projections to rounding)
+    assert np.abs(b[0] - t)[found].max() < 1e-9
+    assert np.abs(b[1] - b_window)[found].max() < 1e-9
+    assert verdict.detection_noise(det, ref, b)["rms"] < 1e-9
+    # the span record is what carries the tag edges' bias: without it, it reads as noise
+    no_spans = det.replace(corner_spans=None)
+    n = verdict.detection_noise(no_spans, ref,
+                                verdict.corner_biases(no_spans, ref, truth, TARGET, Rts))
+    assert n["rms"] > 0.5 * _rms(np.where(found[..., None], t, np.nan)) > 1e-4
+
+
+def test_exact_observations_keep_their_own_span_records(monkeypatch):
+    r'''The verdict's exact observations are the reference corners, with the span records
+the reference detections made (the bias step computes a TAG_EDGES corner's bias from
+them), never the job's: a sharp reference render records none; a reference detected on
+tag edges (stood in for here) brings its own; the job's own detections as the reference
+keep the job's.'''
+    from harness import stages, verdict
+    truth = _fisheye()
+    Rts = np.asarray(synthetic_poses(truth, TARGET))[:2]
+    exact = exact_observations(truth, TARGET, Rts)
+    job = stages.observations_from(truth, TARGET, Rts, [q for q in exact.q])
+    found = job.found
+    job = job.replace(corner_model=np.where(found, TAG_EDGES, ""),
+                      corner_blur_px=np.full(2, 0.7), corner_spans=_spans(2))
+    # a sharp reference render: window corners, no span record
+    sharp = verdict.exact_observations(job, truth, TARGET, Rt_cam_board=Rts)
+    assert sharp.corner_model is not None
+    assert set(sharp.corner_model[found]) == {CORNER_WINDOW}
+    assert sharp.corner_spans is None
+    # a reference found on the tag edges carries its own records
+    own_spans = _spans(2)
+    own_spans[..., 4:6] *= 2.0
+    monkeypatch.setattr(verdict, "reference_corners", lambda camera, target, Rts_: (
+        exact.q, np.where(found, TAG_EDGES, ""), np.full(2, 0.7), own_spans))
+    edged = verdict.exact_observations(job, truth, TARGET, Rt_cam_board=Rts)
+    assert np.array_equal(edged.corner_spans, own_spans, equal_nan=True)
+    # the job's own detections as the reference keep the job's records
+    mine = verdict.exact_observations(job, truth, TARGET, reference=job.q, Rt_cam_board=Rts)
+    assert np.array_equal(mine.corner_spans, job.corner_spans, equal_nan=True)
