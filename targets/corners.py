@@ -1092,12 +1092,18 @@ TAG_HALF_BOX_BITS = 0.8
 # coarse corner's error and the local affine map's (as TAG_HALF_BOX_BITS keeps from 1 bit)
 TAG_SLACK_BITS = 0.2
 # the fewest pixels of an AprilTag corner's window (refine_tag_corners), beside the 2 per
-# unknown every window needs: the tag windows of 19-30 pixels (bits of 1.5-2 px,
-# campaigns/cameras/tiny-320x240) fit their pixels to 1e-7 of the contrast (the image's
-# float32) with corners 0.03-0.13 px off, an error that grows with the window's predicted
-# error per unit of pixel noise (~0.003 x it) where the chessboard's is ~1e-4 x it: a model
-# error of these windows not understood yet, which their misfit does not show; until then
-# they are dropped as before (the chessboard's windows, whose corners are exact, are not)
+# unknown every window needs. The tag windows of 19-30 pixels (bits of 1.5-2 px,
+# campaigns/cameras/tiny-320x240) fit their pixels to 1e-7 of the contrast with corners
+# 0.03-0.13 px off, the error ~0.003 x the window's predicted error per unit of pixel noise
+# (the chessboard's ~1e-4 x it). The cause is the render, not the model: an AprilGrid's
+# cells are a fifth of a bit (tag_spacing 0.3: a gap of 2.4 bits), so a pixel over bits of
+# 1.5 px lies over more than renderers._raycast_kernels.AREA_MAX_CELLS (16) cells and the
+# ray caster point samples it (K x K) instead of integrating its area: 2.6% of the pixels
+# of such a render (area_point_sampled_fraction; the chessboard's 0), the pixel at a tag
+# corner 0.014 of the image off its exact area (0.6375 against 0.6514, K=256 reference;
+# pose 11 of tiny-320x240, seed 0). A few edge pixels that far off are followed exactly by a
+# small window and averaged by a large one; until the render integrates them the small
+# windows are dropped as before (the chessboard's, whose corners are exact, are not)
 TAG_MIN_WINDOW_PIXELS = 30
 # a chessboard corner: the next grid lines are a square away; keep to 0.45 square
 CHESSBOARD_HALF_BOX = 0.45
