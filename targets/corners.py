@@ -678,6 +678,18 @@ the estimate's spread.
         # edge reaches (its own, the feature's past it: nb2 keeps that one out), else the
         # model sees no dark level there and trades contrast for corner position (0.3-0.7
         # px off on 2.8 px tag bits at sigma 0.7 px, hazcam 17)
+        # Sharp or blurred, a whole pixel must fit in each edge's strip (its width across the
+        # edge: the notch along the other axis; a pixel's extent across an edge of direction
+        # u is |u_x| + |u_y|, 1 to sqrt(2)), else no pixel of the window shows the dark level
+        # in full: on tiny-320x240's exact renders (no pixel point sampled, seed 0) the
+        # corners of strips narrower than that erred 0.012-0.016 px RMS, 0.12 max (162 of
+        # 1677), the rest 0.0002-0.0009 RMS, 0.0024 max, whatever their pixel count
+        u = steps2 / np.linalg.norm(steps2, axis=1, keepdims=True)      # columns: the edges
+        across = np.abs(_cross(u[:, :, 0], u[:, :, 1]))
+        width = nb2[:, None] * np.linalg.norm(steps2, axis=1)[:, ::-1] * across[:, None]
+        narrow = ~np.all(width >= np.abs(u).sum(axis=1), axis=-1)
+        fit2.q[narrow] = np.nan
+        fit2.reasons[narrow] = "edge strip narrower than a pixel"
         smin = np.linalg.svd(steps2, compute_uv=False)[:, -1]
         thin = ~(nb2 * smin >= BLUR_REACH_SIGMAS * sigma + 0.5)
         fit2.q[thin] = np.nan
@@ -1092,21 +1104,19 @@ TAG_HALF_BOX_BITS = 0.8
 # coarse corner's error and the local affine map's (as TAG_HALF_BOX_BITS keeps from 1 bit)
 TAG_SLACK_BITS = 0.2
 # the fewest pixels of an AprilTag corner's window (refine_tag_corners), beside the 2 per
-# unknown every window needs. Tag windows of 19-30 pixels (bits of 1.5-2 px,
-# campaigns/cameras/tiny-320x240, 12 poses, seed 0) fit their pixels to 1e-7 of the
-# contrast with corners up to 0.13 px off. Two causes, measured apart:
-# - the render: an AprilGrid's cells are a fifth of a bit (tag_spacing 0.3: a gap of 2.4
-#   bits), so a pixel over bits of 1.5 px lies over more than
-#   renderers._raycast_kernels.AREA_MAX_CELLS (16) cells and the ray caster point samples it
-#   (K x K) instead of integrating its area: 2.6% of the pixels of pose 11 (the chessboard's
-#   0); its tag-corner pixel 0.6375 against 0.6514 exact (K=256 reference). With the cap at
-#   64 (no pixel point sampled) the corners this floor keeps err 0.0014 px RMS, 0.015 max,
-#   against 0.0122 / 0.41 on the renders as they are;
-# - the small windows themselves: without this floor, on those exact renders, 0.0057 px
-#   RMS, 0.145 max (149 corners more kept), not understood yet (their misfit does not show
-#   it, so the predicted error does not either).
-# The chessboard's small windows (9-30 pixels) come out exact (<= 0.0011 px) and have no
-# such floor.
+# unknown every window needs: not the fit's need but the render's. The fit needs a whole
+# pixel inside each edge's strip (refine_corners, "edge strip narrower than a pixel"): on
+# exact renders of campaigns/cameras/tiny-320x240 (tag bits of 1.5-2 px, 12 poses, seed 0)
+# that alone keeps 1538 of 1728 corners at 0.0014 px RMS, 0.015 max, where this floor kept
+# 1497 at the same error. But the ray caster does not render those tags exactly: an
+# AprilGrid's cells are a fifth of a bit (tag_spacing 0.3: a gap of 2.4 bits), so a pixel
+# over bits of 1.5 px lies over more than renderers._raycast_kernels.AREA_MAX_CELLS (16)
+# cells and is point sampled (K x K) instead of area integrated: 2.6% of the pixels of pose
+# 11 (the chessboard's 0), the pixel at a tag corner 0.6375 against 0.6514 exact (K=256
+# reference); the "exact" renders above had the cap at 64 (a scratch copy). On the renders
+# as they are, the strip rule alone left 0.0063 px RMS (1515 kept), with this floor 0.0047
+# (1443): the larger windows average the point-sampled pixels. Drop this floor once the
+# render integrates those pixels.
 TAG_MIN_WINDOW_PIXELS = 30
 # a chessboard corner: the next grid lines are a square away; keep to 0.45 square
 CHESSBOARD_HALF_BOX = 0.45
