@@ -1055,7 +1055,7 @@ line through the corner when sigma > 0)'''
         limit = max(float(max_sigma_px), NOISE_SIGMA_FACTOR * float(np.median(pred[fin]))) \
             if fin.any() else float(max_sigma_px)
         loose = judged & ~(pred <= limit)
-        why[loose] = [f"window too small: predicted error {p:.3g} px above {limit:.3g} px"
+        why[loose] = [f"predicted error too large: {p:.3g} px, above {limit:.3g} px"
                       for p in pred[loose]]
     sigma_pred = np.full(N, np.nan)
     sigma_pred[idx] = pred
