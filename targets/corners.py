@@ -41,7 +41,7 @@ coarse corner along both board axes (the local affine map `steps`), and at
 most MAX_WINDOW_PX pixels from it. An AprilTag's outer corner is dark only along its
 1-bit border, light outside as far as the gap to the next tag: its window (tag_window)
 is L-shaped, the box out to that gap with the tag's inside past the border cut out
-(the box inside the border alone, 0.8 bit, left fewer than MIN_WINDOW_PIXELS on bits of
+(the box inside the border alone, 0.8 bit, left fewer than the 30 pixels then required on bits of
 3 px and dropped half of the tag corners of a 640x480 hazcam, catalogue slot 17).
 
 The model has no lens distortion: an edge of curvature kappa (1/px) crossing
@@ -108,8 +108,10 @@ chessboard and tag corners come out within 2e-4 px of the truth on navcam 15's r
 bit) RMS (benchmarks/bench_corners.py --response realistic).
 
 A corner is dropped, never kept at its coarse position, with its reason:
-its window leaves the image or holds fewer than MIN_WINDOW_PIXELS pixels,
-the fit did not converge in MAX_ITERATIONS, the corner moved out of its
+its window leaves the image or holds fewer than WINDOW_PIXELS_PER_UNKNOWN pixels
+per unknown of its fit, the corner's predicted error (its misfit through the window's
+normal equations) is above MAX_CORNER_SIGMA_PX (or NOISE_SIGMA_FACTOR x the image's
+median on a noisy image), the fit did not converge in MAX_ITERATIONS, the corner moved out of its
 window, the contrast is below MIN_CONTRAST of the image's range, or the
 model misses the pixels by more than MAX_MISFIT of the contrast (RMS: a
 blurred, occluded or misplaced corner).
@@ -123,12 +125,31 @@ import numpy as np
 # the window's half-width cap (px): the fit's cost grows as its square, and the bias of
 # edge curvature (kappa w^2 / 10) with it; 8 px is 200+ edge pixels per corner
 MAX_WINDOW_PX = 8
-# fewest pixels of a window. A window of n pixels spans ~sqrt(n) px along each ray; the
-# fit needs several edge pixels per geometric parameter (2 + R) to average the image's
-# sampling error rather than follow it: with 16-25 pixels (4-5 px across, AprilTag bits of
-# 3-4 px) corners were off by up to 0.38 px at a misfit below the image's median, with 30
-# or more by 0.07 at most (benchmarks/bench_corners.py, hazcam 17)
-MIN_WINDOW_PIXELS = 30
+# A window's size is judged by what its fit determines, not by a count of pixels: a window
+# of n pixels holding K unknowns (light level, contrast, the corner's 2 coordinates, the
+# rays' angles, the blur when fitted) needs n > K to be determined at all and to leave a
+# misfit to judge it by (_fit); past that, a corner is kept when its predicted standard
+# error is within what the records need (MAX_CORNER_SIGMA_PX). The predicted error is the
+# fit's own: its misfit per pixel (RMS over the n - K degrees of freedom; whatever the
+# model does not have: the render's sampling error, a neighbouring feature, sensor noise)
+# through the window's normal equations (the larger axis of the corner's 2x2 covariance).
+# A window of few pixels has few edge pixels per unknown and follows the image's errors
+# rather than averaging them: its covariance is large, and so is its predicted error.
+# (The fixed floor before, 30 pixels, dropped every chessboard corner of a 160x120 camera
+# whose corners came out within 0.001 px elsewhere, and kept AprilTag corners of bits of
+# 1.5-2 px off by up to 0.4 px: campaigns/cameras/tiny-320x240, mini-160x120.)
+# the largest predicted standard error (px) of a kept corner: issue 16's bar on a record's
+# residual and projection difference RMS (0.005 px): a corner predicted to err by more on
+# its own cannot belong to a record held to it
+MAX_CORNER_SIGMA_PX = 0.005
+# pixels a window needs per unknown of its fit: one to determine it, one more to judge it
+# (the misfit's degrees of freedom as many as the unknowns)
+WINDOW_PIXELS_PER_UNKNOWN = 2
+# a noisy image's corners all carry its noise (predicted errors of 0.004 px and more under
+# campaigns/response.toml's `realistic` noise): there the limit is this many times the
+# median predicted error of the image's corners, so that only the windows far less
+# determined than the image's own (small or cut short) are dropped, not the noise
+NOISE_SIGMA_FACTOR = 3.0
 MAX_ITERATIONS = 50
 # the first pass only places the second's window: it stops at this step (px)
 FIRST_PASS_CONVERGED_PX = 1e-3
@@ -200,6 +221,7 @@ directions: (N,R,2) the fitted unit directions of the rays (NaN where not fitted
     iterations: int = 0
     directions: np.ndarray = None
     info: dict = field(default_factory=dict)
+    predicted_sigma: np.ndarray = None
 
     def dropped(self):
         r'''{reason: count} of the dropped corners'''
@@ -549,6 +571,8 @@ the estimate's spread.
                                            dtype=np.float64), (len(q0),))
     info = {}
     options = dict(options, lines=lines)
+    # the last pass's corners are judged by their predicted error (_fit)
+    max_sigma_px = options.pop("max_sigma_px", MAX_CORNER_SIGMA_PX)
     if psf_sigma_px is None:
         opts1 = dict(options, max_misfit=np.inf)
         sigma1 = 0.0
@@ -646,7 +670,7 @@ the estimate's spread.
     strips = line_strips(steps2, clearance[ok], sigma, line_curvature(fit.q)[ok]) \
         if sigma > 0.0 and len(lines) and line_curvature is not None else None
     fit2 = _fit(image, fit.q[ok], dirs, wedges, steps2, hb2, notch=nb2, sigma=sigma,
-                strips=strips, **options)
+                strips=strips, max_sigma_px=max_sigma_px, **options)
     q, reasons = fit.q.copy(), fit.reasons.copy()
     misfit, npix, directions = fit.misfit.copy(), fit.npixels.copy(), fit.directions.copy()
     if nb2 is not None:
@@ -654,15 +678,29 @@ the estimate's spread.
         # edge reaches (its own, the feature's past it: nb2 keeps that one out), else the
         # model sees no dark level there and trades contrast for corner position (0.3-0.7
         # px off on 2.8 px tag bits at sigma 0.7 px, hazcam 17)
+        # Sharp or blurred, a whole pixel must fit in each edge's strip (its width across the
+        # edge: the notch along the other axis; a pixel's extent across an edge of direction
+        # u is |u_x| + |u_y|, 1 to sqrt(2)), else no pixel of the window shows the dark level
+        # in full: on tiny-320x240's exact renders (no pixel point sampled, seed 0) the
+        # corners of strips narrower than that erred 0.012-0.016 px RMS, 0.12 max (162 of
+        # 1677), the rest 0.0002-0.0009 RMS, 0.0024 max, whatever their pixel count
+        u = steps2 / np.linalg.norm(steps2, axis=1, keepdims=True)      # columns: the edges
+        across = np.abs(_cross(u[:, :, 0], u[:, :, 1]))
+        width = nb2[:, None] * np.linalg.norm(steps2, axis=1)[:, ::-1] * across[:, None]
+        narrow = ~np.all(width >= np.abs(u).sum(axis=1), axis=-1)
+        fit2.q[narrow] = np.nan
+        fit2.reasons[narrow] = "edge strip narrower than a pixel"
         smin = np.linalg.svd(steps2, compute_uv=False)[:, -1]
         thin = ~(nb2 * smin >= BLUR_REACH_SIGMAS * sigma + 0.5)
         fit2.q[thin] = np.nan
         fit2.reasons[thin] = "edge strip too thin for the blur"
     q[ok], reasons[ok], misfit[ok] = fit2.q, fit2.reasons, fit2.misfit
     npix[ok], directions[ok] = fit2.npixels, fit2.directions
+    pred = np.full(len(q0), np.nan)
+    pred[ok] = fit2.predicted_sigma
     return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix,
                      iterations=fit.iterations + fit2.iterations, directions=directions,
-                     info=info)
+                     info=info, predicted_sigma=pred)
 
 
 def _clearly_blurred(look):
@@ -725,7 +763,7 @@ the median within it of the full fits'); "psf_sharp_stops" counts the corners it
                                                       BLUR_PROBE_PX)
     options.pop("psf_kind", None)
     best, misfits, stops = None, {}, 0
-    # small features (AprilTag bits of 3-4 px) leave no window of MIN_WINDOW_PIXELS once
+    # small features (AprilTag bits of 3-4 px) leave windows too small to fit once
     # shrunk for BLUR_PROBE_PX: then the sharp image's windows (a blurred neighbour may
     # reach into them; a blur estimate slightly high beats none: 0.3 px errors, camera 17)
     for box, nbox in ((hb, nb), (np.full(len(pick), float(half_box)), notch)):
@@ -735,6 +773,8 @@ the median within it of the full fits'); "psf_sharp_stops" counts the corners it
                        sigma=BLUR_START_PX, fit_sigma=True, psf_kind=kind,
                        sharp_sigma=sharp_sigma_px, **options)
             good = fit.reasons == ""
+            if fit.predicted_sigma is not None:
+                good &= np.isfinite(fit.predicted_sigma)
             sig = fit.info.get("sigma", np.full(len(good), np.nan))
             stops += int(np.count_nonzero(sig < sharp_sigma_px))
             est = np.abs(sig[good])
@@ -774,7 +814,8 @@ def _fit(image, q0, directions, wedges, steps, half_box, *, notch=None,
          max_window_px=MAX_WINDOW_PX,
          max_misfit=MAX_MISFIT, min_contrast=MIN_CONTRAST, widen=0.0,
          converged_px=CONVERGED_PX, kernel="numba", value_range=None, sigma=0.0,
-         fit_sigma=False, lines=(), psf_kind="gaussian", strips=None, sharp_sigma=0.0):
+         fit_sigma=False, lines=(), psf_kind="gaussian", strips=None, sharp_sigma=0.0,
+         max_sigma_px=None, min_window_pixels=0):
     r'''One pass of refine_corners (the window about q0, half_box a number or (N,); widen:
 see wedge_area; kernel: "numba" the compiled pixel-area model of targets._corner_kernels,
 "numpy" wedge_area's; sigma: the Gaussian blur, px, fitted per corner from there with
@@ -814,9 +855,18 @@ line through the corner when sigma > 0)'''
     off = (inside & ~on_image).any(axis=-1)
     n_in = (inside & on_image).sum(axis=-1)
     npix[idx] = n_in
-    few = ~off & (n_in < MIN_WINDOW_PIXELS)
+    # unknowns: light level, contrast, corner (2), the rays' angles (tied pairs one), the
+    # blur when fitted. A window of n pixels determines them when n > K, and its misfit
+    # (what judges the fit, and its predicted error) has n - K degrees of freedom: as many
+    # as the unknowns at least (WINDOW_PIXELS_PER_UNKNOWN), else a fit through every pixel
+    # reads as exact (a 160x120 camera's 9-pixel chessboard windows, 8 unknowns: misfit
+    # 2e-7 of the contrast 0.27 px off)
+    n_unknowns = 4 + dirs.shape[1] - (len(lines) if (float(sigma) > 0.0 or fit_sigma) else 0) \
+        + int(bool(fit_sigma))
+    need = max(WINDOW_PIXELS_PER_UNKNOWN * n_unknowns, int(min_window_pixels))
+    few = ~off & (n_in < need)
     reasons[idx[off]] = "window off the image"
-    reasons[idx[few]] = "window too small"
+    reasons[idx[few]] = f"window too small: fewer than {need} pixels for {n_unknowns} unknowns"
     keep = ~off & ~few
     rows = np.flatnonzero(keep)
     idx = idx[rows]
@@ -934,6 +984,9 @@ line through the corner when sigma > 0)'''
             diag = np.einsum("nii->ni", JtJ)
             A = JtJ + (lam[s, None] * diag)[:, :, None] * eye + 1e-12 * eye
         step = np.linalg.solve(A, Jtr[..., None])[..., 0]
+        # a singular system (a window that does not determine the fit) takes no step: the
+        # fit ends where it is, and the predicted error (inf) drops the corner
+        step[~np.all(np.isfinite(step), axis=-1)] = 0.0
         c1 = c[s] + step[:, 2:4]
         t1 = theta[s] + step[:, 4:4 + L] @ T.T
         # the model is even in sigma: keep it positive
@@ -976,6 +1029,16 @@ line through the corner when sigma > 0)'''
     with np.errstate(divide="ignore", invalid="ignore"):
         mis = np.sqrt(S / w.sum(-1)) / np.abs(b)
     misfit[idx] = mis
+    # each corner's predicted standard error (px): the misfit per degree of freedom through
+    # the window's normal equations at the fit (the larger axis of the corner's covariance)
+    if kernel == "numba":
+        JtJ = JtJ_all
+    else:
+        J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], b[:, None, None] * dD_dc,
+                            b[:, None, None] * dD_dt), axis=-1)
+        JtJ = (J * w[..., None]).transpose(0, 2, 1) @ J
+    dof = np.maximum(w.sum(-1) - K, 1.0)
+    pred = _predicted_sigma(JtJ, S / dof)
     # the corner must stay inside its window: its board offset from the coarse corner
     rel = np.einsum("nij,nj->ni", np.linalg.inv(steps[idx]), c - q0[idx])
     moved = np.abs(rel).max(-1) > half_box[idx]
@@ -986,6 +1049,16 @@ line through the corner when sigma > 0)'''
     why[low] = "no contrast"
     bad = converged & ~moved & ~low & ~(mis <= max_misfit)
     why[bad] = [f"misfit: {m:.3g} of the contrast (blurred or occluded)" for m in mis[bad]]
+    if max_sigma_px is not None:
+        judged = converged & ~moved & ~low & ~bad
+        fin = judged & np.isfinite(pred)
+        limit = max(float(max_sigma_px), NOISE_SIGMA_FACTOR * float(np.median(pred[fin]))) \
+            if fin.any() else float(max_sigma_px)
+        loose = judged & ~(pred <= limit)
+        why[loose] = [f"predicted error too large: {p:.3g} px, above {limit:.3g} px"
+                      for p in pred[loose]]
+    sigma_pred = np.full(N, np.nan)
+    sigma_pred[idx] = pred
     good = why == ""
     q[idx[good]] = c[good]
     reasons[idx] = why
@@ -994,7 +1067,31 @@ line through the corner when sigma > 0)'''
     sigmas = np.full(N, np.nan)
     sigmas[idx] = sig
     return CornerFit(q=q, reasons=reasons, misfit=misfit, npixels=npix, iterations=it,
-                     directions=directions, info={"sigma": sigmas})
+                     directions=directions, info={"sigma": sigmas},
+                     predicted_sigma=sigma_pred)
+
+
+def _predicted_sigma(JtJ, noise_var):
+    r'''(n,) the corners' predicted standard error (px): sqrt(noise_var x the larger
+eigenvalue of the (cx, cy) block of (J^T W J)^-1), inf where the normal equations are
+singular (a window that does not determine the fit)'''
+    n = len(JtJ)
+    out = np.full(n, np.inf)
+    if not n:
+        return out
+    # equilibrated (unit diagonal) before the condition test and the inverse
+    scale = np.sqrt(np.maximum(np.einsum("nii->ni", JtJ), 1e-300))
+    Js = JtJ / (scale[:, :, None] * scale[:, None, :])
+    cond = np.linalg.cond(Js)
+    ok = np.isfinite(cond) & (cond < 1e12)
+    if ok.any():
+        inv = np.linalg.inv(Js[ok]) / (scale[ok][:, :, None] * scale[ok][:, None, :])
+        C = inv[:, 2:4, 2:4]
+        tr = C[:, 0, 0] + C[:, 1, 1]
+        det = C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] * C[:, 1, 0]
+        lmax = 0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - det, 0.0))
+        out[ok] = np.sqrt(np.maximum(noise_var[ok], 0.0) * lmax)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1006,6 +1103,21 @@ TAG_HALF_BOX_BITS = 0.8
 # the slack (tag bits) a tag's window keeps from the features its model does not have: the
 # coarse corner's error and the local affine map's (as TAG_HALF_BOX_BITS keeps from 1 bit)
 TAG_SLACK_BITS = 0.2
+# the fewest pixels of an AprilTag corner's window (refine_tag_corners), beside the 2 per
+# unknown every window needs: not the fit's need but the render's. The fit needs a whole
+# pixel inside each edge's strip (refine_corners, "edge strip narrower than a pixel"): on
+# exact renders of campaigns/cameras/tiny-320x240 (tag bits of 1.5-2 px, 12 poses, seed 0)
+# that alone keeps 1538 of 1728 corners at 0.0014 px RMS, 0.015 max, where this floor kept
+# 1497 at the same error. But the ray caster does not render those tags exactly: an
+# AprilGrid's cells are a fifth of a bit (tag_spacing 0.3: a gap of 2.4 bits), so a pixel
+# over bits of 1.5 px lies over more than renderers._raycast_kernels.AREA_MAX_CELLS (16)
+# cells and is point sampled (K x K) instead of area integrated: 2.6% of the pixels of pose
+# 11 (the chessboard's 0), the pixel at a tag corner 0.6375 against 0.6514 exact (K=256
+# reference); the "exact" renders above had the cap at 64 (a scratch copy). On the renders
+# as they are, the strip rule alone left 0.0063 px RMS (1515 kept), with this floor 0.0047
+# (1443): the larger windows average the point-sampled pixels. Drop this floor once the
+# render integrates those pixels.
+TAG_MIN_WINDOW_PIXELS = 30
 # a chessboard corner: the next grid lines are a square away; keep to 0.45 square
 CHESSBOARD_HALF_BOX = 0.45
 # board units from a corner to the nearest feature its model does not have, along the box's
@@ -1040,13 +1152,14 @@ SYNOPSIS
 Corner k of a tag is the apex of the tag's black border between the edges to corners
 k-1 and k+1; one bit of a tag is its side / 8 (tag36h11: 6x6 data bits in a 1-bit border).
 Without tag_window's options the window is the box of TAG_HALF_BOX_BITS, inside the
-border: 30 pixels (MIN_WINDOW_PIXELS) need bits of 3.4 px or more.
+border: 30 pixels need bits of 3.4 px or more.
 '''
     Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
     nxt = np.roll(Q, -1, axis=1) - Q
     prv = np.roll(Q, 1, axis=1) - Q
     dirs = np.stack((nxt, prv), axis=2).reshape(-1, 2, 2)
     steps = np.stack((nxt, prv), axis=-1).reshape(-1, 2, 2) / 8.0
+    options.setdefault("min_window_pixels", TAG_MIN_WINDOW_PIXELS)
     return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box,
                           clearance=clearance, **options)
 
@@ -1061,7 +1174,7 @@ edge (margin). The window is the box up to that light region's end less TAG_SLAC
 with the tag's inside beyond its border (both tag axes past 1 bit less the slack) cut
 out: an L-shaped window of ~15 bits^2 at tag_spacing 0.3 against the 2.6 of the box
 inside the border, so that small tags (bits of 3 px: a 640x480 fisheye's far tags)
-keep MIN_WINDOW_PIXELS (MAX_WINDOW_PX still caps it on large tags).
+keep windows that determine their fits (MAX_WINDOW_PX still caps it on large tags).
 '''
     spec = target.spec
     if "tag_spacing" not in spec:
@@ -1095,7 +1208,7 @@ nearest point to the box's corner, taken along the axes: conservative by up to
 sqrt(2)), and 1.5 - r or more from any other corner. Only the corners of a marked
 square keep the dot's clearance: a blurred window shrinks by 3 sigma from it, and on a
 640x480 hazcam's squares of ~10 px every corner's window had shrunk below
-MIN_WINDOW_PIXELS where only 12 of 100 corners touch a dot (camera 17: 52 of 528
+the 30 pixels then required where only 12 of 100 corners touch a dot (camera 17: 52 of 528
 corners away from the dots dropped, "window too small").
 '''
     nx, ny = target.grid_shape

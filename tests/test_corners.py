@@ -108,14 +108,16 @@ def test_tag_corners_to_the_renders_accuracy(R):
 @pytest.mark.slow
 def test_small_tags_keep_their_corners_in_the_l_shaped_window():
     r'''Tag bits of 2.8 px: the box inside the 1-bit border (0.8 bit, ~5 pixels) holds
-fewer than MIN_WINDOW_PIXELS and drops every corner; tag_window's L-shaped window (out to
-the gap to the next tag, the tag's inside cut out) refines them all'''
+fewer pixels than its fit needs (2 per unknown, 6 unknowns) and drops nearly every corner;
+tag_window's L-shaped window (out to the gap to the next tag, the tag's inside cut out)
+refines them all'''
     t = load_target("apriltag")
     m = pinhole(320, 320, 260.0)
     Rt = _rolled_pose(-23.0, 20.0, [-0.5, -0.45, 1.45])
     img, truth, q0 = _scene(t, m, Rt, K_TEST, seed=1)
     box = refine_tag_corners(img, q0.reshape(-1, 4, 2))
-    assert box.dropped() == {"window too small": len(truth)}
+    # measured: 136 of 144 "window too small", 5 not converged, 3 kept
+    assert box.dropped().get("window too small", 0) >= 0.9 * len(truth), box.dropped()
     fit = refine_tag_corners(img, q0.reshape(-1, 4, 2), **tag_window(t))
     assert fit.dropped() == {}
     rms, worst = _exact_error(fit, truth)

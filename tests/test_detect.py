@@ -213,11 +213,15 @@ stay, as exact as on the clean image, and the detection is ok'''
     np.testing.assert_allclose(det.q[keep], clean.q[keep], atol=0.02)
 
 
-def test_chessboard_found_but_every_corner_dropped_says_so():
+def test_chessboard_found_but_every_corner_dropped_says_so(monkeypatch):
     r'''A board OpenCV finds whose corners the refiner cannot refine (squares of ~8 px on a
-160x120 image: every window holds fewer than MIN_WINDOW_PIXELS whole pixels) fails with
-a reason that says the board was found and why its corners went, not only "found 0 of
-100 points" (a campaign record keeps one image's reason, which read as a board not found)'''
+160x120 image, every window made too small by asking 100 pixels per unknown of its fit:
+the windows of 0.45 square, 9-16 pixels, determine their 8 unknowns and are kept
+otherwise) fails with a reason that says the board was found and why its corners went,
+not only "found 0 of 100 points" (a campaign record keeps one image's reason, which read
+as a board not found)'''
+    import targets.corners
+    monkeypatch.setattr(targets.corners, "WINDOW_PIXELS_PER_UNKNOWN", 100)
     t = load_target("chessboard")
     m = pinhole(160, 120, 135.0)
     det = detect(render(m, t.pattern(), plan_poses(m, t, seed=0)[0], K=4), t)
