@@ -101,7 +101,14 @@ Not fixed:
   scatter (campaigns/gate-renderer.toml).
 - blooming (15% overexposed CCD, no anti-blooming): the spilled charge runs down the
   columns into the dots and moves them 0.3-0.6 px, as on a real CCD: a true bias, failed as
-  a renderer fault (joint z 12-15, and 8e4 on 15 seed 0); no record says why.
+  a renderer fault (joint z 12-15, and 8e4 on 15 seed 0). Since session 18 the records say
+  why (targets/saturation.py): 97-99% of the board at full scale, bleed along columns up to
+  7-18 px, in the record's reason, `camval gate`'s failure table and the report.
+- realistic, consumer (session 18, targets/detect_dots.py noise_window): the blurred
+  window now weighs the noise it takes in; 2026-11-29 07:00 (seeds 0-2, jpl and mrcal, the
+  4 cameras, main 6ce6fc8): every variant of clean, psf, psf_wide, consumer, realistic,
+  shot_noise, srgb8, vignetting_lens passes 3/3; realistic jpl RMS z 1.13 -> 1.07, max
+  4.62 -> 2.62; consumer 0.98 -> 1.14, max 2.71 -> 2.66.
 - psf_wide's RMS z 1.6-1.7 (jpl, mrcal): the sigmas are ~1.6x short under a 1.5 px blur.
 '''
 

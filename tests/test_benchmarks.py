@@ -20,7 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 BENCH = REPO / "benchmarks"
 SCRIPTS = ("accuracy", "bench_render", "bench_stages", "bench_campaign", "legacy_signature",
            "bench_raycast_area", "bench_corners", "bench_models", "bench_command_protocol",
-           "renderer_gate", "speed", "bench_photometric")
+           "renderer_gate", "speed", "bench_photometric", "bench_dot_window")
 ENV = dict(os.environ, NUMBA_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
 
 TINY_CAMPAIGN = '''
@@ -226,6 +226,22 @@ def test_bench_photometric_tiny(tmp_path):
     assert rec["fullname"] == "gain/0/17/jpl[CAHVORE]"
     assert rec["verdict"] == "pass" and rec["worst_z"] < 6, rec
     assert doc["z_statistics"]["gain/jpl"]["n"] > 0
+
+
+def test_bench_dot_window_tiny(tmp_path):
+    # hazcam 17, 2 poses through the realistic profile: the detector's window against the
+    # sharp 2 px and blur_window's 3 px (the figures are a render's and a seeded noise's,
+    # not the machine's: its choice is the better one, within 10 % of it where it is not)
+    out = tmp_path / "results"
+    run("bench_dot_window", "--cameras", "17", "--profiles", "b0.7n20000", "--windows", "2,3",
+        "--poses", "2", "--out-dir", out)
+    [path] = documents(out)
+    doc = check_document(path, "bench_dot_window")
+    rec = doc["records"]["17/b0.7n20000"]
+    assert set(rec["rms_px"]) == {"2", "3", "auto"}
+    assert 0 < rec["rms_px"]["auto"] < 0.02, rec
+    assert rec["auto_over_best"] < 1.1, rec
+    assert abs(rec["edge_blur_sigma_px"] - 0.7) < 0.15 and 0.004 < rec["board_noise_rel"] < 0.02
 
 
 def test_speed_tiny_and_its_gate(tmp_path):
