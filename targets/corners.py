@@ -1104,19 +1104,14 @@ TAG_HALF_BOX_BITS = 0.8
 # coarse corner's error and the local affine map's (as TAG_HALF_BOX_BITS keeps from 1 bit)
 TAG_SLACK_BITS = 0.2
 # the fewest pixels of an AprilTag corner's window (refine_tag_corners), beside the 2 per
-# unknown every window needs: not the fit's need but the render's. The fit needs a whole
-# pixel inside each edge's strip (refine_corners, "edge strip narrower than a pixel"): on
-# exact renders of campaigns/cameras/tiny-320x240 (tag bits of 1.5-2 px, 12 poses, seed 0)
-# that alone keeps 1538 of 1728 corners at 0.0014 px RMS, 0.015 max, where this floor kept
-# 1497 at the same error. But the ray caster does not render those tags exactly: an
-# AprilGrid's cells are a fifth of a bit (tag_spacing 0.3: a gap of 2.4 bits), so a pixel
-# over bits of 1.5 px lies over more than renderers._raycast_kernels.AREA_MAX_CELLS (16)
-# cells and is point sampled (K x K) instead of area integrated: 2.6% of the pixels of pose
-# 11 (the chessboard's 0), the pixel at a tag corner 0.6375 against 0.6514 exact (K=256
-# reference); the "exact" renders above had the cap at 64 (a scratch copy). On the renders
-# as they are, the strip rule alone left 0.0063 px RMS (1515 kept), with this floor 0.0047
-# (1443): the larger windows average the point-sampled pixels. Drop this floor once the
-# render integrates those pixels.
+# unknown every window needs. The fit needs a whole pixel inside each edge's strip
+# (refine_corners, "edge strip narrower than a pixel"), but the small windows that rule
+# alone keeps have an error of their own (not understood): on campaigns/cameras/tiny-320x240
+# (tag bits of 1.5-2 px, 12 poses), now that the ray caster integrates every pixel of its
+# tags (renderers._raycast_kernels.AREA_MAX_CELLS 256; at 16 2.6% of them were point
+# sampled), pose seed 0: without this floor 1522 / 1538 corners kept (CAHV / CAHVOR) at jpl
+# residual RMS 0.0016 / 0.0013 px, with it 1378 / 1455 at 0.0000 / 0.0013; seed 1 0.0060 /
+# 0.0047 without, 0.0004 / 0.0048 with.
 TAG_MIN_WINDOW_PIXELS = 30
 # a chessboard corner: the next grid lines are a square away; keep to 0.45 square
 CHESSBOARD_HALF_BOX = 0.45
