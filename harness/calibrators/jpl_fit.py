@@ -413,7 +413,8 @@ last bias was checked already; a run-out one is checked here once (bias_step)'''
                           obs.corner_blur_px, obs.corner_spans)
     if b is not None and change >= bias_tolerance:
         raise CalibrationFailed(
-            f"the dot-centroid bias correction did not settle in {bias_passes} passes: the "
+            f"the {'dot-centroid' if getattr(target, 'kind', 'dots') == 'dots' else 'corner'} "
+            f"bias correction did not settle in {bias_passes} passes: the "
             f"last pass moved it by {refits[-1]['bias_change_max']:.3g} px and the final "
             f"model's bias differs by {change:.3g} px from the one fitted (tolerance "
             f"{bias_tolerance:.3g} px)")
