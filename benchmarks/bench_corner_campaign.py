@@ -29,11 +29,13 @@ corner targets, jpl, that profile only; the campaign's noise seed and its poses'
 each seed in turn, one run directory per seed under --keep) and tabulates issue 16's second
 bar: target / dots ratio of jpl's residual RMS and projection difference RMS per camera and
 family, pooled over the seeds (the RMS over the seeds of each, then the ratio), with each
-seed's ratios and the corners kept. --run DIR tabulates such a DIR (its seed-* run
-directories) again; --response blur is the realistic profile's blur alone (no noise: the
-targets' model errors). --dots-from DIR takes the dots' records from DIR's seed-* runs (a run of
-the same cameras and seeds: the dots do not change with a corner detector) and runs the
-corner targets only.
+seed's ratios and the corners kept, and the ratio of the verdict's predicted projection sigma
+(verdict.renderer.sigma.projection_rms: the noise carried through each fit's geometry, no
+single noise draw in it; a seed's projection ratio is one draw, 0.1-9 on one pair). --run
+DIR tabulates such a DIR (its seed-* run directories) again; --response blur is the
+realistic profile's blur alone (no noise: the targets' model errors). --dots-from DIR takes
+the dots' records from DIR's seed-* runs (a run of the same cameras and seeds: the dots do
+not change with a corner detector) and runs the corner targets only.
 
 Writes one JSON document, <out-dir>/<UTC stamp>-bench_corner_campaign.json
 (benchmarks/common.Results): a record per campaign record (fullname as the
@@ -127,13 +129,16 @@ the dots' from dots_from's where given)'''
                 continue
             c = cell(r, BAR_PX)
             rows.setdefault((str(r["camera"]), r.get("model"), r["target"]), {})[d.name] = (
-                c["residual_rms_px"], c["projection_rms_px"], c["found"], c["expected"])
+                c["residual_rms_px"], c["projection_rms_px"], c["found"], c["expected"],
+                c["projection_sigma_px"])
 
     def pooled(per, i):
-        return math.sqrt(sum(v[i] ** 2 for v in per.values()) / len(per))
+        v = [x[i] for x in per.values() if x[i] is not None]
+        return math.sqrt(sum(x * x for x in v) / len(v)) if v else math.nan
 
-    print(f"\n{profile}: target / dots jpl ratio, residual RMS / projection difference RMS, "
-          f"pooled over {len(seeds)} seeds (RMS over the seeds, then the ratio); per seed; kept")
+    print(f"\n{profile}: target / dots jpl ratio, residual RMS / projection difference RMS / "
+          f"predicted projection sigma, pooled over {len(seeds)} seeds (RMS over the seeds, then "
+          f"the ratio); per seed (residual / projection); kept")
     for (cam, fam, tgt), per in sorted(rows.items()):
         dots = rows.get((cam, fam, "dots"))
         if tgt == "dots" or not dots:
@@ -141,15 +146,17 @@ the dots' from dots_from's where given)'''
         both = [s for s in per if s in dots]
         per, dp = {s: per[s] for s in both}, {s: dots[s] for s in both}
         rr, pr = pooled(per, 0) / pooled(dp, 0), pooled(per, 1) / pooled(dp, 1)
+        sr = pooled(per, 4) / pooled(dp, 4)
         each = [(per[s][0] / dp[s][0], per[s][1] / dp[s][1]) for s in both]
         kept = [per[s][2] for s in both]
-        print(f"{cam:>5s} {fam:8s} {tgt:10s} {rr:5.2f} / {pr:5.2f}   "
+        print(f"{cam:>5s} {fam:8s} {tgt:10s} {rr:5.2f} / {pr:5.2f} / {sr:5.2f}   "
               + ", ".join(f"{a:.2f} / {b:.2f}" for a, b in each)
               + f"   kept {min(kept)}-{max(kept)} of {per[both[0]][3]}"
               + f"   px {pooled(per, 0):.5f} / {pooled(per, 1):.5f}"
               + f" (dots {pooled(dp, 0):.5f} / {pooled(dp, 1):.5f})")
         out.add(f"ratio/{profile}/{cam}/{fam}/{tgt}", {
-            "residual_ratio": rr, "projection_ratio": pr, "seeds": both,
+            "residual_ratio": rr, "projection_ratio": pr,
+            "projection_sigma_ratio": None if math.isnan(sr) else sr, "seeds": both,
             "per_seed": each, "kept": kept,
             "residual_rms_px": pooled(per, 0), "projection_rms_px": pooled(per, 1),
             "dots_residual_rms_px": pooled(dp, 0), "dots_projection_rms_px": pooled(dp, 1)})
@@ -188,7 +195,10 @@ def cell(r, bar):
            "views_failed": {str(k): v for k, v in (det.get("failed_reasons") or {}).items()},
            "views": len(det.get("per_pose") or []),
            "residual_rms_px": res, "projection_rms_px": proj,
-           "projection_max_px": (r.get("projection") or {}).get("max")}
+           "projection_max_px": (r.get("projection") or {}).get("max"),
+           # the verdict's predicted projection error: the noise through the fit's geometry
+           "projection_sigma_px": ((((r.get("verdict") or {}).get("renderer") or {})
+                                    .get("sigma") or {}).get("projection_rms"))}
     if r["status"] == "ok":
         out["above_bar"] = bool(res > bar or proj > bar)
     return out
