@@ -21,7 +21,7 @@ table also gives the detector's edge blur sigma, its board noise over the dots' 
 and the windows it chose (min-max over the dots of all poses).
 
 Measured (2026-11-29, session 18, main 6ce6fc8, load ~3 on 2 cores; --windows 2,3,4,5):
-the detector's window is the best fixed one, or within 4 % of it, on 15, 17, 8 and the
+the detector's window is the best fixed one, or within 6 % of it, on 15, 17, 8 and the
 constructed blur-wide-1024, barrel-1024x768 and portrait-600x1000 under b0.7n20000 (the
 sharp 2 px, 8-14 % below session 17's blur-only 3-4 px), b1.0n20000 (3 px), b1.0n5000
 (3 px), b1.5n80000 (4-5 px) and b2.0n20000 (5-6 px); without noise (b1.5) it keeps the
