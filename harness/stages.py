@@ -464,6 +464,7 @@ themselves (exact observations: the warm-up, the model benchmark's floors)'''
     import numpy as np
 
     from harness.calibrators.base import Observations
+    from targets.detection import stack_corner_spans
     q = np.stack([np.asarray(getattr(d, "q", d), dtype=np.float64) for d in detections])
     ids = target.point_ids() if hasattr(target, "point_ids") else None
     # the corner model of each detection, and the blur it was fitted under, travel to the
@@ -472,15 +473,14 @@ themselves (exact observations: the warm-up, the model benchmark's floors)'''
     blurs = np.array([float(getattr(d, "corner_blur_px", 0.0)) for d in detections])
     # the tag edges' spans of each corner (targets.detect_apriltag: a blurred image's), NaN
     # for a pose without them
-    spans = [getattr(d, "corner_spans", None) for d in detections]   # exact: plain arrays
-    shape = next((s.shape for s in spans if s is not None), None)
+    spans = stack_corner_spans([getattr(d, "corner_spans", None)     # exact: plain arrays
+                                for d in detections])
     return Observations.from_camera_poses(
         q, np.asarray(target.points(), dtype=np.float64), (truth.width, truth.height),
         poses, truth.Rt_ref_cam(), point_ids=ids,
         corner_model=None if any(m is None for m in models) else np.stack(models),
         corner_blur_px=blurs if blurs.any() else None,
-        corner_spans=None if shape is None else
-        np.stack([np.full(shape, np.nan) if s is None else s for s in spans]))
+        corner_spans=spans)
 
 
 def calibrate_stage(name, obs, target, model, truth, options):

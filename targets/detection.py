@@ -99,6 +99,15 @@ CORNER_LINES = "corner window, lines"
 TAG_EDGES = "tag edges"
 
 
+def stack_corner_spans(spans):
+    r'''(Nposes,Npoints,2,R) the span records of each pose's detection (Detection.corner_spans,
+one per pose), NaN for a pose without; None when no pose has any (a sharp image, dots)'''
+    shape = next((s.shape for s in spans if s is not None), None)
+    if shape is None:
+        return None
+    return np.stack([np.full(shape, np.nan) if s is None else s for s in spans])
+
+
 def corner_models(corner_model, found):
     r'''(N,) str: corner_model (a str for every point, or (N,) str) where found, "" elsewhere;
 None for None'''
