@@ -83,7 +83,7 @@ import threading
 import numpy as np
 
 from reference_models.cahvore import FAMILIES as JPL_FAMILIES
-from reference_models.cahvore import with_R0
+from reference_models.cahvore import solve_theta_each, with_R0
 from reference_models.poseutils import transform_point_Rt
 
 from .campaign import VERDICT_MODES
@@ -1121,7 +1121,7 @@ points, jpl_linearisation)'''
             ln = np.sqrt(np.einsum("mk,mk->m", lv, lv))
             with np.errstate(all="ignore"):
                 dln = np.where(ln[:, None] > 0, lv_dl / ln[:, None], 0.0)
-            th = _solve_theta_vec(z, ln, E)
+            th = solve_theta_each(z, ln, E)
             s, c = np.sin(th), np.cos(th)
             t2 = th * th
             e = E[0] + t2 * (E[1] + t2 * E[2])
@@ -1170,31 +1170,6 @@ points, jpl_linearisation)'''
         J[:, j] = (dq_dot(W) + q @ dW - x[:, None] * dqa) / qa[:, None]
     J[bad] = np.nan
     return J.reshape(2 * len(P), n)
-
-
-def _solve_theta_vec(zeta, l, E):
-    r'''reference_models.kernels._solve_theta for arrays: Newton from atan2(l, zeta), each
-point stopped at its own first step below NEWTON_TOLERANCE (the kernel's iterates)'''
-    from reference_models.cahvore import NEWTON_MAX_ITERATIONS, NEWTON_TOLERANCE
-    th = np.arctan2(l, zeta)
-    act = np.ones(th.shape, dtype=bool)
-    e0, e1, e2 = (float(v) for v in E)
-    with np.errstate(all="ignore"):
-        for _ in range(NEWTON_MAX_ITERATIONS):
-            t, z, ll = th[act], zeta[act], l[act]
-            s, c = np.sin(t), np.cos(t)
-            t2 = t * t
-            e = e0 + t2 * (e1 + t2 * e2)
-            de = t * (2.0 * e1 + 4.0 * e2 * t2)
-            f = z * s - ll * c - (t - s) * e
-            df = z * c + ll * s - (1.0 - c) * e - (t - s) * de
-            step = f / df
-            th[act] = t - step
-            idx = np.flatnonzero(act)
-            act[idx[~(np.abs(step) > NEWTON_TOLERANCE)]] = False
-            if not act.any():
-                break
-    return th
 
 
 def jpl_quantity_jacobian(chart, m, ref, names, theta_estimated):

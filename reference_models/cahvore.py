@@ -380,6 +380,36 @@ class CAHVOR(_Linear):
         return np.broadcast_to(self.C, w.shape).copy(), v
 
 
+def _theta_step(theta, zeta, l, e0, e1, e2):
+    r'''The Newton step of the CAHVORE angle equation zeta sin(t) - l cos(t) = (t - sin(t))
+e(t), e = e0 + e1 t^2 + e2 t^4, at theta (arrays)'''
+    s, c = np.sin(theta), np.cos(theta)
+    t2 = theta * theta
+    e = e0 + t2 * (e1 + t2 * e2)
+    de = theta * (2.0 * e1 + 4.0 * e2 * t2)
+    f = zeta * s - l * c - (theta - s) * e
+    df = zeta * c + l * s - (1.0 - c) * e - (theta - s) * de
+    return f / df
+
+
+def solve_theta_each(zeta, l, E):
+    r'''CAHVORE's angle for arrays (zeta, l) as reference_models.kernels._solve_theta gives it
+point by point: Newton from atan2(l, zeta), each point stopped at its own first step below
+NEWTON_TOLERANCE (CAHVORE._solve_theta stops them all together: the same to ~1e-16 rad)'''
+    th = np.arctan2(l, zeta)
+    act = np.ones(th.shape, dtype=bool)
+    e0, e1, e2 = (float(v) for v in E)
+    with np.errstate(all="ignore"):
+        for _ in range(NEWTON_MAX_ITERATIONS):
+            step = _theta_step(th[act], zeta[act], l[act], e0, e1, e2)
+            th[act] = th[act] - step
+            idx = np.flatnonzero(act)
+            act[idx[~(np.abs(step) > NEWTON_TOLERANCE)]] = False
+            if not act.any():
+                break
+    return th
+
+
 @dataclass(frozen=True, eq=False)
 class CAHVORE(CAHVOR):
     r'''CAHVORE: CAHVOR plus the entrance-pupil terms E, JPL type 1/2/3 and linearity'''
@@ -445,13 +475,7 @@ class CAHVORE(CAHVOR):
         e0, e1, e2 = self.E
         theta = np.arctan2(l, zeta)
         for _ in range(NEWTON_MAX_ITERATIONS):
-            s, c = np.sin(theta), np.cos(theta)
-            t2 = theta * theta
-            e = e0 + t2 * (e1 + t2 * e2)
-            de = theta * (2.0 * e1 + 4.0 * e2 * t2)
-            f = zeta * s - l * c - (theta - s) * e
-            df = zeta * c + l * s - (1.0 - c) * e - (theta - s) * de
-            step = f / df
+            step = _theta_step(theta, zeta, l, e0, e1, e2)
             theta = theta - step
             if np.all(~(np.abs(step) > NEWTON_TOLERANCE)):
                 break
