@@ -142,7 +142,10 @@ only": ~40% of camera 17's edges). Such a weak edge's pixels (its light side, cl
 data row) still join its board line's fits, and it is placed, its corners kept, only on
 the one cubic through it and both neighbours where that fit sees the dark side beyond both
 its ends (_sees_dark: interpolated between dark sides, not extrapolated); elsewhere it is
-dropped with that reason. Not where a line_reference is given (place_weak_edges): their
+dropped with that reason. An edge that sees its dark side along part of its length only
+places a corner only where it sees it in the half next to that corner, or beyond it
+(_sees_dark_near); elsewhere the corner is dropped (NEAR_CORNER_LIGHT_ONLY). Not where a
+line_reference is given (place_weak_edges): their
 corners carry a model error none of the corrections here remove, 0.0018-0.0019 px RMS
 noise-free on hazcam 17 as CAHVORE against 0.0005-0.0007 for the others' (84 of 646
 corners, blurred, 6 poses); jpl on those blurred renders, AprilTag projection difference
@@ -362,6 +365,10 @@ _TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
 
 
 # targets._tag_edge_kernels.tag_edge_pixels's status of an edge: why it has no pixels
+# a corner dropped where its edge's fit sees no dark side in the half of the edge next to it
+# (_sees_dark_near)
+NEAR_CORNER_LIGHT_ONLY = ("edge seen from its light side only near the corner (the light data "
+                          "bits beside it too close for the blur)")
 _EDGE_STATUS = {1: "edge too short for its blur",
                 2: "edge seen from its light side only (tag bits too small for the blur)",
                 3: "edge off the image"}
@@ -477,6 +484,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # the passes before the last only place its pixels: each edge alone
         last = npass == passes - 1
         why_edge = np.full((N, 4), "", dtype=object)
+        # a corner whose edge's fit sees the dark side only far from it (_sees_dark_near)
+        why_corner = np.full((N, 4), "", dtype=object)
         own, start = {}, {}
         live = np.all(np.isfinite(q), axis=(1, 2))
         why_edge[~live] = "not detected"
@@ -569,7 +578,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             # every edge seen from its light side only, none placed by its neighbours: each
             # has its reason
             break
-        geo, pixels = _fit_pixels(img, geo, pieces, q, (pix, piy, pt, ps, off), why_edge)
+        geo, pixels = _fit_pixels(img, geo, pieces, q, (pix, piy, pt, ps, off), why_edge,
+                                  why_corner)
         if not geo:
             break
         E = _Edges(geo, pixels, reach, line)
@@ -653,7 +663,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
     edges = np.where(before != "", before, why_edge)
     met = np.where(far, "edges meet far from the corner",
                    np.where(np.isfinite(found).all(-1), "", "edges do not meet near the corner"))
-    reasons = np.where(edges != "", edges, met.astype(object))
+    reasons = np.where(edges != "", edges, np.where(why_corner != "", why_corner,
+                                                    met.astype(object)))
     q = np.where((reasons == "")[..., None], found, np.nan)
     good = np.isfinite(mis_edge)
     if line_reference is None and funcs:
@@ -1186,6 +1197,26 @@ max 0.046 px (the others' 0.022).'''
     return min(lo, hi) > 0 and lo + hi >= MIN_EDGE_PIXELS // 2
 
 
+def _sees_dark_near(t, s, L, d, end):
+    r'''True where the pixels (t, s) of an edge's fit (in its chord's frame, length L) see the
+dark side of its curve d (d0..d3) nearer its end `end` (0: t = 0, 1: t = L) than the chord's
+middle, or beyond that end (a board line's neighbour)
+
+Why. A corner is where its two edges' curves meet; an edge's curve there is placed by the
+pixels that see both sides of it. Its light side alone places it weakly (the blur's tail),
+and where the light data cells inside the border line the half of an edge next to a corner
+(tag bits of ~3 px at sigma 0.7: their pixels are left out, they see the data row), the
+fit's cubic runs from the other half's dark side to the corner unconstrained: MER hazcam 17
+as CAHVOR, realistic, seed 4 pose 2, a corner of a tag whose other edges were seen from
+their light side only, 0.076 px from its projection (0.40 with the bits' depth across the
+edge), its edge's dark side 0.09 < tau < 0.75. Such a corner is dropped, as a weak edge's
+corners are where its board line does not reach the dark side beyond its ends
+(_sees_dark).'''
+    dark = s - _curve_s(d, 2.0 * t / L - 1.0) >= 0.0
+    near = t < 0.5 * L if end == 0 else t > 0.5 * L
+    return bool(np.any(dark & near))
+
+
 def _table(sigma, kind):
     return _edge_table(round(float(sigma) / TABLE_SIGMA_STEP_PX) * TABLE_SIGMA_STEP_PX, kind)
 
@@ -1438,13 +1469,14 @@ converged (m,), misfit RMS / contrast (m,))'''
                      MAX_ITERATIONS, float(converged_px))
 
 
-def _fit_pixels(img, geo, pieces, q, pixels, why_edge):
+def _fit_pixels(img, geo, pieces, q, pixels, why_edge, why_corner):
     r'''(geo, (off, v, tau, s)): the pixels of the fits geo (refine_tag_edges' (i, k, L, e,
 n, cubic, start, end, weak)) gathered from their pieces (fit index, edge (i, k), how taken,
 reach px; targets._tag_edge_kernels.fit_pixels) out of tag_edge_pixels' pixels (ix, iy, t,
 s, off), fit j's [off[j], off[j+1]), v their values in img; a weak edge's fit is dropped
 (its reason in why_edge) where its pixels do not see the dark side beyond both its ends
-(_sees_dark)'''
+(_sees_dark); an edge's end whose pixels see no dark side nearer it than the chord's
+middle has its corner's reason in why_corner (N,4) (_sees_dark_near)'''
     ix, iy, t, s, off = pixels
     fit, edge, mode, reach = zip(*pieces, strict=True)
     fit = np.array(fit, dtype=np.int64)
@@ -1459,10 +1491,16 @@ s, off), fit j's [off[j], off[j+1]), v their values in img; a weak edge's fit is
                      np.array([g[4] for g in geo]), np.array([g[2] for g in geo]))
     fo, fv, ft, ftau, fs = out
     keep = np.ones(len(geo), bool)
-    for j, (i, k, L, _, _, _, d, _, weak) in enumerate(geo):
-        if weak and not _sees_dark(ft[fo[j]:fo[j + 1]], fs[fo[j]:fo[j + 1]], L, d):
-            why_edge[i, k] = _EDGE_STATUS[2]
-            keep[j] = False
+    for j, (i, k, L, _, _, _, d, end, weak) in enumerate(geo):
+        tj, sj = ft[fo[j]:fo[j + 1]], fs[fo[j]:fo[j + 1]]
+        if weak:
+            if not _sees_dark(tj, sj, L, d):
+                why_edge[i, k] = _EDGE_STATUS[2]
+                keep[j] = False
+            continue
+        for e in (0, 1) if end == 2 else (end,):
+            if not _sees_dark_near(tj, sj, L, d, e):
+                why_corner[i, (k + e) % 4] = NEAR_CORNER_LIGHT_ONLY
     if keep.all():
         return geo, (fo, fv, ftau, fs)
     counts = np.diff(fo)[keep]
