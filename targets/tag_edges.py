@@ -108,7 +108,7 @@ quintic's high terms, took that misfit for the span's miss: corners corrected th
 by up to 0.026 px (detected - bias - projection under the truth, 0.053 px). Over the reach:
 realistic noise, seed 5 (benchmarks/bench_corner_campaign.py --seeds 4-7), all corners
 0.00377 -> 0.00283 px RMS, max 0.053 -> 0.013; seed 6 0.00331 -> 0.00300, max 0.026 ->
-0.016. (8 as CAHVORE keeps its rim error: the sheared tags' bit depth, below.)
+0.016. (8 as CAHVORE kept its rim error: the sheared tags' bit depth, below.)
 
 Board lines. An AprilGrid's tags stand in rows and columns: edge k of a tag lies on the
 same board line as edge k of its row's (k = 0, 2) or column's (k = 1, 3) neighbours
@@ -132,9 +132,11 @@ blur: a pixel at distance x and position t is kept where the light gap outside t
 bit next to it where that is dark too) reach at least BLUR_REACH_SIGMAS sigma plus the
 pixel's half-diagonal beyond it, and where it is that far from the adjacent edges' lines.
 The cells are placed along the edge by the homography of the tag's four current corners,
-across it by the depth from the fitted curve, in the adjacent edges' bits (an oblique tag
-has bits of two sizes), with SAFETY_PX more margin. An edge whose band has no dark
-plateau (bits of 2-3 px across) takes its tag's contrast b from the edges that have one
+across it by the depth from the fitted curve, in bits of the adjacent edges' depth across
+it (their extent along its normal / 8: an oblique tag has bits of two sizes, a sheared one
+bits 1/sin(corner angle) longer than deep; until session 19 their length: "The bits' depth
+across the edge" below), with SAFETY_PX more margin. An edge whose band has no dark plateau
+(bits of 2-3 px across) takes its tag's contrast b from the edges that have one
 (_fit_contrast_first). On bits under ~3.5 px at sigma 0.7 (camera 17's 2.8 px) every
 dark-side pixel sees the data row inside the border, so where a light data cell lines an
 edge its band keeps too few dark-side pixels to place it alone ("seen from its light side
@@ -162,25 +164,24 @@ the cells placed by the tag's homography; commits 73e4c2b, fdce4a3, reverted) ke
 without noise, against 0.0009 for the corners kept without it) raised the realistic
 AprilTag / dots projection ratio of 17 as CAHVORE from 0.63 to 1.46 (docs/corners.md).
 
-Left open (h-cornerbias, session 18): those bits are the adjacent edges' LENGTH / 8
-(_tag_edge_kernels._edge_geometry), but a bit's depth across the edge is their extent along
-its normal / 8, sin(corner angle) of that; on a sheared tag (corner angles 45-135 deg at
-MER hazcam 8's rim) the data row is placed too deep and the dark-side pixels see it: on 8
-CAHVORE, blur only, seeds 0-3, the corners at angles under 60 or over 120 deg err
-0.0018-0.0024 px RMS (the rest 0.0003-0.0004, after tag_edges_bias under the truth), tags
-read larger (outward), and they make jpl's AprilTag projection difference 0.00206 px (dots
-0.00068; with their error zeroed 0.00035-0.00043). The bias loop loses nothing: jpl on the
-detections less the bias under the truth, held, fits the same projection to 5 digits. The
-depth across the edge fixes it (blur: 8 CAHVORE 0.00206 -> 0.00040 px, ratio 3.02 -> 0.59;
-17 CAHVORE 1.09 -> 0.34; realistic 8 CAHVORE 0.69 -> 0.32) but drops the corners whose dark
-side then has too few clean pixels (17 realistic, kept per seed 612-680 -> 575-646 of 864;
-tests/test_tag_edges_fisheye.py pose 3 122 -> 111 of 144, its bar 115), and realistic 17
-loses: CAHVOR 0.61 -> 0.82, CAHVORE 0.51 -> 0.69 (projection ratios, seeds 0-3), though the
-corners it keeps improve (bench_corners.py area renders, realistic: 0.00371 -> 0.00357 px
-RMS after the bias, max 0.0265 -> 0.0180; 657 -> 620 kept, more "seen from its light side
-only"): the fit misses the dropped ones. Not landed: the trade on small sheared tags wants
-deciding (a weak edge's placement by its board line, _sees_dark, for the edges the clean
-band leaves without a dark side?).
+The bits' depth across the edge (h-cornerbias's diagnosis, session 18; landed in session 19
+with _sees_dark_near): a bit's depth across an edge is the adjacent edges' extent along its
+normal / 8, sin(corner angle) of their length / 8, which placed the data row until then. On
+a sheared tag (corner angles 45-135 deg at MER hazcam 8's rim) the length placed the data
+row too deep and the dark-side pixels saw it: on 8 CAHVORE, blur only, seeds 0-3, corners at
+angles under 60 or over 120 deg erred 0.0018-0.0024 px RMS (the rest 0.0003-0.0004, after
+tag_edges_bias under the truth), tags read larger. The depth leaves more edges without clean
+dark-side pixels near a corner, and a corner placed from the far half's dark side erred up
+to 0.40 px (MER hazcam 17 as CAHVOR, realistic, seed 4, pose 2): hence _sees_dark_near.
+Realistic, bench_corner_campaign.py --response realistic --seeds 0-7 --cameras
+15,17,8,campaigns/cameras/blur-wide-1024.cahvor --models CAHVOR,CAHVORE --targets apriltag,
+AprilTag / dots projection difference ratio (predicted sigma ratio), the length -> the depth:
+15 0.41 -> 0.43 (0.43); 17 CAHVOR 0.82 -> 0.94 (0.52 -> 0.55); 17 CAHVORE 0.88 -> 0.93 (0.96
+-> 1.06); 8 CAHVOR 0.69 -> 0.65 (0.63); 8 CAHVORE 1.21 -> 0.59 (0.66 -> 0.67); blur-wide-1024
+0.74 -> 0.76 (0.56 -> 0.55); residual ratios 0.61-0.75. The cost: corners kept on 17 per
+seed 605-677 -> 573-644 of 864 (more "seen from its light side only"), and on
+tests/test_tag_edges_fisheye.py's poses 1-5 127, 123, 121, 144, 128 -> 121, 116, 108, 137,
+121 of 144, every pose's RMS and max lower.
 
 The blur. Handed an estimate (choose_kind: the corner windows' quick look, one kind on
 BLUR_QUICK_SAMPLE corners), the first pass fits sigma on the edges: one Gauss-Newton step

@@ -540,3 +540,23 @@ and the tag's other corners kept. With a dark data row the same tag keeps all fo
         kept = np.isfinite(fit.q[:, 0])
         # noise-free, the render's sampling and the lone tag's cubics (measured 0.0021-0.0057)
         assert np.hypot(*(fit.q[kept] - Q.reshape(-1, 2)[kept]).T).max() < 0.008
+
+
+@pytest.mark.parametrize("shear", [0.0, 0.6, -1.0])
+def test_a_bits_depth_is_measured_across_its_edge(shear):
+    r'''The band of each edge places the data row and the gap by a bit's depth across the
+edge (targets._tag_edge_kernels._edge_geometry): the adjacent edges' extent along the
+edge's normal, one eighth of the tag's. On a sheared tag (a fisheye's rim: corner angles
+45-135 deg on MER hazcam 8) the adjacent edges' length is 1/sin(angle) of that; taken for
+the depth, the dark-side pixels saw the light data row (8 CAHVORE, blur only: rim corners
+0.0029 px RMS off, 0.0005 across)'''
+    from targets._tag_edge_kernels import _edge_geometry
+    bit = 6.0
+    A = bit * np.array([[1.0, shear], [0.0, 0.9]])        # tag bits -> image, sheared
+    Qt = _TAG_CORNERS @ A.T + np.array([40.0, 30.0])
+    for k in range(4):
+        ok, L, e, n, deep_bit, *_ = _edge_geometry(Qt, k, 2.1, 2.4, 0.3, 1.0)
+        assert ok
+        # the tag's extent across edge k: the opposite edge's distance along n, 8 bits
+        across = abs((Qt[(k + 2) % 4] - Qt[k]) @ n)
+        assert deep_bit == pytest.approx(across / 8.0, abs=1e-9), (k, deep_bit, across / 8)

@@ -77,14 +77,21 @@ for the blur). Before, with a length rule chosen on camera 8 (the three edges' c
 64 px): 0.0038, 0.0015, 0.0045, 0.0091, 0.0029, 0.0021, max up to 0.040 (pose 3's big tags
 near the image corner, edges of 51-66 px). Pose 3's maximum, 0.020 px, is a tag whose
 edges are seen from their light side only, placed by their board lines (the same under
-any span choice: 0.0032 px RMS on that pose for the best choice per corner in hindsight)'''
+any span choice: 0.0032 px RMS on that pose for the best choice per corner in hindsight).
+Since session 19 a bit's depth across an edge is measured across it (the sheared tags of
+the fisheye's rim have bits shallower than long) and a corner needs its edges' dark side
+in the half next to it (tag_edges._sees_dark_near): poses 0-5 0.0014, 0.0014, 0.0019,
+0.0027, 0.0009, 0.0005 px RMS, max 0.0051, 0.0053, 0.0123, 0.0149, 0.0045, 0.0021, on
+144, 121, 116, 108, 137, 121 of 144 corners: more edges of the small tilted tags are seen
+from their light side only (dropped with that reason), so the count's bar is 70% (it was
+80% with the deeper bits: 122 on pose 3)'''
     _, _, images = scene
     for i, (im, truth) in images.items():
         e, det = _errors(im, truth)
         assert abs(det.info["psf_sigma_px"] - 0.7) < 0.01, det.info["psf_sigma_px"]
         # the near pose's tags are all big enough for the blur; the others drop the small
         # far ones with a reason
-        assert e.size >= (TARGET.Npoints if i == 0 else 0.8 * TARGET.Npoints), (i, e.size)
+        assert e.size >= (TARGET.Npoints if i == 0 else 0.7 * TARGET.Npoints), (i, e.size)
         assert _rms(e) < 0.005 and e.max() < 0.03, (i, _rms(e), e.max())
 
 
