@@ -11,6 +11,7 @@ SYNOPSIS
     ids = target.point_ids()           # (N,) stable integer ids
     pattern = target.pattern()         # targets.pattern.Pattern for a renderer
     outline = target.outline()         # (M,3) points along the board's edge
+    plan = target.planning_outline()   # (M,3) what a pose keeps in the image (targets.poses)
     dots = target.dot_outlines(1440)   # (N,1440,3) circle outlines (kind "dots" only)
 
 A target is defined by a TOML file (targets/data/NAME.toml; read with
@@ -264,28 +265,51 @@ SYNOPSIS
 
     p = target.outline(16)    # (4*16,3), z = 0, going round the board from (xmin, ymin)
 '''
-        n = int(Nper_edge)
-        if n < 1:
-            raise TargetError(f"need at least 1 point per edge; got {Nper_edge}")
-        xmin, xmax, ymin, ymax = self.extent
-        s = np.arange(n, dtype=np.float64) / n
-        edges = [
-            np.stack((xmin + s * (xmax - xmin), np.full(n, ymin)), axis=-1),
-            np.stack((np.full(n, xmax), ymin + s * (ymax - ymin)), axis=-1),
-            np.stack((xmax - s * (xmax - xmin), np.full(n, ymax)), axis=-1),
-            np.stack((np.full(n, xmin), ymax - s * (ymax - ymin)), axis=-1),
-        ]
-        xy = np.concatenate(edges)
-        return np.concatenate((xy, np.zeros((len(xy), 1))), axis=-1)
+        return _rectangle_outline(self.extent, Nper_edge)
 
-    def centre(self):
-        r'''(3,) the centre of the board rectangle'''
-        xmin, xmax, ymin, ymax = self.extent
+    def planning_extent(self):
+        r'''(xmin, xmax, ymin, ymax), metres: the part of the board a calibration pose must
+keep in the image for its detector to find every point (targets.poses plans by it)
+
+SYNOPSIS
+
+    target.planning_extent()     # chessboard 10x10, 0.1 m squares: (-0.1, 1.0, -0.1, 1.0)
+    target.planning_outline(16)  # (4*16,3) points along it
+
+A dot board and an AprilGrid: the printed board (extent). A chessboard found by its
+built-in detector (targets.detect_chessboard): the inner corners grown by the reach of
+the corner refinement's window, CHESSBOARD_CLEARANCE squares (targets.corners: the
+window keeps short of the next feature it does not model, a square away; blurred, its
+line strips keep short of it by the blur's reach and LINES_SLACK): the outer squares,
+without the light margin beyond them, which the detector does not use. Measured
+(docs/corners.md, "Planning a chessboard by its corners"), the image's edge cutting a
+frontal board d px past its outermost corners on all four sides: OpenCV's board search
+finds it from d = 9.5 px (squares of 12-30 px) to 12 px (60-100 px squares), which the
+outer square and the planner's margin (2 % of the image, at least 4 px) hold; under a
+1 px blur the refinement drops the outermost corners ("window off the image") up to
+0.6-0.7 square past them (40 px squares), inside the outer square. A chessboard with a
+plug-in detector: the printed board (its detector's needs are not known here).
+'''
+        if self.kind == "chessboard" and self.detector in (None, "chessboard"):
+            from .corners import CHESSBOARD_CLEARANCE
+            grow = CHESSBOARD_CLEARANCE * float(self.spec["square"])
+            x, y = self._points[:, 0], self._points[:, 1]
+            return (float(x.min()) - grow, float(x.max()) + grow,
+                    float(y.min()) - grow, float(y.max()) + grow)
+        return self.extent
+
+    def planning_outline(self, Nper_edge=16):
+        r'''Points along planning_extent(), going round it as outline() goes round the board'''
+        return _rectangle_outline(self.planning_extent(), Nper_edge)
+
+    def centre(self, extent=None):
+        r'''(3,) the centre of the board rectangle (or of the rectangle extent)'''
+        xmin, xmax, ymin, ymax = self.extent if extent is None else extent
         return np.array([(xmin + xmax) / 2, (ymin + ymax) / 2, 0.0])
 
-    def size(self):
-        r'''(width, height) of the board, metres'''
-        xmin, xmax, ymin, ymax = self.extent
+    def size(self, extent=None):
+        r'''(width, height) of the board (or of the rectangle extent), metres'''
+        xmin, xmax, ymin, ymax = self.extent if extent is None else extent
         return (xmax - xmin, ymax - ymin)
 
     def as_dict(self):
@@ -298,6 +322,24 @@ SYNOPSIS
         if self.kind != kind:
             raise TargetError(f"{what}() is defined for {kind!r} targets; "
                               f"target {self.name!r} is {self.kind!r}")
+
+
+def _rectangle_outline(extent, Nper_edge):
+    r'''(4*Nper_edge,3) points along the rectangle extent = (xmin, xmax, ymin, ymax), z = 0,
+going round it from (xmin, ymin)'''
+    n = int(Nper_edge)
+    if n < 1:
+        raise TargetError(f"need at least 1 point per edge; got {Nper_edge}")
+    xmin, xmax, ymin, ymax = extent
+    s = np.arange(n, dtype=np.float64) / n
+    edges = [
+        np.stack((xmin + s * (xmax - xmin), np.full(n, ymin)), axis=-1),
+        np.stack((np.full(n, xmax), ymin + s * (ymax - ymin)), axis=-1),
+        np.stack((xmax - s * (xmax - xmin), np.full(n, ymax)), axis=-1),
+        np.stack((np.full(n, xmin), ymax - s * (ymax - ymin)), axis=-1),
+    ]
+    xy = np.concatenate(edges)
+    return np.concatenate((xy, np.zeros((len(xy), 1))), axis=-1)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -21,8 +21,10 @@ length, image centre and distortion:
 - pose 5: in the middle again, tilted about 40 deg, at a middle range.
 
 More poses cycle through these with other tilts. A seed jitters tilt angle,
-tilt axis, roll and range (deterministically). Every pose keeps the whole
-board (its outline, sampled densely) inside the image with a margin
+tilt axis, roll and range (deterministically). Every pose keeps the board's
+planning outline (target.planning_outline(), sampled densely: what its detector
+needs in the image, the whole printed board for dots and AprilGrids, the corners
+and outer squares of a chessboard) inside the image with a margin
 (2 % of the smaller image side, at least 4 px), in front of the camera
 (camera-frame z > 0 for every board point) and facing it; the board's
 tilt (angle between its normal and the line of sight to its centre) is at
@@ -194,9 +196,12 @@ class _Planner:
         Rt = model.Rt_ref_cam()
         self.R_ref_cam = Rt[:3]
         self.t_ref_cam = Rt[3]
-        self.outline = target.outline(NOUTLINE_PER_EDGE)
-        self.centre_board = target.centre()
-        self.size = math.hypot(*target.size())
+        # what the detector needs in the image (targets.boards: Target.planning_extent), not
+        # the printed board: a chessboard's light margin may leave the image
+        extent = target.planning_extent()
+        self.outline = target.planning_outline(NOUTLINE_PER_EDGE)
+        self.centre_board = target.centre(extent)
+        self.size = math.hypot(*target.size(extent))
         self.cos_view_max = math.cos(math.radians(MAX_VIEW_ANGLE_DEG))
         self._rays = {}
         self.dot_outlines = None
@@ -453,8 +458,9 @@ target in a usable calibration pose, CamvalError for a bad n or cover.
             factor *= rng.uniform(0.95, 1.05)
         d_fit = planner.closest_fit_range(q_centre, tilt, azimuth, roll)
         if d_fit is None:
+            w, h = target.size(target.planning_extent())
             raise NotVisibleError(
-                f"the {target.name!r} board ({target.size()[0]:.3g} x {target.size()[1]:.3g} m) "
+                f"the {target.name!r} board ({w:.3g} x {h:.3g} m) "
                 f"does not fit the {W}x{H} image at any range up to {max_range:g} m "
                 f"(margin {planner.margin:.0f} px, tilt {tilt:.0f} deg)")
         d = max(1.0, factor) * d_fit
@@ -508,17 +514,18 @@ SYNOPSIS
     s = pose_summary(model, target, Rt_cam_board)
     s["range_m"], s["tilt_deg"], s["in_view"], s["in_front"], s["q_min"], s["q_max"]
 
-range_m: distance from the camera centre to the board centre; tilt_deg: angle
-between the board normal and that line of sight; in_front: every outline point
-has camera-frame z > 0 and the board faces the camera; in_view: the outline
-projects inside the image with margin_px (default: the planner's margin);
-q_min, q_max: the bounding box of the projected outline.
+range_m: distance from the camera centre to the board centre (the centre of its
+planning outline, target.planning_outline(): what the planner keeps in the image);
+tilt_deg: angle between the board normal and that line of sight; in_front: every
+planning outline point has camera-frame z > 0 and the board faces the camera;
+in_view: that outline projects inside the image with margin_px (default: the
+planner's margin); q_min, q_max: the bounding box of the projected outline.
 '''
     Rt = np.asarray(Rt_cam_board, dtype=np.float64)
     margin = _margin_px(model) if margin_px is None else float(margin_px)
-    outline = target.outline(NOUTLINE_PER_EDGE)
+    outline = target.planning_outline(NOUTLINE_PER_EDGE)
     p_cam = outline @ Rt[:3].T + Rt[3]
-    c = target.centre() @ Rt[:3].T + Rt[3]
+    c = target.centre(target.planning_extent()) @ Rt[:3].T + Rt[3]
     n = Rt[:3, 2]
     rng = float(np.linalg.norm(c))
     tilt = float(np.degrees(np.arccos(np.clip(c @ n / rng, -1, 1))))
