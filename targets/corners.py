@@ -1029,14 +1029,16 @@ line through the corner when sigma > 0)'''
     with np.errstate(divide="ignore", invalid="ignore"):
         mis = np.sqrt(S / w.sum(-1)) / np.abs(b)
     misfit[idx] = mis
-    # each corner's predicted standard error (px): its residuals carried through the
-    # window's least squares (_predicted_sigma), less what the bias step removes
-    D, dD_dc, dD_dt = model(alls, c, theta, sig)
-    bb = b[:, None, None]
-    J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], bb * dD_dc, bb * dD_dt),
-                       axis=-1)
-    bent = None if blurred else bb * _bent_columns(centres, c, theta, first, second)
-    pred = _predicted_sigma(J, w, r, bent)
+    # each corner's predicted standard error (px): the misfit per degree of freedom through
+    # the window's normal equations at the fit (the larger axis of the corner's covariance)
+    if kernel == "numba":
+        JtJ = JtJ_all
+    else:
+        J = np.concatenate((np.ones(D.shape + (1,)), D[..., None], b[:, None, None] * dD_dc,
+                            b[:, None, None] * dD_dt), axis=-1)
+        JtJ = (J * w[..., None]).transpose(0, 2, 1) @ J
+    dof = np.maximum(w.sum(-1) - K, 1.0)
+    pred = _predicted_sigma(JtJ, S / dof)
     # the corner must stay inside its window: its board offset from the coarse corner
     rel = np.einsum("nij,nj->ni", np.linalg.inv(steps[idx]), c - q0[idx])
     moved = np.abs(rel).max(-1) > half_box[idx]
@@ -1069,77 +1071,26 @@ line through the corner when sigma > 0)'''
                      predicted_sigma=sigma_pred)
 
 
-def _bent_columns(centres, c, theta, first, second):
-    r'''(n,P,R) the dark area a unit curvature of each ray adds to each window pixel of a
-sharp fit (curvature_terms' dv: k (s1^3 - s0^3) / 6 over the ray's stretch [s0, s1] in the
-pixel; an edge through c + s u + (k s^2 / 2) perp(u))r'''
-    from ._corner_kernels import curvature_terms
-    n = len(c)
-    R = theta.shape[1]
-    d = np.ascontiguousarray(centres - c[:, None, :])
-    uu = np.ascontiguousarray(np.stack((np.cos(theta), np.sin(theta)), axis=-1))
-    first, second = np.ascontiguousarray(first), np.ascontiguousarray(second)
-    cols = []
-    for k in range(R):
-        kk = np.zeros((n, R))
-        kk[:, k] = 1.0
-        cols.append(curvature_terms(d, uu, first, second, kk)[3])
-    return np.stack(cols, axis=-1)
-
-
-def _predicted_sigma(J, w, r, bent=None):
-    r'''(n,) the corners' predicted standard error (px): the larger axis of the (cx, cy)
-block of the fit's covariance, its residuals r (n,P) carried through the window's least
-squares (J (n,P,K) its Jacobian at the fit, w (n,P) its pixel weights, 0 or 1): inf where
-the normal equations are singular (a window that does not determine the fit)
-
-The covariance is the sandwich A^-1 (J^T W diag(r^2) W J) A^-1 (A = J^T W J) times
-m / (m - K) (m pixels: the residuals' variance over their degrees of freedom): each pixel's
-misfit counts by its own leverage on the corner. Sensor noise or sampling error spread over
-the window gives the classical (misfit per degree of freedom) x A^-1; a misfit of a few
-pixels that bear little on the corner does not. On a MER hazcam's fisheye (catalogue slot
-17, CAHVORE, 6 poses) 13 of 864 tag corners misfit by ~1% of the contrast in the 3-4 pixels
-at their window's far end, the next tag's edge entering it (the window's box is the tag's
-mean bit, the fisheye's bits shrink towards the rim): the classical estimate put them at
-0.0055-0.021 px and dropped them; their error after the bias step was 0.0002-0.0034 px.
-
-bent (n,P,L): columns of a misfit the calibrators' bias step removes (a sharp fit's edge
-curvature, _bent_columns, times the contrast): the residuals are taken less their least
-squares fit on them and on J, and L more degrees of freedom are spent. The corner kept is the
-straight-ray fit's; its first-order move with the curvature is the bias subtracted
-(curvature_bias).
-r'''
-    n, P, K = J.shape
+def _predicted_sigma(JtJ, noise_var):
+    r'''(n,) the corners' predicted standard error (px): sqrt(noise_var x the larger
+eigenvalue of the (cx, cy) block of (J^T W J)^-1), inf where the normal equations are
+singular (a window that does not determine the fit)'''
+    n = len(JtJ)
     out = np.full(n, np.inf)
     if not n:
         return out
-    m = w.sum(-1)
-    if bent is not None and bent.shape[-1]:
-        Ja = np.concatenate((J, bent), axis=-1)
-        Jw = Ja * w[..., None]
-        Aa = Jw.transpose(0, 2, 1) @ Ja
-        ga = (Jw.transpose(0, 2, 1) @ r[..., None])[..., 0]
-        sa = np.sqrt(np.maximum(np.einsum("nii->ni", Aa), 1e-300))
-        Asa = Aa / (sa[:, :, None] * sa[:, None, :]) + 1e-12 * np.eye(Aa.shape[-1])
-        x = np.linalg.solve(Asa, (ga / sa)[..., None])[..., 0] / sa
-        r = r - (Ja @ x[..., None])[..., 0]
-        K = K + bent.shape[-1]
-    Jw = J * w[..., None]
-    A = Jw.transpose(0, 2, 1) @ J
-    Jr = Jw * r[..., None]
-    M = Jr.transpose(0, 2, 1) @ Jr
     # equilibrated (unit diagonal) before the condition test and the inverse
-    scale = np.sqrt(np.maximum(np.einsum("nii->ni", A), 1e-300))
-    As = A / (scale[:, :, None] * scale[:, None, :])
-    cond = np.linalg.cond(As)
+    scale = np.sqrt(np.maximum(np.einsum("nii->ni", JtJ), 1e-300))
+    Js = JtJ / (scale[:, :, None] * scale[:, None, :])
+    cond = np.linalg.cond(Js)
     ok = np.isfinite(cond) & (cond < 1e12)
     if ok.any():
-        inv = np.linalg.inv(As[ok]) / (scale[ok][:, :, None] * scale[ok][:, None, :])
-        C = (inv @ M[ok] @ inv)[:, 2:4, 2:4] * (m[ok] / np.maximum(m[ok] - K, 1.0))[:, None, None]
+        inv = np.linalg.inv(Js[ok]) / (scale[ok][:, :, None] * scale[ok][:, None, :])
+        C = inv[:, 2:4, 2:4]
         tr = C[:, 0, 0] + C[:, 1, 1]
         det = C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] * C[:, 1, 0]
         lmax = 0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - det, 0.0))
-        out[ok] = np.sqrt(np.maximum(lmax, 0.0))
+        out[ok] = np.sqrt(np.maximum(noise_var[ok], 0.0) * lmax)
     return out
 
 
