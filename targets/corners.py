@@ -390,16 +390,17 @@ def blurred_half_box(steps, half_box, clearance, sigma):
 The window's pixels must not see the nearest other feature, clearance board units from
 the corner along the box's axes (a number or (N,)): the PSF spreads it by
 BLUR_REACH_SIGMAS sigma px, which is (that / the smallest image step of one board unit)
-board units. Never above half_box (the sharp image's window).
+board units. Never above half_box (the sharp image's window, a number or (N,)).
 '''
     steps = np.asarray(steps, dtype=np.float64).reshape(-1, 2, 2)
     smin = np.full(len(steps), np.nan)
     fin = np.all(np.isfinite(steps), axis=(-1, -2))
     if fin.any():
         smin[fin] = np.linalg.svd(steps[fin], compute_uv=False)[:, -1]
+    half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (len(steps),))
     with np.errstate(divide="ignore", invalid="ignore"):
         hb = clearance - BLUR_REACH_SIGMAS * float(sigma) / smin
-    return np.minimum(float(half_box), np.where(np.isfinite(hb), hb, float(half_box)))
+    return np.minimum(half_box, np.where(np.isfinite(hb), hb, half_box))
 
 
 def line_strips(steps, clearance, sigma, curvature):
@@ -567,8 +568,9 @@ the estimate's spread.
     q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
     steps = np.asarray(steps, dtype=np.float64).reshape(len(q0), 2, 2)
     # a number, or one per corner
-    clearance = np.broadcast_to(np.asarray(half_box if clearance is None else clearance,
-                                           dtype=np.float64), (len(q0),))
+    half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (len(q0),))
+    clearance = np.broadcast_to(half_box if clearance is None else
+                                np.asarray(clearance, dtype=np.float64), (len(q0),))
     info = {}
     options = dict(options, lines=lines)
     # the last pass's corners are judged by their predicted error (_fit)
@@ -608,7 +610,7 @@ the estimate's spread.
 
     def quick_look(f, good, d, s2, idx):
         # a sharp image (every clean render) is told by a few corners and one kind
-        args = (image, f.q[good], d, wedges, s2, half_box, clearance[idx][good])
+        args = (image, f.q[good], d, wedges, s2, half_box[idx][good], clearance[idx][good])
         look = estimate_blur(*args, kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE,
                              sharp_sigma_px=LOOK_SHARP_SIGMA_PX, **notches, **options)
         if look.get("psf_sharp_stops") and added_blur_px(
@@ -649,7 +651,7 @@ the estimate's spread.
         info = look if look is not None else quick_look(fit, ok, dirs, steps2,
                                                         np.arange(len(q0)))
         if added_blur_px(info["psf_sigma_px"], info["psf_kind"]) >= BLUR_NEGLIGIBLE_PX:
-            info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box,
+            info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box[ok],
                                  clearance[ok], kinds=kinds, **notches, **options)
         options["psf_kind"] = info["psf_kind"]
     sigma = info["psf_sigma_px"]
@@ -661,7 +663,7 @@ the estimate's spread.
         return CornerFit(q=fit.q, reasons=fit.reasons, misfit=fit.misfit, npixels=fit.npixels,
                          iterations=fit.iterations, directions=fit.directions,
                          info=dict(info, stopped="blurred: first pass only"))
-    hb2 = blurred_half_box(steps2, half_box, clearance[ok], sigma)
+    hb2 = blurred_half_box(steps2, half_box[ok], clearance[ok], sigma)
     nb2 = notched(steps2, sigma)
     # a blurred X junction's lines are straight edges a square long: the window adds
     # strips along them (line_strips)
@@ -756,6 +758,7 @@ the median within it of the full fits'); "psf_sharp_stops" counts the corners it
     pick = np.unique(np.linspace(0, n - 1, min(n, sample)).round().astype(np.int64))
     steps = np.asarray(steps, dtype=np.float64).reshape(n, 2, 2)[pick]
     clearance = np.broadcast_to(np.asarray(clearance, dtype=np.float64), (n,))[pick]
+    half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (n,))[pick]
     hb = blurred_half_box(steps, half_box, clearance, BLUR_PROBE_PX)
     if notch is not None and notch_clearance is None:
         notch_clearance = notch
@@ -766,7 +769,7 @@ the median within it of the full fits'); "psf_sharp_stops" counts the corners it
     # small features (AprilTag bits of 3-4 px) leave windows too small to fit once
     # shrunk for BLUR_PROBE_PX: then the sharp image's windows (a blurred neighbour may
     # reach into them; a blur estimate slightly high beats none: 0.3 px errors, camera 17)
-    for box, nbox in ((hb, nb), (np.full(len(pick), float(half_box)), notch)):
+    for box, nbox in ((hb, nb), (half_box, notch)):
         for kind in kinds:
             fit = _fit(image, q[pick], np.asarray(directions)[pick], wedges, steps, box,
                        notch=nbox,
@@ -1113,8 +1116,6 @@ TAG_SLACK_BITS = 0.2
 # residual RMS 0.0016 / 0.0013 px, with it 1378 / 1455 at 0.0000 / 0.0013; seed 1 0.0060 /
 # 0.0047 without, 0.0004 / 0.0048 with.
 TAG_MIN_WINDOW_PIXELS = 30
-# a chessboard corner: the next grid lines are a square away; keep to 0.45 square
-CHESSBOARD_HALF_BOX = 0.45
 # board units from a corner to the nearest feature its model does not have, along the box's
 # axes: an AprilTag's data bits start one bit inside its border; a chessboard's next corner
 # is a square away (its mark dots: chessboard_clearance)
@@ -1128,6 +1129,9 @@ CHESSBOARD_LINES = ((0, 2), (1, 3))
 # differences over a square either side, and a board's perspective and the lens' scale
 # change the step across a square by a few %; as an AprilTag window's TAG_SLACK_BITS
 LINES_SLACK = 0.2
+# a chessboard corner's window (half-width, squares) where no mark is near: its clearance less
+# the slack (chessboard_half_box): 0.8 square
+CHESSBOARD_HALF_BOX = CHESSBOARD_CLEARANCE - LINES_SLACK * CHESSBOARD_CLEARANCE ** 2
 # the line strips' half-width in the edge profile's sigma (line_strips)
 STRIP_SIGMAS = 2.0
 # the largest bias (px) of a straight line fitted over a bent line's strips that the first-order
@@ -1181,16 +1185,23 @@ keep windows that determine their fits (MAX_WINDOW_PX still caps it on large tag
 
 
 def chessboard_half_box(target):
-    r'''The window half-width (squares) of a chessboard: clear of its orientation-mark dots
+    r'''(N,) the window half-width (squares) of each chessboard corner (target.points()'
+order): its clearance (chessboard_clearance) less the slack the local affine map needs there
 
-A mark dot of radius r squares sits in the middle of a square: it comes within
-sqrt(2)/2 - r of the corner along the diagonal, where the box reaches sqrt(2) half_box.
+The window's box is laid out by the local affine map of the corner (refine_corners' steps:
+central differences over a square either side), whose error grows as the square of the reach:
+LINES_SLACK at one square (the perspective and the lens' scale change the step across a square
+by a few %), LINES_SLACK c^2 at c squares. So the window keeps to c - LINES_SLACK c^2 of the
+nearest feature c squares away: 0.8 square from the next corner's lines (CHESSBOARD_HALF_BOX),
+0.33 from a mark dot (chessboard_clearance: 0.36 for a dot of 0.4 square) on the 12 corners of
+the marked squares only. (It was 0.45 square for every corner, and the mark's 0.32 for every
+corner of a marked board: where 88 of the catalogue board's 100 corners are a square from
+anything, their windows at 0.8 took 17 CAHVORE's sharp corners from 0.00023 / 0.0017 to
+0.00010 / 0.0006 px RMS / max after the bias step, and tiny-320x240's from 994 kept to 1056;
+docs/corners.md, session 19.)
 '''
-    mark = target.spec.get("orientation_mark")
-    if mark is None:
-        return CHESSBOARD_HALF_BOX
-    r = 0.5 * float(mark["dot_diameter"]) / float(target.spec["square"])
-    return min(CHESSBOARD_HALF_BOX, 0.9 * (0.5 - r / np.sqrt(2.0)))
+    c = chessboard_clearance(target)
+    return c - LINES_SLACK * c * c
 
 
 def chessboard_clearance(target):
@@ -1370,14 +1381,16 @@ one (docs/corners.md, "The lines' bias under blur").
     idx = np.flatnonzero(ok)
     big = (1 << 40, 1 << 40)
     sigma = float(sigma)
+    half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (N,))
     if sigma > 0.0:
-        clearance = np.broadcast_to(np.asarray(half_box if clearance is None else clearance,
-                                               dtype=np.float64), (N,))
+        clearance = np.broadcast_to(half_box if clearance is None else
+                                    np.asarray(clearance, dtype=np.float64), (N,))
         strips = line_strips(steps[idx], clearance[idx], sigma, np.abs(k[idx]).max(-1)) \
             if len(lines) else None
-        half_box = blurred_half_box(steps[idx], half_box, clearance[idx], sigma)
+        half_box = blurred_half_box(steps[idx], half_box[idx], clearance[idx], sigma)
     else:
         strips = None
+        half_box = half_box[idx]
     ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px, notch,
                                 strips)
     w = inside.astype(np.float64)
