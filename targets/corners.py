@@ -1129,9 +1129,9 @@ CHESSBOARD_LINES = ((0, 2), (1, 3))
 # differences over a square either side, and a board's perspective and the lens' scale
 # change the step across a square by a few %; as an AprilTag window's TAG_SLACK_BITS
 LINES_SLACK = 0.2
-# a chessboard corner's window (half-width, squares) where no mark is near: its clearance less
-# the slack (chessboard_half_box): 0.8 square
-CHESSBOARD_HALF_BOX = CHESSBOARD_CLEARANCE - LINES_SLACK * CHESSBOARD_CLEARANCE ** 2
+# a chessboard corner's window (half-width, squares) where no mark dot is near: the next
+# corner's lines less the slack (chessboard_half_box): 0.8 square
+CHESSBOARD_HALF_BOX = CHESSBOARD_CLEARANCE - LINES_SLACK
 # the line strips' half-width in the edge profile's sigma (line_strips)
 STRIP_SIGMAS = 2.0
 # the largest bias (px) of a straight line fitted over a bent line's strips that the first-order
@@ -1186,22 +1186,30 @@ keep windows that determine their fits (MAX_WINDOW_PX still caps it on large tag
 
 def chessboard_half_box(target):
     r'''(N,) the window half-width (squares) of each chessboard corner (target.points()'
-order): its clearance (chessboard_clearance) less the slack the local affine map needs there
+order): clear of the next corner's lines and of the orientation mark's dots
 
-The window's box is laid out by the local affine map of the corner (refine_corners' steps:
-central differences over a square either side), whose error grows as the square of the reach:
-LINES_SLACK at one square (the perspective and the lens' scale change the step across a square
-by a few %), LINES_SLACK c^2 at c squares. So the window keeps to c - LINES_SLACK c^2 of the
-nearest feature c squares away: 0.8 square from the next corner's lines (CHESSBOARD_HALF_BOX),
-0.33 from a mark dot (chessboard_clearance: 0.36 for a dot of 0.4 square) on the 12 corners of
-the marked squares only. (It was 0.45 square for every corner, and the mark's 0.32 for every
-corner of a marked board: where 88 of the catalogue board's 100 corners are a square from
-anything, their windows at 0.8 took 17 CAHVORE's sharp corners from 0.00023 / 0.0017 to
-0.00010 / 0.0006 px RMS / max after the bias step, and tiny-320x240's from 994 kept to 1056;
-docs/corners.md, session 19.)
+The next grid lines are a square away: the window keeps LINES_SLACK short of them (the local
+affine map's error there, as the blurred lines' strips do), CHESSBOARD_HALF_BOX = 0.8 square.
+A mark dot of radius r squares sits in the middle of a square: it comes within
+sqrt(2)/2 - r of the square's four corners along the diagonal, where the box reaches
+sqrt(2) half_box; those corners keep to 0.9 (0.5 - r / sqrt(2)) (0.32 square for the
+catalogue board's dots of 0.4 square; 0.33, a slack of LINES_SLACK c^2 at c = 0.36, let the
+dot into 17 CAHVORE's windows: 0.0017 px max against 0.0007). Only the corners of a marked
+square are that near a dot (chessboard_clearance). (The window was 0.45 square for every
+corner, and the mark's 0.32 for every corner of a marked board: the 88 of the catalogue
+board's 100 corners a square from anything took 17 CAHVORE's sharp corners from 0.00023 /
+0.0017 to 0.00010 / 0.0006 px RMS / max after the bias step at 0.8, and tiny-320x240's kept
+corners from 994 to 1056; docs/corners.md, session 19.)
 '''
-    c = chessboard_clearance(target)
-    return c - LINES_SLACK * c * c
+    nx, ny = target.grid_shape
+    out = np.full(nx * ny, float(CHESSBOARD_HALF_BOX))
+    mark = target.spec.get("orientation_mark")
+    if mark is None:
+        return out
+    r = 0.5 * float(mark["dot_diameter"]) / float(target.spec["square"])
+    near = chessboard_clearance(target) < float(CHESSBOARD_CLEARANCE)
+    out[near] = np.minimum(out[near], 0.9 * (0.5 - r / np.sqrt(2.0)))
+    return out
 
 
 def chessboard_clearance(target):
