@@ -1132,6 +1132,10 @@ LINES_SLACK = 0.2
 # a chessboard corner's window (half-width, squares) where no mark dot is near: the next
 # corner's lines less the slack (chessboard_half_box): 0.8 square
 CHESSBOARD_HALF_BOX = CHESSBOARD_CLEARANCE - LINES_SLACK
+# refine_chessboard_corners' window when the caller does not say where the board's marks are:
+# clear of a mark in the middle of any square (chessboard_half_box's 0.9 (0.5 - r / sqrt(2))
+# of a dot of radius r -> 0)
+CHESSBOARD_UNKNOWN_MARKS_HALF_BOX = 0.45
 # the line strips' half-width in the edge profile's sigma (line_strips)
 STRIP_SIGMAS = 2.0
 # the largest bias (px) of a straight line fitted over a bent line's strips that the first-order
@@ -1238,7 +1242,7 @@ corners away from the dots dropped, "window too small").
     return out.ravel()
 
 
-def refine_chessboard_corners(image, G, half_box=CHESSBOARD_HALF_BOX,
+def refine_chessboard_corners(image, G, half_box=CHESSBOARD_UNKNOWN_MARKS_HALF_BOX,
                               clearance=CHESSBOARD_CLEARANCE, **options):
     r'''Refine the inner corners of a chessboard
 
