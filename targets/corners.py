@@ -1163,8 +1163,61 @@ border: 30 pixels need bits of 3.4 px or more.
     dirs = np.stack((nxt, prv), axis=2).reshape(-1, 2, 2)
     steps = np.stack((nxt, prv), axis=-1).reshape(-1, 2, 2) / 8.0
     options.setdefault("min_window_pixels", TAG_MIN_WINDOW_PIXELS)
-    return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box,
-                          clearance=clearance, **options)
+    shrink = _tag_box_shrink(Q, steps, half_box)
+    return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box / shrink,
+                          clearance=clearance / shrink, **options)
+
+
+def _homographies(src, dst):
+    r'''(N,3,3) the homographies taking the 4 points src (N,4,2) to dst (N,4,2)'''
+    N = len(src)
+    A = np.zeros((N, 8, 8))
+    rhs = np.zeros((N, 8))
+    x, y = src[..., 0], src[..., 1]
+    u, v = dst[..., 0], dst[..., 1]
+    A[:, 0::2, 0], A[:, 0::2, 1], A[:, 0::2, 2] = x, y, 1.0
+    A[:, 0::2, 6], A[:, 0::2, 7] = -u * x, -u * y
+    A[:, 1::2, 3], A[:, 1::2, 4], A[:, 1::2, 5] = x, y, 1.0
+    A[:, 1::2, 6], A[:, 1::2, 7] = -v * x, -v * y
+    rhs[:, 0::2], rhs[:, 1::2] = u, v
+    h = np.full((N, 8), np.nan)
+    ok = np.all(np.isfinite(A), axis=(-1, -2)) & (np.abs(np.linalg.det(
+        np.where(np.isfinite(A), A, 0.0))) > 1e-300)
+    if ok.any():
+        h[ok] = np.linalg.solve(A[ok], rhs[ok][..., None])[..., 0]
+    return np.concatenate((h, np.ones((N, 1))), axis=-1).reshape(N, 3, 3)
+
+
+def _tag_box_shrink(Q, steps, half_box):
+    r'''(N,) >= 1: the factor by which each tag corner's window (and its clearances) must
+shrink, in the tag's mean bits (steps), to stay within half_box of the tag's true bits
+
+The window's box is laid out by the local affine map of the tag's mean edges (steps: side /
+8), and reaches half_box bits out to the light region's end (tag_window: the gap to the
+next tag less TAG_SLACK_BITS). A board seen obliquely or through a fisheye changes its
+scale across a tag: the bits beyond an edge are smaller than the tag's mean ones where the
+board recedes, and the mean bits' box runs into the next tag (hazcam 17 CAHVORE: its far
+pixels 2.0 mean bits out, 8 px, on the next tag's border where the gap is 2.4; the corner
+then misfits by 1% of the contrast and was dropped, "predicted error too large"). The tag's
+own homography (its 4 corners) has that change to first order: each box edge's end and
+middle is taken through it to the tag's bits, and the box shrinks by the largest overreach.
+'''
+    Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
+    hb = float(half_box)
+    # corner k's bit frame: (0,0) at corner k, (8,0) at k+1, (8,8) at k+2, (0,8) at k-1
+    img = np.stack([np.roll(Q, -k, axis=1) for k in range(4)], axis=1).reshape(-1, 4, 2)
+    bits = np.broadcast_to(np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 8.0], [0.0, 8.0]]),
+                           img.shape)
+    Hinv = _homographies(img, bits)                                  # image -> bits
+    g = np.array([-1.0, 0.0, 1.0])
+    box = np.array([(a, b) for a in g for b in g if (a, b) != (0.0, 0.0)]) * hb   # (8,2)
+    p = Q.reshape(-1, 2)[:, None, :] + np.einsum("nij,mj->nmi", steps, box)
+    ph = np.concatenate((p, np.ones(p.shape[:-1] + (1,))), axis=-1)
+    b = np.einsum("nij,nmj->nmi", Hinv, ph)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = np.abs(b[..., :2] / b[..., 2:3]).max(axis=(-1, -2)) / hb
+    out = np.where(np.isfinite(reach), np.maximum(reach, 1.0), 1.0)
+    return out
 
 
 def tag_window(target):
@@ -1343,12 +1396,14 @@ SYNOPSIS
         rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
         w = tag_window(target)
         return rays, float(target.spec["tag_size"]) / 8.0, [(0, 1)], {
-            "half_box": w["half_box"], "notch": w.get("notch"), "clearance": w["clearance"]}
+            "half_box": w["half_box"], "notch": w.get("notch"), "clearance": w["clearance"],
+            "tag_corners": True}
     raise ValueError(f"corner_rays() needs a chessboard or apriltag target; got {target.kind!r}")
 
 
 def curvature_bias(q, tangents, curvatures, wedges, steps, half_box, notch=None,
-                   max_window_px=MAX_WINDOW_PX, lines=(), sigma=0.0, clearance=None):
+                   max_window_px=MAX_WINDOW_PX, lines=(), sigma=0.0, clearance=None,
+                   tag_corners=False):
     r'''Where refine_corners puts a corner whose edges are curved, minus the corner: px
 
 SYNOPSIS
@@ -1378,8 +1433,19 @@ edge, where the edges have bent further (more bias), and the blurred window is s
 (less); on MER hazcams 8 and 17 (area renders, the response's sampled blur of 0.7 px, no
 noise) the corners moved by 0.65-1.14x the sharp terms' lines bias, by 0.995-1.010x this
 one (docs/corners.md, "The lines' bias under blur").
+
+tag_corners: q are an AprilGrid's tag corners, four a tag in order round it (corner_rays'
+window says so): the window shrinks as refine_tag_corners shrinks it (_tag_box_shrink: the
+tag's homography against its mean bits), from the tag's corners q.
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    if tag_corners:
+        Q = q.reshape(-1, 4, 2)
+        mean = np.stack((np.roll(Q, -1, axis=1) - Q, np.roll(Q, 1, axis=1) - Q),
+                        axis=-1).reshape(-1, 2, 2) / 8.0
+        shrink = _tag_box_shrink(Q, mean, half_box)
+        clearance = (half_box if clearance is None else clearance) / shrink
+        half_box = half_box / shrink
     N = len(q)
     t = np.asarray(tangents, dtype=np.float64).reshape(N, -1, 2)
     k = np.asarray(curvatures, dtype=np.float64).reshape(N, -1)
