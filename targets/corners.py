@@ -390,16 +390,17 @@ def blurred_half_box(steps, half_box, clearance, sigma):
 The window's pixels must not see the nearest other feature, clearance board units from
 the corner along the box's axes (a number or (N,)): the PSF spreads it by
 BLUR_REACH_SIGMAS sigma px, which is (that / the smallest image step of one board unit)
-board units. Never above half_box (the sharp image's window).
+board units. Never above half_box (the sharp image's window, a number or (N,)).
 '''
     steps = np.asarray(steps, dtype=np.float64).reshape(-1, 2, 2)
     smin = np.full(len(steps), np.nan)
     fin = np.all(np.isfinite(steps), axis=(-1, -2))
     if fin.any():
         smin[fin] = np.linalg.svd(steps[fin], compute_uv=False)[:, -1]
+    half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (len(steps),))
     with np.errstate(divide="ignore", invalid="ignore"):
         hb = clearance - BLUR_REACH_SIGMAS * float(sigma) / smin
-    return np.minimum(float(half_box), np.where(np.isfinite(hb), hb, float(half_box)))
+    return np.minimum(half_box, np.where(np.isfinite(hb), hb, half_box))
 
 
 def line_strips(steps, clearance, sigma, curvature):
@@ -567,8 +568,9 @@ the estimate's spread.
     q0 = np.asarray(q0, dtype=np.float64).reshape(-1, 2)
     steps = np.asarray(steps, dtype=np.float64).reshape(len(q0), 2, 2)
     # a number, or one per corner
-    clearance = np.broadcast_to(np.asarray(half_box if clearance is None else clearance,
-                                           dtype=np.float64), (len(q0),))
+    half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (len(q0),))
+    clearance = np.broadcast_to(half_box if clearance is None else
+                                np.asarray(clearance, dtype=np.float64), (len(q0),))
     info = {}
     options = dict(options, lines=lines)
     # the last pass's corners are judged by their predicted error (_fit)
@@ -608,7 +610,7 @@ the estimate's spread.
 
     def quick_look(f, good, d, s2, idx):
         # a sharp image (every clean render) is told by a few corners and one kind
-        args = (image, f.q[good], d, wedges, s2, half_box, clearance[idx][good])
+        args = (image, f.q[good], d, wedges, s2, half_box[idx][good], clearance[idx][good])
         look = estimate_blur(*args, kinds=kinds[:1], sample=BLUR_QUICK_SAMPLE,
                              sharp_sigma_px=LOOK_SHARP_SIGMA_PX, **notches, **options)
         if look.get("psf_sharp_stops") and added_blur_px(
@@ -649,7 +651,7 @@ the estimate's spread.
         info = look if look is not None else quick_look(fit, ok, dirs, steps2,
                                                         np.arange(len(q0)))
         if added_blur_px(info["psf_sigma_px"], info["psf_kind"]) >= BLUR_NEGLIGIBLE_PX:
-            info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box,
+            info = estimate_blur(image, fit.q[ok], dirs, wedges, steps2, half_box[ok],
                                  clearance[ok], kinds=kinds, **notches, **options)
         options["psf_kind"] = info["psf_kind"]
     sigma = info["psf_sigma_px"]
@@ -661,7 +663,7 @@ the estimate's spread.
         return CornerFit(q=fit.q, reasons=fit.reasons, misfit=fit.misfit, npixels=fit.npixels,
                          iterations=fit.iterations, directions=fit.directions,
                          info=dict(info, stopped="blurred: first pass only"))
-    hb2 = blurred_half_box(steps2, half_box, clearance[ok], sigma)
+    hb2 = blurred_half_box(steps2, half_box[ok], clearance[ok], sigma)
     nb2 = notched(steps2, sigma)
     # a blurred X junction's lines are straight edges a square long: the window adds
     # strips along them (line_strips)
@@ -756,6 +758,7 @@ the median within it of the full fits'); "psf_sharp_stops" counts the corners it
     pick = np.unique(np.linspace(0, n - 1, min(n, sample)).round().astype(np.int64))
     steps = np.asarray(steps, dtype=np.float64).reshape(n, 2, 2)[pick]
     clearance = np.broadcast_to(np.asarray(clearance, dtype=np.float64), (n,))[pick]
+    half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (n,))[pick]
     hb = blurred_half_box(steps, half_box, clearance, BLUR_PROBE_PX)
     if notch is not None and notch_clearance is None:
         notch_clearance = notch
@@ -766,7 +769,7 @@ the median within it of the full fits'); "psf_sharp_stops" counts the corners it
     # small features (AprilTag bits of 3-4 px) leave windows too small to fit once
     # shrunk for BLUR_PROBE_PX: then the sharp image's windows (a blurred neighbour may
     # reach into them; a blur estimate slightly high beats none: 0.3 px errors, camera 17)
-    for box, nbox in ((hb, nb), (np.full(len(pick), float(half_box)), notch)):
+    for box, nbox in ((hb, nb), (half_box, notch)):
         for kind in kinds:
             fit = _fit(image, q[pick], np.asarray(directions)[pick], wedges, steps, box,
                        notch=nbox,
@@ -1113,8 +1116,6 @@ TAG_SLACK_BITS = 0.2
 # residual RMS 0.0016 / 0.0013 px, with it 1378 / 1455 at 0.0000 / 0.0013; seed 1 0.0060 /
 # 0.0047 without, 0.0004 / 0.0048 with.
 TAG_MIN_WINDOW_PIXELS = 30
-# a chessboard corner: the next grid lines are a square away; keep to 0.45 square
-CHESSBOARD_HALF_BOX = 0.45
 # board units from a corner to the nearest feature its model does not have, along the box's
 # axes: an AprilTag's data bits start one bit inside its border; a chessboard's next corner
 # is a square away (its mark dots: chessboard_clearance)
@@ -1128,6 +1129,13 @@ CHESSBOARD_LINES = ((0, 2), (1, 3))
 # differences over a square either side, and a board's perspective and the lens' scale
 # change the step across a square by a few %; as an AprilTag window's TAG_SLACK_BITS
 LINES_SLACK = 0.2
+# a chessboard corner's window (half-width, squares) where no mark dot is near: the next
+# corner's lines less the slack (chessboard_half_box): 0.8 square
+CHESSBOARD_HALF_BOX = CHESSBOARD_CLEARANCE - LINES_SLACK
+# refine_chessboard_corners' window when the caller does not say where the board's marks are:
+# clear of a mark in the middle of any square (chessboard_half_box's 0.9 (0.5 - r / sqrt(2))
+# of a dot of radius r -> 0)
+CHESSBOARD_UNKNOWN_MARKS_HALF_BOX = 0.45
 # the line strips' half-width in the edge profile's sigma (line_strips)
 STRIP_SIGMAS = 2.0
 # the largest bias (px) of a straight line fitted over a bent line's strips that the first-order
@@ -1155,8 +1163,61 @@ border: 30 pixels need bits of 3.4 px or more.
     dirs = np.stack((nxt, prv), axis=2).reshape(-1, 2, 2)
     steps = np.stack((nxt, prv), axis=-1).reshape(-1, 2, 2) / 8.0
     options.setdefault("min_window_pixels", TAG_MIN_WINDOW_PIXELS)
-    return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box,
-                          clearance=clearance, **options)
+    shrink = _tag_box_shrink(Q, steps, half_box)
+    return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box / shrink,
+                          clearance=clearance / shrink, **options)
+
+
+def _homographies(src, dst):
+    r'''(N,3,3) the homographies taking the 4 points src (N,4,2) to dst (N,4,2)'''
+    N = len(src)
+    A = np.zeros((N, 8, 8))
+    rhs = np.zeros((N, 8))
+    x, y = src[..., 0], src[..., 1]
+    u, v = dst[..., 0], dst[..., 1]
+    A[:, 0::2, 0], A[:, 0::2, 1], A[:, 0::2, 2] = x, y, 1.0
+    A[:, 0::2, 6], A[:, 0::2, 7] = -u * x, -u * y
+    A[:, 1::2, 3], A[:, 1::2, 4], A[:, 1::2, 5] = x, y, 1.0
+    A[:, 1::2, 6], A[:, 1::2, 7] = -v * x, -v * y
+    rhs[:, 0::2], rhs[:, 1::2] = u, v
+    h = np.full((N, 8), np.nan)
+    ok = np.all(np.isfinite(A), axis=(-1, -2)) & (np.abs(np.linalg.det(
+        np.where(np.isfinite(A), A, 0.0))) > 1e-300)
+    if ok.any():
+        h[ok] = np.linalg.solve(A[ok], rhs[ok][..., None])[..., 0]
+    return np.concatenate((h, np.ones((N, 1))), axis=-1).reshape(N, 3, 3)
+
+
+def _tag_box_shrink(Q, steps, half_box):
+    r'''(N,) >= 1: the factor by which each tag corner's window (and its clearances) must
+shrink, in the tag's mean bits (steps), to stay within half_box of the tag's true bits
+
+The window's box is laid out by the local affine map of the tag's mean edges (steps: side /
+8), and reaches half_box bits out to the light region's end (tag_window: the gap to the
+next tag less TAG_SLACK_BITS). A board seen obliquely or through a fisheye changes its
+scale across a tag: the bits beyond an edge are smaller than the tag's mean ones where the
+board recedes, and the mean bits' box runs into the next tag (hazcam 17 CAHVORE: its far
+pixels 2.0 mean bits out, 8 px, on the next tag's border where the gap is 2.4; the corner
+then misfits by 1% of the contrast and was dropped, "predicted error too large"). The tag's
+own homography (its 4 corners) has that change to first order: each box edge's end and
+middle is taken through it to the tag's bits, and the box shrinks by the largest overreach.
+'''
+    Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
+    hb = float(half_box)
+    # corner k's bit frame: (0,0) at corner k, (8,0) at k+1, (8,8) at k+2, (0,8) at k-1
+    img = np.stack([np.roll(Q, -k, axis=1) for k in range(4)], axis=1).reshape(-1, 4, 2)
+    bits = np.broadcast_to(np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 8.0], [0.0, 8.0]]),
+                           img.shape)
+    Hinv = _homographies(img, bits)                                  # image -> bits
+    g = np.array([-1.0, 0.0, 1.0])
+    box = np.array([(a, b) for a in g for b in g if (a, b) != (0.0, 0.0)]) * hb   # (8,2)
+    p = Q.reshape(-1, 2)[:, None, :] + np.einsum("nij,mj->nmi", steps, box)
+    ph = np.concatenate((p, np.ones(p.shape[:-1] + (1,))), axis=-1)
+    b = np.einsum("nij,nmj->nmi", Hinv, ph)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = np.abs(b[..., :2] / b[..., 2:3]).max(axis=(-1, -2)) / hb
+    out = np.where(np.isfinite(reach), np.maximum(reach, 1.0), 1.0)
+    return out
 
 
 def tag_window(target):
@@ -1181,16 +1242,31 @@ keep windows that determine their fits (MAX_WINDOW_PX still caps it on large tag
 
 
 def chessboard_half_box(target):
-    r'''The window half-width (squares) of a chessboard: clear of its orientation-mark dots
+    r'''(N,) the window half-width (squares) of each chessboard corner (target.points()'
+order): clear of the next corner's lines and of the orientation mark's dots
 
+The next grid lines are a square away: the window keeps LINES_SLACK short of them (the local
+affine map's error there, as the blurred lines' strips do), CHESSBOARD_HALF_BOX = 0.8 square.
 A mark dot of radius r squares sits in the middle of a square: it comes within
-sqrt(2)/2 - r of the corner along the diagonal, where the box reaches sqrt(2) half_box.
+sqrt(2)/2 - r of the square's four corners along the diagonal, where the box reaches
+sqrt(2) half_box; those corners keep to 0.9 (0.5 - r / sqrt(2)) (0.32 square for the
+catalogue board's dots of 0.4 square; 0.33, a slack of LINES_SLACK c^2 at c = 0.36, let the
+dot into 17 CAHVORE's windows: 0.0017 px max against 0.0007). Only the corners of a marked
+square are that near a dot (chessboard_clearance). (The window was 0.45 square for every
+corner, and the mark's 0.32 for every corner of a marked board: the 88 of the catalogue
+board's 100 corners a square from anything took 17 CAHVORE's sharp corners from 0.00023 /
+0.0017 to 0.00010 / 0.0006 px RMS / max after the bias step at 0.8, and tiny-320x240's kept
+corners from 994 to 1056; docs/corners.md, session 19.)
 '''
+    nx, ny = target.grid_shape
+    out = np.full(nx * ny, float(CHESSBOARD_HALF_BOX))
     mark = target.spec.get("orientation_mark")
     if mark is None:
-        return CHESSBOARD_HALF_BOX
+        return out
     r = 0.5 * float(mark["dot_diameter"]) / float(target.spec["square"])
-    return min(CHESSBOARD_HALF_BOX, 0.9 * (0.5 - r / np.sqrt(2.0)))
+    near = chessboard_clearance(target) < float(CHESSBOARD_CLEARANCE)
+    out[near] = np.minimum(out[near], 0.9 * (0.5 - r / np.sqrt(2.0)))
+    return out
 
 
 def chessboard_clearance(target):
@@ -1219,7 +1295,7 @@ corners away from the dots dropped, "window too small").
     return out.ravel()
 
 
-def refine_chessboard_corners(image, G, half_box=CHESSBOARD_HALF_BOX,
+def refine_chessboard_corners(image, G, half_box=CHESSBOARD_UNKNOWN_MARKS_HALF_BOX,
                               clearance=CHESSBOARD_CLEARANCE, **options):
     r'''Refine the inner corners of a chessboard
 
@@ -1320,12 +1396,14 @@ SYNOPSIS
         rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
         w = tag_window(target)
         return rays, float(target.spec["tag_size"]) / 8.0, [(0, 1)], {
-            "half_box": w["half_box"], "notch": w.get("notch"), "clearance": w["clearance"]}
+            "half_box": w["half_box"], "notch": w.get("notch"), "clearance": w["clearance"],
+            "tag_corners": True}
     raise ValueError(f"corner_rays() needs a chessboard or apriltag target; got {target.kind!r}")
 
 
 def curvature_bias(q, tangents, curvatures, wedges, steps, half_box, notch=None,
-                   max_window_px=MAX_WINDOW_PX, lines=(), sigma=0.0, clearance=None):
+                   max_window_px=MAX_WINDOW_PX, lines=(), sigma=0.0, clearance=None,
+                   tag_corners=False):
     r'''Where refine_corners puts a corner whose edges are curved, minus the corner: px
 
 SYNOPSIS
@@ -1355,8 +1433,19 @@ edge, where the edges have bent further (more bias), and the blurred window is s
 (less); on MER hazcams 8 and 17 (area renders, the response's sampled blur of 0.7 px, no
 noise) the corners moved by 0.65-1.14x the sharp terms' lines bias, by 0.995-1.010x this
 one (docs/corners.md, "The lines' bias under blur").
+
+tag_corners: q are an AprilGrid's tag corners, four a tag in order round it (corner_rays'
+window says so): the window shrinks as refine_tag_corners shrinks it (_tag_box_shrink: the
+tag's homography against its mean bits), from the tag's corners q.
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    if tag_corners:
+        Q = q.reshape(-1, 4, 2)
+        mean = np.stack((np.roll(Q, -1, axis=1) - Q, np.roll(Q, 1, axis=1) - Q),
+                        axis=-1).reshape(-1, 2, 2) / 8.0
+        shrink = _tag_box_shrink(Q, mean, half_box)
+        clearance = (half_box if clearance is None else clearance) / shrink
+        half_box = half_box / shrink
     N = len(q)
     t = np.asarray(tangents, dtype=np.float64).reshape(N, -1, 2)
     k = np.asarray(curvatures, dtype=np.float64).reshape(N, -1)
@@ -1370,14 +1459,16 @@ one (docs/corners.md, "The lines' bias under blur").
     idx = np.flatnonzero(ok)
     big = (1 << 40, 1 << 40)
     sigma = float(sigma)
+    half_box = np.broadcast_to(np.asarray(half_box, dtype=np.float64), (N,))
     if sigma > 0.0:
-        clearance = np.broadcast_to(np.asarray(half_box if clearance is None else clearance,
-                                               dtype=np.float64), (N,))
+        clearance = np.broadcast_to(half_box if clearance is None else
+                                    np.asarray(clearance, dtype=np.float64), (N,))
         strips = line_strips(steps[idx], clearance[idx], sigma, np.abs(k[idx]).max(-1)) \
             if len(lines) else None
-        half_box = blurred_half_box(steps[idx], half_box, clearance[idx], sigma)
+        half_box = blurred_half_box(steps[idx], half_box[idx], clearance[idx], sigma)
     else:
         strips = None
+        half_box = half_box[idx]
     ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px, notch,
                                 strips)
     w = inside.astype(np.float64)
