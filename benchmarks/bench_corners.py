@@ -254,7 +254,8 @@ def main():
                     cpus.append(time.process_time() - c0)
                 e = np.linalg.norm(det.q - truth, axis=-1)
                 errs.append(e[np.isfinite(e)])
-                key = f"{cam}/{tname}/{method}/{n_img}"
+                key = (f"{cam}/{tname}/{method}/{n_img}" if fam is None
+                       else f"{cam}/{fam}/{tname}/{method}/{n_img}")
                 saved[key] = det.q
                 if before is not None and key in before:
                     _compare_q(before[key], det.q, truth, changes)

@@ -120,8 +120,15 @@ def _detector_class():
         def __del__(self, _destroy=_destroy):
             _destroy(self)
 
-        def detect(self, img):
-            r'''[Tag]: pupil_apriltags' Detector.detect without its copy of the image
+        def detect(self, img, quad_decimate=None):
+            r'''[Tag]: pupil_apriltags' Detector.detect without its copy of the image, its
+quad search decimated by quad_decimate (None: the detector's current decimation)
+
+The decimation is the C detector's field, read by each search (apriltag_detector_detect):
+setting it per call lets one detector, one tag family and one quick-decode table serve
+every decimation; a Detector built per decimation cost 0.024 s of CPU each, once per
+process (0.048 for the first, with pupil_apriltags' import), on the first image of each
+new decimation (a 5120x3840 image searches at two).
 
 The library's detect copies the uint8 image into a buffer of its own (image_u8_create:
 a zeroed allocation, rows padded to 96 bytes), 0.011 s of CPU per 5120x3840 image of the
@@ -134,6 +141,8 @@ through the image's stride and never writes it, so it is handed the array's own 
                 raise ValueError(f"detect() needs a (H,W) uint8 image; got shape {img.shape}")
             c_img = _ImageU8(width=img.shape[1], height=img.shape[0], stride=img.shape[1],
                              buf=img.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)))
+            if quad_decimate is not None:
+                self.tag_detector_ptr.contents.quad_decimate = float(quad_decimate)
             lib = self.libc
             lib.apriltag_detector_detect.restype = ctypes.POINTER(_ZArray)
             found = lib.apriltag_detector_detect(self.tag_detector_ptr, ctypes.byref(c_img))
@@ -200,12 +209,12 @@ a board partly out of view)'''
     return bool(sides) and min(sides) / 8.0 / quad_decimate >= 2.0 * MIN_DECIMATED_BIT_PX
 
 
-# detectors live as long as the process: the option sets are few
+# detectors live as long as the process: the option sets are few; the decimation is set
+# per search (OrderedDetector.detect), so one detector serves them all
 @functools.cache
-def _detector(quad_decimate, quad_sigma, refine_edges, decode_sharpening):
-    return _detector_class()(families="tag36h11", nthreads=1, quad_decimate=quad_decimate,
-                             quad_sigma=quad_sigma, refine_edges=refine_edges,
-                             decode_sharpening=decode_sharpening)
+def _detector(quad_sigma, refine_edges, decode_sharpening):
+    return _detector_class()(families="tag36h11", nthreads=1, quad_sigma=quad_sigma,
+                             refine_edges=refine_edges, decode_sharpening=decode_sharpening)
 
 
 def _refine(img32, corners):
@@ -264,13 +273,12 @@ and the edge model's'''
 def _search(img8, index, quad_decimate, quad_sigma, refine_edges, decode_sharpening):
     r'''(tags, mirrored): pupil_apriltags' tags of the 8-bit image, or of its mirror image
 when no tag of the board (index: {point id: row}) decodes in it but some do there'''
-    detector = _detector(float(quad_decimate), float(quad_sigma), int(refine_edges),
-                         float(decode_sharpening))
-    tags = detector.detect(img8)
+    detector = _detector(float(quad_sigma), int(refine_edges), float(decode_sharpening))
+    tags = detector.detect(img8, quad_decimate)
     if not any(4 * t.tag_id in index for t in tags):
         # a mirror-imaged camera shows every tag mirrored, which decodes as nothing: try
         # the flipped image (pixel x there is W-1-x here)
-        flipped = detector.detect(np.ascontiguousarray(img8[:, ::-1]))
+        flipped = detector.detect(np.ascontiguousarray(img8[:, ::-1]), quad_decimate)
         if any(4 * t.tag_id in index for t in flipped):
             return flipped, True
     return tags, False
