@@ -3,11 +3,13 @@ r'''Corner accuracy of the AprilTag and chessboard detectors against the exact p
 SYNOPSIS
 
     uv run --frozen python benchmarks/bench_corners.py [--cameras 15,17,8] [--spp 16]
-        [--poses 6] [--coverage point|area] [--images /tmp/cornerbench]
+        [--families CAHVOR,CAHVORE] [--poses 6] [--coverage point|area]
+        [--images /tmp/cornerbench]
         [--response realistic] [--psf-sigma PX] [--methods camval]
         [--out benchmarks/results]
 
-For each camera (its catalogue model in its own family), target (apriltag,
+For each camera (its catalogue model in its own family; --families: in each of those it
+can be taken as, a family it cannot be skipped with the reason), target (apriltag,
 chessboard) and planned pose, the ray-cast renderer draws the board with --spp x
 --spp subsamples per pixel, or with --coverage area in the ray caster's exact
 covered-area mode (options coverage = "area": edge pixels integrate the board's
@@ -42,11 +44,16 @@ fitted, corners found, median seconds per image; the JSON records' error_* and
 corrected_error_*), then the
 detection time per image of each method and image size (median and max over the images:
 the bars are 0.1 s on 1024x1024 and 0.5 s on 5120x3840, issue 16; loaded-machine figures,
-the load average is recorded), and writes one JSON document to --out/<UTC stamp>-corners.json (never
-overwriting). --save-q F.npz keeps every method's corners per image; --compare-q F.npz
-(a file --save-q wrote, e.g. before a change to a detector) prints, per method and
-camera, the corners lost and gained, the largest corner move and the largest growth of a
-corner's error against it (a corner-by-corner before/after on the same images).
+the load average is recorded). The times are those a campaign's worker sees: numba's cached
+kernels are preloaded first (harness.warmup.load_cached_kernels, as the fork server does;
+its CPU time printed apart), and each camera's first detection, which carries what the
+process does once (imports, a pupil_apriltags detector), is kept apart ('CPU 1st',
+first_cpu_seconds) and its image detected again for the median and max. Writes one JSON
+document to --out/<UTC stamp>-corners.json (never overwriting). --save-q F.npz keeps
+every method's corners per image; --compare-q F.npz (a file --save-q wrote, e.g. before a
+change to a detector) prints, per method and camera, the corners lost and gained, the
+largest corner move and the largest growth of a corner's error against it (a
+corner-by-corner before/after on the same images).
 '''
 
 import argparse
