@@ -132,7 +132,7 @@ The decimation is the C detector's field, read by each search (apriltag_detector
 setting it per call lets one detector, one tag family and one quick-decode table serve
 every decimation; a Detector built per decimation cost 0.024 s of CPU each, once per
 process (0.048 for the first, with pupil_apriltags' import), on the first image of each
-new decimation (a 5120x3840 image searches at two).
+new decimation (a 5120x3840 image has a trial and a finer one: 1024x1024 images 1).
 
 The library's detect copies the uint8 image into a buffer of its own (image_u8_create:
 a zeroed allocation, rows padded to 96 bytes), 0.011 s of CPU per 5120x3840 image of the
