@@ -20,10 +20,14 @@ the flipped image is tried and the corners are flipped back (info["mirrored"]).
 The quad search runs on the image decimated (decimate_for); a large image's is tried
 first TRIAL_DECIMATION_FACTOR times coarser and kept when it missed no tag of the board
 (_search_complete: every tag decoded, or tags big enough that one half their size would
-still be found) and the image is sharp (the blurred model starts from the coarse
-corners, whose error grows with the decimation): on 5120x3840 renders 0.013 s of CPU
-for pupil_apriltags instead of 0.030, the refined corners within 1.4e-6 px of the finer
-search's (benchmarks/bench_corners.py --compare-q, cameras 1 and 21).
+still be found): on 5120x3840 renders 0.013 s of CPU for pupil_apriltags instead of
+0.030, the refined corners within 1.4e-6 px of the finer search's
+(benchmarks/bench_corners.py --compare-q, cameras 1 and 21). A blurred image's tag edges
+start from the coarse search's corners too, their search grown with the decimation
+(_refine_blurred's start error): a second, finer quad search cost a noisy realistic
+5120x3840 image 0.035-0.089 s of pupil_apriltags' CPU; without it cameras 1, 2 and 21
+(18 images) took 0.24-0.26 s median, 0.38-0.41 max instead of 0.31-0.32, 0.48, every
+corner found as before, within 0.008 px of its place, the RMS errors within 1e-5 px.
 
 Pixel convention: the AprilTag library puts the centre of pixel (0,0) at
 (0.5, 0.5) (its corners came out +0.50 px in x and y against exact projections,
@@ -120,8 +124,15 @@ def _detector_class():
         def __del__(self, _destroy=_destroy):
             _destroy(self)
 
-        def detect(self, img):
-            r'''[Tag]: pupil_apriltags' Detector.detect without its copy of the image
+        def detect(self, img, quad_decimate=None):
+            r'''[Tag]: pupil_apriltags' Detector.detect without its copy of the image, its
+quad search decimated by quad_decimate (None: the detector's current decimation)
+
+The decimation is the C detector's field, read by each search (apriltag_detector_detect):
+setting it per call lets one detector, one tag family and one quick-decode table serve
+every decimation; a Detector built per decimation cost 0.024 s of CPU each, once per
+process (0.048 for the first, with pupil_apriltags' import), on the first image of each
+new decimation (a 5120x3840 image has a trial and a finer one: 1024x1024 images 1).
 
 The library's detect copies the uint8 image into a buffer of its own (image_u8_create:
 a zeroed allocation, rows padded to 96 bytes), 0.011 s of CPU per 5120x3840 image of the
@@ -134,6 +145,8 @@ through the image's stride and never writes it, so it is handed the array's own 
                 raise ValueError(f"detect() needs a (H,W) uint8 image; got shape {img.shape}")
             c_img = _ImageU8(width=img.shape[1], height=img.shape[0], stride=img.shape[1],
                              buf=img.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)))
+            if quad_decimate is not None:
+                self.tag_detector_ptr.contents.quad_decimate = float(quad_decimate)
             lib = self.libc
             lib.apriltag_detector_detect.restype = ctypes.POINTER(_ZArray)
             found = lib.apriltag_detector_detect(self.tag_detector_ptr, ctypes.byref(c_img))
@@ -200,12 +213,12 @@ a board partly out of view)'''
     return bool(sides) and min(sides) / 8.0 / quad_decimate >= 2.0 * MIN_DECIMATED_BIT_PX
 
 
-# detectors live as long as the process: the option sets are few
+# detectors live as long as the process: the option sets are few; the decimation is set
+# per search (OrderedDetector.detect), so one detector serves them all
 @functools.cache
-def _detector(quad_decimate, quad_sigma, refine_edges, decode_sharpening):
-    return _detector_class()(families="tag36h11", nthreads=1, quad_decimate=quad_decimate,
-                             quad_sigma=quad_sigma, refine_edges=refine_edges,
-                             decode_sharpening=decode_sharpening)
+def _detector(quad_sigma, refine_edges, decode_sharpening):
+    return _detector_class()(families="tag36h11", nthreads=1, quad_sigma=quad_sigma,
+                             refine_edges=refine_edges, decode_sharpening=decode_sharpening)
 
 
 def _refine(img32, corners):
@@ -264,13 +277,12 @@ and the edge model's'''
 def _search(img8, index, quad_decimate, quad_sigma, refine_edges, decode_sharpening):
     r'''(tags, mirrored): pupil_apriltags' tags of the 8-bit image, or of its mirror image
 when no tag of the board (index: {point id: row}) decodes in it but some do there'''
-    detector = _detector(float(quad_decimate), float(quad_sigma), int(refine_edges),
-                         float(decode_sharpening))
-    tags = detector.detect(img8)
+    detector = _detector(float(quad_sigma), int(refine_edges), float(decode_sharpening))
+    tags = detector.detect(img8, quad_decimate)
     if not any(4 * t.tag_id in index for t in tags):
         # a mirror-imaged camera shows every tag mirrored, which decodes as nothing: try
         # the flipped image (pixel x there is W-1-x here)
-        flipped = detector.detect(np.ascontiguousarray(img8[:, ::-1]))
+        flipped = detector.detect(np.ascontiguousarray(img8[:, ::-1]), quad_decimate)
         if any(4 * t.tag_id in index for t in flipped):
             return flipped, True
     return tags, False
@@ -355,9 +367,9 @@ ARGUMENTS
     ids = target.point_ids()
     index = {int(pid): k for k, pid in enumerate(ids)}
     # a large image's quads are searched coarser first, kept when that search missed no
-    # tag (_search_complete) and the image is sharp; else searched again at decimate_for's
-    # decimation (the blurred model starts from the coarse corners: tag_edges' search
-    # grows with their error, which grows with the decimation)
+    # tag (_search_complete), else searched again at decimate_for's decimation; a blurred
+    # image's tag edges start from the kept search's corners (tag_edges' search grown
+    # with their error, which grows with the decimation: _refine_blurred)
     fine = decimate_for(img8.shape)
     trials = [quad_decimate] if quad_decimate is not None else \
         [TRIAL_DECIMATION_FACTOR * fine, fine] if fine > 1 and refine is True \
@@ -372,17 +384,18 @@ ARGUMENTS
         if refine is True and used:
             from .corners import refine_tag_corners, tag_window
             if psf_sigma_px:
+                # the search's decimation sets the tag edges' start error, as below (it was
+                # left at 1: a given blur on 5120x3840 camera 1 dropped 104 of 864 corners,
+                # "edges meet far from the corner", from the corners decimated by 3)
                 fit = _refine_blurred(img, used, None, {"psf_sigma_px": float(psf_sigma_px),
                                                         "psf_source": "given"}, target,
-                                      hi - lo, line_reference=line_reference,
+                                      hi - lo, quad_decimate, line_reference=line_reference,
                                       defer_span_bias=defer_span_bias)
             else:
                 fit = refine_tag_corners(img, np.array([c for _, c in used]),
                                          value_range=hi - lo, psf_sigma_px=psf_sigma_px,
                                          stop_if_blurred=True, **tag_window(target))
                 if fit.info.get("stopped"):
-                    if not last:
-                        continue
                     fit = _refine_blurred(img, used, fit.q.reshape(-1, 4, 2), fit.info,
                                           target, hi - lo, quad_decimate, line_reference,
                                           defer_span_bias)

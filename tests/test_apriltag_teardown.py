@@ -63,7 +63,7 @@ def test_destroy_is_done_once():
 
 
 def test_cached_detector_is_the_ordered_one_and_detects():
-    det = _detector(1.0, 0.0, 1, 0.25)
+    det = _detector(0.0, 1, 0.25)
     assert isinstance(det, _detector_class())
     # a blank image decodes no tag (a detector whose C side were freed would crash here)
     assert det.detect(np.full((64, 64), 128, np.uint8)) == []
@@ -86,10 +86,37 @@ def test_detect_reads_the_callers_image_as_pupil_apriltags_does():
     img = render(pinhole(640, 640, 600.0), t.pattern(), np.vstack((Rz @ Rx, [-0.5, -0.45, 1.6])),
                  K=4)
     img8 = np.round(255 * np.clip(img, 0, 1)).astype(np.uint8)
-    det = _detector(1.0, 0.0, 1, 0.25)
+    det = _detector(0.0, 1, 0.25)
+    det.detect(img8, 1.0)
     for im in (img8, img8[:, :333]):
         # pupil_apriltags' own detect, on the same (ordered: see above) detector
         got, want = det.detect(im), Detector.detect(det, np.ascontiguousarray(im))
         assert len(want) >= 4
         assert [(g.tag_id, g.hamming) for g in got] == [(w.tag_id, w.hamming) for w in want]
         assert all(np.array_equal(g.corners, w.corners) for g, w in zip(got, want, strict=True))
+
+
+def test_one_detector_serves_every_decimation():
+    # the cached detector takes the decimation per search (the C detector's field): its
+    # tags at each decimation, in any order, are those of a detector built with that one
+    from targets_render import pinhole, render
+
+    from targets.boards import load_target
+    t = load_target("apriltag")
+    a = np.radians(25.0)
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    img = render(pinhole(900, 700, 800.0), t.pattern(), np.vstack((Rx, [-0.45, -0.4, 1.5])),
+                 K=4)
+    img8 = np.round(255 * np.clip(img, 0, 1)).astype(np.uint8)
+    shared = _detector(0.0, 1, 0.25)
+    got = {d: shared.detect(img8, d) for d in (3.0, 1.0, 2.0)}
+    got[3.5] = shared.detect(img8, 3.0)          # set back: the same as the first search
+    for d, tags in got.items():
+        own = _detector_class()(families="tag36h11", nthreads=1, quad_decimate=min(d, 3.0))
+        want = own.detect(img8)
+        assert len(want) >= 4
+        assert [(g.tag_id, g.hamming) for g in tags] == [(w.tag_id, w.hamming) for w in want]
+        assert all(np.array_equal(g.corners, w.corners) for g, w in zip(tags, want, strict=True))
+    # the decimations differ: pupil_apriltags' quads (its corners) are not the same
+    fine, coarse = ({g.tag_id: g.corners for g in got[d]} for d in (1.0, 3.0))
+    assert any(not np.array_equal(fine[i], coarse[i]) for i in fine.keys() & coarse.keys())

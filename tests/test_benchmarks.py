@@ -317,3 +317,40 @@ def test_every_harness_name_resolves(common):
     # the one place where the benchmarks import the harness's stages from
     for name in common.STAGES:
         assert getattr(common, name) is not None, name
+
+
+def test_bench_corners_aruco_corners_are_the_boards_points(common):
+    # OpenCV's AprilTag detector's 4 corners per marker land on the board's points of that
+    # tag (the order mapped, camval's pixel convention): on a pinhole render every tag is
+    # found and each corner is within a pixel of its exact projection (its cornerSubPix
+    # polish errs ~0.2 px RMS), where a wrong order or a half-pixel shift would not be
+    from targets_render import pinhole, render
+
+    from targets.boards import load_target
+    from targets.centroids import projected_points
+    bench = importlib.import_module("bench_corners")
+    t = load_target("apriltag")
+    a = np.radians(20.0)
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    Rt = np.vstack((Rx, [-0.5, -0.45, 1.6]))
+    model = pinhole(800, 800, 700.0)
+    img = render(model, t.pattern(), Rt, K=4)
+    det = bench.detect_aruco(img, t)
+    truth = projected_points(model, t, Rt)
+    assert det.status == "ok" and det.n_found == t.Npoints
+    e = np.linalg.norm(det.q - truth, axis=-1)
+    assert e.max() < 1.0
+    assert np.sqrt(np.mean(e ** 2)) < 0.4
+    # the mean error is no half-pixel shift of the convention
+    assert np.abs(np.mean(det.q - truth, axis=0)).max() < 0.15
+
+
+def test_bench_corners_timing_keeps_the_first_detection_apart(common):
+    bench = importlib.import_module("bench_corners")
+    rows = [{"target": "apriltag", "method": "camval", "shape": [1024, 1024],
+             "seconds": [0.2, 0.3], "cpu_seconds": [0.1, 0.12], "first_cpu_seconds": f}
+            for f in (0.4, 0.15)]
+    (t,) = bench.timing_rows(rows)
+    assert t["shape"] == "1024x1024" and t["images"] == 4
+    assert t["cpu_seconds_max"] == 0.12 and t["cpu_seconds_median"] == 0.11
+    assert t["first_cpu_seconds_max"] == 0.4
