@@ -142,10 +142,16 @@ def test_apriltags_through_a_mirrored_camera():
 
 
 def test_chessboard_on_planned_poses():
+    r'''Every planned pose's 100 corners found on a distorted pinhole's renders of K = 16.
+(K = 4 until session 19: since then the poses are planned by the corners, nearer, and the
+windows reach 0.8 square, and on pose 5 one corner's aliasing misfit at K = 4 puts its
+predicted error at 3.05 x the image's median: targets.corners drops it, "predicted error
+too large", its cut for a noisy image; the mirrored camera's pose 5 drops 2 at K = 4, 1 at
+K = 8)'''
     t = load_target("chessboard")
     m = pinhole(480, 360, 300.0, R=WIDE["R"])
     for Rt in plan_poses(m, t, seed=0):
-        det = detect(render(m, t.pattern(), Rt, K=4), t)
+        det = detect(render(m, t.pattern(), Rt, K=16), t)
         assert det.status == "ok", det.reason
         assert det.n_found == det.n_expected == 100
         err = np.linalg.norm(det.q - projected_points(m, t, Rt), axis=-1)
@@ -253,8 +259,9 @@ def test_chessboard_mirrored_is_numbered_by_the_mark():
     t = load_target("chessboard")
     m = _mirrored_camera(480, 360, 300.0)
     Rt = plan_poses(m, t, seed=0)[5]
-    det = detect(render(m, t.pattern(), Rt, K=4), t)
-    assert det.status == "ok"
+    # K = 16: at K = 4 (8) the aliasing drops 2 (1) corners (test_chessboard_on_planned_poses)
+    det = detect(render(m, t.pattern(), Rt, K=16), t)
+    assert det.status == "ok" and det.n_found == 100
     err = np.linalg.norm(det.q - projected_points(m, t, Rt), axis=-1)
     assert err.max() < 0.35
 
