@@ -1168,8 +1168,9 @@ border: 30 pixels need bits of 3.4 px or more.
                           clearance=clearance / shrink, **options)
 
 
-def _homographies(src, dst):
-    r'''(N,3,3) the homographies taking the 4 points src (N,4,2) to dst (N,4,2)'''
+def homographies(src, dst):
+    r'''(N,3,3) the homographies taking the 4 points src (N,4,2) to dst (N,4,2), NaN where
+they do not determine one (targets.tag_edges' tags too)'''
     N = len(src)
     A = np.zeros((N, 8, 8))
     rhs = np.zeros((N, 8))
@@ -1208,7 +1209,7 @@ middle is taken through it to the tag's bits, and the box shrinks by the largest
     img = np.stack([np.roll(Q, -k, axis=1) for k in range(4)], axis=1).reshape(-1, 4, 2)
     bits = np.broadcast_to(np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 8.0], [0.0, 8.0]]),
                            img.shape)
-    Hinv = _homographies(img, bits)                                  # image -> bits
+    Hinv = homographies(img, bits)                                   # image -> bits
     g = np.array([-1.0, 0.0, 1.0])
     box = np.array([(a, b) for a in g for b in g if (a, b) != (0.0, 0.0)]) * hb   # (8,2)
     p = Q.reshape(-1, 2)[:, None, :] + np.einsum("nij,mj->nmi", steps, box)

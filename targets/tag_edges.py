@@ -246,7 +246,15 @@ from ._tag_edge_kernels import (
     sampled_table,
     tag_edge_pixels,
 )
-from .corners import BLUR_REACH_SIGMAS, MAX_MISFIT, MIN_CONTRAST, PSF_KINDS, CornerFit, blur_kernel
+from .corners import (
+    BLUR_REACH_SIGMAS,
+    MAX_MISFIT,
+    MIN_CONTRAST,
+    PSF_KINDS,
+    CornerFit,
+    blur_kernel,
+    homographies,
+)
 from .detection import median
 
 # px added to every clearance: the coarse corners' error and the bend of an edge between
@@ -377,15 +385,8 @@ _EDGE_STATUS = {1: "edge too short for its blur",
 
 def _homographies(Q):
     r'''(N,3,3) each tag's image -> cells homography from its corners Q (N,4,2)'''
-    N = len(Q)
-    A = np.zeros((N, 8, 9))
-    u, v = _TAG_CORNERS[:, 0], _TAG_CORNERS[:, 1]
-    x, y = Q[..., 0], Q[..., 1]
-    A[:, 0::2, 0], A[:, 0::2, 1], A[:, 0::2, 2] = x, y, 1.0
-    A[:, 0::2, 6], A[:, 0::2, 7], A[:, 0::2, 8] = -u * x, -u * y, -u
-    A[:, 1::2, 3], A[:, 1::2, 4], A[:, 1::2, 5] = x, y, 1.0
-    A[:, 1::2, 6], A[:, 1::2, 7], A[:, 1::2, 8] = -v * x, -v * y, -v
-    return np.linalg.svd(A)[2][:, -1].reshape(N, 3, 3)
+    Q = np.asarray(Q, dtype=np.float64)
+    return homographies(Q, np.broadcast_to(_TAG_CORNERS, Q.shape))
 
 
 def _neighbours(grid, N):

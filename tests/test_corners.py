@@ -398,7 +398,7 @@ window (a trapezoid: the bits beyond its short edge are smaller than the mean on
 by its box's overreach in the tag's true bits (its homography), to first order: the shrunk
 box stays within half_box true bits, and within 3% of it (measured 0.3% and 1.9% short on
 this trapezoid, its far edge 20% shorter)'''
-    from targets.corners import _homographies, _tag_box_shrink
+    from targets.corners import _tag_box_shrink, homographies
 
     def mean_steps(Q):
         return np.stack((np.roll(Q, -1, axis=1) - Q, np.roll(Q, 1, axis=1) - Q),
@@ -414,7 +414,7 @@ this trapezoid, its far edge 20% shorter)'''
     steps = mean_steps(Q)
     for k in range(4):
         img = np.roll(Q[0], -k, axis=0)
-        H = _homographies(img[None], np.array([[[0, 0], [8, 0], [8, 8], [0, 8]]], float))[0]
+        H = homographies(img[None], np.array([[[0, 0], [8, 0], [8, 8], [0, 8]]], float))[0]
         hb = 2.2 / shrink[k]
         g = np.array([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if (a, b) != (0, 0)])
         p = Q[0, k] + (g * hb) @ steps[k].T
