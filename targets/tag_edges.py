@@ -373,11 +373,11 @@ def _lookup(table, x, phi):
 _TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
 
 
-# targets._tag_edge_kernels.tag_edge_pixels's status of an edge: why it has no pixels
 # a corner dropped where its edge's fit sees no dark side in the half of the edge next to it
 # (_sees_dark_near)
 NEAR_CORNER_LIGHT_ONLY = ("edge seen from its light side only near the corner (the light data "
                           "bits beside it too close for the blur)")
+# targets._tag_edge_kernels.tag_edge_pixels's status of an edge: why it has no pixels
 _EDGE_STATUS = {1: "edge too short for its blur",
                 2: "edge seen from its light side only (tag bits too small for the blur)",
                 3: "edge off the image"}
@@ -583,7 +583,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             # has its reason
             break
         geo, pixels = _fit_pixels(img, geo, pieces, q, (pix, piy, pt, ps, off), why_edge,
-                                  why_corner)
+                                  why_corner if last else None)
         if not geo:
             break
         E = _Edges(geo, pixels, reach, line)
@@ -1221,7 +1221,7 @@ across it by the neighbours' dark sides. On MER hazcam 17 as CAHVORE (realistic,
 benchmarks/bench_corners.py): 81 more corners of 864, at 0.0068 px RMS against the others'
 0.0049; with dark pixels beyond one end only (the line extrapolated), 154 more at 0.0095,
 max 0.046 px (the others' 0.022).'''
-    dark = s - _curve_s(d, 2.0 * t / L - 1.0) >= 0.0
+    dark = _dark_side(t, s, L, d)
     lo, hi = np.count_nonzero(dark & (t < 0.0)), np.count_nonzero(dark & (t > L))
     return min(lo, hi) > 0 and lo + hi >= MIN_EDGE_PIXELS // 2
 
@@ -1241,9 +1241,14 @@ their light side only, 0.076 px from its projection (0.40 with the bits' depth a
 edge), its edge's dark side 0.09 < tau < 0.75. Such a corner is dropped, as a weak edge's
 corners are where its board line does not reach the dark side beyond its ends
 (_sees_dark).'''
-    dark = s - _curve_s(d, 2.0 * t / L - 1.0) >= 0.0
     near = t < 0.5 * L if end == 0 else t > 0.5 * L
-    return bool(np.any(dark & near))
+    return bool(np.any(_dark_side(t, s, L, d) & near))
+
+
+def _dark_side(t, s, L, d):
+    r'''(n,) bool: the pixels (t, s) in an edge's chord frame (length L) on the dark side of its
+curve d (d0..d3), or on it'''
+    return s - _curve_s(d, 2.0 * t / L - 1.0) >= 0.0
 
 
 def _table(sigma, kind):
@@ -1505,7 +1510,8 @@ reach px; targets._tag_edge_kernels.fit_pixels) out of tag_edge_pixels' pixels (
 s, off), fit j's [off[j], off[j+1]), v their values in img; a weak edge's fit is dropped
 (its reason in why_edge) where its pixels do not see the dark side beyond both its ends
 (_sees_dark); an edge's end whose pixels see no dark side nearer it than the chord's
-middle has its corner's reason in why_corner (N,4) (_sees_dark_near)'''
+middle has its corner's reason in why_corner (N,4) (_sees_dark_near; None: not judged, a
+pass before the last, whose corners only place the next pass's pixels)'''
     ix, iy, t, s, off = pixels
     fit, edge, mode, reach = zip(*pieces, strict=True)
     fit = np.array(fit, dtype=np.int64)
@@ -1527,7 +1533,7 @@ middle has its corner's reason in why_corner (N,4) (_sees_dark_near)'''
                 why_edge[i, k] = _EDGE_STATUS[2]
                 keep[j] = False
             continue
-        for e in (0, 1) if end == 2 else (end,):
+        for e in () if why_corner is None else (0, 1) if end == 2 else (end,):
             if not _sees_dark_near(tj, sj, L, d, e):
                 why_corner[i, (k + e) % 4] = NEAR_CORNER_LIGHT_ONLY
     if keep.all():
