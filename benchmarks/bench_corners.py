@@ -90,11 +90,13 @@ campaign jobs allow; a family the camera cannot be taken as raises StageFailed)'
 
     jobs = [j for j in expand_jobs(load_campaign(ROOT / "campaigns" / "quick.toml"))
             if j.camera == str(camera)]
-    for other in ("paper.toml", "response-corners.toml"):
+    for other in ("paper.toml", "response-corners.toml", "corners-constructed.toml"):
         if not jobs:
             # a model file's camera by its file name (its key is its path)
             jobs = [j for j in expand_jobs(load_campaign(ROOT / "campaigns" / other))
                     if str(camera) in (j.camera, Path(j.camera).name)]
+    if not jobs:
+        raise StageFailed("camera", f"camera {camera}: in no campaign this bench reads")
     if family is not None:
         jobs = [j for j in jobs if j.family == family]
         if not jobs:

@@ -17,12 +17,26 @@ A mirror-imaged camera (model.mirrored, e.g. behind a fold mirror) shows every
 tag mirrored, which decodes as no tag at all; when no tag of the board decodes,
 the flipped image is tried and the corners are flipped back (info["mirrored"]).
 
-The quad search runs on the image decimated (decimate_for); a large image's is tried
-first TRIAL_DECIMATION_FACTOR times coarser and kept when it missed no tag of the board
-(_search_complete: every tag decoded, or tags big enough that one half their size would
-still be found): on 5120x3840 renders 0.013 s of CPU for pupil_apriltags instead of
-0.030, the refined corners within 1.4e-6 px of the finer search's
-(benchmarks/bench_corners.py --compare-q, cameras 1 and 21). A blurred image's tag edges
+The quad search runs on the image decimated (decimate_for); with refine=True (camval
+fits the corners on the full image) it is tried first TRIAL_DECIMATION_FACTOR times
+coarser and kept when it missed no tag of the board (_search_complete: every tag decoded,
+or tags big enough that one half their size would still be found): on 5120x3840 renders
+0.013 s of CPU for pupil_apriltags instead of 0.030, the refined corners within 1.4e-6 px
+of the finer search's (benchmarks/bench_corners.py --compare-q, cameras 1 and 21). A
+1024x1024 image's trial is decimated by 2: on the realistic renders of cameras 15 and 8
+every tag decoded there (tag bits 3.7-12 px), pupil_apriltags' CPU 9 ms instead of 39-50
+on the near pose 0 (big tags: the undecimated quad search follows their long, noisy
+borders) and 5-8 instead of 14-25 on the others, its corners as far from the truth (per
+pose max 0.17-1.79 px decimated, 0.17-1.77 undecimated); where the trial misses a tag
+(hazcam 17's 640x480 images, 3 of 6 poses) the finer search costs ~2 ms more. The refined
+corners start from the trial's and move by noise only: on 18 realistic images each of
+cameras 15, 8, blur-wide-1024, eye-1024x768 and fish-1280 (6 poses, 3 noise seeds) their
+raw error RMS changed by at most 3e-5 px, no max grew (0.0140 -> 0.0138 and 0.0347 ->
+0.0343 px, the rest equal); on the bench's own seeds one corner of eye-1024x768 pose 2
+went 0.005 -> 0.025 px, its camera's mean squared error changing by less than its
+standard error (benchmarks/bench_corners.py --compare-q; on the sharp area renders of
+those cameras and 17 the RMS and max errors are unchanged to 1e-5 px, no corner moved
+more than 0.0034 px). A blurred image's tag edges
 start from the coarse search's corners too, their search grown with the decimation
 (_refine_blurred's start error): a second, finer quad search cost a noisy realistic
 5120x3840 image 0.035-0.089 s of pupil_apriltags' CPU; without it cameras 1, 2 and 21
@@ -132,7 +146,7 @@ The decimation is the C detector's field, read by each search (apriltag_detector
 setting it per call lets one detector, one tag family and one quick-decode table serve
 every decimation; a Detector built per decimation cost 0.024 s of CPU each, once per
 process (0.048 for the first, with pupil_apriltags' import), on the first image of each
-new decimation (a 5120x3840 image has a trial and a finer one: 1024x1024 images 1).
+new decimation (an image has a trial and a finer one, detect_apriltags).
 
 The library's detect copies the uint8 image into a buffer of its own (image_u8_create:
 a zeroed allocation, rows padded to 96 bytes), 0.011 s of CPU per 5120x3840 image of the
@@ -193,10 +207,11 @@ the refined corners within 8e-6 px of the undecimated search's.'''
 # every tag decoded at >= 1.95 decimated px a bit, some lost at 1.1-1.47 (renders of the
 # 1024x1024 camera 5 and the 640x480 hazcam 17, 6 poses each, decimations 1-6)
 MIN_DECIMATED_BIT_PX = 2.0
-# a large image's quad search is tried first this many times coarser than decimate_for's
+# the quad search is tried first this many times coarser than decimate_for's
 # (pupil_apriltags decodes and refines the edges at full resolution either way): on
 # 5120x3840 renders (cameras 1 and 21, tag bits 17-40 px) decimation 6 found every tag,
-# 27 ms of CPU against 44 at 3, the refined corners within 1.4e-6 px of decimation 3's
+# 27 ms of CPU against 44 at 3, the refined corners within 1.4e-6 px of decimation 3's;
+# on 1024x1024 ones (cameras 15 and 8, realistic) 2 found every tag, 5-9 ms against 14-50
 TRIAL_DECIMATION_FACTOR = 2
 
 
@@ -335,8 +350,9 @@ ARGUMENTS
 - max_hamming: largest number of corrected bit errors accepted
 - min_found: fewest corners for status "ok" (default 4: one tag)
 - quad_decimate, quad_sigma, refine_edges, decode_sharpening: pupil_apriltags' options;
-  quad_decimate None: TRIAL_DECIMATION_FACTOR x decimate_for(image shape) where that is
-  above 1, kept when that search missed no tag (_search_complete), else decimate_for's
+  quad_decimate None: with refine=True and no psf_sigma_px, TRIAL_DECIMATION_FACTOR x
+  decimate_for(image shape), kept when that search missed no tag (_search_complete), else
+  decimate_for's; otherwise decimate_for's
   (the quads only: decoding and the corners use the full image; info["quad_decimate"]
   has the one used)
 - refine: True: fit the corner model (targets.corners); "subpix": polish each corner with
@@ -366,14 +382,14 @@ ARGUMENTS
     img, img8, (lo, hi) = work
     ids = target.point_ids()
     index = {int(pid): k for k, pid in enumerate(ids)}
-    # a large image's quads are searched coarser first, kept when that search missed no
+    # the quads are searched coarser first, kept when that search missed no
     # tag (_search_complete), else searched again at decimate_for's decimation; a blurred
     # image's tag edges start from the kept search's corners (tag_edges' search grown
     # with their error, which grows with the decimation: _refine_blurred)
     fine = decimate_for(img8.shape)
     trials = [quad_decimate] if quad_decimate is not None else \
-        [TRIAL_DECIMATION_FACTOR * fine, fine] if fine > 1 and refine is True \
-        and not psf_sigma_px else [fine]
+        [TRIAL_DECIMATION_FACTOR * fine, fine] if refine is True and not psf_sigma_px \
+        else [fine]
     for k, quad_decimate in enumerate(trials):
         last = k == len(trials) - 1
         tags, mirrored = _search(img8, index, quad_decimate, quad_sigma, refine_edges,
