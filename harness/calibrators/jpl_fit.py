@@ -515,5 +515,5 @@ another family is ignored.
               "world_points_known": True, "world_frame": True, "theta_estimated": True,
               "model_type": mtype, "linearity": lin,
               "R0_held": R0 if model_name != "CAHV" else None,
-              "bias": applied_bias(obs, q_used, bias_applied),
+              **applied_bias(obs, q_used, bias_applied),
               **({} if start is None else {"warm_start": m_start is not None})})

@@ -906,7 +906,7 @@ entry ("from_start": True): its fit of the exact observations is the same coarse
               "world_frame": bool(known_poses), "regularization": bool(regularization),
               "bias_corrected": bias_applied, "passes": passes, "seed_pinhole": seed,
               "intrinsics": cm.intrinsics()[1], "cameramodel": cm,
-              "bias": applied_bias(obs, q_used, bias_applied), "bias_settled": b_settled,
+              **applied_bias(obs, q_used, bias_applied), "bias_settled": b_settled,
               **({"crawl": crawl} if crawl is not None else {}), **start_info})
 
 

@@ -284,5 +284,5 @@ says why); another model is ignored.
         max_rms=max_rms, Rt_cam_board=Rts, iterations=len(passes),
         info={"K": K, "dist": D, "max_abs_coefficient": float(np.max(np.abs(D))),
               "passes": passes, "bias_corrected": bias_applied, "world_frame": False,
-              "known_poses": False, "bias": applied_bias(obs, q_used, bias_applied),
+              "known_poses": False, **applied_bias(obs, q_used, bias_applied),
               **({} if start is None else {"warm_start": K0 is not None})})

@@ -56,20 +56,44 @@ was fitted with; the same observations then give the same fit): the two
 models differ by the detection error (~1e-3 px), which moves a dot's bias by ~1e-5 px.
 The calibrators hold that bias in a warm fit (no bias pass: iterate_bias's b_start says why), so
 the fit is one solve instead of a solve without bias and the passes that bring it
-back. None when start is not an ok fit of observations of this shape.
+back. None when start is not an ok fit of observations of this shape, or when its bias
+was computed for other corner inputs than obs's (info["bias_for"], bias_inputs: the
+image's blurred corners carry their board lines' or tag edges' bias, the sharp reference
+corners of the exact observations the window's; holding the one on the other put the
+exact fit 0.01 px off the truth, a constructed 768x1024 CAHVOR chessboard under the
+realistic profile): the warm fit then runs its own bias passes from the start's model.
 '''
     if getattr(start, "status", None) != "ok":
         return None
     b = (start.info or {}).get("bias")
-    if b is None or np.shape(b) != obs.q.shape:
+    if b is None or np.shape(b) != obs.q.shape or \
+            (start.info or {}).get("bias_for") != bias_inputs(obs):
         return None
     return np.asarray(b, dtype=np.float64)
 
 
+def bias_inputs(obs):
+    r'''A digest of what a point's bias depends on besides the model and the poses: the
+observations' corner models, corner blurs and tag edges' span records (Observations.
+corner_model, corner_blur_px, corner_spans: bias.bias_step's inputs); the same string for
+every dot target'''
+    import hashlib
+    h = hashlib.sha256()
+    for a in (obs.corner_model, obs.corner_blur_px, obs.corner_spans):
+        if a is None:
+            h.update(b"-")
+        else:
+            a = np.asarray(a)
+            h.update(repr((a.dtype.str, a.shape)).encode())
+            h.update(np.ascontiguousarray(a.astype(str) if a.dtype == object else a).tobytes())
+    return h.hexdigest()
+
+
 def applied_bias(obs, q_used, bias_applied):
-    r'''obs.q - q_used: the bias iterate_bias applied last (what start_bias reads from a
-fit's info["bias"]), or None'''
-    return obs.q - q_used if bias_applied else None
+    r'''{"bias": obs.q - q_used, the bias iterate_bias applied last (what start_bias reads
+from a fit's info["bias"]), or None; "bias_for": bias_inputs(obs), what it was computed
+for}: a calibrator's result info takes both'''
+    return {"bias": obs.q - q_used if bias_applied else None, "bias_for": bias_inputs(obs)}
 
 
 def iterate_bias(obs, target, current, refit, passes, *, bias_passes, bias_tolerance,
