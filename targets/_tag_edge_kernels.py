@@ -182,7 +182,12 @@ def fit_edges(off, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max
         _normal(M, sw, sf, sff, sv, sfv, cj, a, b, bfree, JtJ, Jtr)
         lam = 1e-3
         ok = False
-        for _ in range(max_iterations):
+        # no pixel on the start curve's blurred profile (F' 0 at every pixel: the band past
+        # the blur's reach on one side, e.g. a free-contrast edge started from a curve that
+        # ran off into its light side; a free b is then 0 / 0): nothing places the curve,
+        # the edge is not fitted (done False, mis NaN: targets.tag_edges records why)
+        fitted = np.isfinite(a) and np.isfinite(b) and M[_GG] > 0.0
+        for _ in range(max_iterations if fitted else 0):
             for k in range(6):
                 for l in range(6):
                     A[k, l] = JtJ[k, l] + 1e-12 * eye[k, l]
@@ -211,7 +216,7 @@ def fit_edges(off, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max
         p_out[j, 1] = b
         p_out[j, 2:] = dj
         done[j] = ok
-        mis[j] = np.sqrt(S / sw) / abs(b)
+        mis[j] = np.sqrt(S / sw) / abs(b) if fitted else np.nan
     return p_out, done, mis
 
 

@@ -377,6 +377,11 @@ _TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
 # (_sees_dark_near)
 NEAR_CORNER_LIGHT_ONLY = ("edge seen from its light side only near the corner (the light data "
                           "bits beside it too close for the blur)")
+# an edge whose fit had no pixel on its blurred profile's slope at its start curve (its band
+# all beyond the blur's reach on one side: a free-contrast fit of an edge seen from one side
+# only that ran off, restarted there; targets._tag_edge_kernels.fit_edges: not fitted)
+EDGE_OFF_PROFILE = ("edge fit started off its blurred profile (no pixel on the edge's slope: "
+                    "the band all on one side of it)")
 # targets._tag_edge_kernels.tag_edge_pixels's status of an edge: why it has no pixels
 _EDGE_STATUS = {1: "edge too short for its blur",
                 2: "edge seen from its light side only (tag bits too small for the blur)",
@@ -603,7 +608,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         failed = ~ok | ~(np.abs(pf[:, 1]) > min_contrast * rng) | ~(mis <= max_misfit)
         for j in np.flatnonzero(failed):
             why_edge[gi[j], gk[j]] = (
-                f"edge fit not converged in {MAX_ITERATIONS} iterations" if not ok[j]
+                EDGE_OFF_PROFILE if not ok[j] and np.isnan(mis[j])
+                else f"edge fit not converged in {MAX_ITERATIONS} iterations" if not ok[j]
                 else "no contrast" if not abs(pf[j, 1]) > min_contrast * rng
                 else f"misfit: {mis[j]:.3g} of the contrast")
         keys = zip(gi.tolist(), gk.tolist(), gend.tolist(), strict=True)
@@ -644,7 +650,9 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             (i, k): c for (i, k, end), c in curves.items()
             if not (end != 2 and (i, k, 2) in curves)
             # a weak edge's failed fit alone places nothing: the chord does
-            and not ((i, k) in weak and why_edge[i, k])}
+            and not ((i, k) in weak and why_edge[i, k])
+            # nor does a fit that never started (its curve is its start's)
+            and why_edge[i, k] != EDGE_OFF_PROFILE}
         shapes = {}
         if pick:
             tau9 = np.linspace(-1.0, 1.0, 9)

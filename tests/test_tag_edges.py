@@ -596,3 +596,37 @@ bias step under the true model (the pose's RMS 0.0062 px). With the span refused
     assert e.size >= 0.9 * target.Npoints, e.size
     assert np.sqrt(np.mean(e ** 2)) < 0.0025 and e.max() < 0.025, (np.sqrt(np.mean(e ** 2)),
                                                                     e.max())
+
+
+def test_an_edge_started_off_its_profile_is_not_fitted_and_the_rest_refine(monkeypatch):
+    r'''The second blur kind's first-pass fits start from the first kind's curves
+(tag_edges._choose_kind). On the constructed tiny-320x240 camera (realistic, bench_corners'
+area renders, response seeds 1002 and 1005) no edge reached its dark plateau, so every
+contrast was fitted free, and an edge seen from its light side only ran 1.78 px into its
+tag, its contrast -1105 (the image's range ~0.9; misfit 6e-6 of that contrast, converged):
+started there, every pixel of its band lay past the second kind's blur reach (F' 0), its
+free contrast was 0 / 0 and targets._tag_edge_kernels.fit_edges raised LinAlgError. Such
+a start is made here (an edge's start curve 20 px into its 48 px tag, its band past the blur):
+that edge is not fitted (done False, misfit NaN: tag_edges.EDGE_OFF_PROFILE) and the
+image's corners still refine (noise-free: to the render's sampling, as
+test_blurred_tag_corners_from_the_whole_edges).'''
+    import targets.tag_edges as te
+    orig, seen = te._fit_edges, []
+
+    def off_start(E, table, bfix, start=None, skip=None, converged_px=te.CONVERGED_PX):
+        if start is not None and len(seen) < 1:
+            start = np.array(start, dtype=np.float64, copy=True)
+            start[0] = [20.0, 0.0, 0.0, 0.0]
+        out = orig(E, table, bfix, start, skip, converged_px)
+        if start is not None and len(seen) < 1 and not (skip is not None and skip[0]):
+            seen.append((out[1][0], out[2][0]))
+        return out
+    monkeypatch.setattr(te, "_fit_edges", off_start)
+    img, Q, grid = _tag_grid(6.0)
+    im = ResponseChain.from_config(BLUR).apply(img).image.astype(np.float64)
+    bits = np.array([tag36h11_bits(t) for t in range(len(Q))])
+    fit = refine_tag_edges(im, Q + 0.3, 0.7, "gaussian", bits=bits, grid=grid,
+                           value_range=1.0, choose_kind=True)
+    assert seen and not seen[0][0] and np.isnan(seen[0][1]), seen
+    rms, n = _rms(fit.q, Q)
+    assert n == Q.size // 2 and rms < 0.002, (rms, n, fit.dropped())
