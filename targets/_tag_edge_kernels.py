@@ -820,9 +820,37 @@ bits).'''
     return out_off, ov[:q], ot[:q], otau[:q], os_[:q]
 
 
+@njit(cache=True, error_model="numpy")
+def dark_side_counts(off, t, s, L, d):
+    r'''(F,4) int64: per fit f (its pixels [off[f], off[f+1]) of t, s in its chord's frame,
+length L[f]) the pixels on the dark side of its curve d[f] (d0..d3), or on it (s - d(tau) >=
+0, tau = 2 t / L - 1: targets.tag_edges._dark_side), counted where t < 0, t > L, t < L / 2
+and t > L / 2 (targets.tag_edges._sees_dark, _sees_dark_near): one pass over the fits'
+pixels instead of numpy's per fit (each comparison's operands rounded as _dark_side's)'''
+    F = len(L)
+    out = np.zeros((F, 4), np.int64)
+    for f in range(F):
+        Lf = L[f]
+        half = 0.5 * Lf
+        d0, d1, d2, d3 = d[f, 0], d[f, 1], d[f, 2], d[f, 3]
+        for p in range(off[f], off[f + 1]):
+            tp = t[p]
+            tau = 2.0 * tp / Lf - 1.0
+            if s[p] - (d0 + tau * (d1 + tau * (d2 + tau * d3))) >= 0.0:
+                if tp < 0.0:
+                    out[f, 0] += 1
+                if tp > Lf:
+                    out[f, 1] += 1
+                if tp < half:
+                    out[f, 2] += 1
+                if tp > half:
+                    out[f, 3] += 1
+    return out
+
+
 def compiled_entry_points():
     r'''The compiled kernels of this module that Python calls (numba dispatchers), for a
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
     return (tag_edge_pixels, fit_pixels, fit_edges, meet_curves, blur_step, plateau_counts,
-            edge_moments, noise_moments, pixel_weights, sampled_table)
+            edge_moments, noise_moments, pixel_weights, sampled_table, dark_side_counts)
