@@ -9,8 +9,8 @@ SYNOPSIS
                                                          min_pixels, W, H_img)
     # every edge's band of pixels (targets.tag_edges._EDGE_STATUS says why an edge has none)
 
-    off, v, t, tau, s = fit_pixels(img, ix, iy, t, s, off, fit_off, piece_edge, piece_mode,
-                                   piece_reach, P0, e, n, L)
+    off, v, tau, s, dark = fit_pixels(img, ix, iy, t, s, off, fit_off, piece_edge, piece_mode,
+                                      piece_reach, P0, e, n, L, d)
     # each fit's pixels (pieces of those edges: its own, its board line's neighbours') in
     # the frame of its chord, as fit_edges takes them
 
@@ -769,14 +769,17 @@ PIECE_OWN, PIECE_ALL, PIECE_BEYOND_END, PIECE_BEFORE_START = 0, 1, 2, 3
 
 @njit(cache=True, error_model="numpy")
 def fit_pixels(img, ix, iy, t, s, off, fit_off, piece_edge, piece_mode, piece_reach, P0, e, n,
-               L):
+               L, d):
     r'''The pixels of every fit of targets.tag_edges' last pass, one fit after another, as
 fit_edges takes them: fit f is the pieces [fit_off[f], fit_off[f+1]) of piece_edge (edges of
 tag_edge_pixels: edge c's pixels are [off[c], off[c+1]) of ix, iy, t, s), each taken as
 piece_mode says (PIECE_OWN.., piece_reach its px), in the frame of the fit's chord (from
-P0[f] (F,2), direction e[f], normal n[f], length L[f]). Returns (out_off (F+1,), v, t, tau,
-s): fit f's pixels are [out_off[f], out_off[f+1]), v their values in img (H,W) as float64,
-tau = 2 t / L[f] - 1.
+P0[f] (F,2), direction e[f], normal n[f], length L[f]). Returns (out_off (F+1,), v, tau, s,
+dark): fit f's pixels are [out_off[f], out_off[f+1]), v their values in img (H,W) as float64,
+tau = 2 t / L[f] - 1; dark (F,4) int64: each fit's pixels on the dark side of its curve d[f]
+(d0..d3), or on it (s - d(tau) >= 0: targets.tag_edges._dark_side, the same rounding),
+counted where t < 0, t > L, t < L / 2 and t > L / 2 (tag_edges._sees_dark, _sees_dark_near;
+counted here, as they are gathered: the fits' t is not kept).
 
 A pixel's t and s in the fit's frame are r.e and r.n, r its centre less P0, each rounded as
 fma(r_x, e_x, r_y e_y): as numpy's r @ e rounds them on this machine (OpenBLAS's dgemv
@@ -787,15 +790,17 @@ bits).'''
     for c in range(len(piece_edge)):
         cap += off[piece_edge[c] + 1] - off[piece_edge[c]]
     ov = np.empty(cap)
-    ot = np.empty(cap)
     otau = np.empty(cap)
     os_ = np.empty(cap)
     out_off = np.zeros(F + 1, np.int64)
+    dark = np.zeros((F, 4), np.int64)
     q = 0
     for f in range(F):
         out_off[f] = q
         px, py = P0[f, 0], P0[f, 1]
         ex, ey, nx, ny, Lf = e[f, 0], e[f, 1], n[f, 0], n[f, 1], L[f]
+        half = 0.5 * Lf
+        d0, d1, d2, d3 = d[f, 0], d[f, 1], d[f, 2], d[f, 3]
         for c in range(fit_off[f], fit_off[f + 1]):
             mode = piece_mode[c]
             hi = Lf + piece_reach[c]
@@ -812,40 +817,21 @@ bits).'''
                         continue
                     sp = _fma(rx, nx, ry * ny)
                 ov[q] = np.float64(img[iy[p], ix[p]])
-                ot[q] = tp
-                otau[q] = 2.0 * tp / Lf - 1.0
+                tau = 2.0 * tp / Lf - 1.0
+                otau[q] = tau
                 os_[q] = sp
                 q += 1
+                if sp - (d0 + tau * (d1 + tau * (d2 + tau * d3))) >= 0.0:
+                    if tp < 0.0:
+                        dark[f, 0] += 1
+                    if tp > Lf:
+                        dark[f, 1] += 1
+                    if tp < half:
+                        dark[f, 2] += 1
+                    if tp > half:
+                        dark[f, 3] += 1
     out_off[F] = q
-    return out_off, ov[:q], ot[:q], otau[:q], os_[:q]
-
-
-@njit(cache=True, error_model="numpy")
-def dark_side_counts(off, t, s, L, d):
-    r'''(F,4) int64: per fit f (its pixels [off[f], off[f+1]) of t, s in its chord's frame,
-length L[f]) the pixels on the dark side of its curve d[f] (d0..d3), or on it (s - d(tau) >=
-0, tau = 2 t / L - 1: targets.tag_edges._dark_side), counted where t < 0, t > L, t < L / 2
-and t > L / 2 (targets.tag_edges._sees_dark, _sees_dark_near): one pass over the fits'
-pixels instead of numpy's per fit (each comparison's operands rounded as _dark_side's)'''
-    F = len(L)
-    out = np.zeros((F, 4), np.int64)
-    for f in range(F):
-        Lf = L[f]
-        half = 0.5 * Lf
-        d0, d1, d2, d3 = d[f, 0], d[f, 1], d[f, 2], d[f, 3]
-        for p in range(off[f], off[f + 1]):
-            tp = t[p]
-            tau = 2.0 * tp / Lf - 1.0
-            if s[p] - (d0 + tau * (d1 + tau * (d2 + tau * d3))) >= 0.0:
-                if tp < 0.0:
-                    out[f, 0] += 1
-                if tp > Lf:
-                    out[f, 1] += 1
-                if tp < half:
-                    out[f, 2] += 1
-                if tp > half:
-                    out[f, 3] += 1
-    return out
+    return out_off, ov[:q], otau[:q], os_[:q], dark
 
 
 def compiled_entry_points():
@@ -853,4 +839,4 @@ def compiled_entry_points():
 warm-up's check of numba's cache (harness.warmup; the AprilTag detector calls them on
 blurred images, targets.tag_edges)'''
     return (tag_edge_pixels, fit_pixels, fit_edges, meet_curves, blur_step, plateau_counts,
-            edge_moments, noise_moments, pixel_weights, sampled_table, dark_side_counts)
+            edge_moments, noise_moments, pixel_weights, sampled_table)

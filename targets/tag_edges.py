@@ -236,7 +236,6 @@ from ._tag_edge_kernels import (
     SPAN_MOMENTS,
     SPAN_W,
     blur_step,
-    dark_side_counts,
     edge_moments,
     fit_edges,
     fit_pixels,
@@ -1231,7 +1230,7 @@ def _sees_dark(n):
 frame, length L) see the dark side of its curve d (d0..d3) beyond both its ends (t < 0 and
 t > L: the edge's place is interpolated between them, not extrapolated), MIN_EDGE_PIXELS //
 2 of them in all: the count targets._tag_edge_kernels.tag_edge_pixels asks of an edge alone;
-n (4,): the fit's dark-side pixel counts (_dark_counts)
+n (4,): the fit's dark-side pixel counts (targets._tag_edge_kernels.fit_pixels' dark)
 
 Why. An edge seen from its light side only (tag bits under ~3.5 px at sigma 0.7: every
 dark-side pixel sees the light data row inside the 1-bit border) has its own pixels' light
@@ -1248,7 +1247,7 @@ def _sees_dark_near(n, end):
     r'''True where the pixels (t, s) of an edge's fit (in its chord's frame, length L) see the
 dark side of its curve d (d0..d3) nearer its end `end` (0: t = 0, 1: t = L) than the chord's
 middle, or beyond that end (a board line's neighbour); n (4,): the fit's dark-side pixel
-counts (_dark_counts)
+counts (targets._tag_edge_kernels.fit_pixels' dark)
 
 Why. A corner is where its two edges' curves meet; an edge's curve there is placed by the
 pixels that see both sides of it. Its light side alone places it weakly (the blur's tail),
@@ -1267,14 +1266,6 @@ def _dark_side(t, s, L, d):
     r'''(n,) bool: the pixels (t, s) in an edge's chord frame (length L) on the dark side of its
 curve d (d0..d3), or on it'''
     return s - _curve_s(d, 2.0 * t / L - 1.0) >= 0.0
-
-
-def _dark_counts(fo, t, s, geo):
-    r'''(F,4): each fit's pixels (fit j's [fo[j], fo[j+1]) of t, s) on the dark side of its
-start curve (_dark_side), counted where t < 0, t > L, t < L / 2 and t > L / 2 (compiled:
-targets._tag_edge_kernels.dark_side_counts; _sees_dark, _sees_dark_near)'''
-    return dark_side_counts(fo, t, s, np.array([g[2] for g in geo], dtype=np.float64),
-                            np.array([g[6] for g in geo], dtype=np.float64).reshape(-1, 4))
 
 
 def _table(sigma, kind):
@@ -1549,11 +1540,11 @@ pass before the last, whose corners only place the next pass's pixels)'''
     out = fit_pixels(img, ix, iy, t, s, off, fit_off, 4 * edge[:, 0] + edge[:, 1],
                      np.array(mode, dtype=np.int64), np.array(reach, dtype=np.float64),
                      np.ascontiguousarray(q[gi, gk]), np.array([g[3] for g in geo]),
-                     np.array([g[4] for g in geo]), np.array([g[2] for g in geo]))
-    fo, fv, ft, ftau, fs = out
+                     np.array([g[4] for g in geo]), np.array([g[2] for g in geo]),
+                     np.array([g[6] for g in geo], dtype=np.float64).reshape(-1, 4))
+    # dark: each fit's pixels on the dark side of its start curve (_dark_side), counted
+    fo, fv, ftau, fs, dark = out
     keep = np.ones(len(geo), bool)
-    judged = why_corner is not None or any(g[8] for g in geo)
-    dark = _dark_counts(fo, ft, fs, geo) if judged else None
     for j, (i, k, _, _, _, _, _, end, weak) in enumerate(geo):
         if weak:
             if not _sees_dark(dark[j]):

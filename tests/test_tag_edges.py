@@ -630,3 +630,39 @@ test_blurred_tag_corners_from_the_whole_edges).'''
     assert seen and not seen[0][0] and np.isnan(seen[0][1]), seen
     rms, n = _rms(fit.q, Q)
     assert n == Q.size // 2 and rms < 0.002, (rms, n, fit.dropped())
+
+
+def test_the_compiled_dark_side_counts_are_the_numpy_tests():
+    r'''tag_edges._sees_dark and _sees_dark_near judge a fit by its pixels on the dark side of
+its start curve (_dark_side), counted per fit as targets._tag_edge_kernels.fit_pixels
+gathers them (its `dark`): the counts are numpy's on the same pixels, pixels placed exactly
+on a curve (s = d(tau): "or on it") and at t = 0, L / 2, L included (each fit's pixels
+taken as they are, PIECE_OWN)'''
+    from targets._tag_edge_kernels import PIECE_OWN, fit_pixels
+    from targets.tag_edges import _curve_s, _dark_side
+    rng = np.random.default_rng(5)
+    n = rng.integers(0, 300, 40)
+    off = np.concatenate(([0], np.cumsum(n))).astype(np.int64)
+    L = rng.uniform(8.0, 120.0, len(n))
+    d = rng.normal(0.0, [1.0, 0.5, 0.3, 0.1], (len(n), 4))
+    fit = np.repeat(np.arange(len(n)), n)
+    t = rng.uniform(-0.5, 1.5, off[-1]) * L[fit]
+    t[::7] = (np.arange(off[-1])[::7] % 3) * 0.5 * L[fit][::7]
+    s = rng.normal(0.0, 2.0, off[-1])
+    on = np.arange(off[-1]) % 5 == 0
+    s[on] = [_curve_s(d[f], 2.0 * tp / L[f] - 1.0) for f, tp in zip(fit[on], t[on], strict=True)]
+    ix = np.zeros(off[-1], np.int64)
+    one = np.ones((len(n), 2))
+    fo, _, tau, s_out, got = fit_pixels(np.zeros((1, 1)), ix, ix, t, s, off,
+                                        np.arange(len(n) + 1, dtype=np.int64),
+                                        np.arange(len(n), dtype=np.int64),
+                                        np.full(len(n), PIECE_OWN, np.int64), np.zeros(len(n)),
+                                        one, one, one, L, d)
+    assert np.array_equal(fo, off) and np.array_equal(s_out, s)
+    for f in range(len(n)):
+        tj, sj = t[off[f]:off[f + 1]], s[off[f]:off[f + 1]]
+        dark = _dark_side(tj, sj, L[f], d[f])
+        want = [np.count_nonzero(dark & m) for m in
+                (tj < 0.0, tj > L[f], tj < 0.5 * L[f], tj > 0.5 * L[f])]
+        assert list(got[f]) == want, (f, list(got[f]), want)
+    assert got[:, 2].sum() > 0 and got.sum() < 2 * off[-1]
