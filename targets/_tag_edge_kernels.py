@@ -9,8 +9,8 @@ SYNOPSIS
                                                          min_pixels, W, H_img)
     # every edge's band of pixels (targets.tag_edges._EDGE_STATUS says why an edge has none)
 
-    off, v, t, tau, s = fit_pixels(img, ix, iy, t, s, off, fit_off, piece_edge, piece_mode,
-                                   piece_reach, P0, e, n, L)
+    off, v, tau, s, dark = fit_pixels(img, ix, iy, t, s, off, fit_off, piece_edge, piece_mode,
+                                      piece_reach, P0, e, n, L, d)
     # each fit's pixels (pieces of those edges: its own, its board line's neighbours') in
     # the frame of its chord, as fit_edges takes them
 
@@ -182,7 +182,12 @@ def fit_edges(off, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max
         _normal(M, sw, sf, sff, sv, sfv, cj, a, b, bfree, JtJ, Jtr)
         lam = 1e-3
         ok = False
-        for _ in range(max_iterations):
+        # no pixel on the start curve's blurred profile (F' 0 at every pixel: the band past
+        # the blur's reach on one side, e.g. a free-contrast edge started from a curve that
+        # ran off into its light side; a free b is then 0 / 0): nothing places the curve,
+        # the edge is not fitted (done False, mis NaN: targets.tag_edges records why)
+        fitted = np.isfinite(a) and np.isfinite(b) and M[_GG] > 0.0
+        for _ in range(max_iterations if fitted else 0):
             for k in range(6):
                 for l in range(6):
                     A[k, l] = JtJ[k, l] + 1e-12 * eye[k, l]
@@ -211,7 +216,7 @@ def fit_edges(off, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max
         p_out[j, 1] = b
         p_out[j, 2:] = dj
         done[j] = ok
-        mis[j] = np.sqrt(S / sw) / abs(b)
+        mis[j] = np.sqrt(S / sw) / abs(b) if fitted else np.nan
     return p_out, done, mis
 
 
@@ -764,14 +769,17 @@ PIECE_OWN, PIECE_ALL, PIECE_BEYOND_END, PIECE_BEFORE_START = 0, 1, 2, 3
 
 @njit(cache=True, error_model="numpy")
 def fit_pixels(img, ix, iy, t, s, off, fit_off, piece_edge, piece_mode, piece_reach, P0, e, n,
-               L):
+               L, d):
     r'''The pixels of every fit of targets.tag_edges' last pass, one fit after another, as
 fit_edges takes them: fit f is the pieces [fit_off[f], fit_off[f+1]) of piece_edge (edges of
 tag_edge_pixels: edge c's pixels are [off[c], off[c+1]) of ix, iy, t, s), each taken as
 piece_mode says (PIECE_OWN.., piece_reach its px), in the frame of the fit's chord (from
-P0[f] (F,2), direction e[f], normal n[f], length L[f]). Returns (out_off (F+1,), v, t, tau,
-s): fit f's pixels are [out_off[f], out_off[f+1]), v their values in img (H,W) as float64,
-tau = 2 t / L[f] - 1.
+P0[f] (F,2), direction e[f], normal n[f], length L[f]). Returns (out_off (F+1,), v, tau, s,
+dark): fit f's pixels are [out_off[f], out_off[f+1]), v their values in img (H,W) as float64,
+tau = 2 t / L[f] - 1; dark (F,4) int64: each fit's pixels on the dark side of its curve d[f]
+(d0..d3), or on it (s - d(tau) >= 0: targets.tag_edges._dark_side, the same rounding),
+counted where t < 0, t > L, t < L / 2 and t > L / 2 (tag_edges._sees_dark, _sees_dark_near;
+counted here, as they are gathered: the fits' t is not kept).
 
 A pixel's t and s in the fit's frame are r.e and r.n, r its centre less P0, each rounded as
 fma(r_x, e_x, r_y e_y): as numpy's r @ e rounds them on this machine (OpenBLAS's dgemv
@@ -782,15 +790,17 @@ bits).'''
     for c in range(len(piece_edge)):
         cap += off[piece_edge[c] + 1] - off[piece_edge[c]]
     ov = np.empty(cap)
-    ot = np.empty(cap)
     otau = np.empty(cap)
     os_ = np.empty(cap)
     out_off = np.zeros(F + 1, np.int64)
+    dark = np.zeros((F, 4), np.int64)
     q = 0
     for f in range(F):
         out_off[f] = q
         px, py = P0[f, 0], P0[f, 1]
         ex, ey, nx, ny, Lf = e[f, 0], e[f, 1], n[f, 0], n[f, 1], L[f]
+        half = 0.5 * Lf
+        d0, d1, d2, d3 = d[f, 0], d[f, 1], d[f, 2], d[f, 3]
         for c in range(fit_off[f], fit_off[f + 1]):
             mode = piece_mode[c]
             hi = Lf + piece_reach[c]
@@ -807,12 +817,21 @@ bits).'''
                         continue
                     sp = _fma(rx, nx, ry * ny)
                 ov[q] = np.float64(img[iy[p], ix[p]])
-                ot[q] = tp
-                otau[q] = 2.0 * tp / Lf - 1.0
+                tau = 2.0 * tp / Lf - 1.0
+                otau[q] = tau
                 os_[q] = sp
                 q += 1
+                if sp - (d0 + tau * (d1 + tau * (d2 + tau * d3))) >= 0.0:
+                    if tp < 0.0:
+                        dark[f, 0] += 1
+                    if tp > Lf:
+                        dark[f, 1] += 1
+                    if tp < half:
+                        dark[f, 2] += 1
+                    if tp > half:
+                        dark[f, 3] += 1
     out_off[F] = q
-    return out_off, ov[:q], ot[:q], otau[:q], os_[:q]
+    return out_off, ov[:q], otau[:q], os_[:q], dark
 
 
 def compiled_entry_points():

@@ -377,6 +377,11 @@ _TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
 # (_sees_dark_near)
 NEAR_CORNER_LIGHT_ONLY = ("edge seen from its light side only near the corner (the light data "
                           "bits beside it too close for the blur)")
+# an edge whose fit had no pixel on its blurred profile's slope at its start curve (its band
+# all beyond the blur's reach on one side: a free-contrast fit of an edge seen from one side
+# only that ran off, restarted there; targets._tag_edge_kernels.fit_edges: not fitted)
+EDGE_OFF_PROFILE = ("edge fit started off its blurred profile (no pixel on the edge's slope: "
+                    "the band all on one side of it)")
 # targets._tag_edge_kernels.tag_edge_pixels's status of an edge: why it has no pixels
 _EDGE_STATUS = {1: "edge too short for its blur",
                 2: "edge seen from its light side only (tag bits too small for the blur)",
@@ -603,7 +608,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         failed = ~ok | ~(np.abs(pf[:, 1]) > min_contrast * rng) | ~(mis <= max_misfit)
         for j in np.flatnonzero(failed):
             why_edge[gi[j], gk[j]] = (
-                f"edge fit not converged in {MAX_ITERATIONS} iterations" if not ok[j]
+                EDGE_OFF_PROFILE if not ok[j] and np.isnan(mis[j])
+                else f"edge fit not converged in {MAX_ITERATIONS} iterations" if not ok[j]
                 else "no contrast" if not abs(pf[j, 1]) > min_contrast * rng
                 else f"misfit: {mis[j]:.3g} of the contrast")
         keys = zip(gi.tolist(), gk.tolist(), gend.tolist(), strict=True)
@@ -644,7 +650,9 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             (i, k): c for (i, k, end), c in curves.items()
             if not (end != 2 and (i, k, 2) in curves)
             # a weak edge's failed fit alone places nothing: the chord does
-            and not ((i, k) in weak and why_edge[i, k])}
+            and not ((i, k) in weak and why_edge[i, k])
+            # nor does a fit that never started (its curve is its start's)
+            and why_edge[i, k] != EDGE_OFF_PROFILE}
         shapes = {}
         if pick:
             tau9 = np.linspace(-1.0, 1.0, 9)
@@ -758,6 +766,16 @@ def _solve(A, b):
 
 def _powers(tau, n):
     return np.asarray(tau, dtype=np.float64)[..., None] ** np.arange(n)
+
+
+def _horner(c, tau):
+    r'''(m,k): the polynomials c (m,l) (coefficients of tau^0..tau^(l-1)) at tau (m,k), by
+Horner's rule (numpy's power per term took ~5 ms of a 1024x1024 image's _span_choice; the
+values differ from the sum of powers by rounding, ~1e-16 relative)'''
+    y = np.broadcast_to(c[:, -1:], tau.shape)
+    for j in range(c.shape[1] - 2, -1, -1):
+        y = y * tau + c[:, j:j + 1]
+    return y
 
 
 def _union(*ranges):
@@ -1008,8 +1026,7 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
             if span == "alone":
                 continue
             lo, hi = exts[x, :, 0:1], exts[x, :, 1:2]
-            y = (ref[:, None, :] * (0.5 * (lo + hi) + 0.5 * (hi - lo) * u[None])[..., None]
-                 ** np.arange(6)).sum(-1)
+            y = _horner(ref, 0.5 * (lo + hi) + 0.5 * (hi - lo) * u[None])
             V = u[:, None] ** np.arange(deg + 1)
             miss = np.abs(y - y @ (V @ np.linalg.pinv(V)).T).max(-1)
             risk[x] = np.where(miss > LINEAR_MISS * spread, np.inf, risk[x])
@@ -1270,11 +1287,12 @@ the corners less the bias step under the truth: pose seed 2, pose 2 0.00087 -> 0
 _REFERENCE_LAMBDA = np.linspace(-1.45, 2.45, 40)
 
 
-def _sees_dark(t, s, L, d):
+def _sees_dark(n):
     r'''True where the pixels (t, s) of a weak edge's fit (its board line's, in its chord's
 frame, length L) see the dark side of its curve d (d0..d3) beyond both its ends (t < 0 and
 t > L: the edge's place is interpolated between them, not extrapolated), MIN_EDGE_PIXELS //
-2 of them in all: the count targets._tag_edge_kernels.tag_edge_pixels asks of an edge alone
+2 of them in all: the count targets._tag_edge_kernels.tag_edge_pixels asks of an edge alone;
+n (4,): the fit's dark-side pixel counts (targets._tag_edge_kernels.fit_pixels' dark)
 
 Why. An edge seen from its light side only (tag bits under ~3.5 px at sigma 0.7: every
 dark-side pixel sees the light data row inside the 1-bit border) has its own pixels' light
@@ -1283,15 +1301,15 @@ across it by the neighbours' dark sides. On MER hazcam 17 as CAHVORE (realistic,
 benchmarks/bench_corners.py): 81 more corners of 864, at 0.0068 px RMS against the others'
 0.0049; with dark pixels beyond one end only (the line extrapolated), 154 more at 0.0095,
 max 0.046 px (the others' 0.022).'''
-    dark = _dark_side(t, s, L, d)
-    lo, hi = np.count_nonzero(dark & (t < 0.0)), np.count_nonzero(dark & (t > L))
+    lo, hi = int(n[0]), int(n[1])
     return min(lo, hi) > 0 and lo + hi >= MIN_EDGE_PIXELS // 2
 
 
-def _sees_dark_near(t, s, L, d, end):
+def _sees_dark_near(n, end):
     r'''True where the pixels (t, s) of an edge's fit (in its chord's frame, length L) see the
 dark side of its curve d (d0..d3) nearer its end `end` (0: t = 0, 1: t = L) than the chord's
-middle, or beyond that end (a board line's neighbour)
+middle, or beyond that end (a board line's neighbour); n (4,): the fit's dark-side pixel
+counts (targets._tag_edge_kernels.fit_pixels' dark)
 
 Why. A corner is where its two edges' curves meet; an edge's curve there is placed by the
 pixels that see both sides of it. Its light side alone places it weakly (the blur's tail),
@@ -1303,8 +1321,7 @@ their light side only, 0.076 px from its projection (0.40 with the bits' depth a
 edge), its edge's dark side 0.09 < tau < 0.75. Such a corner is dropped, as a weak edge's
 corners are where its board line does not reach the dark side beyond its ends
 (_sees_dark).'''
-    near = t < 0.5 * L if end == 0 else t > 0.5 * L
-    return bool(np.any(_dark_side(t, s, L, d) & near))
+    return bool(n[2 + end] > 0)
 
 
 def _dark_side(t, s, L, d):
@@ -1585,18 +1602,19 @@ pass before the last, whose corners only place the next pass's pixels)'''
     out = fit_pixels(img, ix, iy, t, s, off, fit_off, 4 * edge[:, 0] + edge[:, 1],
                      np.array(mode, dtype=np.int64), np.array(reach, dtype=np.float64),
                      np.ascontiguousarray(q[gi, gk]), np.array([g[3] for g in geo]),
-                     np.array([g[4] for g in geo]), np.array([g[2] for g in geo]))
-    fo, fv, ft, ftau, fs = out
+                     np.array([g[4] for g in geo]), np.array([g[2] for g in geo]),
+                     np.array([g[6] for g in geo], dtype=np.float64).reshape(-1, 4))
+    # dark: each fit's pixels on the dark side of its start curve (_dark_side), counted
+    fo, fv, ftau, fs, dark = out
     keep = np.ones(len(geo), bool)
-    for j, (i, k, L, _, _, _, d, end, weak) in enumerate(geo):
-        tj, sj = ft[fo[j]:fo[j + 1]], fs[fo[j]:fo[j + 1]]
+    for j, (i, k, _, _, _, _, _, end, weak) in enumerate(geo):
         if weak:
-            if not _sees_dark(tj, sj, L, d):
+            if not _sees_dark(dark[j]):
                 why_edge[i, k] = _EDGE_STATUS[2]
                 keep[j] = False
             continue
         for e in () if why_corner is None else (0, 1) if end == 2 else (end,):
-            if not _sees_dark_near(tj, sj, L, d, e):
+            if not _sees_dark_near(dark[j], e):
                 why_corner[i, (k + e) % 4] = NEAR_CORNER_LIGHT_ONLY
     if keep.all():
         return geo, (fo, fv, ftau, fs)

@@ -655,3 +655,73 @@ the line (tau evenly spread, no blur; its miss 0.018 px): the quintic alone left
     want = np.linalg.solve(np.array(normals), np.array(miss))
     assert np.linalg.norm(want) > 0.01
     assert np.linalg.norm(got - want) < 6e-5, (got, want)
+
+
+def test_an_edge_started_off_its_profile_is_not_fitted_and_the_rest_refine(monkeypatch):
+    r'''The second blur kind's first-pass fits start from the first kind's curves
+(tag_edges._choose_kind). On the constructed tiny-320x240 camera (realistic, bench_corners'
+area renders, response seeds 1002 and 1005) no edge reached its dark plateau, so every
+contrast was fitted free, and an edge seen from its light side only ran 1.78 px into its
+tag, its contrast -1105 (the image's range ~0.9; misfit 6e-6 of that contrast, converged):
+started there, every pixel of its band lay past the second kind's blur reach (F' 0), its
+free contrast was 0 / 0 and targets._tag_edge_kernels.fit_edges raised LinAlgError. Such
+a start is made here (an edge's start curve 20 px into its 48 px tag, its band past the blur):
+that edge is not fitted (done False, misfit NaN: tag_edges.EDGE_OFF_PROFILE) and the
+image's corners still refine (noise-free: to the render's sampling, as
+test_blurred_tag_corners_from_the_whole_edges).'''
+    import targets.tag_edges as te
+    orig, seen = te._fit_edges, []
+
+    def off_start(E, table, bfix, start=None, skip=None, converged_px=te.CONVERGED_PX):
+        if start is not None and len(seen) < 1:
+            start = np.array(start, dtype=np.float64, copy=True)
+            start[0] = [20.0, 0.0, 0.0, 0.0]
+        out = orig(E, table, bfix, start, skip, converged_px)
+        if start is not None and len(seen) < 1 and not (skip is not None and skip[0]):
+            seen.append((out[1][0], out[2][0]))
+        return out
+    monkeypatch.setattr(te, "_fit_edges", off_start)
+    img, Q, grid = _tag_grid(6.0)
+    im = ResponseChain.from_config(BLUR).apply(img).image.astype(np.float64)
+    bits = np.array([tag36h11_bits(t) for t in range(len(Q))])
+    fit = refine_tag_edges(im, Q + 0.3, 0.7, "gaussian", bits=bits, grid=grid,
+                           value_range=1.0, choose_kind=True)
+    assert seen and not seen[0][0] and np.isnan(seen[0][1]), seen
+    rms, n = _rms(fit.q, Q)
+    assert n == Q.size // 2 and rms < 0.002, (rms, n, fit.dropped())
+
+
+def test_the_compiled_dark_side_counts_are_the_numpy_tests():
+    r'''tag_edges._sees_dark and _sees_dark_near judge a fit by its pixels on the dark side of
+its start curve (_dark_side), counted per fit as targets._tag_edge_kernels.fit_pixels
+gathers them (its `dark`): the counts are numpy's on the same pixels, pixels placed exactly
+on a curve (s = d(tau): "or on it") and at t = 0, L / 2, L included (each fit's pixels
+taken as they are, PIECE_OWN)'''
+    from targets._tag_edge_kernels import PIECE_OWN, fit_pixels
+    from targets.tag_edges import _curve_s, _dark_side
+    rng = np.random.default_rng(5)
+    n = rng.integers(0, 300, 40)
+    off = np.concatenate(([0], np.cumsum(n))).astype(np.int64)
+    L = rng.uniform(8.0, 120.0, len(n))
+    d = rng.normal(0.0, [1.0, 0.5, 0.3, 0.1], (len(n), 4))
+    fit = np.repeat(np.arange(len(n)), n)
+    t = rng.uniform(-0.5, 1.5, off[-1]) * L[fit]
+    t[::7] = (np.arange(off[-1])[::7] % 3) * 0.5 * L[fit][::7]
+    s = rng.normal(0.0, 2.0, off[-1])
+    on = np.arange(off[-1]) % 5 == 0
+    s[on] = [_curve_s(d[f], 2.0 * tp / L[f] - 1.0) for f, tp in zip(fit[on], t[on], strict=True)]
+    ix = np.zeros(off[-1], np.int64)
+    one = np.ones((len(n), 2))
+    fo, _, tau, s_out, got = fit_pixels(np.zeros((1, 1)), ix, ix, t, s, off,
+                                        np.arange(len(n) + 1, dtype=np.int64),
+                                        np.arange(len(n), dtype=np.int64),
+                                        np.full(len(n), PIECE_OWN, np.int64), np.zeros(len(n)),
+                                        one, one, one, L, d)
+    assert np.array_equal(fo, off) and np.array_equal(s_out, s)
+    for f in range(len(n)):
+        tj, sj = t[off[f]:off[f + 1]], s[off[f]:off[f + 1]]
+        dark = _dark_side(tj, sj, L[f], d[f])
+        want = [np.count_nonzero(dark & m) for m in
+                (tj < 0.0, tj > L[f], tj < 0.5 * L[f], tj > 0.5 * L[f])]
+        assert list(got[f]) == want, (f, list(got[f]), want)
+    assert got[:, 2].sum() > 0 and got.sum() < 2 * off[-1]
