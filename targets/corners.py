@@ -1404,7 +1404,7 @@ SYNOPSIS
 
 def curvature_bias(q, tangents, curvatures, wedges, steps, half_box, notch=None,
                    max_window_px=MAX_WINDOW_PX, lines=(), sigma=0.0, clearance=None,
-                   tag_corners=False):
+                   tag_corners=False, window_at=None):
     r'''Where refine_corners puts a corner whose edges are curved, minus the corner: px
 
 SYNOPSIS
@@ -1438,8 +1438,19 @@ one (docs/corners.md, "The lines' bias under blur").
 tag_corners: q are an AprilGrid's tag corners, four a tag in order round it (corner_rays'
 window says so): the window shrinks as refine_tag_corners shrinks it (_tag_box_shrink: the
 tag's homography against its mean bits), from the tag's corners q.
+
+window_at: (N,2) where the refiner laid each window (_window's centre: the pixel grid it
+snaps to and the box's centre), None or NaN rows: about q. The refiner lays its last pass's
+window about its first pass's corner, the image's; q here is a model's projection, and a
+window laid about it gains or loses an edge pixel wherever the model moves it across a pixel
+square's corner's reach: a jump of ~1e-3 px in the bias (camera 17 CAHVORE chessboard,
+realistic: the calibrators' bias passes never settled below 1e-5 px). Laid about a point
+that does not move with the model (the detected corner, Observations.q), the window is
+fixed and the bias a smooth function of the model (harness.calibrators.bias.corner_bias).
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    at = q if window_at is None else np.asarray(window_at, dtype=np.float64).reshape(-1, 2)
+    at = np.where(np.all(np.isfinite(at), axis=-1)[:, None], at, q)
     if tag_corners:
         Q = q.reshape(-1, 4, 2)
         mean = np.stack((np.roll(Q, -1, axis=1) - Q, np.roll(Q, 1, axis=1) - Q),
@@ -1470,7 +1481,7 @@ tag's homography against its mean bits), from the tag's corners q.
     else:
         strips = None
         half_box = half_box[idx]
-    ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px, notch,
+    ix, iy, inside, _ = _window(at[idx], steps[idx], half_box, big, max_window_px, notch,
                                 strips)
     w = inside.astype(np.float64)
     taps = 0
@@ -1485,7 +1496,7 @@ tag's homography against its mean bits), from the tag's corners q.
             + taps
         off = np.arange(-r, r + 1)
         oy, ox = np.meshgrid(off, off, indexing="ij")
-        c0 = np.round(q[idx]).astype(np.int64)
+        c0 = np.round(at[idx]).astype(np.int64)
         ix = c0[:, 0:1] + ox.ravel()
         iy = c0[:, 1:2] + oy.ravel()
     centres = np.stack((ix, iy), axis=-1).astype(np.float64)

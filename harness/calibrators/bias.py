@@ -133,7 +133,7 @@ WINDOW_BIASED = (CORNER_WINDOW, CORNER_LINES)
 CORNER_DIFF_STEP = 0.05
 
 
-def corner_bias(model, target, Rt_cam_board, p_board, lines=False, blur_px=0.0):
+def corner_bias(model, target, Rt_cam_board, p_board, lines=False, blur_px=0.0, q_window=None):
     r'''refined corner - projected corner, px: the bias of straight rays on curved edges
 
 SYNOPSIS
@@ -148,7 +148,10 @@ fitted with each pair of opposite rays one line (Detection.corner_model CORNER_L
 blurred image); blur_px: the sigma of the "sampled" kernel they were fitted with
 (Detection.corner_blur_px), whose taps and smaller window curvature_bias then takes (0:
 the sharp pixel terms, which leave 0.65-1.14x of a blurred fit's shift unexplained on
-MER hazcams).
+MER hazcams). q_window (Npoints,2): where the refiner laid each corner's window, the
+detected corner (Observations.q; curvature_bias's window_at); None or NaN rows: about the
+projected corner, whose window gains or loses a pixel as the model moves it (a jump of ~1e-3
+px that kept the bias passes from settling), where the detected corner's stays put.
 '''
     from targets.corners import CHESSBOARD_LINES, corner_rays, curvature_bias
     rays, unit, wedges, window = corner_rays(target)
@@ -168,7 +171,7 @@ MER hazcams).
     steps = np.stack((d1[:, 0], d1[:, 1]), axis=-1) * unit
     tied = CHESSBOARD_LINES if lines and target.kind == "chessboard" else ()
     return curvature_bias(q0[:, 0], tangents, curvatures, wedges, steps, lines=tied,
-                          sigma=blur_px, **window)
+                          sigma=blur_px, window_at=q_window, **window)
 
 
 def tag_edges_bias(model, Rt_cam_board, p_board, spans):
@@ -191,7 +194,7 @@ values of each of the corner's two edges, the row of the edge's other corner las
 
 
 def bias_step(model, target, Rt_cam_board, p_board, b_prev=None, views=None,
-              corner_model=None, corner_blur_px=None, corner_spans=None):
+              corner_model=None, corner_blur_px=None, corner_spans=None, corner_q=None):
     r'''One pass of the iterated bias correction the calibrators share
 
 SYNOPSIS
@@ -209,8 +212,11 @@ its lines tied, under the blur corner_blur_px (Nposes,) gives each pose: the sam
 kernel's sigma they were fitted with, Observations.corner_blur_px; None: 0), the rest 0
 (None: every corner is the window model's). TAG_EDGES corners with a record in
 corner_spans (Nposes,Npoints,2,R) (Observations.corner_spans; None: none) get
-tag_edges_bias, the rest of them 0. `change` is the largest change of the bias since b_prev
-(its largest value on the first pass).
+tag_edges_bias, the rest of them 0. corner_q (Nposes,Npoints,2): the detected corners
+(Observations.q), about which the window model's bias lays each corner's window as the
+refiner did (corner_bias's q_window; None: about the projected corners, which move with the
+model). `change` is the largest change of the bias since b_prev (its largest value on the
+first pass).
 '''
     if target is None:
         return None, None
@@ -222,15 +228,18 @@ tag_edges_bias, the rest of them 0. `change` is the largest change of the bias s
         if views is not None and i not in views:
             return np.zeros((p_board.shape[-2], 2))
         tied = corner_model[i] == CORNER_LINES if corners else None
+        at = None if corner_q is None else corner_q[i]
         if tied is None or not tied.any():
+            if getattr(target, "kind", "dots") in CORNER_KINDS:
+                return corner_bias(model, target, Rt, p_board[i], q_window=at)
             return centroid_bias(model, target, Rt, p_board[i])
         # corners fitted with their opposite rays tied: the lines' bias, computed once (the
         # window's only for corners of the window model beside them)
         blur = 0.0 if corner_blur_px is None else float(corner_blur_px[i])
         b = corner_bias(model, target, Rt, p_board[i], lines=True,
-                        blur_px=blur if np.isfinite(blur) else 0.0)
+                        blur_px=blur if np.isfinite(blur) else 0.0, q_window=at)
         if not tied.all():
-            b[~tied] = corner_bias(model, target, Rt, p_board[i])[~tied]
+            b[~tied] = corner_bias(model, target, Rt, p_board[i], q_window=at)[~tied]
         return b
     b = [pose_bias(i, Rt) for i, Rt in enumerate(Rt_cam_board)]
     if any(x is None for x in b):
