@@ -1481,8 +1481,9 @@ window_at: (N,2) where the refiner laid each window (_window's centre: the pixel
 snaps to and the box's centre), None or NaN rows: about q. The refiner lays its last pass's
 window about its first pass's corner, the image's; q here is a model's projection, and a
 window laid about it gains or loses an edge pixel wherever the model moves it across a pixel
-square's corner's reach: a jump of ~1e-3 px in the bias (camera 17 CAHVORE chessboard,
-realistic: the calibrators' bias passes never settled below 1e-5 px). Laid about a point
+square's corner's reach: a jump of ~1e-3 px in the bias (1.4e-3 px on camera 17 CAHVORE's
+realistic chessboard, which can keep the calibrators' bias passes from settling below their
+1e-5 px tolerance: docs/corners.md, session 19). Laid about a point
 that does not move with the model (the detected corner, Observations.q), the window is
 fixed and the bias a smooth function of the model (harness.calibrators.bias.corner_bias).
 '''
