@@ -299,10 +299,10 @@ biases are the same and cancel)'''
     from .jobs import camera_frame_model
     camera = camera_frame_model(truth)
     b, _ = bias_step(camera, target, Rt_cam_board, obs.p_board, corner_model=obs.corner_model,
-                     corner_blur_px=blur, corner_spans=spans)
+                     corner_blur_px=blur, corner_spans=spans, corner_q=obs.q)
     bx, _ = bias_step(camera, target, Rt_cam_board, obs.p_board,
                       corner_model=obs_x.corner_model, corner_blur_px=blur_x,
-                      corner_spans=spans_x)
+                      corner_spans=spans_x, corner_q=obs_x.q)
     if b is None or bx is None:
         return None
     return np.nan_to_num(b), np.nan_to_num(bx)

@@ -490,6 +490,20 @@ added)'''
     return ix, iy, inside, on_image
 
 
+def window_steps(directions, steps):
+    r'''(N,2,2) the last pass's window axes (columns): rays 0 and 1 of directions (N,R,2),
+unit, each as long as that column of steps (N,2,2), the image step of one board unit
+
+refine_corners lays its second pass's box along the first pass's fitted rays (the helpers
+below put the board axes there), the lengths the caller's steps (refine_chessboard_corners:
+grid_steps; refine_tag_corners: tag_steps); the bias model lays its window so too
+(harness.calibrators.bias.corner_bias: the model's tangents, corner_steps' lengths).'''
+    d = np.asarray(directions, dtype=np.float64)
+    steps = np.asarray(steps, dtype=np.float64)
+    return np.stack((d[:, 0] * np.linalg.norm(steps[:, :, 0], axis=-1)[:, None],
+                     d[:, 1] * np.linalg.norm(steps[:, :, 1], axis=-1)[:, None]), axis=-1)
+
+
 def refine_corners(image, q0, directions, wedges, steps, half_box, *, psf_sigma_px=None,
                    psf_kind=None, clearance=None, lines=(), notch=None, notch_clearance=None,
                    stop_if_blurred=False, line_curvature=None, **options):
@@ -602,11 +616,7 @@ the estimate's spread.
         if not good.any():
             return f, good, None, None
         d = f.directions[good]
-        # the box's axes along rays 0 and 1 (the helpers below put the board axes there)
-        s2 = np.stack((d[:, 0] * np.linalg.norm(steps[idx][good, :, 0], axis=-1)[:, None],
-                       d[:, 1] * np.linalg.norm(steps[idx][good, :, 1], axis=-1)[:, None]),
-                      axis=-1)
-        return f, good, d, s2
+        return f, good, d, window_steps(d, steps[idx][good])
 
     def quick_look(f, good, d, s2, idx):
         # a sharp image (every clean render) is told by a few corners and one kind
@@ -1161,11 +1171,19 @@ border: 30 pixels need bits of 3.4 px or more.
     nxt = np.roll(Q, -1, axis=1) - Q
     prv = np.roll(Q, 1, axis=1) - Q
     dirs = np.stack((nxt, prv), axis=2).reshape(-1, 2, 2)
-    steps = np.stack((nxt, prv), axis=-1).reshape(-1, 2, 2) / 8.0
+    steps = tag_steps(Q)
     options.setdefault("min_window_pixels", TAG_MIN_WINDOW_PIXELS)
     shrink = _tag_box_shrink(Q, steps, half_box)
     return refine_corners(image, Q.reshape(-1, 2), dirs, [(0, 1)], steps, half_box / shrink,
                           clearance=clearance / shrink, **options)
+
+
+def tag_steps(Q):
+    r'''(Ntags*4,2,2) columns: one of each tag's mean bits (side / 8) along its edges to the
+next and to the previous corner, at each of its corners Q (Ntags,4,2) in order round it'''
+    Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
+    return np.stack((np.roll(Q, -1, axis=1) - Q, np.roll(Q, 1, axis=1) - Q),
+                    axis=-1).reshape(-1, 2, 2) / 8.0
 
 
 def homographies(src, dst):
@@ -1309,10 +1327,9 @@ The four edges at a corner run along the grid lines towards the neighbouring cor
 (differences along the grid; central where both neighbours are found).
 '''
     G = np.asarray(G, dtype=np.float64)
-    ex = _grid_step(G, axis=1)
-    ey = _grid_step(G, axis=0)
-    dirs = np.stack((ex, ey, -ex, -ey), axis=2).reshape(-1, 4, 2)
-    steps = np.stack((ex, ey), axis=-1).reshape(-1, 2, 2)
+    steps = grid_steps(G)
+    ex, ey = steps[..., 0], steps[..., 1]
+    dirs = np.stack((ex, ey, -ex, -ey), axis=1)
 
     def kappa(q):
         Q = q.reshape(G.shape)
@@ -1361,6 +1378,12 @@ corners) they do to 0.05% RMS inside the grid; at its ends the next corner's cop
     return np.moveaxis(k, 0, axis)
 
 
+def grid_steps(G):
+    r'''(ny*nx,2,2) columns: the image step of one square along the grid's x and y at each
+corner of G (ny,nx,2) (_grid_step: central differences where both neighbours are found)'''
+    return np.stack((_grid_step(G, axis=1), _grid_step(G, axis=0)), axis=-1).reshape(-1, 2, 2)
+
+
 def _grid_step(G, axis):
     r'''(ny,nx,2) image step to the next corner along an axis: central difference where both
 neighbours are found, else one-sided, NaN for a corner with neither'''
@@ -1402,9 +1425,24 @@ SYNOPSIS
     raise ValueError(f"corner_rays() needs a chessboard or apriltag target; got {target.kind!r}")
 
 
+def corner_steps(target, q):
+    r'''(N,2,2) the steps (image step of one window unit along the corner's two box axes) a
+corner target's refiner lays its window out by, from its corners q (N,2), target.points()'
+order: a chessboard's grid_steps (its grid's central differences), an AprilGrid's tag_steps
+(each tag's mean bits); NaN where they are not found (a chessboard corner with neither
+neighbour along an axis)'''
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    if target.kind == "chessboard":
+        nx, ny = target.grid_shape
+        return grid_steps(q.reshape(ny, nx, 2))
+    if target.kind == "apriltag":
+        return tag_steps(q)
+    raise ValueError(f"corner_steps() needs a chessboard or apriltag target; got {target.kind!r}")
+
+
 def curvature_bias(q, tangents, curvatures, wedges, steps, half_box, notch=None,
                    max_window_px=MAX_WINDOW_PX, lines=(), sigma=0.0, clearance=None,
-                   tag_corners=False):
+                   tag_corners=False, window_at=None):
     r'''Where refine_corners puts a corner whose edges are curved, minus the corner: px
 
 SYNOPSIS
@@ -1437,14 +1475,24 @@ one (docs/corners.md, "The lines' bias under blur").
 
 tag_corners: q are an AprilGrid's tag corners, four a tag in order round it (corner_rays'
 window says so): the window shrinks as refine_tag_corners shrinks it (_tag_box_shrink: the
-tag's homography against its mean bits), from the tag's corners q.
+tag's homography against its mean bits), from the tag's corners (window_at's).
+
+window_at: (N,2) where the refiner laid each window (_window's centre: the pixel grid it
+snaps to and the box's centre), None or NaN rows: about q. The refiner lays its last pass's
+window about its first pass's corner, the image's; q here is a model's projection, and a
+window laid about it gains or loses an edge pixel wherever the model moves it across a pixel
+square's corner's reach: a jump of ~1e-3 px in the bias (1.4e-3 px on camera 17 CAHVORE's
+realistic chessboard, which can keep the calibrators' bias passes from settling below their
+1e-5 px tolerance: docs/corners.md, session 19). Laid about a point
+that does not move with the model (the detected corner, Observations.q), the window is
+fixed and the bias a smooth function of the model (harness.calibrators.bias.corner_bias).
 '''
     q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+    at = q if window_at is None else np.asarray(window_at, dtype=np.float64).reshape(-1, 2)
+    at = np.where(np.all(np.isfinite(at), axis=-1)[:, None], at, q)
     if tag_corners:
-        Q = q.reshape(-1, 4, 2)
-        mean = np.stack((np.roll(Q, -1, axis=1) - Q, np.roll(Q, 1, axis=1) - Q),
-                        axis=-1).reshape(-1, 2, 2) / 8.0
-        shrink = _tag_box_shrink(Q, mean, half_box)
+        Q = at.reshape(-1, 4, 2)
+        shrink = _tag_box_shrink(Q, tag_steps(Q), half_box)
         clearance = (half_box if clearance is None else clearance) / shrink
         half_box = half_box / shrink
     N = len(q)
@@ -1470,7 +1518,7 @@ tag's homography against its mean bits), from the tag's corners q.
     else:
         strips = None
         half_box = half_box[idx]
-    ix, iy, inside, _ = _window(q[idx], steps[idx], half_box, big, max_window_px, notch,
+    ix, iy, inside, _ = _window(at[idx], steps[idx], half_box, big, max_window_px, notch,
                                 strips)
     w = inside.astype(np.float64)
     taps = 0
@@ -1485,7 +1533,7 @@ tag's homography against its mean bits), from the tag's corners q.
             + taps
         off = np.arange(-r, r + 1)
         oy, ox = np.meshgrid(off, off, indexing="ij")
-        c0 = np.round(q[idx]).astype(np.int64)
+        c0 = np.round(at[idx]).astype(np.int64)
         ix = c0[:, 0:1] + ox.ravel()
         iy = c0[:, 1:2] + oy.ravel()
     centres = np.stack((ix, iy), axis=-1).astype(np.float64)

@@ -75,8 +75,11 @@ def test_detection_noise_takes_off_what_each_sides_corner_model_biases(navcam):
     truth, _, poses, obs = navcam
     chess = stages.cached_target("chessboard")
     n = chess.points().shape[0]
-    # the biases depend on the model, poses and corner models, not on the detections
-    q = np.full((len(poses), n, 2), 500.0)
+    # the biases depend on the model, poses and corner models, and on the detections only
+    # through where the windows lie (harness.calibrators.bias.corner_bias's q_window): both
+    # sides' detections the exact corners
+    from targets.centroids import projected_points
+    q = np.stack([projected_points(truth, chess, Rt) for Rt in poses])
     from harness.calibrators.base import Observations
     ref = Observations(q=q, p_board=chess.points(), imagersize=obs.imagersize,
                        corner_model=np.full((len(poses), n), CORNER_WINDOW),

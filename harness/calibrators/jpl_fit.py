@@ -410,7 +410,7 @@ last bias was checked already; a run-out one is checked here once (bias_step)'''
         return
     b, change = bias_step(model, target, Rt_cam_board_of(model, obs.Rt_ref_board),
                           obs.p_board, obs.q - q_used, None, obs.corner_model,
-                          obs.corner_blur_px, obs.corner_spans)
+                          obs.corner_blur_px, obs.corner_spans, corner_q=obs.q)
     if b is not None and change >= bias_tolerance:
         raise CalibrationFailed(
             f"the {'dot-centroid' if getattr(target, 'kind', 'dots') == 'dots' else 'corner'} "

@@ -147,7 +147,8 @@ ARGUMENTS
     for ipass in range(bias_passes):
         model, Rt_cam_board = current()
         b, change = bias_step(model, target, Rt_cam_board, obs.p_board, b_prev, views,
-                              obs.corner_model, obs.corner_blur_px, obs.corner_spans)
+                              obs.corner_model, obs.corner_blur_px, obs.corner_spans,
+                              corner_q=obs.q)
         if b is None:
             if no_dots is not None:
                 passes.append({"pass": ipass + 2, "skipped": no_dots})
