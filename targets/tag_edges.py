@@ -287,6 +287,13 @@ CONVERGED_PX = 1e-4
 # the blur's first pass (kind and sigma, each edge alone) only places the second pass's
 # pixels (SAFETY_PX of margin) and compares misfits, second order in a curve's error
 FIRST_PASS_CONVERGED_PX = 1e-3
+# an edge's fitted contrast |b| may exceed the image's range (max - min over every pixel:
+# the board's light and the tags' dark levels, each widened by the noise of its extreme
+# pixels) by this many RMS residuals of its own fit (its pixels' noise) before the fit is
+# taken to have run off (EDGE_CONTRAST_OFF): a blurred image of a two-level scene lies
+# between its levels, and the levels are reached wherever a tag's dark or the board's light
+# is wider than the blur; beyond that the contrast is not the image's
+CONTRAST_NOISE_SIGMAS = 4.0
 # the most the meeting point of two fitted edges may move from the corner it started at
 MAX_CORNER_SHIFT_PX = 2.0
 # the most Newton steps to where two fitted edges meet (they stop at a step below 1e-9 px)
@@ -382,6 +389,12 @@ NEAR_CORNER_LIGHT_ONLY = ("edge seen from its light side only near the corner (t
 # only that ran off, restarted there; targets._tag_edge_kernels.fit_edges: not fitted)
 EDGE_OFF_PROFILE = ("edge fit started off its blurred profile (no pixel on the edge's slope: "
                     "the band all on one side of it)")
+# an edge whose free contrast ran beyond what the image holds (|b| above the image's range
+# by more than CONTRAST_NOISE_SIGMAS of its pixels' noise): a fit that slid its curve into
+# the blur's tail on one side, where any contrast fits the few pixels left on the slope
+# (_fit_edges: not converged, misfit inf); its curve places nothing, its corners are dropped
+EDGE_CONTRAST_OFF = ("edge fit ran off: its contrast beyond the image's range (its curve slid "
+                     "into the blur's tail)")
 # targets._tag_edge_kernels.tag_edge_pixels's status of an edge: why it has no pixels
 _EDGE_STATUS = {1: "edge too short for its blur",
                 2: "edge seen from its light side only (tag bits too small for the blur)",
@@ -591,7 +604,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                                   why_corner if last else None)
         if not geo:
             break
-        E = _Edges(geo, pixels, reach, line)
+        E = _Edges(geo, pixels, reach, line, rng)
         if len(blurs) > 1:
             (sigma, kind), table, fits, info = _choose_kind(E, blurs)
             blurs = [(sigma, kind)]
@@ -609,6 +622,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         for j in np.flatnonzero(failed):
             why_edge[gi[j], gk[j]] = (
                 EDGE_OFF_PROFILE if not ok[j] and np.isnan(mis[j])
+                else EDGE_CONTRAST_OFF if np.isinf(mis[j])
                 else f"edge fit not converged in {MAX_ITERATIONS} iterations" if not ok[j]
                 else "no contrast" if not abs(pf[j, 1]) > min_contrast * rng
                 else f"misfit: {mis[j]:.3g} of the contrast")
@@ -651,8 +665,9 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             if not (end != 2 and (i, k, 2) in curves)
             # a weak edge's failed fit alone places nothing: the chord does
             and not ((i, k) in weak and why_edge[i, k])
-            # nor does a fit that never started (its curve is its start's)
-            and why_edge[i, k] != EDGE_OFF_PROFILE}
+            # nor does a fit that never started (its curve is its start's), or one that ran
+            # off into the blur's tail
+            and why_edge[i, k] not in (EDGE_OFF_PROFILE, EDGE_CONTRAST_OFF)}
         shapes = {}
         if pick:
             tau9 = np.linspace(-1.0, 1.0, 9)
@@ -1384,7 +1399,7 @@ quick cameras' corners by at most 0.0017 px and their RMS by at most 3e-6 px
             sg = _same_variance(out[0][1] + out[0][4], out[0][0], kd)
             if not sg > 0:
                 continue
-            start = out[0][3][0][:, 2:] * [1, 1, 1, 0]
+            start = _restart(out[0][3])
         table = _table(sg, kd)
         fits = _fit_contrast_first(E, table, start, FIRST_PASS_CONVERGED_PX)
         step, dec, S, se = _blur_step(E, table, fits)
@@ -1395,8 +1410,7 @@ quick cameras' corners by at most 0.0017 px and their RMS by at most 3e-6 px
                 break
             sg = sg + step
             table = _table(sg, kd)
-            fits = _fit_contrast_first(E, table, fits[0][:, 2:] * [1, 1, 1, 0],
-                                       FIRST_PASS_CONVERGED_PX)
+            fits = _fit_contrast_first(E, table, _restart(fits), FIRST_PASS_CONVERGED_PX)
             step, dec, S, se = _blur_step(E, table, fits)
         out.append((kd, sg, table, fits, step, dec, S, se))
     both = np.ones(E.m, bool)
@@ -1447,6 +1461,14 @@ no edge tells'''
     S = float(((mis[use] * p[use, 1]) ** 2 * E.n[use]).sum())
     dof = max(float(E.n[use].sum()) - 6 * int(use.sum()) - 1, 1.0)
     return G / H, G * G / H, S, float(np.sqrt(S / dof / H))
+
+
+def _restart(fits):
+    r'''(m,4) the curves of fits (p, done, mis) as the next fits' start, cubic term 0; NaN
+rows (their own start, E.d) where a fit ran off (EDGE_CONTRAST_OFF: misfit inf): its curve
+lies in the blur's tail, where no pixel tells the edge'''
+    p, _, mis = fits
+    return np.where(np.isinf(mis)[:, None], np.nan, p[:, 2:] * [1, 1, 1, 0])
 
 
 def _fit_contrast_first(E, table, start=None, converged_px=CONVERGED_PX):
@@ -1570,16 +1592,26 @@ def _fit_edges(E, table, bfix, start=None, skip=None, converged_px=CONVERGED_PX)
 targets._tag_edge_kernels.fit_edges), d3 = 0 unless the edge has its neighbours' pixels;
 bfix (m,) the contrast of the edges whose b is given (NaN: fitted); start (m,4): the curves
 to start from (None, or a row not finite: E.d); skip (m,): edges not fitted. (p (m,6),
-converged (m,), misfit RMS / contrast (m,))'''
+converged (m,), misfit RMS / contrast (m,)); a fit whose free contrast ran beyond the image's
+range E.rng by more than CONTRAST_NOISE_SIGMAS of its RMS residual is not converged, its
+misfit inf (EDGE_CONTRAST_OFF)'''
     x0, F, dF = table[:3]
     d = E.d
     if start is not None:
         start = np.asarray(start, dtype=np.float64).reshape(E.m, 4)
         d = np.where(np.isfinite(start).all(-1)[:, None], start, d)
     skip = np.zeros(E.m, bool) if skip is None else skip
-    return fit_edges(E.off, E.v, E.w, E.tau, E.s, E.cubic, E.j0, E.fy, np.ascontiguousarray(d),
-                     x0, TABLE_STEP_PX, F, dF, np.asarray(bfix, dtype=np.float64), skip,
-                     MAX_ITERATIONS, float(converged_px))
+    bfix = np.asarray(bfix, dtype=np.float64)
+    p, done, mis = fit_edges(E.off, E.v, E.w, E.tau, E.s, E.cubic, E.j0, E.fy,
+                             np.ascontiguousarray(d), x0, TABLE_STEP_PX, F, dF, bfix, skip,
+                             MAX_ITERATIONS, float(converged_px))
+    # the contrast beyond what the image holds: the fit's RMS residual is mis |b|
+    b = np.abs(p[:, 1])
+    off = np.isnan(bfix) & np.isfinite(mis) & ~(b <= E.rng + CONTRAST_NOISE_SIGMAS * mis * b)
+    if off.any():
+        done[off] = False
+        mis[off] = np.inf
+    return p, done, mis
 
 
 def _fit_pixels(img, geo, pieces, q, pixels, why_edge, why_corner):
@@ -1633,8 +1665,10 @@ curve, cubic term 0), with n (m,) each edge's pixel count, tag (m,) its tag and 
 the edges whose band reaches the dark plateau (MIN_PLATEAU_PIXELS at least reach px inside
 the curve)'''
 
-    def __init__(self, geo, pixels, reach, line=None):
+    def __init__(self, geo, pixels, reach, line=None, rng=np.inf):
         m = self.m = len(geo)
+        # the image's range (max - min): the most contrast an edge can have (_fit_edges)
+        self.rng = float(rng)
         self.off, self.v, self.tau, self.s = pixels
         self.n = np.diff(self.off).astype(np.float64)
         self.w = _weights(line, self.v)

@@ -725,3 +725,94 @@ taken as they are, PIECE_OWN)'''
                 (tj < 0.0, tj > L[f], tj < 0.5 * L[f], tj > 0.5 * L[f])]
         assert list(got[f]) == want, (f, list(got[f]), want)
     assert got[:, 2].sum() > 0 and got.sum() < 2 * off[-1]
+
+
+def _light_side_edge(seed, d_true=1.5, noise=0.003, L=20.0):
+    r'''One constructed edge's band as tag_edges._fit_edges takes it (its arrays, E): a
+straight edge (0.9 light, 0.1 dark: contrast 0.8) blurred by a gaussian of 0.7 px, d_true px
+inside the chord along its whole length; pixels at s = -4..0 px across it and every px
+along it (100), none past the chord: the band sees the edge's light side and its slope's
+tail only, as an edge whose tag bits are too small for the blur; gaussian noise. E.rng: the
+image's range (0.8 and the noise of its extreme pixels, 3 sigma each way)'''
+    from types import SimpleNamespace
+
+    import targets.tag_edges as te
+    table = te._table(0.7, "gaussian")
+    t, s = np.meshgrid(np.arange(0.5, L, 1.0), np.arange(-4.0, 0.5, 1.0))
+    t, s = t.ravel(), s.ravel()
+    f, _ = te._lookup(table, s - d_true, np.zeros_like(s))
+    v = 0.9 - 0.8 * f + np.random.default_rng(seed).normal(0.0, noise, s.size)
+    E = SimpleNamespace(off=np.array([0, s.size]), v=v, w=np.ones(s.size), tau=2 * t / L - 1,
+                        s=s, cubic=np.zeros(1), j0=np.zeros(1, np.int64), fy=np.zeros(1),
+                        d=np.zeros((1, 4)), m=1, rng=0.8 + 6 * noise)
+    return E, table
+
+
+def test_a_free_contrast_that_runs_off_is_not_converged():
+    r'''The last helper's note (docs/corners.md, h-tagspeed): on the tiny-320x240 camera an
+edge seen from its light side only ran 1.78 px into its tag with a contrast of -1105 (the
+image's range ~0.9), its misfit, relative to that contrast, 6e-6: "converged". Constructed
+here: a band 4 px on the light side of an edge 1.5 px inside the chord, its contrast free;
+with this noise draw the fit slides its curve ~1.5 px further into the blur's tail, where a
+contrast of hundreds fits the pixels' slope (the compiled fit calls that converged). Beyond
+the image's range (+ 4 RMS residuals) it is not: done False, misfit inf
+(tag_edges.EDGE_CONTRAST_OFF), its curve not a restart (_restart: NaN, the edge's own start).
+Another draw that stays near the edge (contrast 0.28: a poorly told contrast within the
+range) is kept as the compiled fit left it.'''
+    import targets.tag_edges as te
+    from targets._tag_edge_kernels import fit_edges
+    E, table = _light_side_edge(0)
+    x0, F, dF = table[:3]
+    args = (E.off, E.v, E.w, E.tau, E.s, E.cubic, E.j0, E.fy, E.d, x0, te.TABLE_STEP_PX, F, dF,
+            np.array([np.nan]), np.zeros(1, bool), te.MAX_ITERATIONS, te.CONVERGED_PX)
+    p0, done0, mis0 = fit_edges(*args)
+    # the compiled fit alone: converged, a contrast hundreds of times the image's range
+    assert done0[0] and abs(p0[0, 1]) > 100 * E.rng and mis0[0] * abs(p0[0, 1]) < 0.01, \
+        (p0[0], done0, mis0)
+    assert p0[0, 2] > 2.5
+    p, done, mis = te._fit_edges(E, table, np.array([np.nan]))
+    assert not done[0] and np.isinf(mis[0]), (p[0], done, mis)
+    assert np.isnan(te._restart((p, done, mis))).all()
+    # a given contrast is not judged (the tag's plateau edges' median)
+    _, done_b, mis_b = te._fit_edges(E, table, np.array([-0.8]))
+    assert np.isfinite(mis_b[0])
+    E1, _ = _light_side_edge(1)
+    p1, done1, mis1 = te._fit_edges(E1, table, np.array([np.nan]))
+    assert done1[0] and np.isfinite(mis1[0]) and 0.1 < abs(p1[0, 1]) < E1.rng, (p1[0], mis1)
+
+
+def test_an_edge_whose_contrast_runs_off_drops_its_corners_and_places_nothing(monkeypatch):
+    r'''refine_tag_edges with one edge's fit run off in every pass (the compiled fit's result
+replaced by the constructed runaway's: the curve 3 px further into the tag, contrast -500,
+misfit 1e-6 of it, "converged"): its reason is tag_edges.EDGE_CONTRAST_OFF, both its
+corners are dropped (never kept at the coarse start), the second pass's pixels of that
+edge are placed about its chord (curve 0), not the runaway curve, and every other corner of
+the noise-free grid refines as without it (0.002 px, as
+test_blurred_tag_corners_from_the_whole_edges)'''
+    import targets.tag_edges as te
+    orig_fit, orig_pix, started = te.fit_edges, te.tag_edge_pixels, []
+
+    def run_off(*a):
+        p, done, mis = orig_fit(*a)
+        if not a[14][0] and np.isnan(a[13][0]):
+            p[0, 1], p[0, 2], done[0], mis[0] = -500.0, p[0, 2] + 3.0, True, 1e-6
+        return p, done, mis
+
+    def pixels(Q, live, bits, have_bits, H, curves, *a):
+        started.append(np.array(curves[0, 0]))
+        return orig_pix(Q, live, bits, have_bits, H, curves, *a)
+    monkeypatch.setattr(te, "fit_edges", run_off)
+    monkeypatch.setattr(te, "tag_edge_pixels", pixels)
+    img, Q, grid = _tag_grid(6.0)
+    im = ResponseChain.from_config(BLUR).apply(img).image.astype(np.float64)
+    bits = np.array([tag36h11_bits(t) for t in range(len(Q))])
+    # the response stage blurs the pixel image: the "sampled" kernel (targets.corners)
+    fit = refine_tag_edges(im, Q + 0.3, 0.7, "sampled", bits=bits, grid=grid,
+                           value_range=1.0)
+    assert len(started) == 2 and np.array_equal(started[1], np.zeros(4)), started
+    off = np.flatnonzero(fit.reasons == te.EDGE_CONTRAST_OFF)
+    # tag 0's edge 0 runs from its corner 0 to its corner 1
+    assert off.tolist() == [0, 1], fit.reasons[:8]
+    assert np.isnan(fit.q[off]).all()
+    rms, n = _rms(fit.q, Q)
+    assert n == Q.size // 2 - 2 and rms < 0.002, (rms, n, fit.dropped())
