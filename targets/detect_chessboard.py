@@ -55,6 +55,18 @@ DETECTOR = "chessboard"
 SEARCH_SIZE_PX = 400
 # OpenCV's quad-based search (findChessboardCorners)
 CLASSIC_FLAGS = 3     # cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE (1 | 2)
+# the quad-based search again without CALIB_CB_NORMALIZE_IMAGE, where it found no board:
+# cv2.CALIB_CB_ADAPTIVE_THRESH only. The equalisation maps each grey level to its rank, so
+# a population of pixels (the dark squares, the light ones, the background) is spread over
+# its share of 0-255 whatever its own width: a noisy board on a large dark background
+# (a fisheye's rim, a foreshortened board) gets its squares' noise stretched from a few
+# grey levels to tens, and the adaptive threshold breaks the small squares into specks
+# (realistic profile, constructed eye-1024x768.cahvore: the board of a pose found on the
+# image as it is, not on the equalised one; docs/corners.md "A chessboard lost to the
+# equalisation"). 2-15 ms, only where the first search failed.
+CLASSIC_PLAIN_FLAGS = 1   # cv2.CALIB_CB_ADAPTIVE_THRESH
+CLASSIC_PLAIN = "findChessboardCorners without equalisation"
+CLASSIC_METHODS = ("findChessboardCorners", CLASSIC_PLAIN)
 # the reason of a corner dropped because the image around it is no chessboard saddle
 NOT_SADDLE = "not a saddle"
 # how far along the diagonals (in grid steps) a corner's saddle is checked
@@ -212,6 +224,11 @@ ARGUMENTS
     if refine and classic_first:
         ok, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=CLASSIC_FLAGS)
         info["method"] = "findChessboardCorners"
+        if not ok:
+            # without the histogram equalisation (CLASSIC_PLAIN_FLAGS)
+            ok, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=CLASSIC_PLAIN_FLAGS)
+            if ok:
+                info["method"] = CLASSIC_PLAIN
     # the sector-based detector costs ~1.3 s on 1024x1024 (0.2 s without its ACCURACY
     # polish, _find_sb): find the board on a reduced
     # image first (the corners are polished at full resolution below)
@@ -256,7 +273,7 @@ ARGUMENTS
     best = scores[0]
     ambiguous = len(scores) > 1 and scores[1][0] - best[0] < 2
     if (ambiguous or best[0] > max(2, expected.size // 20)) and \
-            info["method"] == "findChessboardCorners" and refine and classic_first:
+            info["method"] in CLASSIC_METHODS and refine and classic_first:
         # the quad-based search's grid does not explain the squares: the sector-based one
         return detect_chessboard(image, target, min_found=min_found, refine=refine,
                                  reduced_search=reduced_search, classic_first=False,
@@ -295,7 +312,7 @@ ARGUMENTS
     G = np.asarray(G, dtype=np.float64).reshape(ny, nx, 2)
     not_saddle = ~_is_saddle(img, G, hi - lo)
     if not_saddle.any():
-        if info["method"] == "findChessboardCorners" and refine and classic_first:
+        if info["method"] in CLASSIC_METHODS and refine and classic_first:
             # the quad-based search misplaced a corner: the sector-based search
             return detect_chessboard(image, target, min_found=min_found, refine=refine,
                                      reduced_search=reduced_search, classic_first=False,
