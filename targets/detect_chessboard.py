@@ -56,14 +56,15 @@ SEARCH_SIZE_PX = 400
 # OpenCV's quad-based search (findChessboardCorners)
 CLASSIC_FLAGS = 3     # cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE (1 | 2)
 # the quad-based search again without CALIB_CB_NORMALIZE_IMAGE, where it found no board:
-# cv2.CALIB_CB_ADAPTIVE_THRESH only. The equalisation maps each grey level to its rank, so
-# a population of pixels (the dark squares, the light ones, the background) is spread over
-# its share of 0-255 whatever its own width: a noisy board on a large dark background
-# (a fisheye's rim, a foreshortened board) gets its squares' noise stretched from a few
-# grey levels to tens, and the adaptive threshold breaks the small squares into specks
-# (realistic profile, constructed eye-1024x768.cahvore: the board of a pose found on the
-# image as it is, not on the equalised one; docs/corners.md "A chessboard lost to the
-# equalisation"). 2-15 ms, only where the first search failed.
+# cv2.CALIB_CB_ADAPTIVE_THRESH only. The equalisation maps each grey level to its rank among
+# the pixels: on a board that covers a minority of the image (a foreshortened board near a
+# fisheye's rim, the rest dark background) it lifts the dark squares (26 -> 81 of 255 on
+# the view below) and spreads the blurred edges' and the noise's few grey levels over tens,
+# and the adaptive threshold no longer separates the small squares. Constructed
+# eye-1024x768.cahvore (CAHVORE), pose seed 0's second pose under the realistic profile's
+# PSF (sigma 0.7 px): lost with the PSF alone, and with 6 of 8 noise draws; found by every
+# one of them on the image as it is (tests/test_chessboard_blur.py). 2-15 ms, only where
+# the first search failed; what it finds is checked as the first search's (squares, saddles).
 CLASSIC_PLAIN_FLAGS = 1   # cv2.CALIB_CB_ADAPTIVE_THRESH
 CLASSIC_PLAIN = "findChessboardCorners without equalisation"
 CLASSIC_METHODS = ("findChessboardCorners", CLASSIC_PLAIN)
