@@ -222,14 +222,16 @@ ARGUMENTS
     info = {}
     flags_sb = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
     ok, corners = False, None
+    tried = []   # the searches that found no board, for the failure's reason
     if refine and classic_first:
         ok, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=CLASSIC_FLAGS)
         info["method"] = "findChessboardCorners"
         if not ok:
             # without the histogram equalisation (CLASSIC_PLAIN_FLAGS)
+            tried.append(info["method"])
             ok, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=CLASSIC_PLAIN_FLAGS)
-            if ok:
-                info["method"] = CLASSIC_PLAIN
+            info["method"] = CLASSIC_PLAIN
+            tried += [] if ok else [CLASSIC_PLAIN]
     # the sector-based detector costs ~1.3 s on 1024x1024 (0.2 s without its ACCURACY
     # polish, _find_sb): find the board on a reduced
     # image first (the corners are polished at full resolution below)
@@ -242,14 +244,20 @@ ARGUMENTS
             # INTER_AREA: small pixel i covers full pixels [i*s, (i+1)*s)
             corners = (np.asarray(corners, dtype=np.float64) + 0.5) * shrink - 0.5
             info["method"] = f"findChessboardCornersSB at 1/{shrink} size"
+        else:
+            tried.append(f"findChessboardCornersSB at 1/{shrink} size")
     if not ok:
         ok, corners = _find_sb(cv2, img8, (nx, ny), flags_sb, fast=bool(refine))
         info["method"] = "findChessboardCornersSB"
+        tried += [] if ok else [info["method"]]
     if not ok and not (refine and classic_first):
         ok, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=CLASSIC_FLAGS)
         info["method"] = "findChessboardCorners"
+        tried += [] if ok else [info["method"]]
     if not ok or corners is None:
-        return failed(target, f"OpenCV found no {nx}x{ny} chessboard", DETECTOR, info)
+        info["searches"] = tried
+        return failed(target, f"OpenCV found no {nx}x{ny} chessboard ({', '.join(tried)})",
+                      DETECTOR, info)
     c = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
     # OpenCV's order: rows of nx; lattice a along a row, b across rows
     G_cv = c.reshape(ny, nx, 2)
