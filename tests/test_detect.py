@@ -313,6 +313,22 @@ def test_not_found_is_a_result(name):
         det.as_dict()
 
 
+def test_chessboard_not_found_names_the_searches():
+    r'''A view without a board fails with each OpenCV search it tried in its reason (a
+campaign record keeps it): the quad-based one with and without equalisation, then the
+sector-based one (its reduced-size first try only on images 800 px or more)'''
+    from targets.detect_chessboard import CLASSIC_PLAIN
+    t = load_target("chessboard")
+    for H, W in ((120, 160), (800, 1000)):
+        noise = np.random.default_rng(0).uniform(size=(H, W))
+        det = detect(noise, t)
+        assert det.status == "failed"
+        tried = ["findChessboardCorners", CLASSIC_PLAIN] + \
+            ["findChessboardCornersSB at 1/2 size"] * (H >= 800) + ["findChessboardCornersSB"]
+        assert det.info["searches"] == tried
+        assert det.reason == f"OpenCV found no 10x10 chessboard ({', '.join(tried)})"
+
+
 def test_wrong_target_in_the_image():
     m = pinhole(320, 240, 220.0)
     chess = load_target("chessboard")
