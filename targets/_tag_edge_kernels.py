@@ -777,9 +777,10 @@ piece_mode says (PIECE_OWN.., piece_reach its px), in the frame of the fit's cho
 P0[f] (F,2), direction e[f], normal n[f], length L[f]). Returns (out_off (F+1,), v, tau, s,
 dark): fit f's pixels are [out_off[f], out_off[f+1]), v their values in img (H,W) as float64,
 tau = 2 t / L[f] - 1; dark (F,4) int64: each fit's pixels on the dark side of its curve d[f]
-(d0..d3), or on it (s - d(tau) >= 0: targets.tag_edges._dark_side, the same rounding),
-counted where t < 0, t > L, t < L / 2 and t > L / 2 (tag_edges._sees_dark, _sees_dark_near;
-counted here, as they are gathered: the fits' t is not kept).
+(d0..d3), or on it (s - d(tau) >= 0, d(tau) by Horner as targets.tag_edges._curve_s;
+tests/test_tag_edges.py holds the counts to numpy's test), counted where t < 0, t > L,
+t < L / 2 and t > L / 2 (tag_edges._sees_dark, _sees_dark_near; counted here, as they are
+gathered: the fits' t is not kept).
 
 A pixel's t and s in the fit's frame are r.e and r.n, r its centre less P0, each rounded as
 fma(r_x, e_x, r_y e_y): as numpy's r @ e rounds them on this machine (OpenBLAS's dgemv

@@ -1303,11 +1303,12 @@ _REFERENCE_LAMBDA = np.linspace(-1.45, 2.45, 40)
 
 
 def _sees_dark(n):
-    r'''True where the pixels (t, s) of a weak edge's fit (its board line's, in its chord's
-frame, length L) see the dark side of its curve d (d0..d3) beyond both its ends (t < 0 and
-t > L: the edge's place is interpolated between them, not extrapolated), MIN_EDGE_PIXELS //
-2 of them in all: the count targets._tag_edge_kernels.tag_edge_pixels asks of an edge alone;
-n (4,): the fit's dark-side pixel counts (targets._tag_edge_kernels.fit_pixels' dark)
+    r'''True where the pixels of a weak edge's fit (its board line's, in its chord's frame,
+length L) see the dark side of its start curve beyond both its ends (t < 0 and t > L: the
+edge's place is interpolated between them, not extrapolated), MIN_EDGE_PIXELS // 2 of them
+in all: the count targets._tag_edge_kernels.tag_edge_pixels asks of an edge alone; n (4,):
+the fit's dark-side pixel counts (targets._tag_edge_kernels.fit_pixels' dark, which counts
+them as it gathers the pixels)
 
 Why. An edge seen from its light side only (tag bits under ~3.5 px at sigma 0.7: every
 dark-side pixel sees the light data row inside the 1-bit border) has its own pixels' light
@@ -1321,10 +1322,10 @@ max 0.046 px (the others' 0.022).'''
 
 
 def _sees_dark_near(n, end):
-    r'''True where the pixels (t, s) of an edge's fit (in its chord's frame, length L) see the
-dark side of its curve d (d0..d3) nearer its end `end` (0: t = 0, 1: t = L) than the chord's
-middle, or beyond that end (a board line's neighbour); n (4,): the fit's dark-side pixel
-counts (targets._tag_edge_kernels.fit_pixels' dark)
+    r'''True where the pixels of an edge's fit (in its chord's frame, length L) see the dark
+side of its start curve nearer its end `end` (0: t = 0, 1: t = L) than the chord's middle, or
+beyond that end (a board line's neighbour); n (4,): the fit's dark-side pixel counts
+(targets._tag_edge_kernels.fit_pixels' dark)
 
 Why. A corner is where its two edges' curves meet; an edge's curve there is placed by the
 pixels that see both sides of it. Its light side alone places it weakly (the blur's tail),
@@ -1337,12 +1338,6 @@ edge), its edge's dark side 0.09 < tau < 0.75. Such a corner is dropped, as a we
 corners are where its board line does not reach the dark side beyond its ends
 (_sees_dark).'''
     return bool(n[2 + end] > 0)
-
-
-def _dark_side(t, s, L, d):
-    r'''(n,) bool: the pixels (t, s) in an edge's chord frame (length L) on the dark side of its
-curve d (d0..d3), or on it'''
-    return s - _curve_s(d, 2.0 * t / L - 1.0) >= 0.0
 
 
 def _table(sigma, kind):
@@ -1636,7 +1631,8 @@ pass before the last, whose corners only place the next pass's pixels)'''
                      np.ascontiguousarray(q[gi, gk]), np.array([g[3] for g in geo]),
                      np.array([g[4] for g in geo]), np.array([g[2] for g in geo]),
                      np.array([g[6] for g in geo], dtype=np.float64).reshape(-1, 4))
-    # dark: each fit's pixels on the dark side of its start curve (_dark_side), counted
+    # dark (F,4): each fit's pixels on the dark side of its start curve (or on it), counted
+    # beyond each end and in each half of the chord as fit_pixels gathers them
     fo, fv, ftau, fs, dark = out
     keep = np.ones(len(geo), bool)
     for j, (i, k, _, _, _, _, _, end, weak) in enumerate(geo):

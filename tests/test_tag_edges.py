@@ -691,14 +691,22 @@ test_blurred_tag_corners_from_the_whole_edges).'''
     assert n == Q.size // 2 and rms < 0.002, (rms, n, fit.dropped())
 
 
+def _dark_side(t, s, L, d):
+    r'''(n,) bool: the pixels (t, s) in an edge's chord frame (length L) on the dark side of
+its curve d (d0..d3), or on it: numpy's test of what fit_pixels counts'''
+    from targets.tag_edges import _curve_s
+    return s - _curve_s(d, 2.0 * t / L - 1.0) >= 0.0
+
+
 def test_the_compiled_dark_side_counts_are_the_numpy_tests():
     r'''tag_edges._sees_dark and _sees_dark_near judge a fit by its pixels on the dark side of
-its start curve (_dark_side), counted per fit as targets._tag_edge_kernels.fit_pixels
+its start curve (or on it: _dark_side below), counted per fit as
+targets._tag_edge_kernels.fit_pixels
 gathers them (its `dark`): the counts are numpy's on the same pixels, pixels placed exactly
 on a curve (s = d(tau): "or on it") and at t = 0, L / 2, L included (each fit's pixels
 taken as they are, PIECE_OWN)'''
     from targets._tag_edge_kernels import PIECE_OWN, fit_pixels
-    from targets.tag_edges import _curve_s, _dark_side
+    from targets.tag_edges import _curve_s
     rng = np.random.default_rng(5)
     n = rng.integers(0, 300, 40)
     off = np.concatenate(([0], np.cumsum(n))).astype(np.int64)
