@@ -1536,6 +1536,35 @@ least DETECTION_RESOLUTION_PX; NaN where an image has no point'''
     return out
 
 
+def corner_shares(obs, pose):
+    r'''(N,) each fitted point's share of its image's measured noise variance, or None (the
+detector predicted none: every point alike)
+
+pose: (N,) the image of each fitted point (Linearisation.pose: the points of obs.found,
+pose-major, of the images the fit kept). noise_per_pose measures one variance per image;
+tag-edge corners differ (the board's rim tags, seen by fewer and shorter spans, scatter
+~1.7x the inner ones' on the pupil job), and their detector predicts each one's
+(Observations.corner_sigma_px: per corner 0.99 of the scatter measured over 120 noise
+draws there). Each predicted point's share is its predicted variance over the mean of the
+image's predicted ones; a point without a prediction keeps 1. The image's mean share is 1:
+its measured variance is spread over its points, not changed.'''
+    sig = getattr(obs, "corner_sigma_px", None)
+    if sig is None:
+        return None
+    pose = np.asarray(pose)
+    keep = obs.found & np.isin(np.arange(obs.Nposes), pose)[:, None]
+    pi, pt = np.nonzero(keep)
+    if not np.array_equal(pi, pose):
+        return None
+    v = np.asarray(sig, dtype=np.float64)[pi, pt] ** 2
+    has = np.isfinite(v) & (v > 0)
+    out = np.ones(len(pose))
+    for i in np.unique(pi[has]):
+        m = has & (pi == i)
+        out[m] = v[m] / v[m].mean()
+    return out
+
+
 def scatter(res, exact_res, obs, truth):
     r'''Expected scatter of the image fit about the exact fit (see _scatter), with numpy's
 linear algebra on one thread (harness.blas.one_thread: its matrices have a few dozen
@@ -1568,8 +1597,12 @@ projection difference (the rotation's own freedom projected out).
     world = _world(res)
     n = len(lin.x0)
     sig_pose = noise_per_pose(res, exact_res, obs.Nposes, n)
-    # per coordinate: sigma_image^2 / 2 (sigma is the RMS of the 2-d error)
+    # per coordinate: sigma_image^2 / 2 (sigma is the RMS of the 2-d error), spread over
+    # the image's corners by their detector's prediction where it has one (corner_shares)
     var_row = np.repeat(sig_pose[lin.pose] ** 2 / 2.0, 2)
+    shares = corner_shares(obs, lin.pose)
+    if shares is not None:
+        var_row = var_row * np.repeat(shares, 2)
     if not np.all(np.isfinite(var_row)):
         return None
     m0 = lin.model(lin.x0)
