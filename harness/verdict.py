@@ -1565,6 +1565,134 @@ its measured variance is spread over its points, not changed.'''
     return out
 
 
+# Gauss-Legendre nodes per piece of a board line (an edge, or its part inside a span's
+# reach): the products of two spans' polynomials (degree <= 6) exactly
+_LINE_NODES = np.polynomial.legendre.leggauss(8)
+
+
+def _span_degree(h, tol=1e-6):
+    r'''The degree of a span's polynomial from its functional h (6,) on a board line's
+quintic (targets.tag_edges.SPAN_RECORD): the fit follows a polynomial up to its degree
+exactly (h_l ~ 0 for l <= degree)'''
+    big = np.abs(h) > tol * max(np.abs(h).max(), 1e-300)
+    return int(np.argmax(big)) - 1 if big.any() else 5
+
+
+def line_correlation(ends, pieces):
+    r'''(m, m) the correlation of m edge ends' errors across one board line
+
+ends: [(u_a, u_b, tc, degree, r0, r1)] each end's edge from corner a (tau -1) to b (tau 1)
+in the line's board coordinate u, its corner's tau (+-1), its span's polynomial degree and
+its reach r0 < r1 in u; pieces: [(u0, u1)] where the line has pixels (its tags' edges).
+
+Each end is the least-squares polynomial of its degree in its own tau over the pixels of
+its reach, evaluated at its corner: a linear function of the pixels' noise, phi(u)
+(targets.tag_edges._span_choice's variance is its sum of squares). With the noise and the
+pixels' information alike along the line (the light level and contrast left out: a
+symmetric profile's are nearly orthogonal to its position), two ends' covariance is the
+integral of phi_a phi_b over the pixels both reach.'''
+    cuts = sorted({x for e in ends for x in e[4:6]})
+    x, w = [], []
+    for u0, u1 in pieces:
+        b = [u0] + [c for c in cuts if u0 < c < u1] + [u1]
+        for a0, a1 in zip(b[:-1], b[1:], strict=True):
+            x.append(0.5 * (a0 + a1) + 0.5 * (a1 - a0) * _LINE_NODES[0])
+            w.append(0.5 * (a1 - a0) * _LINE_NODES[1])
+    x, w = np.concatenate(x), np.concatenate(w)
+    Phi = np.zeros((len(ends), len(x)))
+    for k, (ua, ub, tc, deg, r0, r1) in enumerate(ends):
+        m = (x >= r0) & (x <= r1)
+        V = np.vander(2.0 * (x[m] - ua) / (ub - ua) - 1.0, deg + 1, increasing=True)
+        A = V.T @ (V * w[m, None])
+        if m.sum() <= deg or not np.all(np.isfinite(A)) or np.linalg.matrix_rank(A) < deg + 1:
+            continue
+        Phi[k, m] = V @ np.linalg.solve(A, tc ** np.arange(deg + 1.0))
+    C = (Phi * w) @ Phi.T
+    d = np.sqrt(np.diag(C))
+    ok = d > 0
+    out = np.eye(len(ends))
+    out[np.ix_(ok, ok)] = C[np.ix_(ok, ok)] / np.outer(d[ok], d[ok])
+    np.fill_diagonal(out, 1.0)
+    return out
+
+
+def corner_correlation(obs, pose):
+    r'''[(rows, C)] per image: the rows (2n,) of its n fitted points (x, y interleaved, as
+Linearisation's) and C (2n, 2n) their errors' correlation across the board lines their
+edges share, unit diagonal; None without tag edges' span records (Observations
+.corner_spans) or predictions (corner_sigma_px)
+
+A tag-edge corner is where two edges' curves meet; each edge is fitted over a span of its
+board line (the edge alone, with its neighbour's nearer part, or the whole line:
+targets.tag_edges._span_choice), and corners whose spans share pixels err alike across
+that line (the pupil job's 120 draws: 0.67 across the gap to the next tag, 0.33 at the
+two ends of one edge). Each corner's error is split into its two lines' normals
+(orthonormalised), each line's ends correlated by line_correlation, its reach and degree
+from the span records; C is then a sum of correlation matrices, positive semidefinite.'''
+    spans = getattr(obs, "corner_spans", None)
+    if spans is None or getattr(obs, "corner_sigma_px", None) is None:
+        return None
+    pose = np.asarray(pose)
+    keep = obs.found & np.isin(np.arange(obs.Nposes), pose)[:, None]
+    pi, pt = np.nonzero(keep)
+    if not np.array_equal(pi, pose):
+        return None
+    out = []
+    row0 = 0
+    for i in np.unique(pi):
+        pts = pt[pi == i]
+        n = len(pts)
+        rows = np.arange(row0, row0 + 2 * n)
+        row0 += 2 * n
+        C = np.eye(2 * n)
+        sp, q, pb = spans[i], obs.q[i], obs.p_board[i][:, :2]
+        # each board line's edge ends: (corner, slot, (u_a, u_b, tc, degree, r0, r1),
+        # the edge's (u_a, u_b)); each corner's edges' image normals
+        lines, normal = {}, np.full((n, 2, 2), np.nan)
+        for k, p in enumerate(pts):
+            for slot in (0, 1):
+                r = sp[p, slot]
+                if not np.all(np.isfinite(r)):
+                    continue
+                o = int(r[-1])
+                a, b, tc = (o, p, 1.0) if slot == 0 else (p, o, -1.0)
+                if not (np.all(np.isfinite(q[a])) and np.all(np.isfinite(q[b]))):
+                    continue
+                d = pb[b] - pb[a]
+                ax = int(np.argmax(np.abs(d)))
+                L = float(np.hypot(*d))
+                if not L > 0 or abs(d[1 - ax]) > 1e-9 * L:
+                    continue
+                key = (ax, round(float(pb[a][1 - ax]), 9))
+                ua, ub = float(pb[a][ax]), float(pb[b][ax])
+                r0, r1 = sorted((ua + 0.5 * (r[-3] + 1.0) * (ub - ua),
+                                 ua + 0.5 * (r[-2] + 1.0) * (ub - ua)))
+                e = q[b] - q[a]
+                normal[k, slot] = np.array([-e[1], e[0]]) / np.hypot(*e)
+                lines.setdefault(key, []).append(
+                    (k, slot, (ua, ub, tc, _span_degree(r[:6]), r0, r1), (ua, ub)))
+        # each corner's two directions: its first edge's normal, the second's made
+        # orthogonal to it (its sign kept: the same for every end of a line)
+        unit = normal.copy()
+        for k in range(n):
+            n0, n1 = normal[k]
+            if np.all(np.isfinite(n0)) and np.all(np.isfinite(n1)):
+                v = n1 - (n1 @ n0) * n0
+                unit[k, 1] = v / np.hypot(*v)
+        for members in lines.values():
+            if len(members) < 2:
+                continue
+            pieces = sorted({tuple(sorted(m[3])) for m in members})
+            R = line_correlation([m[2] for m in members], pieces)
+            for x, (kx, sx, _, _) in enumerate(members):
+                for y, (ky, sy, _, _) in enumerate(members):
+                    ux, uy = unit[kx, sx], unit[ky, sy]
+                    if ky != kx and np.all(np.isfinite(ux)) and np.all(np.isfinite(uy)):
+                        C[2 * kx:2 * kx + 2, 2 * ky:2 * ky + 2] += R[x, y] * np.outer(ux, uy)
+        out.append((rows, C))
+    return out
+
+
 def scatter(res, exact_res, obs, truth):
     r'''Expected scatter of the image fit about the exact fit (see _scatter), with numpy's
 linear algebra on one thread (harness.blas.one_thread: its matrices have a few dozen
@@ -1657,7 +1785,8 @@ projection difference (the rotation's own freedom projected out).
     # |F| |a| / |F a|), at n_model columns instead of 2N per quantity.
     nm = lin.n_model
     F = Js @ (Ninv[:, :nm] / s_col[:nm])
-    R = _gram_factor(F, var_row)
+    R = _gram_factor(F, var_row, None if shares is None else
+                     corner_correlation(obs, lin.pose))
     cov = R.T @ R
     var = _variances(R, G)
     sigma = {}
@@ -1707,10 +1836,19 @@ them (model_jacobians' steps of V, O, R and E), the same numbers.'''
     return grid
 
 
-def _gram_factor(F, var_row):
-    r'''R (n, n) with R^T R = F^T diag(var_row) F: the R of the QR decomposition of
-diag(var_row)^1/2 F (see _scatter)'''
-    return np.linalg.qr(F * np.sqrt(var_row)[:, None], mode="r")
+def _gram_factor(F, var_row, blocks=None):
+    r'''R (n, n) with R^T R = F^T D F, D = diag(var_row): the R of the QR decomposition of
+D^1/2 F (see _scatter). blocks: None, or [(rows, C)]: D's rows correlated, D = S C S on
+those rows (S = diag(var_row)^1/2, C a correlation matrix: corner_correlation), factored
+C = B^T B per block (its eigen decomposition, negative rounding clipped) and D^1/2 F's
+rows there B S F'''
+    X = F * np.sqrt(var_row)[:, None]
+    if blocks:
+        X = X.copy()
+        for rows, C in blocks:
+            w, V = np.linalg.eigh(C)
+            X[rows] = (np.sqrt(np.clip(w, 0.0, None))[:, None] * V.T) @ X[rows]
+    return np.linalg.qr(X, mode="r")
 
 
 def _variances(R, A):
