@@ -1604,9 +1604,12 @@ integral of phi_a phi_b over the pixels both reach.'''
         m = (x >= r0) & (x <= r1)
         V = np.vander(2.0 * (x[m] - ua) / (ub - ua) - 1.0, deg + 1, increasing=True)
         A = V.T @ (V * w[m, None])
-        if m.sum() <= deg or not np.all(np.isfinite(A)) or np.linalg.matrix_rank(A) < deg + 1:
+        if m.sum() <= deg or not np.all(np.isfinite(A)):
             continue
-        Phi[k, m] = V @ np.linalg.solve(A, tc ** np.arange(deg + 1.0))
+        try:
+            Phi[k, m] = V @ np.linalg.solve(A, tc ** np.arange(deg + 1.0))
+        except np.linalg.LinAlgError:
+            continue
     C = (Phi * w) @ Phi.T
     d = np.sqrt(np.diag(C))
     ok = d > 0
@@ -1679,16 +1682,19 @@ from the span records; C is then a sum of correlation matrices, positive semidef
             if np.all(np.isfinite(n0)) and np.all(np.isfinite(n1)):
                 v = n1 - (n1 @ n0) * n0
                 unit[k, 1] = v / np.hypot(*v)
+        C4 = np.zeros((n, n, 2, 2))
         for members in lines.values():
             if len(members) < 2:
                 continue
             pieces = sorted({tuple(sorted(m[3])) for m in members})
             R = line_correlation([m[2] for m in members], pieces)
-            for x, (kx, sx, _, _) in enumerate(members):
-                for y, (ky, sy, _, _) in enumerate(members):
-                    ux, uy = unit[kx, sx], unit[ky, sy]
-                    if ky != kx and np.all(np.isfinite(ux)) and np.all(np.isfinite(uy)):
-                        C[2 * kx:2 * kx + 2, 2 * ky:2 * ky + 2] += R[x, y] * np.outer(ux, uy)
+            k = np.array([m[0] for m in members])
+            U = unit[k, [m[1] for m in members]]
+            R = np.where((k[:, None] != k[None, :]) & np.isfinite(U).all(-1)[:, None]
+                         & np.isfinite(U).all(-1)[None, :], R, 0.0)
+            np.add.at(C4, (k[:, None], k[None, :]), R[..., None, None]
+                      * np.nan_to_num(U)[:, None, :, None] * np.nan_to_num(U)[None, :, None, :])
+        C += C4.transpose(0, 2, 1, 3).reshape(2 * n, 2 * n)
         out.append((rows, C))
     return out
 
