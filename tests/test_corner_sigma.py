@@ -160,3 +160,22 @@ def test_chessboard_and_dots_carry_no_prediction(blurred_apriltag):
         assert obs.corner_sigma_px is None
         pose = np.nonzero(obs.found)[0]
         assert corner_shares(obs, pose) is None and corner_correlation(obs, pose) is None
+
+
+def test_mrcal_s_pose_subset_keeps_the_predictions_in_step():
+    # mrcal leaves out a pose with too few points (harness.calibrators.mrcal_fit): its
+    # subset of the observations takes the predictions' rows with the rest (a full-size
+    # corner_sigma_px beside the subset's q would be refused by Observations)
+    from test_mrcal_fit import MODELS, TARGET, exact_observations, synthetic_poses
+
+    from harness.calibrators import calibrate
+    truth = dict(MODELS)["15"]
+    obs = exact_observations(truth, TARGET, synthetic_poses(truth, TARGET))
+    q = obs.q.copy()
+    q[2] = np.nan
+    q[4, 3:] = np.nan
+    sigma = np.where(np.isfinite(q[..., 0]), 0.002, np.nan)
+    r = calibrate("mrcal", obs.replace(q=q, corner_sigma_px=sigma), TARGET, truth.family,
+                  truth=truth, bias_correction=False)
+    assert r.status == "ok", r.reason
+    assert [(d["pose"], d["found"]) for d in r.info["poses_dropped"]] == [(2, 0), (4, 3)]

@@ -410,7 +410,9 @@ residuals and board poses are NaN. The rest as _fit_poses.
                       corner_model=None if obs.corner_model is None else obs.corner_model[views],
                       corner_blur_px=None if obs.corner_blur_px is None
                       else obs.corner_blur_px[views],
-                      corner_spans=None if obs.corner_spans is None else obs.corner_spans[views])
+                      corner_spans=None if obs.corner_spans is None else obs.corner_spans[views],
+                      corner_sigma_px=None if obs.corner_sigma_px is None
+                      else obs.corner_sigma_px[views])
     if start is not None and getattr(start, "Rt_cam_board", None) is not None \
             and len(start.Rt_cam_board) == obs.Nposes:
         info = dict(start.info or {})
