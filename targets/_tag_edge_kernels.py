@@ -193,15 +193,27 @@ def fit_edges(off, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max
                     A[k, l] = JtJ[k, l] + 1e-12 * eye[k, l]
                 A[k, k] += lam * JtJ[k, k]
             step = np.linalg.solve(A, Jtr)
+            small = np.abs(step[2:]).max() < converged_px
+            if small and lam <= 1.0:
+                # a step this small barely damped (lam <= 1: at most halved) is the
+                # Gauss-Newton step within 2x: the curve is at its minimum to that. The step
+                # is taken without the profile evaluated there (a pass over the pixels, a
+                # quarter of the fits' evaluations): the light level and contrast by the same
+                # linear step, the squared misfit by its quadratic model |r - J step|^2 (kept
+                # where rounding would take it below 0 or above S)
+                dj = dj + step[2:]
+                a += step[0]
+                if bfree:
+                    b += step[1]
+                S1 = S - 2.0 * (step * Jtr).sum() + (step * (JtJ @ step)).sum()
+                if 0.0 <= S1 <= S:
+                    S = S1
+                ok = True
+                break
             d1 = dj + step[2:]
             a1, b1, S1, sw, sf, sff, sv, sfv = _profile(v, w, tau, s, o0, o1, cj, d1, x0, h,
                                                         Fe, dFe, bj, Fv, M1)
             better = S1 <= S
-            # a step this small barely damped (lam <= 1: at most halved) is the Gauss-Newton
-            # step within 2x: the curve is at its minimum to that, whether or not the
-            # misfit, flat there to rounding, went down
-            small = np.abs(step[2:]).max() < converged_px
-            near = small and lam <= 1.0
             if better:
                 dj, a, b, S = d1, a1, b1, S1
                 M, M1 = M1, M
@@ -209,7 +221,7 @@ def fit_edges(off, v, w, tau, s, cubic, j0, fy, d, x0, h, F, dF, bfix, skip, max
                 lam = max(lam * 0.3, 1e-7)
             else:
                 lam = lam * 10.0
-            if (better and small) or near or lam > 1e6:
+            if (better and small) or lam > 1e6:
                 ok = True
                 break
         p_out[j, 0] = a
