@@ -67,41 +67,122 @@ def _add_moments(M, Ms, df, f, fs, vp, t, with_fs, wp):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _lookup_f(x, x0, h, X, Fe, dFe):
+    # F and F' at x from one angle's row (Fe, dFe), linear between the table's entries; 0 or 1
+    # and flat beyond it
+    fi = (x - x0) / h
+    if fi <= 0.0:
+        return 0.0, 0.0
+    if fi >= X - 1:
+        return 1.0, 0.0
+    i = int(fi)
+    fx = fi - i
+    return Fe[i] * (1.0 - fx) + Fe[i + 1] * fx, dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _profile(v, w, tau, s, o0, o1, cubic, d, x0, h, Fe, dFe, bfix, Fv, M):
     # F at every pixel of one edge (into Fv; Fe, dFe: F and F' at the edge's angle, _at_angle),
     # the moments M of its normal equations, and the light level a, contrast b and squared
-    # misfit S that fit them; every sum weighted by the pixels' weights w (sw = sum w)
+    # misfit S that fit them; every sum weighted by the pixels' weights w (sw = sum w).
+    # The moments are _add_moments' (the same products in the same order: the same bits),
+    # summed in scalars, and without a cubic term only those _normal reads (powers of t to
+    # 2, and to 4 in g^2): a quadratic edge's pass over its pixels does ~40% less
     X = Fe.shape[0]
     sw = 0.0
     sf = 0.0
     sff = 0.0
     sv = 0.0
     sfv = 0.0
-    M[:] = 0.0
-    for p in range(o0, o1):
-        t = tau[p]
-        x = s[p] - (d[0] + t * (d[1] + t * (d[2] + t * d[3] * cubic)))
-        fi = (x - x0) / h
-        vp = v[p]
-        if fi <= 0.0:
-            f, df = 0.0, 0.0
-        elif fi >= X - 1:
-            f, df = 1.0, 0.0
-        else:
-            i = int(fi)
-            fx = fi - i
-            f = Fe[i] * (1.0 - fx) + Fe[i + 1] * fx
-            df = dFe[i] * (1.0 - fx) + dFe[i + 1] * fx
-        wp = w[p]
-        if df != 0.0:
-            _add_moments(M, M, df, f, 0.0, vp, t, False, wp)
-        Fv[p - o0] = f
-        sw += wp
-        wf = wp * f
-        sf += wf
-        sff += wf * f
-        sv += wp * vp
-        sfv += wf * vp
+    g0 = g1 = g2 = g3 = 0.0
+    f0 = f1 = f2 = f3 = 0.0
+    v0 = v1 = v2 = v3 = 0.0
+    q0 = q1 = q2 = q3 = q4 = q5 = q6 = 0.0
+    d0, d1, d2, d3 = d[0], d[1], d[2], d[3]
+    if cubic != 0.0:
+        for p in range(o0, o1):
+            t = tau[p]
+            x = s[p] - (d0 + t * (d1 + t * (d2 + t * d3 * cubic)))
+            f, df = _lookup_f(x, x0, h, X, Fe, dFe)
+            vp = v[p]
+            wp = w[p]
+            if df != 0.0:
+                wdf = wp * df
+                gg = wdf * df
+                t2 = t * t
+                t3 = t2 * t
+                t4 = t3 * t
+                t5 = t4 * t
+                t6 = t5 * t
+                g0 += wdf
+                g1 += wdf * t
+                g2 += wdf * t2
+                g3 += wdf * t3
+                wf = wdf * f
+                f0 += wf
+                f1 += wf * t
+                f2 += wf * t2
+                f3 += wf * t3
+                wv = wdf * vp
+                v0 += wv
+                v1 += wv * t
+                v2 += wv * t2
+                v3 += wv * t3
+                q0 += gg
+                q1 += gg * t
+                q2 += gg * t2
+                q3 += gg * t3
+                q4 += gg * t4
+                q5 += gg * t5
+                q6 += gg * t6
+            Fv[p - o0] = f
+            sw += wp
+            wf = wp * f
+            sf += wf
+            sff += wf * f
+            sv += wp * vp
+            sfv += wf * vp
+    else:
+        for p in range(o0, o1):
+            t = tau[p]
+            x = s[p] - (d0 + t * (d1 + t * (d2 + t * d3 * cubic)))
+            f, df = _lookup_f(x, x0, h, X, Fe, dFe)
+            vp = v[p]
+            wp = w[p]
+            if df != 0.0:
+                wdf = wp * df
+                gg = wdf * df
+                t2 = t * t
+                t3 = t2 * t
+                t4 = t3 * t
+                g0 += wdf
+                g1 += wdf * t
+                g2 += wdf * t2
+                wf = wdf * f
+                f0 += wf
+                f1 += wf * t
+                f2 += wf * t2
+                wv = wdf * vp
+                v0 += wv
+                v1 += wv * t
+                v2 += wv * t2
+                q0 += gg
+                q1 += gg * t
+                q2 += gg * t2
+                q3 += gg * t3
+                q4 += gg * t4
+            Fv[p - o0] = f
+            sw += wp
+            wf = wp * f
+            sf += wf
+            sff += wf * f
+            sv += wp * vp
+            sfv += wf * vp
+    M[_G], M[_G + 1], M[_G + 2], M[_G + 3] = g0, g1, g2, g3
+    M[_GF], M[_GF + 1], M[_GF + 2], M[_GF + 3] = f0, f1, f2, f3
+    M[_GV], M[_GV + 1], M[_GV + 2], M[_GV + 3] = v0, v1, v2, v3
+    M[_GG], M[_GG + 1], M[_GG + 2], M[_GG + 3] = q0, q1, q2, q3
+    M[_GG + 4], M[_GG + 5], M[_GG + 6] = q4, q5, q6
     if np.isnan(bfix):
         b = (sw * sfv - sf * sv) / (sw * sff - sf * sf)
     else:
