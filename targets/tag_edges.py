@@ -793,6 +793,21 @@ values differ from the sum of powers by rounding, ~1e-16 relative)'''
     return y
 
 
+# the LINEAR_MISS test's samples of a span's reach (u: -1..1 across it)
+_MISS_U = np.linspace(-1.0, 1.0, 33)
+
+
+@functools.lru_cache(maxsize=4)
+def _miss_projector(deg):
+    r'''(33,33) the transposed least-squares projector onto the polynomials of degree deg at
+the samples _MISS_U: y @ it is the fit of degree deg to y (_span_choice's LINEAR_MISS test;
+the same for every span and image, an SVD each before it was kept)'''
+    V = _MISS_U[:, None] ** np.arange(deg + 1)
+    P = (V @ np.linalg.pinv(V)).T
+    P.flags.writeable = False
+    return P
+
+
 def _union(*ranges):
     r'''(m,2) the smallest range holding each row's ranges (m,2) lo, hi (NaN rows: none)'''
     r = np.stack(ranges)
@@ -975,8 +990,10 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
     # the bend is the lens's, smooth across the image, the estimates' noise independent
     pool = np.eye(Ne)
     if grid is not None:
-        cell = np.asarray(grid).reshape(-1, 2)[ik[:, 0]]
-        pool = ((np.abs(cell[:, None] - cell[None]).max(-1) <= 1)
+        # (each axis compared apart: numpy's max over a trailing axis of 2 took ~1-4 ms here)
+        cell = np.asarray(grid).reshape(-1, 2)[ik[:, 0]].T
+        pool = ((np.abs(cell[0][:, None] - cell[0][None]) <= 1)
+                & (np.abs(cell[1][:, None] - cell[1][None]) <= 1)
                 & (ik[:, None, 1] == ik[None, :, 1])).astype(np.float64)
     # a span is judged only where the reference covers it: its neighbours' curves in it
     # (a neighbour without one, seen from its light side, would be extrapolated over)
@@ -1036,14 +1053,13 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
         # polynomial misses the line (the reference over its reach) by more than
         # LINEAR_MISS of the blurred edge's spread, neither its bias estimate nor a later
         # bias step holds, and the span is not chosen (the edge alone always may be)
-        u = np.linspace(-1.0, 1.0, 33)
+        u = _MISS_U
         for x, (_, span, deg) in enumerate(combos):
             if span == "alone":
                 continue
             lo, hi = exts[x, :, 0:1], exts[x, :, 1:2]
             y = _horner(ref, 0.5 * (lo + hi) + 0.5 * (hi - lo) * u[None])
-            V = u[:, None] ** np.arange(deg + 1)
-            miss = np.abs(y - y @ (V @ np.linalg.pinv(V)).T).max(-1)
+            miss = np.abs(y - y @ _miss_projector(deg)).max(-1)
             risk[x] = np.where(miss > LINEAR_MISS * spread, np.inf, risk[x])
     out = {}
     n = len(CANDIDATES)
