@@ -329,6 +329,18 @@ the dark side, per angle bin phi_m = m pi/4 / (A-1) of the normal (folded: |n_x|
     phi = np.linspace(0.0, np.pi / 4, TABLE_ANGLES)
     F = np.zeros((len(phi), len(x)))
     Fs = np.zeros((len(phi), len(x)))
+    if kind == "gaussian":
+        # every angle's row at once (the same elementwise arithmetic as one row at a time,
+        # the four terms summed in the same order; ~0.6 ms a table against 1.1): the angle
+        # 0 alone below, where the square's projection is a segment
+        u = np.array([np.cos(p) for p in phi[1:]])[:, None]
+        w = np.array([np.sin(p) for p in phi[1:]])[:, None]
+        terms = [(sgn, _phi_integral(x + dx, sigma, 2)) for sgn, dx in
+                 ((1, (u + w) / 2), (-1, (u - w) / 2), (-1, -(u - w) / 2),
+                  (1, -(u + w) / 2))]
+        F[1:] = sum(sgn * t[0] for sgn, t in terms) / (u * w)
+        Fs[1:] = sum(sgn * t[1] for sgn, t in terms) / (u * w)
+        phi = phi[:1]
     for m, p in enumerate(phi):
         u, w = np.cos(p), np.sin(p)
         if kind == "gaussian":
