@@ -824,3 +824,42 @@ test_blurred_tag_corners_from_the_whole_edges)'''
     assert np.isnan(fit.q[off]).all()
     rms, n = _rms(fit.q, Q)
     assert n == Q.size // 2 - 2 and rms < 0.002, (rms, n, fit.dropped())
+
+
+@pytest.mark.parametrize("cubic", [0.0, 1.0])
+def test_an_edge_fit_stops_within_its_step_of_the_converged_curve(cubic):
+    r'''targets._tag_edge_kernels.fit_edges ends a fit on a small, barely damped Gauss-Newton
+step without evaluating the profile there (the step taken; a, b by the same linear step;
+the squared misfit by its quadratic model): a quarter fewer passes over the pixels
+(docs/corners.md, session 21). Constructed: one edge, bent (cubic or quadratic), blurred by
+a gaussian of 0.7 px, its band 4 px each side, noise 0.003 (pixels weighted as a shot-noise
+line would); started 0.05 px off. Its curve at both corners (tau = +-1) lies within
+CONVERGED_PX of the fit run to 1e-12 px, its light level, contrast and misfit within 1e-6
+(relative) of that fit's'''
+    import targets.tag_edges as te
+    from targets._tag_edge_kernels import fit_edges
+    table = te._table(0.7, "gaussian")
+    x0, F, dF = table[:3]
+    L = 40.0
+    t, s = np.meshgrid(np.arange(0.5, L, 1.0), np.arange(-4.0, 4.5, 1.0))
+    t, s = t.ravel(), s.ravel()
+    tau = 2.0 * t / L - 1.0
+    d_true = np.array([0.3, 0.2, -0.4, 0.05 * cubic])
+    f, _ = te._lookup(table, s - np.polyval(d_true[::-1], tau), np.full(s.shape, 0.3))
+    v = 0.9 - 0.8 * f + np.random.default_rng(3).normal(0.0, 0.003, s.size)
+    w = 1.0 / (0.2 + v)
+    fa = 0.3 / (np.pi / 4) * (te.TABLE_ANGLES - 1)
+    args = [np.array([0, s.size]), v, w / w.mean(), tau, s, np.array([cubic]),
+            np.array([int(fa)]), np.array([fa - int(fa)]),
+            (d_true + [0.05, -0.03, 0.02, 0.0]).reshape(1, 4), x0, te.TABLE_STEP_PX, F, dF,
+            np.array([np.nan]), np.zeros(1, bool), te.MAX_ITERATIONS, te.CONVERGED_PX]
+    p, done, mis = fit_edges(*args)
+    args[-2:] = [200, 1e-12]
+    p1, done1, mis1 = fit_edges(*args)
+    assert done[0] and done1[0]
+    ends = np.array([[1.0, -1.0, 1.0, -cubic], [1.0, 1.0, 1.0, cubic]])
+    assert np.abs(ends @ (p[0, 2:] - p1[0, 2:])).max() < te.CONVERGED_PX, (p, p1)
+    assert np.allclose(p[0, :2], p1[0, :2], rtol=1e-6, atol=0.0)
+    assert abs(mis[0] / mis1[0] - 1.0) < 1e-6
+    # the fit found the edge to its noise (the band's ~320 pixels: ~0.005 px at the corners)
+    assert np.abs(ends @ (p1[0, 2:] - d_true)).max() < 0.03
