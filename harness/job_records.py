@@ -267,7 +267,8 @@ extra poses; the seconds stay those of the job), and so do the planned board pos
         Rt_ref_board=None if obs.Rt_ref_board is None else obs.Rt_ref_board[:n],
         corner_model=None if obs.corner_model is None else obs.corner_model[:n],
         corner_blur_px=None if obs.corner_blur_px is None else obs.corner_blur_px[:n],
-        corner_spans=None if obs.corner_spans is None else obs.corner_spans[:n])
+        corner_spans=None if obs.corner_spans is None else obs.corner_spans[:n],
+        corner_sigma_px=None if obs.corner_sigma_px is None else obs.corner_sigma_px[:n])
     if ctx.get("Rt_cam_board") is not None:
         out["Rt_cam_board"] = ctx["Rt_cam_board"][:n]
     det = dict(ctx["detections"])

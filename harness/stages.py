@@ -464,7 +464,7 @@ themselves (exact observations: the warm-up, the model benchmark's floors)'''
     import numpy as np
 
     from harness.calibrators.base import Observations
-    from targets.detection import stack_corner_spans
+    from targets.detection import stack_corner_sigma, stack_corner_spans
     q = np.stack([np.asarray(getattr(d, "q", d), dtype=np.float64) for d in detections])
     ids = target.point_ids() if hasattr(target, "point_ids") else None
     # the corner model of each detection, and the blur it was fitted under, travel to the
@@ -475,12 +475,15 @@ themselves (exact observations: the warm-up, the model benchmark's floors)'''
     # for a pose without them
     spans = stack_corner_spans([getattr(d, "corner_spans", None)     # exact: plain arrays
                                 for d in detections])
+    # each corner's error as its detector predicts it (targets.tag_edges: a blurred
+    # AprilTag image's), NaN where none
+    sigma = stack_corner_sigma([getattr(d, "corner_sigma_px", None) for d in detections])
     return Observations.from_camera_poses(
         q, np.asarray(target.points(), dtype=np.float64), (truth.width, truth.height),
         poses, truth.Rt_ref_cam(), point_ids=ids,
         corner_model=None if any(m is None for m in models) else np.stack(models),
         corner_blur_px=blurs if blurs.any() else None,
-        corner_spans=spans)
+        corner_spans=spans, corner_sigma_px=sigma)
 
 
 def calibrate_stage(name, obs, target, model, truth, options):

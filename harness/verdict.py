@@ -185,6 +185,9 @@ the reference corners were not detected on. So are their tag edges' span records
 (Observations.corner_spans, what the bias step computes a TAG_EDGES corner's bias from):
 the reference render's own detections' (None when none recorded any), obs's only when obs's
 detections are the reference; never the spans of corners other than the reference ones.
+The corners' predicted errors (Observations.corner_sigma_px) are obs's, the images': they
+say how the image's noise moves each corner, which the exact corners have none of, and a
+fit weighted by them fits the exact observations as it fits the images' (the same weights).
 '''
     from targets.centroids import expected_centroids, projected_points
 
@@ -790,7 +793,7 @@ def _exact_key(cal, model, options, obs_x, target, truth):
     from .compare import _model_key
     h = hashlib.sha256()
     for a in (obs_x.q, obs_x.p_board, obs_x.Rt_ref_board, obs_x.corner_model,
-              obs_x.corner_blur_px, obs_x.corner_spans):
+              obs_x.corner_blur_px, obs_x.corner_spans, obs_x.corner_sigma_px):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
     start = options.get("start")
     h.update(repr(_start_key(start)).encode())

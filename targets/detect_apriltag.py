@@ -452,4 +452,12 @@ ARGUMENTS
                 rec[row, 0, -1] = index[4 * tag_id + (k - 1) % 4]
                 rec[row, 1, -1] = index[4 * tag_id + (k + 1) % 4]
         det = dataclasses.replace(det, corner_spans=rec)
+    sigma = fit.info.get("corner_sigma_px") if refine is True and used else None
+    if sigma is not None:
+        # each point's predicted error (refine_tag_edges' info["corner_sigma_px"]; NaN: none)
+        out = np.full(len(ids), np.nan)
+        for i, (tag_id, _) in enumerate(used):
+            out[[index[4 * tag_id + k] for k in range(4)]] = sigma[4 * i:4 * i + 4]
+        out[~det.found] = np.nan
+        det = dataclasses.replace(det, corner_sigma_px=out)
     return det

@@ -58,6 +58,11 @@ corner_spans: (N,2,R) float, the TAG_EDGES corners' two edges' span records (tar
             tag_edges SPAN_RECORD, each with its edge's other corner's row appended; NaN
             where none), for the calibrators' bias step; None when the detector made none
             (a sharp image, dots). Not in as_dict: it is the bias step's, not a figure
+corner_sigma_px: (N,) float, each corner's predicted error under the image's noise, the
+            RMS of its 2-d error in px (per coordinate: over sqrt 2; targets.tag_edges'
+            info["corner_sigma_px"], from its edges' chosen spans); NaN where the detector
+            has none; None when it made none (dots, chessboards, sharp images). Not in
+            as_dict: the verdict's scatter (and a weighted fit) use it, not a figure
 '''
 
     q: np.ndarray
@@ -72,6 +77,7 @@ corner_spans: (N,2,R) float, the TAG_EDGES corners' two edges' span records (tar
     corner_model: np.ndarray = None
     corner_blur_px: float = 0.0
     corner_spans: np.ndarray = None
+    corner_sigma_px: np.ndarray = None
 
     def as_dict(self):
         return {"status": self.status, "reason": self.reason, "n_expected": self.n_expected,
@@ -106,6 +112,16 @@ one per pose), NaN for a pose without; None when no pose has any (a sharp image,
     if shape is None:
         return None
     return np.stack([np.full(shape, np.nan) if s is None else s for s in spans])
+
+
+def stack_corner_sigma(sigmas):
+    r'''(Nposes,Npoints) the predicted corner errors of each pose's detection
+(Detection.corner_sigma_px, one per pose), NaN for a pose without; None when no pose has any'''
+    shape = next((np.shape(s) for s in sigmas if s is not None), None)
+    if shape is None:
+        return None
+    return np.stack([np.full(shape, np.nan) if s is None else np.asarray(s, dtype=np.float64)
+                     for s in sigmas])
 
 
 def corner_models(corner_model, found):

@@ -465,7 +465,10 @@ ARGUMENTS
 
 RETURNED VALUE: a targets.corners.CornerFit of the Ntags*4 corners (info: "corner_model",
 "edge_spans" (Ntags*4,2,SPAN_RECORD) without a line_reference: each corner's edges' spans,
-edge_span_bias's record, NaN where dropped or not known;
+edge_span_bias's record, NaN where dropped or not known; "corner_sigma_px" (Ntags*4,): each
+corner's predicted error under the image's noise, the RMS of its 2-d error (px; per
+coordinate it is over sqrt 2), from its two edges' chosen spans' variances (_span_choice),
+NaN where dropped or not known;
 the edge fits' median misfit; with choose_kind "psf_kind" and "psf_sigma_px" used (sigma
 fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
 "psf_kind_misfit": each kind's sum of squared misfits after its sigma step)
@@ -538,9 +541,10 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         # (_span_choice: bias^2 + variance from the first pass's curves and noise): the edge
         # alone, with its board line's neighbour beyond that corner (NEIGHBOUR_REACH of it),
         # or with all its board line's neighbours (CANDIDATES)
-        choice, end_bias, funcs = {}, {}, {}
+        choice, end_bias, funcs, end_var = {}, {}, {}, {}
         if last and npass > 0:
-            choice, end_bias, funcs = _span_choice(own, start, weak, nbrs, q, curved, table, noise,
+            choice, end_bias, funcs, end_var = _span_choice(own, start, weak, nbrs, q, curved,
+                                                            table, noise,
                                             gap_bits, (pix, piy, pt, ps, off), grid,
                                             _weights(line, img[piy, pix]),
                                             None if line_reference is None else
@@ -704,6 +708,20 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         spans[..., 6] = blurs[0][0] ** 2 + _KIND_VARIANCE[blurs[0][1]]
         spans[reasons != ""] = np.nan
         info["edge_spans"] = spans.reshape(N * 4, 2, SPAN_RECORD)
+    if end_var:
+        # each corner's predicted error (_span_choice's variance of its two edges' chosen
+        # spans across each edge at the corner, the noise's share of its risk): the edges'
+        # misses ea, eb along their normals na, nb move the corner by M^-1 (ea, eb), M the
+        # normals' rows, whose 2-d variance is (va + vb) / sin^2 of the angle between them
+        var = np.full((N, 4, 2), np.nan)
+        for (i, k), (v0, v1) in end_var.items():
+            var[i, (k + 1) % 4, 0], var[i, k, 1] = v1, v0
+        na = np.roll(ns, 1, axis=1)
+        sin = na[..., 0] * ns[..., 1] - na[..., 1] * ns[..., 0]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v2 = var.sum(-1) / (sin * sin)
+        info["corner_sigma_px"] = np.where((reasons == "") & np.isfinite(v2) & (v2 > 0),
+                                           np.sqrt(v2), np.nan).ravel()
     return CornerFit(q=q.reshape(-1, 2), reasons=reasons.ravel(),
                      misfit=np.repeat(np.nanmax(np.where(good, mis_edge, -1.0), axis=1), 4),
                      npixels=np.zeros(N * 4, np.int64),
@@ -875,7 +893,11 @@ frame; weak: the edges seen from their light side only (no choice: the three edg
 cubic places them); curved: the edges whose start is a fit (not the chord); nbrs:
 _neighbours; q (N,4,2) the corners; table: _edge_table; noise: misfit RMS / contrast;
 pixels: (ix, iy, t, s, a) of tag_edge_pixels: edge (i, k)'s are [a[4i+k], a[4i+k+1]);
-grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None: alike)'''
+grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None: alike)
+
+Also returned: the end biases taken off (with a line_reference), the chosen spans'
+functionals ({(i, k): (end 0's, end 1's)}, edge_span_bias's) and their variances of the
+corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known)'''
     ix, iy, pt, ps, off = pixels
     # every edge's own moments (a weak one's curve may still be a neighbour's reference)
     keys = list(own)
@@ -994,6 +1016,8 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
              "line": lambda end: _union(own_ext, ext_nb[:, 0, 0], ext_nb[:, 1, 0])}
     exts = np.stack([reach[span](end) for end, span, _ in combos])
     risk = np.full((len(combos), Ne), np.inf)
+    # each span's variance of its corner across the edge, px^2 (the noise's share of risk)
+    variance = np.full((len(combos), Ne), np.nan)
     mbias = np.full((len(combos), Ne), np.nan)
     # each span's functional on a board line's coefficients: its fit's miss at the corner
     hs = np.full((len(combos), Ne, 6), np.nan)
@@ -1007,6 +1031,7 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
         vc[:, 0, 2:, 0] = tc[:, None] ** np.arange(deg + 1)
         z = _solve(A, vc)[..., 0]
         var = np.einsum("xnk,xk->xn", z, vc[:, 0, :, 0])
+        variance[sel] = np.where(ok & (var > 0), var, np.nan)
         # the bias's functional on the reference's coefficients (those above its degree
         # are 0), and its noise through the first pass's curves
         h = np.einsum("xnk,xnkl->xnl", z, B) - (tc[:, None] ** np.arange(6))[:, None]
@@ -1054,14 +1079,19 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
     funcs = {}
     c = CANDIDATES.index(("line", 3))
 
+    # and their variances at each end (the corner's noise across the edge, px^2)
+    end_var = {}
+
     def func(x, j):     # a span's functional and its reach
         return np.concatenate((hs[x, j], exts[x, j]))
     for j in [row[key] for key in weak if key in row]:
         funcs[keys[j]] = (func(c, j), func(n + c, j))
+        end_var[keys[j]] = (variance[c, j], variance[n + c, j])
     for j in np.flatnonzero(fine):
         out[keys[j]] = (CANDIDATES[pick[0][j]], CANDIDATES[pick[1][j]])
         if keys[j] not in weak:
             funcs[keys[j]] = (func(pick[0][j], j), func(n + pick[1][j], j))
+            end_var[keys[j]] = (variance[pick[0][j], j], variance[n + pick[1][j], j])
         bb = (mbias[pick[0][j], j], mbias[n + pick[1][j], j])
         if mapped is not None and np.isfinite(bb).all() and keys[j] not in weak:
             biases[keys[j]] = bb
@@ -1072,7 +1102,7 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
             bb = (mbias[c, j], mbias[n + c, j])
             if np.isfinite(bb).all():
                 biases[keys[j]] = bb
-    return {key: v for key, v in out.items() if key not in weak}, biases, funcs
+    return {key: v for key, v in out.items() if key not in weak}, biases, funcs, end_var
 
 
 # the fraction of a reference's bias taken as the risk left once it is taken off

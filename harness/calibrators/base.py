@@ -84,6 +84,11 @@ corner_spans: (Nposes,Npoints,2,R) float, each TAG_EDGES corner's two edges' spa
               (targets.detect_apriltag's Detection.corner_spans: refine_tag_edges'
               info["edge_spans"] and the row of each edge's other corner; NaN: none), or
               None (no tag edges' corners)
+corner_sigma_px: (Nposes,Npoints) float, each corner's error as its detector predicts it
+              under the image's noise (Detection.corner_sigma_px: targets.tag_edges'
+              info["corner_sigma_px"]): the RMS of its 2-d error in px (per coordinate it
+              is this over sqrt 2); NaN where the detector has no prediction, or None
+              (none has any: dots, chessboards, sharp AprilTag images)
 '''
 
     q: np.ndarray
@@ -94,6 +99,7 @@ corner_spans: (Nposes,Npoints,2,R) float, each TAG_EDGES corner's two edges' spa
     corner_model: np.ndarray = None
     corner_blur_px: np.ndarray = None
     corner_spans: np.ndarray = None
+    corner_sigma_px: np.ndarray = None
 
     def __post_init__(self):
         q = np.array(self.q, dtype=np.float64)
@@ -139,6 +145,12 @@ corner_spans: (Nposes,Npoints,2,R) float, each TAG_EDGES corner's two edges' spa
                 raise CalibratorError(f"corner_spans must have shape (Nposes,Npoints,2,R) = "
                                       f"{q.shape[:2] + (2,)}+(R,); got {s.shape}")
             object.__setattr__(self, "corner_spans", s)
+        if self.corner_sigma_px is not None:
+            s = np.array(self.corner_sigma_px, dtype=np.float64)
+            if s.shape != q.shape[:2]:
+                raise CalibratorError(f"corner_sigma_px must have shape (Nposes,Npoints) = "
+                                      f"{q.shape[:2]}; got {s.shape}")
+            object.__setattr__(self, "corner_sigma_px", s)
 
     @property
     def Nposes(self):
@@ -177,7 +189,7 @@ SYNOPSIS
     @classmethod
     def from_camera_poses(cls, q, p_board, imagersize, Rt_cam_board=None, Rt_ref_cam=None,
                           point_ids=None, corner_model=None, corner_blur_px=None,
-                          corner_spans=None):
+                          corner_spans=None, corner_sigma_px=None):
         r'''Observations from board poses in a camera frame (what a render sidecar gives)
 
 SYNOPSIS
@@ -187,8 +199,8 @@ SYNOPSIS
 
 The survey in the world frame is Rt_ref_board = Rt_ref_cam o Rt_cam_board;
 without Rt_cam_board the poses are unknown. Rt_ref_cam defaults to identity.
-corner_model, corner_blur_px, corner_spans: the detections' corner models, blurs and
-tag edges' spans (the fields above), or None.
+corner_model, corner_blur_px, corner_spans, corner_sigma_px: the detections' corner
+models, blurs, tag edges' spans and predicted errors (the fields above), or None.
 '''
         Rt_ref_board = None
         if Rt_cam_board is not None:
@@ -199,7 +211,8 @@ tag edges' spans (the fields above), or None.
                                      for x in Rt_cam_board])
         return cls(q=q, p_board=p_board, imagersize=imagersize, Rt_ref_board=Rt_ref_board,
                    point_ids=point_ids, corner_model=corner_model,
-                   corner_blur_px=corner_blur_px, corner_spans=corner_spans)
+                   corner_blur_px=corner_blur_px, corner_spans=corner_spans,
+                   corner_sigma_px=corner_sigma_px)
 
 
 @dataclass(frozen=True, eq=False)
