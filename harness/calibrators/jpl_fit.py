@@ -51,7 +51,7 @@ option R0 says otherwise) and compare.py compares the truth moved to the same
 R0. Projections do not depend on this choice.
 
 WEIGHTS: where the detector predicts each corner's error (Observations.corner_sigma_px:
-the standard error of its position, px, from the detection's own noise and spans; NaN
+the RMS of its 2-d error under the image's noise, px, from its edges' chosen spans; NaN
 where it gives none), each point's residual is divided by it (point_weights): a
 corner at the end of a long span at the image's rim, whose predicted error is 2-8 times
 an interior corner's, counts that much less. The prediction is floored at
@@ -444,8 +444,8 @@ The weight of a point is 1 / its predicted error floored at WEIGHT_FLOOR_PX
 (sqrt(sigma^2 + floor^2)); a point without a prediction (NaN) takes its pose's median
 floored prediction, or the median over every pose when its pose has none. Scaled to an
 RMS of 1 over the found points: relative weights (the solver's steps and tolerances see
-residuals of the unweighted size). None when no found point has a prediction, or obs has
-no corner_sigma_px. Not found points: NaN.
+residuals of the unweighted size). None when obs.corner_sigma_px is None or no found point
+has a prediction. Not found points: NaN.
 '''
     found = obs.found
     info = {} if start is None else (start.info or {})
@@ -456,7 +456,7 @@ no corner_sigma_px. Not found points: NaN.
         # the start's: sigma = 1 / weight, the points it had none for filled as below
         sig = 1.0 / np.asarray(held, dtype=np.float64)
     else:
-        s = getattr(obs, "corner_sigma_px", None)
+        s = obs.corner_sigma_px
         if s is None:
             return None
         s = np.asarray(s, dtype=np.float64)
