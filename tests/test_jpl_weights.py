@@ -52,6 +52,10 @@ def test_weighting_by_the_predicted_error_recovers_the_truth_better():
         d0, r0 = _projection_rms(truth, noisy)
         d1, r1 = _projection_rms(truth, _with_sigma(noisy, sigma))
         assert r0.info["weights"] is None
+        # a cold weighted fit: unweighted from the staged start, then weighted from there
+        first = r1.info["passes"][0]
+        assert first["unweighted_rms"] == pytest.approx(r0.info["passes"][0]["rms"], rel=1e-9)
+        assert first["stages"][-1]["family"] == "CAHVOR" and len(first["stages"]) == 3
         w = r1.info["weights"]
         # relative weights, 1 / the floored prediction, RMS 1 over the found points
         f = noisy.found
