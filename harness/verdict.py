@@ -886,11 +886,18 @@ grid_jacobian: P -> (Jg, Jw): Jg (2M, n_model) d _grid_projector(P)(model(x)) /
            d x[:n_model] at x0, in closed form (jpl_grid_jacobian) or the calibrator's own
            (mrcal), and Jw (2M, 3) its derivatives in a turn of the points
            (_projection_sigma), or None
+row_weights: None (an unweighted fit), or (2N,) what the fit multiplied each residual row
+           by (rows as project's: x, y of each point, pose-major): the fit minimised
+           |w (q - project(x))|^2, so its covariance is (J^T W J)^-1 J^T W D W J
+           (J^T W J)^-1 with W = diag(row_weights^2): the scatter's J rows and D's
+           variances are scaled by w and w^2 (jpl_linearisation: the jpl fit's
+           info["weights"], jpl_fit.point_weights)
 '''
 
     def __init__(self, x0, project, model, pose, steps, n_model=None, jacobian=None,
-                 quantity_jacobian=None, grid_jacobian=None):
+                 quantity_jacobian=None, grid_jacobian=None, row_weights=None):
         self.x0, self.project, self.model, self.pose, self.steps = x0, project, model, pose, steps
+        self.row_weights = row_weights
         self.quantity_jacobian, self.grid_jacobian = quantity_jacobian, grid_jacobian
         self.n_model = len(x0) if n_model is None else n_model
         self._jacobian = jacobian
@@ -939,7 +946,8 @@ def _central_jacobian(f, x0, h):
 
 
 def jpl_linearisation(res, obs):
-    r'''The jpl fit in its own chart (harness.calibrators.jpl_fit; R0 held) -> Linearisation'''
+    r'''The jpl fit in its own chart (harness.calibrators.jpl_fit; R0 held) -> Linearisation,
+with the fit's row weights (Linearisation.row_weights) where it was weighted'''
     from harness.calibrators.jpl_fit import _Chart
     from reference_models.kernels import project
     m = res.model
@@ -958,8 +966,13 @@ def jpl_linearisation(res, obs):
         # compiled kernel (_jpl_kernels.jacobian_chart, steps +-h) on the paper campaign's
         # jpl records, their truncation
         return jpl_grid_jacobian(chart, chart.model(x0), p, world=True)
+    # the fit's weights (jpl_fit.point_weights: each point's residual divided by its
+    # predicted error), rows x, y of each found point; None: unweighted
+    w = (res.info or {}).get("weights")
+    row_weights = None if w is None else \
+        np.repeat(np.asarray(w, dtype=np.float64)[found], 2)
     return Linearisation(x0, lambda x: project(chart.model(x), p), chart.model, pose, h,
-                         jacobian=jacobian,
+                         jacobian=jacobian, row_weights=row_weights,
                          quantity_jacobian=lambda m0, ref, names, theta, qvec:
                          jpl_quantity_jacobian(chart, m0, ref, names, theta),
                          grid_jacobian=lambda P: _split_turns(
