@@ -1784,16 +1784,21 @@ projection difference (the rotation's own freedom projected out).
         elif Jg is None:
             Jg, = lin.model_jacobians([_grid_projector(P)])
         J = lin.jacobian()                                       # (2N, n)
+    # the resolution term of the joint test is a metric of the unweighted projection moves
+    # (|J dx|^2), so it takes the unweighted J's normal inverse
+    res_normal = _normal_inverse(J)
+    if lin.row_weights is not None:
+        # a weighted fit (Linearisation.row_weights w) minimised |w r|^2: its move is
+        # (J^T W J)^-1 J^T W dq, W = diag(w^2), so cov = (J^T W J)^-1 J^T W D W J (J^T W J)^-1:
+        # J's rows scaled by w, and D = S C S's S by w (var_row by w^2; C unchanged)
+        J = J * lin.row_weights[:, None]
+        var_row = var_row * lin.row_weights ** 2
     # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
     # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
-    # not determine at all; then the block of the parameters the model depends on (the
-    # board poses marginalised)
-    s_col = np.linalg.norm(J, axis=0)
-    s_col[s_col == 0] = 1.0
+    # not determine at all (_normal_inverse); then the block of the parameters the model
+    # depends on (the board poses marginalised)
+    Ninv, s_col = res_normal if lin.row_weights is None else _normal_inverse(J)
     Js = J / s_col
-    w, V = np.linalg.eigh(Js.T @ Js)
-    keep = w > w[-1] * 1e-15
-    Ninv = (V[:, keep] / w[keep]) @ V[:, keep].T
     # the model block as a Gram matrix: cov = F^T D F with F (2N, n_model) the image rows'
     # influence on the model parameters, factored cov = R^T R by the QR decomposition of
     # D^1/2 F (R: n_model x n_model). A variance a^T cov a is then the sum of squares
@@ -1820,11 +1825,23 @@ projection difference (the rotation's own freedom projected out).
             sigma[k] = math.sqrt(sigma[k])
     sigma["projection_rms"] = _projection_sigma(m0, P, Jg, R, Jw)
     # the joint test's covariance adds the renderer resolution (joint_resolution_cov)
-    res_cov = joint_resolution_cov(Ninv, s_col, len(lin.pose))[:lin.n_model, :lin.n_model]
+    res_cov = joint_resolution_cov(*res_normal, len(lin.pose))[:lin.n_model, :lin.n_model]
     return {"sigma": sigma, "joint": joint_of_fit(names, q0, G, cov + res_cov, ref),
             "noise_per_pose": [None if not np.isfinite(s) else float(s)
                                for s in sig_pose],
             "n_params": n, "n_points": int(len(lin.pose))}
+
+
+def _normal_inverse(J):
+    r'''(Ninv, s_col): the pseudo-inverse of J's normal matrix with J's columns scaled to unit
+length (s_col, their norms; 1 for a zero column), directions below 1e-15 of the largest
+eigenvalue left out: Ninv = (Js^T Js)^+ for Js = J / s_col'''
+    s_col = np.linalg.norm(J, axis=0)
+    s_col[s_col == 0] = 1.0
+    Js = J / s_col
+    w, V = np.linalg.eigh(Js.T @ Js)
+    keep = w > w[-1] * 1e-15
+    return (V[:, keep] / w[keep]) @ V[:, keep].T, s_col
 
 
 def projection_points(truth):

@@ -190,3 +190,38 @@ def test_the_verdict_sees_a_shift_of_a_weighted_fits_detections():
         assert v["renderer"]["params"]["Hc"] == pytest.approx(expect, rel=0.02, abs=1e-7)
         assert v["renderer"]["projection"]["intrinsics"]["rms"] == \
             pytest.approx(expect, rel=0.05, abs=1e-7)
+
+
+def test_the_verdicts_scatter_is_the_weighted_fits(monkeypatch):
+    # harness.verdict.scatter of a weighted fit scales J's rows and the noise's standard
+    # deviations by the fit's row weights: its predicted sigma of Hc matches the spread of the
+    # weighted fit over noise draws, which the unweighted formula overstates 7x on this barrel
+    # (its rim corners, predicted 15x worse, would pull an unweighted fit)
+    from harness import verdict
+    truth, exact, sigma, _ = _barrel_case(0)
+    ref = calibrate("jpl", _with_sigma(exact, sigma), TARGET, "CAHVOR", truth=truth,
+                    bias_correction=False)
+
+    def hc(m):
+        return float(m.H @ m.A)
+    moved, predicted = [], []
+    for seed in range(1, 61):
+        _, _, _, noisy = _barrel_case(seed)
+        obs = _with_sigma(noisy, sigma)
+        r = calibrate("jpl", obs, TARGET, "CAHVOR", truth=truth, bias_correction=False)
+        moved.append(hc(r.model) - hc(ref.model))
+        predicted.append(verdict.scatter(r, ref, obs, truth)["sigma"]["Hc"])
+    measured = float(np.std(moved, ddof=1))
+    pred = float(np.median(predicted))
+    # measured 0.00097 px over 80 draws, predicted 0.00105; 60 draws give the measured
+    # spread to ~9% (1 sigma), so the ratio lies well inside 0.7-1.4
+    assert 0.7 < pred / measured < 1.4, (pred, measured)
+    lin = verdict.jpl_linearisation
+
+    def unweighted(res, o):
+        out = lin(res, o)
+        out.row_weights = None
+        return out
+    monkeypatch.setattr(verdict, "jpl_linearisation", unweighted)
+    plain = verdict.scatter(r, ref, obs, truth)["sigma"]["Hc"]
+    assert plain > 3 * measured, (plain, measured)
