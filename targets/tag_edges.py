@@ -514,7 +514,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
     # the pixels' noise variance as a line in their value (None: every pixel alike): the
     # first pass's fits tell it, the later passes weight their pixels by its inverse
     line = None
-    funcs = {}
+    funcs, end_var = {}, {}
     for npass in range(passes):
         # the passes before the last only place its pixels: each edge alone
         last = npass == passes - 1

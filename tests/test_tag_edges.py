@@ -756,6 +756,22 @@ image's range (0.8 and the noise of its extreme pixels, 3 sigma each way)'''
     return E, table
 
 
+def test_tags_with_no_edge_to_fit_drop_every_corner_with_its_reason():
+    r'''Tags so small under their blur that no edge can be fitted (tag bits of 1 px,
+sigma 1.5 px: every edge too short for its blur, as views 1 and 3 of the constructed
+tiny-320x240 camera under the realistic profile) leave the first pass with nothing to fit:
+every corner is dropped with the edge's reason, none kept at the coarse start, and no
+corner has a predicted error (h-fuzz found the pass loop's early end reading that
+prediction unbound)'''
+    img, Q, grid = _tag_grid(1.0)
+    im = ResponseChain.from_config(BLUR).apply(img).image.astype(np.float64)
+    bits = np.array([tag36h11_bits(t) for t in range(len(Q))])
+    fit = refine_tag_edges(im, Q + 0.3, 1.5, "sampled", bits=bits, grid=grid, value_range=1.0)
+    assert np.isnan(fit.q).all()
+    assert set(fit.reasons.tolist()) == {"edge too short for its blur"}
+    assert "corner_sigma_px" not in fit.info
+
+
 def test_a_free_contrast_that_runs_off_is_not_converged():
     r'''The last helper's note (docs/corners.md, h-tagspeed): on the tiny-320x240 camera an
 edge seen from its light side only ran 1.78 px into its tag with a contrast of -1105 (the
