@@ -68,6 +68,15 @@ CLASSIC_FLAGS = 3     # cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IM
 CLASSIC_PLAIN_FLAGS = 1   # cv2.CALIB_CB_ADAPTIVE_THRESH
 CLASSIC_PLAIN = "findChessboardCorners without equalisation"
 CLASSIC_METHODS = ("findChessboardCorners", CLASSIC_PLAIN)
+# the sector-based search (findChessboardCornersSB, each size) again without
+# CALIB_CB_NORMALIZE_IMAGE where it found no board, for the same reason: a foreshortened board
+# at the edge of a wide rectilinear view (the CAHV of random camera rnd22-6-506x506, a 151 deg
+# fisheye: 121 deg as a pinhole), squares 8-36 px on a dark image, is found by neither
+# quad-based search nor by the sector-based one with equalisation, and by the sector-based
+# one without it (campaigns/cameras/wide-cahv-506x506.cahv; tests/test_chessboard_wide.py).
+# Only where every other search failed; a failed search's name in the reason stays
+# "findChessboardCornersSB" (it covers both).
+SB_PLAIN_SUFFIX = " without equalisation"
 # the reason of a corner dropped because the image around it is no chessboard saddle
 NOT_SADDLE = "not a saddle"
 # how far along the diagonals (in grid steps) a corner's saddle is checked
@@ -170,14 +179,23 @@ def _find_sb(cv2, img8, size, flags_sb, fast=True):
 instead of 0.16-0.22 s on 512x512, benchmarks/bench_corners.py images; its sub-pixel
 polish is redone below by cornerSubPix and the corner model), then with it where that
 finds no board (1 of 18 images of MER hazcam 8, camera 17, navcam 15). fast=False (the
-corners are used as OpenCV finds them, refine=False): with it only.'''
-    ok = False
-    if fast:
-        ok, corners = cv2.findChessboardCornersSB(img8, size,
-                                                  flags=flags_sb & ~cv2.CALIB_CB_ACCURACY)
-    if not ok:
-        ok, corners = cv2.findChessboardCornersSB(img8, size, flags=flags_sb)
-    return ok, corners
+corners are used as OpenCV finds them, refine=False): with it only. Where neither finds a
+board, the same again without CALIB_CB_NORMALIZE_IMAGE (SB_PLAIN): the equalisation defeats
+the sector-based search as it does the quad-based one (CLASSIC_PLAIN_FLAGS). -> (found,
+corners, the search's name suffix: "" or SB_PLAIN_SUFFIX)'''
+    for flags, suffix in ((flags_sb, ""),
+                          (flags_sb & ~cv2.CALIB_CB_NORMALIZE_IMAGE, SB_PLAIN_SUFFIX)):
+        if suffix and flags == flags_sb:
+            break
+        ok = False
+        if fast:
+            ok, corners = cv2.findChessboardCornersSB(img8, size,
+                                                      flags=flags & ~cv2.CALIB_CB_ACCURACY)
+        if not ok:
+            ok, corners = cv2.findChessboardCornersSB(img8, size, flags=flags)
+        if ok:
+            return ok, corners, suffix
+    return False, None, ""
 
 
 def detect_chessboard(image, target, *, min_found=MIN_POINTS_FOR_POSE, refine=True,
@@ -239,17 +257,17 @@ ARGUMENTS
     if not ok and shrink >= 2 and refine and reduced_search:
         small = cv2.resize(img8, (img8.shape[1] // shrink, img8.shape[0] // shrink),
                            interpolation=cv2.INTER_AREA)
-        ok, corners = _find_sb(cv2, small, (nx, ny), flags_sb)
+        ok, corners, suffix = _find_sb(cv2, small, (nx, ny), flags_sb)
         if ok:
             # INTER_AREA: small pixel i covers full pixels [i*s, (i+1)*s)
             corners = (np.asarray(corners, dtype=np.float64) + 0.5) * shrink - 0.5
-            info["method"] = f"findChessboardCornersSB at 1/{shrink} size"
+            info["method"] = f"findChessboardCornersSB at 1/{shrink} size{suffix}"
         else:
             tried.append(f"findChessboardCornersSB at 1/{shrink} size")
     if not ok:
-        ok, corners = _find_sb(cv2, img8, (nx, ny), flags_sb, fast=bool(refine))
-        info["method"] = "findChessboardCornersSB"
-        tried += [] if ok else [info["method"]]
+        ok, corners, suffix = _find_sb(cv2, img8, (nx, ny), flags_sb, fast=bool(refine))
+        info["method"] = "findChessboardCornersSB" + suffix
+        tried += [] if ok else ["findChessboardCornersSB"]
     if not ok and not (refine and classic_first):
         ok, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=CLASSIC_FLAGS)
         info["method"] = "findChessboardCorners"
