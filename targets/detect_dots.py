@@ -567,6 +567,28 @@ reaches the crop (crowded: _crowded()'s value for this crop)'''
     return _label_image(masks, stats, xa, ya, xb, yb) == 0
 
 
+def _clear_of_others(free, blob, bx, by, kernel):
+    r'''free (bool, a dot's crop: the pixels of no blob) without the pixels within the kernel
+(a disk of BLUR_NEIGHBOUR_SIGMAS edge-blur sigmas, rounded up) of another blob's pixels;
+blob: the dot's own mask (uint8) over its box, whose corner is pixel (bx, by) of the crop.
+
+The board level under a dot's window is a plane fitted to the ring beyond it (free pixels
+only). Under blur a neighbour's darkness reaches past its blob, the pixels below the
+threshold: where dots crowd, dot_windows can leave no room between the ring and that edge
+(its windows stop at the sharp one), and the ring took in the neighbour's blurred edge,
+tilting the plane down on that side and moving the centroid away from the neighbour. On a
+506x506 wide pinhole (dots of radius 2-4 px, 3-5 px apart; docs/corners.md, h-dotgate),
+detected - exact centroid RMS 0.010-0.013 px per crowded view under the 0.7 px PSF alone,
+0.005-0.008 with the ring kept clear (0.004-0.005 on the sharp render); the renderer gate's
+joint chi2 on its dots 36-90 on 11 dof -> 4-14. Sharp renders (no blur read) are not
+touched.'''
+    import cv2
+    other = ~free
+    h, w = blob.shape
+    other[by:by + h, bx:bx + w] &= blob == 0
+    return free & (cv2.dilate(other.view(np.uint8), kernel) == 0)
+
+
 def _dot_centroid(crop, mask, free, win_kernel, ring_kernel, xa, ya):
     r'''The darkness-weighted centroid (x, y) of a blob in a crop (float64, a copy: it is
 overwritten) whose pixel crop[0,0] is (xa, ya); None if it has no weight
@@ -637,6 +659,23 @@ BLUR_QUICK_LOOK = 0.3
 BLUR_NEIGHBOUR_SIGMAS = 2.0
 
 
+def _surrounded(mask, xx, yy):
+    r'''Whether the board's light pixels (columns xx, rows yy of a dot's crop) surround the
+dot (its blob mask, uint8): the centre of its mask inside their convex hull, so that the
+board plane through them (edge_blur_and_noise) is read at the dot, not extrapolated to it.
+Where dots crowd (gaps under the 14 px that keep a pixel 7 px from any dark one), only the
+dots at the board's margin keep light pixels, a strip on one side: a 320x240 camera's dots
+(radius 2.7 px, 4.4 px apart; docs/corners.md, h-dotgate) put the plane at 1.4-2.1 over the
+dot where the image's lightest pixel is 0.9, the band of its edge 6x too wide, sigma read
+3-6 px under a 0.7 px PSF, and shading_blur_shift ((sigma^2 + 1/12) grad ln(board level))
+moved the centroids by up to 0.15 px. Such a dot is not read; a board read from none is
+sharp (no blur measured: the sharp window, no shift).'''
+    import cv2
+    my, mx = np.nonzero(mask)
+    hull = cv2.convexHull(np.column_stack((xx, yy)).astype(np.float32))
+    return cv2.pointPolygonTest(hull, (float(mx.mean()), float(my.mean())), False) > 0
+
+
 def edge_blur_and_noise(img, masks, stats, labels):
     '''(sigma, noise) of the dots labels (up to BLUR_SAMPLE_DOTS of them, spread over the
 list): the edge blur sigma (px; see BLUR_* above), the median over them, and the board's
@@ -672,6 +711,8 @@ measured. A sharp image is read from every third of them (BLUR_QUICK_LOOK)'''
         # the board as a plane through its light pixels: a shading gradient across the crop
         # (vignetting) is no blur
         yy, xx = np.nonzero(light)
+        if not _surrounded(mask, xx, yy):
+            continue
         A = np.column_stack((np.ones(len(xx)), xx, yy)).astype(np.float64)
         coef = np.linalg.lstsq(A, crop[light], rcond=None)[0]
         gy, gx = np.mgrid[0:crop.shape[0], 0:crop.shape[1]]
@@ -1039,6 +1080,10 @@ of the blobs measured in img (module docstring, steps 1-4)'''
         info["window_dilation_px"] = [int(windows.min()), int(windows.max())]
         if noise is not None:
             info["board_noise_rel"] = float(f"{noise:.3g}")
+    # the ring keeps off the other blobs' blurred edges (_clear_of_others)
+    clear_px = 0 if sigma is None or sigma <= BLUR_SIGMA_NOTED_PX else \
+        int(math.ceil(BLUR_NEIGHBOUR_SIGMAS * sigma))
+    clear_kernel = _disk(clear_px) if clear_px else None
     kernels = {}
     for wd in sorted(set(windows.tolist())):
         win_kernel, ring_kernel = _disk(wd), _disk(wd + ring_px)
@@ -1064,6 +1109,8 @@ of the blobs measured in img (module docstring, steps 1-4)'''
         free = _dot_free(masks, stats, xa, ya, xb, yb, near and not whole)
         if near and whole:   # the pixels of no blob: the light ones, as labelled
             free = ~(lab[ya:yb, xa:xb] < thr_labelled)
+        if free is not None and clear_kernel is not None:
+            free = _clear_of_others(free, masks[label], bx - xa, by - ya, clear_kernel)
         status = -1
         if rows is not None:    # (the blob's mask over its box, where it lies in the crop)
             status, cx, cy = _kernels.dot_centroid(
