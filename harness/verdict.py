@@ -1549,6 +1549,18 @@ least DETECTION_RESOLUTION_PX; NaN where an image has no point'''
     return out
 
 
+def _fitted_points(obs, pose):
+    r'''(pi, pt): the image and point index of each fitted point (pose: Linearisation.pose,
+the points of obs.found, pose-major, of the images the fit kept), or None when pose is not
+that order (corner_shares, corner_correlation)'''
+    pose = np.asarray(pose)
+    keep = obs.found & np.isin(np.arange(obs.Nposes), pose)[:, None]
+    pi, pt = np.nonzero(keep)
+    if not np.array_equal(pi, pose):
+        return None
+    return pi, pt
+
+
 def corner_shares(obs, pose):
     r'''(N,) each fitted point's share of its image's measured noise variance, or None (the
 detector predicted none: every point alike)
@@ -1564,11 +1576,10 @@ its measured variance is spread over its points, not changed.'''
     sig = getattr(obs, "corner_sigma_px", None)
     if sig is None:
         return None
-    pose = np.asarray(pose)
-    keep = obs.found & np.isin(np.arange(obs.Nposes), pose)[:, None]
-    pi, pt = np.nonzero(keep)
-    if not np.array_equal(pi, pose):
+    fitted = _fitted_points(obs, pose)
+    if fitted is None:
         return None
+    pi, pt = fitted
     v = np.asarray(sig, dtype=np.float64)[pi, pt] ** 2
     has = np.isfinite(v) & (v > 0)
     out = np.ones(len(pose))
@@ -1648,11 +1659,10 @@ from the span records; C is then a sum of correlation matrices, positive semidef
     spans = getattr(obs, "corner_spans", None)
     if spans is None or getattr(obs, "corner_sigma_px", None) is None:
         return None
-    pose = np.asarray(pose)
-    keep = obs.found & np.isin(np.arange(obs.Nposes), pose)[:, None]
-    pi, pt = np.nonzero(keep)
-    if not np.array_equal(pi, pose):
+    fitted = _fitted_points(obs, pose)
+    if fitted is None:
         return None
+    pi, pt = fitted
     out = []
     row0 = 0
     for i in np.unique(pi):
