@@ -131,6 +131,21 @@ project outside the image are NaN.
                         point_ids=np.asarray(target.point_ids()))
 
 
+def centroid_observations(truth, target, poses):
+    r'''harness.stages.observations_from with every detection the dots' exact expected
+centroids (targets.centroids.expected_centroids: what a perfect detector sees), as the
+campaign builds Observations from a detector's output'''
+    from harness import stages
+    from targets.centroids import expected_centroids
+
+    class Detected:
+        def __init__(self, q):
+            self.q = q
+    return stages.observations_from(truth, target, poses,
+                                    [Detected(expected_centroids(truth, target, Rt))
+                                     for Rt in poses])
+
+
 def catalogue_models():
     r'''[(key, model)] of every catalogue camera: the 22 slots, then the extras'''
     from reference_models.catalogue import load_catalogue

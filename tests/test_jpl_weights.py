@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from synthetic import default_target, exact_observations, synthetic_poses
+from synthetic import centroid_observations, default_target, exact_observations, synthetic_poses
 
 from harness.calibrators import calibrate, jpl_fit
 from harness.compare import projection_difference
@@ -161,16 +161,10 @@ def test_the_verdict_sees_a_shift_of_a_weighted_fits_detections():
     # corners predicted 15x worse: the weighted image fit moves by that shift from the exact
     # fit, which holds the image fit's weights; images equal to the reference differ by 0
     from harness import stages, verdict
-    from targets.centroids import expected_centroids
     truth = load_model_file(BARREL)
     target = stages.cached_target("dots")
     poses = stages.poses_stage(truth, target, 6, 0)
-
-    class D:
-        def __init__(self, q):
-            self.q = q
-    obs = stages.observations_from(truth, target, poses,
-                                   [D(expected_centroids(truth, target, Rt)) for Rt in poses])
+    obs = centroid_observations(truth, target, poses)
     c = np.array([truth.width, truth.height]) / 2.0
     r = np.linalg.norm(obs.q - c, axis=-1)
     f = obs.found

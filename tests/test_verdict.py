@@ -9,6 +9,7 @@ import functools
 
 import numpy as np
 import pytest
+from synthetic import centroid_observations
 
 from harness import stages, verdict
 from harness.records import Record
@@ -29,15 +30,8 @@ def navcam():
     _, truth = stages.camera_truth("15", "CAHVOR")
     target = stages.cached_target("dots")
     poses = stages.poses_stage(truth, target, 6, 0)
-    # "detections" = exact centroids: observations_from wants Detection-like objects
-    from targets.centroids import expected_centroids
-
-    class D:
-        def __init__(self, q):
-            self.q = q
-    dets = [D(expected_centroids(truth, target, Rt)) for Rt in poses]
-    obs = stages.observations_from(truth, target, poses, dets)
-    return truth, target, poses, obs
+    # "detections" = exact centroids
+    return truth, target, poses, centroid_observations(truth, target, poses)
 
 
 def test_exact_observations_are_the_exact_centroids_with_the_detected_mask(navcam):
@@ -440,17 +434,11 @@ R1_frac's z is R1's (a fractional difference is the absolute one over a constant
 the renderer gate passes this perfect renderer. Taken over the image fit's |R1| it was
 z 1270: a false alarm.'''
     from harness.gate import DEFAULT_SPEC, check, load_gate_spec
-    from targets.centroids import expected_centroids
     _, t15 = stages.camera_truth("15", "CAHVOR")
     truth = t15.replace(R=np.array([t15.R[0], 1e-8, t15.R[2]]))
     target = stages.cached_target("dots")
     poses = stages.poses_stage(truth, target, 6, 0)
-
-    class D:
-        def __init__(self, q):
-            self.q = q
-    obs = stages.observations_from(truth, target, poses,
-                                   [D(expected_centroids(truth, target, Rt)) for Rt in poses])
+    obs = centroid_observations(truth, target, poses)
     rng = np.random.default_rng(1)
     img = obs.replace(q=obs.q + rng.normal(0, 0.001 / np.sqrt(2), obs.q.shape))
     exact, noise, _ = verdict.exact_fit("jpl", "CAHVOR", {}, img, target, truth, {})

@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 from scipy import stats
+from synthetic import centroid_observations
 
 from harness.verdict import (
     DETECTION_RESOLUTION_PX,
@@ -105,16 +106,10 @@ def test_equivalent_z_matches_the_per_quantity_gate():
 @pytest.fixture(scope="module")
 def navcam():
     from harness import stages
-    from targets.centroids import expected_centroids
     _, truth = stages.camera_truth("15", "CAHVOR")
     target = stages.cached_target("dots")
     poses = stages.poses_stage(truth, target, 6, 0)
-
-    class D:
-        def __init__(self, q):
-            self.q = q
-    dets = [D(expected_centroids(truth, target, Rt)) for Rt in poses]
-    return truth, target, stages.observations_from(truth, target, poses, dets)
+    return truth, target, centroid_observations(truth, target, poses)
 
 
 def _verdict(navcam, shift, seed):
