@@ -2114,11 +2114,52 @@ def joint_of_fit(names, q0, G, cov, ref):
     r'''verdict.renderer.joint: joint_statistic of the renderer differences q0 (the signed
 reported quantities names, image fit minus exact fit ref) under G cov G^T (_scatter passes
 the fit's covariance plus the resolution term joint_resolution_cov), with the sigma each
-minimum-detectable fault is seen by ("fault_sigma", joint_fault_sigma)'''
+minimum-detectable fault is seen by ("fault_sigma", joint_fault_sigma) and the direction
+that carries most of chi2 ("direction", joint_direction)'''
     S = G @ cov @ G.T
     d = np.array([q0[k] for k in names], dtype=np.float64)
     basis = JointBasis(S)
     out = joint_statistic(d, S, basis=basis)
     out["fault_sigma"] = {p: joint_fault_sigma(v, S, basis=basis)
                           for p, v in _joint_fault_directions(names, ref).items()}
+    out["direction"] = joint_direction(names, d, S, basis=basis)
     return out
+
+
+# quantities joint_direction names a direction by (its largest loadings)
+JOINT_DIRECTION_LOADINGS = 5
+
+
+def joint_direction(names, d, S, cut=JOINT_EIGEN_CUT, basis=None):
+    r'''The eigen-direction of joint_statistic that carries the largest part of chi2:
+{"chi2": its part, "share": of the whole, "relative_eigenvalue": its eigenvalue over the
+largest kept (its conditional sigma over the marginal ones, squared), "loading": {quantity:
+component} of the JOINT_DIRECTION_LOADINGS largest components of the unit direction, in the
+quantities scaled to unit variance, signed as the difference moved along it}, or None when
+chi2 is None or 0
+
+What a failed joint test with every marginal z small names: a combination of quantities
+the covariance holds tight and the two fits do not (the small-sensor false alarm of session
+21: share 0.52 at relative eigenvalue 9.6e-7, loading E2, E1, E0, R1 and C, a wrong bias
+correction of one fit's corners, docs/corners.md).'''
+    d = np.asarray(d, dtype=np.float64)
+    S = np.asarray(S, dtype=np.float64)
+    s = np.sqrt(np.maximum(np.diag(S), 0.0))
+    ok = (s > 0) & np.isfinite(s) & np.isfinite(d)
+    if not ok.any():
+        return None
+    V, w = (basis or JointBasis(S, cut)).of(s, ok)
+    if len(w) == 0:
+        return None
+    u = V.T @ (d[ok] / s[ok])
+    part = u * u / w
+    total = float(part.sum())
+    if not total > 0:
+        return None
+    i = int(np.argmax(part))
+    v = V[:, i] if u[i] >= 0 else -V[:, i]      # signed as the difference moved along it
+    kept = [k for k, o in zip(names, ok, strict=True) if o]
+    top = np.argsort(-np.abs(v), kind="stable")[:JOINT_DIRECTION_LOADINGS]
+    return {"chi2": float(part[i]), "share": float(part[i] / total),
+            "relative_eigenvalue": float(w[i] / w.max()),
+            "loading": {kept[j]: float(v[j]) for j in top}}

@@ -11,6 +11,7 @@ from synthetic import centroid_observations
 from harness.verdict import (
     DETECTION_RESOLUTION_PX,
     JOINT_RESOLUTION_Z,
+    joint_direction,
     joint_fault_sigma,
     joint_limit,
     joint_resolution_cov,
@@ -42,6 +43,30 @@ def test_a_move_against_the_correlation_is_seen_by_its_conditional_sigma():
     # a unit move of the first alone: sigma given the second is sqrt(1 - r^2)
     assert joint_fault_sigma(np.array([1.0, 0.0]), S) == pytest.approx(
         math.sqrt(1 - r * r), rel=1e-9)
+
+
+def test_the_direction_carrying_chi2_is_named():
+    # R1 and the focal length 99.9999% correlated, Hc alone: a difference against the
+    # correlation (each at z 0.5) is a 707-sigma move along the weak direction, whose
+    # eigenvalue is (1 - r) / (1 + r) of the strong one's; the direction is named by its
+    # loadings, signed as the difference moved
+    r = 0.999999
+    S = np.sqrt(np.array([4.0, 1e-6, 1.0]))[:, None] * np.array(
+        [[1.0, r, 0.0], [r, 1.0, 0.0], [0.0, 0.0, 1.0]]) * np.sqrt(np.array([4.0, 1e-6, 1.0]))
+    d = np.array([0.5 * 2.0, -0.5 * 1e-3, 1.0])
+    names = ["R1", "Hs", "Hc"]
+    j = joint_statistic(d, S)
+    top = joint_direction(names, d, S)
+    # the weak direction: (0.5 + 0.5)^2 / (2 (1 - r)) of chi2 = 5e5 of 5e5 + 1
+    assert top["chi2"] == pytest.approx(1.0 / (2 * (1 - r)), rel=1e-6)
+    assert top["share"] == pytest.approx(top["chi2"] / j["chi2"], rel=1e-12)
+    assert top["share"] > 0.99999
+    assert top["relative_eigenvalue"] == pytest.approx((1 - r) / (1 + r), rel=1e-6)
+    assert list(top["loading"])[:2] in (["R1", "Hs"], ["Hs", "R1"])
+    assert top["loading"]["R1"] == pytest.approx(math.sqrt(0.5), rel=1e-6)
+    assert top["loading"]["Hs"] == pytest.approx(-math.sqrt(0.5), rel=1e-6)
+    assert abs(top["loading"]["Hc"]) < 1e-9
+    assert joint_direction(names, np.zeros(3), S) is None
 
 
 def test_units_and_exact_redundancies_drop_out():
