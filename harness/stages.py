@@ -464,12 +464,12 @@ themselves (exact observations: the warm-up, the model benchmark's floors)'''
     import numpy as np
 
     from harness.calibrators.base import Observations
-    from targets.detection import stack_corner_sigma, stack_corner_spans
+    from targets.detection import stack_corner_models, stack_corner_sigma, stack_corner_spans
     q = np.stack([np.asarray(getattr(d, "q", d), dtype=np.float64) for d in detections])
     ids = target.point_ids() if hasattr(target, "point_ids") else None
     # the corner model of each detection, and the blur it was fitted under, travel to the
-    # calibrators' bias step
-    models = [getattr(d, "corner_model", None) for d in detections]
+    # calibrators' bias step (a failed view's points take none: stack_corner_models)
+    models = stack_corner_models([getattr(d, "corner_model", None) for d in detections], q)
     blurs = np.array([float(getattr(d, "corner_blur_px", 0.0)) for d in detections])
     # the tag edges' spans of each corner (targets.detect_apriltag: a blurred image's), NaN
     # for a pose without them
@@ -481,7 +481,7 @@ themselves (exact observations: the warm-up, the model benchmark's floors)'''
     return Observations.from_camera_poses(
         q, np.asarray(target.points(), dtype=np.float64), (truth.width, truth.height),
         poses, truth.Rt_ref_cam(), point_ids=ids,
-        corner_model=None if any(m is None for m in models) else np.stack(models),
+        corner_model=models,
         corner_blur_px=blurs if blurs.any() else None,
         corner_spans=spans, corner_sigma_px=sigma)
 

@@ -231,7 +231,7 @@ their tag edges' span records (Nposes,Npoints,2,R) (Detection.corner_spans, NaN 
 without; None when no pose has any, as on sharp renders); one image in memory at a time'''
     from renderers.base import RenderSettings
     from targets.detect import detect
-    from targets.detection import stack_corner_spans
+    from targets.detection import stack_corner_models, stack_corner_spans
 
     from .stages import cached_renderer
     renderer = cached_renderer(REFERENCE_RENDER["renderer"])
@@ -247,8 +247,8 @@ without; None when no pose has any, as on sharp renders); one image in memory at
         blurs.append(float(getattr(det, "corner_blur_px", 0.0)))
         spans.append(getattr(det, "corner_spans", None))
         del image
-    return (np.stack(out), None if any(m is None for m in models) else np.stack(models),
-            np.array(blurs), stack_corner_spans(spans))
+    q = np.stack(out)
+    return q, stack_corner_models(models, q), np.array(blurs), stack_corner_spans(spans)
 
 
 def detection_noise(obs, obs_exact, bias=None):

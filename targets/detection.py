@@ -124,6 +124,26 @@ def stack_corner_sigma(sigmas):
                      for s in sigmas])
 
 
+def stack_corner_models(models, q):
+    r'''(Nposes,Npoints) str: the corner models of each pose's detection (Detection.corner_model,
+one per pose; q (Nposes,Npoints,2) their points); None when a pose that found points has
+none (its detector records no models: dots) or no pose has any. A detection that found
+nothing (failed()) has no model to give: its points take "" (no corner, no bias), as a found
+detection's unfound points do, so the other poses keep theirs (were they dropped, the
+calibrators' bias step would take every pose's tag-edge corners for the window model's and
+subtract its bias: h-joint, session 22, the renderer gate's false alarms on small sensors)'''
+    if all(m is None for m in models):
+        return None
+    out = []
+    for m, qi in zip(models, q, strict=True):
+        if m is None:
+            if np.isfinite(qi).any():
+                return None
+            m = np.full(len(qi), "")
+        out.append(m)
+    return np.stack(out)
+
+
 def corner_models(corner_model, found):
     r'''(N,) str: corner_model (a str for every point, or (N,) str) where found, "" elsewhere;
 None for None'''
