@@ -651,7 +651,7 @@ def _assess(truth, res, exact_res, noise, total_params, total_projection, second
     if obs is not None:
         from .stages import failure_reason
         try:
-            sc = scatter(res, exact_res, obs, truth)
+            sc = scatter(res, exact_res, obs, truth, noise)
         except Exception as e:  # the verdict stands without its sigma; say why
             sc = {"error": failure_reason(e)}
         if sc is None:
@@ -850,8 +850,9 @@ def _start_key(start):
 #   0.0037 px (z 1.4), with both fits converged (a further warm refit of the image fit
 #   moves it 4e-5 px; the exact fit is the truth to 1e-7 px): scatter, not crawl.
 # - The variance of image i is the RMS over its points of (image-fit residual -
-#   exact-fit residual), scaled by sqrt(2N / (2N - n)) for the n fitted numbers: the
-#   detection error left once the model has absorbed what it can. A fault the model
+#   exact-fit residual), scaled by sqrt(2 n_i / (2 n_i - t_i)) for the t_i fitted numbers
+#   its rows carry (the fit's leverage over them: noise_per_pose): the detection error
+#   left once the model has absorbed what it can. A fault the model
 #   absorbs (a shift of the centre, a focal scale) does not inflate it, which is the
 #   point; a fault it cannot absorb (jitter, a wrong distortion) counts as noise and
 #   lowers the z-scores of the rest. The detected-minus-exact RMS per image is recorded
@@ -1533,20 +1534,56 @@ under the noise model's own Gaussian noise (CAHVOR and CAHVORE; 0.97-1.07 withou
 DETECTION_RESOLUTION_PX = 1e-4
 
 
-def noise_per_pose(res, exact_res, Nposes, n_params):
+def noise_per_pose(res, exact_res, Nposes, n_params, absorbed=None, direct=None):
     r'''(Nposes,) sigma px of the detection error per image (see the notes above), at
-least DETECTION_RESOLUTION_PX; NaN where an image has no point'''
+least DETECTION_RESOLUTION_PX; NaN where an image has no point
+
+The image's residual differences d (image fit - exact fit) are its detection errors less
+what the fit absorbed: E |d|^2 = sigma^2 / 2 (2 n_i - t_i) over its n_i points, t_i the
+trace of the fit's hat matrix over the image's rows (absorbed, (Nposes,): its own board
+pose's six and its share of the model's, fit_leverage; None: n_params spread evenly over
+the points, the scaling sqrt(2N / (2N - n)) of the notes above). An image whose rows keep
+k_i = 2 n_i - t_i <= 2 residual degrees of freedom cannot say its own noise: the sigma the
+scatter divides by would be read from k_i dof, and E[k / chi2_k] = k / (k - 2) is unbounded
+for k <= 2 (a view of two corners, its residuals absorbed by its pose, read 2e-4 px where
+its corners erred by 0.0064: tiny-320x240 AprilTag seed 1, joint chi2 2598 on 15). Such an
+image takes direct[i], its detected - exact RMS (detection_noise's per_pose_rms), when
+given: a fault the fit would absorb shows in it, but only over the few points of an image
+that carries little of the fit. The images' noise differ too much to pool (small-fish-348
+AprilTag seed 1: 0.004-0.16 px).'''
     d = np.asarray(res.residuals, dtype=np.float64) - np.asarray(exact_res.residuals,
                                                                    dtype=np.float64)
     ok = np.all(np.isfinite(d), axis=-1)
-    N = int(ok.sum())
-    dof = math.sqrt(2 * N / max(2 * N - n_params, 1))
+    n_i = ok.sum(axis=1).astype(np.float64)
+    N = float(n_i.sum())
+    ss = np.array([float(np.sum(d[i][ok[i]] ** 2)) for i in range(Nposes)])
+    even = n_params * n_i / max(N, 1.0)
+    t = even if absorbed is None else np.asarray(absorbed, dtype=np.float64)
     out = np.full(Nposes, np.nan)
     for i in range(Nposes):
-        if ok[i].any():
-            out[i] = max(dof * math.sqrt(np.mean(np.sum(d[i][ok[i]] ** 2, axis=-1))),
-                         DETECTION_RESOLUTION_PX)
+        if not n_i[i]:
+            continue
+        k = 2 * n_i[i] - t[i]
+        if k > 2 or direct is None or direct[i] is None or not np.isfinite(direct[i]):
+            # (no direct reading: the even spread's, as before the leverage)
+            k = k if k > 2 else max(2 * n_i[i] - even[i], 1.0)
+            sigma = math.sqrt(2 * ss[i] / k)
+        else:
+            sigma = float(direct[i])
+        out[i] = max(sigma, DETECTION_RESOLUTION_PX)
     return out
+
+
+def fit_leverage(J, pose, Nposes, normal=None):
+    r'''(Nposes,) the trace of the fit's hat matrix J (J^T J)^+ J^T over each image's rows: the
+residual degrees of freedom each image's points lost to the fit (its board pose's six and
+its share of the model's). J (2N, n) the fit's Jacobian (a weighted fit's rows scaled by its
+weights), rows x, y of each point, pose-major; pose (N,) each point's image; normal
+(Ninv, s_col) of _normal_inverse(J) when the caller has it'''
+    Ninv, s_col = _normal_inverse(J) if normal is None else normal
+    Js = J / s_col
+    h = np.einsum("ij,jk,ik->i", Js, Ninv, Js, optimize=True)
+    return np.bincount(np.repeat(np.asarray(pose), 2), weights=h, minlength=Nposes)
 
 
 def _fitted_points(obs, pose):
@@ -1722,16 +1759,16 @@ from the span records; C is then a sum of correlation matrices, positive semidef
     return out
 
 
-def scatter(res, exact_res, obs, truth):
+def scatter(res, exact_res, obs, truth, noise=None):
     r'''Expected scatter of the image fit about the exact fit (see _scatter), with numpy's
 linear algebra on one thread (harness.blas.one_thread: its matrices have a few dozen
 columns, where OpenBLAS's threads only wait for each other)'''
     from . import blas
     with blas.one_thread():
-        return _scatter(res, exact_res, obs, truth)
+        return _scatter(res, exact_res, obs, truth, noise)
 
 
-def _scatter(res, exact_res, obs, truth):
+def _scatter(res, exact_res, obs, truth, noise=None):
     r'''Expected scatter of the image fit about the exact fit, from its Jacobian
 
 SYNOPSIS
@@ -1742,7 +1779,9 @@ SYNOPSIS
     s["joint"]["chi2"], s["joint"]["dof"], s["joint"]["z"]   # joint_of_fit (with the
                                                              # resolution term)
 
-None when the fit cannot be linearised here (see linearisation()). Sigma of a
+None when the fit cannot be linearised here (see linearisation()). noise: the record's
+detection_noise(), whose per-image detected - exact RMS an image too small to read its own
+noise from its residuals takes (noise_per_pose). Sigma of a
 vector parameter (C_mm, A_deg, O_deg) is that of its length: sqrt of the trace.
 projection_rms is the expected RMS over the image grid of the rotation-mode
 projection difference (the rotation's own freedom projected out).
@@ -1753,15 +1792,6 @@ projection difference (the rotation's own freedom projected out).
     theta = res.theta_estimated
     world = _world(res)
     n = len(lin.x0)
-    sig_pose = noise_per_pose(res, exact_res, obs.Nposes, n)
-    # per coordinate: sigma_image^2 / 2 (sigma is the RMS of the 2-d error), spread over
-    # the image's corners by their detector's prediction where it has one (corner_shares)
-    var_row = np.repeat(sig_pose[lin.pose] ** 2 / 2.0, 2)
-    shares = corner_shares(obs, lin.pose)
-    if shares is not None:
-        var_row = var_row * np.repeat(shares, 2)
-    if not np.all(np.isfinite(var_row)):
-        return None
     m0 = lin.model(lin.x0)
     # The differences are taken against the exact fit, as the renderer comparison takes
     # them: a fractional one (Hs, R1_frac, ...) is (image - exact) / |exact|, so its sigma
@@ -1797,17 +1827,32 @@ projection difference (the rotation's own freedom projected out).
     # the resolution term of the joint test is a metric of the unweighted projection moves
     # (|J dx|^2), so it takes the unweighted J's normal inverse
     res_normal = _normal_inverse(J)
+    J_fit = J if lin.row_weights is None else J * lin.row_weights[:, None]
+    normal = res_normal if lin.row_weights is None else _normal_inverse(J_fit)
+    # each image's noise, read from its residual degrees of freedom (fit_leverage: what
+    # the fit's hat matrix took from its rows)
+    sig_pose = noise_per_pose(res, exact_res, obs.Nposes, n,
+                              absorbed=fit_leverage(J_fit, lin.pose, obs.Nposes, normal),
+                              direct=None if noise is None else noise.get("per_pose_rms"))
+    # per coordinate: sigma_image^2 / 2 (sigma is the RMS of the 2-d error), spread over
+    # the image's corners by their detector's prediction where it has one (corner_shares)
+    var_row = np.repeat(sig_pose[lin.pose] ** 2 / 2.0, 2)
+    shares = corner_shares(obs, lin.pose)
+    if shares is not None:
+        var_row = var_row * np.repeat(shares, 2)
+    if not np.all(np.isfinite(var_row)):
+        return None
     if lin.row_weights is not None:
         # a weighted fit (Linearisation.row_weights w) minimised |w r|^2: its move is
         # (J^T W J)^-1 J^T W dq, W = diag(w^2), so cov = (J^T W J)^-1 J^T W D W J (J^T W J)^-1:
         # J's rows scaled by w, and D = S C S's S by w (var_row by w^2; C unchanged)
-        J = J * lin.row_weights[:, None]
+        J = J_fit
         var_row = var_row * lin.row_weights ** 2
     # cov = (J^T J)^-1 J^T D J (J^T J)^-1 with J's columns scaled to unit length (narrow
     # lenses make J^T J ill-conditioned) and a pseudo-inverse for directions the fit does
     # not determine at all (_normal_inverse); then the block of the parameters the model
     # depends on (the board poses marginalised)
-    Ninv, s_col = res_normal if lin.row_weights is None else _normal_inverse(J)
+    Ninv, s_col = normal
     Js = J / s_col
     # the model block as a Gram matrix: cov = F^T D F with F (2N, n_model) the image rows'
     # influence on the model parameters, factored cov = R^T R by the QR decomposition of
