@@ -72,6 +72,21 @@ NOUTLINE_PER_EDGE = 32
 # cameras) the plans are unchanged bit for bit.
 DOT_AREA_FACTOR = 2.0
 NDOT_OUTLINE = 32
+# An AprilGrid's tags must stay resolvable: most tags of a view whose bits project under what
+# the detector needs give no corner (targets.detect_apriltag, targets.tag_edges) and one
+# view carries the fit. A pose keeps the median bit depth of the tags it plans in view (the
+# tag_edges measure: the adjacent edges' extent across an edge / 8) at tag_bit_need_px()
+# (the detector's own limits); where the whole board at the template's range leaves it
+# smaller, the planner keeps a central sub-grid of the tags in the image instead
+# (tag_subgrid_extents: one tag fewer a side each step), planned as the board would be (its
+# closest fit, the template's range factor, pushed into the corner), and the rest of the
+# board overflows the image (the detector keeps the tags whole in it). Where every pose's
+# median bit meets the need (the catalogue, the constructed cameras of 600 px and more) the
+# plans are unchanged bit for bit.
+# The blur the tags are planned for: a well-focused lens's PSF, sigma 0.7 px (the
+# `realistic` response profile, campaigns/response.toml); the detector's edge fit needs
+# more pixels under more blur (tag_bit_need_px)
+PLAN_PSF_SIGMA_PX = 0.7
 
 # (anchor, tilt deg, tilt axis azimuth deg in the board plane, roll deg, range factor)
 # anchor: None = image centre, else (sx, sy) signs of the image corner to push towards.
@@ -187,7 +202,7 @@ _EX = np.array([1.0, 0.0, 0.0])
 
 
 class _Planner:
-    def __init__(self, model, target, margin_px, max_range):
+    def __init__(self, model, target, margin_px, max_range, extent=None):
         self.model = model
         self.target = target
         self.W, self.H = model.width, model.height
@@ -197,9 +212,15 @@ class _Planner:
         self.R_ref_cam = Rt[:3]
         self.t_ref_cam = Rt[3]
         # what the detector needs in the image (targets.boards: Target.planning_extent), not
-        # the printed board: a chessboard's light margin may leave the image
-        extent = target.planning_extent()
-        self.outline = target.planning_outline(NOUTLINE_PER_EDGE)
+        # the printed board: a chessboard's light margin may leave the image; extent: a part
+        # of the board instead (an AprilGrid's central sub-grid, tag_subgrid_extents)
+        if extent is None:
+            extent = target.planning_extent()
+            self.outline = target.planning_outline(NOUTLINE_PER_EDGE)
+        else:
+            from targets.boards import _rectangle_outline
+            self.outline = _rectangle_outline(extent, NOUTLINE_PER_EDGE)
+        self.extent = tuple(float(v) for v in extent)
         self.centre_board = target.centre(extent)
         self.size = math.hypot(*target.size(extent))
         self.cos_view_max = math.cos(math.radians(MAX_VIEW_ANGLE_DEG))
@@ -212,6 +233,15 @@ class _Planner:
             min_area = inspect.signature(_detect_dots).parameters["min_area_px"].default
             self.min_dot_area = DOT_AREA_FACTOR * float(min_area)
             self.dot_outlines = target.dot_outlines(NDOT_OUTLINE)
+        self.tag_quads = None
+        if getattr(target, "kind", None) == "apriltag":
+            # the tags whose four corners lie in the planned extent (all of them: the board)
+            quads = target.points().reshape(-1, 4, 3)
+            x0, x1, y0, y1 = self.extent
+            inside = np.all((quads[..., 0] >= x0) & (quads[..., 0] <= x1)
+                            & (quads[..., 1] >= y0) & (quads[..., 1] <= y1), axis=1)
+            self.tag_quads = quads[inside]
+            self.tag_need_px = tag_bit_need_px((self.H, self.W))
         self._cam = _packed(model)
         if self._cam is not None:
             self._R_ref_cam = np.ascontiguousarray(self.R_ref_cam)
@@ -273,6 +303,12 @@ range search computes this once and moves the board with place().
         x, y = q[..., 0], q[..., 1]
         a = 0.5 * np.abs((x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1))
         return float(np.min(a)) if np.all(np.isfinite(a)) else 0.0
+
+    def median_tag_bit(self, Rt):
+        r'''The median over the planned tags (tag_quads) of each tag's smallest bit depth,
+px, at pose Rt (tag_bit_depths); 0 when a tag does not project'''
+        b = tag_bit_depths(self.model, self.tag_quads, Rt, self._cam)
+        return float(np.median(b)) if len(b) and np.all(np.isfinite(b)) else 0.0
 
     def dot_area_range(self, Rt, d, d_fit):
         r'''The range (d_fit <= range <= d) at which the smallest dot of the board at Rt
@@ -386,6 +422,97 @@ def _margin_px(model):
     return max(4.0, 0.02 * min(model.width, model.height))
 
 
+def tag_bit_need_px(shape, psf_sigma_px=PLAN_PSF_SIGMA_PX):
+    r'''The bit depth (px) an AprilGrid's tag needs for the detector to give its corners
+
+SYNOPSIS
+
+    tag_bit_need_px((480, 640))       # 2.35 px at the planning blur of 0.7 px
+
+From the detector's own limits, the larger of:
+
+- the quad search (targets.detect_apriltag): a tag whose bit spans fewer than
+  MIN_DECIMATED_BIT_PX decimated px may be missed, the image decimated by
+  decimate_for(shape) (1 up to 2047 px): 2 px;
+- the blurred tag edges (targets.tag_edges): an edge's band keeps its pixels clear of every
+  other feature by c = BLUR_REACH_SIGMAS sigma + sqrt(1/2) (a pixel's half-diagonal) +
+  SAFETY_PX (3.11 px at sigma 0.7), and its fit needs MIN_EDGE_PIXELS, half of them on its
+  dark side. Along an edge lined by dark data bits (2 bits of dark) the dark band is
+  2 b - c deep over 8 b - 2 c of the edge: (8 b - 2 c)(2 b - c) = MIN_EDGE_PIXELS / 2 at
+  b = (3 c + sqrt(c^2 + 2 MIN_EDGE_PIXELS)) / 8, 2.35 px at sigma 0.7. (An edge lined by
+  light data bits needs b > c for any dark side; such weak edges are placed on their board
+  line with their neighbours', targets.tag_edges.)
+
+The sharp corner window (targets.corners: TAG_MIN_WINDOW_PIXELS in an L-shaped window of
+~15 bits^2) needs less (1.4 px).
+'''
+    from targets.corners import BLUR_REACH_SIGMAS
+    from targets.detect_apriltag import MIN_DECIMATED_BIT_PX, decimate_for
+    from targets.tag_edges import MIN_EDGE_PIXELS, SAFETY_PX
+    quad = MIN_DECIMATED_BIT_PX * decimate_for(shape)
+    c = BLUR_REACH_SIGMAS * float(psf_sigma_px) + math.sqrt(0.5) + SAFETY_PX
+    edges = (3.0 * c + math.sqrt(c * c + 2.0 * MIN_EDGE_PIXELS)) / 8.0
+    return max(quad, edges)
+
+
+def tag_bit_depths(model, tag_quads, Rt, cam=None):
+    r'''(N,) each tag's smallest bit depth (px) at pose Rt: over its four edges, the
+adjacent edges' extent across the edge / 8 (targets._tag_edge_kernels._edge_geometry's
+deep_bit: a sheared tag's bits are less deep than long); NaN where a corner does not project
+
+tag_quads (N,4,3): the tags' outer corners on the board; cam: the packed model (_packed)
+or None (model.project).
+'''
+    p = tag_quads.reshape(-1, 3) @ Rt[:3].T + Rt[3]
+    Rt_ref_cam = model.Rt_ref_cam()
+    p = p @ Rt_ref_cam[:3].T + Rt_ref_cam[3]
+    if cam is not None:
+        q = np.empty((len(p), 2))
+        kernels.project_points(cam, np.ascontiguousarray(p), q)
+    else:
+        q = model.project(p)
+    Q = q.reshape(-1, 4, 2)
+    deep = np.full((len(Q), 4), np.inf)
+    for k in range(4):
+        P0, P1 = Q[:, k], Q[:, (k + 1) % 4]
+        Pm, Pp = Q[:, (k - 1) % 4], Q[:, (k + 2) % 4]
+        e = P1 - P0
+        n = np.stack((-e[:, 1], e[:, 0]), axis=-1) / np.linalg.norm(e, axis=-1)[:, None]
+        deep[:, k] = np.minimum(np.abs(((Pm - P0) * n).sum(-1)),
+                                np.abs(((Pp - P1) * n).sum(-1))) / 8.0
+    out = deep.min(axis=1)
+    out[~np.all(np.isfinite(Q.reshape(-1, 8)), axis=1)] = np.nan
+    return out
+
+
+def tag_subgrid_extents(target):
+    r'''[(nx', ny', extent)]: an AprilGrid's central sub-grids, one tag fewer a side each
+step down to one tag; each extent its tags' black borders and half the gap between tags
+beyond them (a light ring for the quad search and the edges' bands: the tags beyond may
+leave the image)'''
+    spec = target.spec
+    nx, ny = target.grid_shape
+    s = float(spec["tag_size"])
+    gap = float(spec.get("tag_spacing", 0.3)) * s
+    pitch = s + gap
+    out = []
+    for k in range(1, max(nx, ny)):
+        mx, my = max(1, nx - k), max(1, ny - k)
+        i0, j0 = (nx - mx) // 2, (ny - my) // 2
+        out.append((mx, my, (i0 * pitch - gap / 2, (i0 + mx) * pitch - gap / 2,
+                             j0 * pitch - gap / 2, (j0 + my) * pitch - gap / 2)))
+    return out
+
+
+class TagsTooSmallError(NotVisibleError):
+    r'''An AprilGrid whose tags this camera cannot resolve in a calibration pose
+
+A property of the camera and the board, not a failure: a campaign records it as
+not-applicable (not_applicable = True), with this reason.'''
+
+    not_applicable = True
+
+
 def plan_poses(model, target, n=6, seed=0, *, allow_offaxis=False, max_range=DEFAULT_MAX_RANGE,
                cover="paper"):
     r'''Plan n board poses that calibrate `model`
@@ -481,62 +608,41 @@ target in a usable calibration pose, CamvalError for a bad n or cover.
         if not planner.fits(Rt):
             raise NotVisibleError(f"pose {i}: no placement of the board fits the {W}x{H} image "
                                   f"at {d:.3g} m with tilt {tilt:.0f} deg")
+        if planner.tag_quads is not None and planner.median_tag_bit(Rt) < planner.tag_need_px:
+            # a small sensor: a central sub-grid of the tags planned in view, the rest of the
+            # board beyond the image (PLAN_PSF_SIGMA_PX, tag_bit_need_px)
+            Rt = _subgrid_pose(model, target, planner, i, q_centre, corners, anchor, tilt,
+                               azimuth, roll, factor, max_range)
         poses.append(Rt)
     return poses
 
 
-def image_coverage(q_all, width, height, cells=10):
-    r'''Fraction of the image's cells x cells grid that holds at least one point
-
-SYNOPSIS
-
-    image_coverage([det.q for det in detections], W, H)     # 0.64
-
-q_all: arrays (...,2) of pixels (NaN: not detected); the union over all of
-them counts. Cells split [-0.5, W-0.5] x [-0.5, H-0.5] evenly.
-'''
-    hit = np.zeros((cells, cells), dtype=bool)
-    for q in q_all:
-        q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
-        q = q[np.all(np.isfinite(q), axis=1)]
-        ix = np.floor((q[:, 0] + 0.5) / width * cells).astype(int)
-        iy = np.floor((q[:, 1] + 0.5) / height * cells).astype(int)
-        ok = (ix >= 0) & (ix < cells) & (iy >= 0) & (iy < cells)
-        hit[iy[ok], ix[ok]] = True
-    return float(hit.mean())
-
-
-def pose_summary(model, target, Rt_cam_board, margin_px=None):
-    r'''What a board pose looks like through a camera
-
-SYNOPSIS
-
-    s = pose_summary(model, target, Rt_cam_board)
-    s["range_m"], s["tilt_deg"], s["in_view"], s["in_front"], s["q_min"], s["q_max"]
-
-range_m: distance from the camera centre to the board centre (the centre of its
-planning outline, target.planning_outline(): what the planner keeps in the image);
-tilt_deg: angle between the board normal and that line of sight; in_front: every
-planning outline point has camera-frame z > 0 and the board faces the camera;
-in_view: that outline projects inside the image with margin_px (default: the
-planner's margin); q_min, q_max: the bounding box of the projected outline.
-'''
-    Rt = np.asarray(Rt_cam_board, dtype=np.float64)
-    margin = _margin_px(model) if margin_px is None else float(margin_px)
-    outline = target.planning_outline(NOUTLINE_PER_EDGE)
-    p_cam = outline @ Rt[:3].T + Rt[3]
-    c = target.centre(target.planning_extent()) @ Rt[:3].T + Rt[3]
-    n = Rt[:3, 2]
-    rng = float(np.linalg.norm(c))
-    tilt = float(np.degrees(np.arccos(np.clip(c @ n / rng, -1, 1))))
-    Rt_ref_cam = model.Rt_ref_cam()
-    q = model.project(p_cam @ Rt_ref_cam[:3].T + Rt_ref_cam[3])
+def _subgrid_pose(model, target, planner, i, q_centre, corners, anchor, tilt, azimuth, roll,
+                  factor, max_range):
+    r'''Pose i planned with the largest central sub-grid of an AprilGrid
+(tag_subgrid_extents) whose median tag bit meets planner.tag_need_px, as the board is
+planned (its closest fit, the range factor, pushed into the corner);
+TagsTooSmallError when not even one tag does'''
     W, H = model.width, model.height
-    finite = bool(np.all(np.isfinite(q)))
-    in_view = finite and bool(
-        np.all(q[:, 0] >= margin - 0.5) and np.all(q[:, 0] <= W - 0.5 - margin)
-        and np.all(q[:, 1] >= margin - 0.5) and np.all(q[:, 1] <= H - 0.5 - margin))
-    in_front = bool(np.all(p_cam[:, 2] > 0) and c @ n > 0)
-    return {"range_m": rng, "tilt_deg": tilt, "in_view": in_view, "in_front": in_front,
-            "q_min": np.nanmin(q, axis=0) if finite else None,
-            "q_max": np.nanmax(q, axis=0) if finite else None}
+    best = None
+    for mx, my, extent in tag_subgrid_extents(target):
+        sub = _Planner(model, target, planner.margin, max_range, extent=extent)
+        d_fit = sub.closest_fit_range(q_centre, tilt, azimuth, roll)
+        if d_fit is None:
+            continue
+        d = max(1.0, factor) * d_fit
+        q_anchor = q_centre if anchor is None else sub.push(
+            q_centre, corners[anchor], d, tilt, azimuth, roll)
+        Rt = sub.pose(q_anchor, d, tilt, azimuth, roll)
+        if not sub.fits(Rt):
+            continue
+        bit = sub.median_tag_bit(Rt)
+        if bit >= planner.tag_need_px:
+            return Rt
+        best = (bit, mx, my)
+    seen = "no sub-grid fits" if best is None else \
+        f"a median tag bit of {best[0]:.2g} px with {best[1]}x{best[2]} tags planned in view"
+    raise TagsTooSmallError(
+        f"pose {i}: the {target.name!r} board's tags project too small for its detector on "
+        f"the {W}x{H} image: {seen} (tilt {tilt:.0f} deg, {max(1.0, factor):.2f} x the "
+        f"closest fit), under the {planner.tag_need_px:.2f} px it needs (tag_bit_need_px)")
