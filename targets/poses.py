@@ -646,3 +646,60 @@ TagsTooSmallError when not even one tag does'''
         f"pose {i}: the {target.name!r} board's tags project too small for its detector on "
         f"the {W}x{H} image: {seen} (tilt {tilt:.0f} deg, {max(1.0, factor):.2f} x the "
         f"closest fit), under the {planner.tag_need_px:.2f} px it needs (tag_bit_need_px)")
+
+
+def image_coverage(q_all, width, height, cells=10):
+    r'''Fraction of the image's cells x cells grid that holds at least one point
+
+SYNOPSIS
+
+    image_coverage([det.q for det in detections], W, H)     # 0.64
+
+q_all: arrays (...,2) of pixels (NaN: not detected); the union over all of
+them counts. Cells split [-0.5, W-0.5] x [-0.5, H-0.5] evenly.
+'''
+    hit = np.zeros((cells, cells), dtype=bool)
+    for q in q_all:
+        q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+        q = q[np.all(np.isfinite(q), axis=1)]
+        ix = np.floor((q[:, 0] + 0.5) / width * cells).astype(int)
+        iy = np.floor((q[:, 1] + 0.5) / height * cells).astype(int)
+        ok = (ix >= 0) & (ix < cells) & (iy >= 0) & (iy < cells)
+        hit[iy[ok], ix[ok]] = True
+    return float(hit.mean())
+
+
+def pose_summary(model, target, Rt_cam_board, margin_px=None):
+    r'''What a board pose looks like through a camera
+
+SYNOPSIS
+
+    s = pose_summary(model, target, Rt_cam_board)
+    s["range_m"], s["tilt_deg"], s["in_view"], s["in_front"], s["q_min"], s["q_max"]
+
+range_m: distance from the camera centre to the board centre (the centre of its
+planning outline, target.planning_outline(): what the planner keeps in the image);
+tilt_deg: angle between the board normal and that line of sight; in_front: every
+planning outline point has camera-frame z > 0 and the board faces the camera;
+in_view: that outline projects inside the image with margin_px (default: the
+planner's margin); q_min, q_max: the bounding box of the projected outline.
+'''
+    Rt = np.asarray(Rt_cam_board, dtype=np.float64)
+    margin = _margin_px(model) if margin_px is None else float(margin_px)
+    outline = target.planning_outline(NOUTLINE_PER_EDGE)
+    p_cam = outline @ Rt[:3].T + Rt[3]
+    c = target.centre(target.planning_extent()) @ Rt[:3].T + Rt[3]
+    n = Rt[:3, 2]
+    rng = float(np.linalg.norm(c))
+    tilt = float(np.degrees(np.arccos(np.clip(c @ n / rng, -1, 1))))
+    Rt_ref_cam = model.Rt_ref_cam()
+    q = model.project(p_cam @ Rt_ref_cam[:3].T + Rt_ref_cam[3])
+    W, H = model.width, model.height
+    finite = bool(np.all(np.isfinite(q)))
+    in_view = finite and bool(
+        np.all(q[:, 0] >= margin - 0.5) and np.all(q[:, 0] <= W - 0.5 - margin)
+        and np.all(q[:, 1] >= margin - 0.5) and np.all(q[:, 1] <= H - 0.5 - margin))
+    in_front = bool(np.all(p_cam[:, 2] > 0) and c @ n > 0)
+    return {"range_m": rng, "tilt_deg": tilt, "in_view": in_view, "in_front": in_front,
+            "q_min": np.nanmin(q, axis=0) if finite else None,
+            "q_max": np.nanmax(q, axis=0) if finite else None}
