@@ -80,12 +80,14 @@ NDOT_OUTLINE = 32
 # smaller, the planner keeps a central sub-grid of the tags in the image instead
 # (tag_subgrid_extents: one tag fewer a side each step), planned as the board would be (its
 # closest fit, the template's range factor, pushed into the corner), and the rest of the
-# board overflows the image (the detector keeps the tags whole in it). Where every pose's
-# median bit meets the need (the catalogue, the constructed cameras of 600 px and more) the
-# plans are unchanged bit for bit.
+# board overflows the image (the detector keeps the tags whole in it). Where a pose's median
+# bit meets the need the pose is unchanged bit for bit: every pose of catalogue cameras 15,
+# 8, 1 (and every dot board and chessboard); it binds on the small sensors and on the
+# steepest corner views of 640 px cameras (hazcam 17's pose 3: median 2.63 px).
 # The blur the tags are planned for: a well-focused lens's PSF, sigma 0.7 px (the
 # `realistic` response profile, campaigns/response.toml); the detector's edge fit needs
-# more pixels under more blur (tag_bit_need_px)
+# deeper bits under more blur (tag_bit_need_px). The plan cannot depend on a campaign's
+# response profile: a camera's sharp and realistic records share their poses
 PLAN_PSF_SIGMA_PX = 0.7
 
 # (anchor, tilt deg, tilt axis azimuth deg in the board plane, roll deg, range factor)
@@ -427,7 +429,7 @@ def tag_bit_need_px(shape, psf_sigma_px=PLAN_PSF_SIGMA_PX):
 
 SYNOPSIS
 
-    tag_bit_need_px((480, 640))       # 2.35 px at the planning blur of 0.7 px
+    tag_bit_need_px((480, 640))       # 3.11 px at the planning blur of 0.7 px
 
 From the detector's own limits, the larger of:
 
@@ -436,22 +438,25 @@ From the detector's own limits, the larger of:
   decimate_for(shape) (1 up to 2047 px): 2 px;
 - the blurred tag edges (targets.tag_edges): an edge's band keeps its pixels clear of every
   other feature by c = BLUR_REACH_SIGMAS sigma + sqrt(1/2) (a pixel's half-diagonal) +
-  SAFETY_PX (3.11 px at sigma 0.7), and its fit needs MIN_EDGE_PIXELS, half of them on its
-  dark side. Along an edge lined by dark data bits (2 bits of dark) the dark band is
-  2 b - c deep over 8 b - 2 c of the edge: (8 b - 2 c)(2 b - c) = MIN_EDGE_PIXELS / 2 at
-  b = (3 c + sqrt(c^2 + 2 MIN_EDGE_PIXELS)) / 8, 2.35 px at sigma 0.7. (An edge lined by
-  light data bits needs b > c for any dark side; such weak edges are placed on their board
-  line with their neighbours', targets.tag_edges.)
+  SAFETY_PX, 3.11 px at sigma 0.7. Where a light data bit lines the border, the dark side
+  of the edge is the 1-bit border alone: its band has dark pixels only where the bit is
+  deeper than c ("edge seen from its light side only (tag bits too small for the blur)"
+  below). So b = c: every edge of a tag sees its dark side.
+
+Measured (bench_corner_campaign.py --response realistic --seeds 0-3, docs/corners.md): the
+weaker need of an edge lined by dark data bits (2 bits of dark, MIN_EDGE_PIXELS / 2 of
+them: (8 b - 2 c)(2 b - c) = 20, b = 2.35 px) kept 64-129 of 864 corners on
+tiny-320x240 (most dropped "seen from its light side only"), c kept 312-407.
 
 The sharp corner window (targets.corners: TAG_MIN_WINDOW_PIXELS in an L-shaped window of
 ~15 bits^2) needs less (1.4 px).
 '''
     from targets.corners import BLUR_REACH_SIGMAS
     from targets.detect_apriltag import MIN_DECIMATED_BIT_PX, decimate_for
-    from targets.tag_edges import MIN_EDGE_PIXELS, SAFETY_PX
+    from targets.tag_edges import SAFETY_PX
     quad = MIN_DECIMATED_BIT_PX * decimate_for(shape)
     c = BLUR_REACH_SIGMAS * float(psf_sigma_px) + math.sqrt(0.5) + SAFETY_PX
-    edges = (3.0 * c + math.sqrt(c * c + 2.0 * MIN_EDGE_PIXELS)) / 8.0
+    edges = c
     return max(quad, edges)
 
 
