@@ -28,11 +28,15 @@ and outer squares of a chessboard) inside the image with a margin
 (2 % of the smaller image side, at least 4 px), in front of the camera
 (camera-frame z > 0 for every board point) and facing it; the board's
 tilt (angle between its normal and the line of sight to its centre) is at
-most MAX_TILT_DEG. Viewing directions come from model.unproject() and every
-check uses model.project(), so this works for any CAHV/CAHVOR/CAHVORE model,
-central or not, mirrored or not. (For speed the planner uses the compiled
-equivalents of the two, reference_models.kernels (_packed): the poses are
-within 1e-12 m of those planned with the model's own methods.)
+most MAX_TILT_DEG. On a small sensor an AprilGrid's pose keeps a central sub-grid of its
+tags in the image instead of the whole board, where the whole board would leave the
+median tag bit under what the detector needs (tag_bit_need_px; the rest of the board
+overflows the image: pose_summary's in_view is False there), and a camera that cannot
+resolve even one tag is refused as not-applicable (TagsTooSmallError). Viewing
+directions come from model.unproject() and every check uses model.project(), so this
+works for any CAHV/CAHVOR/CAHVORE model, central or not, mirrored or not. (For speed
+the planner uses the compiled equivalents of the two, reference_models.kernels (_packed):
+the poses are within 1e-12 m of those planned with the model's own methods.)
 
 Poses are Rt_cam_board (4,3) in the camera frame of model.Rt_ref_cam().
 
