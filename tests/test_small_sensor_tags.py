@@ -150,3 +150,27 @@ def test_a_users_own_grid_is_planned_by_the_same_rule():
         inside = _in_image(model, target, Rt)
         bits = tag_bit_depths(model, target.points().reshape(-1, 4, 3)[inside], Rt)
         assert inside.sum() >= 2 and np.median(bits) >= 0.9 * need, bits
+
+
+def test_the_detector_finds_the_planned_sub_grid():
+    # tiny-320x240, sharp render: every view's tags whole in the image are found (the board
+    # overflowing the image in the corner views), each tag's four corners within 0.05 px
+    from renderers.base import RenderSettings, get_renderer
+    from targets.detect import detect
+    model = read_model(CAMERAS / "tiny-320x240.cahvor")
+    target = load_target("apriltag")
+    renderer = get_renderer("raycast")
+    Rr = model.Rt_ref_cam()
+    P = target.points()
+    for Rt in plan_poses(model, target, n=6, seed=0):
+        img = renderer.render(model, target.pattern(), Rt, RenderSettings(spp=4)).image
+        det = detect(img, target, psf_sigma_px=0.0)
+        assert det.status == "ok", det.reason
+        inside = _in_image(model, target, Rt)
+        found = np.isfinite(det.q).all(axis=1).reshape(-1, 4)
+        # the tags whole in the image give their corners (a few corners of the tags at the
+        # image's edge lose their window: "window off the image")
+        assert found[inside].sum() >= 0.9 * 4 * inside.sum(), det.info
+        q = model.project((P @ Rt[:3].T + Rt[3]) @ Rr[:3].T + Rr[3])
+        err = np.linalg.norm(det.q - q, axis=1)
+        assert np.nanmax(err) < 0.05, np.nanmax(err)
