@@ -28,11 +28,15 @@ and outer squares of a chessboard) inside the image with a margin
 (2 % of the smaller image side, at least 4 px), in front of the camera
 (camera-frame z > 0 for every board point) and facing it; the board's
 tilt (angle between its normal and the line of sight to its centre) is at
-most MAX_TILT_DEG. Viewing directions come from model.unproject() and every
-check uses model.project(), so this works for any CAHV/CAHVOR/CAHVORE model,
-central or not, mirrored or not. (For speed the planner uses the compiled
-equivalents of the two, reference_models.kernels (_packed): the poses are
-within 1e-12 m of those planned with the model's own methods.)
+most MAX_TILT_DEG. On a small sensor an AprilGrid's pose keeps a central sub-grid of its
+tags in the image instead of the whole board, where the whole board would leave the
+median tag bit under what the detector needs (tag_bit_need_px; the rest of the board
+overflows the image: pose_summary's in_view is False there), and a camera that cannot
+resolve even one tag is refused as not-applicable (TagsTooSmallError). Viewing
+directions come from model.unproject() and every check uses model.project(), so this
+works for any CAHV/CAHVOR/CAHVORE model, central or not, mirrored or not. (For speed
+the planner uses the compiled equivalents of the two, reference_models.kernels (_packed):
+the poses are within 1e-12 m of those planned with the model's own methods.)
 
 Poses are Rt_cam_board (4,3) in the camera frame of model.Rt_ref_cam().
 
@@ -72,6 +76,23 @@ NOUTLINE_PER_EDGE = 32
 # cameras) the plans are unchanged bit for bit.
 DOT_AREA_FACTOR = 2.0
 NDOT_OUTLINE = 32
+# An AprilGrid's tags must stay resolvable: most tags of a view whose bits project under what
+# the detector needs give no corner (targets.detect_apriltag, targets.tag_edges) and one
+# view carries the fit. A pose keeps the median bit depth of the tags it plans in view (the
+# tag_edges measure: the adjacent edges' extent across an edge / 8) at tag_bit_need_px()
+# (the detector's own limits); where the whole board at the template's range leaves it
+# smaller, the planner keeps a central sub-grid of the tags in the image instead
+# (tag_subgrid_extents: one tag fewer a side each step), planned as the board would be (its
+# closest fit, the template's range factor, pushed into the corner), and the rest of the
+# board overflows the image (the detector keeps the tags whole in it). Where a pose's median
+# bit meets the need the pose is unchanged bit for bit: every pose of catalogue cameras 15,
+# 8, 1 (and every dot board and chessboard); it binds on the small sensors and on the
+# steepest corner views of 640 px cameras (hazcam 17's pose 3: median 2.63 px).
+# The blur the tags are planned for: a well-focused lens's PSF, sigma 0.7 px (the
+# `realistic` response profile, campaigns/response.toml); the detector's edge fit needs
+# deeper bits under more blur (tag_bit_need_px). The plan cannot depend on a campaign's
+# response profile: a camera's sharp and realistic records share their poses
+PLAN_PSF_SIGMA_PX = 0.7
 
 # (anchor, tilt deg, tilt axis azimuth deg in the board plane, roll deg, range factor)
 # anchor: None = image centre, else (sx, sy) signs of the image corner to push towards.
@@ -187,7 +208,7 @@ _EX = np.array([1.0, 0.0, 0.0])
 
 
 class _Planner:
-    def __init__(self, model, target, margin_px, max_range):
+    def __init__(self, model, target, margin_px, max_range, extent=None):
         self.model = model
         self.target = target
         self.W, self.H = model.width, model.height
@@ -197,9 +218,15 @@ class _Planner:
         self.R_ref_cam = Rt[:3]
         self.t_ref_cam = Rt[3]
         # what the detector needs in the image (targets.boards: Target.planning_extent), not
-        # the printed board: a chessboard's light margin may leave the image
-        extent = target.planning_extent()
-        self.outline = target.planning_outline(NOUTLINE_PER_EDGE)
+        # the printed board: a chessboard's light margin may leave the image; extent: a part
+        # of the board instead (an AprilGrid's central sub-grid, tag_subgrid_extents)
+        if extent is None:
+            extent = target.planning_extent()
+            self.outline = target.planning_outline(NOUTLINE_PER_EDGE)
+        else:
+            from targets.boards import _rectangle_outline
+            self.outline = _rectangle_outline(extent, NOUTLINE_PER_EDGE)
+        self.extent = tuple(float(v) for v in extent)
         self.centre_board = target.centre(extent)
         self.size = math.hypot(*target.size(extent))
         self.cos_view_max = math.cos(math.radians(MAX_VIEW_ANGLE_DEG))
@@ -212,6 +239,15 @@ class _Planner:
             min_area = inspect.signature(_detect_dots).parameters["min_area_px"].default
             self.min_dot_area = DOT_AREA_FACTOR * float(min_area)
             self.dot_outlines = target.dot_outlines(NDOT_OUTLINE)
+        self.tag_quads = None
+        if getattr(target, "kind", None) == "apriltag":
+            # the tags whose four corners lie in the planned extent (all of them: the board)
+            quads = target.points().reshape(-1, 4, 3)
+            x0, x1, y0, y1 = self.extent
+            inside = np.all((quads[..., 0] >= x0) & (quads[..., 0] <= x1)
+                            & (quads[..., 1] >= y0) & (quads[..., 1] <= y1), axis=1)
+            self.tag_quads = quads[inside]
+            self.tag_need_px = tag_bit_need_px((self.H, self.W))
         self._cam = _packed(model)
         if self._cam is not None:
             self._R_ref_cam = np.ascontiguousarray(self.R_ref_cam)
@@ -273,6 +309,12 @@ range search computes this once and moves the board with place().
         x, y = q[..., 0], q[..., 1]
         a = 0.5 * np.abs((x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1))
         return float(np.min(a)) if np.all(np.isfinite(a)) else 0.0
+
+    def median_tag_bit(self, Rt):
+        r'''The median over the planned tags (tag_quads) of each tag's smallest bit depth,
+px, at pose Rt (tag_bit_depths); 0 when a tag does not project'''
+        b = tag_bit_depths(self.model, self.tag_quads, Rt, self._cam)
+        return float(np.median(b)) if len(b) and np.all(np.isfinite(b)) else 0.0
 
     def dot_area_range(self, Rt, d, d_fit):
         r'''The range (d_fit <= range <= d) at which the smallest dot of the board at Rt
@@ -386,6 +428,100 @@ def _margin_px(model):
     return max(4.0, 0.02 * min(model.width, model.height))
 
 
+def tag_bit_need_px(shape, psf_sigma_px=PLAN_PSF_SIGMA_PX):
+    r'''The bit depth (px) an AprilGrid's tag needs for the detector to give its corners
+
+SYNOPSIS
+
+    tag_bit_need_px((480, 640))       # 3.11 px at the planning blur of 0.7 px
+
+From the detector's own limits, the larger of:
+
+- the quad search (targets.detect_apriltag): a tag whose bit spans fewer than
+  MIN_DECIMATED_BIT_PX decimated px may be missed, the image decimated by
+  decimate_for(shape) (1 up to 2047 px): 2 px;
+- the blurred tag edges (targets.tag_edges): an edge's band keeps its pixels clear of every
+  other feature by c = BLUR_REACH_SIGMAS sigma + sqrt(1/2) (a pixel's half-diagonal) +
+  SAFETY_PX, 3.11 px at sigma 0.7. Where a light data bit lines the border, the dark side
+  of the edge is the 1-bit border alone: its band has dark pixels only where the bit is
+  deeper than c ("edge seen from its light side only (tag bits too small for the blur)"
+  below). So b = c: every edge of a tag sees its dark side.
+
+Measured (bench_corner_campaign.py --response realistic --seeds 0-3, docs/corners.md): the
+weaker need of an edge lined by dark data bits (2 bits of dark, MIN_EDGE_PIXELS / 2 of
+them: (8 b - 2 c)(2 b - c) = 20, b = 2.35 px) kept 64-129 of 864 corners on
+tiny-320x240 (most dropped "seen from its light side only"), c kept 312-407.
+
+The sharp corner window (targets.corners: TAG_MIN_WINDOW_PIXELS in an L-shaped window of
+~15 bits^2) needs less (1.4 px).
+'''
+    from targets.corners import BLUR_REACH_SIGMAS
+    from targets.detect_apriltag import MIN_DECIMATED_BIT_PX, decimate_for
+    from targets.tag_edges import SAFETY_PX
+    quad = MIN_DECIMATED_BIT_PX * decimate_for(shape)
+    c = BLUR_REACH_SIGMAS * float(psf_sigma_px) + math.sqrt(0.5) + SAFETY_PX
+    edges = c
+    return max(quad, edges)
+
+
+def tag_bit_depths(model, tag_quads, Rt, cam=None):
+    r'''(N,) each tag's smallest bit depth (px) at pose Rt: over its four edges, the
+adjacent edges' extent across the edge / 8 (targets._tag_edge_kernels._edge_geometry's
+deep_bit: a sheared tag's bits are less deep than long); NaN where a corner does not project
+
+tag_quads (N,4,3): the tags' outer corners on the board; cam: the packed model (_packed)
+or None (model.project).
+'''
+    p = tag_quads.reshape(-1, 3) @ Rt[:3].T + Rt[3]
+    Rt_ref_cam = model.Rt_ref_cam()
+    p = p @ Rt_ref_cam[:3].T + Rt_ref_cam[3]
+    if cam is not None:
+        q = np.empty((len(p), 2))
+        kernels.project_points(cam, np.ascontiguousarray(p), q)
+    else:
+        q = model.project(p)
+    Q = q.reshape(-1, 4, 2)
+    deep = np.full((len(Q), 4), np.inf)
+    for k in range(4):
+        P0, P1 = Q[:, k], Q[:, (k + 1) % 4]
+        Pm, Pp = Q[:, (k - 1) % 4], Q[:, (k + 2) % 4]
+        e = P1 - P0
+        n = np.stack((-e[:, 1], e[:, 0]), axis=-1) / np.linalg.norm(e, axis=-1)[:, None]
+        deep[:, k] = np.minimum(np.abs(((Pm - P0) * n).sum(-1)),
+                                np.abs(((Pp - P1) * n).sum(-1))) / 8.0
+    out = deep.min(axis=1)
+    out[~np.all(np.isfinite(Q.reshape(-1, 8)), axis=1)] = np.nan
+    return out
+
+
+def tag_subgrid_extents(target):
+    r'''[(nx', ny', extent)]: an AprilGrid's central sub-grids, one tag fewer a side each
+step down to one tag; each extent its tags' black borders and half the gap between tags
+beyond them (a light ring for the quad search and the edges' bands: the tags beyond may
+leave the image)'''
+    spec = target.spec
+    nx, ny = target.grid_shape
+    s = float(spec["tag_size"])
+    gap = float(spec.get("tag_spacing", 0.3)) * s
+    pitch = s + gap
+    out = []
+    for k in range(1, max(nx, ny)):
+        mx, my = max(1, nx - k), max(1, ny - k)
+        i0, j0 = (nx - mx) // 2, (ny - my) // 2
+        out.append((mx, my, (i0 * pitch - gap / 2, (i0 + mx) * pitch - gap / 2,
+                             j0 * pitch - gap / 2, (j0 + my) * pitch - gap / 2)))
+    return out
+
+
+class TagsTooSmallError(NotVisibleError):
+    r'''An AprilGrid whose tags this camera cannot resolve in a calibration pose
+
+A property of the camera and the board, not a failure: a campaign records it as
+not-applicable (not_applicable = True), with this reason.'''
+
+    not_applicable = True
+
+
 def plan_poses(model, target, n=6, seed=0, *, allow_offaxis=False, max_range=DEFAULT_MAX_RANGE,
                cover="paper"):
     r'''Plan n board poses that calibrate `model`
@@ -481,8 +617,44 @@ target in a usable calibration pose, CamvalError for a bad n or cover.
         if not planner.fits(Rt):
             raise NotVisibleError(f"pose {i}: no placement of the board fits the {W}x{H} image "
                                   f"at {d:.3g} m with tilt {tilt:.0f} deg")
+        if planner.tag_quads is not None and planner.median_tag_bit(Rt) < planner.tag_need_px:
+            # a small sensor: a central sub-grid of the tags planned in view, the rest of the
+            # board beyond the image (PLAN_PSF_SIGMA_PX, tag_bit_need_px)
+            Rt = _subgrid_pose(model, target, planner, i, q_centre, corners, anchor, tilt,
+                               azimuth, roll, factor, max_range)
         poses.append(Rt)
     return poses
+
+
+def _subgrid_pose(model, target, planner, i, q_centre, corners, anchor, tilt, azimuth, roll,
+                  factor, max_range):
+    r'''Pose i planned with the largest central sub-grid of an AprilGrid
+(tag_subgrid_extents) whose median tag bit meets planner.tag_need_px, as the board is
+planned (its closest fit, the range factor, pushed into the corner);
+TagsTooSmallError when not even one tag does'''
+    W, H = model.width, model.height
+    best = None
+    for mx, my, extent in tag_subgrid_extents(target):
+        sub = _Planner(model, target, planner.margin, max_range, extent=extent)
+        d_fit = sub.closest_fit_range(q_centre, tilt, azimuth, roll)
+        if d_fit is None:
+            continue
+        d = max(1.0, factor) * d_fit
+        q_anchor = q_centre if anchor is None else sub.push(
+            q_centre, corners[anchor], d, tilt, azimuth, roll)
+        Rt = sub.pose(q_anchor, d, tilt, azimuth, roll)
+        if not sub.fits(Rt):
+            continue
+        bit = sub.median_tag_bit(Rt)
+        if bit >= planner.tag_need_px:
+            return Rt
+        best = (bit, mx, my)
+    seen = "no sub-grid fits" if best is None else \
+        f"a median tag bit of {best[0]:.2g} px with {best[1]}x{best[2]} tags planned in view"
+    raise TagsTooSmallError(
+        f"pose {i}: the {target.name!r} board's tags project too small for its detector on "
+        f"the {W}x{H} image: {seen} (tilt {tilt:.0f} deg, {max(1.0, factor):.2f} x the "
+        f"closest fit), under the {planner.tag_need_px:.2f} px it needs (tag_bit_need_px)")
 
 
 def image_coverage(q_all, width, height, cells=10):
