@@ -650,10 +650,14 @@ have_bits False: unknown, every data bit may be light); H (N,3,3) each tag's ima
 homography; curves (N,4,4) each edge's (d0..d3) in its chord's frame. Returns status (N,4)
 (0: pixels found; 1: edge too short for its blur or too few pixels; 2: seen from its light
 side only, fewer than min_pixels // 2 on its dark side: its pixels are returned all the same;
-3: off the image; 4: tag not live), L (N,4), e, n (N,4,2) each edge's chord
-length, direction and normal into the tag, off (N*4+1,) and the pixels (ix, iy, t, s):
-edge (i, k)'s are [off[4i+k], off[4i+k+1]).'''
+3: off the image, or within reach of its border; 4: tag not live), L (N,4), e, n (N,4,2)
+each edge's chord length, direction and normal into the tag, off (N*4+1,) and the pixels
+(ix, iy, t, s): edge (i, k)'s are [off[4i+k], off[4i+k+1]).'''
     N = Q.shape[0]
+    # a pixel sees the image's border through the blur (its value then depends on what the
+    # renderer put beyond it: zero padding, a mirror, a wider render) unless its centre keeps
+    # reach from it (the border at -1/2 and width - 1/2)
+    border = int(np.ceil(reach - 0.5))
     status = np.full((N, 4), 4, np.int64)
     Ls = np.zeros((N, 4))
     es = np.zeros((N, 4, 2))
@@ -752,7 +756,8 @@ edge (i, k)'s are [off[4i+k], off[4i+k+1]).'''
                     dark += 1
                 lo_x, hi_x = min(lo_x, oix[p]), max(hi_x, oix[p])
                 lo_y, hi_y = min(lo_y, oiy[p]), max(hi_y, oiy[p])
-            if lo_x < 0 or lo_y < 0 or hi_x >= width or hi_y >= height:
+            if lo_x < border or lo_y < border or hi_x > width - 1 - border or \
+                    hi_y > height - 1 - border:
                 status[i, k] = 3
                 continue
             if dark < min_pixels // 2:

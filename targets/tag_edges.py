@@ -410,7 +410,7 @@ EDGE_CONTRAST_OFF = ("edge fit ran off: its contrast beyond the image's range (i
 # targets._tag_edge_kernels.tag_edge_pixels's status of an edge: why it has no pixels
 _EDGE_STATUS = {1: "edge too short for its blur",
                 2: "edge seen from its light side only (tag bits too small for the blur)",
-                3: "edge off the image"}
+                3: "edge off the image or within its blur's reach of the image border"}
 
 
 def _homographies(Q):
