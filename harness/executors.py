@@ -112,18 +112,19 @@ for jobs whose largest image has `pixels` pixels (None: no setting)
 
 glibc gives freed memory back to the system: a large array is mmapped and unmapped, the
 heap's top is trimmed on free. Each detection then faults its arrays' pages in again
-(camera 8's near AprilTag pose, 1024x1024: 3,500 minor faults, 14 MiB, a tenth of its CPU).
-With a top pad the heap grows by the pad beyond each request and keeps the pad when trimmed,
-so a large array is carved from the heap's top and its pages stay mapped for the next one.
-The pad must hold the span of heap a stage spreads its transient arrays over, not only
-their sum: bisected (a detection repeated in one process, MALLOC_TOP_PAD_), the faults
-vanish from ~160 MiB on a 1024x1024 image (the arrays numpy allocates there peak at
-30 MiB) and from ~320 MiB on 5120x3840 (199 MiB), not monotonically (1,400-1,600 faults
-left at 64-128 MiB; 900 at 384 MiB on 5120x3840). TOP_PAD_BASE + TOP_PAD_PER_PIXEL x pixels
-(two float64 images of the largest camera) keeps a 1.6-1.7x margin over both. The pad is
-address space: the pages it keeps are those the worker touched at its peak anyway, so the
-peak resident memory does not grow by it (measured: README, docs/corners.md). mallopt
-takes an int: at most 2 GiB - 1.'''
+(camera 8's near AprilTag pose through the realistic sensor, 1024x1024: 3,500-4,600 minor
+faults, a tenth of its CPU). With a top pad the heap grows by the pad beyond each request
+and keeps the pad when trimmed, so large arrays are carved from the heap's top and their
+pages stay mapped for the next one (keep_freed_memory also lets arrays up to 32 MiB come
+from the heap). The pad must hold the span of heap a stage spreads its transient arrays
+over, not only their sum: bisected with MALLOC_TOP_PAD_ alone (a detection repeated in one
+process, /tmp/h-speed/faults.py), the faults vanish from ~160 MiB on a 1024x1024 image
+(the arrays numpy allocates there peak at 30 MiB) and from ~320 MiB on 5120x3840 (199
+MiB), not monotonically (1,400-1,600 faults left at 64-128 MiB; 900 at 384 MiB on
+5120x3840). TOP_PAD_BASE + TOP_PAD_PER_PIXEL x pixels (two float64 images of the largest
+camera) keeps a 1.6-1.7x margin over both. The pad is address space: the pages it keeps
+are those the worker touched at its peak anyway, so the peak resident memory grows little
+(the quick campaign's workers: 231 -> 240 MiB). mallopt takes an int: at most 2 GiB - 1.'''
     if not pixels:
         return None
     return int(min(TOP_PAD_BASE + TOP_PAD_PER_PIXEL * int(pixels), 2**31 - 1))
