@@ -113,7 +113,7 @@ for jobs whose largest image has `pixels` pixels (None: no setting)
 glibc gives freed memory back to the system: a large array is mmapped and unmapped, the
 heap's top is trimmed on free. Each detection then faults its arrays' pages in again
 (camera 8's near AprilTag pose through the realistic sensor, 1024x1024: 3,500-4,600 minor
-faults, a tenth of its CPU). With a top pad the heap grows by the pad beyond each request
+faults, a tenth to a fifth of its CPU). With a top pad the heap grows by the pad beyond each request
 and keeps the pad when trimmed, so large arrays are carved from the heap's top and their
 pages stay mapped for the next one (keep_freed_memory also lets arrays up to 32 MiB come
 from the heap). The pad must hold the span of heap a stage spreads its transient arrays
@@ -124,7 +124,8 @@ MiB), not monotonically (1,400-1,600 faults left at 64-128 MiB; 900 at 384 MiB o
 5120x3840). TOP_PAD_BASE + TOP_PAD_PER_PIXEL x pixels (two float64 images of the largest
 camera) keeps a 1.6-1.7x margin over both. The pad is address space: the pages it keeps
 are those the worker touched at its peak anyway, so the peak resident memory grows little
-(the quick campaign's workers: 231 -> 240 MiB). mallopt takes an int: at most 2 GiB - 1.'''
+(2 workers, the quick campaign's: 235-240 -> 245-247 MiB each; the paper campaign's, pad
+556 MiB: 453-458 -> 459-461 MiB). mallopt takes an int: at most 2 GiB - 1.'''
     if not pixels:
         return None
     return int(min(TOP_PAD_BASE + TOP_PAD_PER_PIXEL * int(pixels), 2**31 - 1))
@@ -138,8 +139,9 @@ glibc.malloc.*: the user's, kept), or not glibc (no mallopt)
 glibc reads MALLOC_TOP_PAD_ at the process's start; mallopt(M_TOP_PAD) sets the same
 parameter in a running process (glibc's do_set_top_pad either way), so a worker forked
 from the fork server sets it in its initializer: the campaign's own process and its
-environment are not changed. Like the variable, it freezes glibc's dynamic mmap
-threshold at its current value.'''
+environment are not changed. Either freezes glibc's dynamic mmap threshold where it is
+(128 KiB in a fresh process: every array above it mmapped and unmapped, whatever the pad),
+so the threshold is set to the dynamic one's ceiling first.'''
     env = os.environ if environ is None else environ
     if not top_pad or any(k in env for k in MALLOC_ENV) or \
             "glibc.malloc." in env.get("GLIBC_TUNABLES", ""):
