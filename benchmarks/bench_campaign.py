@@ -79,12 +79,10 @@ def _malloc_setting(entries):
 (harness.executors.worker_top_pad of the largest camera), or {"environment": the malloc
 variables set here, which the workers keep instead}; {} where the tree has neither'''
     try:
-        from harness.executors import MALLOC_ENV, worker_top_pad
+        from harness.executors import malloc_environment, worker_top_pad
     except ImportError:     # a tree before the workers' malloc setting
         return {}
-    env = {k: os.environ[k] for k in MALLOC_ENV if k in os.environ}
-    if "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", ""):
-        env["GLIBC_TUNABLES"] = os.environ["GLIBC_TUNABLES"]
+    env = malloc_environment()
     if env:
         return {"environment": env}
     return {"top_pad": worker_top_pad(max(e.model.width * e.model.height

@@ -60,7 +60,6 @@ corner-by-corner before/after on the same images).
 
 import argparse
 import json
-import os
 import platform
 import sys
 import time
@@ -201,10 +200,8 @@ def _keep_freed_memory(mode, current, pixels):
 pad of the largest image so far (harness.executors.keep_freed_memory, worker_top_pad), set
 again when an image is larger -> what the detections run with: {"top_pad": bytes},
 {"environment": the MALLOC_* variables set here, kept}, or {"glibc": "default"}'''
-    from harness.executors import MALLOC_ENV, keep_freed_memory, worker_top_pad
-    env = {k: os.environ[k] for k in MALLOC_ENV if k in os.environ}
-    if "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", ""):
-        env["GLIBC_TUNABLES"] = os.environ["GLIBC_TUNABLES"]
+    from harness.executors import keep_freed_memory, malloc_environment, worker_top_pad
+    env = malloc_environment()
     if env:
         return {"environment": env}
     pad = worker_top_pad(pixels)

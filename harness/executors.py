@@ -131,6 +131,16 @@ are those the worker touched at its peak anyway, so the peak resident memory gro
     return int(min(TOP_PAD_BASE + TOP_PAD_PER_PIXEL * int(pixels), 2**31 - 1))
 
 
+def malloc_environment(environ=None):
+    r'''{name: value} of the glibc malloc settings in the environment (MALLOC_ENV, and
+GLIBC_TUNABLES where it sets a glibc.malloc.* tunable): a user's, which the workers keep'''
+    env = os.environ if environ is None else environ
+    out = {k: env[k] for k in MALLOC_ENV if k in env}
+    if "glibc.malloc." in env.get("GLIBC_TUNABLES", ""):
+        out["GLIBC_TUNABLES"] = env["GLIBC_TUNABLES"]
+    return out
+
+
 def keep_freed_memory(top_pad, environ=None):
     r'''Set this process's glibc malloc top pad (worker_top_pad) -> the pad set, or None:
 no pad asked, a malloc setting in the environment (MALLOC_ENV, GLIBC_TUNABLES'
@@ -142,9 +152,7 @@ from the fork server sets it in its initializer: the campaign's own process and 
 environment are not changed. Either freezes glibc's dynamic mmap threshold where it is
 (128 KiB in a fresh process: every array above it mmapped and unmapped, whatever the pad),
 so the threshold is set to the dynamic one's ceiling first.'''
-    env = os.environ if environ is None else environ
-    if not top_pad or any(k in env for k in MALLOC_ENV) or \
-            "glibc.malloc." in env.get("GLIBC_TUNABLES", ""):
+    if not top_pad or malloc_environment(environ):
         return None
     try:
         if not os.confstr("CS_GNU_LIBC_VERSION"):

@@ -152,13 +152,14 @@ def test_worker_top_pad_grows_with_the_largest_image():
 
 
 def test_a_malloc_setting_in_the_environment_is_the_users():
-    from harness.executors import keep_freed_memory
+    from harness.executors import keep_freed_memory, malloc_environment
     pad = 300 * 2**20
     assert keep_freed_memory(None, environ={}) is None
     # a Dask nanny's default, a user's variable, glibc's tunables: left as they are
     assert keep_freed_memory(pad, environ={"MALLOC_TRIM_THRESHOLD_": "65536"}) is None
     assert keep_freed_memory(pad, environ={"MALLOC_TOP_PAD_": "0"}) is None
     assert keep_freed_memory(pad, environ={"GLIBC_TUNABLES": "glibc.malloc.top_pad=0"}) is None
+    assert malloc_environment({"GLIBC_TUNABLES": "glibc.rtld.nns=2", "HOME": "/"}) == {}
 
 
 @pytest.mark.skipif(not (sys.platform.startswith("linux") and os.confstr("CS_GNU_LIBC_VERSION")),
@@ -167,9 +168,8 @@ def test_local_workers_keep_freed_memory():
     r'''With a top pad each worker's freed arrays stay mapped: an 8 MiB array (2048 pages)
 is touched again without page faults. glibc alone hands the first one back (mmapped, then
 unmapped) and faults it in again.'''
-    from harness.executors import MALLOC_ENV, _local_results, worker_top_pad
-    if any(k in os.environ for k in MALLOC_ENV) or "glibc.malloc." in os.environ.get(
-            "GLIBC_TUNABLES", ""):
+    from harness.executors import _local_results, malloc_environment, worker_top_pad
+    if malloc_environment():
         pytest.skip("a malloc setting in this environment: the workers keep it")
     kept = [r for _, r in _local_results(_refaults, [8] * 4, 2, worker_top_pad(1024 * 1024))]
     assert all(f < 20 for r in kept for f in r), kept
