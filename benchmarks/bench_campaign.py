@@ -23,9 +23,10 @@ Per run: the wall time against the target, the seconds summed per stage
 (poses, render, detect, calibrate per calibrator, compare; CPU-side seconds
 summed over the workers, so they can exceed the wall time), the number of
 images rendered (twin cameras share their images), the record counts, the
-numba warm-up the campaign did before its workers started, and the peak
-resident memory and CPU seconds of the campaign's process and of each worker
-(sampled from /proc: common.ProcessTree).
+numba warm-up the campaign did before its workers started, the workers' malloc setting
+(harness.executors.worker_top_pad, or the environment's MALLOC_* variables they keep), and
+the peak resident memory, CPU seconds (system too) and minor page faults of the campaign's
+process and of each worker (sampled from /proc: common.ProcessTree).
 Records: campaign/<name>/first, campaign/<name>/repeat-<i>, and
 campaign/<name>/repeated (wall seconds: min and median over the repeats).
 Not a test: the machine is shared, so the figures depend on its load (the
@@ -51,6 +52,7 @@ def child(campaign_path, run_dir, workers):
 
     campaign = load_campaign(campaign_path)
     entries = campaign.validate()
+    malloc = _malloc_setting(entries)
     with common.ProcessTree() as tree, common.Stopwatch() as sw:
         doc = run_campaign(campaign, run_dir, workers=workers, progress=False, entries=entries)
     procs = tree.processes
@@ -68,7 +70,23 @@ def child(campaign_path, run_dir, workers):
         "cpu_s": sw.cpu_s,
         "peak_rss_bytes": common.peak_rss_bytes(),
         "peak_rss_worker_bytes": max(worker_peaks, default=None),
+        "malloc": malloc,
         "processes": procs}))
+
+
+def _malloc_setting(entries):
+    r'''The malloc setting the campaign's local workers start with: {"top_pad": bytes}
+(harness.executors.worker_top_pad of the largest camera), or {"environment": the malloc
+variables set here, which the workers keep instead}; {} where the tree has neither'''
+    try:
+        from harness.executors import malloc_environment, worker_top_pad
+    except ImportError:     # a tree before the workers' malloc setting
+        return {}
+    env = malloc_environment()
+    if env:
+        return {"environment": env}
+    return {"top_pad": worker_top_pad(max(e.model.width * e.model.height
+                                          for e in entries.values()))}
 
 
 def one_run(path, workers, run_dir, env=None):
@@ -136,14 +154,16 @@ with the kernels compiled -> the records added (campaign/<name>/first, .../repea
               + f", {rec['jobs']} jobs ({rec['twin_jobs']} of them twins rendered with "
               f"another camera), {rec['images']} images, {rec['records']} records "
               f"{rec['statuses']}, {rec['workers']} workers; numba warm-up before the workers "
-              f"{warm.get('seconds', 0):.1f} s (cached: {warm.get('cached')}); peak RSS "
+              f"{warm.get('seconds', 0):.1f} s (cached: {warm.get('cached')}); workers' "
+              f"malloc {rec.get('malloc') or 'as glibc starts it'}; peak RSS "
               f"{rec['peak_rss_bytes'] / 2**20:.0f} MiB (campaign process), workers "
               + (", ".join(f"{m:.0f}" for m in workers_rss) or "none seen") + " MiB"
               f"; load average {rec['load_average_start'][0]:.1f} at the start, "
               f"{rec['load_average'][0]:.1f} at the end", flush=True)
         for p in rec.get("processes") or []:
             print(f"  process {p['pid']:>7} {p['role']:<6} peak RSS "
-                  f"{p['peak_rss_bytes'] / 2**20:6.0f} MiB, CPU {p['cpu_s']:6.1f} s")
+                  f"{p['peak_rss_bytes'] / 2**20:6.0f} MiB, CPU {p['cpu_s']:6.1f} s (system "
+                  f"{p.get('sys_s', 0.0):.1f} s), {p.get('minflt', 0)} minor page faults")
         print(f"  {'campaign process CPU':20s} {rec['cpu_s']:8.1f} s")
         print(f"  {'all processes CPU':20s} {rec['seconds']['campaign_cpu']:8.1f} s")
         for stage, t in rec["stage_seconds"].items():

@@ -46,7 +46,9 @@ detection time per image of each method and image size (median and max over the 
 the bars are 0.1 s on 1024x1024 and 0.5 s on 5120x3840, issue 16; loaded-machine figures,
 the load average is recorded). The times are those a campaign's worker sees: numba's cached
 kernels are preloaded first (harness.warmup.load_cached_kernels, as the fork server does;
-its CPU time printed apart), and each camera's first detection, which carries what the
+its CPU time printed apart; --malloc worker, the default: malloc keeps freed memory as the
+workers' does, harness.executors.worker_top_pad, recorded as "malloc"), and each camera's
+first detection, which carries what the
 process does once (imports, a pupil_apriltags detector), is kept apart ('CPU 1st',
 first_cpu_seconds) and its image detected again for the median and max. Writes one JSON
 document to --out/<UTC stamp>-corners.json (never overwriting). --save-q F.npz keeps
@@ -193,6 +195,22 @@ what the process did once on top)'''
                 kv[0][0], kv[0][1], int(kv[0][2].split("x")[0]) * int(kv[0][2].split("x")[1])))]
 
 
+def _keep_freed_memory(mode, current, pixels):
+    r'''This process's malloc as a campaign's local worker has it (mode "worker"): the top
+pad of the largest image so far (harness.executors.keep_freed_memory, worker_top_pad), set
+again when an image is larger -> what the detections run with: {"top_pad": bytes},
+{"environment": the MALLOC_* variables set here, kept}, or {"glibc": "default"}'''
+    from harness.executors import keep_freed_memory, malloc_environment, worker_top_pad
+    env = malloc_environment()
+    if env:
+        return {"environment": env}
+    pad = worker_top_pad(pixels)
+    if mode != "worker" or pad is None or (current or {}).get("top_pad", 0) >= pad:
+        return current if current is not None else {"glibc": "default"}
+    got = keep_freed_memory(pad)
+    return {"top_pad": got} if got else {"glibc": "default (no mallopt here)"}
+
+
 def _load():
     import os
     try:
@@ -221,6 +239,11 @@ def main():
     ap.add_argument("--methods", default=None, help="comma-separated words: keep the methods "
                     "whose name contains one")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    ap.add_argument("--malloc", choices=("worker", "glibc"), default="worker",
+                    help="worker: this process's malloc keeps freed memory as a campaign's "
+                         "workers do (harness.executors.worker_top_pad of the largest image "
+                         "so far); glibc: as glibc starts it (a MALLOC_* variable in the "
+                         "environment is kept either way)")
     ap.add_argument("--save-q", type=Path, default=None,
                     help="write every method's corners per image to this .npz")
     ap.add_argument("--compare-q", type=Path, default=None,
@@ -251,6 +274,7 @@ def main():
     print(f"preloaded {preload['kernels']} cached kernel signatures "
           f"({preload['cpu_seconds']:.3f} CPU s, harness.warmup.load_cached_kernels)")
     rows = []
+    malloc = _keep_freed_memory(args.malloc, None, 0)
     families = [None] if args.families is None else args.families.split(",")
     for cam, fam, tname in [(c, f, t) for c in args.cameras.split(",") for f in families
                             for t in args.targets.split(",")]:
@@ -263,6 +287,7 @@ def main():
         if chain is not None:
             images = [(chain.apply(img, seed=i).image, truth, Rt)
                       for i, (img, truth, Rt) in enumerate(images)]
+        malloc = _keep_freed_memory(args.malloc, malloc, images[0][0].size)
         for method, refine in METHODS[tname]:
             if args.methods and not any(w in method for w in args.methods.split(",")):
                 continue
@@ -346,7 +371,8 @@ def main():
           f"the 5120x3840 one 0.5 s; load average {_load()}: under load the wall time is the "
           f"CPU time stretched); 'CPU 1st': the largest first detection of a camera, with "
           f"what the process does once (imports, a pupil_apriltags detector for a new "
-          f"decimation; numba's cached kernels preloaded as a campaign worker has them)")
+          f"decimation; numba's cached kernels preloaded as a campaign worker has them); "
+          f"malloc: {malloc}")
     print(f"{'target':10s} {'method':38s} {'image':>10s} {'images':>6s} {'wall med':>9s} "
           f"{'wall max':>9s} {'CPU med':>8s} {'CPU max':>8s} {'CPU 1st':>8s}")
     for t in timing:
@@ -359,7 +385,8 @@ def main():
            "machine": platform.machine(), "renderer": "raycast", "spp": args.spp,
            "coverage": args.coverage, "response": args.response,
            "truth": "targets.centroids.projected_points", "load_average": _load(),
-           "families": args.families, "kernels_preloaded": preload, "records": rows,
+           "families": args.families, "kernels_preloaded": preload, "malloc": malloc,
+           "records": rows,
            "timing": timing}
     args.out.mkdir(parents=True, exist_ok=True)
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")

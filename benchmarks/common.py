@@ -199,14 +199,16 @@ def proc_status(pid="self", field="VmHWM"):
 
 
 def _proc_stat(pid):
-    r'''(parent pid, CPU seconds user + system) of a live process, or None'''
+    r'''(parent pid, CPU seconds user + system, minor page faults, system CPU seconds) of a
+live process, or None'''
     try:
         with open(f"/proc/{pid}/stat") as f:
             fields = f.read().rsplit(")", 1)[1].split()
     except (OSError, IndexError):
         return None
     tick = os.sysconf("SC_CLK_TCK")
-    return int(fields[1]), (int(fields[11]) + int(fields[12])) / tick
+    return (int(fields[1]), (int(fields[11]) + int(fields[12])) / tick, int(fields[7]),
+            int(fields[12]) / tick)
 
 
 class ProcessTree:
@@ -216,7 +218,7 @@ SYNOPSIS
 
     with common.ProcessTree() as tree:       # a thread reads /proc every `interval` s
         run_campaign(...)                    # local workers: grandchildren (forkserver)
-    tree.processes   # [{"pid", "role", "peak_rss_bytes", "cpu_s"}, ...]
+    tree.processes   # [{"pid", "role", "peak_rss_bytes", "cpu_s", "sys_s", "minflt"}, ...]
 
 getrusage(RUSAGE_CHILDREN) cannot say this: it holds the largest child already
 waited for, and a forkserver's workers are its children, not this process's.
@@ -239,7 +241,7 @@ resource tracker, a fork-started worker). Empty where /proc is not readable.
                 st = _proc_stat(name)
                 if st is not None:
                     parents[int(name)] = st
-        for pid, (_, cpu) in parents.items():
+        for pid, (_, cpu, minflt, sys_s) in parents.items():
             depth, p = 0, pid
             while p in parents and p != me and depth < 8:
                 p, depth = parents[p][0], depth + 1
@@ -248,9 +250,11 @@ resource tracker, a fork-started worker). Empty where /proc is not readable.
             hwm = proc_status(pid, "VmHWM")
             rec = self._seen.setdefault(pid, {"pid": pid, "role": "child" if depth == 1
                                               else "worker", "peak_rss_bytes": 0,
-                                              "cpu_s": 0.0})
+                                              "cpu_s": 0.0, "sys_s": 0.0, "minflt": 0})
             rec["peak_rss_bytes"] = max(rec["peak_rss_bytes"], hwm)
             rec["cpu_s"] = max(rec["cpu_s"], cpu)
+            rec["sys_s"] = max(rec["sys_s"], sys_s)
+            rec["minflt"] = max(rec["minflt"], minflt)
 
     def _run(self):
         while not self._stop.wait(self.interval):

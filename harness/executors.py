@@ -94,14 +94,91 @@ warm-up's fork from it whenever they start.'''
     forkserver.ensure_running()
 
 
-def _init_worker(pid, threads):
+# glibc malloc's settings a user (or a Dask nanny: distributed.nanny.pre-spawn-environ sets
+# MALLOC_TRIM_THRESHOLD_) may give a process in its environment; with any of them set, the
+# workers' malloc is left as the environment made it (keep_freed_memory)
+MALLOC_ENV = ("MALLOC_TOP_PAD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_",
+              "MALLOC_MMAP_MAX_")
+_M_TOP_PAD, _M_MMAP_THRESHOLD = -2, -3     # glibc's mallopt parameters (malloc.h)
+# the worker's top pad: a fixed part and two float64 images of the largest camera (bytes per
+# pixel), see worker_top_pad
+TOP_PAD_BASE = 256 * 2**20
+TOP_PAD_PER_PIXEL = 16
+
+
+def worker_top_pad(pixels):
+    r'''The heap a local worker keeps free above its live memory (glibc's M_TOP_PAD), in bytes,
+for jobs whose largest image has `pixels` pixels (None: no setting)
+
+glibc gives freed memory back to the system: a large array is mmapped and unmapped, the
+heap's top is trimmed on free. Each detection then faults its arrays' pages in again
+(camera 8's near AprilTag pose through the realistic sensor, 1024x1024: 3,500-4,600 minor
+faults, a tenth to a fifth of its CPU). With a top pad the heap grows by the pad beyond each request
+and keeps the pad when trimmed, so large arrays are carved from the heap's top and their
+pages stay mapped for the next one (keep_freed_memory also lets arrays up to 32 MiB come
+from the heap). The pad must hold the span of heap a stage spreads its transient arrays
+over, not only their sum: bisected with MALLOC_TOP_PAD_ alone (a detection repeated in one
+process, /tmp/h-speed/faults.py), the faults vanish from ~160 MiB on a 1024x1024 image
+(the arrays numpy allocates there peak at 30 MiB) and from ~320 MiB on 5120x3840 (199
+MiB), not monotonically (1,400-1,600 faults left at 64-128 MiB; 900 at 384 MiB on
+5120x3840). TOP_PAD_BASE + TOP_PAD_PER_PIXEL x pixels (two float64 images of the largest
+camera) keeps a 1.6-1.7x margin over both. The pad is address space: the pages it keeps
+are those the worker touched at its peak anyway, so the peak resident memory grows little
+(2 workers, the quick campaign's: 235-240 -> 245-247 MiB each; the paper campaign's, pad
+556 MiB: 453-458 -> 459-461 MiB). mallopt takes an int: at most 2 GiB - 1.'''
+    if not pixels:
+        return None
+    return int(min(TOP_PAD_BASE + TOP_PAD_PER_PIXEL * int(pixels), 2**31 - 1))
+
+
+def malloc_environment(environ=None):
+    r'''{name: value} of the glibc malloc settings in the environment (MALLOC_ENV, and
+GLIBC_TUNABLES where it sets a glibc.malloc.* tunable): a user's, which the workers keep'''
+    env = os.environ if environ is None else environ
+    out = {k: env[k] for k in MALLOC_ENV if k in env}
+    if "glibc.malloc." in env.get("GLIBC_TUNABLES", ""):
+        out["GLIBC_TUNABLES"] = env["GLIBC_TUNABLES"]
+    return out
+
+
+def keep_freed_memory(top_pad, environ=None):
+    r'''Set this process's glibc malloc top pad (worker_top_pad) -> the pad set, or None:
+no pad asked, a malloc setting in the environment (MALLOC_ENV, GLIBC_TUNABLES'
+glibc.malloc.*: the user's, kept), or not glibc (no mallopt)
+
+glibc reads MALLOC_TOP_PAD_ at the process's start; mallopt(M_TOP_PAD) sets the same
+parameter in a running process (glibc's do_set_top_pad either way), so a worker forked
+from the fork server sets it in its initializer: the campaign's own process and its
+environment are not changed. Either freezes glibc's dynamic mmap threshold where it is
+(128 KiB in a fresh process: every array above it mmapped and unmapped, whatever the pad),
+so the threshold is set to the dynamic one's ceiling first.'''
+    if not top_pad or malloc_environment(environ):
+        return None
+    try:
+        if not os.confstr("CS_GNU_LIBC_VERSION"):
+            return None
+        import ctypes
+        mallopt = ctypes.CDLL(None).mallopt
+    except (AttributeError, OSError, ValueError):
+        return None
+    mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
+    # the dynamic mmap threshold's ceiling, glibc's DEFAULT_MMAP_THRESHOLD_MAX (32 MiB on 64
+    # bits): what the threshold rises to anyway once such arrays are freed
+    if mallopt(_M_MMAP_THRESHOLD, 4 * 2**20 * ctypes.sizeof(ctypes.c_long)) != 1:
+        return None
+    return int(top_pad) if mallopt(_M_TOP_PAD, int(top_pad)) == 1 else None
+
+
+def _init_worker(pid, threads, top_pad=None):
     r'''Worker initializer: end with the campaign (_die_with_campaign), numpy's OpenBLAS
-and numba's parallel kernels (the ray caster's bands) on `threads` threads'''
+and numba's parallel kernels (the ray caster's bands) on `threads` threads, glibc's malloc
+keeping `top_pad` bytes of freed memory (keep_freed_memory; None: as it is)'''
     import numba
 
     from . import blas
     blas.set_threads(threads)
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    keep_freed_memory(top_pad)
     _die_with_campaign(pid)
 
 
@@ -117,18 +194,20 @@ the ray caster's 6 renders of cameras 1 and 3 (CAHV, CAHVORE, dots and AprilTag)
     return max(1, cores // max(1, workers))
 
 
-def local_pool(workers):
+def local_pool(workers, top_pad=None):
     r'''A ProcessPoolExecutor of `workers` local processes (local_context) that end when
 this process does (_die_with_campaign), each with numpy's OpenBLAS and numba on its share
-of the cores (threads_per_worker): the jobs' workers and the warm-up's'''
+of the cores (threads_per_worker) and glibc's malloc keeping `top_pad` bytes of freed
+memory (keep_freed_memory; None: as it is): the jobs' workers and the warm-up's'''
     import concurrent.futures as cf
     return cf.ProcessPoolExecutor(max_workers=workers, mp_context=local_context(),
                                   initializer=_init_worker,
-                                  initargs=(os.getpid(), threads_per_worker(workers)))
+                                  initargs=(os.getpid(), threads_per_worker(workers), top_pad))
 
 
-def _local_results(fn, jobs, workers):
-    r'''Yield (job, result or exception) as jobs finish, in local processes'''
+def _local_results(fn, jobs, workers, top_pad=None):
+    r'''Yield (job, result or exception) as jobs finish, in local processes (top_pad: their
+malloc's, local_pool; one worker runs the jobs in this process, its malloc as it is)'''
     if workers <= 1:
         for job in jobs:
             try:
@@ -137,7 +216,7 @@ def _local_results(fn, jobs, workers):
                 yield job, e
         return
     import concurrent.futures as cf
-    with local_pool(workers) as ex:
+    with local_pool(workers, top_pad) as ex:
         futs = {ex.submit(fn, job): job for job in jobs}
         try:
             for fut in cf.as_completed(futs):
@@ -201,7 +280,7 @@ every job's records are stored by then'''
 
 
 def run_jobs(jobs, store, fn=None, executor="local", workers=None, scheduler=None,
-             progress=True, warm=True, report=None):
+             progress=True, warm=True, report=None, pixels=None):
     r'''Run jobs, storing each job's records in `store` as it finishes
 
 SYNOPSIS
@@ -220,6 +299,11 @@ compile every numba kernel of the jobs once (warm_up, on `workers` processes)
 so that the workers load them from numba's cache. report: a dict that receives {"warm_up": {...}}.
 progress: True (a harness.progress.Progress of its own on stderr), False, or the
 campaign's Progress (its "jobs" stage shows the running jobs' stages on a terminal).
+pixels: the largest image of the jobs (width x height): local worker processes keep
+worker_top_pad(pixels) bytes of freed memory (keep_freed_memory: unless the environment
+has a malloc setting; None: their malloc as it is). Dask's workers are not started here:
+their malloc is the cluster's (a nanny sets MALLOC_TRIM_THRESHOLD_ by default; a pad is
+distributed.nanny.pre-spawn-environ's MALLOC_TOP_PAD_).
 '''
     from .runner import run_job  # the job function the runner hands to the executors
     if fn is None:
@@ -246,7 +330,7 @@ campaign's Progress (its "jobs" stage shows the running jobs' stages on a termin
     bar.stage("jobs", total=len(todo), watch=watch)
     try:
         results = (_dask_results(fn, todo, scheduler) if executor == "dask"
-                   else _local_results(fn, todo, workers))
+                   else _local_results(fn, todo, workers, worker_top_pad(pixels)))
         for job, out in results:
             members = job.members()
             if isinstance(out, BaseException):

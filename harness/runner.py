@@ -223,7 +223,9 @@ def _run_campaign(campaign, run_dir, executor, workers, scheduler, resume, bar, 
     t0 = time.perf_counter()
     report = {}
     n = run_jobs(jobs, store, executor=executor, workers=workers, scheduler=scheduler,
-                 progress=bar, warm=warm, report=report)
+                 progress=bar, warm=warm, report=report,
+                 pixels=max((e.model.width * e.model.height for e in entries.values()),
+                            default=None))
     wall = time.perf_counter() - t0
     records = store.records()
     stray = {k for k in store.done_jobs() if k not in expected}

@@ -1632,11 +1632,12 @@ _LINE_NODES = np.polynomial.legendre.leggauss(8)
 
 
 def _span_degree(h, tol=1e-6):
-    r'''The degree of a span's polynomial from its functional h (6,) on a board line's
+    r'''The degree of a span's polynomial from its functional h (..., 6) on a board line's
 quintic (targets.tag_edges.SPAN_RECORD): the fit follows a polynomial up to its degree
-exactly (h_l ~ 0 for l <= degree)'''
-    big = np.abs(h) > tol * max(np.abs(h).max(), 1e-300)
-    return int(np.argmax(big)) - 1 if big.any() else 5
+exactly (h_l ~ 0 for l <= degree); an int per leading index'''
+    a = np.abs(np.asarray(h, dtype=np.float64))
+    big = a > tol * np.maximum(a.max(axis=-1, keepdims=True), 1e-300)
+    return np.where(big.any(axis=-1), np.argmax(big, axis=-1) - 1, 5)
 
 
 def line_correlation(ends, pieces):
@@ -1651,32 +1652,74 @@ its reach, evaluated at its corner: a linear function of the pixels' noise, phi(
 (targets.tag_edges._span_choice's variance is its sum of squares). With the noise and the
 pixels' information alike along the line (the light level and contrast left out: a
 symmetric profile's are nearly orthogonal to its position), two ends' covariance is the
-integral of phi_a phi_b over the pixels both reach.'''
-    cuts = sorted({x for e in ends for x in e[4:6]})
-    x, w = [], []
-    for u0, u1 in pieces:
-        b = [u0] + [c for c in cuts if u0 < c < u1] + [u1]
-        for a0, a1 in zip(b[:-1], b[1:], strict=True):
-            x.append(0.5 * (a0 + a1) + 0.5 * (a1 - a0) * _LINE_NODES[0])
-            w.append(0.5 * (a1 - a0) * _LINE_NODES[1])
-    x, w = np.concatenate(x), np.concatenate(w)
-    Phi = np.zeros((len(ends), len(x)))
-    for k, (ua, ub, tc, deg, r0, r1) in enumerate(ends):
-        m = (x >= r0) & (x <= r1)
-        V = np.vander(2.0 * (x[m] - ua) / (ub - ua) - 1.0, deg + 1, increasing=True)
-        A = V.T @ (V * w[m, None])
-        if m.sum() <= deg or not np.all(np.isfinite(A)):
-            continue
-        try:
-            Phi[k, m] = V @ np.linalg.solve(A, tc ** np.arange(deg + 1.0))
-        except np.linalg.LinAlgError:
-            continue
-    C = (Phi * w) @ Phi.T
-    d = np.sqrt(np.diag(C))
+integral of phi_a phi_b over the pixels both reach. (One line of _line_correlations.)'''
+    return _line_correlations([(ends, pieces)])[0, :len(ends), :len(ends)]
+
+
+def _line_correlations(lines):
+    r'''(L, M, M) line_correlation of each of L lines [(ends, pieces)], at once: line l's
+in [l, :m_l, :m_l], padded with the identity
+
+Every end's normal equations are solved in one numpy batched solve: each end's
+Vandermonde matrix over its line's Gauss-Legendre nodes (the lines' padded with nodes of
+weight 0), its rows outside the reach and its columns past its degree zero, the unused
+columns' block of the normal matrix the identity (their solution 0). An end with fewer
+nodes in reach than coefficients or a singular system is left uncorrelated.'''
+    xs, ws = [], []
+    for ends, pieces in lines:
+        cuts = sorted({x for e in ends for x in e[4:6]})
+        x, w = [], []
+        for u0, u1 in pieces:
+            b = [u0] + [c for c in cuts if u0 < c < u1] + [u1]
+            for a0, a1 in zip(b[:-1], b[1:], strict=True):
+                x.append(0.5 * (a0 + a1) + 0.5 * (a1 - a0) * _LINE_NODES[0])
+                w.append(0.5 * (a1 - a0) * _LINE_NODES[1])
+        xs.append(np.concatenate(x))
+        ws.append(np.concatenate(w))
+    nl, ne, nx = len(lines), max(len(e) for e, _ in lines), max(len(x) for x in xs)
+    X, W, real = np.zeros((nl, nx)), np.zeros((nl, nx)), np.zeros((nl, nx), dtype=bool)
+    E = np.zeros((nl, ne, 6))
+    E[..., 1] = 1.0              # padded ends: u_b 1, degree 0, reach empty (r0 1 > r1 0)
+    E[..., 4] = 1.0
+    for l, ((ends, _), x, w) in enumerate(zip(lines, xs, ws, strict=True)):
+        X[l, :len(x)], W[l, :len(w)], real[l, :len(x)] = x, w, True
+        E[l, :len(ends)] = np.asarray(ends, dtype=np.float64).reshape(-1, 6)
+    ua, ub, tc, r0, r1 = (E[..., j] for j in (0, 1, 2, 4, 5))
+    deg = E[..., 3].astype(int)
+    xx = X[:, None, :]
+    m = (xx >= r0[..., None]) & (xx <= r1[..., None]) & real[:, None, :]  # (L, M, nodes)
+    cols = np.arange(deg.max() + 1)
+    on = cols <= deg[..., None]                                        # (L, M, degree + 1)
+    # np.vander's powers (repeated products), per end in its own tau
+    V = np.empty(m.shape + cols.shape)
+    V[..., 0] = 1.0
+    with np.errstate(all="ignore"):     # a zero-length edge: its end is left out below
+        if len(cols) > 1:
+            V[..., 1:] = (2.0 * (xx - ua[..., None]) / (ub - ua)[..., None] - 1.0)[..., None]
+            np.multiply.accumulate(V[..., 1:], axis=-1, out=V[..., 1:])
+        V = np.where(m[..., None] & on[..., None, :], V, 0.0)
+        A = np.swapaxes(V, -1, -2) @ (V * W[:, None, :, None])
+    A[..., cols, cols] += ~on
+    rhs = np.where(on, tc[..., None] ** cols, 0.0)
+    good = (m.sum(axis=-1) > deg) & np.isfinite(A).all(axis=(-2, -1))
+    c = np.zeros(on.shape)
+    try:
+        c[good] = np.linalg.solve(A[good], rhs[good][..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        for k in zip(*np.nonzero(good), strict=True):
+            try:
+                c[k] = np.linalg.solve(A[k], rhs[k])
+            except np.linalg.LinAlgError:
+                continue
+    V[~good] = 0.0                                                     # (NaN there)
+    Phi = (V @ c[..., None])[..., 0]                                   # (L, M, nodes)
+    C = (Phi * W[:, None, :]) @ np.swapaxes(Phi, -1, -2)
+    d = np.sqrt(np.diagonal(C, axis1=-2, axis2=-1))
     ok = d > 0
-    out = np.eye(len(ends))
-    out[np.ix_(ok, ok)] = C[np.ix_(ok, ok)] / np.outer(d[ok], d[ok])
-    np.fill_diagonal(out, 1.0)
+    both = ok[..., :, None] & ok[..., None, :]
+    with np.errstate(all="ignore"):
+        out = np.where(both, C / (d[..., :, None] * d[..., None, :]), 0.0)
+    out[:, np.arange(ne), np.arange(ne)] = 1.0
     return out
 
 
@@ -1691,8 +1734,9 @@ board line (the edge alone, with its neighbour's nearer part, or the whole line:
 targets.tag_edges._span_choice), and corners whose spans share pixels err alike across
 that line (the pupil job's 120 draws: 0.67 across the gap to the next tag, 0.33 at the
 two ends of one edge). Each corner's error is split into its two lines' normals
-(orthonormalised), each line's ends correlated by line_correlation, its reach and degree
-from the span records; C is then a sum of correlation matrices, positive semidefinite.'''
+(orthonormalised), each line's ends correlated by line_correlation (an image's lines at
+once: _line_correlations), its reach and degree from the span records; C is then a sum of
+correlation matrices, positive semidefinite.'''
     spans = getattr(obs, "corner_spans", None)
     if spans is None or getattr(obs, "corner_sigma_px", None) is None:
         return None
@@ -1709,52 +1753,67 @@ from the span records; C is then a sum of correlation matrices, positive semidef
         row0 += 2 * n
         C = np.eye(2 * n)
         sp, q, pb = spans[i], obs.q[i], obs.p_board[i][:, :2]
-        # each board line's edge ends: (corner, slot, (u_a, u_b, tc, degree, r0, r1),
-        # the edge's (u_a, u_b)); each corner's edges' image normals
-        lines, normal = {}, np.full((n, 2, 2), np.nan)
-        for k, p in enumerate(pts):
-            for slot in (0, 1):
-                r = sp[p, slot]
-                if not np.all(np.isfinite(r)):
-                    continue
-                o = int(r[-1])
-                a, b, tc = (o, p, 1.0) if slot == 0 else (p, o, -1.0)
-                if not (np.all(np.isfinite(q[a])) and np.all(np.isfinite(q[b]))):
-                    continue
-                d = pb[b] - pb[a]
-                ax = int(np.argmax(np.abs(d)))
-                L = float(np.hypot(*d))
-                if not L > 0 or abs(d[1 - ax]) > 1e-9 * L:
-                    continue
-                key = (ax, round(float(pb[a][1 - ax]), 9))
-                ua, ub = float(pb[a][ax]), float(pb[b][ax])
-                r0, r1 = sorted((ua + 0.5 * (r[-3] + 1.0) * (ub - ua),
-                                 ua + 0.5 * (r[-2] + 1.0) * (ub - ua)))
-                e = q[b] - q[a]
-                normal[k, slot] = np.array([-e[1], e[0]]) / np.hypot(*e)
-                lines.setdefault(key, []).append(
-                    (k, slot, (ua, ub, tc, _span_degree(r[:6]), r0, r1), (ua, ub)))
+        # each point's two edges (slot 0: from its other corner o to it, tau 1; slot 1:
+        # from it to o, tau -1), an end where the record, both corners and a board-axis
+        # line are there: its line (axis, board coordinate across), its (u_a, u_b, tc,
+        # degree, r0, r1) and its image normal, flattened (point, slot)
+        r = sp[pts]                                                  # (n, 2, R)
+        keep = np.isfinite(r).all(axis=-1)
+        o = np.where(keep, r[..., -1], 0).astype(int)
+        p2 = np.broadcast_to(pts[:, None], o.shape)
+        a = np.where([0, 1], p2, o)
+        b = np.where([0, 1], o, p2)
+        keep &= np.isfinite(q[a]).all(axis=-1) & np.isfinite(q[b]).all(axis=-1)
+        d = pb[b] - pb[a]
+        ax = np.argmax(np.abs(d), axis=-1)
+        L = np.hypot(d[..., 0], d[..., 1])
+        side = np.take_along_axis(d, 1 - ax[..., None], axis=-1)[..., 0]
+        with np.errstate(invalid="ignore"):
+            keep &= (L > 0) & ~(np.abs(side) > 1e-9 * L)
+        across = np.take_along_axis(pb[a], 1 - ax[..., None], axis=-1)[..., 0]
+        ua = np.take_along_axis(pb[a], ax[..., None], axis=-1)[..., 0]
+        ub = np.take_along_axis(pb[b], ax[..., None], axis=-1)[..., 0]
+        s0 = ua + 0.5 * (r[..., -3] + 1.0) * (ub - ua)
+        s1 = ua + 0.5 * (r[..., -2] + 1.0) * (ub - ua)
+        end = np.stack([ua, ub, np.broadcast_to([1.0, -1.0], ua.shape), _span_degree(r[..., :6]),
+                        np.minimum(s0, s1), np.maximum(s0, s1)], axis=-1).reshape(-1, 6)
+        e = q[b] - q[a]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nrm = np.stack([-e[..., 1], e[..., 0]], axis=-1) / np.hypot(
+                e[..., 0], e[..., 1])[..., None]
+        normal = np.where(keep[..., None], nrm, np.nan)
         # each corner's two directions: its first edge's normal, the second's made
         # orthogonal to it (its sign kept: the same for every end of a line)
         unit = normal.copy()
-        for k in range(n):
-            n0, n1 = normal[k]
-            if np.all(np.isfinite(n0)) and np.all(np.isfinite(n1)):
-                v = n1 - (n1 @ n0) * n0
-                unit[k, 1] = v / np.hypot(*v)
-        C4 = np.zeros((n, n, 2, 2))
-        for members in lines.values():
-            if len(members) < 2:
-                continue
-            pieces = sorted({tuple(sorted(m[3])) for m in members})
-            R = line_correlation([m[2] for m in members], pieces)
-            k = np.array([m[0] for m in members])
-            U = unit[k, [m[1] for m in members]]
-            R = np.where((k[:, None] != k[None, :]) & np.isfinite(U).all(-1)[:, None]
-                         & np.isfinite(U).all(-1)[None, :], R, 0.0)
-            np.add.at(C4, (k[:, None], k[None, :]), R[..., None, None]
-                      * np.nan_to_num(U)[:, None, :, None] * np.nan_to_num(U)[None, :, None, :])
-        C += C4.transpose(0, 2, 1, 3).reshape(2 * n, 2 * n)
+        n0, n1 = normal[:, 0], normal[:, 1]
+        two = np.isfinite(n0).all(axis=-1) & np.isfinite(n1).all(axis=-1)
+        v = n1[two] - (n1[two] * n0[two]).sum(axis=-1)[:, None] * n0[two]
+        unit[two, 1] = v / np.hypot(v[:, 0], v[:, 1])[:, None]
+        unit = unit.reshape(-1, 2)
+        # the board lines (in order of their first end) with two ends or more
+        idx = np.flatnonzero(keep.ravel())
+        groups = {}
+        for j, key in zip(idx.tolist(), zip(ax.ravel()[idx].tolist(),
+                                            [round(u, 9) for u in across.ravel()[idx].tolist()],
+                                            strict=True), strict=True):
+            groups.setdefault(key, []).append(j)
+        members = [g for g in groups.values() if len(g) >= 2]
+        if members:
+            R = _line_correlations([
+                (end[g], [tuple(p) for p in np.unique(np.sort(end[g, :2], axis=1), axis=0)])
+                for g in members])
+            G = np.full(R.shape[:2], -1)
+            for l, g in enumerate(members):
+                G[l, :len(g)] = g
+            k = np.where(G >= 0, G // 2, -1)
+            U = np.where((G >= 0)[..., None], unit[np.maximum(G, 0)], np.nan)
+            fin = np.isfinite(U).all(axis=-1)
+            pair = (k[..., :, None] != k[..., None, :]) & fin[..., :, None] & fin[..., None, :]
+            li, ri, ci = np.nonzero(pair)
+            C4 = np.zeros((n, n, 2, 2))
+            np.add.at(C4, (k[li, ri], k[li, ci]), R[li, ri, ci, None, None]
+                      * U[li, ri, :, None] * U[li, ci, None, :])
+            C += C4.transpose(0, 2, 1, 3).reshape(2 * n, 2 * n)
         out.append((rows, C))
     return out
 

@@ -1,4 +1,4 @@
-r'''Local executor: workers do not outlive the campaign's process'''
+r'''Local executor: workers do not outlive the campaign, share the cores, keep freed memory'''
 
 import os
 import signal
@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -124,3 +125,53 @@ restored after the block'''
     with blas.one_thread():
         assert blas.threads() == 1
     assert blas.threads() == n
+
+
+def _refaults(mib):
+    r'''Minor page faults of touching a `mib` MiB array again after freeing one, twice'''
+    import resource
+    n = mib * 2**20 // 8
+    out = []
+    for _ in range(2):
+        a = np.ones(n)
+        del a
+        f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+        a = np.ones(n)
+        del a
+        out.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+    return out
+
+
+def test_worker_top_pad_grows_with_the_largest_image():
+    from harness.executors import TOP_PAD_BASE, worker_top_pad
+    assert worker_top_pad(None) is None
+    # two float64 images of the largest camera beyond the fixed part; mallopt's int at most
+    assert worker_top_pad(1024 * 1024) == TOP_PAD_BASE + 16 * 2**20
+    assert worker_top_pad(5120 * 3840) == TOP_PAD_BASE + 16 * 5120 * 3840
+    assert worker_top_pad(10**9) == 2**31 - 1
+
+
+def test_a_malloc_setting_in_the_environment_is_the_users():
+    from harness.executors import keep_freed_memory, malloc_environment
+    pad = 300 * 2**20
+    assert keep_freed_memory(None, environ={}) is None
+    # a Dask nanny's default, a user's variable, glibc's tunables: left as they are
+    assert keep_freed_memory(pad, environ={"MALLOC_TRIM_THRESHOLD_": "65536"}) is None
+    assert keep_freed_memory(pad, environ={"MALLOC_TOP_PAD_": "0"}) is None
+    assert keep_freed_memory(pad, environ={"GLIBC_TUNABLES": "glibc.malloc.top_pad=0"}) is None
+    assert malloc_environment({"GLIBC_TUNABLES": "glibc.rtld.nns=2", "HOME": "/"}) == {}
+
+
+@pytest.mark.skipif(not (sys.platform.startswith("linux") and os.confstr("CS_GNU_LIBC_VERSION")),
+                    reason="glibc's malloc (Linux)")
+def test_local_workers_keep_freed_memory():
+    r'''With a top pad each worker's freed arrays stay mapped: an 8 MiB array (2048 pages)
+is touched again without page faults. glibc alone hands the first one back (mmapped, then
+unmapped) and faults it in again.'''
+    from harness.executors import _local_results, malloc_environment, worker_top_pad
+    if malloc_environment():
+        pytest.skip("a malloc setting in this environment: the workers keep it")
+    kept = [r for _, r in _local_results(_refaults, [8] * 4, 2, worker_top_pad(1024 * 1024))]
+    assert all(f < 20 for r in kept for f in r), kept
+    plain = [r for _, r in _local_results(_refaults, [8] * 4, 2)]
+    assert max(f for r in plain for f in r) > 200, plain
