@@ -838,6 +838,20 @@ the same for every span and image, an SVD each before it was kept)'''
     return P
 
 
+def _end_spans(M, deg):
+    r'''(var (2,m), h (2,m,6)): the variance across the edge (px^2, NaN where not > 0) and the
+functional on a board line's quintic of the corners at tau = -1, 1 of the fits of degree deg
+on the moments M (m, SPAN_MOMENTS) (_span_choice's, for a span it did not judge)'''
+    tc = np.array([-1.0, 1.0])
+    A, B = _normal_matrix(M, deg)
+    vc = np.zeros((2, 1, deg + 3, 1))
+    vc[:, 0, 2:, 0] = tc[:, None] ** np.arange(deg + 1)
+    z = _solve(np.broadcast_to(A, (2,) + A.shape), vc)[..., 0]
+    var = np.einsum("xnk,xk->xn", z, vc[:, 0, :, 0])
+    h = np.einsum("xnk,nkl->xnl", z, B) - (tc[:, None] ** np.arange(6))[:, None]
+    return np.where(var > 0, var, np.nan), h
+
+
 def _union(*ranges):
     r'''(m,2) the smallest range holding each row's ranges (m,2) lo, hi (NaN rows: none)'''
     r = np.stack(ranges)
@@ -944,17 +958,11 @@ corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known)'
     j0 = fa.astype(np.int64)
     cut = 2.0 * NEIGHBOUR_REACH - 1.0
     cuts = np.array([min(cut, -cut), max(cut, -cut)])
-    wt = np.ones(len(pt)) if weights is None else weights
-    mom = edge_moments(pt, ps, wt, off[flat], off[flat + 1], ds, Ls, j0, fa - j0, cuts, table[0],
-                       TABLE_STEP_PX, table[1], table[2]) / max(noise, 1e-12) ** 2
-    m_own = mom.sum(1)
     # each end's board line neighbour, its moments moved into this edge's frame (tau
     # affine in the neighbour's own tau along its chord): all of them, and those of its
     # nearer part (NEIGHBOUR_REACH of it)
     pairs = [(j, row[m]) for j, key in enumerate(keys) for m in nbrs.get(key, ()) if m in row]
     ends = [{} for _ in keys]
-    m_nb = np.zeros((Ne, 2, 2, SPAN_MOMENTS))
-    ext_nb = np.full((Ne, 2, 2, 2), np.nan)     # (edge, end, all / nearer part, lo / hi)
     if pairs:
         pj, pm = np.array(pairs).T
         e = es[pj]
@@ -962,7 +970,56 @@ corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known)'
         pe = np.where(((mid - qs[pj]) * e).sum(-1) < 0, 0, 1)
         for j, end, r in zip(pj.tolist(), pe.tolist(), pm.tolist(), strict=True):
             ends[j][end] = keys[r]
-        L, Lm = Ls[pj], Ls[pm]
+    has = np.array([[end in at for end in (0, 1)] for at in ends])
+    # the reference: samples of the first pass's curves of the edge (slot 0) and its
+    # neighbours at ends 0, 1 (slots 1, 2), in the edge's frame
+    S = len(_SAMPLE_TAU)
+    tau_s = np.zeros((Ne, 3, S))
+    v_s = np.zeros((Ne, 3, S))
+    use = np.zeros((Ne, 3), bool)
+    proj = np.zeros((Ne, 3))
+    Vs = _powers(_SAMPLE_TAU, 3)
+    trip = [(j, c, row[m]) for j, key in enumerate(keys)
+            for c, m in enumerate((key, ends[j].get(0), ends[j].get(1)))
+            if m is not None and m in curved]
+    if trip:
+        tj, tc_, tm = np.array(trip).T
+        e, n, nm = es[tj], ns[tj], ns[tm]
+        P = (qs[tm] - qs[tj])[:, None] \
+            + ((_SAMPLE_TAU + 1.0) * 0.5)[None, :, None] * (Ls[tm, None] * es[tm])[:, None, :] \
+            + (ds[tm] @ Vs.T)[..., None] * nm[:, None, :]
+        tau_s[tj, tc_] = 2.0 * (P * e[:, None]).sum(-1) / Ls[tj, None] - 1.0
+        v_s[tj, tc_] = (P * n[:, None]).sum(-1)
+        use[tj, tc_] = True
+        proj[tj, tc_] = (nm * n).sum(-1)
+    nc = use.sum(1)
+    R = np.zeros((Ne, 6, 3 * S))
+    for cnt, D in REFERENCE_DEGREE.items():
+        sel = np.flatnonzero(nc == cnt)
+        if not len(sel):
+            continue
+        w = np.repeat(use[sel], S, axis=1).astype(np.float64)
+        V = _powers(tau_s[sel].reshape(len(sel), -1), D + 1) * w[..., None]
+        R[sel, :D + 1] = np.linalg.solve(V.transpose(0, 2, 1) @ V, V.transpose(0, 2, 1))
+    ref = np.einsum("nks,ns->nk", R, v_s.reshape(Ne, -1))
+    # an edge without a first-pass curve (its fit alone failed; a weak edge's, seen from its
+    # light side, often does) between two neighbours with one: its moments about the
+    # reference's quadratic over it (interpolated between them) rather than its chord (the
+    # first pass's corners, off the edge by up to the pixels' margin), where its pixels'
+    # slopes, and so its fits' predicted variances, would be misread
+    bridged = np.flatnonzero(~use[:, 0] & use[:, 1] & use[:, 2])
+    if len(bridged):
+        ds = ds.copy()
+        ds[bridged] = np.linalg.solve(Vs, _horner(ref[bridged], np.broadcast_to(
+            _SAMPLE_TAU, (len(bridged), S)))[..., None])[..., 0]
+    wt = np.ones(len(pt)) if weights is None else weights
+    mom = edge_moments(pt, ps, wt, off[flat], off[flat + 1], ds, Ls, j0, fa - j0, cuts, table[0],
+                       TABLE_STEP_PX, table[1], table[2]) / max(noise, 1e-12) ** 2
+    m_own = mom.sum(1)
+    m_nb = np.zeros((Ne, 2, 2, SPAN_MOMENTS))
+    ext_nb = np.full((Ne, 2, 2, 2), np.nan)     # (edge, end, all / nearer part, lo / hi)
+    if pairs:
+        L, Lm, e = Ls[pj], Ls[pm], es[pj]
         c = (es[pm] * e).sum(-1)
         alpha = (2.0 * ((qs[pm] - qs[pj]) * e).sum(-1) + Lm * c) / L - 1.0
         beta = Lm * c / L
@@ -979,42 +1036,11 @@ corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known)'
             ta, tb = alpha + beta * a, alpha + beta * b
             ext_nb[pj, pe, w] = np.stack((np.minimum(ta, tb), np.maximum(ta, tb)), -1)
     m_all = m_own + m_nb[:, 0, 0] + m_nb[:, 1, 0]
-    has = np.array([[end in at for end in (0, 1)] for at in ends])
-    # the reference: samples of the first pass's curves of the edge (slot 0) and its
-    # neighbours at ends 0, 1 (slots 1, 2), in the edge's frame
-    S = len(_SAMPLE_TAU)
-    tau_s = np.zeros((Ne, 3, S))
-    v_s = np.zeros((Ne, 3, S))
-    use = np.zeros((Ne, 3), bool)
-    proj = np.zeros((Ne, 3))
-    Vs = _powers(_SAMPLE_TAU, 3)
     # the first pass's curve of each edge alone: its (d0, d1, d2)'s covariance
     own_G = _solve(_normal_matrix(m_own, 2)[0], np.eye(5)[None, :, 2:])[:, 2:, :]
-    trip = [(j, c, row[m]) for j, key in enumerate(keys)
-            for c, m in enumerate((key, ends[j].get(0), ends[j].get(1)))
-            if m is not None and m in curved]
     Ginv = np.zeros((Ne, 3, 3, 3))
     if trip:
-        tj, tc_, tm = np.array(trip).T
-        e, n, nm = es[tj], ns[tj], ns[tm]
-        P = (qs[tm] - qs[tj])[:, None] \
-            + ((_SAMPLE_TAU + 1.0) * 0.5)[None, :, None] * (Ls[tm, None] * es[tm])[:, None, :] \
-            + (ds[tm] @ Vs.T)[..., None] * nm[:, None, :]
-        tau_s[tj, tc_] = 2.0 * (P * e[:, None]).sum(-1) / Ls[tj, None] - 1.0
-        v_s[tj, tc_] = (P * n[:, None]).sum(-1)
-        use[tj, tc_] = True
-        proj[tj, tc_] = (nm * n).sum(-1)
         Ginv[tj, tc_] = own_G[tm]
-    nc = use.sum(1)
-    R = np.zeros((Ne, 6, 3 * S))
-    for cnt, D in REFERENCE_DEGREE.items():
-        sel = np.flatnonzero(nc == cnt)
-        if not len(sel):
-            continue
-        w = np.repeat(use[sel], S, axis=1).astype(np.float64)
-        V = _powers(tau_s[sel].reshape(len(sel), -1), D + 1) * w[..., None]
-        R[sel, :D + 1] = np.linalg.solve(V.transpose(0, 2, 1) @ V, V.transpose(0, 2, 1))
-    ref = np.einsum("nks,ns->nk", R, v_s.reshape(Ne, -1))
     mapped = None
     if line_reference is not None:
         mapped = np.asarray(line_reference(ik, qs, es, ns, Ls), dtype=np.float64)
@@ -1032,10 +1058,13 @@ corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known)'
     # a span is judged only where the reference covers it: its neighbours' curves in it
     # (a neighbour without one, seen from its light side, would be extrapolated over)
     covered = (use[:, 1:] | ~has).all(1)
-    spans = {"alone": lambda end: (m_own, use[:, 0]),
+    # each span's moments, where it is judged, and where it exists: its variance and
+    # functional need only its pixels (a weak edge's cubic over its board line, placed
+    # whether or not the reference covers it, refine_tag_edges; its corners' prediction)
+    spans = {"alone": lambda end: (m_own, use[:, 0], np.ones(Ne, bool)),
              "corner": lambda end: (m_own + m_nb[:, end, 1],
-                                    use[:, 0] & has[:, end] & use[:, 1 + end]),
-             "line": lambda end: (m_all, use[:, 0] & has.any(1) & covered)}
+                                    use[:, 0] & has[:, end] & use[:, 1 + end], has[:, end]),
+             "line": lambda end: (m_all, use[:, 0] & has.any(1) & covered, has.any(1))}
     combos = [(end, span, deg) for end in (0, 1) for span, deg in CANDIDATES]
     # each span's reach along the edge's chord (tau; the edge itself -1..1): where the board
     # line's shape enters its fit, what edge_span_bias represents the line over
@@ -1052,20 +1081,20 @@ corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known)'
     hs = np.full((len(combos), Ne, 6), np.nan)
     for deg in sorted({c[2] for c in combos}):
         sel = [i for i, c in enumerate(combos) if c[2] == deg]
-        M, ok = (np.stack(x) for x in zip(*[spans[combos[i][1]](combos[i][0]) for i in sel],
-                                           strict=True))
+        M, ok, can = (np.stack(x) for x in zip(*[spans[combos[i][1]](combos[i][0])
+                                                 for i in sel], strict=True))
         tc = np.array([2.0 * combos[i][0] - 1.0 for i in sel])
         A, B = _normal_matrix(M, deg)
         vc = np.zeros((len(sel), 1, deg + 3, 1))
         vc[:, 0, 2:, 0] = tc[:, None] ** np.arange(deg + 1)
         z = _solve(A, vc)[..., 0]
         var = np.einsum("xnk,xk->xn", z, vc[:, 0, :, 0])
-        variance[sel] = np.where(ok & (var > 0), var, np.nan)
+        variance[sel] = np.where(can & (var > 0), var, np.nan)
         # the bias's functional on the reference's coefficients (those above its degree
         # are 0), and its noise through the first pass's curves
         h = np.einsum("xnk,xnkl->xnl", z, B) - (tc[:, None] ** np.arange(6))[:, None]
         bias = (h * ref).sum(-1)
-        hs[sel] = np.where(ok[..., None], h, np.nan)
+        hs[sel] = np.where(can[..., None], h, np.nan)
         um = np.einsum("xnms,nmsd->xnmd",
                        np.einsum("xnk,nks->xns", h, R).reshape(len(sel), Ne, 3, S), dS)
         bvar = (np.einsum("xnmd,nmde->xnme", um, Ginv) * um).sum((-2, -1))
@@ -1123,6 +1152,14 @@ corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known)'
         bb = (mbias[pick[0][j], j], mbias[n + pick[1][j], j])
         if mapped is not None and np.isfinite(bb).all() and keys[j] not in weak:
             biases[keys[j]] = bb
+    # an edge no span was judged for (its first pass's curve not kept: no reference) is
+    # fitted alone, a quadratic (refine_tag_edges' default): its own pixels' variances
+    rest = [j for j in np.flatnonzero(~fine).tolist() if keys[j] not in weak]
+    if rest:
+        var2, h2 = _end_spans(m_own[rest], 2)
+        for x, j in enumerate(rest):
+            funcs[keys[j]] = tuple(np.concatenate((h2[end, x], own_ext[j])) for end in (0, 1))
+            end_var[keys[j]] = (var2[0, x], var2[1, x])
     if mapped is not None:
         # a weak edge is placed by the cubic over its board line (refine_tag_edges)
         c = CANDIDATES.index(("line", 3))
