@@ -194,10 +194,8 @@ px on the quick cameras' realistic renders, where the windows' median over 32 co
 ~1e-3 and cost ~0.04 s per 1024x1024 image).
 
 The fit: Levenberg-Marquardt on (a, b, d0..d3) of every edge at once (compiled:
-targets._tag_edge_kernels), three times (PASSES): the first pass fits each edge alone and
-places the second's pixels, the second fits each edge alone again on them (its curves and
-misfit are what _span_choice reads: their pixels follow fitted curves, not the detector's
-coarse corners); the last weights each pixel by the inverse of its noise variance, a line
+targets._tag_edge_kernels), twice: the first pass fits each edge alone and places the
+second's pixels; the second weights each pixel by the inverse of its noise variance, a line
 in its value fitted to the first pass's residuals (_noise_line: shot noise grows with the
 signal; realistic corners 0.0029 -> 0.0027 px RMS on navcam 15, 0.0050 -> 0.0045 on hazcam
 17 as CAHVORE). A corner is dropped, with the reason, when either of its edges has too
@@ -437,7 +435,7 @@ def _neighbours(grid, N):
 
 
 def refine_tag_edges(image, Q, sigma, kind="gaussian", *, bits=None, grid=None, gap_bits=2.4,
-                     value_range=None, passes=None, max_misfit=MAX_MISFIT,
+                     value_range=None, passes=2, max_misfit=MAX_MISFIT,
                      min_contrast=MIN_CONTRAST, choose_kind=False, start_error_px=None,
                      line_reference=None, place_weak_edges=None, defer_span_bias=False):
     r'''Corners of AprilTags from their four whole border edges; see the module docstring
@@ -452,8 +450,6 @@ ARGUMENTS
   edge is fitted together with the edges on the same board line of the adjacent tags
 - gap_bits: tag bits of light board between a tag and its neighbour (tag_spacing x 8)
 - value_range: the image's max - min (the contrast test's scale; default computed)
-- passes: the fitting passes (None: PASSES); the last chooses each corner's span on the
-  previous one's curves, the ones before it fit each edge alone and place the next's pixels
 - start_error_px: the most the first pass's corners may move from Q (default
   MAX_CORNER_SHIFT_PX; the passes after it keep to MAX_CORNER_SHIFT_PX of the previous
   pass's corners): a detector's coarse corners may err by more
@@ -491,7 +487,6 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
 '''
     img = np.asarray(image)
     H, W = img.shape
-    passes = PASSES if passes is None else int(passes)
     if place_weak_edges is None:
         place_weak_edges = line_reference is None
     Q = np.asarray(Q, dtype=np.float64).reshape(-1, 4, 2)
@@ -570,8 +565,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                                             defer_span_bias and line_reference is None,
                                             np.sqrt(blurs[0][0] ** 2
                                                     + _KIND_VARIANCE[blurs[0][1]]))
-        # each fit: (i, k, L, e, n, cubic, start curve, end, weak, its weights at ends 0
-        # and 1) and its pieces, (its
+        # each fit: (i, k, L, e, n, cubic, start curve, end, weak) and its pieces, (its
         # index, the edge whose pixels, how taken: targets._tag_edge_kernels.PIECE_OWN..,
         # reach px); fit_pixels gathers them all in one pass
         geo, pieces = [], []
@@ -597,21 +591,14 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                     why_edge[i, k] = _EDGE_STATUS[2]
                     continue
                 pieces += [(len(geo), m, PIECE_ALL, 0.0) for m in [(i, k)] + members]
-                geo.append((i, k, L, e, n, True, start[(i, k)], 2, True, (1.0, 1.0)))
+                geo.append((i, k, L, e, n, True, start[(i, k)], 2, True))
                 continue
             ends = ends_of.get((i, k), {})
-            # each end's spans and their weights (one, or a blend near a tie: SPAN_TIE)
-            picks = choice.get((i, k), (_ALONE_QUADRATIC, _ALONE_QUADRATIC))
-            # each fit once, with its weight at either end: one fit where both corners
-            # chose the same (a "corner" span differs per end)
-            fits_of = {}
-            for end in (0, 1):
-                for (span, deg), w in picks[end]:
-                    fits_of.setdefault((span, deg, end if span == "corner" else 2),
-                                       [0.0, 0.0])[end] += w
-            for (span, deg, end), ww in fits_of.items():
-                if end == 2 and not (ww[0] > 0 and ww[1] > 0):
-                    end = 0 if ww[0] > 0 else 1
+            picks = choice.get((i, k), (("alone", 2), ("alone", 2)))
+            # one fit where both corners chose the same (a "corner" span differs per end)
+            tags = [2] if picks[0] == picks[1] and picks[0][0] != "corner" else [0, 1]
+            for end in tags:
+                span, deg = picks[0 if end == 2 else end]
                 if span == "alone":
                     pieces.append((len(geo), (i, k), PIECE_OWN, 0.0))
                 elif span == "line":
@@ -624,7 +611,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                     pieces += [(len(geo), (i, k), PIECE_ALL, 0.0),
                                (len(geo), m, PIECE_BEYOND_END if end == 1
                                 else PIECE_BEFORE_START, reach_px)]
-                geo.append((i, k, L, e, n, deg == 3, start[(i, k)], end, False, tuple(ww)))
+                geo.append((i, k, L, e, n, deg == 3, start[(i, k)], end, False))
         if not geo:
             # every edge seen from its light side only, none placed by its neighbours: each
             # has its reason
@@ -633,9 +620,7 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                                   why_corner if last else None)
         if not geo:
             break
-        # the passes before the last fit their pixels alike (the last weights them by the
-        # noise line): their curves are _span_choice's reference and their misfit its noise
-        E = _Edges(geo, pixels, reach, line if last else None, rng)
+        E = _Edges(geo, pixels, reach, line, rng)
         if len(blurs) > 1:
             (sigma, kind), table, fits, info = _choose_kind(E, blurs)
             blurs = [(sigma, kind)]
@@ -662,13 +647,11 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
         dc = pf[:, 2:] if line_reference is None else \
             _unbent(pf[:, 2:], np.array([g[2] for g in geo]), *blurs[0])
         curves = dict(zip(keys, dc, strict=True))
-        # each edge's curve at its ends 0 and 1 (a fit of both ends, end 2, gives both):
-        # its fits' there, by their weights (one fit of weight 1, or a blend near a tie)
+        # each edge's curve at its ends 0 and 1 (a fit of both ends, end 2, gives both)
         at_end = np.zeros((N, 4, 2, 4))
-        gw = np.array([g[9] for g in geo], dtype=np.float64)
-        for end in (0, 1):
-            at = np.flatnonzero(gw[:, end] > 0)
-            np.add.at(at_end, (gi[at], gk[at], end), gw[at, end, None] * dc[at])
+        both = gend == 2
+        at_end[gi[both], gk[both], 0] = at_end[gi[both], gk[both], 1] = dc[both]
+        at_end[gi[~both], gk[~both], gend[~both]] = dc[~both]
         # each end's curve less its fit's model error there (_span_choice's board map: the
         # bend of the board line that the fit's polynomial cannot follow)
         for (i, k), bb in end_bias.items():
@@ -676,8 +659,8 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
             at_end[i, k, 1, 0] -= bb[1]
         good = np.isfinite(mis) & ok
         # the next pass's measure of the image's noise: the edges' median misfit (RMS over
-        # the contrast; each edge alone, its pixels alike; noise-free a quadratic's model
-        # error), and how it varies with the pixel's value (the first pass's)
+        # the contrast; each edge alone, noise-free a quadratic's model error), and how it
+        # varies with the pixel's value
         noise = float(np.median(mis[good])) if good.any() else 0.0
         if line is None and not last:
             line = _noise_line(E, table, pf, good)
@@ -759,9 +742,6 @@ fitted on the edges, _choose_kind), "psf_sigma_se_px" its standard error,
                            if good.any() else float("nan")})
 
 
-# the fit of an edge no span was chosen for (_span_choice: its first pass's curve not kept), at
-# either end: the edge alone, a quadratic, weight 1
-_ALONE_QUADRATIC = ((("alone", 2), 1.0),)
 # the span/degree candidates of an edge's last fit, per corner (targets.tag_edges._span_choice):
 # the edge alone or with its board line's neighbour beyond that corner (NEIGHBOUR_REACH of
 # it), a cubic; the edge with all its board line's neighbours, a quadratic or a cubic. A
@@ -872,18 +852,6 @@ on the moments M (m, SPAN_MOMENTS) (_span_choice's, for a span it did not judge)
     return np.where(var > 0, var, np.nan), h
 
 
-def _tie_weights(risk):
-    r'''(n, m) each column's weights over its n candidates' risks (n, m) (inf: not a
-candidate): the least risk's 1, another's falling linearly to 0 as its risk exceeds the
-least by SPAN_TIE of it, normalised to sum 1; a column without a candidate 0'''
-    least = risk.min(0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = np.clip(1.0 - (risk / least - 1.0) / SPAN_TIE, 0.0, 1.0)
-    u = np.where(np.isfinite(risk) & np.isfinite(least) & (least > 0), u, 0.0)
-    total = u.sum(0)
-    return u / np.where(total > 0, total, 1.0)
-
-
 def _union(*ranges):
     r'''(m,2) the smallest range holding each row's ranges (m,2) lo, hi (NaN rows: none)'''
     r = np.stack(ranges)
@@ -892,11 +860,9 @@ def _union(*ranges):
 
 def _span_choice(own, start, weak, nbrs, q, curved, table, noise, gap_bits, pixels, grid=None,
                  weights=None, line_reference=None, deferred=False, spread=None):
-    r'''{(i, k): (choice at corner k, choice at corner k+1)}, each a tuple of ((span,
-degree) of CANDIDATES, weight): the fit of each edge (not weak) with the least expected
-squared error of its corner across the edge, bias^2 + variance, weight 1; near a tie (risks
-within SPAN_TIE of the least: _tie_weights) the spans' fits blended by their weights, so that
-the corner moves continuously with the risks
+    r'''{(i, k): (choice at corner k, choice at corner k+1)}, each a (span, degree) of
+CANDIDATES: the fit of each edge (not weak) with the least expected squared error of its
+corner across the edge, bias^2 + variance
 
 Why. A cubic over the edge and both its board line's neighbours (~3.6 edge lengths)
 averages the noise over three edges' pixels, but misses a line bent more than a cubic
@@ -972,10 +938,7 @@ grid: refine_tag_edges' (None: no pooling); weights: the pixels' (_weights; None
 
 Also returned: the end biases taken off (with a line_reference), the chosen spans'
 functionals ({(i, k): (end 0's, end 1's)}, edge_span_bias's) and their variances of the
-corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known); of a blend
-the weighted sums of its spans' biases and functionals (its reach their union), and the
-variance of the weighted sum of its spans' corners (their covariances from the pixels they
-share: the shorter span's, each within the longer)'''
+corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known)'''
     ix, iy, pt, ps, off = pixels
     # every edge's own moments (a weak one's curve may still be a neighbour's reference)
     keys = list(own)
@@ -1116,9 +1079,6 @@ share: the shorter span's, each within the longer)'''
     mbias = np.full((len(combos), Ne), np.nan)
     # each span's functional on a board line's coefficients: its fit's miss at the corner
     hs = np.full((len(combos), Ne, 6), np.nan)
-    # each span's corner as a linear functional of its pixels' information: I^-1 c of
-    # (light level, contrast, d0..d3), zero past its degree (a blend's covariances)
-    zs = np.zeros((len(combos), Ne, 6))
     for deg in sorted({c[2] for c in combos}):
         sel = [i for i, c in enumerate(combos) if c[2] == deg]
         M, ok, can = (np.stack(x) for x in zip(*[spans[combos[i][1]](combos[i][0])
@@ -1128,7 +1088,6 @@ share: the shorter span's, each within the longer)'''
         vc = np.zeros((len(sel), 1, deg + 3, 1))
         vc[:, 0, 2:, 0] = tc[:, None] ** np.arange(deg + 1)
         z = _solve(A, vc)[..., 0]
-        zs[sel, :, :deg + 3] = z
         var = np.einsum("xnk,xk->xn", z, vc[:, 0, :, 0])
         variance[sel] = np.where(can & (var > 0), var, np.nan)
         # the bias's functional on the reference's coefficients (those above its degree
@@ -1170,9 +1129,8 @@ share: the shorter span's, each within the longer)'''
             risk[x] = np.where(miss > LINEAR_MISS * spread, np.inf, risk[x])
     out = {}
     n = len(CANDIDATES)
-    # each end's weights over the candidates (one span, or a blend near a tie)
-    wts = np.stack([_tie_weights(risk[n * end:n * (end + 1)]) for end in (0, 1)])
-    fine = (wts.sum(1) > 0).all(0)
+    pick = [np.argmin(risk[n * end:n * (end + 1)], axis=0) for end in (0, 1)]
+    fine = np.isfinite(risk[:n].min(0)) & np.isfinite(risk[n:].min(0))
     biases = {}
     # the chosen spans' functionals (a weak edge's: the cubic over its board line)
     funcs = {}
@@ -1186,51 +1144,14 @@ share: the shorter span's, each within the longer)'''
     for j in [row[key] for key in weak if key in row]:
         funcs[keys[j]] = (func(c, j), func(n + c, j))
         end_var[keys[j]] = (variance[c, j], variance[n + c, j])
-    # each blend's variance, w' C w over its spans' covariances: z_a' I z_b, I the normal
-    # matrix of the pixels the two share (the shorter span's: alone in corner in line)
-    order = ("alone", "corner", "line")
-    blend_var = np.full((2, Ne), np.nan)
-    for end in (0, 1):
-        js = np.flatnonzero(fine & ((wts[end] > 0).sum(0) > 1))
-        if not len(js):
-            continue
-        Is = {span: _normal_matrix(M[js], 3)[0] for span, M in
-              (("alone", m_own), ("corner", m_own + m_nb[:, end, 1]), ("line", m_all))}
-        v = np.zeros(len(js))
-        for a in range(n):
-            for b in range(n):
-                span = order[min(order.index(CANDIDATES[a][0]), order.index(CANDIDATES[b][0]))]
-                wab = wts[end, a, js] * wts[end, b, js]
-                term = np.einsum("mk,mkl,ml->m", zs[n * end + a, js], Is[span],
-                                 zs[n * end + b, js])
-                v += np.where(wab > 0, wab * term, 0.0)
-        blend_var[end, js] = v
     for j in np.flatnonzero(fine):
-        picks = [np.flatnonzero(wts[end, :, j]) for end in (0, 1)]
-        out[keys[j]] = tuple(tuple((CANDIDATES[x], float(wts[end, x, j])) for x in picks[end])
-                             for end in (0, 1))
-        if keys[j] in weak:
-            continue
-        fj, vj, bj = [], [], []
-        for end in (0, 1):
-            xs = picks[end] + n * end
-            w = wts[end, picks[end], j]
-            if len(xs) == 1:
-                fj.append(func(xs[0], j))
-                vj.append(variance[xs[0], j])
-                bj.append(mbias[xs[0], j])
-                continue
-            # a blend: its functional and bias the weighted sums, its reach the spans'
-            # union, its variance w' C w over the spans' covariances (their shared pixels)
-            ext = exts[xs, j]
-            fj.append(np.concatenate((w @ hs[xs, j], [ext[:, 0].min(), ext[:, 1].max()])))
-            bj.append(w @ mbias[xs, j])
-            v = blend_var[end, j]
-            vj.append(v if np.isfinite(variance[xs, j]).all() and v > 0 else np.nan)
-        funcs[keys[j]] = tuple(fj)
-        end_var[keys[j]] = tuple(vj)
-        if mapped is not None and np.isfinite(bj).all():
-            biases[keys[j]] = tuple(bj)
+        out[keys[j]] = (CANDIDATES[pick[0][j]], CANDIDATES[pick[1][j]])
+        if keys[j] not in weak:
+            funcs[keys[j]] = (func(pick[0][j], j), func(n + pick[1][j], j))
+            end_var[keys[j]] = (variance[pick[0][j], j], variance[n + pick[1][j], j])
+        bb = (mbias[pick[0][j], j], mbias[n + pick[1][j], j])
+        if mapped is not None and np.isfinite(bb).all() and keys[j] not in weak:
+            biases[keys[j]] = bb
     # an edge no span was judged for (its first pass's curve not kept: no reference) is
     # fitted alone, a quadratic (refine_tag_edges' default): its own pixels' variances
     rest = [j for j in np.flatnonzero(~fine).tolist() if keys[j] not in weak]
@@ -1249,34 +1170,9 @@ share: the shorter span's, each within the longer)'''
     return {key: v for key, v in out.items() if key not in weak}, biases, funcs, end_var
 
 
-# spans whose risks (_span_choice's expected squared corner error) lie within this fraction of
-# the least are blended (_tie_weights: weights falling linearly from the least's 1 to 0 there),
-# so that the corner moves continuously with the risks, where an argmin's flip between two
-# spans moved a noise-free corner by up to 0.006 px (h-dettime3). The blend's expected squared
-# error is at most its spans' weighted mean (the square is convex), so at most 1 + SPAN_TIE of
-# the least risk's: a bound on what a blend may cost, not a fit to any camera. It is the
-# risks' continuity (PASSES) that makes the blend continuous: on the first pass's curves,
-# whose risks moved by up to 24% with the detector's corners, blends moved more corners
-# (noise-free, 1e-6 white noise: p99 of the moves 4e-6 -> 5e-5 px, 0.2: 4e-5) and left the
-# flips of more than SPAN_TIE. Noise-free blurred renders of MER navcam 15 and hazcam 8 (6
-# poses each, 3 draws of 1e-6 white noise): corner moves > 5e-4 px 11 of 5166 (max 0.0015) ->
-# 0 (max 5e-5 px); docs/corners.md, "Span-choice ties"
-SPAN_TIE = 0.05
 # the fraction of a reference's bias taken as the risk left once it is taken off
 # (_span_choice with a line_reference: the reference's own error)
 REFERENCE_BIAS_LEFT = 0.25
-# refine_tag_edges' passes: each edge alone from the detector's corners (its pixels placed
-# about their chords), each edge alone again (its pixels placed about the first pass's curves),
-# the last (each corner's span chosen on the second pass's curves and misfit: _span_choice,
-# SPAN_TIE; its pixels weighted by the noise line). With two, the choice read the first pass's
-# curves and misfit, whose pixels follow the detector's coarse corners: white noise of 1e-6 of
-# the range moved pupil_apriltags' corners on the 8-bit image by up to 0.19 px (MER hazcam 8),
-# the first pass's curves by up to 4.5e-4 px (their pixels' noise-free model error) and the
-# spans' risks by up to 24%. The second pass fits its pixels alike, as the first did (the
-# noise line weights the last only): its misfit is the noise the risks were made with. Cost
-# ~6 ms CPU per 1024x1024 image (MER hazcam 17 as CAHVORE, realistic: 0.045 -> 0.051 s in
-# refine_tag_edges); docs/corners.md, "Span-choice ties"
-PASSES = 3
 # the most a span's polynomial may miss its board line over the span's reach (the first
 # pass's reference), in the blurred edge's spread s = sqrt(V) (_span_choice): the edge's
 # profile Phi(x / s) is linear in a shift x to 1% where (x / s)^2 / 6 <= 0.01. On a barrel
@@ -1810,7 +1706,7 @@ misfit inf (EDGE_CONTRAST_OFF)'''
 
 def _fit_pixels(img, geo, pieces, q, pixels, why_edge, why_corner):
     r'''(geo, (off, v, tau, s)): the pixels of the fits geo (refine_tag_edges' (i, k, L, e,
-n, cubic, start, end, weak, weights)) gathered from their pieces (fit index, edge (i, k), how taken,
+n, cubic, start, end, weak)) gathered from their pieces (fit index, edge (i, k), how taken,
 reach px; targets._tag_edge_kernels.fit_pixels) out of tag_edge_pixels' pixels (ix, iy, t,
 s, off), fit j's [off[j], off[j+1]), v their values in img; a weak edge's fit is dropped
 (its reason in why_edge) where its pixels do not see the dark side beyond both its ends
@@ -1834,7 +1730,7 @@ pass before the last, whose corners only place the next pass's pixels)'''
     # beyond each end and in each half of the chord as fit_pixels gathers them
     fo, fv, ftau, fs, dark = out
     keep = np.ones(len(geo), bool)
-    for j, (i, k, _, _, _, _, _, end, weak, _) in enumerate(geo):
+    for j, (i, k, _, _, _, _, _, end, weak) in enumerate(geo):
         if weak:
             if not _sees_dark(dark[j]):
                 why_edge[i, k] = _EDGE_STATUS[2]
@@ -1854,7 +1750,7 @@ pass before the last, whose corners only place the next pass's pixels)'''
 
 class _Edges:
     r'''The pixels of the fits geo (refine_tag_edges': (i, k, L, e, n, cubic, start, end,
-weak, weights)), gathered by _fit_pixels (off, v, tau, s), in the arrays of
+weak)), gathered by _fit_pixels (off, v, tau, s), in the arrays of
 targets._tag_edge_kernels.fit_edges (off, v, tau, s, cubic, j0, fy; d each edge's current
 curve, cubic term 0), with n (m,) each edge's pixel count, tag (m,) its tag and deep (m,):
 the edges whose band reaches the dark plateau (MIN_PLATEAU_PIXELS at least reach px inside
