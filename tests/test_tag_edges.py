@@ -924,93 +924,6 @@ within 10% of that with the curve (measured: within 0.2%)'''
     assert np.array_equal(out.q[middle], ref.q[middle])
     ratio = sigma[middle] / ref.info["corner_sigma_px"][middle]
     assert np.all(np.abs(ratio - 1.0) < 0.1), ratio
-<<<<<<< HEAD
-=======
-
-
-def test_spans_near_a_tie_are_blended_by_continuous_weights():
-    r'''_tie_weights: the least risk's span alone where the others' exceed it by more than
-SPAN_TIE of it; near a tie a blend whose weights move continuously with the risks (the corner
-with them: an argmin's flip moved a noise-free corner by up to 0.006 px, h-dettime3)'''
-    import targets.tag_edges as te
-    t = te.SPAN_TIE
-    # each row a corner's four candidates (inf: not one); _tie_weights takes them as columns
-    r = np.array([[1.0, 1.0 + 2 * t, 5.0, np.inf],
-                  [1.0, 1.0, np.inf, 3.0],
-                  [2.0, 1.0 + 0.5 * t, 1.0, np.inf],
-                  [np.inf, np.inf, np.inf, np.inf]])
-    w = te._tie_weights(r.T).T
-    assert w[0] == pytest.approx([1.0, 0.0, 0.0, 0.0], abs=1e-15)
-    assert w[1] == pytest.approx([0.5, 0.5, 0.0, 0.0], abs=1e-15)
-    assert w[2] == pytest.approx([0.0, 1.0 / 3.0, 2.0 / 3.0, 0.0], abs=1e-12)
-    assert np.all(w[3] == 0.0)
-    # across a tie the weights move by the risks' relative change over SPAN_TIE, no jump
-    eps = 1e-9
-    a = te._tie_weights(np.array([[1.0], [1.0 + 0.5 * t]]))
-    b = te._tie_weights(np.array([[1.0], [1.0 + 0.5 * t + eps]]))
-    assert 0.0 < np.abs(a - b).max() < 10 * eps / t
-    c = te._tie_weights(np.array([[1.0 + eps], [1.0]]))
-    d = te._tie_weights(np.array([[1.0], [1.0 + eps]]))
-    assert np.abs(c - d).max() < 10 * eps / t
-
-
-def _blend_draws(monkeypatch, tie, n_draws=16, noise=0.024):
-    r'''The constructed barrel's 3 x 3 grid (k1 -3.5e-6, bits of 6 px, blurred as the
-realistic profile), n_draws of white noise: corners (n_draws, 36, 2) and their predicted
-errors (n_draws, 36), spans blended where their risks lie within `tie` of the least'''
-    import targets.tag_edges as te
-    monkeypatch.setattr(te, "SPAN_TIE", tie)
-    img, Q, grid, _ = _barrel_tag_grid(6.0, -3.5e-6)
-    im = ResponseChain.from_config(BLUR).apply(img).image.astype(np.float64)
-    bits = np.array([tag36h11_bits(t) for t in range(len(Q))])
-    rng = np.random.default_rng(1)
-    qs, ss = [], []
-    for _ in range(n_draws):
-        f = refine_tag_edges(im + noise * rng.standard_normal(im.shape), Q + 0.3, 0.7,
-                             "sampled", bits=bits, grid=grid, value_range=1.0)
-        qs.append(f.q)
-        ss.append(f.info["corner_sigma_px"])
-    return np.array(qs), np.array(ss)
-
-
-def test_a_blend_of_spans_predicts_its_scatter(monkeypatch):
-    r'''A blended corner's predicted error is that of the weighted sum of its spans' fits,
-which share pixels (the shorter span's): every span of every corner blended (SPAN_TIE huge:
-the weights near equal), 16 noise draws (3% of the contrast): the board's scatter against the
-predicted within 15% (measured 0.94; 36 corners x 16 draws, ~4% standard error), and the
-blend's predicted error above the chosen span's alone (measured 0.031 and 0.021 px median:
-the shorter spans' noise)'''
-    q, s = _blend_draws(monkeypatch, 1e9)
-    ok = np.isfinite(q).all(-1).all(0)
-    assert ok.sum() == 36 and np.isfinite(s[:, ok]).all()
-    n = len(q)
-    sd = np.sqrt(np.mean(np.sum((q - q.mean(0)) ** 2, -1), 0) * n / (n - 1))
-    pred = np.sqrt(np.mean(s ** 2, 0))
-    ratio = np.sqrt(np.mean(sd ** 2) / np.mean(pred ** 2))
-    assert 0.85 < ratio < 1.15, ratio
-    _, s1 = _blend_draws(monkeypatch, 1e-9, n_draws=2)
-    assert np.median(s) > 1.2 * np.median(s1)
-
-
-def test_corners_move_continuously_with_their_start():
-    r'''A tiny change of the image moves pupil_apriltags' corners (up to 0.19 px on MER hazcam
-8 for white noise of 1e-6 of the range); the span choice reads curves whose pixels were
-placed about the pass before's fits (PASSES: three), not the start's chords, and blends near
-a tie: noise-free, the constructed barrel's corners started 0.05 px apart move by at most
-3e-5 px (measured; 2e-4 - 9e-4 px with the blend on the first pass's curves)'''
-    img, Q, grid, _ = _barrel_tag_grid(6.0, -3.5e-6)
-    im = ResponseChain.from_config(BLUR).apply(img).image.astype(np.float64)
-    bits = np.array([tag36h11_bits(t) for t in range(len(Q))])
-    rng = np.random.default_rng(0)
-
-    def fit(dq):
-        return refine_tag_edges(im, Q + 0.3 + dq, 0.7, "sampled", bits=bits, grid=grid,
-                                value_range=1.0).q
-    q0 = fit(0.0)
-    assert np.isfinite(q0).all()
-    for _ in range(4):
-        q1 = fit(0.05 * rng.standard_normal(Q.shape))
-        assert np.abs(q1 - q0).max() < 1e-4
 
 
 @pytest.mark.parametrize("curved", [True, False])
@@ -1049,4 +962,3 @@ error)'''
     scatter = ((qs - qs.mean(0)) ** 2).sum(-1).sum(0) / (len(qs) - 1)
     ratio = np.sqrt(scatter.mean() / (sig ** 2).mean())
     assert 0.85 < ratio < 1.2, ratio
->>>>>>> e75d532 (tests: a weak edge's corners scatter as predicted (realistic response, 24 draws, 3x3 grid, middle tag seen from its light side: RMS scatter/prediction 1.025 with its first-pass curves, 1.022 without); a guard, passes on main: the weak-edge under-prediction reported by h-edges is not reproduced once corners are mapped to board tags)
