@@ -838,18 +838,17 @@ the same for every span and image, an SVD each before it was kept)'''
     return P
 
 
-def _end_spans(M, deg):
-    r'''(var (2,m), h (2,m,6)): the variance across the edge (px^2, NaN where not > 0) and the
-functional on a board line's quintic of the corners at tau = -1, 1 of the fits of degree deg
-on the moments M (m, SPAN_MOMENTS) (_span_choice's, for a span it did not judge)'''
-    tc = np.array([-1.0, 1.0])
+def _corner_fits(M, deg, tc):
+    r'''(var (x,m), h (x,m,6)) of the fits of degree deg on the moments M (x, m,
+SPAN_MOMENTS), each row x's at its corner tau = tc[x]: the variance across the edge (px^2)
+and the functional on a board line's quintic (the fit's miss at the corner)'''
     A, B = _normal_matrix(M, deg)
-    vc = np.zeros((2, 1, deg + 3, 1))
+    vc = np.zeros((len(tc), 1, deg + 3, 1))
     vc[:, 0, 2:, 0] = tc[:, None] ** np.arange(deg + 1)
-    z = _solve(np.broadcast_to(A, (2,) + A.shape), vc)[..., 0]
+    z = _solve(A, vc)[..., 0]
     var = np.einsum("xnk,xk->xn", z, vc[:, 0, :, 0])
-    h = np.einsum("xnk,nkl->xnl", z, B) - (tc[:, None] ** np.arange(6))[:, None]
-    return np.where(var > 0, var, np.nan), h
+    h = np.einsum("xnk,xnkl->xnl", z, B) - (tc[:, None] ** np.arange(6))[:, None]
+    return var, h
 
 
 def _union(*ranges):
@@ -1084,15 +1083,10 @@ corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known)'
         M, ok, can = (np.stack(x) for x in zip(*[spans[combos[i][1]](combos[i][0])
                                                  for i in sel], strict=True))
         tc = np.array([2.0 * combos[i][0] - 1.0 for i in sel])
-        A, B = _normal_matrix(M, deg)
-        vc = np.zeros((len(sel), 1, deg + 3, 1))
-        vc[:, 0, 2:, 0] = tc[:, None] ** np.arange(deg + 1)
-        z = _solve(A, vc)[..., 0]
-        var = np.einsum("xnk,xk->xn", z, vc[:, 0, :, 0])
+        var, h = _corner_fits(M, deg, tc)
         variance[sel] = np.where(can & (var > 0), var, np.nan)
-        # the bias's functional on the reference's coefficients (those above its degree
+        # the bias's functional h on the reference's coefficients (those above its degree
         # are 0), and its noise through the first pass's curves
-        h = np.einsum("xnk,xnkl->xnl", z, B) - (tc[:, None] ** np.arange(6))[:, None]
         bias = (h * ref).sum(-1)
         hs[sel] = np.where(can[..., None], h, np.nan)
         um = np.einsum("xnms,nmsd->xnmd",
@@ -1156,7 +1150,9 @@ corner across the edge ({(i, k): (end 0's, end 1's)} px^2, NaN where not known)'
     # fitted alone, a quadratic (refine_tag_edges' default): its own pixels' variances
     rest = [j for j in np.flatnonzero(~fine).tolist() if keys[j] not in weak]
     if rest:
-        var2, h2 = _end_spans(m_own[rest], 2)
+        var2, h2 = _corner_fits(np.broadcast_to(m_own[rest], (2,) + m_own[rest].shape), 2,
+                                np.array([-1.0, 1.0]))
+        var2 = np.where(var2 > 0, var2, np.nan)
         for x, j in enumerate(rest):
             funcs[keys[j]] = tuple(np.concatenate((h2[end, x], own_ext[j])) for end in (0, 1))
             end_var[keys[j]] = (var2[0, x], var2[1, x])
