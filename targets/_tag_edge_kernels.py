@@ -608,6 +608,42 @@ meets them at an angle off 90 deg.'''
 _TAG_CORNERS = np.array([[0.0, 8.0], [8.0, 8.0], [8.0, 0.0], [0.0, 0.0]])
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _deep_bit(Qt, k, n):
+    # a bit's depth across edge k of the tag Qt (4,2) (n: its unit normal, either sign; the
+    # data row's place, the gap's width): the adjacent edges' extent along n, not their
+    # length: a sheared tag (a fisheye's rim, corner angles of 45-135 deg on MER hazcam 8)
+    # has bits 1/sin(angle) longer than deep, and pixels placed by their length saw the
+    # data row (8 CAHVORE, blur only: the rim corners 0.0029 px RMS, outward, against 0.0005)
+    P0, P1 = Qt[k], Qt[(k + 1) % 4]
+    Pm, Pp = Qt[(k - 1) % 4], Qt[(k + 2) % 4]
+    return min(abs((Pm[0] - P0[0]) * n[0] + (Pm[1] - P0[1]) * n[1]),
+               abs((Pp[0] - P1[0]) * n[0] + (Pp[1] - P1[1]) * n[1])) / 8.0
+
+
+@njit(cache=True, error_model="numpy")
+def tag_bit_depths(Q):
+    r'''(N,) each tag's smallest bit depth (px) over its four edges (_deep_bit, the depth its
+edges' pixel bands are placed by: targets.poses plans for it); NaN where a corner is not
+finite or an edge has no length. Q (N,4,2) the tags' corners'''
+    N = Q.shape[0]
+    out = np.full(N, np.nan)
+    for i in range(N):
+        if not np.all(np.isfinite(Q[i])):
+            continue
+        m = np.inf
+        for k in range(4):
+            ex = Q[i, (k + 1) % 4, 0] - Q[i, k, 0]
+            ey = Q[i, (k + 1) % 4, 1] - Q[i, k, 1]
+            L = np.hypot(ex, ey)
+            if not L > 0:
+                m = np.nan
+                break
+            m = min(m, _deep_bit(Q[i], k, np.array([-ey / L, ex / L])))
+        out[i] = m
+    return out
+
+
 @njit(cache=True, error_model="numpy")
 def _edge_geometry(Qt, k, reach, gap_bits, safety, plateau_px):
     # edge k's frame and band limits (targets.tag_edges._edge_pixels); ok False: too short
@@ -622,15 +658,7 @@ def _edge_geometry(Qt, k, reach, gap_bits, safety, plateau_px):
     cy = (Qt[0, 1] + Qt[1, 1] + Qt[2, 1] + Qt[3, 1]) / 4.0
     if n[0] * (cx - P0[0]) + n[1] * (cy - P0[1]) < 0:
         n = -n
-    Pm = Qt[(k - 1) % 4]
-    Pp = Qt[(k + 2) % 4]
-    # a bit's depth across the edge (the data row's place, the gap's width): the adjacent
-    # edges' extent along n, not their length: a sheared tag (a fisheye's rim, corner
-    # angles of 45-135 deg on MER hazcam 8) has bits 1/sin(angle) longer than deep, and
-    # pixels placed by their length saw the data row (8 CAHVORE, blur only: the rim corners
-    # 0.0029 px RMS, outward, against 0.0005)
-    deep_bit = min(abs((Pm[0] - P0[0]) * n[0] + (Pm[1] - P0[1]) * n[1]),
-                   abs((Pp[0] - P1[0]) * n[0] + (Pp[1] - P1[1]) * n[1])) / 8.0
+    deep_bit = _deep_bit(Qt, k, n)
     clear = reach + safety
     out_px = min(gap_bits * deep_bit - clear, clear + plateau_px)
     t_lo = clear

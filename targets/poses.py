@@ -466,8 +466,9 @@ The sharp corner window (targets.corners: TAG_MIN_WINDOW_PIXELS in an L-shaped w
 
 def tag_bit_depths(model, tag_quads, Rt, cam=None):
     r'''(N,) each tag's smallest bit depth (px) at pose Rt: over its four edges, the
-adjacent edges' extent across the edge / 8 (targets._tag_edge_kernels._edge_geometry's
-deep_bit: a sheared tag's bits are less deep than long); NaN where a corner does not project
+adjacent edges' extent across the edge / 8 (targets._tag_edge_kernels.tag_bit_depths, the
+depth the detector's edge bands are placed by: a sheared tag's bits are less deep than
+long); NaN where a corner does not project
 
 tag_quads (N,4,3): the tags' outer corners on the board; cam: the packed model (_packed)
 or None (model.project).
@@ -480,18 +481,8 @@ or None (model.project).
         kernels.project_points(cam, np.ascontiguousarray(p), q)
     else:
         q = model.project(p)
-    Q = q.reshape(-1, 4, 2)
-    deep = np.full((len(Q), 4), np.inf)
-    for k in range(4):
-        P0, P1 = Q[:, k], Q[:, (k + 1) % 4]
-        Pm, Pp = Q[:, (k - 1) % 4], Q[:, (k + 2) % 4]
-        e = P1 - P0
-        n = np.stack((-e[:, 1], e[:, 0]), axis=-1) / np.linalg.norm(e, axis=-1)[:, None]
-        deep[:, k] = np.minimum(np.abs(((Pm - P0) * n).sum(-1)),
-                                np.abs(((Pp - P1) * n).sum(-1))) / 8.0
-    out = deep.min(axis=1)
-    out[~np.all(np.isfinite(Q.reshape(-1, 8)), axis=1)] = np.nan
-    return out
+    from targets._tag_edge_kernels import tag_bit_depths as depths
+    return depths(np.ascontiguousarray(q.reshape(-1, 4, 2)))
 
 
 def tag_subgrid_extents(target):
